@@ -1,0 +1,46 @@
+# vellum: `make run` and `make test` are the two entry points. Each first installs whatever is
+# missing on a Debian 12 machine (apt packages for Vulkan, lavapipe, validation and shaderc; scipy
+# for the CPU peer), then builds.
+
+SHELL := /bin/bash
+APT_PACKAGES := mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan-validationlayers \
+	libshaderc-dev glslc
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+INPUT ?= phantom:shepp-logan:128
+OUT ?= out
+VELLUM := ./target/release/vellum
+
+.PHONY: deps build run test bench fmt
+
+deps:
+	@command -v cargo >/dev/null || { echo "cargo is missing: install Rust 1.85+ (https://rustup.rs)"; exit 1; }
+	@missing=$$(for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+		echo "installing: $$missing"; \
+		$(SUDO) apt-get update -qq && \
+		$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
+	@python3 -c "import scipy, numpy" 2>/dev/null || python3 -m pip install --quiet scipy numpy
+
+build: deps
+	cargo build --release --locked
+
+# The main job on the built-in phantom (or INPUT=path): figures, a GPU round trip, the importance
+# map as NRRD and thermal slices.
+run: build
+	$(VELLUM) devices
+	$(VELLUM) info $(INPUT)
+	$(VELLUM) roundtrip $(INPUT)
+	@mkdir -p $(OUT)
+	$(VELLUM) importance $(INPUT) --radius 5 --out $(OUT)/importance_dd.nrrd --slices $(OUT)/importance_dd.png
+	@echo "wrote $(OUT)/importance_dd.nrrd and $(OUT)/importance_dd.png"
+
+# Every test, with the Khronos validation layer on (debug build).
+test: deps
+	cargo test --locked
+
+bench: build
+	$(VELLUM) bench table1
+
+fmt:
+	cargo fmt --all

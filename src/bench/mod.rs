@@ -1,0 +1,25 @@
+//! Benchmarks behind `vellum bench`. Figures are GPU timestamps per pass, set beside a plain copy
+//! of the same bytes and a CPU peer measured in the same run; no test depends on them.
+
+pub mod table1;
+
+/// Median of `xs` (0 for an empty slice).
+pub fn median(xs: &[f64]) -> f64 {
+    let mut v: Vec<f64> = xs.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Where ../shared/data is, if present beside the checkout.
+pub fn shared_data() -> Option<std::path::PathBuf> {
+    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    p.is_dir().then_some(p)
+}

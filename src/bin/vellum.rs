@@ -1,0 +1,409 @@
+//! The `vellum` command line. It parses arguments, calls the library and writes results; the work
+//! itself lives in the library.
+
+use anyhow::{Context as _, Result};
+use clap::{Args, Parser, Subcommand};
+use serde_json::json;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use vellum::gpu::{Context, ContextDesc};
+use vellum::volume::io::RawSpec;
+use vellum::volume::{Volume, VoxelType};
+
+#[derive(Parser)]
+#[command(
+    name = "vellum",
+    version,
+    about = "Illustrative volume rendering on Vulkan"
+)]
+struct Cli {
+    /// Vulkan device: index or part of its name (also VELLUM_DEVICE).
+    #[arg(long, global = true)]
+    device: Option<String>,
+    /// Log more (-v info, -vv debug).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// An input volume: a path, a DICOM folder or a phantom spec, with raw-file options.
+#[derive(Args, Clone)]
+struct InputArgs {
+    /// File, DICOM folder, or phantom spec (phantom:shepp-logan:N, phantom:nested:N).
+    input: String,
+    /// Raw input: dims as X,Y,Z.
+    #[arg(long, value_name = "X,Y,Z")]
+    raw_dims: Option<String>,
+    /// Raw input: voxel type.
+    #[arg(long, value_name = "u8|u16|i16|f32")]
+    raw_type: Option<String>,
+    /// Raw input: multi-byte voxels are big-endian.
+    #[arg(long)]
+    big_endian: bool,
+    /// Raw input: bytes to skip before the voxels.
+    #[arg(long, value_name = "BYTES", default_value_t = 0)]
+    offset: u64,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// List Vulkan devices and mark the one vellum would use.
+    Devices {
+        #[arg(long)]
+        json: bool,
+    },
+    /// Dims, voxel type, spacing, range, mean and a 16-bin histogram of a volume.
+    Info {
+        #[command(flatten)]
+        input: InputArgs,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Convert a volume to NRRD (gzip).
+    Convert {
+        #[command(flatten)]
+        input: InputArgs,
+        /// Output .nrrd path.
+        output: PathBuf,
+    },
+    /// Upload a volume to a 3D image on the GPU, read it back and check it is bit-exact.
+    Roundtrip {
+        #[command(flatten)]
+        input: InputArgs,
+        #[arg(long)]
+        json: bool,
+    },
+    /// The spatial importance map ΔD = G∗V − V (paper eq. 1).
+    Importance {
+        #[command(flatten)]
+        input: InputArgs,
+        /// Gaussian radius R in voxels (σ = R/3).
+        #[arg(long, default_value_t = 5)]
+        radius: u32,
+        /// Write ΔD as a float NRRD.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Write the three middle slices as a thermal PNG.
+        #[arg(long)]
+        slices: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        which: BenchCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// The importance paper's Table 1: per-pass and total times for three volume sizes and R ∈ {1,5,10}.
+    Table1 {
+        #[arg(long)]
+        json: bool,
+        /// Runs per case; each figure is the median.
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+        /// Skip the scipy.ndimage peer.
+        #[arg(long)]
+        no_scipy: bool,
+        /// Only these cases (e.g. "ct-body:1,salmon:10"); default all nine.
+        #[arg(long)]
+        cases: Option<String>,
+    },
+}
+
+impl InputArgs {
+    fn raw_spec(&self) -> Result<Option<RawSpec>> {
+        match (&self.raw_dims, &self.raw_type) {
+            (None, None) => Ok(None),
+            (Some(d), Some(t)) => {
+                let dims: Vec<usize> = d
+                    .split(',')
+                    .map(|s| s.trim().parse::<usize>())
+                    .collect::<Result<_, _>>()
+                    .ok()
+                    .filter(|v: &Vec<usize>| v.len() == 3)
+                    .ok_or_else(|| {
+                        anyhow::anyhow!(
+                            "--raw-dims '{d}' is not three whole numbers like 256,256,128"
+                        )
+                    })?;
+                Ok(Some(RawSpec {
+                    dims: [dims[0], dims[1], dims[2]],
+                    voxel_type: VoxelType::parse(t)?,
+                    big_endian: self.big_endian,
+                    offset: self.offset,
+                    spacing: [1.0; 3],
+                }))
+            }
+            _ => {
+                anyhow::bail!("raw input needs both --raw-dims X,Y,Z and --raw-type u8|u16|i16|f32")
+            }
+        }
+    }
+
+    fn load(&self) -> Result<Volume> {
+        let raw = self.raw_spec()?;
+        Ok(vellum::input::load(&self.input, raw.as_ref())?)
+    }
+}
+
+fn context(cli: &Cli) -> Result<Arc<Context>> {
+    Ok(Context::new(&ContextDesc {
+        validation: None,
+        device: cli.device.clone(),
+    })?)
+}
+
+/// Says on stderr if the validation layer complained (the messages themselves are at -vv).
+fn report_validation(ctx: &Context) {
+    let m = ctx.messages();
+    if !m.is_clean() {
+        eprintln!(
+            "warning: the Vulkan validation layer reported {} error(s) and {} warning(s); run with -vv to see them",
+            m.errors, m.warnings
+        );
+    }
+}
+
+#[cfg(unix)]
+unsafe extern "C" {
+    fn signal(signum: i32, handler: usize) -> usize;
+}
+
+fn main() -> ExitCode {
+    // Rust ignores SIGPIPE, which turns `vellum info x | head` into a panic in println!. Restore
+    // the default so the CLI ends quietly like other Unix tools (13 = SIGPIPE, 0 = SIG_DFL).
+    #[cfg(unix)]
+    // SAFETY: setting a signal disposition to its default before any threads start.
+    unsafe {
+        signal(13, 0);
+    }
+    let cli = Cli::parse();
+    let level = match cli.verbose {
+        0 => "warn",
+        1 => "info",
+        _ => "debug",
+    };
+    env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(level))
+        .format_timestamp(None)
+        .init();
+    match run(&cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: &Cli) -> Result<()> {
+    match &cli.command {
+        Command::Devices { json } => devices(cli, *json),
+        Command::Info { input, json } => info(input, *json),
+        Command::Convert { input, output } => {
+            let v = input.load()?;
+            vellum::volume::io::nrrd::write_nrrd(output, &v)?;
+            println!(
+                "wrote {} ({}x{}x{} {})",
+                output.display(),
+                v.dims[0],
+                v.dims[1],
+                v.dims[2],
+                v.voxel_type().name()
+            );
+            Ok(())
+        }
+        Command::Roundtrip { input, json } => roundtrip(cli, input, *json),
+        Command::Importance {
+            input,
+            radius,
+            out,
+            slices,
+            json,
+        } => importance(
+            cli,
+            input,
+            *radius,
+            out.as_deref(),
+            slices.as_deref(),
+            *json,
+        ),
+        Command::Bench {
+            which:
+                BenchCommand::Table1 {
+                    json,
+                    repeat,
+                    no_scipy,
+                    cases,
+                },
+        } => {
+            let ctx = context(cli)?;
+            let opts = vellum::bench::table1::Options {
+                repeat: (*repeat).max(1),
+                scipy: !no_scipy,
+                cases: cases.clone(),
+            };
+            let table = vellum::bench::table1::run(&ctx, &opts)?;
+            report_validation(&ctx);
+            if *json {
+                println!("{}", serde_json::to_string_pretty(&table)?);
+            } else {
+                print!("{}", table.to_text());
+            }
+            Ok(())
+        }
+    }
+}
+
+fn devices(cli: &Cli, json: bool) -> Result<()> {
+    let (candidates, chosen) = vellum::gpu::context::probe_devices(&ContextDesc {
+        validation: Some(false),
+        device: cli.device.clone(),
+    })?;
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({ "devices": candidates, "chosen": chosen }))?
+        );
+        return Ok(());
+    }
+    for c in &candidates {
+        let mark = if Some(c.index) == chosen { "*" } else { " " };
+        println!(
+            "{mark} [{}] {} ({}, Vulkan {}, driver {})",
+            c.index, c.name, c.device_type, c.api_version, c.driver
+        );
+        if let Some(r) = &c.rejected {
+            println!("      rejected: {r}");
+        }
+    }
+    if chosen.is_none() {
+        anyhow::bail!("no listed device can be used (see the reasons above)");
+    }
+    Ok(())
+}
+
+fn info(input: &InputArgs, json: bool) -> Result<()> {
+    let v = input.load()?;
+    let s = vellum::volume::stats::stats(&v, 16);
+    if json {
+        let out = json!({
+            "input": input.input, "dims": v.dims, "voxel_type": v.voxel_type(), "spacing": v.spacing,
+            "min": s.min, "max": s.max, "mean": s.mean, "histogram": s.histogram, "sha256": v.sha256_hex(),
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!("input:   {}", input.input);
+    println!(
+        "dims:    {} x {} x {} ({} voxels)",
+        v.dims[0],
+        v.dims[1],
+        v.dims[2],
+        v.len()
+    );
+    println!("type:    {}", v.voxel_type().name());
+    println!(
+        "spacing: {} x {} x {}",
+        v.spacing[0], v.spacing[1], v.spacing[2]
+    );
+    println!("range:   {} .. {}", s.min, s.max);
+    println!("mean:    {:.4}", s.mean);
+    println!("sha256:  {}", v.sha256_hex());
+    println!("histogram (16 bins over the range):");
+    let peak = s.histogram.iter().copied().max().unwrap_or(1).max(1);
+    let width = (s.max - s.min) / 16.0;
+    for (i, &c) in s.histogram.iter().enumerate() {
+        let bar = "#".repeat(((c as f64 / peak as f64) * 40.0).ceil() as usize);
+        println!("  {:>12.3} {:>10}  {bar}", s.min + i as f64 * width, c);
+    }
+    Ok(())
+}
+
+fn roundtrip(cli: &Cli, input: &InputArgs, json: bool) -> Result<()> {
+    let v = input.load()?;
+    let ctx = context(cli)?;
+    let r = vellum::passes::volume_image::round_trip(&ctx, &v)?;
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({ "device": ctx.info.name, "round_trip": r }))?
+        );
+    } else {
+        let ms = |n: &str| vellum::gpu::profiler::total_ms(&r.passes, n);
+        println!(
+            "GPU round trip on {}: {} bytes, upload {:.2} ms, readback {:.2} ms, {}",
+            ctx.info.name,
+            r.bytes,
+            ms("upload"),
+            ms("readback"),
+            if r.bit_exact { "bit-exact" } else { "MISMATCH" }
+        );
+    }
+    report_validation(&ctx);
+    anyhow::ensure!(
+        r.bit_exact,
+        "the volume read back from the GPU differs from what was uploaded"
+    );
+    Ok(())
+}
+
+fn importance(
+    cli: &Cli,
+    input: &InputArgs,
+    radius: u32,
+    out: Option<&std::path::Path>,
+    slices: Option<&std::path::Path>,
+    json: bool,
+) -> Result<()> {
+    let v = input.load()?;
+    let ctx = context(cli)?;
+    let map = vellum::passes::importance::ImportanceMap::new(&ctx)?;
+    let r = map.compute(&v, radius, false)?;
+    report_validation(&ctx);
+    if let Some(path) = out {
+        vellum::volume::io::nrrd::write_nrrd(path, &r.delta_d)
+            .with_context(|| format!("writing ΔD to {}", path.display()))?;
+    }
+    if let Some(path) = slices {
+        let limit = vellum::volume::slices::abs_quantile(
+            (0..r.delta_d.len()).map(|i| r.delta_d.data.get_f64(i)),
+            0.995,
+        );
+        let (w, h, rgb) = vellum::volume::slices::thermal_slices(&r.delta_d, limit);
+        vellum::output::write_png_rgb(path, w, h, &rgb)?;
+    }
+    let passes: serde_json::Map<String, serde_json::Value> = r
+        .passes
+        .iter()
+        .map(|p| (p.name.clone(), json!(p.ms)))
+        .collect();
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(
+                &json!({ "device": ctx.info.name, "radius": radius, "dims": v.dims, "passes": passes, "total_ms": r.total_ms })
+            )?
+        );
+    } else {
+        let s = vellum::volume::stats::stats(&r.delta_d, 0);
+        println!(
+            "importance map of {} (R = {radius}) on {}",
+            input.input, ctx.info.name
+        );
+        println!("  ΔD range {:.4} .. {:.4}", s.min, s.max);
+        for p in &r.passes {
+            println!("  {:<9} {:>9.3} ms", p.name, p.ms);
+        }
+        println!(
+            "  total     {:>9.3} ms (conversion, allocation, upload, passes, readback)",
+            r.total_ms
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,96 @@
+//! The one error type of the library. Every variant names what failed, so a message that reaches the
+//! user says which object, pass or file was involved and what was expected.
+
+use std::path::PathBuf;
+
+/// Everything that can fail in vellum. Bad user input becomes a variant with a sentence saying what
+/// was expected; broken internal invariants are bugs and panic instead.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A Vulkan call returned an error. `what` names the object or pass.
+    #[error("Vulkan call failed while {what}: {result}")]
+    Vulkan {
+        what: String,
+        result: ash::vk::Result,
+    },
+
+    /// The Vulkan loader library could not be opened.
+    #[error(
+        "no Vulkan loader found ({0}); install libvulkan1 and a driver such as mesa-vulkan-drivers"
+    )]
+    NoLoader(String),
+
+    /// No physical device satisfied the requirements (the reasons for each rejection are listed).
+    #[error("no usable Vulkan device: {0}")]
+    NoDevice(String),
+
+    /// Device memory could not be allocated.
+    #[error("GPU memory allocation for {what} failed: {cause}")]
+    Alloc {
+        what: String,
+        cause: gpu_allocator::AllocationError,
+    },
+
+    /// A shader interface or pipeline was inconsistent (a bug in vellum, reported rather than panicking).
+    #[error("pipeline {name}: {msg}")]
+    Pipeline { name: String, msg: String },
+
+    /// A file could not be opened, read or written.
+    #[error("{}: {cause}", path.display())]
+    Io {
+        path: PathBuf,
+        cause: std::io::Error,
+    },
+
+    /// A file was read but its content is not what its format requires.
+    #[error("{}: {msg}", path.display())]
+    Format { path: PathBuf, msg: String },
+
+    /// Float voxels that are NaN or infinite.
+    #[error("{what} has {count} NaN or infinite voxels; expected finite values")]
+    NonFinite { what: String, count: usize },
+
+    /// The volume does not fit what the device supports.
+    #[error("volume of {dims:?} voxels exceeds the device: {limit}")]
+    TooLarge { dims: [usize; 3], limit: String },
+
+    /// Any other input that does not make sense (bad flag values, malformed specs).
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// The crate's result type.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    /// A format error for `path`.
+    pub fn format(path: impl Into<PathBuf>, msg: impl Into<String>) -> Self {
+        Error::Format {
+            path: path.into(),
+            msg: msg.into(),
+        }
+    }
+
+    /// An I/O error for `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.into(),
+            cause: source,
+        }
+    }
+}
+
+/// Attaches a description of the call to a Vulkan result, as in `unsafe { dev.create_x(..) }.vk("creating x")?`.
+pub trait VkContext<T> {
+    /// Maps `Err(vk::Result)` to [`Error::Vulkan`] naming `what`.
+    fn vk(self, what: impl Into<String>) -> Result<T>;
+}
+
+impl<T> VkContext<T> for std::result::Result<T, ash::vk::Result> {
+    fn vk(self, what: impl Into<String>) -> Result<T> {
+        self.map_err(|result| Error::Vulkan {
+            what: what.into(),
+            result,
+        })
+    }
+}

@@ -1,0 +1,20 @@
+//! The Vulkan layer: context, memory, commands, barriers, pipelines and timing. It knows nothing
+//! about volumes or rendering techniques; `passes/` and `render/` build on it.
+
+pub mod barrier;
+pub mod commands;
+pub mod context;
+pub mod interface;
+pub mod pipeline;
+pub mod profiler;
+pub mod resources;
+pub mod shaders;
+pub mod transfer;
+pub mod validation;
+
+pub use barrier::Access;
+pub use commands::submit_once;
+pub use context::{Context, ContextDesc, DeviceCandidate, DeviceInfo};
+pub use pipeline::{Bind, BindingKind, ComputePipeline};
+pub use profiler::{PassTime, Profiler};
+pub use resources::{Buffer, BufferDesc, Image, ImageDesc, Sampler};

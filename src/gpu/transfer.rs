@@ -1,0 +1,124 @@
+//! Staging transfers between host bytes and images. The record functions put the copies into a
+//! command buffer the caller owns (so they can be timed as passes beside compute work); the
+//! `upload`/`readback` helpers wrap them in one submission each.
+
+use crate::error::{Error, Result};
+use crate::gpu::barrier::Access;
+use crate::gpu::commands::submit_once;
+use crate::gpu::context::Context;
+use crate::gpu::resources::{Buffer, BufferDesc, BufferLocation, Image};
+use ash::vk;
+use std::sync::Arc;
+
+fn region(image: &Image) -> vk::BufferImageCopy {
+    let [w, h, d] = image.desc.extent;
+    vk::BufferImageCopy::default()
+        .buffer_offset(0)
+        .buffer_row_length(0)
+        .buffer_image_height(0)
+        .image_subresource(vk::ImageSubresourceLayers {
+            aspect_mask: image.aspect(),
+            mip_level: 0,
+            base_array_layer: 0,
+            layer_count: 1,
+        })
+        .image_extent(vk::Extent3D {
+            width: w,
+            height: h,
+            depth: d,
+        })
+}
+
+/// A host-visible buffer that serves as both upload source and readback destination, sized for
+/// `bytes`. One buffer for both halves a round trip's host memory.
+pub fn staging_buffer(ctx: &Arc<Context>, name: &str, bytes: usize) -> Result<Buffer> {
+    Buffer::new(
+        ctx,
+        name,
+        &BufferDesc {
+            size: bytes as u64,
+            usage: vk::BufferUsageFlags::TRANSFER_SRC | vk::BufferUsageFlags::TRANSFER_DST,
+            location: BufferLocation::Readback,
+        },
+    )
+}
+
+/// Records a copy of the whole of `staging` into `image`, then a transition to `next`.
+pub fn record_upload(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    staging: &Buffer,
+    image: &Image,
+    next: Access,
+) {
+    image.discard();
+    image.transition(cmd, Access::TransferWrite);
+    unsafe {
+        ctx.device.cmd_copy_buffer_to_image(
+            cmd,
+            staging.raw,
+            image.raw,
+            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+            &[region(image)],
+        );
+    }
+    image.transition(cmd, next);
+}
+
+/// Records a copy of `image` into `staging`, made visible to the host.
+pub fn record_readback(ctx: &Context, cmd: vk::CommandBuffer, image: &Image, staging: &Buffer) {
+    image.transition(cmd, Access::TransferRead);
+    unsafe {
+        ctx.device.cmd_copy_image_to_buffer(
+            cmd,
+            image.raw,
+            vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+            staging.raw,
+            &[region(image)],
+        );
+        let barrier = [vk::MemoryBarrier2::default()
+            .src_stage_mask(vk::PipelineStageFlags2::COPY)
+            .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+            .dst_stage_mask(vk::PipelineStageFlags2::HOST)
+            .dst_access_mask(vk::AccessFlags2::HOST_READ)];
+        ctx.device.cmd_pipeline_barrier2(
+            cmd,
+            &vk::DependencyInfo::default().memory_barriers(&barrier),
+        );
+    }
+}
+
+fn check_len(image: &Image, len: usize) -> Result<()> {
+    if len != image.byte_size() {
+        return Err(Error::Invalid(format!(
+            "image {} holds {} bytes but {len} were given",
+            image.name,
+            image.byte_size()
+        )));
+    }
+    Ok(())
+}
+
+/// Uploads `bytes` (tightly packed texels) into `image` and leaves it in `next`.
+pub fn upload(ctx: &Arc<Context>, image: &Image, bytes: &[u8], next: Access) -> Result<()> {
+    check_len(image, bytes.len())?;
+    let mut staging = staging_buffer(ctx, &format!("{} staging", image.name), bytes.len())?;
+    staging.write(bytes)?;
+    submit_once(ctx, &format!("upload of {}", image.name), |cmd| {
+        record_upload(ctx, cmd, &staging, image, next);
+        Ok(())
+    })
+}
+
+/// Reads the texels of `image` back to the host.
+pub fn readback(ctx: &Arc<Context>, image: &Image) -> Result<Vec<u8>> {
+    let staging = staging_buffer(ctx, &format!("{} readback", image.name), image.byte_size())?;
+    submit_once(ctx, &format!("readback of {}", image.name), |cmd| {
+        record_readback(ctx, cmd, image, &staging);
+        Ok(())
+    })?;
+    let bytes = staging
+        .mapped()
+        .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
+    Ok(bytes.to_vec())
+}

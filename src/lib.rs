@@ -1,0 +1,14 @@
+//! vellum: illustrative volume rendering on Vulkan.
+//!
+//! Layers (see ARCHITECTURE.md): [`gpu`] knows Vulkan and nothing about volumes; [`volume`] knows
+//! volumes and nothing about Vulkan; [`passes`] joins them, one module per technique.
+
+pub mod bench;
+pub mod error;
+pub mod gpu;
+pub mod input;
+pub mod output;
+pub mod passes;
+pub mod volume;
+
+pub use error::{Error, Result};

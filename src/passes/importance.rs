@@ -1,0 +1,357 @@
+//! The spatial importance map on compute pipelines (SPEC IM1, paper §3.2).
+//!
+//! Reads a volume, writes ΔD = G∗V − V as float. Passes: `upload`, `gauss_x`, `gauss_y`, `gauss_z`,
+//! `subtract`, `readback`, each timed. The volume lives in R32F 3D storage images rather than
+//! buffers: lavapipe caps a storage-buffer binding at 128 MiB, and the paper's CT head is 312 MB in
+//! float. Three images suffice: src → A (x), A → B (y), B → A (z), then B = A − src.
+
+use crate::error::{Error, Result};
+use crate::gpu::pipeline::group_count;
+use crate::gpu::profiler::PassTime;
+use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
+use crate::gpu::{
+    submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    ImageDesc, Profiler,
+};
+use crate::passes::volume_image::extent_of;
+use crate::volume::reference::gaussian::gaussian_kernel;
+use crate::volume::{Volume, VoxelData};
+use ash::vk;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// Push constants of `importance/gauss1d.comp` (GLSL twin: `GaussPush` in glsl/common/importance.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GaussPush {
+    pub dims: [i32; 3],
+    pub axis: i32,
+    pub radius: i32,
+    pub pad: [i32; 3],
+}
+
+/// Push constants of `importance/subtract.comp` (GLSL twin: `SubtractPush`).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct SubtractPush {
+    pub dims: [i32; 3],
+    pub pad: i32,
+}
+
+/// Workgroup shape, as IMPORTANCE_LOCAL_* in importance.glsl.
+pub const LOCAL_SIZE: [u32; 3] = [64, 2, 2];
+
+/// Texels (four voxels each) each Gaussian invocation filters along x (specialisation constant
+/// SEGMENT_X). Measured on lavapipe: 3..6 are equal, 8 is slower.
+pub const SEGMENT_X: u32 = 4;
+
+/// Texels each Gaussian invocation filters along y or z (specialisation constant SEGMENT). Its
+/// private array holds SEGMENT + 2R texels; lavapipe keeps such an array in vector registers only
+/// up to about 23 entries (measured: at R = 10, SEGMENT 3 runs in half the time of SEGMENT 4), and
+/// short segments beat long ones below that, so take 4 and shrink it for large radii.
+pub fn segment(radius_voxels: u32) -> u32 {
+    (23u32.saturating_sub(2 * radius_voxels)).clamp(1, 4)
+}
+
+/// Lines per Gaussian workgroup (GAUSS_LOCAL_X in importance.glsl).
+pub const GAUSS_LOCAL_X: u32 = 64;
+
+/// Names of the three filter passes, by axis.
+pub const GAUSS_PASSES: [&str; 3] = ["gauss_x", "gauss_y", "gauss_z"];
+
+/// The compiled pipelines; build once, run on many volumes.
+pub struct ImportanceMap {
+    ctx: Arc<Context>,
+    /// Gaussian pipelines by radius: R is a specialisation constant.
+    gauss: Mutex<HashMap<u32, Arc<ComputePipeline>>>,
+    subtract: ComputePipeline,
+}
+
+/// ΔD with its timings.
+#[derive(Clone, Debug)]
+pub struct ImportanceOutput {
+    /// ΔD as a float volume with the input's dims and spacing.
+    pub delta_d: Volume,
+    /// GPU time of each pass (upload, gauss_x, gauss_y, gauss_z, subtract, readback, and `copy`
+    /// when a bandwidth reference was asked for).
+    pub passes: Vec<PassTime>,
+    /// Wall time of the whole computation as the paper's "Total": conversion to float, allocation,
+    /// upload, passes, readback and conversion back into a volume.
+    pub total_ms: f64,
+}
+
+impl ImportanceMap {
+    /// Builds the pipelines.
+    pub fn new(ctx: &Arc<Context>) -> Result<Self> {
+        use BindingKind::*;
+        let subtract = ComputePipeline::new(
+            ctx,
+            "importance/subtract.comp",
+            &[StorageImage, StorageImage],
+            std::mem::size_of::<SubtractPush>() as u32,
+        )?;
+        Ok(ImportanceMap {
+            ctx: ctx.clone(),
+            gauss: Mutex::new(HashMap::new()),
+            subtract,
+        })
+    }
+
+    /// The Gaussian pipeline specialised for `radius_voxels` (built on first use).
+    fn gauss_pipeline(&self, radius_voxels: u32) -> Result<Arc<ComputePipeline>> {
+        let mut cache = self.gauss.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(p) = cache.get(&radius_voxels) {
+            return Ok(p.clone());
+        }
+        let p = Arc::new(ComputePipeline::with_constants(
+            &self.ctx,
+            "importance/gauss1d.comp",
+            &[
+                BindingKind::StorageImage,
+                BindingKind::StorageImage,
+                BindingKind::StorageBuffer,
+            ],
+            std::mem::size_of::<GaussPush>() as u32,
+            &[radius_voxels, segment(radius_voxels), SEGMENT_X],
+        )?);
+        cache.insert(radius_voxels, p.clone());
+        Ok(p)
+    }
+
+    /// Computes ΔD of `v` with radius `radius_voxels`. With `copy_reference`, the submission also
+    /// times a plain image copy of one float volume (pass `copy`), the bandwidth bound of a 1D pass.
+    pub fn compute(
+        &self,
+        v: &Volume,
+        radius_voxels: u32,
+        copy_reference: bool,
+    ) -> Result<ImportanceOutput> {
+        let start = Instant::now();
+        let ctx = &self.ctx;
+        let kernel: Vec<f32> = gaussian_kernel(radius_voxels)?
+            .iter()
+            .map(|&w| w as f32)
+            .collect();
+        if radius_voxels > MAX_RADIUS {
+            return Err(Error::Invalid(format!(
+                "radius {radius_voxels} is too large; the importance map supports R up to {MAX_RADIUS} voxels"
+            )));
+        }
+        v.check_finite("the input volume")?;
+        // Conversion to float on the host, in parallel (paper step 1), packed four voxels per texel.
+        let floats = pack_rows(v);
+        let extent = extent_of(ctx, [v.dims[0].div_ceil(4), v.dims[1], v.dims[2]], 16, 3)?;
+        let desc = ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent);
+        let src = Image::new(ctx, "importance src", &desc)?;
+        let a = Image::new(ctx, "importance a", &desc)?;
+        let b = Image::new(ctx, "importance b", &desc)?;
+        let bytes: &[u8] = bytemuck::cast_slice(&floats);
+        let mut staging = staging_buffer(ctx, "importance staging", bytes.len())?;
+        staging.write(bytes)?;
+        let mut weights = Buffer::new(
+            ctx,
+            "gaussian weights",
+            &BufferDesc {
+                size: (kernel.len() * 4) as u64,
+                usage: vk::BufferUsageFlags::STORAGE_BUFFER,
+                location: crate::gpu::resources::BufferLocation::Upload,
+            },
+        )?;
+        weights.write(bytemuck::cast_slice(&kernel))?;
+
+        let dims = [v.dims[0] as i32, v.dims[1] as i32, v.dims[2] as i32];
+        let groups = group_count(extent, LOCAL_SIZE);
+        let gauss = self.gauss_pipeline(radius_voxels)?;
+        let mut profiler = Profiler::new(ctx, 8)?;
+        submit_once(ctx, "importance map", |cmd| {
+            profiler.reset(cmd);
+            profiler.pass(cmd, "upload", |cmd| {
+                record_upload(ctx, cmd, &staging, &src, Access::ComputeRead)
+            });
+            if copy_reference {
+                profiler.pass(cmd, "copy", |cmd| copy_image(ctx, cmd, &src, &b));
+                b.discard();
+            }
+            // x: src → a, y: a → b, z: b → a.
+            let chain = [(&src, &a), (&a, &b), (&b, &a)];
+            for (axis, (input, output)) in chain.into_iter().enumerate() {
+                profiler.begin(cmd, GAUSS_PASSES[axis]);
+                input.transition(cmd, Access::ComputeRead);
+                output.discard();
+                output.transition(cmd, Access::ComputeWrite);
+                let push = GaussPush {
+                    dims,
+                    axis: axis as i32,
+                    radius: radius_voxels as i32,
+                    pad: [0; 3],
+                };
+                gauss.dispatch(
+                    cmd,
+                    &[
+                        Bind::StorageImage(input),
+                        Bind::StorageImage(output),
+                        Bind::StorageBuffer(&weights),
+                    ],
+                    &push,
+                    gauss_groups(extent, axis, radius_voxels),
+                )?;
+                profiler.end(cmd);
+            }
+            profiler.begin(cmd, "subtract");
+            // Subtract writes over the blurred image in place: a holds G∗V, and ΔD goes to a.
+            a.transition(cmd, Access::ComputeReadWrite);
+            self.subtract.dispatch(
+                cmd,
+                &[Bind::StorageImage(&src), Bind::StorageImage(&a)],
+                &SubtractPush { dims, pad: 0 },
+                groups,
+            )?;
+            profiler.end(cmd);
+            profiler.pass(cmd, "readback", |cmd| {
+                record_readback(ctx, cmd, &a, &staging)
+            });
+            Ok(())
+        })?;
+        let passes = profiler.results()?;
+        let out = staging
+            .mapped()
+            .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
+        let delta = unpack_rows(bytemuck::cast_slice(out), v.dims);
+        let delta_d = Volume::new(v.dims, v.spacing, VoxelData::F32(delta))?;
+        Ok(ImportanceOutput {
+            delta_d,
+            passes,
+            total_ms: start.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+}
+
+/// Largest radius: R sizes private arrays in the shader (a specialisation constant).
+pub const MAX_RADIUS: u32 = 32;
+
+/// The voxels of `v` as f32, each x row padded to a multiple of four with its last voxel, so that
+/// an RGBA32F texel holds four x-neighbours and padding behaves like the clamped border.
+pub fn pack_rows(v: &Volume) -> Vec<f32> {
+    let nx = v.dims[0];
+    let px = nx.div_ceil(4) * 4;
+    let mut out = vec![0f32; px * v.dims[1] * v.dims[2]];
+    out.par_chunks_mut(px).enumerate().for_each(|(row, dst)| {
+        let first = row * nx;
+        for (x, d) in dst.iter_mut().enumerate() {
+            *d = v.data.get_f64(first + x.min(nx - 1)) as f32;
+        }
+    });
+    out
+}
+
+/// Inverse of [`pack_rows`]: drops the padding of each row.
+pub fn unpack_rows(packed: &[f32], dims: [usize; 3]) -> Vec<f32> {
+    let px = dims[0].div_ceil(4) * 4;
+    if px == dims[0] {
+        return packed.to_vec();
+    }
+    packed
+        .chunks_exact(px)
+        .flat_map(|row| &row[..dims[0]])
+        .copied()
+        .collect()
+}
+
+/// Workgroups of the Gaussian pass along `axis`: lanes along the first orthogonal axis, lines
+/// along the second, segments along the filter axis (as in gauss1d.comp).
+/// `extent` is in texels (x holds four voxels per texel).
+pub fn gauss_groups(extent: [u32; 3], axis: usize, radius_voxels: u32) -> [u32; 3] {
+    match axis {
+        0 => [
+            extent[1].div_ceil(GAUSS_LOCAL_X),
+            extent[2],
+            extent[0].div_ceil(SEGMENT_X),
+        ],
+        1 => [
+            extent[0].div_ceil(GAUSS_LOCAL_X),
+            extent[2],
+            extent[1].div_ceil(segment(radius_voxels)),
+        ],
+        _ => [
+            extent[0].div_ceil(GAUSS_LOCAL_X),
+            extent[1],
+            extent[2].div_ceil(segment(radius_voxels)),
+        ],
+    }
+}
+
+/// Records a whole-image copy of `src` into `dst` (same extent and format): the bandwidth reference.
+pub fn copy_image(ctx: &Context, cmd: vk::CommandBuffer, src: &Image, dst: &Image) {
+    src.transition(cmd, Access::TransferRead);
+    dst.discard();
+    dst.transition(cmd, Access::TransferWrite);
+    let [w, h, d] = src.desc.extent;
+    let layers = vk::ImageSubresourceLayers {
+        aspect_mask: src.aspect(),
+        mip_level: 0,
+        base_array_layer: 0,
+        layer_count: 1,
+    };
+    let region = vk::ImageCopy::default()
+        .src_subresource(layers)
+        .dst_subresource(layers)
+        .extent(vk::Extent3D {
+            width: w,
+            height: h,
+            depth: d,
+        });
+    unsafe {
+        ctx.device.cmd_copy_image(
+            cmd,
+            src.raw,
+            vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+            dst.raw,
+            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+            &[region],
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::interface::assert_glsl_layout;
+
+    #[test]
+    fn packing_round_trips_and_pads_with_the_edge() {
+        let data: Vec<f32> = (0..5 * 2 * 3).map(|i| i as f32).collect();
+        let v = Volume::new([5, 2, 3], [1.0; 3], VoxelData::F32(data.clone())).unwrap();
+        let packed = pack_rows(&v);
+        assert_eq!(packed.len(), 8 * 2 * 3);
+        assert_eq!(&packed[..8], &[0.0, 1.0, 2.0, 3.0, 4.0, 4.0, 4.0, 4.0]);
+        assert_eq!(unpack_rows(&packed, v.dims), data);
+    }
+
+    #[test]
+    fn push_constants_match_glsl() {
+        assert_glsl_layout!(
+            GaussPush,
+            "importance.glsl",
+            "GaussPush",
+            [dims, axis, radius, pad]
+        );
+        assert_glsl_layout!(SubtractPush, "importance.glsl", "SubtractPush", [dims, pad]);
+    }
+
+    #[test]
+    fn local_size_matches_glsl() {
+        let src = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/glsl/common/importance.glsl"
+        ))
+        .unwrap();
+        for (axis, n) in ["X", "Y", "Z"].iter().zip(LOCAL_SIZE) {
+            assert!(
+                src.contains(&format!("#define IMPORTANCE_LOCAL_{axis} {n}")),
+                "IMPORTANCE_LOCAL_{axis} != {n}"
+            );
+        }
+    }
+}

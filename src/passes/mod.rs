@@ -1,0 +1,5 @@
+//! Passes join volumes and the GPU: each module records the dispatches of one technique and has a
+//! CPU twin in `volume::reference` that tests compare it with.
+
+pub mod importance;
+pub mod volume_image;

@@ -1,0 +1,325 @@
+//! Reading volumes from files, and writing them as NRRD.
+//!
+//! [`load`] picks a reader from the extension (or the first bytes), and every reader funnels its
+//! voxel bytes through two shared helpers: [`read_payload`], which insists on exactly the byte
+//! count the header promises and turns decompression failures into sentences, and [`decode`],
+//! which converts the file's type and byte order into one of the four [`VoxelType`]s vellum keeps.
+//! Types vellum does not keep are widened: int8 becomes i16 (exact), and uint32, int32 and float64
+//! become f32, which is exact only up to 2^24 in magnitude (float64 also loses precision). A
+//! header is checked with [`check_dims`] before any voxel buffer is allocated, so a corrupt size
+//! cannot make us try to allocate terabytes.
+
+mod dicom;
+mod metaimage;
+mod nifti;
+pub mod nrrd;
+mod raw;
+
+pub use nrrd::write_nrrd;
+
+use std::fs::File;
+use std::io::{self, BufReader, Read};
+use std::path::Path;
+
+use flate2::read::{MultiGzDecoder, ZlibDecoder};
+use rayon::prelude::*;
+
+use super::{check_dims, Volume, VoxelData, VoxelType};
+use crate::error::{Error, Result};
+
+/// How to read a headerless file (`--raw-dims`, `--raw-type` and friends on the command line).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RawSpec {
+    /// Voxels along x, y, z.
+    pub dims: [usize; 3],
+    /// Type of every voxel in the file.
+    pub voxel_type: VoxelType,
+    /// True when multi-byte voxels are stored most significant byte first.
+    pub big_endian: bool,
+    /// Bytes to skip before the voxels (after decompression for `.gz` files).
+    pub offset: u64,
+    /// Physical voxel size along x, y, z.
+    pub spacing: [f64; 3],
+}
+
+/// Loads a volume. With `raw` the file is read as headerless voxels; otherwise a folder is read as
+/// a DICOM series and a file by its extension (`.nrrd`, `.nhdr`, `.nii`, `.nii.gz`, `.mhd`, `.mha`)
+/// or, failing that, by its first bytes. Float volumes with NaN or infinite voxels are rejected.
+pub fn load(path: &Path, raw: Option<&RawSpec>) -> Result<Volume> {
+    if !path.exists() {
+        return Err(Error::io(
+            path,
+            io::Error::new(
+                io::ErrorKind::NotFound,
+                "the file does not exist; expected a volume file or DICOM folder",
+            ),
+        ));
+    }
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    let has = |ext: &str| name.ends_with(ext);
+    let volume = if let Some(spec) = raw {
+        raw::read(path, spec)?
+    } else if path.is_dir() {
+        dicom::read(path)?
+    } else if has(".nrrd") || has(".nhdr") {
+        nrrd::read(path)?
+    } else if has(".img") || has(".img.gz") {
+        return Err(Error::format(
+            path,
+            "NIfTI-1/Analyze .hdr/.img pairs are not supported; expected a single .nii or .nii.gz file",
+        ));
+    } else if has(".nii") || has(".nii.gz") || has(".hdr") || has(".hdr.gz") {
+        nifti::read(path)?
+    } else if has(".mhd") || has(".mha") {
+        metaimage::read(path)?
+    } else {
+        match sniff(path)? {
+            Some(Sniffed::Nrrd) => nrrd::read(path)?,
+            Some(Sniffed::Nifti) => nifti::read(path)?,
+            None => {
+                return Err(Error::format(
+                    path,
+                    "unknown format; expected .nrrd, .nhdr, .nii, .nii.gz, .mhd, .mha, a DICOM folder, \
+                     or raw input with --raw-dims and --raw-type",
+                ))
+            }
+        }
+    };
+    volume.check_finite(&path.display().to_string())?;
+    Ok(volume)
+}
+
+enum Sniffed {
+    Nrrd,
+    Nifti,
+}
+
+/// Recognises NRRD ("NRRD" magic) and NIfTI-1 (sizeof_hdr 348, possibly gzipped) by content.
+fn sniff(path: &Path) -> Result<Option<Sniffed>> {
+    let mut head = Vec::with_capacity(348);
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    file.take(348)
+        .read_to_end(&mut head)
+        .map_err(|e| Error::io(path, e))?;
+    if head.starts_with(b"NRRD") {
+        return Ok(Some(Sniffed::Nrrd));
+    }
+    let is_nifti = |h: &[u8]| {
+        h.len() >= 4 && {
+            let b = [h[0], h[1], h[2], h[3]];
+            i32::from_le_bytes(b) == 348 || i32::from_be_bytes(b) == 348
+        }
+    };
+    if is_nifti(&head) {
+        return Ok(Some(Sniffed::Nifti));
+    }
+    if head.starts_with(&[0x1f, 0x8b]) {
+        let file = File::open(path).map_err(|e| Error::io(path, e))?;
+        let mut inner = Vec::with_capacity(4);
+        // A failure to decompress just means "not a gzipped NIfTI".
+        let _ = MultiGzDecoder::new(BufReader::new(file))
+            .take(4)
+            .read_to_end(&mut inner);
+        if is_nifti(&inner) {
+            return Ok(Some(Sniffed::Nifti));
+        }
+    }
+    Ok(None)
+}
+
+/// Checks header dims with [`check_dims`], naming the file, and returns the voxel count.
+pub(crate) fn voxel_count(path: &Path, dims: [usize; 3]) -> Result<usize> {
+    check_dims(dims).map_err(|e| Error::format(path, e.to_string()))?;
+    Ok(dims.iter().product())
+}
+
+/// [`Volume::new`] with the file named in the error.
+pub(crate) fn build(
+    path: &Path,
+    dims: [usize; 3],
+    spacing: [f64; 3],
+    data: VoxelData,
+) -> Result<Volume> {
+    Volume::new(dims, spacing, data).map_err(|e| Error::format(path, e.to_string()))
+}
+
+/// How voxel bytes are stored in a file.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub(crate) enum Compression {
+    None,
+    Gzip,
+    Zlib,
+}
+
+impl Compression {
+    fn stream(self) -> &'static str {
+        match self {
+            Compression::None => "data",
+            Compression::Gzip => "gzip stream",
+            Compression::Zlib => "zlib stream",
+        }
+    }
+}
+
+/// Wraps `src` in the decompressor for `compression`.
+pub(crate) fn decoder<'a>(src: impl Read + 'a, compression: Compression) -> Box<dyn Read + 'a> {
+    match compression {
+        Compression::None => Box::new(src),
+        Compression::Gzip => Box::new(MultiGzDecoder::new(BufReader::new(src))),
+        Compression::Zlib => Box::new(ZlibDecoder::new(src)),
+    }
+}
+
+/// Turns a read error into a sentence: decompressors report truncation as `UnexpectedEof` and
+/// damage as `InvalidInput`/`InvalidData`; anything else is an I/O failure.
+pub(crate) fn read_error(path: &Path, compression: Compression, e: io::Error) -> Error {
+    let stream = compression.stream();
+    match e.kind() {
+        io::ErrorKind::UnexpectedEof if compression != Compression::None => Error::format(
+            path,
+            format!("{stream} is truncated; expected a complete {stream} holding all voxels"),
+        ),
+        io::ErrorKind::InvalidInput | io::ErrorKind::InvalidData
+            if compression != Compression::None =>
+        {
+            Error::format(
+                path,
+                format!("{stream} is corrupt ({e}); expected a valid {stream}"),
+            )
+        }
+        _ => Error::io(path, e),
+    }
+}
+
+/// Reads exactly `expected` voxel bytes from `src` (already decompressed by [`decoder`]) after
+/// skipping `skip` bytes. More or fewer bytes than the header promises is an error. The buffer
+/// grows as data arrives, so a header that overstates the size cannot force a huge allocation.
+pub(crate) fn read_payload(
+    path: &Path,
+    src: &mut dyn Read,
+    compression: Compression,
+    skip: u64,
+    expected: usize,
+) -> Result<Vec<u8>> {
+    let err = |e| read_error(path, compression, e);
+    let skipped = io::copy(&mut (&mut *src).take(skip), &mut io::sink()).map_err(err)?;
+    let mut buf = Vec::with_capacity(expected.min(1 << 26));
+    (&mut *src)
+        .take(expected as u64 + 1)
+        .read_to_end(&mut buf)
+        .map_err(err)?;
+    if skipped == skip && buf.len() == expected {
+        return Ok(buf);
+    }
+    let extra = if buf.len() > expected {
+        io::copy(src, &mut io::sink()).map_err(err)?
+    } else {
+        0
+    };
+    let held = skipped + buf.len() as u64 + extra;
+    let skip_note = if skip > 0 {
+        format!(" ({skip} to skip plus {expected} of voxels)")
+    } else {
+        String::new()
+    };
+    Err(Error::format(
+        path,
+        format!(
+            "{} holds {held} bytes but the header needs {}{skip_note}",
+            compression.stream(),
+            skip + expected as u64
+        ),
+    ))
+}
+
+/// Voxel types found in files, before widening to a [`VoxelType`].
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub(crate) enum FileType {
+    U8,
+    I8,
+    U16,
+    I16,
+    U32,
+    I32,
+    F32,
+    F64,
+}
+
+impl FileType {
+    /// Bytes per voxel in the file.
+    pub(crate) fn size(self) -> usize {
+        match self {
+            FileType::U8 | FileType::I8 => 1,
+            FileType::U16 | FileType::I16 => 2,
+            FileType::U32 | FileType::I32 | FileType::F32 => 4,
+            FileType::F64 => 8,
+        }
+    }
+}
+
+impl From<VoxelType> for FileType {
+    fn from(t: VoxelType) -> Self {
+        match t {
+            VoxelType::U8 => FileType::U8,
+            VoxelType::U16 => FileType::U16,
+            VoxelType::I16 => FileType::I16,
+            VoxelType::F32 => FileType::F32,
+        }
+    }
+}
+
+/// Converts `N`-byte values in the given byte order with `f`, in parallel.
+fn convert<const N: usize, T: Send>(
+    bytes: &[u8],
+    big_endian: bool,
+    f: impl Fn([u8; N]) -> T + Sync,
+) -> Vec<T> {
+    bytes
+        .par_chunks_exact(N)
+        .map(|c| {
+            let mut b = [0u8; N];
+            b.copy_from_slice(c);
+            if big_endian {
+                b.reverse();
+            }
+            f(b)
+        })
+        .collect()
+}
+
+/// Decodes voxels of file type `ty` into vellum's types, widening as described in the module docs.
+/// `bytes.len()` must be a multiple of the type size.
+pub(crate) fn decode(ty: FileType, big_endian: bool, bytes: &[u8]) -> VoxelData {
+    debug_assert_eq!(bytes.len() % ty.size(), 0);
+    let be = big_endian;
+    match ty {
+        FileType::U8 => VoxelData::U8(bytes.to_vec()),
+        FileType::I8 => VoxelData::I16(bytes.par_iter().map(|&b| b as i8 as i16).collect()),
+        FileType::U16 => VoxelData::U16(convert(bytes, be, u16::from_le_bytes)),
+        FileType::I16 => VoxelData::I16(convert(bytes, be, i16::from_le_bytes)),
+        FileType::U32 => VoxelData::F32(convert(bytes, be, |b| u32::from_le_bytes(b) as f32)),
+        FileType::I32 => VoxelData::F32(convert(bytes, be, |b| i32::from_le_bytes(b) as f32)),
+        FileType::F32 => VoxelData::F32(convert(bytes, be, f32::from_le_bytes)),
+        FileType::F64 => VoxelData::F32(convert(bytes, be, |b| f64::from_le_bytes(b) as f32)),
+    }
+}
+
+/// Parses a whitespace-separated list of exactly `n` numbers for header field `field`.
+pub(crate) fn parse_list<T: std::str::FromStr>(
+    path: &Path,
+    field: &str,
+    value: &str,
+    n: usize,
+) -> Result<Vec<T>> {
+    let items: Option<Vec<T>> = value.split_whitespace().map(|s| s.parse().ok()).collect();
+    match items {
+        Some(v) if v.len() == n => Ok(v),
+        _ => Err(Error::format(
+            path,
+            format!("field '{field}' is '{value}'; expected {n} numbers"),
+        )),
+    }
+}

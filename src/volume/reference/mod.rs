@@ -1,0 +1,3 @@
+//! CPU reference algorithms: plain, obviously correct implementations that every GPU pass is
+//! checked against in tests.
+pub mod gaussian;
