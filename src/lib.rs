@@ -9,6 +9,7 @@ pub mod gpu;
 pub mod input;
 pub mod output;
 pub mod passes;
+pub mod render;
 pub mod volume;
 
 pub use error::{Error, Result};

@@ -1,5 +1,8 @@
 //! Writing result files without ever leaving a partial one behind: everything is written under a
 //! temporary name in the destination folder and renamed into place only once complete.
+//!
+//! Formats: 8-bit PNG for looking at, multi-layer float OpenEXR for post-processing (one file holds
+//! every render target of a frame as named layers, so researchers can recombine them).
 
 use crate::error::{Error, Result};
 use std::fs::File;
@@ -44,4 +47,206 @@ pub fn write_png_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result
             .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
             .map_err(std::io::Error::other)
     })
+}
+
+/// The samples of one EXR layer, row-major with rows top to bottom: pixel (x, y) at `y·width + x`.
+#[derive(Debug, Clone, Copy)]
+pub enum ExrChannels<'a> {
+    /// Straight RGBA, written as float channels R, G, B, A.
+    Rgba(&'a [[f32; 4]]),
+    /// One float channel Z (depth, in whatever unit the producer documents).
+    Depth(&'a [f32]),
+}
+
+/// One named layer of a multi-layer EXR file, e.g. `focus.phong` or `composite`.
+#[derive(Debug, Clone, Copy)]
+pub struct ExrLayer<'a> {
+    /// The layer name stored in the file (Latin-1, unique within the file).
+    pub name: &'a str,
+    /// The layer's samples.
+    pub channels: ExrChannels<'a>,
+}
+
+/// Writes all `layers` of a `width`×`height` image into one multi-layer OpenEXR file (float32
+/// samples, lossless ZIP compression), atomically. Each layer keeps its own name; RGBA layers have
+/// channels R, G, B, A and depth layers a single channel Z.
+pub fn write_exr_layers(path: &Path, width: u32, height: u32, layers: &[ExrLayer]) -> Result<()> {
+    use exr::prelude::{
+        AnyChannel, AnyChannels, Encoding, FlatSamples, Image, ImageAttributes, IntegerBounds,
+        Layer, LayerAttributes, Text, WritableImage,
+    };
+
+    let invalid = |msg: String| Error::Invalid(format!("EXR {}: {msg}", path.display()));
+    let size = (width as usize, height as usize);
+    let pixels = size.0 * size.1;
+    if layers.is_empty() || pixels == 0 {
+        return Err(invalid(format!(
+            "{} layers of {width}x{height} pixels; expected at least one layer and a non-empty image",
+            layers.len()
+        )));
+    }
+    let mut exr_layers = Vec::with_capacity(layers.len());
+    for (i, layer) in layers.iter().enumerate() {
+        let name = Text::new_or_none(layer.name)
+            .filter(|_| !layer.name.is_empty())
+            .ok_or_else(|| {
+                invalid(format!(
+                    "layer name {:?} is not a non-empty Latin-1 string",
+                    layer.name
+                ))
+            })?;
+        if layers[..i].iter().any(|l| l.name == layer.name) {
+            return Err(invalid(format!(
+                "layer name {:?} appears twice; expected unique names",
+                layer.name
+            )));
+        }
+        let (len, channels) = match layer.channels {
+            ExrChannels::Rgba(rgba) => (
+                rgba.len(),
+                ["R", "G", "B", "A"]
+                    .iter()
+                    .enumerate()
+                    .map(|(c, n)| {
+                        let samples = rgba.iter().map(|p| p[c]).collect();
+                        AnyChannel::new(*n, FlatSamples::F32(samples))
+                    })
+                    .collect::<Vec<_>>(),
+            ),
+            ExrChannels::Depth(z) => (
+                z.len(),
+                vec![AnyChannel::new("Z", FlatSamples::F32(z.to_vec()))],
+            ),
+        };
+        if len != pixels {
+            return Err(invalid(format!(
+                "layer {:?} has {len} pixels; expected {width}x{height} = {pixels}",
+                layer.name
+            )));
+        }
+        exr_layers.push(Layer::new(
+            size,
+            LayerAttributes::named(name),
+            Encoding::SMALL_LOSSLESS,
+            AnyChannels::sort(channels.into()),
+        ));
+    }
+    let image = Image::from_layers(
+        ImageAttributes::new(IntegerBounds::from_dimensions(size)),
+        exr_layers,
+    );
+    write_atomic(path, |w| {
+        image.write().to_buffered(w).map_err(std::io::Error::other)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exr_layers_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("layers.exr");
+        let (w, h) = (3u32, 2u32);
+        let rgba: Vec<[f32; 4]> = (0..6)
+            .map(|i| [i as f32, 0.5, -1.0, 1.0 - 0.1 * i as f32])
+            .collect();
+        let depth: Vec<f32> = (0..6).map(|i| 10.0 + i as f32).collect();
+        write_exr_layers(
+            &path,
+            w,
+            h,
+            &[
+                ExrLayer {
+                    name: "focus.phong",
+                    channels: ExrChannels::Rgba(&rgba),
+                },
+                ExrLayer {
+                    name: "focus.depth",
+                    channels: ExrChannels::Depth(&depth),
+                },
+            ],
+        )
+        .unwrap();
+
+        let image = exr::prelude::read_all_flat_layers_from_file(&path).unwrap();
+        assert_eq!(image.layer_data.len(), 2);
+        let layer = |name: &str| {
+            image
+                .layer_data
+                .iter()
+                .find(|l| {
+                    l.attributes.layer_name.as_ref().map(|t| t.to_string())
+                        == Some(name.to_string())
+                })
+                .unwrap_or_else(|| panic!("no layer {name}"))
+        };
+        let channel = |name: &str, ch: &str| -> Vec<f32> {
+            let l = layer(name);
+            assert_eq!(l.size, exr::prelude::Vec2(3, 2));
+            let c = l
+                .channel_data
+                .list
+                .iter()
+                .find(|c| c.name.to_string() == ch)
+                .unwrap_or_else(|| panic!("no channel {ch} in {name}"));
+            c.sample_data.values_as_f32().collect()
+        };
+        let names = |name: &str| -> Vec<String> {
+            layer(name)
+                .channel_data
+                .list
+                .iter()
+                .map(|c| c.name.to_string())
+                .collect()
+        };
+        assert_eq!(names("focus.phong"), ["A", "B", "G", "R"]);
+        assert_eq!(names("focus.depth"), ["Z"]);
+        // Pixel (x = 2, y = 1) is index 5.
+        assert_eq!(channel("focus.phong", "R")[5], 5.0);
+        assert_eq!(channel("focus.phong", "G")[0], 0.5);
+        assert_eq!(channel("focus.phong", "B")[3], -1.0);
+        assert_eq!(channel("focus.phong", "A")[2], rgba[2][3]);
+        assert_eq!(channel("focus.depth", "Z"), depth);
+    }
+
+    #[test]
+    fn exr_rejects_bad_layers_and_leaves_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bad.exr");
+        let short = [0.0f32; 5];
+        let e = write_exr_layers(
+            &path,
+            3,
+            2,
+            &[ExrLayer {
+                name: "z",
+                channels: ExrChannels::Depth(&short),
+            }],
+        )
+        .unwrap_err();
+        assert!(
+            matches!(e, Error::Invalid(_)) && e.to_string().contains("expected 3x2"),
+            "{e}"
+        );
+        let twice = [0.0f32; 6];
+        let layer = ExrLayer {
+            name: "z",
+            channels: ExrChannels::Depth(&twice),
+        };
+        assert!(write_exr_layers(&path, 3, 2, &[layer, layer]).is_err());
+        assert!(write_exr_layers(&path, 3, 2, &[]).is_err());
+        assert!(!path.exists());
+
+        let missing = dir.path().join("no/such/folder/out.exr");
+        let e = write_exr_layers(&missing, 3, 2, &[layer]).unwrap_err();
+        assert!(matches!(e, Error::Io { .. }), "{e}");
+        assert!(!missing.exists());
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            0,
+            "no temp files left"
+        );
+    }
 }

@@ -45,7 +45,7 @@ fn check_scaled(gpu: &Gpu, map: &ImportanceMap, name: &str, v: &Volume, radii: &
         let names: Vec<&str> = out.passes.iter().map(|p| p.name.as_str()).collect();
         assert_eq!(
             names,
-            ["upload", "gauss_x", "gauss_y", "gauss_z", "subtract", "readback"]
+            ["upload", "prepare", "gauss_x", "gauss_y", "gauss_z", "subtract", "readback"]
         );
         let _ = &gpu.ctx;
     }
@@ -110,4 +110,53 @@ fn radius_out_of_range_is_an_error() {
         .unwrap_err()
         .to_string()
         .contains("up to"));
+}
+
+/// The acceptance check: `vellum importance engine.nhdr --radius 5 --out dd.nrrd` matches
+/// an independent scipy computation (gaussian_filter, σ = R/3, truncate 3, mode nearest, minus the
+/// input) to 1e-5 of the input range. Needs python3 with scipy; under CI its absence fails.
+#[test]
+fn engine_matches_scipy() {
+    let Some(data) = common::shared_data() else { return };
+    let have_scipy = std::process::Command::new("python3")
+        .args(["-c", "import scipy.ndimage, numpy"])
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    if !have_scipy {
+        assert_ne!(std::env::var("CI").as_deref(), Ok("true"), "python3 with scipy is required under CI");
+        eprintln!("note: python3 with scipy is missing; skipping");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let engine = data.join("volumes/engine/engine.nhdr");
+    let dd_path = dir.path().join("dd.nrrd");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vellum"))
+        .args(["importance", engine.to_str().unwrap(), "--radius", "5", "--out", dd_path.to_str().unwrap()])
+        .env("VELLUM_VALIDATION", "1")
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let ours = vellum::volume::io::load(&dd_path, None).unwrap();
+
+    let v = vellum::volume::io::load(&engine, None).unwrap();
+    let raw = dir.path().join("engine.f32");
+    std::fs::write(&raw, bytemuck::cast_slice::<f32, u8>(&v.data.to_f32())).unwrap();
+    let scipy_out = dir.path().join("scipy_dd.f32");
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/scipy_peer.py");
+    let dims: Vec<String> = v.dims.iter().map(|d| d.to_string()).collect();
+    let status = std::process::Command::new("python3")
+        .arg(script)
+        .arg(&raw)
+        .args(&dims)
+        .args(["5", "1", &format!("--out={}", scipy_out.display())])
+        .output()
+        .unwrap();
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    let theirs: Vec<f32> = bytemuck::pod_collect_to_vec(&std::fs::read(&scipy_out).unwrap());
+    let VoxelData::F32(ours) = &ours.data else { panic!("ΔD is float") };
+    let s = stats(&v, 0);
+    let max_err = ours.iter().zip(&theirs).map(|(&a, &b)| (a as f64 - b as f64).abs()).fold(0.0, f64::max);
+    assert_eq!(ours.len(), theirs.len());
+    assert!(max_err <= TOLERANCE * (s.max - s.min), "max |vellum − scipy| = {max_err:e}");
 }

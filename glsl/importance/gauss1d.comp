@@ -33,17 +33,19 @@ layout(push_constant) uniform Push { GaussPush pc; };
 
 float weights[2 * RADIUS + 1];
 
-// Along y or z: lanes run along x texels, each filtering SEGMENT texels of its column in vec4.
+// Along y or z: lanes run along x texels (flattened with the other orthogonal axis, so narrow
+// volumes keep every lane busy), each filtering SEGMENT texels of its column in vec4.
 void filter_yz(int a) {
-    ivec3 gid = ivec3(gl_GlobalInvocationID);
     int texels_x = (pc.dims.x + 3) / 4;
-    if (gid.x >= texels_x) {
+    int other = a == 1 ? 2 : 1;
+    int lane = int(gl_GlobalInvocationID.x);
+    if (lane >= texels_x * pc.dims[other]) {
         return;
     }
-    ivec3 p = ivec3(gid.x, 0, 0);
-    p[a == 1 ? 2 : 1] = gid.y;
+    ivec3 p = ivec3(lane % texels_x, 0, 0);
+    p[other] = lane / texels_x;
     int n = pc.dims[a];
-    int s0 = gid.z * SEGMENT;
+    int s0 = int(gl_GlobalInvocationID.y) * SEGMENT;
     vec4 vals[SEGMENT + 2 * RADIUS];
     for (int j = 0; j < SEGMENT + 2 * RADIUS; ++j) {
         ivec3 q = p;
@@ -64,34 +66,30 @@ void filter_yz(int a) {
     }
 }
 
-// Along x: lanes run along y; each filters SEGMENT_X texels (4 * SEGMENT_X voxels) of its row.
-// All lanes of a workgroup share the segment position, so border handling is a uniform branch.
+// Along x: lanes run along the segments of a row (flattened with y), so neighbouring lanes read
+// neighbouring memory. Borders need no branch: rows are padded with their edge voxel, so a texel
+// left of the row repeats voxel 0 (.x of texel 0) and one right of it repeats the last voxel (.w of
+// the last texel).
 void filter_x() {
-    ivec3 gid = ivec3(gl_GlobalInvocationID);
-    if (gid.x >= pc.dims.y) {
-        return;
-    }
-    int y = gid.x;
-    int z = gid.y;
     int nx = pc.dims.x;
     int texels_x = (nx + 3) / 4;
-    int t0 = gid.z * SEGMENT_X;
-    int base = 4 * (t0 - HALO_X);               // voxel x of f[0]
+    int segments = (texels_x + SEGMENT_X - 1) / SEGMENT_X;
+    int lane = int(gl_GlobalInvocationID.x);
+    if (lane >= segments * pc.dims.y) {
+        return;
+    }
+    int y = lane / segments;
+    int z = int(gl_GlobalInvocationID.y);
+    int t0 = (lane % segments) * SEGMENT_X;
     float f[FLOATS_X];
-    if (base >= 0 && base + FLOATS_X <= nx) {
-        for (int j = 0; j < SEGMENT_X + 2 * HALO_X; ++j) {
-            vec4 t = imageLoad(src, ivec3(t0 - HALO_X + j, y, z));
-            f[4 * j] = t.x;
-            f[4 * j + 1] = t.y;
-            f[4 * j + 2] = t.z;
-            f[4 * j + 3] = t.w;
-        }
-    } else {
-        // Near a border: fetch each voxel through its clamped index.
-        for (int m = 0; m < FLOATS_X; ++m) {
-            int xc = clamp(base + m, 0, nx - 1);
-            f[m] = imageLoad(src, ivec3(xc >> 2, y, z))[xc & 3];
-        }
+    for (int j = 0; j < SEGMENT_X + 2 * HALO_X; ++j) {
+        int t = t0 - HALO_X + j;
+        vec4 v = imageLoad(src, ivec3(clamp(t, 0, texels_x - 1), y, z));
+        v = t < 0 ? v.xxxx : (t >= texels_x ? v.wwww : v);
+        f[4 * j] = v.x;
+        f[4 * j + 1] = v.y;
+        f[4 * j + 2] = v.z;
+        f[4 * j + 3] = v.w;
     }
     for (int j = 0; j < SEGMENT_X; ++j) {
         if (t0 + j >= texels_x) {

@@ -91,6 +91,46 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Render a volume with 3D-texture slicing, in two levels (focus, context) or one pass.
+    Render {
+        #[command(flatten)]
+        input: InputArgs,
+        /// Transfer function: a preset (grey, ct-bone, ct-skin-bone, mri-brain) or a JSON file.
+        #[arg(long, default_value = "grey")]
+        tf: String,
+        /// Focus: an interval of data values LO:HI.
+        #[arg(long, value_name = "LO:HI")]
+        focus: Option<String>,
+        /// Focus: an isovalue in data units (an opaque surface).
+        #[arg(long, value_name = "V", allow_negative_numbers = true)]
+        iso: Option<f64>,
+        /// Camera: azimuth and elevation in degrees, distance in bounding-sphere radii.
+        #[arg(long, value_name = "AZ,EL,DIST", default_value = "30,20,2.5", allow_hyphen_values = true)]
+        camera: String,
+        /// Orthographic instead of perspective projection.
+        #[arg(long)]
+        ortho: bool,
+        /// Image size.
+        #[arg(long, value_name = "WxH", default_value = "512x512")]
+        size: String,
+        /// Number of slice planes (default: two per voxel along the longest axis).
+        #[arg(long)]
+        slices: Option<u32>,
+        /// The classic single pass instead of two levels.
+        #[arg(long)]
+        one_pass: bool,
+        /// Background colour behind the volume in the PNG, as R,G,B in 0..1.
+        #[arg(long, default_value = "0,0,0")]
+        background: String,
+        /// Output PNG.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write the layers as float channels to this OpenEXR file.
+        #[arg(long)]
+        exr: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -233,6 +273,23 @@ fn run(cli: &Cli) -> Result<()> {
             slices.as_deref(),
             *json,
         ),
+        Command::Render { input, tf, focus, iso, camera, ortho, size, slices, one_pass, background, out, exr, json } => {
+            let opts = RenderOpts {
+                tf,
+                focus: focus.as_deref(),
+                iso: *iso,
+                camera,
+                ortho: *ortho,
+                size,
+                slices: *slices,
+                one_pass: *one_pass,
+                background,
+                out,
+                exr: exr.as_deref(),
+                json: *json,
+            };
+            render(cli, input, &opts)
+        }
         Command::Bench {
             which:
                 BenchCommand::Table1 {
@@ -404,6 +461,80 @@ fn importance(
             "  total     {:>9.3} ms (conversion, allocation, upload, passes, readback)",
             r.total_ms
         );
+    }
+    Ok(())
+}
+
+struct RenderOpts<'a> {
+    tf: &'a str,
+    focus: Option<&'a str>,
+    iso: Option<f64>,
+    camera: &'a str,
+    ortho: bool,
+    size: &'a str,
+    slices: Option<u32>,
+    one_pass: bool,
+    background: &'a str,
+    out: &'a std::path::Path,
+    exr: Option<&'a std::path::Path>,
+    json: bool,
+}
+
+fn parse_size(s: &str) -> Result<[u32; 2]> {
+    s.split_once(['x', 'X'])
+        .and_then(|(w, h)| Some([w.trim().parse().ok()?, h.trim().parse().ok()?]))
+        .ok_or_else(|| anyhow::anyhow!("--size '{s}' is not WIDTHxHEIGHT like 512x512"))
+}
+
+fn parse_rgb(s: &str) -> Result<[f32; 3]> {
+    let v: Vec<f32> = s.split(',').filter_map(|c| c.trim().parse().ok()).collect();
+    anyhow::ensure!(v.len() == 3 && v.iter().all(|c| (0.0..=1.0).contains(c)), "--background '{s}' is not R,G,B with each in 0..1");
+    Ok([v[0], v[1], v[2]])
+}
+
+fn render(cli: &Cli, input: &InputArgs, o: &RenderOpts) -> Result<()> {
+    use vellum::render::slicer::{to_rgb8, Focus, RenderParams, Renderer};
+    let mut camera = vellum::render::camera::Camera::parse(o.camera)?;
+    camera.ortho = o.ortho;
+    let params = RenderParams {
+        camera,
+        size: parse_size(o.size)?,
+        slices: o.slices,
+        focus: Focus::parse(o.focus, o.iso)?,
+        one_pass: o.one_pass,
+        transfer: vellum::render::transfer::TransferFunction::from_arg(o.tf)?,
+    };
+    let background = parse_rgb(o.background)?;
+    let v = input.load()?;
+    let ctx = context(cli)?;
+    let mut profiler = vellum::gpu::Profiler::new(&ctx, 2)?;
+    let textures = vellum::passes::normals::Normals::new(&ctx)?.prepare(&v, &mut profiler)?;
+    let prepare = profiler.results()?;
+    let frame = Renderer::new(&ctx)?.render(&textures, &params, true)?;
+    report_validation(&ctx);
+    let [w, h] = frame.size;
+    vellum::output::write_png_rgb(o.out, w, h, &to_rgb8(&frame.composite, background))?;
+    if let Some(path) = o.exr {
+        use vellum::output::{write_exr_layers, ExrChannels, ExrLayer};
+        let mut layers = Vec::new();
+        if let Some(l) = &frame.layers {
+            layers.push(ExrLayer { name: "focus.phong", channels: ExrChannels::Rgba(&l.focus_phong) });
+            layers.push(ExrLayer { name: "focus.diffuse", channels: ExrChannels::Rgba(&l.focus_diffuse) });
+            layers.push(ExrLayer { name: "focus.depth", channels: ExrChannels::Depth(&l.focus_depth) });
+            layers.push(ExrLayer { name: "context", channels: ExrChannels::Rgba(&l.context) });
+        }
+        layers.push(ExrLayer { name: "composite", channels: ExrChannels::Rgba(&frame.composite) });
+        write_exr_layers(path, w, h, &layers)?;
+    }
+    let passes: Vec<_> = prepare.iter().chain(&frame.passes).collect();
+    if o.json {
+        let map: serde_json::Map<String, serde_json::Value> = passes.iter().map(|p| (p.name.clone(), json!(p.ms))).collect();
+        println!("{}", serde_json::to_string_pretty(&json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map }))?);
+    } else {
+        println!("rendered {} ({w}x{h}, {} slices) on {}", input.input, frame.slices, ctx.info.name);
+        for p in passes {
+            println!("  {:<14} {:>9.3} ms", p.name, p.ms);
+        }
     }
     Ok(())
 }

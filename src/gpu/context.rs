@@ -254,7 +254,9 @@ fn examine(
         let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
         let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f13);
         unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+        let core = f2.features;
         for (ok, what) in [
+            (core.independent_blend, "independentBlend"),
             (f13.dynamic_rendering, "dynamicRendering"),
             (f13.synchronization2, "synchronization2"),
             (f13.maintenance4, "maintenance4"),
@@ -478,7 +480,9 @@ impl Context {
             .synchronization2(true)
             .maintenance4(true);
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
-        let mut f2 = vk::PhysicalDeviceFeatures2::default();
+        // independentBlend: the focus pass blends two targets and replaces the third.
+        let mut f2 = vk::PhysicalDeviceFeatures2::default()
+            .features(vk::PhysicalDeviceFeatures::default().independent_blend(true));
         let ext_ptrs = [ash::khr::push_descriptor::NAME.as_ptr()];
         let info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_info)

@@ -3,6 +3,7 @@
 
 pub mod barrier;
 pub mod commands;
+pub mod graphics;
 pub mod context;
 pub mod interface;
 pub mod pipeline;

@@ -74,8 +74,9 @@ pub struct ImportanceMap {
 pub struct ImportanceOutput {
     /// ΔD as a float volume with the input's dims and spacing.
     pub delta_d: Volume,
-    /// GPU time of each pass (upload, gauss_x, gauss_y, gauss_z, subtract, readback, and `copy`
-    /// when a bandwidth reference was asked for).
+    /// GPU time of each pass (upload, prepare, gauss_x, gauss_y, gauss_z, subtract, readback, and
+    /// `copy` when a bandwidth reference was asked for). `prepare` clears the work images: on CPU
+    /// devices it absorbs the page faults of fresh memory.
     pub passes: Vec<PassTime>,
     /// Wall time of the whole computation as the paper's "Total": conversion to float, allocation,
     /// upload, passes, readback and conversion back into a volume.
@@ -140,16 +141,18 @@ impl ImportanceMap {
             )));
         }
         v.check_finite("the input volume")?;
-        // Conversion to float on the host, in parallel (paper step 1), packed four voxels per texel.
-        let floats = pack_rows(v);
         let extent = extent_of(ctx, [v.dims[0].div_ceil(4), v.dims[1], v.dims[2]], 16, 3)?;
         let desc = ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent);
         let src = Image::new(ctx, "importance src", &desc)?;
         let a = Image::new(ctx, "importance a", &desc)?;
         let b = Image::new(ctx, "importance b", &desc)?;
-        let bytes: &[u8] = bytemuck::cast_slice(&floats);
-        let mut staging = staging_buffer(ctx, "importance staging", bytes.len())?;
-        staging.write(bytes)?;
+        let mut staging = staging_buffer(ctx, "importance staging", src.byte_size())?;
+        // Conversion to float (paper step 1), in parallel, straight into the staging memory and
+        // packed four voxels per texel.
+        let mapped = staging.mapped_mut().ok_or_else(|| Error::Invalid("staging buffer is not host-visible".into()))?;
+        let floats: &mut [f32] = bytemuck::try_cast_slice_mut(mapped)
+            .map_err(|e| Error::Invalid(format!("staging memory cannot hold floats: {e}")))?;
+        pack_rows_into(v, floats);
         let mut weights = Buffer::new(
             ctx,
             "gaussian weights",
@@ -164,15 +167,21 @@ impl ImportanceMap {
         let dims = [v.dims[0] as i32, v.dims[1] as i32, v.dims[2] as i32];
         let groups = group_count(extent, LOCAL_SIZE);
         let gauss = self.gauss_pipeline(radius_voxels)?;
-        let mut profiler = Profiler::new(ctx, 8)?;
+        let mut profiler = Profiler::new(ctx, 9)?;
         submit_once(ctx, "importance map", |cmd| {
             profiler.reset(cmd);
             profiler.pass(cmd, "upload", |cmd| {
                 record_upload(ctx, cmd, &staging, &src, Access::ComputeRead)
             });
+            // First writes to fresh memory pay page faults on CPU devices; take them here, in
+            // their own pass, so that neither the filters nor the copy reference carry them.
+            profiler.pass(cmd, "prepare", |cmd| {
+                for image in [&a, &b] {
+                    clear_image(ctx, cmd, image);
+                }
+            });
             if copy_reference {
                 profiler.pass(cmd, "copy", |cmd| copy_image(ctx, cmd, &src, &b));
-                b.discard();
             }
             // x: src → a, y: a → b, z: b → a.
             let chain = [(&src, &a), (&a, &b), (&b, &a)];
@@ -218,7 +227,9 @@ impl ImportanceMap {
         let out = staging
             .mapped()
             .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
-        let delta = unpack_rows(bytemuck::cast_slice(out), v.dims);
+        let packed: &[f32] = bytemuck::try_cast_slice(out)
+            .map_err(|e| Error::Invalid(format!("readback memory does not hold floats: {e}")))?;
+        let delta = unpack_rows(packed, v.dims);
         let delta_d = Volume::new(v.dims, v.spacing, VoxelData::F32(delta))?;
         Ok(ImportanceOutput {
             delta_d,
@@ -234,51 +245,70 @@ pub const MAX_RADIUS: u32 = 32;
 /// The voxels of `v` as f32, each x row padded to a multiple of four with its last voxel, so that
 /// an RGBA32F texel holds four x-neighbours and padding behaves like the clamped border.
 pub fn pack_rows(v: &Volume) -> Vec<f32> {
-    let nx = v.dims[0];
-    let px = nx.div_ceil(4) * 4;
-    let mut out = vec![0f32; px * v.dims[1] * v.dims[2]];
-    out.par_chunks_mut(px).enumerate().for_each(|(row, dst)| {
-        let first = row * nx;
-        for (x, d) in dst.iter_mut().enumerate() {
-            *d = v.data.get_f64(first + x.min(nx - 1)) as f32;
-        }
-    });
+    let mut out = vec![0f32; v.dims[0].div_ceil(4) * 4 * v.dims[1] * v.dims[2]];
+    pack_rows_into(v, &mut out);
     out
+}
+
+/// [`pack_rows`] into `out` (for example mapped staging memory), one parallel task per row.
+pub fn pack_rows_into(v: &Volume, out: &mut [f32]) {
+    fn rows<T: Copy + Send + Sync>(src: &[T], nx: usize, out: &mut [f32], f: impl Fn(T) -> f32 + Sync) {
+        let px = nx.div_ceil(4) * 4;
+        out.par_chunks_mut(px).zip(src.par_chunks(nx)).for_each(|(dst, row)| {
+            for (d, &s) in dst.iter_mut().zip(row) {
+                *d = f(s);
+            }
+            let last = f(row[nx - 1]);
+            dst[nx..].fill(last);
+        });
+    }
+    let nx = v.dims[0];
+    match &v.data {
+        VoxelData::U8(d) => rows(d, nx, out, |x| x as f32),
+        VoxelData::U16(d) => rows(d, nx, out, |x| x as f32),
+        VoxelData::I16(d) => rows(d, nx, out, |x| x as f32),
+        VoxelData::F32(d) => rows(d, nx, out, |x| x),
+    }
 }
 
 /// Inverse of [`pack_rows`]: drops the padding of each row.
 pub fn unpack_rows(packed: &[f32], dims: [usize; 3]) -> Vec<f32> {
     let px = dims[0].div_ceil(4) * 4;
-    if px == dims[0] {
-        return packed.to_vec();
-    }
-    packed
-        .chunks_exact(px)
-        .flat_map(|row| &row[..dims[0]])
-        .copied()
-        .collect()
+    let mut out = vec![0f32; dims[0] * dims[1] * dims[2]];
+    out.par_chunks_mut(dims[0]).zip(packed.par_chunks(px)).for_each(|(dst, row)| dst.copy_from_slice(&row[..dims[0]]));
+    out
 }
 
-/// Workgroups of the Gaussian pass along `axis`: lanes along the first orthogonal axis, lines
-/// along the second, segments along the filter axis (as in gauss1d.comp).
-/// `extent` is in texels (x holds four voxels per texel).
+/// Workgroups of the Gaussian pass along `axis` (as in gauss1d.comp). `extent` is in texels (x
+/// holds four voxels per texel). x: lanes over (segment, y), groups over z. y and z: lanes over
+/// (texel x, the other axis), groups over segments.
 pub fn gauss_groups(extent: [u32; 3], axis: usize, radius_voxels: u32) -> [u32; 3] {
     match axis {
-        0 => [
-            extent[1].div_ceil(GAUSS_LOCAL_X),
-            extent[2],
-            extent[0].div_ceil(SEGMENT_X),
-        ],
-        1 => [
-            extent[0].div_ceil(GAUSS_LOCAL_X),
-            extent[2],
-            extent[1].div_ceil(segment(radius_voxels)),
-        ],
-        _ => [
-            extent[0].div_ceil(GAUSS_LOCAL_X),
-            extent[1],
-            extent[2].div_ceil(segment(radius_voxels)),
-        ],
+        0 => [(extent[0].div_ceil(SEGMENT_X) * extent[1]).div_ceil(GAUSS_LOCAL_X), extent[2], 1],
+        1 => [(extent[0] * extent[2]).div_ceil(GAUSS_LOCAL_X), extent[1].div_ceil(segment(radius_voxels)), 1],
+        _ => [(extent[0] * extent[1]).div_ceil(GAUSS_LOCAL_X), extent[2].div_ceil(segment(radius_voxels)), 1],
+    }
+}
+
+/// Records a clear of `image` to zero (leaves it in TransferWrite).
+pub fn clear_image(ctx: &Context, cmd: vk::CommandBuffer, image: &Image) {
+    image.discard();
+    image.transition(cmd, Access::TransferWrite);
+    let range = vk::ImageSubresourceRange {
+        aspect_mask: image.aspect(),
+        base_mip_level: 0,
+        level_count: 1,
+        base_array_layer: 0,
+        layer_count: 1,
+    };
+    unsafe {
+        ctx.device.cmd_clear_color_image(
+            cmd,
+            image.raw,
+            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+            &vk::ClearColorValue { float32: [0.0; 4] },
+            &[range],
+        );
     }
 }
 

@@ -2,4 +2,5 @@
 //! CPU twin in `volume::reference` that tests compare it with.
 
 pub mod importance;
+pub mod normals;
 pub mod volume_image;

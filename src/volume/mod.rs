@@ -245,3 +245,20 @@ pub fn check_dims(dims: [usize; 3]) -> Result<()> {
     }
     Ok(())
 }
+
+impl Volume {
+    /// The voxels mapped linearly from [min, max] to 0..=65535, with that range. This is what the
+    /// renderer samples: one texture format for every voxel type, and transfer functions defined on
+    /// the normalised range. A constant volume maps to 0.
+    pub fn normalised_u16(&self) -> (Vec<u16>, [f64; 2]) {
+        use rayon::prelude::*;
+        let s = stats::stats(self, 0);
+        let (lo, hi) = (s.min, s.max);
+        let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+        let out = (0..self.len())
+            .into_par_iter()
+            .map(|i| ((self.data.get_f64(i) - lo) * scale).round().clamp(0.0, 65535.0) as u16)
+            .collect();
+        (out, [lo, hi])
+    }
+}

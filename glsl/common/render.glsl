@@ -1,0 +1,28 @@
+// Shader interfaces of the renderer. Twins of the #[repr(C)] structs in src/render/ and
+// src/passes/normals.rs; unit tests check that the layouts agree. Only vec4/mat4/ivec4 and
+// scalar-padded members are used, so std140 and std430 layouts coincide.
+#ifndef VELLUM_RENDER_GLSL
+#define VELLUM_RENDER_GLSL
+
+struct NormalsPush {
+    ivec3 dims;          // volume size in voxels
+    int pad;
+    vec4 inv_spacing;    // 1 / voxel spacing (xyz), w unused
+};
+
+// Per-frame uniforms of the slice renderer.
+struct SliceUniforms {
+    mat4 view_proj;      // world -> clip
+    vec4 half_extent;    // xyz: half size of the volume box in world units (box centred at 0)
+    vec4 eye;            // xyz: camera position (world)
+    vec4 view_dir;       // xyz: unit direction from the eye into the scene; w: 1 for ortho
+    vec4 light;          // xyz: unit direction towards the light (world); w: specular exponent
+    vec4 material;       // ambient, diffuse, specular, opacity ratio (slice spacing / voxel)
+    vec4 focus;          // lo, hi (normalised intensity), mode (0 none, 1 range, 2 iso), unused
+};
+
+#define NORMALS_LOCAL_X 8
+#define NORMALS_LOCAL_Y 8
+#define NORMALS_LOCAL_Z 4
+
+#endif

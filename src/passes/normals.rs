@@ -1,0 +1,107 @@
+//! Sobel normals on compute (SPEC TL1, pass `sobel_normals`): reads the normalised volume texture
+//! and writes an RGBA16F 3D texture of gradients (xyz in world units, w = length), computed once per
+//! volume and sampled by the slice renderer for Phong shading.
+
+use crate::error::Result;
+use crate::gpu::pipeline::group_count;
+use crate::gpu::{Access, Bind, BindingKind, ComputePipeline, Context, Image, ImageDesc, Profiler, Sampler};
+use crate::passes::volume_image::extent_of;
+use crate::volume::Volume;
+use ash::vk;
+use std::sync::Arc;
+
+/// Push constants of `render/sobel_normals.comp` (GLSL twin: `NormalsPush` in render.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct NormalsPush {
+    pub dims: [i32; 3],
+    pub pad: i32,
+    pub inv_spacing: [f32; 4],
+}
+
+/// Workgroup shape (NORMALS_LOCAL_* in render.glsl).
+pub const LOCAL_SIZE: [u32; 3] = [8, 8, 4];
+
+/// The volume as the renderer sees it: a normalised R16_UNORM 3D texture and its gradients.
+pub struct VolumeTextures {
+    /// Intensity mapped from [range[0], range[1]] to [0, 1].
+    pub intensity: Image,
+    /// RGBA16F gradient (world units) and its length.
+    pub gradient: Image,
+    /// Data values that map to 0 and 1.
+    pub range: [f64; 2],
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+}
+
+/// The `sobel_normals` pipeline.
+pub struct Normals {
+    ctx: Arc<Context>,
+    pipeline: ComputePipeline,
+    nearest: Sampler,
+}
+
+impl Normals {
+    /// Builds the pipeline.
+    pub fn new(ctx: &Arc<Context>) -> Result<Self> {
+        let pipeline = ComputePipeline::new(
+            ctx,
+            "render/sobel_normals.comp",
+            &[BindingKind::SampledImage, BindingKind::StorageImage],
+            std::mem::size_of::<NormalsPush>() as u32,
+        )?;
+        Ok(Normals { ctx: ctx.clone(), pipeline, nearest: Sampler::new(ctx, false)? })
+    }
+
+    /// Uploads `v` normalised (pass `upload`) and computes its gradients (pass `sobel_normals`).
+    /// Both images end sampled by fragment shaders.
+    pub fn prepare(&self, v: &Volume, profiler: &mut Profiler) -> Result<VolumeTextures> {
+        let ctx = &self.ctx;
+        let extent = extent_of(ctx, v.dims, 2 + 8, 1)?;
+        let intensity = Image::new(ctx, "volume intensity", &ImageDesc::new_3d(vk::Format::R16_UNORM, extent))?;
+        let gradient = Image::new(ctx, "volume gradient", &ImageDesc::new_3d(vk::Format::R16G16B16A16_SFLOAT, extent))?;
+        let (texels, range) = v.normalised_u16();
+        let mut staging = crate::gpu::transfer::staging_buffer(ctx, "volume staging", texels.len() * 2)?;
+        staging.write(bytemuck::cast_slice(&texels))?;
+        let push = NormalsPush {
+            dims: [v.dims[0] as i32, v.dims[1] as i32, v.dims[2] as i32],
+            pad: 0,
+            inv_spacing: [(1.0 / v.spacing[0]) as f32, (1.0 / v.spacing[1]) as f32, (1.0 / v.spacing[2]) as f32, 0.0],
+        };
+        crate::gpu::submit_once(ctx, "volume textures", |cmd| {
+            profiler.reset(cmd);
+            profiler.pass(cmd, "upload", |cmd| {
+                crate::gpu::transfer::record_upload(ctx, cmd, &staging, &intensity, Access::ComputeSampled)
+            });
+            profiler.begin(cmd, "sobel_normals");
+            gradient.discard();
+            gradient.transition(cmd, Access::ComputeWrite);
+            self.pipeline.dispatch(
+                cmd,
+                &[Bind::Sampled(&intensity, &self.nearest), Bind::StorageImage(&gradient)],
+                &push,
+                group_count(extent, LOCAL_SIZE),
+            )?;
+            profiler.end(cmd);
+            intensity.transition(cmd, Access::FragmentSampled);
+            gradient.transition(cmd, Access::FragmentSampled);
+            Ok(())
+        })?;
+        Ok(VolumeTextures { intensity, gradient, range, dims: v.dims, spacing: v.spacing })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::interface::assert_glsl_layout;
+
+    #[test]
+    fn push_constants_match_glsl() {
+        assert_glsl_layout!(NormalsPush, "render.glsl", "NormalsPush", [dims, pad, inv_spacing]);
+        let src = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/glsl/common/render.glsl")).unwrap();
+        for (axis, n) in ["X", "Y", "Z"].iter().zip(LOCAL_SIZE) {
+            assert!(src.contains(&format!("#define NORMALS_LOCAL_{axis} {n}")));
+        }
+    }
+}

@@ -1,0 +1,9 @@
+//! The frame: camera, transfer functions, proxy geometry, render passes.
+//!
+//! Everything here is plain CPU math and data; the GPU passes that consume it live beside it and
+//! are the only modules of `render/` that touch Vulkan.
+
+pub mod camera;
+pub mod proxy;
+pub mod transfer;
+pub mod slicer;
