@@ -7,6 +7,8 @@ APT_PACKAGES := mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan
 	libshaderc-dev glslc
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 INPUT ?= phantom:shepp-logan:128
+# Focus isovalue of the two-level render, in the input's data units (the phantom's skull is 1.0).
+ISO ?= 0.9
 OUT ?= out
 VELLUM := ./target/release/vellum
 
@@ -25,15 +27,17 @@ deps:
 build: deps
 	cargo build --release --locked
 
-# The main job on the built-in phantom (or INPUT=path): figures, a GPU round trip, the importance
-# map as NRRD and thermal slices.
+# The main job on the built-in phantom (or INPUT=path ISO=value): figures, a GPU round trip, the
+# importance map as NRRD and thermal slices, and a two-level render as PNG plus layered EXR.
 run: build
 	$(VELLUM) devices
 	$(VELLUM) info $(INPUT)
 	$(VELLUM) roundtrip $(INPUT)
 	@mkdir -p $(OUT)
 	$(VELLUM) importance $(INPUT) --radius 5 --out $(OUT)/importance_dd.nrrd --slices $(OUT)/importance_dd.png
-	@echo "wrote $(OUT)/importance_dd.nrrd and $(OUT)/importance_dd.png"
+	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --out $(OUT)/render_two_level.png --exr $(OUT)/render_layers.exr
+	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --one-pass --out $(OUT)/render_one_pass.png
+	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr, render_one_pass.png"
 
 # Every test, with the Khronos validation layer on (debug build).
 test: deps
@@ -41,6 +45,7 @@ test: deps
 
 bench: build
 	$(VELLUM) bench table1
+	$(VELLUM) bench render
 
 fmt:
 	cargo fmt --all

@@ -43,16 +43,29 @@ fn main() {
         options.set_include_callback(move |name, _ty, from, _depth| {
             // `from` is "glsl/..." relative to the project root (top-level files and resolved
             // includes alike). Includes resolve next to the including file, then in glsl/common.
-            let from_dir = project_root.join(from).parent().map(Path::to_path_buf).unwrap_or_default();
+            let from_dir = project_root
+                .join(from)
+                .parent()
+                .map(Path::to_path_buf)
+                .unwrap_or_default();
             let candidates = [from_dir.join(name), glsl_root.join("common").join(name)];
             for c in candidates {
                 if let Ok(content) = std::fs::read_to_string(&c) {
                     println!("cargo:rerun-if-changed={}", c.display());
-                    let resolved_name = c.strip_prefix(&project_root).unwrap_or(&c).display().to_string();
-                    return Ok(shaderc::ResolvedInclude { resolved_name, content });
+                    let resolved_name = c
+                        .strip_prefix(&project_root)
+                        .unwrap_or(&c)
+                        .display()
+                        .to_string();
+                    return Ok(shaderc::ResolvedInclude {
+                        resolved_name,
+                        content,
+                    });
                 }
             }
-            Err(format!("include \"{name}\" not found next to {from} or in glsl/common"))
+            Err(format!(
+                "include \"{name}\" not found next to {from} or in glsl/common"
+            ))
         });
         let name = rel.to_string_lossy().replace('\\', "/");
         // Errors from shaderc name the file as given here, so "glsl/x.comp:12: error ..." points home.

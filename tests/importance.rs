@@ -117,14 +117,20 @@ fn radius_out_of_range_is_an_error() {
 /// input) to 1e-5 of the input range. Needs python3 with scipy; under CI its absence fails.
 #[test]
 fn engine_matches_scipy() {
-    let Some(data) = common::shared_data() else { return };
+    let Some(data) = common::shared_data() else {
+        return;
+    };
     let have_scipy = std::process::Command::new("python3")
         .args(["-c", "import scipy.ndimage, numpy"])
         .status()
         .map(|s| s.success())
         .unwrap_or(false);
     if !have_scipy {
-        assert_ne!(std::env::var("CI").as_deref(), Ok("true"), "python3 with scipy is required under CI");
+        assert_ne!(
+            std::env::var("CI").as_deref(),
+            Ok("true"),
+            "python3 with scipy is required under CI"
+        );
         eprintln!("note: python3 with scipy is missing; skipping");
         return;
     }
@@ -132,11 +138,22 @@ fn engine_matches_scipy() {
     let engine = data.join("volumes/engine/engine.nhdr");
     let dd_path = dir.path().join("dd.nrrd");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_vellum"))
-        .args(["importance", engine.to_str().unwrap(), "--radius", "5", "--out", dd_path.to_str().unwrap()])
+        .args([
+            "importance",
+            engine.to_str().unwrap(),
+            "--radius",
+            "5",
+            "--out",
+            dd_path.to_str().unwrap(),
+        ])
         .env("VELLUM_VALIDATION", "1")
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let ours = vellum::volume::io::load(&dd_path, None).unwrap();
 
     let v = vellum::volume::io::load(&engine, None).unwrap();
@@ -152,11 +169,24 @@ fn engine_matches_scipy() {
         .args(["5", "1", &format!("--out={}", scipy_out.display())])
         .output()
         .unwrap();
-    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
     let theirs: Vec<f32> = bytemuck::pod_collect_to_vec(&std::fs::read(&scipy_out).unwrap());
-    let VoxelData::F32(ours) = &ours.data else { panic!("ΔD is float") };
+    let VoxelData::F32(ours) = &ours.data else {
+        panic!("ΔD is float")
+    };
     let s = stats(&v, 0);
-    let max_err = ours.iter().zip(&theirs).map(|(&a, &b)| (a as f64 - b as f64).abs()).fold(0.0, f64::max);
+    let max_err = ours
+        .iter()
+        .zip(&theirs)
+        .map(|(&a, &b)| (a as f64 - b as f64).abs())
+        .fold(0.0, f64::max);
     assert_eq!(ours.len(), theirs.len());
-    assert!(max_err <= TOLERANCE * (s.max - s.min), "max |vellum − scipy| = {max_err:e}");
+    assert!(
+        max_err <= TOLERANCE * (s.max - s.min),
+        "max |vellum − scipy| = {max_err:e}"
+    );
 }

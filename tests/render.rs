@@ -21,7 +21,10 @@ use vellum::volume::{phantom, Volume};
 
 fn textures(gpu: &Gpu, v: &Volume) -> VolumeTextures {
     let mut profiler = Profiler::new(&gpu.ctx, 2).unwrap();
-    Normals::new(&gpu.ctx).unwrap().prepare(v, &mut profiler).unwrap()
+    Normals::new(&gpu.ctx)
+        .unwrap()
+        .prepare(v, &mut profiler)
+        .unwrap()
 }
 
 fn check_normals(gpu: &Gpu, name: &str, v: &Volume) {
@@ -37,7 +40,11 @@ fn check_normals(gpu: &Gpu, name: &str, v: &Volume) {
         for c in 0..4 {
             let got = f16_to_f32(halves[4 * i + c]) as f64;
             let tol = 2e-3 * max_len + 1e-3 * r[c].abs();
-            assert!((got - r[c]).abs() <= tol, "{name}: voxel {i} component {c}: GPU {got} vs CPU {}", r[c]);
+            assert!(
+                (got - r[c]).abs() <= tol,
+                "{name}: voxel {i} component {c}: GPU {got} vs CPU {}",
+                r[c]
+            );
         }
     }
 }
@@ -47,7 +54,9 @@ fn sobel_normals_match_reference() {
     let gpu = Gpu::new();
     check_normals(&gpu, "shepp-logan 33", &phantom::shepp_logan(33));
     for name in ["nucleon", "tooth16", "vtk_headsq"] {
-        let Some(v) = common::real_volume(name) else { return };
+        let Some(v) = common::real_volume(name) else {
+            return;
+        };
         check_normals(&gpu, name, &v);
     }
 }
@@ -80,19 +89,41 @@ fn diff(a: &Frame, b: &Frame) -> (f64, f64) {
 fn two_levels_equal_one_pass_with_an_opaque_focus() {
     let gpu = Gpu::new();
     let renderer = Renderer::new(&gpu.ctx).unwrap();
-    let mut cases = vec![("shepp-logan", phantom::shepp_logan(48), Focus::Iso(0.9), "grey")];
+    let mut cases = vec![(
+        "shepp-logan",
+        phantom::shepp_logan(48),
+        Focus::Iso(0.9),
+        "grey",
+    )];
     if let Some(v) = common::real_volume("vtk_headsq") {
         cases.push(("vtk_headsq", v, Focus::Iso(1500.0), "ct-skin-bone"));
     }
     for (name, v, focus, tf) in cases {
         let tex = textures(&gpu, &v);
         for camera in ["30,20,2.5", "-120,60,3"] {
-            let one = renderer.render(&tex, &params(camera, 96, focus, true, tf), true).unwrap();
-            let two = renderer.render(&tex, &params(camera, 96, focus, false, tf), true).unwrap();
+            let one = renderer
+                .render(&tex, &params(camera, 96, focus, true, tf), true)
+                .unwrap();
+            let two = renderer
+                .render(&tex, &params(camera, 96, focus, false, tf), true)
+                .unwrap();
             let (mean, max) = diff(&one, &two);
-            assert!(mean < 1.0 / 255.0 && max < 8.0 / 255.0, "{name} {camera}: mean {mean} max {max}");
-            let focus_cover = two.layers.as_ref().unwrap().focus_phong.iter().filter(|p| p[3] > 0.5).count();
-            assert!(focus_cover > 100, "{name}: the focus must cover part of the image ({focus_cover} px)");
+            assert!(
+                mean < 1.0 / 255.0 && max < 8.0 / 255.0,
+                "{name} {camera}: mean {mean} max {max}"
+            );
+            let focus_cover = two
+                .layers
+                .as_ref()
+                .unwrap()
+                .focus_phong
+                .iter()
+                .filter(|p| p[3] > 0.5)
+                .count();
+            assert!(
+                focus_cover > 100,
+                "{name}: the focus must cover part of the image ({focus_cover} px)"
+            );
             let names: Vec<&str> = two.passes.iter().map(|p| p.name.as_str()).collect();
             assert_eq!(names, ["focus", "context", "composite", "readback"]);
         }
@@ -102,14 +133,30 @@ fn two_levels_equal_one_pass_with_an_opaque_focus() {
 /// One stored reference render: file name, volume, parameters.
 fn reference_cases() -> Vec<(&'static str, Volume, RenderParams)> {
     let mut cases = vec![
-        ("shepp_logan_one_pass.png", phantom::shepp_logan(64), params("30,20,2.5", 96, Focus::None, true, "grey")),
-        ("nested_two_level.png", phantom::nested(64), params("0,30,2.5", 96, Focus::Iso(0.9), false, "grey")),
+        (
+            "shepp_logan_one_pass.png",
+            phantom::shepp_logan(64),
+            params("30,20,2.5", 96, Focus::None, true, "grey"),
+        ),
+        (
+            "nested_two_level.png",
+            phantom::nested(64),
+            params("0,30,2.5", 96, Focus::Iso(0.9), false, "grey"),
+        ),
     ];
     if let Some(v) = common::real_volume("engine") {
-        cases.push(("engine_two_level.png", v, params("45,30,2.6", 128, Focus::Iso(180.0), false, "grey")));
+        cases.push((
+            "engine_two_level.png",
+            v,
+            params("45,30,2.6", 128, Focus::Iso(180.0), false, "grey"),
+        ));
     }
     if let Some(v) = common::real_volume("cthead_stanford") {
-        cases.push(("cthead_bone.png", v, params("0,0,2.4", 128, Focus::Iso(1300.0), false, "ct-skin-bone")));
+        cases.push((
+            "cthead_bone.png",
+            v,
+            params("0,0,2.4", 128, Focus::Iso(1300.0), false, "ct-skin-bone"),
+        ));
     }
     cases
 }
@@ -130,8 +177,19 @@ fn renders_match_reference_images() {
             eprintln!("updated {}", path.display());
             continue;
         }
-        let stored = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}; regenerate with VELLUM_UPDATE_REFERENCES=1", path.display())).to_rgb8();
-        assert_eq!((stored.width(), stored.height()), (p.size[0], p.size[1]), "{file}: size");
+        let stored = image::open(&path)
+            .unwrap_or_else(|e| {
+                panic!(
+                    "{}: {e}; regenerate with VELLUM_UPDATE_REFERENCES=1",
+                    path.display()
+                )
+            })
+            .to_rgb8();
+        assert_eq!(
+            (stored.width(), stored.height()),
+            (p.size[0], p.size[1]),
+            "{file}: size"
+        );
         let (mut sum, mut max) = (0u64, 0u8);
         for (a, b) in stored.as_raw().iter().zip(&rgb) {
             let d = a.abs_diff(*b);
@@ -139,7 +197,10 @@ fn renders_match_reference_images() {
             max = max.max(d);
         }
         let mean = sum as f64 / rgb.len() as f64;
-        assert!(mean <= 1.0 && max <= 24, "{file}: mean {mean:.3}/255, max {max}/255 against the stored reference");
+        assert!(
+            mean <= 1.0 && max <= 24,
+            "{file}: mean {mean:.3}/255, max {max}/255 against the stored reference"
+        );
     }
 }
 
@@ -149,11 +210,26 @@ fn exr_holds_the_five_named_layers() {
     let renderer = Renderer::new(&gpu.ctx).unwrap();
     let v = phantom::nested(32);
     let tex = textures(&gpu, &v);
-    let frame = renderer.render(&tex, &params("0,30,2.5", 40, Focus::Iso(0.4), false, "grey"), true).unwrap();
+    let frame = renderer
+        .render(
+            &tex,
+            &params("0,30,2.5", 40, Focus::Iso(0.4), false, "grey"),
+            true,
+        )
+        .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("layers.exr");
     let status = std::process::Command::new(env!("CARGO_BIN_EXE_vellum"))
-        .args(["render", "phantom:nested:32", "--iso", "0.4", "--camera", "0,30,2.5", "--size", "40x40"])
+        .args([
+            "render",
+            "phantom:nested:32",
+            "--iso",
+            "0.4",
+            "--camera",
+            "0,30,2.5",
+            "--size",
+            "40x40",
+        ])
         .arg("--out")
         .arg(dir.path().join("x.png"))
         .arg("--exr")
@@ -161,12 +237,41 @@ fn exr_holds_the_five_named_layers() {
         .env("VELLUM_VALIDATION", "1")
         .output()
         .unwrap();
-    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
     let image = exr::prelude::read_all_flat_layers_from_file(&out).unwrap();
-    let mut names: Vec<String> = image.layer_data.iter().map(|l| l.attributes.layer_name.as_ref().map(|n| n.to_string()).unwrap_or_default()).collect();
+    let mut names: Vec<String> = image
+        .layer_data
+        .iter()
+        .map(|l| {
+            l.attributes
+                .layer_name
+                .as_ref()
+                .map(|n| n.to_string())
+                .unwrap_or_default()
+        })
+        .collect();
     names.sort();
-    assert_eq!(names, ["composite", "context", "focus.depth", "focus.diffuse", "focus.phong"]);
+    assert_eq!(
+        names,
+        [
+            "composite",
+            "context",
+            "focus.depth",
+            "focus.diffuse",
+            "focus.phong"
+        ]
+    );
     // The library frame and the CLI agree on what the focus covers.
-    let covered = frame.layers.unwrap().focus_depth.iter().filter(|d| d.is_finite()).count();
+    let covered = frame
+        .layers
+        .unwrap()
+        .focus_depth
+        .iter()
+        .filter(|d| d.is_finite())
+        .count();
     assert!(covered > 50);
 }

@@ -8,9 +8,16 @@ layout(constant_id = 0) const int MODE = 0;
 layout(location = 0) out vec4 color;
 
 void main() {
-    Shaded p = shade_sample();
-    if ((MODE == 1 && p.focus) || p.alpha < MIN_ALPHA) {
+    float s = sample_intensity();
+    bool focus = in_focus(s);
+    if (MODE == 1 && focus) {
         discard;
     }
-    color = vec4(p.phong * p.alpha, p.alpha);
+    vec4 c = classify(s, focus);
+    if (c.a < MIN_ALPHA) {
+        discard;
+    }
+    vec3 phong, diffuse;
+    shade(c.rgb, phong, diffuse);
+    color = vec4(phong * c.a, c.a);
 }

@@ -7,11 +7,17 @@ layout(location = 1) out vec4 diffuse;       // without specular, premultiplied
 layout(location = 2) out vec4 linear_depth;  // distance along the view direction (r)
 
 void main() {
-    Shaded p = shade_sample();
-    if (!p.focus || p.alpha < MIN_ALPHA) {
+    float s = sample_intensity();
+    if (!in_focus(s)) {
         discard;
     }
-    phong = vec4(p.phong * p.alpha, p.alpha);
-    diffuse = vec4(p.diffuse * p.alpha, p.alpha);
+    vec4 c = classify(s, true);
+    if (c.a < MIN_ALPHA) {
+        discard;
+    }
+    vec3 p, d;
+    shade(c.rgb, p, d);
+    phong = vec4(p * c.a, c.a);
+    diffuse = vec4(d * c.a, c.a);
     linear_depth = vec4(dot(world - u.eye.xyz, u.view_dir.xyz), 0.0, 0.0, 1.0);
 }

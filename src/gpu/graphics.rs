@@ -57,9 +57,20 @@ pub struct GraphicsPipeline {
 impl GraphicsPipeline {
     /// Builds the pipeline described by `desc`.
     pub fn new(ctx: &Arc<Context>, desc: &GraphicsDesc) -> Result<Self> {
-        assert_eq!(desc.color_formats.len(), desc.blend.len(), "{}: one blend state per colour attachment", desc.name);
+        assert_eq!(
+            desc.color_formats.len(),
+            desc.blend.len(),
+            "{}: one blend state per colour attachment",
+            desc.name
+        );
         let stages_flags = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT;
-        let layout = PipelineLayout::new(ctx, desc.name, desc.bindings, desc.push_constant_bytes, stages_flags)?;
+        let layout = PipelineLayout::new(
+            ctx,
+            desc.name,
+            desc.bindings,
+            desc.push_constant_bytes,
+            stages_flags,
+        )?;
         let vs = shader_module(ctx, desc.vertex_shader)?;
         let fs = match shader_module(ctx, desc.fragment_shader) {
             Ok(m) => m,
@@ -69,35 +80,66 @@ impl GraphicsPipeline {
             }
         };
         let entries: Vec<vk::SpecializationMapEntry> = (0..desc.fragment_constants.len() as u32)
-            .map(|i| vk::SpecializationMapEntry { constant_id: i, offset: 4 * i, size: 4 })
+            .map(|i| vk::SpecializationMapEntry {
+                constant_id: i,
+                offset: 4 * i,
+                size: 4,
+            })
             .collect();
-        let spec = vk::SpecializationInfo::default().map_entries(&entries).data(bytemuck::cast_slice(desc.fragment_constants));
-        let mut fs_stage = vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main");
+        let spec = vk::SpecializationInfo::default()
+            .map_entries(&entries)
+            .data(bytemuck::cast_slice(desc.fragment_constants));
+        let mut fs_stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::FRAGMENT)
+            .module(fs)
+            .name(c"main");
         if !desc.fragment_constants.is_empty() {
             fs_stage = fs_stage.specialization_info(&spec);
         }
-        let stages = [vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"), fs_stage];
+        let stages = [
+            vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::VERTEX)
+                .module(vs)
+                .name(c"main"),
+            fs_stage,
+        ];
 
-        let vb = [vk::VertexInputBindingDescription { binding: 0, stride: desc.vertex_stride, input_rate: vk::VertexInputRate::VERTEX }];
-        let va = [vk::VertexInputAttributeDescription { location: 0, binding: 0, format: vk::Format::R32G32B32_SFLOAT, offset: 0 }];
+        let vb = [vk::VertexInputBindingDescription {
+            binding: 0,
+            stride: desc.vertex_stride,
+            input_rate: vk::VertexInputRate::VERTEX,
+        }];
+        let va = [vk::VertexInputAttributeDescription {
+            location: 0,
+            binding: 0,
+            format: vk::Format::R32G32B32_SFLOAT,
+            offset: 0,
+        }];
         let vertex_input = if desc.vertex_stride > 0 {
-            vk::PipelineVertexInputStateCreateInfo::default().vertex_binding_descriptions(&vb).vertex_attribute_descriptions(&va)
+            vk::PipelineVertexInputStateCreateInfo::default()
+                .vertex_binding_descriptions(&vb)
+                .vertex_attribute_descriptions(&va)
         } else {
             vk::PipelineVertexInputStateCreateInfo::default()
         };
-        let assembly = vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
-        let viewport = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
+        let assembly = vk::PipelineInputAssemblyStateCreateInfo::default()
+            .topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+        let viewport = vk::PipelineViewportStateCreateInfo::default()
+            .viewport_count(1)
+            .scissor_count(1);
         let raster = vk::PipelineRasterizationStateCreateInfo::default()
             .polygon_mode(vk::PolygonMode::FILL)
             .cull_mode(vk::CullModeFlags::NONE)
             .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
             .line_width(1.0);
-        let multisample = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
+        let multisample = vk::PipelineMultisampleStateCreateInfo::default()
+            .rasterization_samples(vk::SampleCountFlags::TYPE_1);
         let attachments: Vec<_> = desc
             .blend
             .iter()
             .map(|b| {
-                let a = vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA);
+                let a = vk::PipelineColorBlendAttachmentState::default()
+                    .color_write_mask(vk::ColorComponentFlags::RGBA);
                 match b {
                     Blend::Replace => a,
                     Blend::PremultipliedOver => a
@@ -123,7 +165,11 @@ impl GraphicsPipeline {
         let dynamic = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic_states);
         let mut rendering = vk::PipelineRenderingCreateInfo::default()
             .color_attachment_formats(desc.color_formats)
-            .depth_attachment_format(desc.depth.map(|d| d.format).unwrap_or(vk::Format::UNDEFINED));
+            .depth_attachment_format(
+                desc.depth
+                    .map(|d| d.format)
+                    .unwrap_or(vk::Format::UNDEFINED),
+            );
         let info = [vk::GraphicsPipelineCreateInfo::default()
             .stages(&stages)
             .vertex_input_state(&vertex_input)
@@ -136,26 +182,65 @@ impl GraphicsPipeline {
             .dynamic_state(&dynamic)
             .layout(layout.raw)
             .push_next(&mut rendering)];
-        let result = unsafe { ctx.device.create_graphics_pipelines(vk::PipelineCache::null(), &info, None) };
+        let result = unsafe {
+            ctx.device
+                .create_graphics_pipelines(vk::PipelineCache::null(), &info, None)
+        };
         unsafe {
             ctx.device.destroy_shader_module(vs, None);
             ctx.device.destroy_shader_module(fs, None);
         }
-        let raw = result.map_err(|(_, r)| r).vk(format!("creating graphics pipeline {}", desc.name))?[0];
+        let raw = result
+            .map_err(|(_, r)| r)
+            .vk(format!("creating graphics pipeline {}", desc.name))?[0];
         ctx.set_name(raw, desc.name);
-        Ok(GraphicsPipeline { ctx: ctx.clone(), raw, layout, name: desc.name.to_string() })
+        Ok(GraphicsPipeline {
+            ctx: ctx.clone(),
+            raw,
+            layout,
+            name: desc.name.to_string(),
+        })
     }
 
     /// Binds the pipeline, its resources and push constants, and sets a full-target viewport.
-    pub fn bind<P: bytemuck::Pod>(&self, cmd: vk::CommandBuffer, binds: &[Bind], push: &P, extent: [u32; 2]) -> Result<()> {
+    pub fn bind<P: bytemuck::Pod>(
+        &self,
+        cmd: vk::CommandBuffer,
+        binds: &[Bind],
+        push: &P,
+        extent: [u32; 2],
+    ) -> Result<()> {
         let d = &self.ctx.device;
         unsafe {
             d.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, self.raw);
-            let viewport = vk::Viewport { x: 0.0, y: 0.0, width: extent[0] as f32, height: extent[1] as f32, min_depth: 0.0, max_depth: 1.0 };
+            let viewport = vk::Viewport {
+                x: 0.0,
+                y: 0.0,
+                width: extent[0] as f32,
+                height: extent[1] as f32,
+                min_depth: 0.0,
+                max_depth: 1.0,
+            };
             d.cmd_set_viewport(cmd, 0, &[viewport]);
-            d.cmd_set_scissor(cmd, 0, &[vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: extent[0], height: extent[1] } }]);
+            d.cmd_set_scissor(
+                cmd,
+                0,
+                &[vk::Rect2D {
+                    offset: vk::Offset2D::default(),
+                    extent: vk::Extent2D {
+                        width: extent[0],
+                        height: extent[1],
+                    },
+                }],
+            );
         }
-        self.layout.push(cmd, vk::PipelineBindPoint::GRAPHICS, &self.name, binds, bytemuck::bytes_of(push))
+        self.layout.push(
+            cmd,
+            vk::PipelineBindPoint::GRAPHICS,
+            &self.name,
+            binds,
+            bytemuck::bytes_of(push),
+        )
     }
 }
 
@@ -174,8 +259,18 @@ pub enum Load {
 
 /// Transitions `colors` and `depth` to attachment use and opens a dynamic-rendering scope over
 /// the extent of the first attachment. Close it with [`end_rendering`].
-pub fn begin_rendering(ctx: &Context, cmd: vk::CommandBuffer, colors: &[(&Image, Load)], depth: Option<(&Image, Load)>) {
-    let extent = colors.first().map(|c| c.0).or(depth.map(|d| d.0)).map(|i| i.desc.extent).unwrap_or([1, 1, 1]);
+pub fn begin_rendering(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    colors: &[(&Image, Load)],
+    depth: Option<(&Image, Load)>,
+) {
+    let extent = colors
+        .first()
+        .map(|c| c.0)
+        .or(depth.map(|d| d.0))
+        .map(|i| i.desc.extent)
+        .unwrap_or([1, 1, 1]);
     let attachment = |image: &Image, load: Load, next: Access| {
         if matches!(load, Load::Clear(_)) {
             image.discard();
@@ -185,9 +280,16 @@ pub fn begin_rendering(ctx: &Context, cmd: vk::CommandBuffer, colors: &[(&Image,
             Load::Clear(c) => (
                 vk::AttachmentLoadOp::CLEAR,
                 if next == Access::DepthAttachment {
-                    vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: c[0], stencil: 0 } }
+                    vk::ClearValue {
+                        depth_stencil: vk::ClearDepthStencilValue {
+                            depth: c[0],
+                            stencil: 0,
+                        },
+                    }
                 } else {
-                    vk::ClearValue { color: vk::ClearColorValue { float32: c } }
+                    vk::ClearValue {
+                        color: vk::ClearColorValue { float32: c },
+                    }
                 },
             ),
             Load::Keep => (vk::AttachmentLoadOp::LOAD, vk::ClearValue::default()),
@@ -199,10 +301,19 @@ pub fn begin_rendering(ctx: &Context, cmd: vk::CommandBuffer, colors: &[(&Image,
             .store_op(vk::AttachmentStoreOp::STORE)
             .clear_value(clear)
     };
-    let color_infos: Vec<_> = colors.iter().map(|(img, load)| attachment(img, *load, Access::ColorAttachment)).collect();
+    let color_infos: Vec<_> = colors
+        .iter()
+        .map(|(img, load)| attachment(img, *load, Access::ColorAttachment))
+        .collect();
     let depth_info = depth.map(|(img, load)| attachment(img, load, Access::DepthAttachment));
     let mut info = vk::RenderingInfo::default()
-        .render_area(vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: extent[0], height: extent[1] } })
+        .render_area(vk::Rect2D {
+            offset: vk::Offset2D::default(),
+            extent: vk::Extent2D {
+                width: extent[0],
+                height: extent[1],
+            },
+        })
         .layer_count(1)
         .color_attachments(&color_infos);
     if let Some(d) = depth_info.as_ref() {

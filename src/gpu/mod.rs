@@ -3,8 +3,8 @@
 
 pub mod barrier;
 pub mod commands;
-pub mod graphics;
 pub mod context;
+pub mod graphics;
 pub mod interface;
 pub mod pipeline;
 pub mod profiler;

@@ -149,7 +149,9 @@ impl ImportanceMap {
         let mut staging = staging_buffer(ctx, "importance staging", src.byte_size())?;
         // Conversion to float (paper step 1), in parallel, straight into the staging memory and
         // packed four voxels per texel.
-        let mapped = staging.mapped_mut().ok_or_else(|| Error::Invalid("staging buffer is not host-visible".into()))?;
+        let mapped = staging
+            .mapped_mut()
+            .ok_or_else(|| Error::Invalid("staging buffer is not host-visible".into()))?;
         let floats: &mut [f32] = bytemuck::try_cast_slice_mut(mapped)
             .map_err(|e| Error::Invalid(format!("staging memory cannot hold floats: {e}")))?;
         pack_rows_into(v, floats);
@@ -252,15 +254,22 @@ pub fn pack_rows(v: &Volume) -> Vec<f32> {
 
 /// [`pack_rows`] into `out` (for example mapped staging memory), one parallel task per row.
 pub fn pack_rows_into(v: &Volume, out: &mut [f32]) {
-    fn rows<T: Copy + Send + Sync>(src: &[T], nx: usize, out: &mut [f32], f: impl Fn(T) -> f32 + Sync) {
+    fn rows<T: Copy + Send + Sync>(
+        src: &[T],
+        nx: usize,
+        out: &mut [f32],
+        f: impl Fn(T) -> f32 + Sync,
+    ) {
         let px = nx.div_ceil(4) * 4;
-        out.par_chunks_mut(px).zip(src.par_chunks(nx)).for_each(|(dst, row)| {
-            for (d, &s) in dst.iter_mut().zip(row) {
-                *d = f(s);
-            }
-            let last = f(row[nx - 1]);
-            dst[nx..].fill(last);
-        });
+        out.par_chunks_mut(px)
+            .zip(src.par_chunks(nx))
+            .for_each(|(dst, row)| {
+                for (d, &s) in dst.iter_mut().zip(row) {
+                    *d = f(s);
+                }
+                let last = f(row[nx - 1]);
+                dst[nx..].fill(last);
+            });
     }
     let nx = v.dims[0];
     match &v.data {
@@ -275,7 +284,9 @@ pub fn pack_rows_into(v: &Volume, out: &mut [f32]) {
 pub fn unpack_rows(packed: &[f32], dims: [usize; 3]) -> Vec<f32> {
     let px = dims[0].div_ceil(4) * 4;
     let mut out = vec![0f32; dims[0] * dims[1] * dims[2]];
-    out.par_chunks_mut(dims[0]).zip(packed.par_chunks(px)).for_each(|(dst, row)| dst.copy_from_slice(&row[..dims[0]]));
+    out.par_chunks_mut(dims[0])
+        .zip(packed.par_chunks(px))
+        .for_each(|(dst, row)| dst.copy_from_slice(&row[..dims[0]]));
     out
 }
 
@@ -284,9 +295,21 @@ pub fn unpack_rows(packed: &[f32], dims: [usize; 3]) -> Vec<f32> {
 /// (texel x, the other axis), groups over segments.
 pub fn gauss_groups(extent: [u32; 3], axis: usize, radius_voxels: u32) -> [u32; 3] {
     match axis {
-        0 => [(extent[0].div_ceil(SEGMENT_X) * extent[1]).div_ceil(GAUSS_LOCAL_X), extent[2], 1],
-        1 => [(extent[0] * extent[2]).div_ceil(GAUSS_LOCAL_X), extent[1].div_ceil(segment(radius_voxels)), 1],
-        _ => [(extent[0] * extent[1]).div_ceil(GAUSS_LOCAL_X), extent[2].div_ceil(segment(radius_voxels)), 1],
+        0 => [
+            (extent[0].div_ceil(SEGMENT_X) * extent[1]).div_ceil(GAUSS_LOCAL_X),
+            extent[2],
+            1,
+        ],
+        1 => [
+            (extent[0] * extent[2]).div_ceil(GAUSS_LOCAL_X),
+            extent[1].div_ceil(segment(radius_voxels)),
+            1,
+        ],
+        _ => [
+            (extent[0] * extent[1]).div_ceil(GAUSS_LOCAL_X),
+            extent[2].div_ceil(segment(radius_voxels)),
+            1,
+        ],
     }
 }
 

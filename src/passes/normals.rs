@@ -4,7 +4,9 @@
 
 use crate::error::Result;
 use crate::gpu::pipeline::group_count;
-use crate::gpu::{Access, Bind, BindingKind, ComputePipeline, Context, Image, ImageDesc, Profiler, Sampler};
+use crate::gpu::{
+    Access, Bind, BindingKind, ComputePipeline, Context, Image, ImageDesc, Profiler, Sampler,
+};
 use crate::passes::volume_image::extent_of;
 use crate::volume::Volume;
 use ash::vk;
@@ -50,7 +52,11 @@ impl Normals {
             &[BindingKind::SampledImage, BindingKind::StorageImage],
             std::mem::size_of::<NormalsPush>() as u32,
         )?;
-        Ok(Normals { ctx: ctx.clone(), pipeline, nearest: Sampler::new(ctx, false)? })
+        Ok(Normals {
+            ctx: ctx.clone(),
+            pipeline,
+            nearest: Sampler::new(ctx, false)?,
+        })
     }
 
     /// Uploads `v` normalised (pass `upload`) and computes its gradients (pass `sobel_normals`).
@@ -58,27 +64,50 @@ impl Normals {
     pub fn prepare(&self, v: &Volume, profiler: &mut Profiler) -> Result<VolumeTextures> {
         let ctx = &self.ctx;
         let extent = extent_of(ctx, v.dims, 2 + 8, 1)?;
-        let intensity = Image::new(ctx, "volume intensity", &ImageDesc::new_3d(vk::Format::R16_UNORM, extent))?;
-        let gradient = Image::new(ctx, "volume gradient", &ImageDesc::new_3d(vk::Format::R16G16B16A16_SFLOAT, extent))?;
+        let intensity = Image::new(
+            ctx,
+            "volume intensity",
+            &ImageDesc::new_3d(vk::Format::R16_UNORM, extent),
+        )?;
+        let gradient = Image::new(
+            ctx,
+            "volume gradient",
+            &ImageDesc::new_3d(vk::Format::R16G16B16A16_SFLOAT, extent),
+        )?;
         let (texels, range) = v.normalised_u16();
-        let mut staging = crate::gpu::transfer::staging_buffer(ctx, "volume staging", texels.len() * 2)?;
+        let mut staging =
+            crate::gpu::transfer::staging_buffer(ctx, "volume staging", texels.len() * 2)?;
         staging.write(bytemuck::cast_slice(&texels))?;
         let push = NormalsPush {
             dims: [v.dims[0] as i32, v.dims[1] as i32, v.dims[2] as i32],
             pad: 0,
-            inv_spacing: [(1.0 / v.spacing[0]) as f32, (1.0 / v.spacing[1]) as f32, (1.0 / v.spacing[2]) as f32, 0.0],
+            inv_spacing: [
+                (1.0 / v.spacing[0]) as f32,
+                (1.0 / v.spacing[1]) as f32,
+                (1.0 / v.spacing[2]) as f32,
+                0.0,
+            ],
         };
         crate::gpu::submit_once(ctx, "volume textures", |cmd| {
             profiler.reset(cmd);
             profiler.pass(cmd, "upload", |cmd| {
-                crate::gpu::transfer::record_upload(ctx, cmd, &staging, &intensity, Access::ComputeSampled)
+                crate::gpu::transfer::record_upload(
+                    ctx,
+                    cmd,
+                    &staging,
+                    &intensity,
+                    Access::ComputeSampled,
+                )
             });
             profiler.begin(cmd, "sobel_normals");
             gradient.discard();
             gradient.transition(cmd, Access::ComputeWrite);
             self.pipeline.dispatch(
                 cmd,
-                &[Bind::Sampled(&intensity, &self.nearest), Bind::StorageImage(&gradient)],
+                &[
+                    Bind::Sampled(&intensity, &self.nearest),
+                    Bind::StorageImage(&gradient),
+                ],
                 &push,
                 group_count(extent, LOCAL_SIZE),
             )?;
@@ -87,7 +116,13 @@ impl Normals {
             gradient.transition(cmd, Access::FragmentSampled);
             Ok(())
         })?;
-        Ok(VolumeTextures { intensity, gradient, range, dims: v.dims, spacing: v.spacing })
+        Ok(VolumeTextures {
+            intensity,
+            gradient,
+            range,
+            dims: v.dims,
+            spacing: v.spacing,
+        })
     }
 }
 
@@ -98,8 +133,17 @@ mod tests {
 
     #[test]
     fn push_constants_match_glsl() {
-        assert_glsl_layout!(NormalsPush, "render.glsl", "NormalsPush", [dims, pad, inv_spacing]);
-        let src = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/glsl/common/render.glsl")).unwrap();
+        assert_glsl_layout!(
+            NormalsPush,
+            "render.glsl",
+            "NormalsPush",
+            [dims, pad, inv_spacing]
+        );
+        let src = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/glsl/common/render.glsl"
+        ))
+        .unwrap();
         for (axis, n) in ["X", "Y", "Z"].iter().zip(LOCAL_SIZE) {
             assert!(src.contains(&format!("#define NORMALS_LOCAL_{axis} {n}")));
         }

@@ -5,5 +5,5 @@
 
 pub mod camera;
 pub mod proxy;
-pub mod transfer;
 pub mod slicer;
+pub mod transfer;

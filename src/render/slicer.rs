@@ -11,11 +11,16 @@
 //! focus this equals the classic single pass (`one_pass`), which is the paper's claim and a test.
 
 use crate::error::{Error, Result};
-use crate::gpu::graphics::{begin_rendering, end_rendering, Blend, DepthState, GraphicsDesc, GraphicsPipeline, Load};
+use crate::gpu::graphics::{
+    begin_rendering, end_rendering, Blend, DepthState, GraphicsDesc, GraphicsPipeline, Load,
+};
 use crate::gpu::profiler::PassTime;
 use crate::gpu::resources::BufferLocation;
 use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
-use crate::gpu::{submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, Context, Image, ImageDesc, Profiler, Sampler};
+use crate::gpu::{
+    submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, Context, Image, ImageDesc,
+    Profiler, Sampler,
+};
 use crate::passes::normals::VolumeTextures;
 use crate::render::camera::Camera;
 use crate::render::proxy::view_aligned_slices;
@@ -52,14 +57,22 @@ impl Focus {
     /// Parses `--focus LO:HI` or `--iso V` (data units).
     pub fn parse(range: Option<&str>, iso: Option<f64>) -> Result<Focus> {
         match (range, iso) {
-            (Some(_), Some(_)) => Err(Error::Invalid("give either --focus LO:HI or --iso V, not both".into())),
+            (Some(_), Some(_)) => Err(Error::Invalid(
+                "give either --focus LO:HI or --iso V, not both".into(),
+            )),
             (None, Some(v)) if v.is_finite() => Ok(Focus::Iso(v)),
             (None, Some(_)) => Err(Error::Invalid("--iso needs a finite value".into())),
             (Some(r), None) => {
-                let parsed = r.split_once(':').and_then(|(a, b)| Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?)));
+                let parsed = r.split_once(':').and_then(|(a, b)| {
+                    Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?))
+                });
                 match parsed {
-                    Some((lo, hi)) if lo <= hi && lo.is_finite() && hi.is_finite() => Ok(Focus::Range { lo, hi }),
-                    _ => Err(Error::Invalid(format!("--focus '{r}' is not an interval LO:HI of data values with LO <= HI"))),
+                    Some((lo, hi)) if lo <= hi && lo.is_finite() && hi.is_finite() => {
+                        Ok(Focus::Range { lo, hi })
+                    }
+                    _ => Err(Error::Invalid(format!(
+                        "--focus '{r}' is not an interval LO:HI of data values with LO <= HI"
+                    ))),
                 }
             }
             (None, None) => Ok(Focus::None),
@@ -68,7 +81,13 @@ impl Focus {
 
     /// (lo, hi, mode) on the normalised range of `data_range`.
     fn normalised(&self, data_range: [f64; 2]) -> [f32; 3] {
-        let n = |v: f64| if data_range[1] > data_range[0] { ((v - data_range[0]) / (data_range[1] - data_range[0])) as f32 } else { 0.0 };
+        let n = |v: f64| {
+            if data_range[1] > data_range[0] {
+                ((v - data_range[0]) / (data_range[1] - data_range[0])) as f32
+            } else {
+                0.0
+            }
+        };
         match *self {
             Focus::None => [0.0, 0.0, 0.0],
             Focus::Range { lo, hi } => [n(lo), n(hi), 1.0],
@@ -127,37 +146,53 @@ pub struct Renderer {
     nearest: Sampler,
 }
 
-const SLICE_BINDINGS: [BindingKind; 4] =
-    [BindingKind::UniformBuffer, BindingKind::SampledImage, BindingKind::SampledImage, BindingKind::SampledImage];
+const SLICE_BINDINGS: [BindingKind; 4] = [
+    BindingKind::UniformBuffer,
+    BindingKind::SampledImage,
+    BindingKind::SampledImage,
+    BindingKind::SampledImage,
+];
 
 impl Renderer {
     /// Builds the four pipelines.
     pub fn new(ctx: &Arc<Context>) -> Result<Self> {
-        let slice = |name, fragment, colors: &[vk::Format], blend: &[Blend], depth, constants: &[u32]| {
-            GraphicsPipeline::new(
-                ctx,
-                &GraphicsDesc {
-                    name,
-                    vertex_shader: "render/slice.vert",
-                    fragment_shader: fragment,
-                    bindings: &SLICE_BINDINGS,
-                    push_constant_bytes: 0,
-                    vertex_stride: 12,
-                    color_formats: colors,
-                    blend,
-                    depth,
-                    fragment_constants: constants,
-                },
-            )
-        };
+        let slice =
+            |name, fragment, colors: &[vk::Format], blend: &[Blend], depth, constants: &[u32]| {
+                GraphicsPipeline::new(
+                    ctx,
+                    &GraphicsDesc {
+                        name,
+                        vertex_shader: "render/slice.vert",
+                        fragment_shader: fragment,
+                        bindings: &SLICE_BINDINGS,
+                        push_constant_bytes: 0,
+                        vertex_stride: 12,
+                        color_formats: colors,
+                        blend,
+                        depth,
+                        fragment_constants: constants,
+                    },
+                )
+            };
         let over = Blend::PremultipliedOver;
-        let one_pass = slice("one_pass", "render/slice.frag", &[COLOR], &[over], None, &[0])?;
+        let one_pass = slice(
+            "one_pass",
+            "render/slice.frag",
+            &[COLOR],
+            &[over],
+            None,
+            &[0],
+        )?;
         let focus = slice(
             "focus",
             "render/slice_focus.frag",
             &[COLOR, COLOR, LINEAR_DEPTH],
             &[over, over, Blend::Replace],
-            Some(DepthState { format: DEPTH, compare: vk::CompareOp::LESS_OR_EQUAL, write: true }),
+            Some(DepthState {
+                format: DEPTH,
+                compare: vk::CompareOp::LESS_OR_EQUAL,
+                write: true,
+            }),
             &[],
         )?;
         let context = slice(
@@ -165,7 +200,11 @@ impl Renderer {
             "render/slice.frag",
             &[COLOR],
             &[over],
-            Some(DepthState { format: DEPTH, compare: vk::CompareOp::LESS, write: false }),
+            Some(DepthState {
+                format: DEPTH,
+                compare: vk::CompareOp::LESS,
+                write: false,
+            }),
             &[1],
         )?;
         let composite = GraphicsPipeline::new(
@@ -183,17 +222,32 @@ impl Renderer {
                 fragment_constants: &[],
             },
         )?;
-        Ok(Renderer { ctx: ctx.clone(), one_pass, focus, context, composite, linear: Sampler::new(ctx, true)?, nearest: Sampler::new(ctx, false)? })
+        Ok(Renderer {
+            ctx: ctx.clone(),
+            one_pass,
+            focus,
+            context,
+            composite,
+            linear: Sampler::new(ctx, true)?,
+            nearest: Sampler::new(ctx, false)?,
+        })
     }
 
     /// Renders one frame of `vol`. With `readback`, the composite (and the layers of a two-level
     /// frame) come back to the host.
-    pub fn render(&self, vol: &VolumeTextures, params: &RenderParams, readback: bool) -> Result<Frame> {
+    pub fn render(
+        &self,
+        vol: &VolumeTextures,
+        params: &RenderParams,
+        readback: bool,
+    ) -> Result<Frame> {
         let ctx = &self.ctx;
         let [w, h] = params.size;
         let max2d = ctx.info.max_image_dimension_2d;
         if w == 0 || h == 0 || w > max2d || h > max2d {
-            return Err(Error::Invalid(format!("image size {w}x{h} is invalid; expected 1..={max2d} pixels per side")));
+            return Err(Error::Invalid(format!(
+                "image size {w}x{h} is invalid; expected 1..={max2d} pixels per side"
+            )));
         }
         // The box in world units: physical size scaled so that its longest edge is 1.
         let physical: [f64; 3] = std::array::from_fn(|a| vol.dims[a] as f64 * vol.spacing[a]);
@@ -201,9 +255,14 @@ impl Renderer {
         let half = Vec3::from_array(physical.map(|p| (0.5 * p / longest) as f32));
         let radius = half.length();
         let voxel = vol.spacing.iter().copied().fold(f64::INFINITY, f64::min) / longest;
-        let n_slices = params.slices.unwrap_or_else(|| 2 * *vol.dims.iter().max().unwrap_or(&1) as u32).max(1);
+        let n_slices = params
+            .slices
+            .unwrap_or_else(|| 2 * *vol.dims.iter().max().unwrap_or(&1) as u32)
+            .max(1);
         if n_slices > 16384 {
-            return Err(Error::Invalid(format!("{n_slices} slices are too many; expected at most 16384")));
+            return Err(Error::Invalid(format!(
+                "{n_slices} slices are too many; expected at most 16384"
+            )));
         }
         let cam = &params.camera;
         let view_dir = cam.view_dir(radius);
@@ -211,26 +270,48 @@ impl Renderer {
         let eye = cam.eye(radius);
         let light = -view_dir; // a headlight
         let uniforms = SliceUniforms {
-            view_proj: cam.view_proj(w as f32 / h as f32, radius).to_cols_array_2d(),
+            view_proj: cam
+                .view_proj(w as f32 / h as f32, radius)
+                .to_cols_array_2d(),
             half_extent: [half.x, half.y, half.z, 0.0],
             eye: [eye.x, eye.y, eye.z, 0.0],
-            view_dir: [view_dir.x, view_dir.y, view_dir.z, if cam.ortho { 1.0 } else { 0.0 }],
+            view_dir: [
+                view_dir.x,
+                view_dir.y,
+                view_dir.z,
+                if cam.ortho { 1.0 } else { 0.0 },
+            ],
             light: [light.x, light.y, light.z, 24.0],
             material: [0.25, 0.75, 0.35, (proxy.spacing as f64 / voxel) as f32],
-            focus: { let f = params.focus.normalised(vol.range); [f[0], f[1], f[2], 0.0] },
+            focus: {
+                let f = params.focus.normalised(vol.range);
+                [f[0], f[1], f[2], 0.0]
+            },
         };
 
-        let mut ubo = Buffer::new(ctx, "slice uniforms", &BufferDesc::uniform(std::mem::size_of::<SliceUniforms>() as u64))?;
+        let mut ubo = Buffer::new(
+            ctx,
+            "slice uniforms",
+            &BufferDesc::uniform(std::mem::size_of::<SliceUniforms>() as u64),
+        )?;
         ubo.write(bytemuck::bytes_of(&uniforms))?;
         let vertex_bytes: &[u8] = bytemuck::cast_slice(&proxy.vertices);
         let mut vertices = Buffer::new(
             ctx,
             "proxy slices",
-            &BufferDesc { size: vertex_bytes.len().max(12) as u64, usage: vk::BufferUsageFlags::VERTEX_BUFFER, location: BufferLocation::Upload },
+            &BufferDesc {
+                size: vertex_bytes.len().max(12) as u64,
+                usage: vk::BufferUsageFlags::VERTEX_BUFFER,
+                location: BufferLocation::Upload,
+            },
         )?;
         vertices.write(vertex_bytes)?;
         let table: Vec<[f32; 4]> = params.transfer.table(256);
-        let tf = Image::new(ctx, "transfer function", &ImageDesc::new_2d(COLOR, [256, 1]))?;
+        let tf = Image::new(
+            ctx,
+            "transfer function",
+            &ImageDesc::new_2d(COLOR, [256, 1]),
+        )?;
         let mut tf_staging = staging_buffer(ctx, "transfer function staging", table.len() * 16)?;
         tf_staging.write(bytemuck::cast_slice(&table))?;
 
@@ -238,24 +319,43 @@ impl Renderer {
             let usage = if format == DEPTH {
                 vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT
             } else {
-                vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_SRC
+                vk::ImageUsageFlags::COLOR_ATTACHMENT
+                    | vk::ImageUsageFlags::SAMPLED
+                    | vk::ImageUsageFlags::TRANSFER_SRC
             };
             Image::new(ctx, name, &ImageDesc::new_2d(format, [w, h]).usage(usage))
         };
         let composite = target("composite", COLOR)?;
         let two_level = !params.one_pass;
         let layers = if two_level {
-            Some([target("focus phong", COLOR)?, target("focus diffuse", COLOR)?, target("focus linear depth", LINEAR_DEPTH)?, target("context", COLOR)?])
+            Some([
+                target("focus phong", COLOR)?,
+                target("focus diffuse", COLOR)?,
+                target("focus linear depth", LINEAR_DEPTH)?,
+                target("context", COLOR)?,
+            ])
         } else {
             None
         };
-        let depth = if two_level { Some(target("focus depth", DEPTH)?) } else { None };
+        let depth = if two_level {
+            Some(target("focus depth", DEPTH)?)
+        } else {
+            None
+        };
         let readbacks: Vec<(&Image, Buffer)> = if readback {
             let mut images = vec![&composite];
             if let Some(l) = &layers {
                 images.extend(l.iter());
             }
-            images.into_iter().map(|i| Ok((i, staging_buffer(ctx, &format!("{} readback", i.name), i.byte_size())?))).collect::<Result<_>>()?
+            images
+                .into_iter()
+                .map(|i| {
+                    Ok((
+                        i,
+                        staging_buffer(ctx, &format!("{} readback", i.name), i.byte_size())?,
+                    ))
+                })
+                .collect::<Result<_>>()?
         } else {
             Vec::new()
         };
@@ -267,12 +367,18 @@ impl Renderer {
             record_upload(ctx, cmd, &tf_staging, &tf, Access::FragmentSampled);
             vol.intensity.transition(cmd, Access::FragmentSampled);
             vol.gradient.transition(cmd, Access::FragmentSampled);
-            let binds = [Bind::Uniform(&ubo), Bind::Sampled(&vol.intensity, &self.linear), Bind::Sampled(&vol.gradient, &self.linear), Bind::Sampled(&tf, &self.linear)];
+            let binds = [
+                Bind::Uniform(&ubo),
+                Bind::Sampled(&vol.intensity, &self.linear),
+                Bind::Sampled(&vol.gradient, &self.linear),
+                Bind::Sampled(&tf, &self.linear),
+            ];
             let draw = |pipeline: &GraphicsPipeline| -> Result<()> {
                 pipeline.bind(cmd, &binds, &(), [w, h])?;
                 if vertex_count > 0 {
                     unsafe {
-                        ctx.device.cmd_bind_vertex_buffers(cmd, 0, &[vertices.raw], &[0]);
+                        ctx.device
+                            .cmd_bind_vertex_buffers(cmd, 0, &[vertices.raw], &[0]);
                         ctx.device.cmd_draw(cmd, vertex_count, 1, 0, 0);
                     }
                 }
@@ -282,7 +388,16 @@ impl Renderer {
             match (&layers, &depth) {
                 (Some([phong, diffuse, lin_depth, context]), Some(depth)) => {
                     profiler.begin(cmd, "focus");
-                    begin_rendering(ctx, cmd, &[(phong, clear), (diffuse, clear), (lin_depth, Load::Clear([f32::INFINITY; 4]))], Some((depth, Load::Clear([1.0; 4]))));
+                    begin_rendering(
+                        ctx,
+                        cmd,
+                        &[
+                            (phong, clear),
+                            (diffuse, clear),
+                            (lin_depth, Load::Clear([f32::INFINITY; 4])),
+                        ],
+                        Some((depth, Load::Clear([1.0; 4]))),
+                    );
                     draw(&self.focus)?;
                     end_rendering(ctx, cmd);
                     profiler.end(cmd);
@@ -295,7 +410,15 @@ impl Renderer {
                     phong.transition(cmd, Access::FragmentSampled);
                     context.transition(cmd, Access::FragmentSampled);
                     begin_rendering(ctx, cmd, &[(&composite, clear)], None);
-                    self.composite.bind(cmd, &[Bind::Sampled(phong, &self.nearest), Bind::Sampled(context, &self.nearest)], &(), [w, h])?;
+                    self.composite.bind(
+                        cmd,
+                        &[
+                            Bind::Sampled(phong, &self.nearest),
+                            Bind::Sampled(context, &self.nearest),
+                        ],
+                        &(),
+                        [w, h],
+                    )?;
                     unsafe { ctx.device.cmd_draw(cmd, 3, 1, 0, 0) };
                     end_rendering(ctx, cmd);
                     profiler.end(cmd);
@@ -319,13 +442,18 @@ impl Renderer {
         })?;
         let passes = profiler.results()?;
         let rgba = |b: &Buffer| -> Result<Vec<[f32; 4]>> {
-            let bytes = b.mapped().ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
+            let bytes = b
+                .mapped()
+                .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
             Ok(bytemuck::pod_collect_to_vec(bytes))
         };
         let (composite_px, layers_px) = if readback {
             let composite_px = rgba(&readbacks[0].1)?;
             let layers_px = if two_level {
-                let depth_bytes = readbacks[3].1.mapped().ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
+                let depth_bytes = readbacks[3]
+                    .1
+                    .mapped()
+                    .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
                 Some(Layers {
                     focus_phong: rgba(&readbacks[1].1)?,
                     focus_diffuse: rgba(&readbacks[2].1)?,
@@ -339,7 +467,13 @@ impl Renderer {
         } else {
             (Vec::new(), None)
         };
-        Ok(Frame { size: [w, h], composite: composite_px, layers: layers_px, passes, slices: proxy.slices })
+        Ok(Frame {
+            size: [w, h],
+            composite: composite_px,
+            layers: layers_px,
+            passes,
+            slices: proxy.slices,
+        })
     }
 }
 
@@ -349,7 +483,8 @@ pub fn to_rgb8(pixels: &[[f32; 4]], background: [f32; 3]) -> Vec<u8> {
         .iter()
         .flat_map(|p| {
             let a = p[3].clamp(0.0, 1.0);
-            [0, 1, 2].map(|c| ((p[c] + (1.0 - a) * background[c]).clamp(0.0, 1.0) * 255.0).round() as u8)
+            [0, 1, 2]
+                .map(|c| ((p[c] + (1.0 - a) * background[c]).clamp(0.0, 1.0) * 255.0).round() as u8)
         })
         .collect()
 }
@@ -361,12 +496,28 @@ mod tests {
 
     #[test]
     fn uniforms_match_glsl() {
-        assert_glsl_layout!(SliceUniforms, "render.glsl", "SliceUniforms", [view_proj, half_extent, eye, view_dir, light, material, focus]);
+        assert_glsl_layout!(
+            SliceUniforms,
+            "render.glsl",
+            "SliceUniforms",
+            [
+                view_proj,
+                half_extent,
+                eye,
+                view_dir,
+                light,
+                material,
+                focus
+            ]
+        );
     }
 
     #[test]
     fn focus_parsing() {
-        assert_eq!(Focus::parse(Some("10:20"), None).unwrap(), Focus::Range { lo: 10.0, hi: 20.0 });
+        assert_eq!(
+            Focus::parse(Some("10:20"), None).unwrap(),
+            Focus::Range { lo: 10.0, hi: 20.0 }
+        );
         assert_eq!(Focus::parse(None, Some(3.0)).unwrap(), Focus::Iso(3.0));
         assert!(Focus::parse(Some("20:10"), None).is_err());
         assert!(Focus::parse(Some("x"), None).is_err());

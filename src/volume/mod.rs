@@ -257,7 +257,11 @@ impl Volume {
         let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
         let out = (0..self.len())
             .into_par_iter()
-            .map(|i| ((self.data.get_f64(i) - lo) * scale).round().clamp(0.0, 65535.0) as u16)
+            .map(|i| {
+                ((self.data.get_f64(i) - lo) * scale)
+                    .round()
+                    .clamp(0.0, 65535.0) as u16
+            })
             .collect();
         (out, [lo, hi])
     }

@@ -14,7 +14,11 @@ pub fn sobel_gradient(data: &[f64], dims: [usize; 3], spacing: [f64; 3]) -> Vec<
     (0..nx * ny * nz)
         .into_par_iter()
         .map(|i| {
-            let (x, y, z) = ((i % nx) as i64, ((i / nx) % ny) as i64, (i / (nx * ny)) as i64);
+            let (x, y, z) = (
+                (i % nx) as i64,
+                ((i / nx) % ny) as i64,
+                (i / (nx * ny)) as i64,
+            );
             let mut g = [0.0f64; 3];
             for dz in -1i64..=1 {
                 for dy in -1i64..=1 {
@@ -27,8 +31,17 @@ pub fn sobel_gradient(data: &[f64], dims: [usize; 3], spacing: [f64; 3]) -> Vec<
                     }
                 }
             }
-            let g = [g[0] / (32.0 * spacing[0]), g[1] / (32.0 * spacing[1]), g[2] / (32.0 * spacing[2])];
-            [g[0], g[1], g[2], (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt()]
+            let g = [
+                g[0] / (32.0 * spacing[0]),
+                g[1] / (32.0 * spacing[1]),
+                g[2] / (32.0 * spacing[2]),
+            ];
+            [
+                g[0],
+                g[1],
+                g[2],
+                (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt(),
+            ]
         })
         .collect()
 }

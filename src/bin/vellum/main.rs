@@ -1,6 +1,8 @@
 //! The `vellum` command line. It parses arguments, calls the library and writes results; the work
 //! itself lives in the library.
 
+mod features;
+
 use anyhow::{Context as _, Result};
 use clap::{Args, Parser, Subcommand};
 use serde_json::json;
@@ -105,7 +107,12 @@ enum Command {
         #[arg(long, value_name = "V", allow_negative_numbers = true)]
         iso: Option<f64>,
         /// Camera: azimuth and elevation in degrees, distance in bounding-sphere radii.
-        #[arg(long, value_name = "AZ,EL,DIST", default_value = "30,20,2.5", allow_hyphen_values = true)]
+        #[arg(
+            long,
+            value_name = "AZ,EL,DIST",
+            default_value = "30,20,2.5",
+            allow_hyphen_values = true
+        )]
         camera: String,
         /// Orthographic instead of perspective projection.
         #[arg(long)]
@@ -131,6 +138,10 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Migrate a segmented feature into a private density interval (feature maps, SPEC FM1-FM5).
+    Migrate(features::MigrateArgs),
+    /// Print the tree of a feature map (features.json).
+    Features(features::FeaturesArgs),
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -140,6 +151,17 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchCommand {
+    /// Frames per second of the slice renderer, one pass against two levels (paper Fig. 9).
+    Render {
+        #[arg(long)]
+        json: bool,
+        /// Frames per case; each figure is the median.
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+        /// Square image sizes in pixels.
+        #[arg(long, value_delimiter = ',', default_value = "256,512,1024")]
+        sizes: Vec<u32>,
+    },
     /// The importance paper's Table 1: per-pass and total times for three volume sizes and R ∈ {1,5,10}.
     Table1 {
         #[arg(long)]
@@ -273,7 +295,21 @@ fn run(cli: &Cli) -> Result<()> {
             slices.as_deref(),
             *json,
         ),
-        Command::Render { input, tf, focus, iso, camera, ortho, size, slices, one_pass, background, out, exr, json } => {
+        Command::Render {
+            input,
+            tf,
+            focus,
+            iso,
+            camera,
+            ortho,
+            size,
+            slices,
+            one_pass,
+            background,
+            out,
+            exr,
+            json,
+        } => {
             let opts = RenderOpts {
                 tf,
                 focus: focus.as_deref(),
@@ -290,6 +326,30 @@ fn run(cli: &Cli) -> Result<()> {
             };
             render(cli, input, &opts)
         }
+        Command::Bench {
+            which:
+                BenchCommand::Render {
+                    json,
+                    repeat,
+                    sizes,
+                },
+        } => {
+            let ctx = context(cli)?;
+            let opts = vellum::bench::render::Options {
+                repeat: (*repeat).max(1),
+                sizes: sizes.clone(),
+            };
+            let table = vellum::bench::render::run(&ctx, &opts)?;
+            report_validation(&ctx);
+            if *json {
+                println!("{}", serde_json::to_string_pretty(&table)?);
+            } else {
+                print!("{}", table.to_text());
+            }
+            Ok(())
+        }
+        Command::Migrate(args) => features::migrate(args),
+        Command::Features(args) => features::print_tree(args),
         Command::Bench {
             which:
                 BenchCommand::Table1 {
@@ -488,7 +548,10 @@ fn parse_size(s: &str) -> Result<[u32; 2]> {
 
 fn parse_rgb(s: &str) -> Result<[f32; 3]> {
     let v: Vec<f32> = s.split(',').filter_map(|c| c.trim().parse().ok()).collect();
-    anyhow::ensure!(v.len() == 3 && v.iter().all(|c| (0.0..=1.0).contains(c)), "--background '{s}' is not R,G,B with each in 0..1");
+    anyhow::ensure!(
+        v.len() == 3 && v.iter().all(|c| (0.0..=1.0).contains(c)),
+        "--background '{s}' is not R,G,B with each in 0..1"
+    );
     Ok([v[0], v[1], v[2]])
 }
 
@@ -518,20 +581,46 @@ fn render(cli: &Cli, input: &InputArgs, o: &RenderOpts) -> Result<()> {
         use vellum::output::{write_exr_layers, ExrChannels, ExrLayer};
         let mut layers = Vec::new();
         if let Some(l) = &frame.layers {
-            layers.push(ExrLayer { name: "focus.phong", channels: ExrChannels::Rgba(&l.focus_phong) });
-            layers.push(ExrLayer { name: "focus.diffuse", channels: ExrChannels::Rgba(&l.focus_diffuse) });
-            layers.push(ExrLayer { name: "focus.depth", channels: ExrChannels::Depth(&l.focus_depth) });
-            layers.push(ExrLayer { name: "context", channels: ExrChannels::Rgba(&l.context) });
+            layers.push(ExrLayer {
+                name: "focus.phong",
+                channels: ExrChannels::Rgba(&l.focus_phong),
+            });
+            layers.push(ExrLayer {
+                name: "focus.diffuse",
+                channels: ExrChannels::Rgba(&l.focus_diffuse),
+            });
+            layers.push(ExrLayer {
+                name: "focus.depth",
+                channels: ExrChannels::Depth(&l.focus_depth),
+            });
+            layers.push(ExrLayer {
+                name: "context",
+                channels: ExrChannels::Rgba(&l.context),
+            });
         }
-        layers.push(ExrLayer { name: "composite", channels: ExrChannels::Rgba(&frame.composite) });
+        layers.push(ExrLayer {
+            name: "composite",
+            channels: ExrChannels::Rgba(&frame.composite),
+        });
         write_exr_layers(path, w, h, &layers)?;
     }
     let passes: Vec<_> = prepare.iter().chain(&frame.passes).collect();
     if o.json {
-        let map: serde_json::Map<String, serde_json::Value> = passes.iter().map(|p| (p.name.clone(), json!(p.ms))).collect();
-        println!("{}", serde_json::to_string_pretty(&json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map }))?);
+        let map: serde_json::Map<String, serde_json::Value> = passes
+            .iter()
+            .map(|p| (p.name.clone(), json!(p.ms)))
+            .collect();
+        println!(
+            "{}",
+            serde_json::to_string_pretty(
+                &json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map })
+            )?
+        );
     } else {
-        println!("rendered {} ({w}x{h}, {} slices) on {}", input.input, frame.slices, ctx.info.name);
+        println!(
+            "rendered {} ({w}x{h}, {} slices) on {}",
+            input.input, frame.slices, ctx.info.name
+        );
         for p in passes {
             println!("  {:<14} {:>9.3} ms", p.name, p.ms);
         }
