@@ -9,6 +9,7 @@ pub mod gpu;
 pub mod input;
 pub mod output;
 pub mod passes;
+pub mod plot;
 pub mod render;
 pub mod volume;
 

@@ -3,4 +3,5 @@
 
 pub mod importance;
 pub mod normals;
+pub mod occlusion;
 pub mod volume_image;

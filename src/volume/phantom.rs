@@ -190,26 +190,25 @@ pub fn shepp_logan(n: usize) -> Volume {
     })
 }
 
-/// Intensities of the [`nested`] phantom.
-pub const NESTED_HIGH: f32 = 1.0;
-/// The intensity shared by both structures: a shell in one, a core in the other.
-pub const NESTED_MEDIUM: f32 = 0.5;
-/// Outer shell of the second structure.
+/// Intensity of both inner spheres of the [`nested`] phantom.
+pub const NESTED_CORE: f32 = 0.75;
+/// Shell around the first sphere (low intensity).
 pub const NESTED_LOW: f32 = 0.25;
-/// Centres (x, in [-1, 1] coordinates; y = z = 0) and radii of the two nested structures.
+/// Shell around the second sphere (medium intensity).
+pub const NESTED_MEDIUM: f32 = 0.5;
+/// Centres (x, in [-1, 1] coordinates; y = z = 0) of the low-shelled and medium-shelled structure.
 pub const NESTED_CENTRES_X: [f64; 2] = [-0.45, 0.45];
-/// Radius of each core sphere.
+/// Radius of each inner sphere.
 pub const NESTED_CORE_RADIUS: f64 = 0.2;
 /// Outer radius of each shell.
 pub const NESTED_SHELL_RADIUS: f64 = 0.4;
 
-/// The phantom of the occlusion-spectrum paper (Correa & Ma 2009, Fig. 4a and Fig. 5 middle): "two
-/// spheres surrounded by a hollowed structure. One of the spheres is a high intensity surrounded by
-/// a medium intensity and the other is of medium intensity surrounded by low intensity". The
-/// medium intensity thus appears once as an outer shell (little occluded) and once as an inner core
-/// (fully enclosed), which is what the occlusion spectrum separates. The paper gives no numbers;
-/// here high = 1, medium = 0.5, low = 0.25, background 0, cores of radius 0.2 and shells of outer
-/// radius 0.4 centred at x = -0.45 (high core) and x = +0.45 (medium core).
+/// The nested-structures phantom of the occlusion-spectrum paper (Correa & Ma, Fig. 4a/5), as the
+/// project defines it: two spheres of equal intensity, one surrounded by a low-intensity shell and
+/// one by a medium-intensity shell. Intensity alone cannot tell the spheres apart; their occlusion
+/// differs because their surroundings do, which is what the spectrum separates. The paper gives
+/// no numbers; here the spheres are 0.75, the shells 0.25 (at x = -0.45) and 0.5 (at x = +0.45),
+/// background 0, spheres of radius 0.2 and shells of outer radius 0.4 in [-1, 1] coordinates.
 pub fn nested(n: usize) -> Volume {
     let [cx_a, cx_b] = NESTED_CENTRES_X;
     sample(n, |x, y, z| {
@@ -223,8 +222,8 @@ pub fn nested(n: usize) -> Volume {
                 None
             }
         };
-        layer(r(cx_a), NESTED_HIGH, NESTED_MEDIUM)
-            .or(layer(r(cx_b), NESTED_MEDIUM, NESTED_LOW))
+        layer(r(cx_a), NESTED_CORE, NESTED_LOW)
+            .or(layer(r(cx_b), NESTED_CORE, NESTED_MEDIUM))
             .unwrap_or(0.0)
     })
 }

@@ -138,6 +138,34 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Ambient-occlusion volume and occlusion spectrum (SPEC OS1-OS3).
+    Occlusion {
+        #[command(flatten)]
+        input: InputArgs,
+        /// Neighbourhood radius R in voxels.
+        #[arg(long, default_value_t = 16)]
+        radius: u32,
+        /// Visibility mapping: ramp, truncated:T0,T1 (fractions of the data range), gaussian, tf:FILE.json.
+        #[arg(long, default_value = "ramp")]
+        mapping: String,
+        /// Output resolution: one occlusion voxel per STRIDE³ input voxels (exact at the voxel it samples).
+        #[arg(long, default_value_t = 1)]
+        stride: u32,
+        /// Write the occlusion volume as a float NRRD.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Write the spectrum as a log-scaled PNG with axes.
+        #[arg(long)]
+        spectrum: Option<PathBuf>,
+        /// Write the spectrum as CSV.
+        #[arg(long)]
+        spectrum_data: Option<PathBuf>,
+        /// Spectrum bins along intensity and occlusion.
+        #[arg(long, default_value_t = 256)]
+        bins: u32,
+        #[arg(long)]
+        json: bool,
+    },
     /// Migrate a segmented feature into a private density interval (feature maps, SPEC FM1-FM5).
     Migrate(features::MigrateArgs),
     /// Print the tree of a feature map (features.json).
@@ -347,6 +375,9 @@ fn run(cli: &Cli) -> Result<()> {
                 print!("{}", table.to_text());
             }
             Ok(())
+        }
+        Command::Occlusion { input, radius, mapping, stride, out, spectrum, spectrum_data, bins, json } => {
+            occlusion(cli, input, *radius, mapping, *stride, out.as_deref(), spectrum.as_deref(), spectrum_data.as_deref(), *bins, *json)
         }
         Command::Migrate(args) => features::migrate(args),
         Command::Features(args) => features::print_tree(args),
@@ -624,6 +655,75 @@ fn render(cli: &Cli, input: &InputArgs, o: &RenderOpts) -> Result<()> {
         for p in passes {
             println!("  {:<14} {:>9.3} ms", p.name, p.ms);
         }
+    }
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn occlusion(
+    cli: &Cli,
+    input: &InputArgs,
+    radius: u32,
+    mapping: &str,
+    stride: u32,
+    out: Option<&std::path::Path>,
+    spectrum_png: Option<&std::path::Path>,
+    spectrum_csv: Option<&std::path::Path>,
+    bins: u32,
+    json: bool,
+) -> Result<()> {
+    use vellum::passes::occlusion::{parse_mapping, Occlusion, OcclusionParams};
+    let (visibility, neighbourhood) = parse_mapping(mapping)?;
+    let v = input.load()?;
+    let ctx = context(cli)?;
+    let want_spectrum = spectrum_png.is_some() || spectrum_csv.is_some() || json;
+    let params = OcclusionParams { radius, visibility, neighbourhood, stride, spectrum_bins: want_spectrum.then_some([bins, bins]) };
+    let start = std::time::Instant::now();
+    let r = Occlusion::new(&ctx)?.compute(&v, &params)?;
+    let wall_ms = start.elapsed().as_secs_f64() * 1e3;
+    report_validation(&ctx);
+    if let Some(path) = out {
+        vellum::volume::io::nrrd::write_nrrd(path, &r.occlusion).with_context(|| format!("writing the occlusion volume to {}", path.display()))?;
+    }
+    if let Some(s) = &r.spectrum {
+        let b = [s.bins[0] as usize, s.bins[1] as usize];
+        if let Some(path) = spectrum_png {
+            let c = vellum::plot::histogram_2d(&s.counts, b, "INTENSITY", s.intensity_range, "OCCLUSION", [0.0, 1.0]);
+            vellum::output::write_png_rgb(path, c.width as u32, c.height as u32, &c.rgb)?;
+        }
+        if let Some(path) = spectrum_csv {
+            let [lo, hi] = s.intensity_range;
+            vellum::output::write_atomic(path, |w| {
+                use std::io::Write;
+                writeln!(w, "intensity_lo,intensity_hi,occlusion_lo,occlusion_hi,count")?;
+                for by in 0..b[1] {
+                    for bx in 0..b[0] {
+                        let n = s.counts[by * b[0] + bx];
+                        if n > 0 {
+                            let iw = (hi - lo) / b[0] as f64;
+                            writeln!(w, "{},{},{},{},{n}", lo + bx as f64 * iw, lo + (bx + 1) as f64 * iw, by as f64 / b[1] as f64, (by + 1) as f64 / b[1] as f64)?;
+                        }
+                    }
+                }
+                Ok(())
+            })?;
+        }
+    }
+    let stats = vellum::volume::stats::stats(&r.occlusion, 0);
+    let passes: serde_json::Map<String, serde_json::Value> = r.passes.iter().map(|p| (p.name.clone(), json!(p.ms))).collect();
+    if json {
+        let out = json!({
+            "device": ctx.info.name, "radius": radius, "mapping": mapping, "stride": stride, "dims": v.dims,
+            "occlusion_dims": r.occlusion.dims, "occlusion_range": [stats.min, stats.max], "passes": passes, "total_ms": wall_ms,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        println!("occlusion of {} (R = {radius}, {mapping}, stride {stride}) on {}", input.input, ctx.info.name);
+        println!("  occlusion {}x{}x{}, range {:.4} .. {:.4}", r.occlusion.dims[0], r.occlusion.dims[1], r.occlusion.dims[2], stats.min, stats.max);
+        for p in &r.passes {
+            println!("  {:<10} {:>10.3} ms", p.name, p.ms);
+        }
+        println!("  total      {wall_ms:>10.3} ms");
     }
     Ok(())
 }

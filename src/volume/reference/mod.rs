@@ -2,3 +2,4 @@
 //! checked against in tests.
 pub mod gaussian;
 pub mod sobel;
+pub mod occlusion;

@@ -1,0 +1,319 @@
+//! The occlusion spectrum on compute (SPEC OS1–OS3, occlusion paper §3).
+//!
+//! Pass `occlusion` computes O(x), the mean of the visibility mapping M over a neighbourhood of
+//! radius R. Pass `spectrum` is the 2D histogram of (intensity, occlusion).
+//!
+//! - **Ball neighbourhood:** exact and O(R²) per voxel rather than brute force's O(R³). A first
+//!   dispatch maps M and writes its prefix sums along x. A second sums the ball as x-runs, one per
+//!   (dy, dz) in the disk of radius R, each a difference of two prefix sums.
+//! - **Gaussian neighbourhood:** O(R) per voxel, as three separable passes over (M, 1).
+//! - **Resolution:** the output can be coarser than the data (`stride`). Each output voxel is exact
+//!   at the input voxel it samples.
+//! - **Neighbours outside the volume** are left out of both sum and count (the paper does not say;
+//!   treating them as empty would darken every border).
+
+use crate::error::{Error, Result};
+use crate::gpu::pipeline::group_count;
+use crate::gpu::profiler::PassTime;
+use crate::gpu::resources::BufferLocation;
+use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
+use crate::gpu::{submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image, ImageDesc, Profiler};
+use crate::passes::volume_image::extent_of;
+use crate::volume::reference::occlusion::Visibility;
+use crate::volume::{Volume, VoxelData};
+use ash::vk;
+use std::sync::Arc;
+
+/// Push constants of the occlusion passes (GLSL twin: `OcclusionPush` in occlusion.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct OcclusionPush {
+    pub dims: [i32; 3],
+    pub radius: i32,
+    pub out_dims: [i32; 3],
+    pub stride: i32,
+    pub mapping: i32,
+    pub axis: i32,
+    pub t0: f32,
+    pub t1: f32,
+}
+
+/// Push constants of the spectrum pass (GLSL twin: `SpectrumPush`).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct SpectrumPush {
+    pub dims: [i32; 3],
+    pub stride: i32,
+    pub bins_x: i32,
+    pub bins_y: i32,
+    pub pad0: i32,
+    pub pad1: i32,
+}
+
+/// Workgroup shape of the per-voxel passes (OCCLUSION_LOCAL_* in occlusion.glsl).
+pub const LOCAL_SIZE: [u32; 3] = [64, 2, 2];
+
+/// The neighbourhood and its weights (SPEC OS2).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Neighbourhood {
+    /// All voxels within distance R, equally weighted.
+    Ball,
+    /// Gaussian weights exp(−d²/2σ²), σ = R/3, over the box |d|∞ ≤ R.
+    Gaussian,
+}
+
+/// What to compute.
+#[derive(Clone, Debug)]
+pub struct OcclusionParams {
+    pub radius: u32,
+    pub visibility: Visibility,
+    pub neighbourhood: Neighbourhood,
+    /// Output voxel o samples input voxel o · stride (1 = full resolution).
+    pub stride: u32,
+    /// Spectrum bins (intensity, occlusion), or `None` for no spectrum.
+    pub spectrum_bins: Option<[u32; 2]>,
+}
+
+/// The 2D histogram of (intensity, occlusion): `counts[o * bins[0] + i]`.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Spectrum {
+    pub bins: [u32; 2],
+    pub counts: Vec<u32>,
+    /// The data values at intensity 0 and 1.
+    pub intensity_range: [f64; 2],
+}
+
+/// Occlusion volume, spectrum and timings.
+#[derive(Clone, Debug)]
+pub struct OcclusionOutput {
+    /// O in [0, 1], at the output resolution (spacing scaled by the stride).
+    pub occlusion: Volume,
+    pub spectrum: Option<Spectrum>,
+    pub passes: Vec<PassTime>,
+    pub intensity_range: [f64; 2],
+}
+
+/// Parses `--mapping ramp|truncated:T0,T1|gaussian|tf:FILE` into (visibility, neighbourhood).
+/// T0 and T1 are fractions of the data range in [0, 1].
+pub fn parse_mapping(s: &str) -> Result<(Visibility, Neighbourhood)> {
+    let bad = || Error::Invalid(format!("mapping '{s}' is unknown; expected ramp, truncated:T0,T1 (fractions of the data range), gaussian or tf:FILE.json"));
+    match s.split_once(':') {
+        None if s == "ramp" => Ok((Visibility::Ramp, Neighbourhood::Ball)),
+        None if s == "gaussian" => Ok((Visibility::Ramp, Neighbourhood::Gaussian)),
+        Some(("truncated", rest)) => {
+            let v: Vec<f32> = rest.split(',').map(|x| x.trim().parse::<f32>()).collect::<std::result::Result<_, _>>().map_err(|_| bad())?;
+            match v[..] {
+                [t0, t1] if (0.0..=1.0).contains(&t0) && (0.0..=1.0).contains(&t1) && t0 < t1 => Ok((Visibility::Truncated { t0, t1 }, Neighbourhood::Ball)),
+                _ => Err(Error::Invalid(format!("truncated ramp '{rest}' needs cut-offs 0 <= T0 < T1 <= 1 (fractions of the data range)"))),
+            }
+        }
+        Some(("tf", path)) => {
+            let tf = crate::render::transfer::TransferFunction::load(std::path::Path::new(path))?;
+            Ok((Visibility::Table(tf.table(256).iter().map(|c| c[3]).collect()), Neighbourhood::Ball))
+        }
+        _ => Err(bad()),
+    }
+}
+
+/// The occlusion pipelines.
+pub struct Occlusion {
+    ctx: Arc<Context>,
+    prefix: ComputePipeline,
+    ball: ComputePipeline,
+    gauss_axis: ComputePipeline,
+    gauss_finish: ComputePipeline,
+    spectrum: ComputePipeline,
+}
+
+impl Occlusion {
+    /// Builds the pipelines.
+    pub fn new(ctx: &Arc<Context>) -> Result<Self> {
+        use BindingKind::*;
+        let push = std::mem::size_of::<OcclusionPush>() as u32;
+        Ok(Occlusion {
+            ctx: ctx.clone(),
+            prefix: ComputePipeline::new(ctx, "occlusion/prefix_x.comp", &[StorageImage, StorageImage, StorageImage, StorageBuffer], push)?,
+            ball: ComputePipeline::new(ctx, "occlusion/ball.comp", &[StorageImage, StorageImage], push)?,
+            gauss_axis: ComputePipeline::new(ctx, "occlusion/gauss_axis.comp", &[StorageImage, StorageImage, StorageImage], push)?,
+            gauss_finish: ComputePipeline::new(ctx, "occlusion/gauss_finish.comp", &[StorageImage, StorageImage], push)?,
+            spectrum: ComputePipeline::new(ctx, "occlusion/spectrum.comp", &[StorageImage, StorageImage, StorageBuffer], std::mem::size_of::<SpectrumPush>() as u32)?,
+        })
+    }
+
+    /// Computes O for `v` (and the spectrum when asked).
+    pub fn compute(&self, v: &Volume, p: &OcclusionParams) -> Result<OcclusionOutput> {
+        let ctx = &self.ctx;
+        if p.radius == 0 || p.radius > 1024 {
+            return Err(Error::Invalid(format!("occlusion radius {} is invalid; expected 1..=1024 voxels", p.radius)));
+        }
+        if p.stride == 0 || p.stride > 64 {
+            return Err(Error::Invalid(format!("output stride {} is invalid; expected 1..=64", p.stride)));
+        }
+        let (intensity, range) = normalised_f32(v);
+        let extent = extent_of(ctx, v.dims, 4, 4)?;
+        let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(p.stride as usize));
+        let out_extent = out_dims.map(|d| d as u32);
+        let r32 = |name: &str, e: [u32; 3]| Image::new(ctx, name, &ImageDesc::new_3d(vk::Format::R32_SFLOAT, e));
+        let intensity_img = r32("occlusion intensity", extent)?;
+        let prefix = r32("occlusion prefix", extent)?;
+        let mapped = r32("occlusion mapped", extent)?;
+        let occlusion = r32("occlusion", out_extent)?;
+        let gauss_images = if p.neighbourhood == Neighbourhood::Gaussian {
+            extent_of(ctx, v.dims, 16, 2)?;
+            let rgba = |name: &str| Image::new(ctx, name, &ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent));
+            Some((rgba("occlusion gauss a")?, rgba("occlusion gauss b")?))
+        } else {
+            None
+        };
+        let mut staging = staging_buffer(ctx, "occlusion staging", intensity.len() * 4)?;
+        staging.write(bytemuck::cast_slice(&intensity))?;
+        let readback = staging_buffer(ctx, "occlusion readback", occlusion.byte_size())?;
+        let (mapping, t0, t1, table) = match &p.visibility {
+            Visibility::Ramp => (0, 0.0, 1.0, vec![0f32; 256]),
+            Visibility::Truncated { t0, t1 } => (1, *t0, *t1, vec![0f32; 256]),
+            Visibility::Table(t) => (2, 0.0, 1.0, t.clone()),
+        };
+        if table.len() != 256 {
+            return Err(Error::Invalid("a transfer-function visibility table needs 256 entries".into()));
+        }
+        let mut tf = Buffer::new(ctx, "visibility table", &BufferDesc { size: 1024, usage: vk::BufferUsageFlags::STORAGE_BUFFER, location: BufferLocation::Upload })?;
+        tf.write(bytemuck::cast_slice(&table))?;
+        let bins = p.spectrum_bins;
+        let hist = match bins {
+            Some([bx, by]) => {
+                if bx == 0 || by == 0 || bx > 4096 || by > 4096 {
+                    return Err(Error::Invalid(format!("spectrum bins {bx}x{by} are invalid; expected 1..=4096 each")));
+                }
+                Some(Buffer::new(ctx, "spectrum", &BufferDesc { size: bx as u64 * by as u64 * 4, usage: vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST | vk::BufferUsageFlags::TRANSFER_SRC, location: BufferLocation::Readback })?)
+            }
+            None => None,
+        };
+
+        let dims = v.dims.map(|d| d as i32);
+        let push = OcclusionPush {
+            dims,
+            radius: p.radius as i32,
+            out_dims: out_dims.map(|d| d as i32),
+            stride: p.stride as i32,
+            mapping,
+            axis: 0,
+            t0,
+            t1,
+        };
+        let mut profiler = Profiler::new(ctx, 6)?;
+        submit_once(ctx, "occlusion", |cmd| {
+            profiler.reset(cmd);
+            profiler.pass(cmd, "upload", |cmd| record_upload(ctx, cmd, &staging, &intensity_img, Access::ComputeRead));
+            profiler.begin(cmd, "occlusion");
+            for img in [&prefix, &mapped, &occlusion] {
+                img.discard();
+                img.transition(cmd, Access::ComputeWrite);
+            }
+            let rows = (v.dims[1] * v.dims[2]) as u32;
+            self.prefix.dispatch(cmd, &[Bind::StorageImage(&intensity_img), Bind::StorageImage(&prefix), Bind::StorageImage(&mapped), Bind::StorageBuffer(&tf)], &push, [rows.div_ceil(64), 1, 1])?;
+            match &gauss_images {
+                None => {
+                    prefix.transition(cmd, Access::ComputeRead);
+                    self.ball.dispatch(cmd, &[Bind::StorageImage(&prefix), Bind::StorageImage(&occlusion)], &push, [out_extent[0].div_ceil(64), out_extent[1], out_extent[2]])?;
+                }
+                Some((a, b)) => {
+                    mapped.transition(cmd, Access::ComputeRead);
+                    // x: mapped → a, y: a → b, z: b → a.
+                    for (axis, (src, dst)) in [(a, a), (a, b), (b, a)].into_iter().enumerate() {
+                        if axis > 0 {
+                            src.transition(cmd, Access::ComputeRead);
+                        }
+                        dst.discard();
+                        dst.transition(cmd, Access::ComputeWrite);
+                        let src_bind = if axis == 0 { &mapped } else { src };
+                        // Axis 0 reads `mapped` and ignores `src`; bind a valid image of the right
+                        // format there (b, which is not written in this dispatch).
+                        let src_img = if axis == 0 { b } else { src_bind };
+                        if axis == 0 {
+                            b.discard();
+                            b.transition(cmd, Access::ComputeRead);
+                        }
+                        self.gauss_axis.dispatch(
+                            cmd,
+                            &[Bind::StorageImage(&mapped), Bind::StorageImage(src_img), Bind::StorageImage(dst)],
+                            &OcclusionPush { axis: axis as i32, ..push },
+                            group_count(extent, LOCAL_SIZE),
+                        )?;
+                    }
+                    a.transition(cmd, Access::ComputeRead);
+                    self.gauss_finish.dispatch(cmd, &[Bind::StorageImage(a), Bind::StorageImage(&occlusion)], &push, group_count(out_extent, LOCAL_SIZE))?;
+                }
+            }
+            profiler.end(cmd);
+            if let (Some(hist), Some([bx, by])) = (&hist, bins) {
+                profiler.begin(cmd, "spectrum");
+                unsafe {
+                    ctx.device.cmd_fill_buffer(cmd, hist.raw, 0, vk::WHOLE_SIZE, 0);
+                    let b = [vk::MemoryBarrier2::default()
+                        .src_stage_mask(vk::PipelineStageFlags2::CLEAR)
+                        .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+                        .dst_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
+                        .dst_access_mask(vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE)];
+                    ctx.device.cmd_pipeline_barrier2(cmd, &vk::DependencyInfo::default().memory_barriers(&b));
+                }
+                occlusion.transition(cmd, Access::ComputeRead);
+                let sp = SpectrumPush { dims, stride: p.stride as i32, bins_x: bx as i32, bins_y: by as i32, pad0: 0, pad1: 0 };
+                self.spectrum.dispatch(cmd, &[Bind::StorageImage(&intensity_img), Bind::StorageImage(&occlusion), Bind::StorageBuffer(hist)], &sp, group_count(extent, LOCAL_SIZE))?;
+                unsafe {
+                    let b = [vk::MemoryBarrier2::default()
+                        .src_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
+                        .src_access_mask(vk::AccessFlags2::SHADER_STORAGE_WRITE)
+                        .dst_stage_mask(vk::PipelineStageFlags2::HOST)
+                        .dst_access_mask(vk::AccessFlags2::HOST_READ)];
+                    ctx.device.cmd_pipeline_barrier2(cmd, &vk::DependencyInfo::default().memory_barriers(&b));
+                }
+                profiler.end(cmd);
+            }
+            profiler.pass(cmd, "readback", |cmd| record_readback(ctx, cmd, &occlusion, &readback));
+            Ok(())
+        })?;
+        let passes = profiler.results()?;
+        let o: Vec<f32> = bytemuck::pod_collect_to_vec(readback.mapped().ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?);
+        let spacing = v.spacing.map(|s| s * p.stride as f64);
+        let spectrum = match (&hist, bins) {
+            (Some(h), Some(bins)) => Some(Spectrum {
+                bins,
+                counts: bytemuck::pod_collect_to_vec(h.mapped().ok_or_else(|| Error::Invalid("spectrum buffer is not host-visible".into()))?),
+                intensity_range: range,
+            }),
+            _ => None,
+        };
+        Ok(OcclusionOutput { occlusion: Volume::new(out_dims, spacing, VoxelData::F32(o))?, spectrum, passes, intensity_range: range })
+    }
+}
+
+/// The voxels of `v` mapped linearly from [min, max] to [0, 1] as f32, and that range.
+pub fn normalised_f32(v: &Volume) -> (Vec<f32>, [f64; 2]) {
+    use rayon::prelude::*;
+    let s = crate::volume::stats::stats(v, 0);
+    let scale = if s.max > s.min { 1.0 / (s.max - s.min) } else { 0.0 };
+    let out = (0..v.len()).into_par_iter().map(|i| ((v.data.get_f64(i) - s.min) * scale) as f32).collect();
+    (out, [s.min, s.max])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::interface::assert_glsl_layout;
+
+    #[test]
+    fn push_constants_match_glsl() {
+        assert_glsl_layout!(OcclusionPush, "occlusion.glsl", "OcclusionPush", [dims, radius, out_dims, stride, mapping, axis, t0, t1]);
+        assert_glsl_layout!(SpectrumPush, "occlusion.glsl", "SpectrumPush", [dims, stride, bins_x, bins_y, pad0, pad1]);
+    }
+
+    #[test]
+    fn mapping_parsing() {
+        assert_eq!(parse_mapping("ramp").unwrap(), (Visibility::Ramp, Neighbourhood::Ball));
+        assert_eq!(parse_mapping("gaussian").unwrap().1, Neighbourhood::Gaussian);
+        assert_eq!(parse_mapping("truncated:0.1,0.5").unwrap().0, Visibility::Truncated { t0: 0.1, t1: 0.5 });
+        assert!(parse_mapping("truncated:0.5,0.1").is_err());
+        assert!(parse_mapping("box").is_err());
+        assert!(parse_mapping("tf:/no/such.json").is_err());
+    }
+}
