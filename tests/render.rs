@@ -141,7 +141,7 @@ fn reference_cases() -> Vec<(&'static str, Volume, RenderParams)> {
         (
             "nested_two_level.png",
             phantom::nested(64),
-            params("0,30,2.5", 96, Focus::Iso(0.9), false, "grey"),
+            params("0,30,2.5", 96, Focus::Iso(0.6), false, "grey"),
         ),
     ];
     if let Some(v) = common::real_volume("engine") {
