@@ -28,7 +28,8 @@ build: deps
 	cargo build --release --locked
 
 # The main job on the built-in phantom (or INPUT=path ISO=value): figures, a GPU round trip, the
-# importance map as NRRD and thermal slices, and a two-level render as PNG plus layered EXR.
+# importance map as NRRD and thermal slices, a two-level render as PNG plus layered EXR, and the
+# nested phantom's occlusion volume, spectrum and occlusion-transfer-function render.
 run: build
 	$(VELLUM) devices
 	$(VELLUM) info $(INPUT)
@@ -37,7 +38,10 @@ run: build
 	$(VELLUM) importance $(INPUT) --radius 5 --out $(OUT)/importance_dd.nrrd --slices $(OUT)/importance_dd.png
 	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --out $(OUT)/render_two_level.png --exr $(OUT)/render_layers.exr
 	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --one-pass --out $(OUT)/render_one_pass.png
-	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr, render_one_pass.png"
+	$(VELLUM) occlusion phantom:nested:96 --radius 12 --out $(OUT)/occlusion_ao.nrrd --spectrum $(OUT)/occlusion_spectrum.png --spectrum-data $(OUT)/occlusion_spectrum.csv
+	$(VELLUM) render phantom:nested:64 --otf examples/nested_otf.json --camera 0,20,2.2 --size 512x512 --out $(OUT)/occlusion_otf.png
+	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr, render_one_pass.png,"
+	@echo "  occlusion_ao.nrrd, occlusion_spectrum.png, occlusion_spectrum.csv, occlusion_otf.png"
 
 # Every test, with the Khronos validation layer on (debug build).
 test: deps

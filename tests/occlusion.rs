@@ -135,3 +135,39 @@ fn bad_parameters_are_errors() {
     assert!(occ.compute(&v, &params(0, Visibility::Ramp, Neighbourhood::Ball, 1)).unwrap_err().to_string().contains("radius"));
     assert!(occ.compute(&v, &params(2, Visibility::Ramp, Neighbourhood::Ball, 0)).unwrap_err().to_string().contains("stride"));
 }
+
+/// OS4 in the renderer: with an occlusion transfer function that colours only highly occluded
+/// sphere voxels orange, the sphere inside the medium shell (right) turns orange and the one inside
+/// the low shell (left) does not, although both have the same intensity.
+#[test]
+fn occlusion_tf_render_tells_equal_intensities_apart() {
+    use vellum::passes::normals::Normals;
+    use vellum::render::camera::Camera;
+    use vellum::render::otf::OcclusionTf;
+    use vellum::render::slicer::{Focus, RenderParams, Renderer};
+    let gpu = Gpu::new();
+    let v = phantom::nested(64);
+    let otf = OcclusionTf::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/nested_otf.json"))).unwrap();
+    let occ = Occlusion::new(&gpu.ctx)
+        .unwrap()
+        .compute(&v, &OcclusionParams { radius: otf.radius, visibility: Visibility::Ramp, neighbourhood: Neighbourhood::Ball, stride: 1, spectrum_bins: None })
+        .unwrap();
+    let mut profiler = vellum::gpu::Profiler::new(&gpu.ctx, 2).unwrap();
+    let mut tex = Normals::new(&gpu.ctx).unwrap().prepare(&v, &mut profiler).unwrap();
+    tex.attach_occlusion(&gpu.ctx, &occ.occlusion).unwrap();
+    let params = RenderParams {
+        camera: Camera::parse("0,0,2.2").unwrap(),
+        size: [96, 96],
+        slices: None,
+        focus: Focus::None,
+        one_pass: true,
+        transfer: vellum::render::transfer::TransferFunction::preset("grey").unwrap(),
+        occlusion_tf: Some(otf.table().unwrap()),
+    };
+    let frame = Renderer::new(&gpu.ctx).unwrap().render(&tex, &params, true).unwrap();
+    // Orange-ness (red minus blue) of each half of the image.
+    let half = |right: bool| -> f32 {
+        frame.composite.iter().enumerate().filter(|(i, _)| (i % 96 >= 48) == right).map(|(_, p)| p[0] - p[2]).sum()
+    };
+    assert!(half(true) > 1.0 && half(true) > 5.0 * half(false).max(0.0), "right {} left {}", half(true), half(false));
+}

@@ -69,6 +69,7 @@ fn params(camera: &str, size: u32, focus: Focus, one_pass: bool, tf: &str) -> Re
         focus,
         one_pass,
         transfer: TransferFunction::from_arg(tf).unwrap(),
+        occlusion_tf: None,
     }
 }
 

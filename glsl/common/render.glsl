@@ -18,7 +18,7 @@ struct SliceUniforms {
     vec4 view_dir;       // xyz: unit direction from the eye into the scene; w: 1 for ortho
     vec4 light;          // xyz: unit direction towards the light (world); w: specular exponent
     vec4 material;       // ambient, diffuse, specular, opacity ratio (slice spacing / voxel)
-    vec4 focus;          // lo, hi (normalised intensity), mode (0 none, 1 range, 2 iso), unused
+    vec4 focus;          // lo, hi (normalised intensity), mode (0 none, 1 range, 2 iso), 1 = OTF
 };
 
 #define NORMALS_LOCAL_X 8

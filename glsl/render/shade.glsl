@@ -6,6 +6,8 @@ layout(set = 0, binding = 0) uniform Uniforms { SliceUniforms u; };
 layout(set = 0, binding = 1) uniform sampler3D volume;      // normalised intensity
 layout(set = 0, binding = 2) uniform sampler3D gradient;    // xyz gradient (world), w length
 layout(set = 0, binding = 3) uniform sampler2D transfer;    // 1D transfer function, 256 x 1
+layout(set = 0, binding = 4) uniform sampler3D occlusion;   // ambient occlusion O (OTF only)
+layout(set = 0, binding = 5) uniform sampler2D occlusion_tf; // 2D table over (s, O) (OTF only)
 
 layout(location = 0) in vec3 tex;
 layout(location = 1) in vec3 world;
@@ -27,7 +29,8 @@ float sample_intensity() {
 // Colour (straight) and opacity of intensity s, the opacity corrected for the slice spacing
 // (material.w = spacing / voxel). An isosurface focus is opaque.
 vec4 classify(float s, bool focus) {
-    vec4 c = texture(transfer, vec2(s, 0.5));
+    // focus.w = 1: the occlusion transfer function (SPEC OS4) replaces the 1D one.
+    vec4 c = u.focus.w > 0.5 ? texture(occlusion_tf, vec2(s, texture(occlusion, tex).r)) : texture(transfer, vec2(s, 0.5));
     c.a = 1.0 - pow(max(1.0 - c.a, 0.0), u.material.w);
     if (focus && int(u.focus.z) == 2) {
         c.a = 1.0;

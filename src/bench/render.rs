@@ -109,6 +109,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                 focus,
                 one_pass,
                 transfer: TransferFunction::preset(tf).expect("preset exists"),
+                occlusion_tf: None,
             };
             let measure = |one_pass: bool| -> Result<(Vec<Vec<PassTime>>, u32)> {
                 let p = params(one_pass);

@@ -4,4 +4,5 @@
 pub mod importance;
 pub mod normals;
 pub mod occlusion;
+pub mod occlusion_analysis;
 pub mod volume_image;

@@ -34,6 +34,22 @@ pub struct VolumeTextures {
     pub range: [f64; 2],
     pub dims: [usize; 3],
     pub spacing: [f64; 3],
+    /// Ambient occlusion in [0, 1] for occlusion transfer functions (R32F, possibly coarser).
+    pub occlusion: Option<Image>,
+}
+
+impl VolumeTextures {
+    /// Uploads an occlusion volume (from `passes::occlusion`) for occlusion transfer functions.
+    pub fn attach_occlusion(&mut self, ctx: &Arc<Context>, occlusion: &Volume) -> Result<()> {
+        let crate::volume::VoxelData::F32(o) = &occlusion.data else {
+            return Err(crate::error::Error::Invalid("an occlusion volume must be float".into()));
+        };
+        let extent = extent_of(ctx, occlusion.dims, 4, 1)?;
+        let image = Image::new(ctx, "occlusion texture", &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent))?;
+        crate::gpu::transfer::upload(ctx, &image, bytemuck::cast_slice(o), Access::FragmentSampled)?;
+        self.occlusion = Some(image);
+        Ok(())
+    }
 }
 
 /// The `sobel_normals` pipeline.
@@ -122,6 +138,7 @@ impl Normals {
             range,
             dims: v.dims,
             spacing: v.spacing,
+            occlusion: None,
         })
     }
 }

@@ -106,6 +106,9 @@ pub struct RenderParams {
     pub focus: Focus,
     pub one_pass: bool,
     pub transfer: TransferFunction,
+    /// An occlusion transfer function table (256×256, `table[o * 256 + s]`), which replaces
+    /// `transfer`; the volume textures must then hold an occlusion volume.
+    pub occlusion_tf: Option<Vec<[f32; 4]>>,
 }
 
 /// The layers of a two-level frame, premultiplied RGBA rows top to bottom.
@@ -144,10 +147,15 @@ pub struct Renderer {
     composite: GraphicsPipeline,
     linear: Sampler,
     nearest: Sampler,
+    /// 1×1 stand-ins bound when no occlusion transfer function is used.
+    dummy_3d: Image,
+    dummy_2d: Image,
 }
 
-const SLICE_BINDINGS: [BindingKind; 4] = [
+const SLICE_BINDINGS: [BindingKind; 6] = [
     BindingKind::UniformBuffer,
+    BindingKind::SampledImage,
+    BindingKind::SampledImage,
     BindingKind::SampledImage,
     BindingKind::SampledImage,
     BindingKind::SampledImage,
@@ -222,6 +230,10 @@ impl Renderer {
                 fragment_constants: &[],
             },
         )?;
+        let dummy_3d = Image::new(ctx, "dummy occlusion", &ImageDesc::new_3d(vk::Format::R32_SFLOAT, [1, 1, 1]))?;
+        let dummy_2d = Image::new(ctx, "dummy occlusion tf", &ImageDesc::new_2d(COLOR, [1, 1]))?;
+        crate::gpu::transfer::upload(ctx, &dummy_3d, &[0u8; 4], Access::FragmentSampled)?;
+        crate::gpu::transfer::upload(ctx, &dummy_2d, &[0u8; 16], Access::FragmentSampled)?;
         Ok(Renderer {
             ctx: ctx.clone(),
             one_pass,
@@ -230,6 +242,8 @@ impl Renderer {
             composite,
             linear: Sampler::new(ctx, true)?,
             nearest: Sampler::new(ctx, false)?,
+            dummy_3d,
+            dummy_2d,
         })
     }
 
@@ -285,8 +299,23 @@ impl Renderer {
             material: [0.25, 0.75, 0.35, (proxy.spacing as f64 / voxel) as f32],
             focus: {
                 let f = params.focus.normalised(vol.range);
-                [f[0], f[1], f[2], 0.0]
+                [f[0], f[1], f[2], if params.occlusion_tf.is_some() { 1.0 } else { 0.0 }]
             },
+        };
+        // The occlusion transfer function: a 256×256 table and the occlusion volume to index it.
+        let otf = match (&params.occlusion_tf, &vol.occlusion) {
+            (None, _) => None,
+            (Some(_), None) => {
+                return Err(Error::Invalid("an occlusion transfer function needs an occlusion volume attached to the volume textures".into()))
+            }
+            (Some(table), Some(occlusion)) => {
+                if table.len() != 256 * 256 {
+                    return Err(Error::Invalid("an occlusion transfer-function table needs 256×256 entries".into()));
+                }
+                let image = Image::new(ctx, "occlusion transfer function", &ImageDesc::new_2d(COLOR, [256, 256]))?;
+                crate::gpu::transfer::upload(ctx, &image, bytemuck::cast_slice(table), Access::FragmentSampled)?;
+                Some((image, occlusion))
+            }
         };
 
         let mut ubo = Buffer::new(
@@ -372,6 +401,8 @@ impl Renderer {
                 Bind::Sampled(&vol.intensity, &self.linear),
                 Bind::Sampled(&vol.gradient, &self.linear),
                 Bind::Sampled(&tf, &self.linear),
+                Bind::Sampled(otf.as_ref().map_or(&self.dummy_3d, |o| o.1), &self.linear),
+                Bind::Sampled(otf.as_ref().map_or(&self.dummy_2d, |o| &o.0), &self.linear),
             ];
             let draw = |pipeline: &GraphicsPipeline| -> Result<()> {
                 pipeline.bind(cmd, &binds, &(), [w, h])?;

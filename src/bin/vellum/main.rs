@@ -129,6 +129,9 @@ enum Command {
         /// Background colour behind the volume in the PNG, as R,G,B in 0..1.
         #[arg(long, default_value = "0,0,0")]
         background: String,
+        /// Occlusion transfer function (JSON): colour and opacity over (intensity, occlusion).
+        #[arg(long)]
+        otf: Option<PathBuf>,
         /// Output PNG.
         #[arg(long)]
         out: PathBuf,
@@ -165,6 +168,40 @@ enum Command {
         bins: u32,
         #[arg(long)]
         json: bool,
+    },
+    /// Adaptive mapping selection (SPEC OS6): the truncated ramp that best separates an interval.
+    OcclusionSelect {
+        #[command(flatten)]
+        input: InputArgs,
+        /// Intensity interval of interest, in data units.
+        #[arg(long, value_name = "LO:HI")]
+        interval: String,
+        #[arg(long, default_value_t = 16)]
+        radius: u32,
+        #[arg(long, default_value_t = 1)]
+        stride: u32,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Variance of occlusion per intensity band against the radius (SPEC OS7).
+    OcclusionSensitivity {
+        #[command(flatten)]
+        input: InputArgs,
+        /// Radii in voxels.
+        #[arg(long, value_delimiter = ',', default_value = "4,8,16,32,64")]
+        radii: Vec<u32>,
+        /// Intensity bands.
+        #[arg(long, default_value_t = 8)]
+        bands: usize,
+        /// Output stride; 0 picks the largest radius / 16 (at least 1).
+        #[arg(long, default_value_t = 0)]
+        stride: u32,
+        /// The plot (PNG).
+        #[arg(long)]
+        out: PathBuf,
+        /// The data (CSV).
+        #[arg(long)]
+        csv: Option<PathBuf>,
     },
     /// Migrate a segmented feature into a private density interval (feature maps, SPEC FM1-FM5).
     Migrate(features::MigrateArgs),
@@ -334,6 +371,7 @@ fn run(cli: &Cli) -> Result<()> {
             slices,
             one_pass,
             background,
+            otf,
             out,
             exr,
             json,
@@ -348,6 +386,7 @@ fn run(cli: &Cli) -> Result<()> {
                 slices: *slices,
                 one_pass: *one_pass,
                 background,
+                otf: otf.as_deref(),
                 out,
                 exr: exr.as_deref(),
                 json: *json,
@@ -378,6 +417,10 @@ fn run(cli: &Cli) -> Result<()> {
         }
         Command::Occlusion { input, radius, mapping, stride, out, spectrum, spectrum_data, bins, json } => {
             occlusion(cli, input, *radius, mapping, *stride, out.as_deref(), spectrum.as_deref(), spectrum_data.as_deref(), *bins, *json)
+        }
+        Command::OcclusionSelect { input, interval, radius, stride, json } => occlusion_select(cli, input, interval, *radius, *stride, *json),
+        Command::OcclusionSensitivity { input, radii, bands, stride, out, csv } => {
+            occlusion_sensitivity(cli, input, radii, *bands, *stride, out, csv.as_deref())
         }
         Command::Migrate(args) => features::migrate(args),
         Command::Features(args) => features::print_tree(args),
@@ -566,6 +609,7 @@ struct RenderOpts<'a> {
     slices: Option<u32>,
     one_pass: bool,
     background: &'a str,
+    otf: Option<&'a std::path::Path>,
     out: &'a std::path::Path,
     exr: Option<&'a std::path::Path>,
     json: bool,
@@ -597,13 +641,25 @@ fn render(cli: &Cli, input: &InputArgs, o: &RenderOpts) -> Result<()> {
         focus: Focus::parse(o.focus, o.iso)?,
         one_pass: o.one_pass,
         transfer: vellum::render::transfer::TransferFunction::from_arg(o.tf)?,
+        occlusion_tf: None,
     };
     let background = parse_rgb(o.background)?;
     let v = input.load()?;
     let ctx = context(cli)?;
     let mut profiler = vellum::gpu::Profiler::new(&ctx, 2)?;
-    let textures = vellum::passes::normals::Normals::new(&ctx)?.prepare(&v, &mut profiler)?;
-    let prepare = profiler.results()?;
+    let mut textures = vellum::passes::normals::Normals::new(&ctx)?.prepare(&v, &mut profiler)?;
+    let mut prepare = profiler.results()?;
+    let mut params = params;
+    if let Some(path) = o.otf {
+        use vellum::passes::occlusion::{parse_mapping, Occlusion, OcclusionParams};
+        let otf = vellum::render::otf::OcclusionTf::load(path)?;
+        let (visibility, neighbourhood) = parse_mapping(&otf.mapping)?;
+        let p = OcclusionParams { radius: otf.radius, visibility, neighbourhood, stride: otf.effective_stride(), spectrum_bins: None };
+        let occ = Occlusion::new(&ctx)?.compute(&v, &p)?;
+        prepare.extend(occ.passes.into_iter().filter(|p| p.name == "occlusion"));
+        textures.attach_occlusion(&ctx, &occ.occlusion)?;
+        params.occlusion_tf = Some(otf.table()?);
+    }
     let frame = Renderer::new(&ctx)?.render(&textures, &params, true)?;
     report_validation(&ctx);
     let [w, h] = frame.size;
@@ -725,5 +781,59 @@ fn occlusion(
         }
         println!("  total      {wall_ms:>10.3} ms");
     }
+    Ok(())
+}
+
+fn parse_interval(s: &str) -> Result<[f64; 2]> {
+    s.split_once(':')
+        .and_then(|(a, b)| Some([a.trim().parse().ok()?, b.trim().parse().ok()?]))
+        .filter(|[a, b]: &[f64; 2]| a <= b)
+        .ok_or_else(|| anyhow::anyhow!("interval '{s}' is not LO:HI in data units with LO <= HI"))
+}
+
+fn occlusion_select(cli: &Cli, input: &InputArgs, interval: &str, radius: u32, stride: u32, json: bool) -> Result<()> {
+    let interval = parse_interval(interval)?;
+    let v = input.load()?;
+    let ctx = context(cli)?;
+    let occ = vellum::passes::occlusion::Occlusion::new(&ctx)?;
+    let start = std::time::Instant::now();
+    let sel = vellum::passes::occlusion_analysis::select(&occ, &v, interval, radius, stride)?;
+    report_validation(&ctx);
+    if json {
+        println!("{}", serde_json::to_string_pretty(&json!({ "device": ctx.info.name, "selection": sel, "total_ms": start.elapsed().as_secs_f64() * 1e3 }))?);
+        return Ok(());
+    }
+    let b = &sel.best;
+    println!("adaptive mapping for {}:{} ({} voxels, R = {radius}, stride {stride}) on {}", interval[0], interval[1], sel.voxels_in_interval, ctx.info.name);
+    println!("  best: --mapping truncated:{},{}  (data {:.1}..{:.1}), score {:.3e}, k = {}, means {:?}", b.t0, b.t1, b.t0_value, b.t1_value, b.score, b.k, b.means.iter().map(|m| format!("{m:.3}")).collect::<Vec<_>>());
+    println!("  every candidate (t0, t1 as fractions of the range), best first:");
+    for c in &sel.candidates {
+        println!("    {:.3} {:.3}  score {:.4e}  k {}", c.t0, c.t1, c.score, c.k);
+    }
+    println!("  took {:.0} ms", start.elapsed().as_secs_f64() * 1e3);
+    Ok(())
+}
+
+fn occlusion_sensitivity(cli: &Cli, input: &InputArgs, radii: &[u32], bands: usize, stride: u32, out: &std::path::Path, csv: Option<&std::path::Path>) -> Result<()> {
+    anyhow::ensure!(!radii.is_empty() && bands > 0, "give at least one radius and one band");
+    let stride = if stride == 0 { (radii.iter().copied().max().unwrap_or(16) / 16).max(1) } else { stride };
+    let v = input.load()?;
+    let ctx = context(cli)?;
+    let occ = vellum::passes::occlusion::Occlusion::new(&ctx)?;
+    let rows = vellum::passes::occlusion_analysis::sensitivity(&occ, &v, radii, bands, stride)?;
+    report_validation(&ctx);
+    let c = vellum::passes::occlusion_analysis::sensitivity_plot(&rows);
+    vellum::output::write_png_rgb(out, c.width as u32, c.height as u32, &c.rgb)?;
+    if let Some(path) = csv {
+        vellum::output::write_atomic(path, |w| {
+            use std::io::Write;
+            writeln!(w, "radius,band,band_lo,band_hi,voxels,variance")?;
+            for r in &rows {
+                writeln!(w, "{},{},{},{},{},{}", r.radius, r.band, r.band_lo, r.band_hi, r.voxels, r.variance)?;
+            }
+            Ok(())
+        })?;
+    }
+    println!("sensitivity of {} over radii {radii:?} (stride {stride}, {bands} bands) written to {}", input.input, out.display());
     Ok(())
 }
