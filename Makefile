@@ -29,7 +29,8 @@ build: deps
 
 # The main job on the built-in phantom (or INPUT=path ISO=value): figures, a GPU round trip, the
 # importance map as NRRD and thermal slices, a two-level render as PNG plus layered EXR, and the
-# nested phantom's occlusion volume, spectrum and occlusion-transfer-function render.
+# nested phantom's occlusion volume, spectrum and occlusion-transfer-function render, and a
+# migrated phantom feature rendered in its own colour.
 run: build
 	$(VELLUM) devices
 	$(VELLUM) info $(INPUT)
@@ -40,8 +41,13 @@ run: build
 	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --one-pass --out $(OUT)/render_one_pass.png
 	$(VELLUM) occlusion phantom:nested:96 --radius 12 --out $(OUT)/occlusion_ao.nrrd --spectrum $(OUT)/occlusion_spectrum.png --spectrum-data $(OUT)/occlusion_spectrum.csv
 	$(VELLUM) render phantom:nested:64 --otf examples/nested_otf.json --camera 0,20,2.2 --size 512x512 --out $(OUT)/occlusion_otf.png
+	@rm -f $(OUT)/feature.features.json
+	$(VELLUM) migrate phantom:nested:128 --seed 92,64,64 --window 0.7:0.8 --label sphere --parent spheres --out $(OUT)/feature.nrrd
+	$(VELLUM) features $(OUT)/feature.features.json
+	$(VELLUM) render $(OUT)/feature.nrrd --features $(OUT)/feature.features.json --one-pass --camera 0,20,2.2 --size 512x512 --out $(OUT)/render_features.png
 	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr, render_one_pass.png,"
-	@echo "  occlusion_ao.nrrd, occlusion_spectrum.png, occlusion_spectrum.csv, occlusion_otf.png"
+	@echo "  occlusion_ao.nrrd, occlusion_spectrum.png, occlusion_spectrum.csv, occlusion_otf.png,"
+	@echo "  feature.nrrd, feature.features.json, render_features.png"
 
 # Every test, with the Khronos validation layer on (debug build).
 test: deps

@@ -63,7 +63,16 @@ fn glyph(c: char) -> [u8; 5] {
 impl Canvas {
     /// A canvas filled with `background`.
     pub fn new(width: usize, height: usize, background: [u8; 3]) -> Self {
-        Canvas { width, height, rgb: background.iter().copied().cycle().take(width * height * 3).collect() }
+        Canvas {
+            width,
+            height,
+            rgb: background
+                .iter()
+                .copied()
+                .cycle()
+                .take(width * height * 3)
+                .collect(),
+        }
     }
 
     /// Sets one pixel (ignored outside the canvas).
@@ -112,7 +121,13 @@ impl Canvas {
             for (row, bits) in g.iter().enumerate() {
                 for col in 0..3 {
                     if bits >> (2 - col) & 1 == 1 {
-                        self.rect(x + (i as i64 * 4 + col) * scale, y + row as i64 * scale, scale, scale, c);
+                        self.rect(
+                            x + (i as i64 * 4 + col) * scale,
+                            y + row as i64 * scale,
+                            scale,
+                            scale,
+                            c,
+                        );
                     }
                 }
             }
@@ -127,20 +142,47 @@ impl Canvas {
 
 /// A sequential colour map (black, purple, orange, pale yellow) for t in [0, 1].
 pub fn heat(t: f64) -> [u8; 3] {
-    const STOPS: [[f64; 3]; 5] = [[0.0, 0.0, 0.02], [0.33, 0.06, 0.43], [0.73, 0.21, 0.33], [0.98, 0.55, 0.04], [0.99, 0.99, 0.75]];
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 } * (STOPS.len() - 1) as f64;
+    const STOPS: [[f64; 3]; 5] = [
+        [0.0, 0.0, 0.02],
+        [0.33, 0.06, 0.43],
+        [0.73, 0.21, 0.33],
+        [0.98, 0.55, 0.04],
+        [0.99, 0.99, 0.75],
+    ];
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * (STOPS.len() - 1) as f64;
     let i = (t.floor() as usize).min(STOPS.len() - 2);
     let f = t - i as f64;
-    std::array::from_fn(|k| ((STOPS[i][k] + f * (STOPS[i + 1][k] - STOPS[i][k])) * 255.0).round() as u8)
+    std::array::from_fn(|k| {
+        ((STOPS[i][k] + f * (STOPS[i + 1][k] - STOPS[i][k])) * 255.0).round() as u8
+    })
 }
 
 /// Distinct line colours for plots.
-pub const PALETTE: [[u8; 3]; 8] =
-    [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189], [140, 86, 75], [227, 119, 194], [127, 127, 127]];
+pub const PALETTE: [[u8; 3]; 8] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [127, 127, 127],
+];
 
 /// A 2D histogram as a log-scaled image with labelled axes: `counts[y * bins_x + x]`, y upwards.
 /// `x_range` and `y_range` label the axes' ends.
-pub fn histogram_2d(counts: &[u32], bins: [usize; 2], x_label: &str, x_range: [f64; 2], y_label: &str, y_range: [f64; 2]) -> Canvas {
+pub fn histogram_2d(
+    counts: &[u32],
+    bins: [usize; 2],
+    x_label: &str,
+    x_range: [f64; 2],
+    y_label: &str,
+    y_range: [f64; 2],
+) -> Canvas {
     let scale = (512 / bins[0].max(bins[1]).max(1)).max(1);
     let (pw, ph) = (bins[0] * scale, bins[1] * scale);
     let (left, bottom, top, right) = (44usize, 40usize, 12usize, 16usize);
@@ -149,34 +191,90 @@ pub fn histogram_2d(counts: &[u32], bins: [usize; 2], x_label: &str, x_range: [f
     for by in 0..bins[1] {
         for bx in 0..bins[0] {
             let n = counts[by * bins[0] + bx] as f64;
-            let col = if n > 0.0 { heat(0.15 + 0.85 * (1.0 + n).ln() / (1.0 + max).ln()) } else { [0, 0, 0] };
-            c.rect((left + bx * scale) as i64, (top + ph - (by + 1) * scale) as i64, scale as i64, scale as i64, col);
+            let col = if n > 0.0 {
+                heat(0.15 + 0.85 * (1.0 + n).ln() / (1.0 + max).ln())
+            } else {
+                [0, 0, 0]
+            };
+            c.rect(
+                (left + bx * scale) as i64,
+                (top + ph - (by + 1) * scale) as i64,
+                scale as i64,
+                scale as i64,
+                col,
+            );
         }
     }
-    axes(&mut c, (left, top, pw, ph), x_label, x_range, y_label, y_range);
+    axes(
+        &mut c,
+        (left, top, pw, ph),
+        x_label,
+        x_range,
+        y_label,
+        y_range,
+    );
     c
 }
 
 /// Axes with ticks at 0, ¼, ½, ¾ and 1 of each range around the plot area (x0, y0, w, h).
-pub fn axes(c: &mut Canvas, (x0, y0, w, h): (usize, usize, usize, usize), x_label: &str, x_range: [f64; 2], y_label: &str, y_range: [f64; 2]) {
+pub fn axes(
+    c: &mut Canvas,
+    (x0, y0, w, h): (usize, usize, usize, usize),
+    x_label: &str,
+    x_range: [f64; 2],
+    y_label: &str,
+    y_range: [f64; 2],
+) {
     let ink = [30, 30, 30];
     let (x0, y0, w, h) = (x0 as i64, y0 as i64, w as i64, h as i64);
     c.line((x0 - 1, y0 + h), (x0 + w, y0 + h), ink);
     c.line((x0 - 1, y0), (x0 - 1, y0 + h), ink);
-    let fmt = |v: f64| if v.abs() >= 100.0 || v == v.round() { format!("{v:.0}") } else { format!("{v:.2}") };
+    let fmt = |v: f64| {
+        if v.abs() >= 100.0 || v == v.round() {
+            format!("{v:.0}")
+        } else if v.abs() < 0.1 {
+            format!("{v:.1e}")
+        } else {
+            format!("{v:.2}")
+        }
+    };
     for i in 0..=4 {
         let f = i as f64 / 4.0;
         let tx = x0 + (f * (w - 1) as f64) as i64;
         c.line((tx, y0 + h), (tx, y0 + h + 4), ink);
         let label = fmt(x_range[0] + f * (x_range[1] - x_range[0]));
-        c.text(tx - Canvas::text_width(&label, 1) / 2, y0 + h + 7, &label, 1, ink);
+        c.text(
+            tx - Canvas::text_width(&label, 1) / 2,
+            y0 + h + 7,
+            &label,
+            1,
+            ink,
+        );
         let ty = y0 + h - (f * (h - 1) as f64) as i64;
         c.line((x0 - 5, ty), (x0 - 1, ty), ink);
         let label = fmt(y_range[0] + f * (y_range[1] - y_range[0]));
-        c.text(x0 - 7 - Canvas::text_width(&label, 1), ty - 2, &label, 1, ink);
+        c.text(
+            x0 - 7 - Canvas::text_width(&label, 1),
+            ty - 2,
+            &label,
+            1,
+            ink,
+        );
     }
-    c.text(x0 + w / 2 - Canvas::text_width(x_label, 2) / 2, y0 + h + 18, x_label, 2, ink);
+    c.text(
+        x0 + w / 2 - Canvas::text_width(x_label, 2) / 2,
+        y0 + h + 18,
+        x_label,
+        2,
+        ink,
+    );
     for (i, ch) in y_label.chars().enumerate() {
-        c.text(4, y0 + h / 2 - (y_label.len() as i64 * 12) / 2 + i as i64 * 12, &ch.to_string(), 2, ink);
+        c.text(
+            4,
+            y0 + h / 2 - (y_label.len() as i64 * 12) / 2 + i as i64 * 12,
+            &ch.to_string(),
+            2,
+            ink,
+        );
     }
 }

@@ -669,14 +669,23 @@ fn nested_has_equal_intensity_in_both_structures() {
         v.data.get_f64(v.index(i, c, c)) as f32
     };
     // Two spheres of equal intensity: left inside a low shell, right inside a medium shell.
-    assert_eq!((at(-0.45), at(-0.45 + 0.3), at(-0.45 - 0.3)), (NESTED_CORE, NESTED_LOW, NESTED_LOW));
-    assert_eq!((at(0.45), at(0.45 + 0.3), at(0.45 - 0.3)), (NESTED_CORE, NESTED_MEDIUM, NESTED_MEDIUM));
+    assert_eq!(
+        (at(-0.45), at(-0.45 + 0.3), at(-0.45 - 0.3)),
+        (NESTED_CORE, NESTED_LOW, NESTED_LOW)
+    );
+    assert_eq!(
+        (at(0.45), at(0.45 + 0.3), at(0.45 - 0.3)),
+        (NESTED_CORE, NESTED_MEDIUM, NESTED_MEDIUM)
+    );
     assert_eq!((at(-1.0), at(0.0), at(1.0)), (0.0, 0.0, 0.0));
     // Each shell (radii 0.2..0.4) holds 7x the voxels of its sphere; the spheres are equal.
     let VoxelData::F32(d) = &v.data else { panic!() };
     let count = |val: f32| d.iter().filter(|&&x| x == val).count();
     assert!(count(NESTED_CORE) > 2000);
-    assert!(count(NESTED_LOW) > 3 * count(NESTED_CORE) / 2 && count(NESTED_MEDIUM) > 3 * count(NESTED_CORE) / 2);
+    assert!(
+        count(NESTED_LOW) > 3 * count(NESTED_CORE) / 2
+            && count(NESTED_MEDIUM) > 3 * count(NESTED_CORE) / 2
+    );
 }
 
 #[test]

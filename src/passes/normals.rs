@@ -42,11 +42,22 @@ impl VolumeTextures {
     /// Uploads an occlusion volume (from `passes::occlusion`) for occlusion transfer functions.
     pub fn attach_occlusion(&mut self, ctx: &Arc<Context>, occlusion: &Volume) -> Result<()> {
         let crate::volume::VoxelData::F32(o) = &occlusion.data else {
-            return Err(crate::error::Error::Invalid("an occlusion volume must be float".into()));
+            return Err(crate::error::Error::Invalid(
+                "an occlusion volume must be float".into(),
+            ));
         };
         let extent = extent_of(ctx, occlusion.dims, 4, 1)?;
-        let image = Image::new(ctx, "occlusion texture", &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent))?;
-        crate::gpu::transfer::upload(ctx, &image, bytemuck::cast_slice(o), Access::FragmentSampled)?;
+        let image = Image::new(
+            ctx,
+            "occlusion texture",
+            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent),
+        )?;
+        crate::gpu::transfer::upload(
+            ctx,
+            &image,
+            bytemuck::cast_slice(o),
+            Access::FragmentSampled,
+        )?;
         self.occlusion = Some(image);
         Ok(())
     }

@@ -17,7 +17,10 @@ use crate::gpu::pipeline::group_count;
 use crate::gpu::profiler::PassTime;
 use crate::gpu::resources::BufferLocation;
 use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
-use crate::gpu::{submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image, ImageDesc, Profiler};
+use crate::gpu::{
+    submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    ImageDesc, Profiler,
+};
 use crate::passes::volume_image::extent_of;
 use crate::volume::reference::occlusion::Visibility;
 use crate::volume::{Volume, VoxelData};
@@ -96,12 +99,18 @@ pub struct OcclusionOutput {
 /// Parses `--mapping ramp|truncated:T0,T1|gaussian|tf:FILE` into (visibility, neighbourhood).
 /// T0 and T1 are fractions of the data range in [0, 1].
 pub fn parse_mapping(s: &str) -> Result<(Visibility, Neighbourhood)> {
-    let bad = || Error::Invalid(format!("mapping '{s}' is unknown; expected ramp, truncated:T0,T1 (fractions of the data range), gaussian or tf:FILE.json"));
+    let bad = || {
+        Error::Invalid(format!("mapping '{s}' is unknown; expected ramp, truncated:T0,T1 (fractions of the data range), gaussian or tf:FILE.json"))
+    };
     match s.split_once(':') {
         None if s == "ramp" => Ok((Visibility::Ramp, Neighbourhood::Ball)),
         None if s == "gaussian" => Ok((Visibility::Ramp, Neighbourhood::Gaussian)),
         Some(("truncated", rest)) => {
-            let v: Vec<f32> = rest.split(',').map(|x| x.trim().parse::<f32>()).collect::<std::result::Result<_, _>>().map_err(|_| bad())?;
+            let v: Vec<f32> = rest
+                .split(',')
+                .map(|x| x.trim().parse::<f32>())
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|_| bad())?;
             match v[..] {
                 [t0, t1] if (0.0..=1.0).contains(&t0) && (0.0..=1.0).contains(&t1) && t0 < t1 => Ok((Visibility::Truncated { t0, t1 }, Neighbourhood::Ball)),
                 _ => Err(Error::Invalid(format!("truncated ramp '{rest}' needs cut-offs 0 <= T0 < T1 <= 1 (fractions of the data range)"))),
@@ -109,7 +118,10 @@ pub fn parse_mapping(s: &str) -> Result<(Visibility, Neighbourhood)> {
         }
         Some(("tf", path)) => {
             let tf = crate::render::transfer::TransferFunction::load(std::path::Path::new(path))?;
-            Ok((Visibility::Table(tf.table(256).iter().map(|c| c[3]).collect()), Neighbourhood::Ball))
+            Ok((
+                Visibility::Table(tf.table(256).iter().map(|c| c[3]).collect()),
+                Neighbourhood::Ball,
+            ))
         }
         _ => Err(bad()),
     }
@@ -132,11 +144,36 @@ impl Occlusion {
         let push = std::mem::size_of::<OcclusionPush>() as u32;
         Ok(Occlusion {
             ctx: ctx.clone(),
-            prefix: ComputePipeline::new(ctx, "occlusion/prefix_x.comp", &[StorageImage, StorageImage, StorageImage, StorageBuffer], push)?,
-            ball: ComputePipeline::new(ctx, "occlusion/ball.comp", &[StorageImage, StorageImage], push)?,
-            gauss_axis: ComputePipeline::new(ctx, "occlusion/gauss_axis.comp", &[StorageImage, StorageImage, StorageImage], push)?,
-            gauss_finish: ComputePipeline::new(ctx, "occlusion/gauss_finish.comp", &[StorageImage, StorageImage], push)?,
-            spectrum: ComputePipeline::new(ctx, "occlusion/spectrum.comp", &[StorageImage, StorageImage, StorageBuffer], std::mem::size_of::<SpectrumPush>() as u32)?,
+            prefix: ComputePipeline::new(
+                ctx,
+                "occlusion/prefix_x.comp",
+                &[StorageImage, StorageImage, StorageImage, StorageBuffer],
+                push,
+            )?,
+            ball: ComputePipeline::new(
+                ctx,
+                "occlusion/ball.comp",
+                &[StorageImage, StorageImage],
+                push,
+            )?,
+            gauss_axis: ComputePipeline::new(
+                ctx,
+                "occlusion/gauss_axis.comp",
+                &[StorageImage, StorageImage, StorageImage],
+                push,
+            )?,
+            gauss_finish: ComputePipeline::new(
+                ctx,
+                "occlusion/gauss_finish.comp",
+                &[StorageImage, StorageImage],
+                push,
+            )?,
+            spectrum: ComputePipeline::new(
+                ctx,
+                "occlusion/spectrum.comp",
+                &[StorageImage, StorageImage, StorageBuffer],
+                std::mem::size_of::<SpectrumPush>() as u32,
+            )?,
         })
     }
 
@@ -144,23 +181,37 @@ impl Occlusion {
     pub fn compute(&self, v: &Volume, p: &OcclusionParams) -> Result<OcclusionOutput> {
         let ctx = &self.ctx;
         if p.radius == 0 || p.radius > 1024 {
-            return Err(Error::Invalid(format!("occlusion radius {} is invalid; expected 1..=1024 voxels", p.radius)));
+            return Err(Error::Invalid(format!(
+                "occlusion radius {} is invalid; expected 1..=1024 voxels",
+                p.radius
+            )));
         }
         if p.stride == 0 || p.stride > 64 {
-            return Err(Error::Invalid(format!("output stride {} is invalid; expected 1..=64", p.stride)));
+            return Err(Error::Invalid(format!(
+                "output stride {} is invalid; expected 1..=64",
+                p.stride
+            )));
         }
         let (intensity, range) = normalised_f32(v);
         let extent = extent_of(ctx, v.dims, 4, 4)?;
         let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(p.stride as usize));
         let out_extent = out_dims.map(|d| d as u32);
-        let r32 = |name: &str, e: [u32; 3]| Image::new(ctx, name, &ImageDesc::new_3d(vk::Format::R32_SFLOAT, e));
+        let r32 = |name: &str, e: [u32; 3]| {
+            Image::new(ctx, name, &ImageDesc::new_3d(vk::Format::R32_SFLOAT, e))
+        };
         let intensity_img = r32("occlusion intensity", extent)?;
         let prefix = r32("occlusion prefix", extent)?;
         let mapped = r32("occlusion mapped", extent)?;
         let occlusion = r32("occlusion", out_extent)?;
         let gauss_images = if p.neighbourhood == Neighbourhood::Gaussian {
             extent_of(ctx, v.dims, 16, 2)?;
-            let rgba = |name: &str| Image::new(ctx, name, &ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent));
+            let rgba = |name: &str| {
+                Image::new(
+                    ctx,
+                    name,
+                    &ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent),
+                )
+            };
             Some((rgba("occlusion gauss a")?, rgba("occlusion gauss b")?))
         } else {
             None
@@ -174,17 +225,39 @@ impl Occlusion {
             Visibility::Table(t) => (2, 0.0, 1.0, t.clone()),
         };
         if table.len() != 256 {
-            return Err(Error::Invalid("a transfer-function visibility table needs 256 entries".into()));
+            return Err(Error::Invalid(
+                "a transfer-function visibility table needs 256 entries".into(),
+            ));
         }
-        let mut tf = Buffer::new(ctx, "visibility table", &BufferDesc { size: 1024, usage: vk::BufferUsageFlags::STORAGE_BUFFER, location: BufferLocation::Upload })?;
+        let mut tf = Buffer::new(
+            ctx,
+            "visibility table",
+            &BufferDesc {
+                size: 1024,
+                usage: vk::BufferUsageFlags::STORAGE_BUFFER,
+                location: BufferLocation::Upload,
+            },
+        )?;
         tf.write(bytemuck::cast_slice(&table))?;
         let bins = p.spectrum_bins;
         let hist = match bins {
             Some([bx, by]) => {
                 if bx == 0 || by == 0 || bx > 4096 || by > 4096 {
-                    return Err(Error::Invalid(format!("spectrum bins {bx}x{by} are invalid; expected 1..=4096 each")));
+                    return Err(Error::Invalid(format!(
+                        "spectrum bins {bx}x{by} are invalid; expected 1..=4096 each"
+                    )));
                 }
-                Some(Buffer::new(ctx, "spectrum", &BufferDesc { size: bx as u64 * by as u64 * 4, usage: vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST | vk::BufferUsageFlags::TRANSFER_SRC, location: BufferLocation::Readback })?)
+                Some(Buffer::new(
+                    ctx,
+                    "spectrum",
+                    &BufferDesc {
+                        size: bx as u64 * by as u64 * 4,
+                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
+                            | vk::BufferUsageFlags::TRANSFER_DST
+                            | vk::BufferUsageFlags::TRANSFER_SRC,
+                        location: BufferLocation::Readback,
+                    },
+                )?)
             }
             None => None,
         };
@@ -203,18 +276,35 @@ impl Occlusion {
         let mut profiler = Profiler::new(ctx, 6)?;
         submit_once(ctx, "occlusion", |cmd| {
             profiler.reset(cmd);
-            profiler.pass(cmd, "upload", |cmd| record_upload(ctx, cmd, &staging, &intensity_img, Access::ComputeRead));
+            profiler.pass(cmd, "upload", |cmd| {
+                record_upload(ctx, cmd, &staging, &intensity_img, Access::ComputeRead)
+            });
             profiler.begin(cmd, "occlusion");
             for img in [&prefix, &mapped, &occlusion] {
                 img.discard();
                 img.transition(cmd, Access::ComputeWrite);
             }
             let rows = (v.dims[1] * v.dims[2]) as u32;
-            self.prefix.dispatch(cmd, &[Bind::StorageImage(&intensity_img), Bind::StorageImage(&prefix), Bind::StorageImage(&mapped), Bind::StorageBuffer(&tf)], &push, [rows.div_ceil(64), 1, 1])?;
+            self.prefix.dispatch(
+                cmd,
+                &[
+                    Bind::StorageImage(&intensity_img),
+                    Bind::StorageImage(&prefix),
+                    Bind::StorageImage(&mapped),
+                    Bind::StorageBuffer(&tf),
+                ],
+                &push,
+                [rows.div_ceil(64), 1, 1],
+            )?;
             match &gauss_images {
                 None => {
                     prefix.transition(cmd, Access::ComputeRead);
-                    self.ball.dispatch(cmd, &[Bind::StorageImage(&prefix), Bind::StorageImage(&occlusion)], &push, [out_extent[0].div_ceil(64), out_extent[1], out_extent[2]])?;
+                    self.ball.dispatch(
+                        cmd,
+                        &[Bind::StorageImage(&prefix), Bind::StorageImage(&occlusion)],
+                        &push,
+                        [out_extent[0].div_ceil(64), out_extent[1], out_extent[2]],
+                    )?;
                 }
                 Some((a, b)) => {
                     mapped.transition(cmd, Access::ComputeRead);
@@ -235,55 +325,107 @@ impl Occlusion {
                         }
                         self.gauss_axis.dispatch(
                             cmd,
-                            &[Bind::StorageImage(&mapped), Bind::StorageImage(src_img), Bind::StorageImage(dst)],
-                            &OcclusionPush { axis: axis as i32, ..push },
+                            &[
+                                Bind::StorageImage(&mapped),
+                                Bind::StorageImage(src_img),
+                                Bind::StorageImage(dst),
+                            ],
+                            &OcclusionPush {
+                                axis: axis as i32,
+                                ..push
+                            },
                             group_count(extent, LOCAL_SIZE),
                         )?;
                     }
                     a.transition(cmd, Access::ComputeRead);
-                    self.gauss_finish.dispatch(cmd, &[Bind::StorageImage(a), Bind::StorageImage(&occlusion)], &push, group_count(out_extent, LOCAL_SIZE))?;
+                    self.gauss_finish.dispatch(
+                        cmd,
+                        &[Bind::StorageImage(a), Bind::StorageImage(&occlusion)],
+                        &push,
+                        group_count(out_extent, LOCAL_SIZE),
+                    )?;
                 }
             }
             profiler.end(cmd);
             if let (Some(hist), Some([bx, by])) = (&hist, bins) {
                 profiler.begin(cmd, "spectrum");
                 unsafe {
-                    ctx.device.cmd_fill_buffer(cmd, hist.raw, 0, vk::WHOLE_SIZE, 0);
+                    ctx.device
+                        .cmd_fill_buffer(cmd, hist.raw, 0, vk::WHOLE_SIZE, 0);
                     let b = [vk::MemoryBarrier2::default()
                         .src_stage_mask(vk::PipelineStageFlags2::CLEAR)
                         .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
                         .dst_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
-                        .dst_access_mask(vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE)];
-                    ctx.device.cmd_pipeline_barrier2(cmd, &vk::DependencyInfo::default().memory_barriers(&b));
+                        .dst_access_mask(
+                            vk::AccessFlags2::SHADER_STORAGE_READ
+                                | vk::AccessFlags2::SHADER_STORAGE_WRITE,
+                        )];
+                    ctx.device.cmd_pipeline_barrier2(
+                        cmd,
+                        &vk::DependencyInfo::default().memory_barriers(&b),
+                    );
                 }
                 occlusion.transition(cmd, Access::ComputeRead);
-                let sp = SpectrumPush { dims, stride: p.stride as i32, bins_x: bx as i32, bins_y: by as i32, pad0: 0, pad1: 0 };
-                self.spectrum.dispatch(cmd, &[Bind::StorageImage(&intensity_img), Bind::StorageImage(&occlusion), Bind::StorageBuffer(hist)], &sp, group_count(extent, LOCAL_SIZE))?;
+                let sp = SpectrumPush {
+                    dims,
+                    stride: p.stride as i32,
+                    bins_x: bx as i32,
+                    bins_y: by as i32,
+                    pad0: 0,
+                    pad1: 0,
+                };
+                self.spectrum.dispatch(
+                    cmd,
+                    &[
+                        Bind::StorageImage(&intensity_img),
+                        Bind::StorageImage(&occlusion),
+                        Bind::StorageBuffer(hist),
+                    ],
+                    &sp,
+                    group_count(extent, LOCAL_SIZE),
+                )?;
                 unsafe {
                     let b = [vk::MemoryBarrier2::default()
                         .src_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
                         .src_access_mask(vk::AccessFlags2::SHADER_STORAGE_WRITE)
                         .dst_stage_mask(vk::PipelineStageFlags2::HOST)
                         .dst_access_mask(vk::AccessFlags2::HOST_READ)];
-                    ctx.device.cmd_pipeline_barrier2(cmd, &vk::DependencyInfo::default().memory_barriers(&b));
+                    ctx.device.cmd_pipeline_barrier2(
+                        cmd,
+                        &vk::DependencyInfo::default().memory_barriers(&b),
+                    );
                 }
                 profiler.end(cmd);
             }
-            profiler.pass(cmd, "readback", |cmd| record_readback(ctx, cmd, &occlusion, &readback));
+            profiler.pass(cmd, "readback", |cmd| {
+                record_readback(ctx, cmd, &occlusion, &readback)
+            });
             Ok(())
         })?;
         let passes = profiler.results()?;
-        let o: Vec<f32> = bytemuck::pod_collect_to_vec(readback.mapped().ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?);
+        let o: Vec<f32> = bytemuck::pod_collect_to_vec(
+            readback
+                .mapped()
+                .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?,
+        );
         let spacing = v.spacing.map(|s| s * p.stride as f64);
-        let spectrum = match (&hist, bins) {
-            (Some(h), Some(bins)) => Some(Spectrum {
-                bins,
-                counts: bytemuck::pod_collect_to_vec(h.mapped().ok_or_else(|| Error::Invalid("spectrum buffer is not host-visible".into()))?),
-                intensity_range: range,
-            }),
-            _ => None,
-        };
-        Ok(OcclusionOutput { occlusion: Volume::new(out_dims, spacing, VoxelData::F32(o))?, spectrum, passes, intensity_range: range })
+        let spectrum =
+            match (&hist, bins) {
+                (Some(h), Some(bins)) => Some(Spectrum {
+                    bins,
+                    counts: bytemuck::pod_collect_to_vec(h.mapped().ok_or_else(|| {
+                        Error::Invalid("spectrum buffer is not host-visible".into())
+                    })?),
+                    intensity_range: range,
+                }),
+                _ => None,
+            };
+        Ok(OcclusionOutput {
+            occlusion: Volume::new(out_dims, spacing, VoxelData::F32(o))?,
+            spectrum,
+            passes,
+            intensity_range: range,
+        })
     }
 }
 
@@ -291,8 +433,15 @@ impl Occlusion {
 pub fn normalised_f32(v: &Volume) -> (Vec<f32>, [f64; 2]) {
     use rayon::prelude::*;
     let s = crate::volume::stats::stats(v, 0);
-    let scale = if s.max > s.min { 1.0 / (s.max - s.min) } else { 0.0 };
-    let out = (0..v.len()).into_par_iter().map(|i| ((v.data.get_f64(i) - s.min) * scale) as f32).collect();
+    let scale = if s.max > s.min {
+        1.0 / (s.max - s.min)
+    } else {
+        0.0
+    };
+    let out = (0..v.len())
+        .into_par_iter()
+        .map(|i| ((v.data.get_f64(i) - s.min) * scale) as f32)
+        .collect();
     (out, [s.min, s.max])
 }
 
@@ -303,15 +452,34 @@ mod tests {
 
     #[test]
     fn push_constants_match_glsl() {
-        assert_glsl_layout!(OcclusionPush, "occlusion.glsl", "OcclusionPush", [dims, radius, out_dims, stride, mapping, axis, t0, t1]);
-        assert_glsl_layout!(SpectrumPush, "occlusion.glsl", "SpectrumPush", [dims, stride, bins_x, bins_y, pad0, pad1]);
+        assert_glsl_layout!(
+            OcclusionPush,
+            "occlusion.glsl",
+            "OcclusionPush",
+            [dims, radius, out_dims, stride, mapping, axis, t0, t1]
+        );
+        assert_glsl_layout!(
+            SpectrumPush,
+            "occlusion.glsl",
+            "SpectrumPush",
+            [dims, stride, bins_x, bins_y, pad0, pad1]
+        );
     }
 
     #[test]
     fn mapping_parsing() {
-        assert_eq!(parse_mapping("ramp").unwrap(), (Visibility::Ramp, Neighbourhood::Ball));
-        assert_eq!(parse_mapping("gaussian").unwrap().1, Neighbourhood::Gaussian);
-        assert_eq!(parse_mapping("truncated:0.1,0.5").unwrap().0, Visibility::Truncated { t0: 0.1, t1: 0.5 });
+        assert_eq!(
+            parse_mapping("ramp").unwrap(),
+            (Visibility::Ramp, Neighbourhood::Ball)
+        );
+        assert_eq!(
+            parse_mapping("gaussian").unwrap().1,
+            Neighbourhood::Gaussian
+        );
+        assert_eq!(
+            parse_mapping("truncated:0.1,0.5").unwrap().0,
+            Visibility::Truncated { t0: 0.1, t1: 0.5 }
+        );
         assert!(parse_mapping("truncated:0.5,0.1").is_err());
         assert!(parse_mapping("box").is_err());
         assert!(parse_mapping("tf:/no/such.json").is_err());

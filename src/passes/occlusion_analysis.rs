@@ -47,6 +47,18 @@ pub struct Selection {
     pub candidates: Vec<Candidate>,
 }
 
+/// For output voxel `o` of a grid coarser by `stride`: its (x, y, z) and the linear index of the
+/// input voxel it samples.
+fn sampled_voxel(o: usize, out_dims: [usize; 3], dims: [usize; 3], stride: usize) -> usize {
+    let (x, y, z) = (
+        o % out_dims[0],
+        (o / out_dims[0]) % out_dims[1],
+        o / (out_dims[0] * out_dims[1]),
+    );
+    (x * stride).min(dims[0] - 1)
+        + dims[0] * ((y * stride).min(dims[1] - 1) + dims[1] * (z * stride).min(dims[2] - 1))
+}
+
 /// 1D k-means with deterministic quantile initialisation; returns (means ascending, counts).
 pub fn kmeans_1d(values: &[f64], k: usize) -> (Vec<f64>, Vec<usize>) {
     let mut sorted = values.to_vec();
@@ -55,17 +67,29 @@ pub fn kmeans_1d(values: &[f64], k: usize) -> (Vec<f64>, Vec<usize>) {
     if n == 0 || k == 0 {
         return (Vec::new(), Vec::new());
     }
-    let mut means: Vec<f64> = (0..k).map(|i| sorted[((2 * i + 1) * n / (2 * k)).min(n - 1)]).collect();
+    let mut means: Vec<f64> = (0..k)
+        .map(|i| sorted[((2 * i + 1) * n / (2 * k)).min(n - 1)])
+        .collect();
     let mut counts = vec![0usize; k];
     for _ in 0..100 {
         let mut sums = vec![0.0; k];
         counts.iter_mut().for_each(|c| *c = 0);
         for &v in &sorted {
-            let j = (0..k).min_by(|&a, &b| (v - means[a]).abs().total_cmp(&(v - means[b]).abs())).unwrap_or(0);
+            let j = (0..k)
+                .min_by(|&a, &b| (v - means[a]).abs().total_cmp(&(v - means[b]).abs()))
+                .unwrap_or(0);
             sums[j] += v;
             counts[j] += 1;
         }
-        let next: Vec<f64> = (0..k).map(|j| if counts[j] > 0 { sums[j] / counts[j] as f64 } else { means[j] }).collect();
+        let next: Vec<f64> = (0..k)
+            .map(|j| {
+                if counts[j] > 0 {
+                    sums[j] / counts[j] as f64
+                } else {
+                    means[j]
+                }
+            })
+            .collect();
         let moved = next.iter().zip(&means).any(|(a, b)| (a - b).abs() > 1e-12);
         means = next;
         if !moved {
@@ -74,7 +98,10 @@ pub fn kmeans_1d(values: &[f64], k: usize) -> (Vec<f64>, Vec<usize>) {
     }
     let mut order: Vec<usize> = (0..k).collect();
     order.sort_by(|&a, &b| means[a].total_cmp(&means[b]));
-    (order.iter().map(|&j| means[j]).collect(), order.iter().map(|&j| counts[j]).collect())
+    (
+        order.iter().map(|&j| means[j]).collect(),
+        order.iter().map(|&j| counts[j]).collect(),
+    )
 }
 
 /// Variance of cluster means, weighted by cluster size (the between-cluster variance).
@@ -83,17 +110,35 @@ pub fn variance_of_means(means: &[f64], counts: &[usize]) -> f64 {
     if n == 0 {
         return 0.0;
     }
-    let mean = means.iter().zip(counts).map(|(m, &c)| m * c as f64).sum::<f64>() / n as f64;
-    means.iter().zip(counts).map(|(m, &c)| c as f64 * (m - mean).powi(2)).sum::<f64>() / n as f64
+    let mean = means
+        .iter()
+        .zip(counts)
+        .map(|(m, &c)| m * c as f64)
+        .sum::<f64>()
+        / n as f64;
+    means
+        .iter()
+        .zip(counts)
+        .map(|(m, &c)| c as f64 * (m - mean).powi(2))
+        .sum::<f64>()
+        / n as f64
 }
 
 /// Adaptive mapping selection for the interval `[lo, hi]` (data units).
-pub fn select(occ: &Occlusion, v: &Volume, interval: [f64; 2], radius: u32, stride: u32) -> Result<Selection> {
+pub fn select(
+    occ: &Occlusion,
+    v: &Volume,
+    interval: [f64; 2],
+    radius: u32,
+    stride: u32,
+) -> Result<Selection> {
     const BINS: usize = 16;
     let (intensity, range) = normalised_f32(v);
     let span = range[1] - range[0];
     if span <= 0.0 {
-        return Err(Error::Invalid("the volume is constant; there is nothing to classify".into()));
+        return Err(Error::Invalid(
+            "the volume is constant; there is nothing to classify".into(),
+        ));
     }
     let norm = |x: f64| (x - range[0]) / span;
     let (lo, hi) = (norm(interval[0]) as f32, norm(interval[1]) as f32);
@@ -108,33 +153,52 @@ pub fn select(occ: &Occlusion, v: &Volume, interval: [f64; 2], radius: u32, stri
     let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(s));
     let picks: Vec<(usize, usize)> = (0..out_dims[0] * out_dims[1] * out_dims[2])
         .filter_map(|o| {
-            let (x, y, z) = (o % out_dims[0], (o / out_dims[0]) % out_dims[1], o / (out_dims[0] * out_dims[1]));
-            let i = (x * s).min(v.dims[0] - 1) + v.dims[0] * ((y * s).min(v.dims[1] - 1) + v.dims[1] * (z * s).min(v.dims[2] - 1));
+            let i = sampled_voxel(o, out_dims, v.dims, s);
             (intensity[i] >= lo && intensity[i] <= hi).then_some((o, i))
         })
         .collect();
     if picks.len() < 4 {
-        return Err(Error::Invalid(format!("only {} voxels fall in the interval; expected at least 4 to cluster", picks.len())));
+        return Err(Error::Invalid(format!(
+            "only {} voxels fall in the interval; expected at least 4 to cluster",
+            picks.len()
+        )));
     }
     // Local histograms: h[k][voxel] for the picked voxels.
     let mut hist = vec![vec![0f32; picks.len()]; BINS];
     for (k, h) in hist.iter_mut().enumerate() {
-        let table: Vec<f32> = (0..256).map(|t| if t * BINS / 256 == k { 1.0 } else { 0.0 }).collect();
-        let p = OcclusionParams { radius, visibility: Visibility::Table(table), neighbourhood: Neighbourhood::Ball, stride, spectrum_bins: None };
+        let table: Vec<f32> = (0..256)
+            .map(|t| if t * BINS / 256 == k { 1.0 } else { 0.0 })
+            .collect();
+        let p = OcclusionParams {
+            radius,
+            visibility: Visibility::Table(table),
+            neighbourhood: Neighbourhood::Ball,
+            stride,
+            spectrum_bins: None,
+        };
         let out = occ.compute(v, &p)?;
-        let VoxelData::F32(o) = &out.occlusion.data else { unreachable!("occlusion is float") };
+        let VoxelData::F32(o) = &out.occlusion.data else {
+            unreachable!("occlusion is float")
+        };
         for (j, &(oi, _)) in picks.iter().enumerate() {
             h[j] = o[oi];
         }
     }
     let centre = |k: usize| (k as f64 + 0.5) / BINS as f64;
     let steps: Vec<f64> = (0..=8).map(|i| i as f64 / 8.0).collect();
-    let pairs: Vec<(f64, f64)> = steps.iter().flat_map(|&a| steps.iter().filter(move |&&b| b > a).map(move |&b| (a, b))).collect();
+    let pairs: Vec<(f64, f64)> = steps
+        .iter()
+        .flat_map(|&a| steps.iter().filter(move |&&b| b > a).map(move |&b| (a, b)))
+        .collect();
     let mut candidates: Vec<Candidate> = pairs
         .par_iter()
         .map(|&(t0, t1)| {
-            let m: Vec<f64> = (0..BINS).map(|k| ((centre(k) - t0) / (t1 - t0)).clamp(0.0, 1.0)).collect();
-            let values: Vec<f64> = (0..picks.len()).map(|j| (0..BINS).map(|k| hist[k][j] as f64 * m[k]).sum()).collect();
+            let m: Vec<f64> = (0..BINS)
+                .map(|k| ((centre(k) - t0) / (t1 - t0)).clamp(0.0, 1.0))
+                .collect();
+            let values: Vec<f64> = (0..picks.len())
+                .map(|j| (0..BINS).map(|k| hist[k][j] as f64 * m[k]).sum())
+                .collect();
             let (mut best, mut best_k, mut best_means) = (-1.0, 2, Vec::new());
             for k in 2..=4 {
                 let (means, counts) = kmeans_1d(&values, k);
@@ -143,12 +207,28 @@ pub fn select(occ: &Occlusion, v: &Volume, interval: [f64; 2], radius: u32, stri
                     (best, best_k, best_means) = (score, k, means);
                 }
             }
-            Candidate { t0, t1, t0_value: range[0] + t0 * span, t1_value: range[0] + t1 * span, score: best, k: best_k, means: best_means }
+            Candidate {
+                t0,
+                t1,
+                t0_value: range[0] + t0 * span,
+                t1_value: range[0] + t1 * span,
+                score: best,
+                k: best_k,
+                means: best_means,
+            }
         })
         .collect();
     candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
     let best = candidates[0].clone();
-    Ok(Selection { interval, radius, stride, histogram_bins: BINS, voxels_in_interval: picks.len(), best, candidates })
+    Ok(Selection {
+        interval,
+        radius,
+        stride,
+        histogram_bins: BINS,
+        voxels_in_interval: picks.len(),
+        best,
+        candidates,
+    })
 }
 
 /// One point of the sensitivity plot.
@@ -164,19 +244,32 @@ pub struct SensitivityRow {
 
 /// Variance of occlusion (ramp mapping, ball) within each of `bands` intensity bands, for each
 /// radius (SPEC OS7, paper Fig. 6). Band edges are in data units.
-pub fn sensitivity(occ: &Occlusion, v: &Volume, radii: &[u32], bands: usize, stride: u32) -> Result<Vec<SensitivityRow>> {
+pub fn sensitivity(
+    occ: &Occlusion,
+    v: &Volume,
+    radii: &[u32],
+    bands: usize,
+    stride: u32,
+) -> Result<Vec<SensitivityRow>> {
     let (intensity, range) = normalised_f32(v);
     let s = stride as usize;
     let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(s));
     let mut rows = Vec::new();
     for &radius in radii {
-        let p = OcclusionParams { radius, visibility: Visibility::Ramp, neighbourhood: Neighbourhood::Ball, stride, spectrum_bins: None };
+        let p = OcclusionParams {
+            radius,
+            visibility: Visibility::Ramp,
+            neighbourhood: Neighbourhood::Ball,
+            stride,
+            spectrum_bins: None,
+        };
         let out = occ.compute(v, &p)?;
-        let VoxelData::F32(o) = &out.occlusion.data else { unreachable!("occlusion is float") };
+        let VoxelData::F32(o) = &out.occlusion.data else {
+            unreachable!("occlusion is float")
+        };
         let mut acc = vec![(0usize, 0.0f64, 0.0f64); bands];
         for (oi, &occl) in o.iter().enumerate() {
-            let (x, y, z) = (oi % out_dims[0], (oi / out_dims[0]) % out_dims[1], oi / (out_dims[0] * out_dims[1]));
-            let i = (x * s).min(v.dims[0] - 1) + v.dims[0] * ((y * s).min(v.dims[1] - 1) + v.dims[1] * (z * s).min(v.dims[2] - 1));
+            let i = sampled_voxel(oi, out_dims, v.dims, s);
             let b = ((intensity[i] * bands as f32) as usize).min(bands - 1);
             let a = &mut acc[b];
             a.0 += 1;
@@ -185,7 +278,11 @@ pub fn sensitivity(occ: &Occlusion, v: &Volume, radii: &[u32], bands: usize, str
         }
         let span = range[1] - range[0];
         for (b, (n, sum, sq)) in acc.into_iter().enumerate() {
-            let variance = if n > 1 { (sq - sum * sum / n as f64) / (n - 1) as f64 } else { 0.0 };
+            let variance = if n > 1 {
+                (sq - sum * sum / n as f64) / (n - 1) as f64
+            } else {
+                0.0
+            };
             rows.push(SensitivityRow {
                 radius,
                 band: b,
@@ -210,13 +307,31 @@ pub fn sensitivity_plot(rows: &[SensitivityRow]) -> crate::plot::Canvas {
     let bands = rows.iter().map(|r| r.band).max().map_or(0, |b| b + 1);
     let (w, h, left, top) = (560usize, 360usize, 56usize, 14usize);
     let mut c = Canvas::new(w + left + 16 + 110, h + top + 44, [255, 255, 255]);
-    let vmax = rows.iter().map(|r| r.variance).fold(0.0, f64::max).max(1e-12);
-    let (rmin, rmax) = (*radii.first().unwrap_or(&0) as f64, *radii.last().unwrap_or(&1) as f64);
-    let px = |r: f64| left as i64 + if rmax > rmin { ((r - rmin) / (rmax - rmin) * (w - 1) as f64) as i64 } else { 0 };
+    let vmax = rows
+        .iter()
+        .map(|r| r.variance)
+        .fold(0.0, f64::max)
+        .max(1e-12);
+    let (rmin, rmax) = (
+        *radii.first().unwrap_or(&0) as f64,
+        *radii.last().unwrap_or(&1) as f64,
+    );
+    let px = |r: f64| {
+        left as i64
+            + if rmax > rmin {
+                ((r - rmin) / (rmax - rmin) * (w - 1) as f64) as i64
+            } else {
+                0
+            }
+    };
     let py = |v: f64| (top + h - 1) as i64 - (v / vmax * (h - 1) as f64) as i64;
     for b in 0..bands {
         let col = PALETTE[b % PALETTE.len()];
-        let pts: Vec<(i64, i64)> = rows.iter().filter(|r| r.band == b).map(|r| (px(r.radius as f64), py(r.variance))).collect();
+        let pts: Vec<(i64, i64)> = rows
+            .iter()
+            .filter(|r| r.band == b)
+            .map(|r| (px(r.radius as f64), py(r.variance)))
+            .collect();
         for seg in pts.windows(2) {
             c.line(seg[0], seg[1], col);
         }
@@ -226,10 +341,23 @@ pub fn sensitivity_plot(rows: &[SensitivityRow]) -> crate::plot::Canvas {
         if let Some(r) = rows.iter().find(|r| r.band == b) {
             let ly = (top + 10 + b * 12) as i64;
             c.rect((left + w + 20) as i64, ly, 10, 5, col);
-            c.text((left + w + 34) as i64, ly, &format!("{:.0}-{:.0}", r.band_lo, r.band_hi), 1, [30, 30, 30]);
+            c.text(
+                (left + w + 34) as i64,
+                ly,
+                &format!("{:.0}-{:.0}", r.band_lo, r.band_hi),
+                1,
+                [30, 30, 30],
+            );
         }
     }
-    axes(&mut c, (left, top, w, h), "RADIUS", [rmin, rmax], "VARIANCE", [0.0, vmax]);
+    axes(
+        &mut c,
+        (left, top, w, h),
+        "RADIUS",
+        [rmin, rmax],
+        "VARIANCE",
+        [0.0, vmax],
+    );
     c
 }
 
@@ -239,7 +367,10 @@ mod tests {
 
     #[test]
     fn kmeans_finds_two_groups() {
-        let v: Vec<f64> = (0..50).map(|i| 0.1 + (i % 5) as f64 * 0.001).chain((0..30).map(|i| 0.7 + (i % 3) as f64 * 0.001)).collect();
+        let v: Vec<f64> = (0..50)
+            .map(|i| 0.1 + (i % 5) as f64 * 0.001)
+            .chain((0..30).map(|i| 0.7 + (i % 3) as f64 * 0.001))
+            .collect();
         let (means, counts) = kmeans_1d(&v, 2);
         assert!((means[0] - 0.102).abs() < 1e-3 && (means[1] - 0.701).abs() < 1e-3);
         assert_eq!(counts, vec![50, 30]);

@@ -230,7 +230,11 @@ impl Renderer {
                 fragment_constants: &[],
             },
         )?;
-        let dummy_3d = Image::new(ctx, "dummy occlusion", &ImageDesc::new_3d(vk::Format::R32_SFLOAT, [1, 1, 1]))?;
+        let dummy_3d = Image::new(
+            ctx,
+            "dummy occlusion",
+            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, [1, 1, 1]),
+        )?;
         let dummy_2d = Image::new(ctx, "dummy occlusion tf", &ImageDesc::new_2d(COLOR, [1, 1]))?;
         crate::gpu::transfer::upload(ctx, &dummy_3d, &[0u8; 4], Access::FragmentSampled)?;
         crate::gpu::transfer::upload(ctx, &dummy_2d, &[0u8; 16], Access::FragmentSampled)?;
@@ -299,7 +303,16 @@ impl Renderer {
             material: [0.25, 0.75, 0.35, (proxy.spacing as f64 / voxel) as f32],
             focus: {
                 let f = params.focus.normalised(vol.range);
-                [f[0], f[1], f[2], if params.occlusion_tf.is_some() { 1.0 } else { 0.0 }]
+                [
+                    f[0],
+                    f[1],
+                    f[2],
+                    if params.occlusion_tf.is_some() {
+                        1.0
+                    } else {
+                        0.0
+                    },
+                ]
             },
         };
         // The occlusion transfer function: a 256×256 table and the occlusion volume to index it.

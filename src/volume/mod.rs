@@ -3,6 +3,7 @@
 //!
 //! Voxel order is x fastest, then y, then z, as in NRRD and NIfTI files on disk.
 
+pub mod feature;
 pub mod io;
 pub mod phantom;
 pub mod reference;

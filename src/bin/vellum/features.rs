@@ -1,18 +1,250 @@
-//! `vellum migrate` and `vellum features` (placeholder until the feature-map work lands).
+//! `vellum migrate` (FM1–FM5: ROI, migration, feature map) and `vellum features` (print a map).
+//! Parsing and file handling only; the work is in `vellum::volume::feature`.
 
-use anyhow::Result;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context as _, Result};
 use clap::Args;
+use serde_json::json;
+use vellum::volume::feature::{
+    self, parse_color, parse_seeds, parse_window, Connectivity, Feature, FeatureMap, MigrateParams,
+    MigrationReport, Roi,
+};
+use vellum::volume::io::nrrd::write_nrrd;
 
 #[derive(Args)]
-pub struct MigrateArgs {}
-
-#[derive(Args)]
-pub struct FeaturesArgs {}
-
-pub fn migrate(_args: &MigrateArgs) -> Result<()> {
-    anyhow::bail!("feature migration is not implemented yet")
+pub struct MigrateArgs {
+    /// Input: file, DICOM folder or phantom spec. When appending to a feature map, the previous
+    /// feature volume.
+    input: String,
+    /// ROI from a mask volume aligned voxel for voxel with the input (nonzero = ROI).
+    #[arg(long, value_name = "MASK", required_unless_present = "seed", conflicts_with_all = ["seed", "window"])]
+    mask: Option<String>,
+    /// ROI by seeded region growing from these voxels.
+    #[arg(long, value_name = "X,Y,Z[;X,Y,Z...]", requires = "window")]
+    seed: Option<String>,
+    /// Intensity window of the region growing, inclusive, in data units.
+    #[arg(
+        long,
+        value_name = "LO:HI",
+        requires = "seed",
+        allow_hyphen_values = true
+    )]
+    window: Option<String>,
+    /// Connectivity of the region growing.
+    #[arg(long, default_value = "6", value_parser = ["6", "26"])]
+    connectivity: String,
+    /// The feature's label (unique in the map).
+    #[arg(long)]
+    label: String,
+    /// Parent group in the map, e.g. "bones" or "head/bones" (created when missing).
+    #[arg(long)]
+    parent: Option<String>,
+    /// The gap ε between the data and the private interval, in data units (default: 5% of the
+    /// input range).
+    #[arg(long)]
+    epsilon: Option<f64>,
+    /// Free text stored with the feature.
+    #[arg(long, default_value = "")]
+    description: String,
+    /// Default colour as R,G,B in 0..1 (default: the next colour of the palette).
+    #[arg(long, value_name = "R,G,B")]
+    color: Option<String>,
+    /// Feature map to append to when it exists, else to create (default: OUT with the extension
+    /// .features.json, always new).
+    #[arg(long, value_name = "FEATURES.json")]
+    features: Option<PathBuf>,
+    /// Output feature volume (.nrrd).
+    #[arg(long)]
+    out: PathBuf,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
 }
 
-pub fn print_tree(_args: &FeaturesArgs) -> Result<()> {
-    anyhow::bail!("feature maps are not implemented yet")
+#[derive(Args)]
+pub struct FeaturesArgs {
+    /// A feature map written by `vellum migrate`.
+    features: PathBuf,
+    /// Print the map as JSON instead of a tree.
+    #[arg(long)]
+    json: bool,
+}
+
+/// The map path (explicit or beside the output) and whether an existing one is appended to.
+fn map_path(args: &MigrateArgs) -> (PathBuf, bool) {
+    match &args.features {
+        Some(p) => (p.clone(), p.exists()),
+        None => (args.out.with_extension("features.json"), false),
+    }
+}
+
+/// How the map refers to the feature volume: its file name when both sit in one folder.
+fn volume_ref(out: &Path, map: &Path) -> String {
+    let dir = |p: &Path| p.parent().map(Path::to_path_buf).unwrap_or_default();
+    if dir(out) == dir(map) {
+        if let Some(name) = out.file_name() {
+            return name.to_string_lossy().into_owned();
+        }
+    }
+    std::path::absolute(out)
+        .unwrap_or_else(|_| out.to_path_buf())
+        .display()
+        .to_string()
+}
+
+pub fn migrate(args: &MigrateArgs) -> Result<()> {
+    let start = Instant::now();
+    let (map_path, append) = map_path(args);
+    let existing = if append {
+        Some(FeatureMap::load(&map_path)?)
+    } else {
+        None
+    };
+    if let Some(map) = &existing {
+        if map.feature(&args.label).is_some() {
+            anyhow::bail!(
+                "{}: a feature labelled '{}' exists already; expected a new label",
+                map_path.display(),
+                args.label
+            );
+        }
+    }
+    let color = args.color.as_deref().map(parse_color).transpose()?;
+
+    let volume = vellum::input::load(&args.input, None)?;
+    let roi = match (&args.mask, &args.seed, &args.window) {
+        (Some(mask), _, _) => {
+            let mask = vellum::input::load(mask, None)?;
+            Roi::from_mask(&mask, volume.dims)
+                .with_context(|| format!("--mask {}", mask_name(args)))?
+        }
+        (None, Some(seeds), Some(window)) => Roi::grow(
+            &volume,
+            &parse_seeds(seeds)?,
+            parse_window(window)?,
+            Connectivity::parse(&args.connectivity)?,
+        )?,
+        _ => {
+            anyhow::bail!("no ROI given; expected --mask MASK or --seed X,Y,Z with --window LO:HI")
+        }
+    };
+    let loaded_ms = start.elapsed().as_secs_f64() * 1e3;
+
+    let params = MigrateParams {
+        epsilon: args.epsilon,
+        ..Default::default()
+    };
+    let migration = feature::migrate(&volume, &roi, &params)?;
+    let report = &migration.report;
+
+    let mut map = existing.unwrap_or_else(|| FeatureMap::new(report.in_range));
+    map.volume = Some(volume_ref(&args.out, &map_path));
+    let feature = Feature {
+        label: args.label.clone(),
+        description: args.description.clone(),
+        interval: report.interval,
+        color: color.unwrap_or_else(|| map.next_color()),
+        source_range: Some(report.roi_range),
+    };
+    map.append(feature.clone(), args.parent.as_deref())
+        .with_context(|| map_path.display().to_string())?;
+
+    let t = Instant::now();
+    write_nrrd(&args.out, &migration.volume)?;
+    map.save(&map_path)?;
+    let written_ms = t.elapsed().as_secs_f64() * 1e3;
+
+    if args.json {
+        let out = json!({
+            "input": args.input,
+            "out": args.out,
+            "features": map_path,
+            "appended": append,
+            "feature": feature,
+            "report": report,
+            "load_ms": loaded_ms,
+            "write_ms": written_ms,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        print_report(args, &feature, report, loaded_ms, written_ms);
+        println!(
+            "wrote {} and {} ({} the map)",
+            args.out.display(),
+            map_path.display(),
+            if append { "appended to" } else { "created" }
+        );
+    }
+    Ok(())
+}
+
+fn mask_name(args: &MigrateArgs) -> &str {
+    args.mask.as_deref().unwrap_or_default()
+}
+
+fn print_report(
+    args: &MigrateArgs,
+    feature: &Feature,
+    r: &MigrationReport,
+    loaded_ms: f64,
+    written_ms: f64,
+) {
+    let c = &r.categories;
+    let k = &r.reconstruction;
+    let t = &r.timings;
+    println!(
+        "feature '{}': {} ROI voxels of {} ({} → {})",
+        feature.label,
+        r.roi_voxels,
+        args.input,
+        r.input_type.name(),
+        r.output_type.name()
+    );
+    println!(
+        "  categories: 1 fuzzy boundary {}, 2 thin ROI {}, 3 ROI interior {}, 4 outside {}",
+        c.fuzzy_boundary, c.thin_roi, c.roi_interior, c.outside
+    );
+    println!(
+        "  input range [{}, {}], ROI range [{}, {}] → private interval [{}, {}] (ε = {}, Δ = {})",
+        num(r.in_range[0]),
+        num(r.in_range[1]),
+        num(r.roi_range[0]),
+        num(r.roi_range[1]),
+        num(r.interval[0]),
+        num(r.interval[1]),
+        num(r.epsilon),
+        num(r.delta)
+    );
+    println!(
+        "  category 1: eq. 10 {}, only ROI found {}, only outside found {}, beyond δ_i {}, beyond δ_o {}, by mask {}",
+        k.flipped, k.inside_only, k.outside_only, k.beyond_inside, k.beyond_outside, k.by_mask
+    );
+    println!(
+        "  times: categorise {:.1} ms, migrate {:.1} ms, reconstruct {:.1} ms, total {:.1} ms (load {:.1} ms, write {:.1} ms)",
+        t.categorise_ms, t.migrate_ms, t.reconstruct_ms, t.total_ms, loaded_ms, written_ms
+    );
+}
+
+/// A data value with at most 6 decimals and no trailing zeros (f64 sums such as 0.75 + 0.0375
+/// print as 0.7875, not 0.7875000000000001).
+fn num(v: f64) -> String {
+    let s = format!("{v:.6}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" {
+        "0".into()
+    } else {
+        s.into()
+    }
+}
+
+pub fn print_tree(args: &FeaturesArgs) -> Result<()> {
+    let map = FeatureMap::load(&args.features)?;
+    if args.json {
+        println!("{}", map.to_json());
+    } else {
+        print!("{map}");
+    }
+    Ok(())
 }

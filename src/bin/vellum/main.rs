@@ -132,6 +132,9 @@ enum Command {
         /// Occlusion transfer function (JSON): colour and opacity over (intensity, occlusion).
         #[arg(long)]
         otf: Option<PathBuf>,
+        /// A feature map (features.json from `vellum migrate`): each feature gets its colour (FM6).
+        #[arg(long, conflicts_with = "otf")]
+        features: Option<PathBuf>,
         /// Output PNG.
         #[arg(long)]
         out: PathBuf,
@@ -372,6 +375,7 @@ fn run(cli: &Cli) -> Result<()> {
             one_pass,
             background,
             otf,
+            features,
             out,
             exr,
             json,
@@ -387,6 +391,7 @@ fn run(cli: &Cli) -> Result<()> {
                 one_pass: *one_pass,
                 background,
                 otf: otf.as_deref(),
+                features: features.as_deref(),
                 out,
                 exr: exr.as_deref(),
                 json: *json,
@@ -415,13 +420,43 @@ fn run(cli: &Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Occlusion { input, radius, mapping, stride, out, spectrum, spectrum_data, bins, json } => {
-            occlusion(cli, input, *radius, mapping, *stride, out.as_deref(), spectrum.as_deref(), spectrum_data.as_deref(), *bins, *json)
-        }
-        Command::OcclusionSelect { input, interval, radius, stride, json } => occlusion_select(cli, input, interval, *radius, *stride, *json),
-        Command::OcclusionSensitivity { input, radii, bands, stride, out, csv } => {
-            occlusion_sensitivity(cli, input, radii, *bands, *stride, out, csv.as_deref())
-        }
+        Command::Occlusion {
+            input,
+            radius,
+            mapping,
+            stride,
+            out,
+            spectrum,
+            spectrum_data,
+            bins,
+            json,
+        } => occlusion(
+            cli,
+            input,
+            *radius,
+            mapping,
+            *stride,
+            out.as_deref(),
+            spectrum.as_deref(),
+            spectrum_data.as_deref(),
+            *bins,
+            *json,
+        ),
+        Command::OcclusionSelect {
+            input,
+            interval,
+            radius,
+            stride,
+            json,
+        } => occlusion_select(cli, input, interval, *radius, *stride, *json),
+        Command::OcclusionSensitivity {
+            input,
+            radii,
+            bands,
+            stride,
+            out,
+            csv,
+        } => occlusion_sensitivity(cli, input, radii, *bands, *stride, out, csv.as_deref()),
         Command::Migrate(args) => features::migrate(args),
         Command::Features(args) => features::print_tree(args),
         Command::Bench {
@@ -610,6 +645,7 @@ struct RenderOpts<'a> {
     one_pass: bool,
     background: &'a str,
     otf: Option<&'a std::path::Path>,
+    features: Option<&'a std::path::Path>,
     out: &'a std::path::Path,
     exr: Option<&'a std::path::Path>,
     json: bool,
@@ -650,11 +686,24 @@ fn render(cli: &Cli, input: &InputArgs, o: &RenderOpts) -> Result<()> {
     let mut textures = vellum::passes::normals::Normals::new(&ctx)?.prepare(&v, &mut profiler)?;
     let mut prepare = profiler.results()?;
     let mut params = params;
+    if let Some(path) = o.features {
+        // FM6: the feature map becomes an ordinary transfer function; the renderer is unchanged.
+        let map = vellum::volume::feature::FeatureMap::load(path)?;
+        let s = vellum::volume::stats::stats(&v, 0);
+        params.transfer =
+            vellum::render::features::feature_transfer_function(&map, [s.min, s.max])?;
+    }
     if let Some(path) = o.otf {
         use vellum::passes::occlusion::{parse_mapping, Occlusion, OcclusionParams};
         let otf = vellum::render::otf::OcclusionTf::load(path)?;
         let (visibility, neighbourhood) = parse_mapping(&otf.mapping)?;
-        let p = OcclusionParams { radius: otf.radius, visibility, neighbourhood, stride: otf.effective_stride(), spectrum_bins: None };
+        let p = OcclusionParams {
+            radius: otf.radius,
+            visibility,
+            neighbourhood,
+            stride: otf.effective_stride(),
+            spectrum_bins: None,
+        };
         let occ = Occlusion::new(&ctx)?.compute(&v, &p)?;
         prepare.extend(occ.passes.into_iter().filter(|p| p.name == "occlusion"));
         textures.attach_occlusion(&ctx, &occ.occlusion)?;
@@ -733,31 +782,55 @@ fn occlusion(
     let v = input.load()?;
     let ctx = context(cli)?;
     let want_spectrum = spectrum_png.is_some() || spectrum_csv.is_some() || json;
-    let params = OcclusionParams { radius, visibility, neighbourhood, stride, spectrum_bins: want_spectrum.then_some([bins, bins]) };
+    let params = OcclusionParams {
+        radius,
+        visibility,
+        neighbourhood,
+        stride,
+        spectrum_bins: want_spectrum.then_some([bins, bins]),
+    };
     let start = std::time::Instant::now();
     let r = Occlusion::new(&ctx)?.compute(&v, &params)?;
     let wall_ms = start.elapsed().as_secs_f64() * 1e3;
     report_validation(&ctx);
     if let Some(path) = out {
-        vellum::volume::io::nrrd::write_nrrd(path, &r.occlusion).with_context(|| format!("writing the occlusion volume to {}", path.display()))?;
+        vellum::volume::io::nrrd::write_nrrd(path, &r.occlusion)
+            .with_context(|| format!("writing the occlusion volume to {}", path.display()))?;
     }
     if let Some(s) = &r.spectrum {
         let b = [s.bins[0] as usize, s.bins[1] as usize];
         if let Some(path) = spectrum_png {
-            let c = vellum::plot::histogram_2d(&s.counts, b, "INTENSITY", s.intensity_range, "OCCLUSION", [0.0, 1.0]);
+            let c = vellum::plot::histogram_2d(
+                &s.counts,
+                b,
+                "INTENSITY",
+                s.intensity_range,
+                "OCCLUSION",
+                [0.0, 1.0],
+            );
             vellum::output::write_png_rgb(path, c.width as u32, c.height as u32, &c.rgb)?;
         }
         if let Some(path) = spectrum_csv {
             let [lo, hi] = s.intensity_range;
             vellum::output::write_atomic(path, |w| {
                 use std::io::Write;
-                writeln!(w, "intensity_lo,intensity_hi,occlusion_lo,occlusion_hi,count")?;
+                writeln!(
+                    w,
+                    "intensity_lo,intensity_hi,occlusion_lo,occlusion_hi,count"
+                )?;
                 for by in 0..b[1] {
                     for bx in 0..b[0] {
                         let n = s.counts[by * b[0] + bx];
                         if n > 0 {
                             let iw = (hi - lo) / b[0] as f64;
-                            writeln!(w, "{},{},{},{},{n}", lo + bx as f64 * iw, lo + (bx + 1) as f64 * iw, by as f64 / b[1] as f64, (by + 1) as f64 / b[1] as f64)?;
+                            writeln!(
+                                w,
+                                "{},{},{},{},{n}",
+                                lo + bx as f64 * iw,
+                                lo + (bx + 1) as f64 * iw,
+                                by as f64 / b[1] as f64,
+                                (by + 1) as f64 / b[1] as f64
+                            )?;
                         }
                     }
                 }
@@ -766,7 +839,11 @@ fn occlusion(
         }
     }
     let stats = vellum::volume::stats::stats(&r.occlusion, 0);
-    let passes: serde_json::Map<String, serde_json::Value> = r.passes.iter().map(|p| (p.name.clone(), json!(p.ms))).collect();
+    let passes: serde_json::Map<String, serde_json::Value> = r
+        .passes
+        .iter()
+        .map(|p| (p.name.clone(), json!(p.ms)))
+        .collect();
     if json {
         let out = json!({
             "device": ctx.info.name, "radius": radius, "mapping": mapping, "stride": stride, "dims": v.dims,
@@ -774,8 +851,14 @@ fn occlusion(
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
-        println!("occlusion of {} (R = {radius}, {mapping}, stride {stride}) on {}", input.input, ctx.info.name);
-        println!("  occlusion {}x{}x{}, range {:.4} .. {:.4}", r.occlusion.dims[0], r.occlusion.dims[1], r.occlusion.dims[2], stats.min, stats.max);
+        println!(
+            "occlusion of {} (R = {radius}, {mapping}, stride {stride}) on {}",
+            input.input, ctx.info.name
+        );
+        println!(
+            "  occlusion {}x{}x{}, range {:.4} .. {:.4}",
+            r.occlusion.dims[0], r.occlusion.dims[1], r.occlusion.dims[2], stats.min, stats.max
+        );
         for p in &r.passes {
             println!("  {:<10} {:>10.3} ms", p.name, p.ms);
         }
@@ -791,7 +874,14 @@ fn parse_interval(s: &str) -> Result<[f64; 2]> {
         .ok_or_else(|| anyhow::anyhow!("interval '{s}' is not LO:HI in data units with LO <= HI"))
 }
 
-fn occlusion_select(cli: &Cli, input: &InputArgs, interval: &str, radius: u32, stride: u32, json: bool) -> Result<()> {
+fn occlusion_select(
+    cli: &Cli,
+    input: &InputArgs,
+    interval: &str,
+    radius: u32,
+    stride: u32,
+    json: bool,
+) -> Result<()> {
     let interval = parse_interval(interval)?;
     let v = input.load()?;
     let ctx = context(cli)?;
@@ -800,23 +890,61 @@ fn occlusion_select(cli: &Cli, input: &InputArgs, interval: &str, radius: u32, s
     let sel = vellum::passes::occlusion_analysis::select(&occ, &v, interval, radius, stride)?;
     report_validation(&ctx);
     if json {
-        println!("{}", serde_json::to_string_pretty(&json!({ "device": ctx.info.name, "selection": sel, "total_ms": start.elapsed().as_secs_f64() * 1e3 }))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(
+                &json!({ "device": ctx.info.name, "selection": sel, "total_ms": start.elapsed().as_secs_f64() * 1e3 })
+            )?
+        );
         return Ok(());
     }
     let b = &sel.best;
-    println!("adaptive mapping for {}:{} ({} voxels, R = {radius}, stride {stride}) on {}", interval[0], interval[1], sel.voxels_in_interval, ctx.info.name);
-    println!("  best: --mapping truncated:{},{}  (data {:.1}..{:.1}), score {:.3e}, k = {}, means {:?}", b.t0, b.t1, b.t0_value, b.t1_value, b.score, b.k, b.means.iter().map(|m| format!("{m:.3}")).collect::<Vec<_>>());
+    println!(
+        "adaptive mapping for {}:{} ({} voxels, R = {radius}, stride {stride}) on {}",
+        interval[0], interval[1], sel.voxels_in_interval, ctx.info.name
+    );
+    println!(
+        "  best: --mapping truncated:{},{}  (data {:.1}..{:.1}), score {:.3e}, k = {}, means {:?}",
+        b.t0,
+        b.t1,
+        b.t0_value,
+        b.t1_value,
+        b.score,
+        b.k,
+        b.means
+            .iter()
+            .map(|m| format!("{m:.3}"))
+            .collect::<Vec<_>>()
+    );
     println!("  every candidate (t0, t1 as fractions of the range), best first:");
     for c in &sel.candidates {
-        println!("    {:.3} {:.3}  score {:.4e}  k {}", c.t0, c.t1, c.score, c.k);
+        println!(
+            "    {:.3} {:.3}  score {:.4e}  k {}",
+            c.t0, c.t1, c.score, c.k
+        );
     }
     println!("  took {:.0} ms", start.elapsed().as_secs_f64() * 1e3);
     Ok(())
 }
 
-fn occlusion_sensitivity(cli: &Cli, input: &InputArgs, radii: &[u32], bands: usize, stride: u32, out: &std::path::Path, csv: Option<&std::path::Path>) -> Result<()> {
-    anyhow::ensure!(!radii.is_empty() && bands > 0, "give at least one radius and one band");
-    let stride = if stride == 0 { (radii.iter().copied().max().unwrap_or(16) / 16).max(1) } else { stride };
+fn occlusion_sensitivity(
+    cli: &Cli,
+    input: &InputArgs,
+    radii: &[u32],
+    bands: usize,
+    stride: u32,
+    out: &std::path::Path,
+    csv: Option<&std::path::Path>,
+) -> Result<()> {
+    anyhow::ensure!(
+        !radii.is_empty() && bands > 0,
+        "give at least one radius and one band"
+    );
+    let stride = if stride == 0 {
+        (radii.iter().copied().max().unwrap_or(16) / 16).max(1)
+    } else {
+        stride
+    };
     let v = input.load()?;
     let ctx = context(cli)?;
     let occ = vellum::passes::occlusion::Occlusion::new(&ctx)?;
@@ -829,11 +957,19 @@ fn occlusion_sensitivity(cli: &Cli, input: &InputArgs, radii: &[u32], bands: usi
             use std::io::Write;
             writeln!(w, "radius,band,band_lo,band_hi,voxels,variance")?;
             for r in &rows {
-                writeln!(w, "{},{},{},{},{},{}", r.radius, r.band, r.band_lo, r.band_hi, r.voxels, r.variance)?;
+                writeln!(
+                    w,
+                    "{},{},{},{},{},{}",
+                    r.radius, r.band, r.band_lo, r.band_hi, r.voxels, r.variance
+                )?;
             }
             Ok(())
         })?;
     }
-    println!("sensitivity of {} over radii {radii:?} (stride {stride}, {bands} bands) written to {}", input.input, out.display());
+    println!(
+        "sensitivity of {} over radii {radii:?} (stride {stride}, {bands} bands) written to {}",
+        input.input,
+        out.display()
+    );
     Ok(())
 }

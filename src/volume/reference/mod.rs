@@ -1,5 +1,5 @@
 //! CPU reference algorithms: plain, obviously correct implementations that every GPU pass is
 //! checked against in tests.
 pub mod gaussian;
-pub mod sobel;
 pub mod occlusion;
+pub mod sobel;

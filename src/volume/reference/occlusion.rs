@@ -26,81 +26,94 @@ impl Visibility {
     }
 }
 
-/// Brute-force ball occlusion at the voxels `points` of `intensity` (normalised, x fastest).
-pub fn ball_at(intensity: &[f32], dims: [usize; 3], m: &Visibility, radius: i64, points: &[[usize; 3]]) -> Vec<f64> {
+/// Σ w·M / Σ w over the voxels of the volume within the box |d|∞ ≤ R around each of `points`,
+/// where `weight(dx, dy, dz)` gives w (or `None` to leave the offset out).
+fn weighted_mean_at(
+    intensity: &[f32],
+    dims: [usize; 3],
+    m: &Visibility,
+    radius: i64,
+    points: &[[usize; 3]],
+    weight: impl Fn(i64, i64, i64) -> Option<f64> + Sync,
+) -> Vec<f64> {
     let mapped: Vec<f64> = intensity.par_iter().map(|&s| m.apply(s) as f64).collect();
-    let r2 = radius * radius;
-    points
-        .par_iter()
-        .map(|&[x, y, z]| {
-            let (mut sum, mut count) = (0.0f64, 0u64);
-            for dz in -radius..=radius {
-                let zz = z as i64 + dz;
-                if zz < 0 || zz >= dims[2] as i64 {
-                    continue;
-                }
-                for dy in -radius..=radius {
-                    let yy = y as i64 + dy;
-                    if yy < 0 || yy >= dims[1] as i64 {
-                        continue;
-                    }
-                    for dx in -radius..=radius {
-                        let xx = x as i64 + dx;
-                        if xx < 0 || xx >= dims[0] as i64 || dx * dx + dy * dy + dz * dz > r2 {
-                            continue;
-                        }
-                        sum += mapped[xx as usize + dims[0] * (yy as usize + dims[1] * zz as usize)];
-                        count += 1;
-                    }
-                }
-            }
-            sum / count.max(1) as f64
-        })
-        .collect()
-}
-
-/// Gaussian-weighted occlusion at `points`: Σ w·M / Σ w over the voxels of the volume within the
-/// box |d|∞ ≤ R, w = exp(−|d|²/2σ²), σ = R/3 (separable, as the GPU passes).
-pub fn gaussian_at(intensity: &[f32], dims: [usize; 3], m: &Visibility, radius: i64, points: &[[usize; 3]]) -> Vec<f64> {
-    let mapped: Vec<f64> = intensity.par_iter().map(|&s| m.apply(s) as f64).collect();
-    let sigma = (radius as f64 / 3.0).max(1e-3);
-    let w = |d: i64| (-(d * d) as f64 / (2.0 * sigma * sigma)).exp();
+    let inside = |c: i64, a: usize| c >= 0 && c < dims[a] as i64;
     points
         .par_iter()
         .map(|&[x, y, z]| {
             let (mut num, mut den) = (0.0f64, 0.0f64);
             for dz in -radius..=radius {
-                let zz = z as i64 + dz;
-                if zz < 0 || zz >= dims[2] as i64 {
-                    continue;
-                }
                 for dy in -radius..=radius {
-                    let yy = y as i64 + dy;
-                    if yy < 0 || yy >= dims[1] as i64 {
-                        continue;
-                    }
                     for dx in -radius..=radius {
-                        let xx = x as i64 + dx;
-                        if xx < 0 || xx >= dims[0] as i64 {
+                        let (xx, yy, zz) = (x as i64 + dx, y as i64 + dy, z as i64 + dz);
+                        if !(inside(xx, 0) && inside(yy, 1) && inside(zz, 2)) {
                             continue;
                         }
-                        let wt = w(dx) * w(dy) * w(dz);
-                        num += wt * mapped[xx as usize + dims[0] * (yy as usize + dims[1] * zz as usize)];
-                        den += wt;
+                        if let Some(w) = weight(dx, dy, dz) {
+                            num += w * mapped
+                                [xx as usize + dims[0] * (yy as usize + dims[1] * zz as usize)];
+                            den += w;
+                        }
                     }
                 }
             }
-            num / den
+            if den > 0.0 {
+                num / den
+            } else {
+                0.0
+            }
         })
         .collect()
 }
 
+/// Brute-force ball occlusion at the voxels `points` of `intensity` (normalised, x fastest): the
+/// mean of M over the voxels of the volume with |d| ≤ R.
+pub fn ball_at(
+    intensity: &[f32],
+    dims: [usize; 3],
+    m: &Visibility,
+    radius: i64,
+    points: &[[usize; 3]],
+) -> Vec<f64> {
+    let r2 = radius * radius;
+    weighted_mean_at(intensity, dims, m, radius, points, |dx, dy, dz| {
+        (dx * dx + dy * dy + dz * dz <= r2).then_some(1.0)
+    })
+}
+
+/// Gaussian-weighted occlusion at `points`: w = exp(−|d|²/2σ²), σ = R/3, over |d|∞ ≤ R (separable,
+/// as the GPU passes).
+pub fn gaussian_at(
+    intensity: &[f32],
+    dims: [usize; 3],
+    m: &Visibility,
+    radius: i64,
+    points: &[[usize; 3]],
+) -> Vec<f64> {
+    let sigma = (radius as f64 / 3.0).max(1e-3);
+    let w = |d: i64| (-(d * d) as f64 / (2.0 * sigma * sigma)).exp();
+    weighted_mean_at(intensity, dims, m, radius, points, |dx, dy, dz| {
+        Some(w(dx) * w(dy) * w(dz))
+    })
+}
+
 /// The occlusion spectrum: counts of (intensity bin, occlusion bin), row-major by occlusion bin.
 /// `occlusion` may be coarser than `intensity` by `stride` (voxel p reads occlusion p / stride).
-pub fn spectrum(intensity: &[f32], dims: [usize; 3], occlusion: &[f32], out_dims: [usize; 3], stride: usize, bins: [usize; 2]) -> Vec<u32> {
+pub fn spectrum(
+    intensity: &[f32],
+    dims: [usize; 3],
+    occlusion: &[f32],
+    out_dims: [usize; 3],
+    stride: usize,
+    bins: [usize; 2],
+) -> Vec<u32> {
     let mut counts = vec![0u32; bins[0] * bins[1]];
     for (i, &s) in intensity.iter().enumerate() {
-        let (x, y, z) = (i % dims[0], (i / dims[0]) % dims[1], i / (dims[0] * dims[1]));
+        let (x, y, z) = (
+            i % dims[0],
+            (i / dims[0]) % dims[1],
+            i / (dims[0] * dims[1]),
+        );
         let o = occlusion[x / stride + out_dims[0] * (y / stride + out_dims[1] * (z / stride))];
         let bx = ((s * bins[0] as f32) as i64).clamp(0, bins[0] as i64 - 1) as usize;
         let by = ((o * bins[1] as f32) as i64).clamp(0, bins[1] as i64 - 1) as usize;
