@@ -6,7 +6,9 @@
 use crate::error::{Result, VkContext};
 use crate::gpu::barrier::{access_info, Access};
 use crate::gpu::context::Context;
-use crate::gpu::pipeline::{shader_module, Bind, BindingKind, PipelineLayout};
+use crate::gpu::pipeline::{
+    shader_module, specialization_entries, Bind, BindingKind, PipelineLayout,
+};
 use crate::gpu::resources::Image;
 use ash::vk;
 use std::sync::Arc;
@@ -79,13 +81,7 @@ impl GraphicsPipeline {
                 return Err(e);
             }
         };
-        let entries: Vec<vk::SpecializationMapEntry> = (0..desc.fragment_constants.len() as u32)
-            .map(|i| vk::SpecializationMapEntry {
-                constant_id: i,
-                offset: 4 * i,
-                size: 4,
-            })
-            .collect();
+        let entries = specialization_entries(desc.fragment_constants);
         let spec = vk::SpecializationInfo::default()
             .map_entries(&entries)
             .data(bytemuck::cast_slice(desc.fragment_constants));

@@ -211,6 +211,17 @@ impl Drop for PipelineLayout {
     }
 }
 
+/// Map entries for 32-bit specialisation constants: `constants[i]` is `constant_id = i`.
+pub fn specialization_entries(constants: &[u32]) -> Vec<vk::SpecializationMapEntry> {
+    (0..constants.len() as u32)
+        .map(|i| vk::SpecializationMapEntry {
+            constant_id: i,
+            offset: 4 * i,
+            size: 4,
+        })
+        .collect()
+}
+
 /// Creates a shader module from the embedded SPIR-V of `shader`.
 pub fn shader_module(ctx: &Context, shader: &str) -> Result<vk::ShaderModule> {
     let words = shaders::spirv(shader)?;
@@ -255,13 +266,7 @@ impl ComputePipeline {
             vk::ShaderStageFlags::COMPUTE,
         )?;
         let module = shader_module(ctx, shader)?;
-        let entries: Vec<vk::SpecializationMapEntry> = (0..constants.len() as u32)
-            .map(|i| vk::SpecializationMapEntry {
-                constant_id: i,
-                offset: 4 * i,
-                size: 4,
-            })
-            .collect();
+        let entries = specialization_entries(constants);
         let spec = vk::SpecializationInfo::default()
             .map_entries(&entries)
             .data(bytemuck::cast_slice(constants));

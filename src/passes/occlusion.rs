@@ -308,26 +308,18 @@ impl Occlusion {
                 }
                 Some((a, b)) => {
                     mapped.transition(cmd, Access::ComputeRead);
-                    // x: mapped → a, y: a → b, z: b → a.
-                    for (axis, (src, dst)) in [(a, a), (a, b), (b, a)].into_iter().enumerate() {
-                        if axis > 0 {
-                            src.transition(cmd, Access::ComputeRead);
-                        }
+                    // x: mapped → a, y: a → b, z: b → a. The x pass reads `mapped` and ignores
+                    // its `src` binding, which still needs an image: b, unwritten at that point.
+                    b.discard();
+                    for (axis, (src, dst)) in [(b, a), (a, b), (b, a)].into_iter().enumerate() {
+                        src.transition(cmd, Access::ComputeRead);
                         dst.discard();
                         dst.transition(cmd, Access::ComputeWrite);
-                        let src_bind = if axis == 0 { &mapped } else { src };
-                        // Axis 0 reads `mapped` and ignores `src`; bind a valid image of the right
-                        // format there (b, which is not written in this dispatch).
-                        let src_img = if axis == 0 { b } else { src_bind };
-                        if axis == 0 {
-                            b.discard();
-                            b.transition(cmd, Access::ComputeRead);
-                        }
                         self.gauss_axis.dispatch(
                             cmd,
                             &[
                                 Bind::StorageImage(&mapped),
-                                Bind::StorageImage(src_img),
+                                Bind::StorageImage(src),
                                 Bind::StorageImage(dst),
                             ],
                             &OcclusionPush {
