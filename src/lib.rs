@@ -10,6 +10,7 @@ pub mod input;
 pub mod output;
 pub mod passes;
 pub mod plot;
+pub mod progress;
 pub mod render;
 pub mod volume;
 

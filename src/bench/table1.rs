@@ -174,6 +174,12 @@ fn scipy_ms(v: &Volume, r: u32, repeat: usize) -> Option<f64> {
 pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     let map = ImportanceMap::new(ctx)?;
     let mut rows = Vec::new();
+    let total = CASES
+        .iter()
+        .flat_map(|c| RADII.iter().map(move |&r| (c.0, r)))
+        .filter(|&(c, r)| wanted(&opts.cases, c, r))
+        .count();
+    let progress = crate::progress::bar(total as u64, "table 1");
     for (case, dims, dataset, paper_filter, paper_subtract, paper_total) in CASES {
         if !RADII.iter().any(|&r| wanted(&opts.cases, case, r)) {
             continue;
@@ -184,6 +190,8 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                 continue;
             }
             log::info!("table1: {case} R={r}");
+            progress.set_message(format!("table 1 {case} R={r}"));
+            progress.inc(1);
             let runs = (0..opts.repeat)
                 .map(|_| map.compute(&v, r, true))
                 .collect::<Result<Vec<_>>>()?;

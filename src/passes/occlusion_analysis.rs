@@ -165,7 +165,9 @@ pub fn select(
     }
     // Local histograms: h[k][voxel] for the picked voxels.
     let mut hist = vec![vec![0f32; picks.len()]; BINS];
+    let progress = crate::progress::bar(BINS as u64, "local histograms");
     for (k, h) in hist.iter_mut().enumerate() {
+        progress.inc(1);
         let table: Vec<f32> = (0..256)
             .map(|t| if t * BINS / 256 == k { 1.0 } else { 0.0 })
             .collect();
@@ -255,7 +257,9 @@ pub fn sensitivity(
     let s = stride as usize;
     let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(s));
     let mut rows = Vec::new();
+    let progress = crate::progress::bar(radii.len() as u64, "radii");
     for &radius in radii {
+        progress.inc(1);
         let p = OcclusionParams {
             radius,
             visibility: Visibility::Ramp,

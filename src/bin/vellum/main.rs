@@ -117,6 +117,9 @@ enum Command {
         /// Orthographic instead of perspective projection.
         #[arg(long)]
         ortho: bool,
+        /// Pan the view: X,Y in bounding-sphere radii (x right, y up).
+        #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
+        pan: Option<String>,
         /// Image size.
         #[arg(long, value_name = "WxH", default_value = "512x512")]
         size: String,
@@ -370,6 +373,7 @@ fn run(cli: &Cli) -> Result<()> {
             iso,
             camera,
             ortho,
+            pan,
             size,
             slices,
             one_pass,
@@ -386,6 +390,7 @@ fn run(cli: &Cli) -> Result<()> {
                 iso: *iso,
                 camera,
                 ortho: *ortho,
+                pan: pan.as_deref(),
                 size,
                 slices: *slices,
                 one_pass: *one_pass,
@@ -640,6 +645,7 @@ struct RenderOpts<'a> {
     iso: Option<f64>,
     camera: &'a str,
     ortho: bool,
+    pan: Option<&'a str>,
     size: &'a str,
     slices: Option<u32>,
     one_pass: bool,
@@ -670,6 +676,15 @@ fn render(cli: &Cli, input: &InputArgs, o: &RenderOpts) -> Result<()> {
     use vellum::render::slicer::{to_rgb8, Focus, RenderParams, Renderer};
     let mut camera = vellum::render::camera::Camera::parse(o.camera)?;
     camera.ortho = o.ortho;
+    if let Some(p) = o.pan {
+        let v: Vec<f32> = p.split(',').filter_map(|c| c.trim().parse().ok()).collect();
+        anyhow::ensure!(
+            v.len() == 2 && v.iter().all(|c| c.is_finite()),
+            "--pan '{p}' is not X,Y in bounding-sphere radii"
+        );
+        camera.pan = glam::Vec2::new(v[0], v[1]);
+    }
+    camera.validate()?;
     let params = RenderParams {
         camera,
         size: parse_size(o.size)?,
