@@ -54,11 +54,7 @@ fn volumes_of_every_type() -> Vec<Volume> {
         Volume::new(
             dims,
             [1.0; 3],
-            VoxelData::I16(
-                (0..n)
-                    .map(|i| (i as i32 * 4099 % 65536 - 32768) as i16)
-                    .collect(),
-            ),
+            VoxelData::I16((0..n).map(|i| (i * 4099 % 65536 - 32768) as i16).collect()),
         )
         .unwrap(),
         Volume::new(
@@ -103,8 +99,7 @@ fn volume_beyond_the_device_limit_is_refused() {
     let too_long = gpu.ctx.info.max_image_dimension_3d as usize + 1;
     let v = Volume::new([too_long, 1, 1], [1.0; 3], VoxelData::U8(vec![0; too_long])).unwrap();
     let err = round_trip(&gpu.ctx, &v)
-        .err()
-        .expect("must be refused")
+        .expect_err("must be refused")
         .to_string();
     assert!(err.contains("at most"), "{err}");
 }

@@ -21,32 +21,45 @@ use crate::volume::{io, phantom, resample, Volume};
 use serde::Serialize;
 use std::sync::Arc;
 
-/// The paper's cases: name, dims, source dataset, and (1D filter ms by R, subtract ms, total ms by R).
-pub const CASES: [(&str, [usize; 3], &str, [f64; 3], f64, [f64; 3]); 3] = [
-    (
-        "ct-body",
-        [256, 256, 415],
-        "ct_chest_lidc2",
-        [20.85, 52.96, 93.59],
-        18.03,
-        [335.05, 438.13, 560.23],
-    ),
-    (
-        "ct-head",
-        [512, 512, 297],
-        "cthead_stanford",
-        [57.90, 155.61, 272.77],
-        51.90,
-        [928.41, 1221.18, 1570.10],
-    ),
-    (
-        "salmon",
-        [336, 173, 511],
-        "boston_teapot",
-        [22.66, 59.03, 104.93],
-        19.66,
-        [376.37, 490.04, 617.24],
-    ),
+/// One volume of the paper's Table 1 with the paper's milliseconds.
+pub struct PaperCase {
+    pub name: &'static str,
+    pub dims: [usize; 3],
+    /// The dataset of ../shared/data/volumes resampled to `dims`.
+    pub dataset: &'static str,
+    /// 1D filter ms for R = 1, 5, 10.
+    pub filter_ms: [f64; 3],
+    pub subtract_ms: f64,
+    /// Total ms for R = 1, 5, 10.
+    pub total_ms: [f64; 3],
+}
+
+/// The paper's three volumes.
+pub const CASES: [PaperCase; 3] = [
+    PaperCase {
+        name: "ct-body",
+        dims: [256, 256, 415],
+        dataset: "ct_chest_lidc2",
+        filter_ms: [20.85, 52.96, 93.59],
+        subtract_ms: 18.03,
+        total_ms: [335.05, 438.13, 560.23],
+    },
+    PaperCase {
+        name: "ct-head",
+        dims: [512, 512, 297],
+        dataset: "cthead_stanford",
+        filter_ms: [57.90, 155.61, 272.77],
+        subtract_ms: 51.90,
+        total_ms: [928.41, 1221.18, 1570.10],
+    },
+    PaperCase {
+        name: "salmon",
+        dims: [336, 173, 511],
+        dataset: "boston_teapot",
+        filter_ms: [22.66, 59.03, 104.93],
+        subtract_ms: 19.66,
+        total_ms: [376.37, 490.04, 617.24],
+    },
 ];
 
 /// The radii of Table 1.
@@ -176,11 +189,19 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     let mut rows = Vec::new();
     let total = CASES
         .iter()
-        .flat_map(|c| RADII.iter().map(move |&r| (c.0, r)))
+        .flat_map(|c| RADII.iter().map(move |&r| (c.name, r)))
         .filter(|&(c, r)| wanted(&opts.cases, c, r))
         .count();
     let progress = crate::progress::bar(total as u64, "table 1");
-    for (case, dims, dataset, paper_filter, paper_subtract, paper_total) in CASES {
+    for PaperCase {
+        name: case,
+        dims,
+        dataset,
+        filter_ms: paper_filter,
+        subtract_ms: paper_subtract,
+        total_ms: paper_total,
+    } in CASES
+    {
         if !RADII.iter().any(|&r| wanted(&opts.cases, case, r)) {
             continue;
         }

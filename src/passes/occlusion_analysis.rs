@@ -142,7 +142,7 @@ pub fn select(
     }
     let norm = |x: f64| (x - range[0]) / span;
     let (lo, hi) = (norm(interval[0]) as f32, norm(interval[1]) as f32);
-    if !(lo <= hi) || hi < 0.0 || lo > 1.0 {
+    if lo.is_nan() || hi.is_nan() || lo > hi || hi < 0.0 || lo > 1.0 {
         return Err(Error::Invalid(format!(
             "interval {}:{} lies outside the data range {}..{}; expected LO <= HI within it",
             interval[0], interval[1], range[0], range[1]

@@ -109,7 +109,7 @@ impl OcclusionTf {
             ));
         }
         for c in &self.curves {
-            if !interval(c.intensity) || !unit(c.mean) || !(c.width.is_finite() && c.width > 0.0) {
+            if !interval(c.intensity) || !unit(c.mean) || !c.width.is_finite() || c.width <= 0.0 {
                 return Err(Error::Invalid("each curve needs an intensity interval within [0,1], a mean in [0,1] and a positive width".into()));
             }
         }

@@ -231,7 +231,7 @@ impl Volume {
 
 /// Checks dims for zero and absurd sizes. Device limits are checked where a device is known.
 pub fn check_dims(dims: [usize; 3]) -> Result<()> {
-    if dims.iter().any(|&d| d == 0) {
+    if dims.contains(&0) {
         return Err(Error::Invalid(format!(
             "volume dims {}x{}x{} contain a zero; expected every dimension to be at least 1",
             dims[0], dims[1], dims[2]

@@ -93,8 +93,8 @@ mod tests {
         let VoxelData::F32(d) = &up.data else {
             panic!()
         };
-        for x in 0..7 {
-            assert!((d[x] - x as f32 * 0.5).abs() < 1e-6);
+        for (x, value) in d.iter().take(7).enumerate() {
+            assert!((value - x as f32 * 0.5).abs() < 1e-6);
         }
     }
 }

@@ -55,7 +55,7 @@ mod tests {
         let dims = [5, 4, 3];
         let data: Vec<f64> = (0..60).map(|i| ((i / 5) % 4) as f64).collect(); // ramp along y
         let g = sobel_gradient(&data, dims, [1.0, 2.0, 1.0]);
-        let inner = 2 + 5 * (1 + 4 * 1);
+        let inner = 2 + 5 * (1 + 4);
         assert!((g[inner][1] - 0.5).abs() < 1e-12, "{:?}", g[inner]);
         assert!(g[inner][0].abs() < 1e-12 && g[inner][2].abs() < 1e-12);
         assert!((g[inner][3] - 0.5).abs() < 1e-12);
