@@ -36,6 +36,67 @@ pub struct VolumeTextures {
     pub spacing: [f64; 3],
     /// Ambient occlusion in [0, 1] for occlusion transfer functions (R32F, possibly coarser).
     pub occlusion: Option<Image>,
+    /// Min and max of the normalised intensity per brick, for skipping bricks in a pass.
+    pub bricks: Bricks,
+}
+
+/// Edge of a brick in voxels.
+pub const BRICK: usize = 16;
+
+/// Per-brick range of the normalised intensity (0..=65535), widened by one voxel on every side:
+/// a trilinear sample anywhere in a brick blends only voxels of that widened region, so it can
+/// only take values within the brick's range.
+#[derive(Clone, Debug)]
+pub struct Bricks {
+    /// Bricks along x, y, z.
+    pub counts: [usize; 3],
+    /// (min, max) per brick, x fastest.
+    pub range: Vec<[u16; 2]>,
+}
+
+impl Bricks {
+    /// The brick ranges of `texels` (normalised intensity, x fastest) of size `dims`.
+    pub fn new(texels: &[u16], dims: [usize; 3]) -> Self {
+        use rayon::prelude::*;
+        let counts = dims.map(|d| d.div_ceil(BRICK));
+        let range = (0..counts[0] * counts[1] * counts[2])
+            .into_par_iter()
+            .map(|b| {
+                let c = [
+                    b % counts[0],
+                    (b / counts[0]) % counts[1],
+                    b / (counts[0] * counts[1]),
+                ];
+                let lo: [usize; 3] = std::array::from_fn(|a| (c[a] * BRICK).saturating_sub(1));
+                let hi: [usize; 3] = std::array::from_fn(|a| ((c[a] + 1) * BRICK + 1).min(dims[a]));
+                let (mut mn, mut mx) = (u16::MAX, 0u16);
+                for z in lo[2]..hi[2] {
+                    for y in lo[1]..hi[1] {
+                        let row = &texels[dims[0] * (y + dims[1] * z)..][lo[0]..hi[0]];
+                        for &t in row {
+                            mn = mn.min(t);
+                            mx = mx.max(t);
+                        }
+                    }
+                }
+                [mn, mx]
+            })
+            .collect();
+        Bricks { counts, range }
+    }
+
+    /// Voxel bounds [lo, hi) of brick `b` along each axis, clamped to `dims`.
+    pub fn voxel_bounds(&self, b: usize, dims: [usize; 3]) -> ([usize; 3], [usize; 3]) {
+        let c = [
+            b % self.counts[0],
+            (b / self.counts[0]) % self.counts[1],
+            b / (self.counts[0] * self.counts[1]),
+        ];
+        (
+            std::array::from_fn(|a| c[a] * BRICK),
+            std::array::from_fn(|a| ((c[a] + 1) * BRICK).min(dims[a])),
+        )
+    }
 }
 
 impl VolumeTextures {
@@ -102,6 +163,7 @@ impl Normals {
             &ImageDesc::new_3d(vk::Format::R16G16B16A16_SFLOAT, extent),
         )?;
         let (texels, range) = v.normalised_u16();
+        let bricks = Bricks::new(&texels, v.dims);
         let mut staging =
             crate::gpu::transfer::staging_buffer(ctx, "volume staging", texels.len() * 2)?;
         staging.write(bytemuck::cast_slice(&texels))?;
@@ -150,6 +212,7 @@ impl Normals {
             dims: v.dims,
             spacing: v.spacing,
             occlusion: None,
+            bricks,
         })
     }
 }
@@ -158,6 +221,17 @@ impl Normals {
 mod tests {
     use super::*;
     use crate::gpu::interface::assert_glsl_layout;
+
+    #[test]
+    fn brick_ranges_include_the_one_voxel_border() {
+        // 20×3×3 ramp along x: brick 0 covers x 0..16 and, widened, reads x 16; brick 1 reads 15..20.
+        let dims = [20, 3, 3];
+        let texels: Vec<u16> = (0..180).map(|i| (i % 20) as u16 * 100).collect();
+        let b = Bricks::new(&texels, dims);
+        assert_eq!(b.counts, [2, 1, 1]);
+        assert_eq!(b.range, vec![[0, 1600], [1500, 1900]]);
+        assert_eq!(b.voxel_bounds(1, dims), ([16, 0, 0], [20, 3, 3]));
+    }
 
     #[test]
     fn push_constants_match_glsl() {

@@ -46,16 +46,41 @@ const EDGES: [(usize, usize); 12] = [
 /// farthest corner, and are emitted back to front. Each plane's polygon (3 to 6 vertices) becomes
 /// a triangle fan.
 pub fn view_aligned_slices(half_extent: Vec3, view_dir: Vec3, n_slices: u32) -> ProxySlices {
+    view_aligned_slices_in(
+        half_extent,
+        view_dir,
+        n_slices,
+        &[(-half_extent, half_extent)],
+    )
+}
+
+/// As [`view_aligned_slices`], but only the parts of the planes inside `boxes` (min, max corners,
+/// disjoint, within the volume box). The planes are those of the whole volume box, so every
+/// fragment samples exactly where the whole-box geometry would; this clips a pass to the bricks
+/// that can contribute to it. Within a plane the boxes do not overlap, so the output stays back to
+/// front. Adjacent boxes must share corner coordinates exactly so that their edges match.
+pub fn view_aligned_slices_in(
+    half_extent: Vec3,
+    view_dir: Vec3,
+    n_slices: u32,
+    boxes: &[(Vec3, Vec3)],
+) -> ProxySlices {
     let d = view_dir.normalize_or_zero();
     assert!(
         d != Vec3::ZERO,
         "view_dir must be a non-zero finite vector, got {view_dir}"
     );
-    let corners: [Vec3; 8] = std::array::from_fn(|i| {
-        let sign = |k: usize| if (i >> k) & 1 == 1 { 1.0 } else { -1.0 };
-        half_extent * Vec3::new(sign(0), sign(1), sign(2))
-    });
-    let depths = corners.map(|c| c.dot(d));
+    let corners_of = |lo: Vec3, hi: Vec3| -> [Vec3; 8] {
+        std::array::from_fn(|i| {
+            let pick = |k: usize, a: f32, b: f32| if (i >> k) & 1 == 1 { b } else { a };
+            Vec3::new(
+                pick(0, lo.x, hi.x),
+                pick(1, lo.y, hi.y),
+                pick(2, lo.z, hi.z),
+            )
+        })
+    };
+    let depths = corners_of(-half_extent, half_extent).map(|c| c.dot(d));
     let far = depths.iter().copied().fold(f32::NEG_INFINITY, f32::max);
     let near = depths.iter().copied().fold(f32::INFINITY, f32::min);
     let mut out = ProxySlices {
@@ -66,6 +91,20 @@ pub fn view_aligned_slices(half_extent: Vec3, view_dir: Vec3, n_slices: u32) -> 
         },
         ..ProxySlices::default()
     };
+    // Each box's corners and their depths along d, computed once.
+    let boxes: Vec<([Vec3; 8], [f32; 8], f32, f32)> = boxes
+        .iter()
+        .map(|&(lo, hi)| {
+            let c = corners_of(lo, hi);
+            let t = c.map(|p| p.dot(d));
+            (
+                c,
+                t,
+                t.iter().copied().fold(f32::INFINITY, f32::min),
+                t.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+            )
+        })
+        .collect();
 
     // In-plane basis with u × v = −d, so increasing angle runs counter-clockwise seen from the eye.
     let u = d.any_orthonormal_vector();
@@ -75,35 +114,44 @@ pub fn view_aligned_slices(half_extent: Vec3, view_dir: Vec3, n_slices: u32) -> 
 
     for k in 0..n_slices {
         let t = far - (k as f32 + 0.5) * out.spacing;
-        polygon.clear();
-        for &(a, b) in &EDGES {
-            let (ta, tb) = (depths[a], depths[b]);
-            if ta == tb || t < ta.min(tb) || t > ta.max(tb) {
-                continue; // edge parallel to or off the plane
+        let mut any = false;
+        for (corners, depths, lo, hi) in &boxes {
+            if t < *lo || t > *hi {
+                continue;
             }
-            let p = corners[a].lerp(corners[b], (t - ta) / (tb - ta));
-            // A plane through a corner meets several edges there; keep one copy.
-            if polygon.iter().all(|q| q.distance(p) > merge_eps) {
-                polygon.push(p);
+            polygon.clear();
+            for &(a, b) in &EDGES {
+                let (ta, tb) = (depths[a], depths[b]);
+                if ta == tb || t < ta.min(tb) || t > ta.max(tb) {
+                    continue; // edge parallel to or off the plane
+                }
+                let p = corners[a].lerp(corners[b], (t - ta) / (tb - ta));
+                // A plane through a corner meets several edges there; keep one copy.
+                if polygon.iter().all(|q| q.distance(p) > merge_eps) {
+                    polygon.push(p);
+                }
             }
-        }
-        if polygon.len() < 3 {
-            continue;
-        }
-        let centroid = polygon.iter().copied().sum::<Vec3>() / polygon.len() as f32;
-        polygon.sort_by(|p, q| {
-            let angle = |w: &Vec3| {
-                let r = *w - centroid;
-                r.dot(v).atan2(r.dot(u))
-            };
-            angle(p).total_cmp(&angle(q))
-        });
-        for i in 1..polygon.len() - 1 {
-            for p in [polygon[0], polygon[i], polygon[i + 1]] {
-                out.vertices.push(p.to_array());
+            if polygon.len() < 3 {
+                continue;
             }
+            let centroid = polygon.iter().copied().sum::<Vec3>() / polygon.len() as f32;
+            polygon.sort_by(|p, q| {
+                let angle = |w: &Vec3| {
+                    let r = *w - centroid;
+                    r.dot(v).atan2(r.dot(u))
+                };
+                angle(p).total_cmp(&angle(q))
+            });
+            for i in 1..polygon.len() - 1 {
+                for p in [polygon[0], polygon[i], polygon[i + 1]] {
+                    out.vertices.push(p.to_array());
+                }
+            }
+            any = true;
         }
-        out.slices += 1;
+        if any {
+            out.slices += 1;
+        }
     }
     out
 }
@@ -205,6 +253,38 @@ mod tests {
                 assert!((a - face_area).abs() < 1e-4, "{axis}: area {a}");
             }
         }
+    }
+
+    #[test]
+    fn boxes_tiling_the_volume_cover_the_same_area() {
+        let half = Vec3::new(0.5, 0.4, 0.3);
+        let d = Vec3::new(0.3, -0.8, 0.5).normalize();
+        let whole = view_aligned_slices(half, d, 40);
+        // The box split into 2×3×2 bricks sharing their corner coordinates exactly.
+        let split = |a: usize, n: usize, h: f32| -h + 2.0 * h * a as f32 / n as f32;
+        let mut boxes = Vec::new();
+        for z in 0..2 {
+            for y in 0..3 {
+                for x in 0..2 {
+                    let lo = Vec3::new(
+                        split(x, 2, half.x),
+                        split(y, 3, half.y),
+                        split(z, 2, half.z),
+                    );
+                    let hi = Vec3::new(
+                        split(x + 1, 2, half.x),
+                        split(y + 1, 3, half.y),
+                        split(z + 1, 2, half.z),
+                    );
+                    boxes.push((lo, hi));
+                }
+            }
+        }
+        let bricks = view_aligned_slices_in(half, d, 40, &boxes);
+        let total = |s: &ProxySlices| triangles(s).map(|t| area(&t)).sum::<f32>();
+        assert!((total(&whole) - total(&bricks)).abs() < 1e-4 * total(&whole));
+        assert_eq!(whole.spacing, bricks.spacing);
+        assert!(view_aligned_slices_in(half, d, 40, &[]).vertices.is_empty());
     }
 
     #[test]
