@@ -86,6 +86,37 @@ pub struct Spectrum {
     pub intensity_range: [f64; 2],
 }
 
+impl Spectrum {
+    /// Writes the non-empty bins as CSV (intensity in data units, occlusion in [0, 1]), atomically.
+    pub fn write_csv(&self, path: &std::path::Path) -> Result<()> {
+        use std::io::Write;
+        let [bx, by] = self.bins.map(|b| b as usize);
+        let [lo, hi] = self.intensity_range;
+        let width = (hi - lo) / bx as f64;
+        crate::output::write_atomic(path, |w| {
+            writeln!(
+                w,
+                "intensity_lo,intensity_hi,occlusion_lo,occlusion_hi,count"
+            )?;
+            for y in 0..by {
+                for x in 0..bx {
+                    let n = self.counts[y * bx + x];
+                    if n > 0 {
+                        let (o0, o1) = (y as f64 / by as f64, (y + 1) as f64 / by as f64);
+                        writeln!(
+                            w,
+                            "{},{},{o0},{o1},{n}",
+                            lo + x as f64 * width,
+                            lo + (x + 1) as f64 * width
+                        )?;
+                    }
+                }
+            }
+            Ok(())
+        })
+    }
+}
+
 /// Occlusion volume, spectrum and timings.
 #[derive(Clone, Debug)]
 pub struct OcclusionOutput {

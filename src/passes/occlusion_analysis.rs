@@ -300,6 +300,22 @@ pub fn sensitivity(
     Ok(rows)
 }
 
+/// Writes the sensitivity rows as CSV, atomically.
+pub fn write_sensitivity_csv(rows: &[SensitivityRow], path: &std::path::Path) -> Result<()> {
+    use std::io::Write;
+    crate::output::write_atomic(path, |w| {
+        writeln!(w, "radius,band,band_lo,band_hi,voxels,variance")?;
+        for r in rows {
+            writeln!(
+                w,
+                "{},{},{},{},{},{}",
+                r.radius, r.band, r.band_lo, r.band_hi, r.voxels, r.variance
+            )?;
+        }
+        Ok(())
+    })
+}
+
 /// The sensitivity rows as a line plot: variance against radius, one line per band.
 pub fn sensitivity_plot(rows: &[SensitivityRow]) -> crate::plot::Canvas {
     use crate::plot::{axes, Canvas, PALETTE};

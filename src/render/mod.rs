@@ -7,5 +7,6 @@ pub mod camera;
 pub mod features;
 pub mod otf;
 pub mod proxy;
+pub mod scene;
 pub mod slicer;
 pub mod transfer;

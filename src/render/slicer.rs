@@ -639,6 +639,38 @@ fn brick_boxes(
         .collect()
 }
 
+impl Frame {
+    /// Writes the frame's layers as named float channels to one OpenEXR file: focus.phong,
+    /// focus.diffuse (RGBA), focus.depth (Z) and context for two-level frames, and composite.
+    pub fn write_exr(&self, path: &std::path::Path) -> Result<()> {
+        use crate::output::{write_exr_layers, ExrChannels, ExrLayer};
+        let mut layers = Vec::new();
+        if let Some(l) = &self.layers {
+            layers.push(ExrLayer {
+                name: "focus.phong",
+                channels: ExrChannels::Rgba(&l.focus_phong),
+            });
+            layers.push(ExrLayer {
+                name: "focus.diffuse",
+                channels: ExrChannels::Rgba(&l.focus_diffuse),
+            });
+            layers.push(ExrLayer {
+                name: "focus.depth",
+                channels: ExrChannels::Depth(&l.focus_depth),
+            });
+            layers.push(ExrLayer {
+                name: "context",
+                channels: ExrChannels::Rgba(&l.context),
+            });
+        }
+        layers.push(ExrLayer {
+            name: "composite",
+            channels: ExrChannels::Rgba(&self.composite),
+        });
+        write_exr_layers(path, self.size[0], self.size[1], &layers)
+    }
+}
+
 /// Premultiplied RGBA over an opaque `background`, as 8-bit RGB for PNG.
 pub fn to_rgb8(pixels: &[[f32; 4]], background: [f32; 3]) -> Vec<u8> {
     pixels

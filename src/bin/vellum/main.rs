@@ -695,66 +695,32 @@ fn render(cli: &Cli, input: &InputArgs, o: &RenderOpts) -> Result<()> {
         occlusion_tf: None,
     };
     let background = parse_rgb(o.background)?;
+    use vellum::render::scene::{prepare, Classification};
+    let classification = match (o.features, o.otf) {
+        (Some(path), _) => {
+            Classification::Features(vellum::volume::feature::FeatureMap::load(path)?)
+        }
+        (None, Some(path)) => {
+            Classification::Occlusion(vellum::render::otf::OcclusionTf::load(path)?)
+        }
+        (None, None) => Classification::Transfer(params.transfer.clone()),
+    };
     let v = input.load()?;
     let ctx = context(cli)?;
-    let mut profiler = vellum::gpu::Profiler::new(&ctx, 2)?;
-    let mut textures = vellum::passes::normals::Normals::new(&ctx)?.prepare(&v, &mut profiler)?;
-    let mut prepare = profiler.results()?;
-    let mut params = params;
-    if let Some(path) = o.features {
-        // FM6: the feature map becomes an ordinary transfer function; the renderer is unchanged.
-        let map = vellum::volume::feature::FeatureMap::load(path)?;
-        let s = vellum::volume::stats::stats(&v, 0);
-        params.transfer =
-            vellum::render::features::feature_transfer_function(&map, [s.min, s.max])?;
-    }
-    if let Some(path) = o.otf {
-        use vellum::passes::occlusion::{parse_mapping, Occlusion, OcclusionParams};
-        let otf = vellum::render::otf::OcclusionTf::load(path)?;
-        let (visibility, neighbourhood) = parse_mapping(&otf.mapping)?;
-        let p = OcclusionParams {
-            radius: otf.radius,
-            visibility,
-            neighbourhood,
-            stride: otf.effective_stride(),
-            spectrum_bins: None,
-        };
-        let occ = Occlusion::new(&ctx)?.compute(&v, &p)?;
-        prepare.extend(occ.passes.into_iter().filter(|p| p.name == "occlusion"));
-        textures.attach_occlusion(&ctx, &occ.occlusion)?;
-        params.occlusion_tf = Some(otf.table()?);
-    }
-    let frame = Renderer::new(&ctx)?.render(&textures, &params, true)?;
+    let scene = prepare(&ctx, &v, classification)?;
+    let params = RenderParams {
+        transfer: scene.transfer.clone(),
+        occlusion_tf: scene.occlusion_tf.clone(),
+        ..params
+    };
+    let frame = Renderer::new(&ctx)?.render(&scene.textures, &params, true)?;
     report_validation(&ctx);
     let [w, h] = frame.size;
     vellum::output::write_png_rgb(o.out, w, h, &to_rgb8(&frame.composite, background))?;
     if let Some(path) = o.exr {
-        use vellum::output::{write_exr_layers, ExrChannels, ExrLayer};
-        let mut layers = Vec::new();
-        if let Some(l) = &frame.layers {
-            layers.push(ExrLayer {
-                name: "focus.phong",
-                channels: ExrChannels::Rgba(&l.focus_phong),
-            });
-            layers.push(ExrLayer {
-                name: "focus.diffuse",
-                channels: ExrChannels::Rgba(&l.focus_diffuse),
-            });
-            layers.push(ExrLayer {
-                name: "focus.depth",
-                channels: ExrChannels::Depth(&l.focus_depth),
-            });
-            layers.push(ExrLayer {
-                name: "context",
-                channels: ExrChannels::Rgba(&l.context),
-            });
-        }
-        layers.push(ExrLayer {
-            name: "composite",
-            channels: ExrChannels::Rgba(&frame.composite),
-        });
-        write_exr_layers(path, w, h, &layers)?;
+        frame.write_exr(path)?;
     }
+    let prepare = scene.passes;
     let passes: Vec<_> = prepare.iter().chain(&frame.passes).collect();
     if o.json {
         let map: serde_json::Map<String, serde_json::Value> = passes
@@ -826,31 +792,7 @@ fn occlusion(
             vellum::output::write_png_rgb(path, c.width as u32, c.height as u32, &c.rgb)?;
         }
         if let Some(path) = spectrum_csv {
-            let [lo, hi] = s.intensity_range;
-            vellum::output::write_atomic(path, |w| {
-                use std::io::Write;
-                writeln!(
-                    w,
-                    "intensity_lo,intensity_hi,occlusion_lo,occlusion_hi,count"
-                )?;
-                for by in 0..b[1] {
-                    for bx in 0..b[0] {
-                        let n = s.counts[by * b[0] + bx];
-                        if n > 0 {
-                            let iw = (hi - lo) / b[0] as f64;
-                            writeln!(
-                                w,
-                                "{},{},{},{},{n}",
-                                lo + bx as f64 * iw,
-                                lo + (bx + 1) as f64 * iw,
-                                by as f64 / b[1] as f64,
-                                (by + 1) as f64 / b[1] as f64
-                            )?;
-                        }
-                    }
-                }
-                Ok(())
-            })?;
+            s.write_csv(path)?;
         }
     }
     let stats = vellum::volume::stats::stats(&r.occlusion, 0);
@@ -968,18 +910,7 @@ fn occlusion_sensitivity(
     let c = vellum::passes::occlusion_analysis::sensitivity_plot(&rows);
     vellum::output::write_png_rgb(out, c.width as u32, c.height as u32, &c.rgb)?;
     if let Some(path) = csv {
-        vellum::output::write_atomic(path, |w| {
-            use std::io::Write;
-            writeln!(w, "radius,band,band_lo,band_hi,voxels,variance")?;
-            for r in &rows {
-                writeln!(
-                    w,
-                    "{},{},{},{},{},{}",
-                    r.radius, r.band, r.band_lo, r.band_hi, r.voxels, r.variance
-                )?;
-            }
-            Ok(())
-        })?;
+        vellum::passes::occlusion_analysis::write_sensitivity_csv(&rows, path)?;
     }
     println!(
         "sensitivity of {} over radii {radii:?} (stride {stride}, {bands} bands) written to {}",
