@@ -49,9 +49,10 @@ run: build
 	@echo "  occlusion_ao.nrrd, occlusion_spectrum.png, occlusion_spectrum.csv, occlusion_otf.png,"
 	@echo "  feature.nrrd, feature.features.json, render_features.png"
 
-# Every test, with the Khronos validation layer on (debug build).
+# Every test, with the Khronos validation layer on (debug build), including its synchronization
+# validation: a missing or wrong barrier fails the test like any other validation message.
 test: deps
-	cargo test --locked
+	VELLUM_SYNC_VALIDATION=1 cargo test --locked
 
 bench: build
 	$(VELLUM) bench table1

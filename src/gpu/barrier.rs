@@ -104,14 +104,23 @@ pub fn is_write(a: Access) -> bool {
 /// An image barrier from `prev` to `next`, or `None` when neither a hazard nor a layout change
 /// requires one (read after read in the same layout). Write after read gets an execution-only
 /// dependency (no source access).
+///
+/// With `discard_contents`, the old layout is UNDEFINED (the contents may be dropped), but the
+/// barrier still waits for `prev`: a write after a discarded write or read is still a hazard.
 pub fn image_barrier(
     image: vk::Image,
     aspect: vk::ImageAspectFlags,
     prev: Access,
     next: Access,
+    discard_contents: bool,
 ) -> Option<vk::ImageMemoryBarrier2<'static>> {
     let (p, n) = (access_info(prev), access_info(next));
-    if !is_write(prev) && !is_write(next) && p.layout == n.layout && prev != Access::Undefined {
+    let old_layout = if discard_contents {
+        vk::ImageLayout::UNDEFINED
+    } else {
+        p.layout
+    };
+    if !is_write(prev) && !is_write(next) && old_layout == n.layout && prev != Access::Undefined {
         return None;
     }
     Some(
@@ -124,7 +133,7 @@ pub fn image_barrier(
             })
             .dst_stage_mask(n.stage)
             .dst_access_mask(n.access)
-            .old_layout(p.layout)
+            .old_layout(old_layout)
             .new_layout(n.layout)
             .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
             .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
@@ -163,12 +172,28 @@ mod tests {
     use super::*;
 
     #[test]
+    fn discarding_contents_still_waits_for_the_last_write() {
+        let b = image_barrier(
+            vk::Image::null(),
+            vk::ImageAspectFlags::COLOR,
+            Access::TransferWrite,
+            Access::ComputeWrite,
+            true,
+        )
+        .expect("WAW");
+        assert_eq!(b.old_layout, vk::ImageLayout::UNDEFINED);
+        assert_eq!(b.src_access_mask, vk::AccessFlags2::TRANSFER_WRITE);
+        assert_ne!(b.src_stage_mask, vk::PipelineStageFlags2::NONE);
+    }
+
+    #[test]
     fn write_after_read_waits_for_the_reads() {
         let b = image_barrier(
             vk::Image::null(),
             vk::ImageAspectFlags::COLOR,
             Access::ComputeRead,
             Access::ComputeWrite,
+            false,
         )
         .expect("WAR");
         assert_eq!(b.src_stage_mask, vk::PipelineStageFlags2::COMPUTE_SHADER);
@@ -182,7 +207,8 @@ mod tests {
             vk::Image::null(),
             vk::ImageAspectFlags::COLOR,
             Access::ComputeRead,
-            Access::ComputeRead
+            Access::ComputeRead,
+            false
         )
         .is_none());
         assert!(memory_barrier(Access::ComputeRead, Access::TransferRead).is_none());
@@ -195,6 +221,7 @@ mod tests {
             vk::ImageAspectFlags::COLOR,
             Access::ComputeWrite,
             Access::FragmentSampled,
+            false,
         )
         .expect("hazard");
         assert_eq!(b.src_stage_mask, vk::PipelineStageFlags2::COMPUTE_SHADER);
@@ -211,6 +238,7 @@ mod tests {
             vk::ImageAspectFlags::COLOR,
             Access::FragmentSampled,
             Access::ComputeWrite,
+            false,
         )
         .expect("layout change");
         assert_eq!(b.src_access_mask, vk::AccessFlags2::NONE);

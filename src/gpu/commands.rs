@@ -72,3 +72,19 @@ pub fn submit_once<R>(
         .vk(format!("waiting for {what}"))?;
     Ok(out)
 }
+
+/// Records a global memory barrier from `prev` to `next` (the barrier table decides stages and
+/// access masks); used for buffers, which do not track their accesses like images do.
+pub fn memory_transition(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    prev: crate::gpu::Access,
+    next: crate::gpu::Access,
+) {
+    if let Some(b) = crate::gpu::barrier::memory_barrier(prev, next) {
+        unsafe {
+            ctx.device
+                .cmd_pipeline_barrier2(cmd, &vk::DependencyInfo::default().memory_barriers(&[b]))
+        };
+    }
+}

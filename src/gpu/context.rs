@@ -173,11 +173,27 @@ fn create_instance(
     } else {
         vec![]
     };
-    let ext_ptrs: Vec<*const c_char> = if has_debug_utils {
+    let mut ext_ptrs: Vec<*const c_char> = if has_debug_utils {
         vec![ash::ext::debug_utils::NAME.as_ptr()]
     } else {
         vec![]
     };
+    // VELLUM_SYNC_VALIDATION=1 adds the layer's synchronization validation, which reports missing
+    // or wrong barriers (hazards) that the default checks do not.
+    let sync = validation && std::env::var("VELLUM_SYNC_VALIDATION").as_deref() == Ok("1");
+    if sync {
+        let layer_exts =
+            unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER)) }
+                .vk("listing the validation layer's extensions")?;
+        if layer_exts
+            .iter()
+            .any(|e| e.extension_name_as_c_str() == Ok(ash::ext::validation_features::NAME))
+        {
+            ext_ptrs.push(ash::ext::validation_features::NAME.as_ptr());
+        }
+    }
+    let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+    let mut features = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
     let mut chained = messenger_info(counts);
     let mut info = vk::InstanceCreateInfo::default()
         .application_info(&app)
@@ -185,6 +201,9 @@ fn create_instance(
         .enabled_extension_names(&ext_ptrs);
     if has_debug_utils {
         info = info.push_next(&mut chained);
+    }
+    if sync && ext_ptrs.contains(&ash::ext::validation_features::NAME.as_ptr()) {
+        info = info.push_next(&mut features);
     }
     // SAFETY: every pointer in `info` outlives the call.
     let instance = match unsafe { entry.create_instance(&info, None) } {

@@ -261,6 +261,9 @@ pub struct Image {
     pub desc: ImageDesc,
     pub name: String,
     access: Cell<Access>,
+    /// The next transition may drop the contents (old layout UNDEFINED); it still waits for
+    /// `access`.
+    discarded: Cell<bool>,
 }
 
 impl Image {
@@ -302,6 +305,7 @@ impl Image {
             desc: desc.clone(),
             name: name.to_string(),
             access: Cell::new(Access::Undefined),
+            discarded: Cell::new(false),
         };
         let a = image.allocation.as_ref().expect("just set");
         unsafe { ctx.device.bind_image_memory(raw, a.memory(), a.offset()) }
@@ -355,17 +359,24 @@ impl Image {
 
     /// Records a barrier into `cmd` from the last access to `next`, if one is needed.
     pub fn transition(&self, cmd: vk::CommandBuffer, next: Access) {
-        if let Some(b) = image_barrier(self.raw, self.aspect(), self.access.get(), next) {
+        if let Some(b) = image_barrier(
+            self.raw,
+            self.aspect(),
+            self.access.get(),
+            next,
+            self.discarded.get(),
+        ) {
             let barriers = [b];
             let dep = vk::DependencyInfo::default().image_memory_barriers(&barriers);
             unsafe { self.ctx.device.cmd_pipeline_barrier2(cmd, &dep) };
         }
         self.access.set(next);
+        self.discarded.set(false);
     }
 
     /// Declares the image's contents undefined (the next transition may discard them).
     pub fn discard(&self) {
-        self.access.set(Access::Undefined);
+        self.discarded.set(true);
     }
 }
 

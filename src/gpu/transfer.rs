@@ -4,6 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::gpu::barrier::Access;
+use crate::gpu::commands::memory_transition;
 use crate::gpu::commands::submit_once;
 use crate::gpu::context::Context;
 use crate::gpu::resources::{Buffer, BufferDesc, BufferLocation, Image};
@@ -65,9 +66,12 @@ pub fn record_upload(
     image.transition(cmd, next);
 }
 
-/// Records a copy of `image` into `staging`, made visible to the host.
+/// Records a copy of `image` into `staging`, made visible to the host. The copy first waits for
+/// earlier copies that read `staging` in the same command buffer (a staging buffer often serves
+/// as upload source and readback destination of one submission).
 pub fn record_readback(ctx: &Context, cmd: vk::CommandBuffer, image: &Image, staging: &Buffer) {
     image.transition(cmd, Access::TransferRead);
+    memory_transition(ctx, cmd, Access::TransferRead, Access::TransferWrite);
     unsafe {
         ctx.device.cmd_copy_image_to_buffer(
             cmd,
@@ -76,16 +80,8 @@ pub fn record_readback(ctx: &Context, cmd: vk::CommandBuffer, image: &Image, sta
             staging.raw,
             &[region(image)],
         );
-        let barrier = [vk::MemoryBarrier2::default()
-            .src_stage_mask(vk::PipelineStageFlags2::COPY)
-            .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-            .dst_stage_mask(vk::PipelineStageFlags2::HOST)
-            .dst_access_mask(vk::AccessFlags2::HOST_READ)];
-        ctx.device.cmd_pipeline_barrier2(
-            cmd,
-            &vk::DependencyInfo::default().memory_barriers(&barrier),
-        );
     }
+    memory_transition(ctx, cmd, Access::TransferWrite, Access::HostRead);
 }
 
 fn check_len(image: &Image, len: usize) -> Result<()> {

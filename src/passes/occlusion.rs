@@ -13,6 +13,7 @@
 //!   treating them as empty would darken every border).
 
 use crate::error::{Error, Result};
+use crate::gpu::commands::memory_transition;
 use crate::gpu::pipeline::group_count;
 use crate::gpu::profiler::PassTime;
 use crate::gpu::resources::BufferLocation;
@@ -374,20 +375,9 @@ impl Occlusion {
                 profiler.begin(cmd, "spectrum");
                 unsafe {
                     ctx.device
-                        .cmd_fill_buffer(cmd, hist.raw, 0, vk::WHOLE_SIZE, 0);
-                    let b = [vk::MemoryBarrier2::default()
-                        .src_stage_mask(vk::PipelineStageFlags2::CLEAR)
-                        .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
-                        .dst_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
-                        .dst_access_mask(
-                            vk::AccessFlags2::SHADER_STORAGE_READ
-                                | vk::AccessFlags2::SHADER_STORAGE_WRITE,
-                        )];
-                    ctx.device.cmd_pipeline_barrier2(
-                        cmd,
-                        &vk::DependencyInfo::default().memory_barriers(&b),
-                    );
-                }
+                        .cmd_fill_buffer(cmd, hist.raw, 0, vk::WHOLE_SIZE, 0)
+                };
+                memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
                 occlusion.transition(cmd, Access::ComputeRead);
                 let sp = SpectrumPush {
                     dims,
@@ -407,17 +397,7 @@ impl Occlusion {
                     &sp,
                     group_count(extent, LOCAL_SIZE),
                 )?;
-                unsafe {
-                    let b = [vk::MemoryBarrier2::default()
-                        .src_stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)
-                        .src_access_mask(vk::AccessFlags2::SHADER_STORAGE_WRITE)
-                        .dst_stage_mask(vk::PipelineStageFlags2::HOST)
-                        .dst_access_mask(vk::AccessFlags2::HOST_READ)];
-                    ctx.device.cmd_pipeline_barrier2(
-                        cmd,
-                        &vk::DependencyInfo::default().memory_barriers(&b),
-                    );
-                }
+                memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::HostRead);
                 profiler.end(cmd);
             }
             profiler.pass(cmd, "readback", |cmd| {
