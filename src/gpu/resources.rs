@@ -141,6 +141,26 @@ impl Buffer {
         Ok(buffer)
     }
 
+    /// A host-written buffer of `usage` holding `bytes` (uniforms, vertices, small tables).
+    pub fn from_bytes(
+        ctx: &Arc<Context>,
+        name: &str,
+        usage: vk::BufferUsageFlags,
+        bytes: &[u8],
+    ) -> Result<Self> {
+        let mut b = Buffer::new(
+            ctx,
+            name,
+            &BufferDesc {
+                size: bytes.len().max(4) as u64,
+                usage,
+                location: BufferLocation::Upload,
+            },
+        )?;
+        b.write(bytes)?;
+        Ok(b)
+    }
+
     /// The mapped bytes of a host-visible buffer.
     pub fn mapped(&self) -> Option<&[u8]> {
         self.allocation

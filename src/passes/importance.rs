@@ -10,8 +10,8 @@ use crate::gpu::pipeline::group_count;
 use crate::gpu::profiler::PassTime;
 use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
 use crate::gpu::{
-    submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    ImageDesc, Profiler,
+    submit_once, Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Image, ImageDesc,
+    Profiler,
 };
 use crate::passes::volume_image::extent_of;
 use crate::volume::reference::gaussian::gaussian_kernel;
@@ -155,16 +155,12 @@ impl ImportanceMap {
         let floats: &mut [f32] = bytemuck::try_cast_slice_mut(mapped)
             .map_err(|e| Error::Invalid(format!("staging memory cannot hold floats: {e}")))?;
         pack_rows_into(v, floats);
-        let mut weights = Buffer::new(
+        let weights = Buffer::from_bytes(
             ctx,
             "gaussian weights",
-            &BufferDesc {
-                size: (kernel.len() * 4) as u64,
-                usage: vk::BufferUsageFlags::STORAGE_BUFFER,
-                location: crate::gpu::resources::BufferLocation::Upload,
-            },
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+            bytemuck::cast_slice(&kernel),
         )?;
-        weights.write(bytemuck::cast_slice(&kernel))?;
 
         let dims = [v.dims[0] as i32, v.dims[1] as i32, v.dims[2] as i32];
         let groups = group_count(extent, LOCAL_SIZE);

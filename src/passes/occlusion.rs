@@ -261,16 +261,12 @@ impl Occlusion {
                 "a transfer-function visibility table needs 256 entries".into(),
             ));
         }
-        let mut tf = Buffer::new(
+        let tf = Buffer::from_bytes(
             ctx,
             "visibility table",
-            &BufferDesc {
-                size: 1024,
-                usage: vk::BufferUsageFlags::STORAGE_BUFFER,
-                location: BufferLocation::Upload,
-            },
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+            bytemuck::cast_slice(&table),
         )?;
-        tf.write(bytemuck::cast_slice(&table))?;
         let bins = p.spectrum_bins;
         let hist = match bins {
             Some([bx, by]) => {

@@ -59,6 +59,27 @@ fn sampled_voxel(o: usize, out_dims: [usize; 3], dims: [usize; 3], stride: usize
         + dims[0] * ((y * stride).min(dims[1] - 1) + dims[1] * (z * stride).min(dims[2] - 1))
 }
 
+/// Ball occlusion of `v` with `visibility`, at the output grid of `stride`, as plain values.
+fn ball_occlusion(
+    occ: &Occlusion,
+    v: &Volume,
+    radius: u32,
+    visibility: Visibility,
+    stride: u32,
+) -> Result<Vec<f32>> {
+    let p = OcclusionParams {
+        radius,
+        visibility,
+        neighbourhood: Neighbourhood::Ball,
+        stride,
+        spectrum_bins: None,
+    };
+    match occ.compute(v, &p)?.occlusion.data {
+        VoxelData::F32(o) => Ok(o),
+        _ => unreachable!("occlusion is float"),
+    }
+}
+
 /// 1D k-means with deterministic quantile initialisation; returns (means ascending, counts).
 pub fn kmeans_1d(values: &[f64], k: usize) -> (Vec<f64>, Vec<usize>) {
     let mut sorted = values.to_vec();
@@ -171,17 +192,7 @@ pub fn select(
         let table: Vec<f32> = (0..256)
             .map(|t| if t * BINS / 256 == k { 1.0 } else { 0.0 })
             .collect();
-        let p = OcclusionParams {
-            radius,
-            visibility: Visibility::Table(table),
-            neighbourhood: Neighbourhood::Ball,
-            stride,
-            spectrum_bins: None,
-        };
-        let out = occ.compute(v, &p)?;
-        let VoxelData::F32(o) = &out.occlusion.data else {
-            unreachable!("occlusion is float")
-        };
+        let o = ball_occlusion(occ, v, radius, Visibility::Table(table), stride)?;
         for (j, &(oi, _)) in picks.iter().enumerate() {
             h[j] = o[oi];
         }
@@ -260,17 +271,7 @@ pub fn sensitivity(
     let progress = crate::progress::bar(radii.len() as u64, "radii");
     for &radius in radii {
         progress.inc(1);
-        let p = OcclusionParams {
-            radius,
-            visibility: Visibility::Ramp,
-            neighbourhood: Neighbourhood::Ball,
-            stride,
-            spectrum_bins: None,
-        };
-        let out = occ.compute(v, &p)?;
-        let VoxelData::F32(o) = &out.occlusion.data else {
-            unreachable!("occlusion is float")
-        };
+        let o = ball_occlusion(occ, v, radius, Visibility::Ramp, stride)?;
         let mut acc = vec![(0usize, 0.0f64, 0.0f64); bands];
         for (oi, &occl) in o.iter().enumerate() {
             let i = sampled_voxel(oi, out_dims, v.dims, s);

@@ -15,11 +15,9 @@ use crate::gpu::graphics::{
     begin_rendering, end_rendering, Blend, DepthState, GraphicsDesc, GraphicsPipeline, Load,
 };
 use crate::gpu::profiler::PassTime;
-use crate::gpu::resources::BufferLocation;
 use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
 use crate::gpu::{
-    submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, Context, Image, ImageDesc,
-    Profiler, Sampler,
+    submit_once, Access, Bind, BindingKind, Buffer, Context, Image, ImageDesc, Profiler, Sampler,
 };
 use crate::passes::normals::VolumeTextures;
 use crate::render::camera::Camera;
@@ -362,38 +360,28 @@ impl Renderer {
             }
         };
 
-        let mut ubo = Buffer::new(
+        let ubo = Buffer::from_bytes(
             ctx,
             "slice uniforms",
-            &BufferDesc::uniform(std::mem::size_of::<SliceUniforms>() as u64),
+            vk::BufferUsageFlags::UNIFORM_BUFFER,
+            bytemuck::bytes_of(&uniforms),
         )?;
-        ubo.write(bytemuck::bytes_of(&uniforms))?;
-        let vertex_bytes: &[u8] = bytemuck::cast_slice(&proxy.vertices);
-        let mut vertices = Buffer::new(
+        let vertices = Buffer::from_bytes(
             ctx,
             "proxy slices",
-            &BufferDesc {
-                size: vertex_bytes.len().max(12) as u64,
-                usage: vk::BufferUsageFlags::VERTEX_BUFFER,
-                location: BufferLocation::Upload,
-            },
+            vk::BufferUsageFlags::VERTEX_BUFFER,
+            bytemuck::cast_slice(&proxy.vertices),
         )?;
-        vertices.write(vertex_bytes)?;
         let focus_vertices = match &focus_proxy {
-            Some(fp) => {
-                let bytes: &[u8] = bytemuck::cast_slice(&fp.vertices);
-                let mut b = Buffer::new(
+            Some(fp) => Some((
+                Buffer::from_bytes(
                     ctx,
                     "focus proxy slices",
-                    &BufferDesc {
-                        size: bytes.len().max(12) as u64,
-                        usage: vk::BufferUsageFlags::VERTEX_BUFFER,
-                        location: BufferLocation::Upload,
-                    },
-                )?;
-                b.write(bytes)?;
-                Some((b, fp.vertices.len() as u32))
-            }
+                    vk::BufferUsageFlags::VERTEX_BUFFER,
+                    bytemuck::cast_slice(&fp.vertices),
+                )?,
+                fp.vertices.len() as u32,
+            )),
             None => None,
         };
         let tf = Image::new(

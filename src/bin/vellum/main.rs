@@ -418,12 +418,7 @@ fn run(cli: &Cli) -> Result<()> {
             };
             let table = vellum::bench::render::run(&ctx, &opts)?;
             report_validation(&ctx);
-            if *json {
-                println!("{}", serde_json::to_string_pretty(&table)?);
-            } else {
-                print!("{}", table.to_text());
-            }
-            Ok(())
+            print_report(*json, &table, || table.to_text())
         }
         Command::Occlusion {
             input,
@@ -481,12 +476,7 @@ fn run(cli: &Cli) -> Result<()> {
             };
             let table = vellum::bench::table1::run(&ctx, &opts)?;
             report_validation(&ctx);
-            if *json {
-                println!("{}", serde_json::to_string_pretty(&table)?);
-            } else {
-                print!("{}", table.to_text());
-            }
-            Ok(())
+            print_report(*json, &table, || table.to_text())
         }
     }
 }
@@ -917,5 +907,19 @@ fn occlusion_sensitivity(
         input.input,
         out.display()
     );
+    Ok(())
+}
+
+/// Prints `value` as pretty JSON, or the text `text` makes.
+fn print_report<T: serde::Serialize>(
+    json: bool,
+    value: &T,
+    text: impl FnOnce() -> String,
+) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(value)?);
+    } else {
+        print!("{}", text());
+    }
     Ok(())
 }
