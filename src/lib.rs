@@ -4,6 +4,7 @@
 //! volumes and nothing about Vulkan; [`passes`] joins them, one module per technique.
 
 pub mod bench;
+pub mod classify;
 pub mod error;
 pub mod gpu;
 pub mod input;

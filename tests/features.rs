@@ -249,7 +249,7 @@ fn private_intervals_are_disjoint() {
         map.append(f, Some("blobs")).unwrap();
     }
     let range = [0.0, vol_max(&second.volume)];
-    let tf = vellum::render::features::feature_transfer_function(&map, range).unwrap();
+    let tf = vellum::classify::features::feature_transfer_function(&map, range).unwrap();
     let mid = |iv: [f64; 2]| tf.sample((0.5 * (iv[0] + iv[1]) / range[1]) as f32);
     assert_eq!(&mid(a)[..3], &vellum::volume::feature::map::PALETTE[0]);
     assert_eq!(&mid(b)[..3], &vellum::volume::feature::map::PALETTE[1]);

@@ -287,9 +287,9 @@ fn bad_parameters_are_errors() {
 /// the low shell (left) does not, although both have the same intensity.
 #[test]
 fn occlusion_tf_render_tells_equal_intensities_apart() {
+    use vellum::classify::otf::OcclusionTf;
     use vellum::passes::normals::Normals;
     use vellum::render::camera::Camera;
-    use vellum::render::otf::OcclusionTf;
     use vellum::render::slicer::{Focus, RenderParams, Renderer};
     let gpu = Gpu::new();
     let v = phantom::nested(64);
@@ -323,7 +323,7 @@ fn occlusion_tf_render_tells_equal_intensities_apart() {
         slices: None,
         focus: Focus::None,
         one_pass: true,
-        transfer: vellum::render::transfer::TransferFunction::preset("grey").unwrap(),
+        transfer: vellum::classify::transfer::TransferFunction::preset("grey").unwrap(),
         occlusion_tf: Some(otf.table().unwrap()),
     };
     let frame = Renderer::new(&gpu.ctx)

@@ -10,12 +10,12 @@ mod common;
 
 use common::Gpu;
 use std::path::PathBuf;
+use vellum::classify::transfer::TransferFunction;
 use vellum::gpu::transfer::{f16_to_f32, readback};
 use vellum::gpu::Profiler;
 use vellum::passes::normals::{Normals, VolumeTextures};
 use vellum::render::camera::Camera;
 use vellum::render::slicer::{to_rgb8, Focus, Frame, RenderParams, Renderer};
-use vellum::render::transfer::TransferFunction;
 use vellum::volume::reference::sobel::sobel_gradient;
 use vellum::volume::{phantom, Volume};
 

@@ -8,12 +8,12 @@
 //! phantom stands in and the row says so.
 
 use crate::bench::{median, shared_data};
+use crate::classify::transfer::TransferFunction;
 use crate::error::{Error, Result};
 use crate::gpu::{Context, PassTime, Profiler};
 use crate::passes::normals::Normals;
 use crate::render::camera::Camera;
 use crate::render::slicer::{Focus, RenderParams, Renderer};
-use crate::render::transfer::TransferFunction;
 use crate::volume::{io, phantom, Volume};
 use serde::Serialize;
 use std::sync::Arc;

@@ -83,6 +83,8 @@ pub struct DeviceInfo {
     pub timestamp_period_ns: f32,
     /// Size of the largest device-local heap in bytes.
     pub device_local_heap_bytes: u64,
+    /// Alignment of uniform-buffer offsets.
+    pub min_uniform_buffer_offset_alignment: u64,
 }
 
 /// The instance, device, queue and allocator. Create once, share as `Arc<Context>`.
@@ -107,6 +109,8 @@ pub struct Context {
     pub validation: bool,
     // Boxed so that the pointer handed to the messenger stays put; dropped after the messenger.
     messages: Box<MessageCounts>,
+    /// Submission serials, deferred release and resource accounting (see `gpu/lifetime.rs`).
+    pub(crate) lifetimes: crate::gpu::lifetime::Lifetimes,
 }
 
 impl std::fmt::Debug for Context {
@@ -559,6 +563,7 @@ impl Context {
             max_compute_work_group_count: props.limits.max_compute_work_group_count,
             timestamp_period_ns: props.limits.timestamp_period,
             device_local_heap_bytes,
+            min_uniform_buffer_offset_alignment: props.limits.min_uniform_buffer_offset_alignment,
         };
         log::info!(
             "using device [{chosen}] {} ({}, {})",
@@ -586,6 +591,7 @@ impl Context {
             chosen,
             validation,
             messages,
+            lifetimes: Default::default(),
         }))
     }
 
@@ -676,6 +682,9 @@ impl Drop for Context {
         // idle covers work that was submitted and not waited on.
         unsafe {
             let _ = self.device.device_wait_idle();
+            for garbage in self.lifetimes.drain_all() {
+                garbage(self);
+            }
             ManuallyDrop::drop(&mut self.allocator);
             self.device.destroy_device(None);
             if let Some(di) = &self.debug_instance {

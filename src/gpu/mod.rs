@@ -4,8 +4,10 @@
 pub mod barrier;
 pub mod commands;
 pub mod context;
+pub mod frame;
 pub mod graphics;
 pub mod interface;
+pub mod lifetime;
 pub mod pipeline;
 pub mod profiler;
 pub mod resources;
@@ -14,8 +16,10 @@ pub mod transfer;
 pub mod validation;
 
 pub use barrier::Access;
-pub use commands::submit_once;
 pub use context::{Context, ContextDesc, DeviceCandidate, DeviceInfo};
+pub use frame::submit_once;
+pub use frame::{Frame, FrameResult, Frames, FramesDesc, StagingRing};
+pub use lifetime::TransferCount;
 pub use pipeline::{Bind, BindingKind, ComputePipeline};
 pub use profiler::{PassTime, Profiler};
-pub use resources::{Buffer, BufferDesc, Image, ImageDesc, Sampler};
+pub use resources::{Buffer, BufferDesc, BufferSlice, Image, ImageDesc, Sampler};

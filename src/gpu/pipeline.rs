@@ -5,7 +5,7 @@
 use crate::error::{Error, Result, VkContext};
 use crate::gpu::barrier::access_info;
 use crate::gpu::context::Context;
-use crate::gpu::resources::{Buffer, Image, Sampler};
+use crate::gpu::resources::{Buffer, BufferSlice, Image, Sampler};
 use crate::gpu::shaders;
 use ash::vk;
 use std::sync::Arc;
@@ -36,6 +36,8 @@ pub enum Bind<'a> {
     Sampled(&'a Image, &'a Sampler),
     StorageBuffer(&'a Buffer),
     Uniform(&'a Buffer),
+    /// Uniforms at a range of a buffer, e.g. a frame's staging ring.
+    UniformSlice(BufferSlice),
 }
 
 impl Bind<'_> {
@@ -44,7 +46,7 @@ impl Bind<'_> {
             Bind::StorageImage(_) => BindingKind::StorageImage,
             Bind::Sampled(..) => BindingKind::SampledImage,
             Bind::StorageBuffer(_) => BindingKind::StorageBuffer,
-            Bind::Uniform(_) => BindingKind::UniformBuffer,
+            Bind::Uniform(_) | Bind::UniformSlice(_) => BindingKind::UniformBuffer,
         }
     }
 }
@@ -164,6 +166,12 @@ impl PipelineLayout {
                         .offset(0)
                         .range(vk::WHOLE_SIZE),
                 ),
+                Bind::UniformSlice(slice) => buffer_infos.push(
+                    vk::DescriptorBufferInfo::default()
+                        .buffer(slice.raw)
+                        .offset(slice.offset)
+                        .range(slice.size),
+                ),
             }
         }
         let (mut ii, mut bi) = (0, 0);
@@ -179,7 +187,7 @@ impl PipelineLayout {
                         ii += 1;
                         w.image_info(std::slice::from_ref(&image_infos[ii - 1]))
                     }
-                    Bind::StorageBuffer(_) | Bind::Uniform(_) => {
+                    Bind::StorageBuffer(_) | Bind::Uniform(_) | Bind::UniformSlice(_) => {
                         bi += 1;
                         w.buffer_info(std::slice::from_ref(&buffer_infos[bi - 1]))
                     }

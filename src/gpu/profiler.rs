@@ -110,8 +110,17 @@ impl Profiler {
     }
 
     /// Milliseconds per pass of the last recording, in recording order. Call after the submission
-    /// has completed.
+    /// has completed; waits for the query results if they are not yet available.
     pub fn results(&self) -> Result<Vec<PassTime>> {
+        self.read(vk::QueryResultFlags::WAIT)
+    }
+
+    /// Like [`Profiler::results`], for a submission whose fence has signalled: no query wait.
+    pub fn results_ready(&self) -> Result<Vec<PassTime>> {
+        self.read(vk::QueryResultFlags::empty())
+    }
+
+    fn read(&self, wait: vk::QueryResultFlags) -> Result<Vec<PassTime>> {
         let n = self.names.len();
         if n == 0 {
             return Ok(Vec::new());
@@ -122,7 +131,7 @@ impl Profiler {
                 self.pool,
                 0,
                 &mut stamps,
-                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+                vk::QueryResultFlags::TYPE_64 | wait,
             )
         }
         .vk("reading timestamps")?;

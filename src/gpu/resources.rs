@@ -73,6 +73,7 @@ fn allocate(
     location: MemoryLocation,
     linear: bool,
 ) -> Result<Allocation> {
+    ctx.count_allocation();
     ctx.allocator()
         .allocate(&AllocationCreateDesc {
             name,
@@ -192,8 +193,32 @@ impl Buffer {
 
 impl Drop for Buffer {
     fn drop(&mut self) {
-        unsafe { self.ctx.device.destroy_buffer(self.raw, None) };
-        free(&self.ctx, self.allocation.take());
+        // Deferred while a submission that may use the buffer is in flight (gpu/lifetime.rs).
+        let (raw, allocation) = (self.raw, self.allocation.take());
+        self.ctx.retire(Box::new(move |ctx| {
+            unsafe { ctx.device.destroy_buffer(raw, None) };
+            free(ctx, allocation);
+        }));
+    }
+}
+
+/// A byte range of a buffer, by raw handle: what a frame's staging ring hands out. It is valid as
+/// long as the buffer, which the ring keeps alive until the frame that used it has completed.
+#[derive(Copy, Clone, Debug)]
+pub struct BufferSlice {
+    pub raw: vk::Buffer,
+    pub offset: u64,
+    pub size: u64,
+}
+
+impl Buffer {
+    /// The whole buffer as a slice.
+    pub fn slice(&self) -> BufferSlice {
+        BufferSlice {
+            raw: self.raw,
+            offset: 0,
+            size: self.size,
+        }
     }
 }
 
@@ -402,13 +427,17 @@ impl Image {
 
 impl Drop for Image {
     fn drop(&mut self) {
-        unsafe {
-            if self.view != vk::ImageView::null() {
-                self.ctx.device.destroy_image_view(self.view, None);
+        // Deferred while a submission that may use the image is in flight (gpu/lifetime.rs).
+        let (raw, view, allocation) = (self.raw, self.view, self.allocation.take());
+        self.ctx.retire(Box::new(move |ctx| {
+            unsafe {
+                if view != vk::ImageView::null() {
+                    ctx.device.destroy_image_view(view, None);
+                }
+                ctx.device.destroy_image(raw, None);
             }
-            self.ctx.device.destroy_image(self.raw, None);
-        }
-        free(&self.ctx, self.allocation.take());
+            free(ctx, allocation);
+        }));
     }
 }
 

@@ -5,16 +5,16 @@
 use crate::error::{Error, Result};
 use crate::gpu::barrier::Access;
 use crate::gpu::commands::memory_transition;
-use crate::gpu::commands::submit_once;
 use crate::gpu::context::Context;
-use crate::gpu::resources::{Buffer, BufferDesc, BufferLocation, Image};
+use crate::gpu::frame::submit_once;
+use crate::gpu::resources::{Buffer, BufferDesc, BufferLocation, BufferSlice, Image};
 use ash::vk;
 use std::sync::Arc;
 
-fn region(image: &Image) -> vk::BufferImageCopy {
+fn region(image: &Image, buffer_offset: u64) -> vk::BufferImageCopy {
     let [w, h, d] = image.desc.extent;
     vk::BufferImageCopy::default()
-        .buffer_offset(0)
+        .buffer_offset(buffer_offset)
         .buffer_row_length(0)
         .buffer_image_height(0)
         .image_subresource(vk::ImageSubresourceLayers {
@@ -52,15 +52,28 @@ pub fn record_upload(
     image: &Image,
     next: Access,
 ) {
+    record_upload_from(ctx, cmd, staging.slice(), image, next)
+}
+
+/// Records a copy of the texels at `src` (tightly packed, for example a slice of a frame's staging
+/// ring) into `image`, then a transition to `next`. Counted as an upload of `image`.
+pub fn record_upload_from(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    src: BufferSlice,
+    image: &Image,
+    next: Access,
+) {
+    ctx.count_transfer(&image.name, true, image.byte_size() as u64);
     image.discard();
     image.transition(cmd, Access::TransferWrite);
     unsafe {
         ctx.device.cmd_copy_buffer_to_image(
             cmd,
-            staging.raw,
+            src.raw,
             image.raw,
             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-            &[region(image)],
+            &[region(image, src.offset)],
         );
     }
     image.transition(cmd, next);
@@ -70,6 +83,7 @@ pub fn record_upload(
 /// earlier copies that read `staging` in the same command buffer (a staging buffer often serves
 /// as upload source and readback destination of one submission).
 pub fn record_readback(ctx: &Context, cmd: vk::CommandBuffer, image: &Image, staging: &Buffer) {
+    ctx.count_transfer(&image.name, false, image.byte_size() as u64);
     image.transition(cmd, Access::TransferRead);
     memory_transition(ctx, cmd, Access::TransferRead, Access::TransferWrite);
     unsafe {
@@ -78,7 +92,7 @@ pub fn record_readback(ctx: &Context, cmd: vk::CommandBuffer, image: &Image, sta
             image.raw,
             vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
             staging.raw,
-            &[region(image)],
+            &[region(image, 0)],
         );
     }
     memory_transition(ctx, cmd, Access::TransferWrite, Access::HostRead);

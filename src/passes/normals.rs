@@ -100,6 +100,58 @@ impl Bricks {
 }
 
 impl VolumeTextures {
+    /// Allocates the textures of `v` (no GPU work yet) and a staging buffer holding its voxels
+    /// normalised to R16; record the copy with [`VolumeTextures::record_upload`].
+    pub fn new(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, crate::gpu::Buffer)> {
+        let extent = extent_of(ctx, v.dims, 2 + 8, 1)?;
+        let intensity = Image::new(
+            ctx,
+            "volume intensity",
+            &ImageDesc::new_3d(vk::Format::R16_UNORM, extent),
+        )?;
+        let gradient = Image::new(
+            ctx,
+            "volume gradient",
+            &ImageDesc::new_3d(vk::Format::R16G16B16A16_SFLOAT, extent),
+        )?;
+        let (texels, range) = v.normalised_u16();
+        let bricks = Bricks::new(&texels, v.dims);
+        let mut staging =
+            crate::gpu::transfer::staging_buffer(ctx, "volume staging", texels.len() * 2)?;
+        staging.write(bytemuck::cast_slice(&texels))?;
+        Ok((
+            VolumeTextures {
+                intensity,
+                gradient,
+                range,
+                dims: v.dims,
+                spacing: v.spacing,
+                occlusion: None,
+                bricks,
+            },
+            staging,
+        ))
+    }
+
+    /// Records pass `upload`: `staging` (from [`VolumeTextures::new`]) into the intensity texture.
+    pub fn record_upload(
+        &self,
+        ctx: &Context,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        staging: &crate::gpu::Buffer,
+    ) {
+        profiler.pass(cmd, "upload", |cmd| {
+            crate::gpu::transfer::record_upload(
+                ctx,
+                cmd,
+                staging,
+                &self.intensity,
+                Access::ComputeSampled,
+            )
+        });
+    }
+
     /// Uploads an occlusion volume (from `passes::occlusion`) for occlusion transfer functions.
     pub fn attach_occlusion(&mut self, ctx: &Arc<Context>, occlusion: &Volume) -> Result<()> {
         let crate::volume::VoxelData::F32(o) = &occlusion.data else {
@@ -147,73 +199,60 @@ impl Normals {
         })
     }
 
-    /// Uploads `v` normalised (pass `upload`) and computes its gradients (pass `sobel_normals`).
-    /// Both images end sampled by fragment shaders.
+    /// Uploads `v` normalised (pass `upload`) and computes its gradients (pass `sobel_normals`) in
+    /// one submission. Both images end sampled by fragment shaders.
     pub fn prepare(&self, v: &Volume, profiler: &mut Profiler) -> Result<VolumeTextures> {
         let ctx = &self.ctx;
-        let extent = extent_of(ctx, v.dims, 2 + 8, 1)?;
-        let intensity = Image::new(
-            ctx,
-            "volume intensity",
-            &ImageDesc::new_3d(vk::Format::R16_UNORM, extent),
-        )?;
-        let gradient = Image::new(
-            ctx,
-            "volume gradient",
-            &ImageDesc::new_3d(vk::Format::R16G16B16A16_SFLOAT, extent),
-        )?;
-        let (texels, range) = v.normalised_u16();
-        let bricks = Bricks::new(&texels, v.dims);
-        let mut staging =
-            crate::gpu::transfer::staging_buffer(ctx, "volume staging", texels.len() * 2)?;
-        staging.write(bytemuck::cast_slice(&texels))?;
+        let (textures, staging) = VolumeTextures::new(ctx, v)?;
+        crate::gpu::submit_once(ctx, "volume textures", |cmd| {
+            profiler.reset(cmd);
+            textures.record_upload(ctx, cmd, profiler, &staging);
+            self.record(cmd, profiler, &textures)?;
+            textures.intensity.transition(cmd, Access::FragmentSampled);
+            textures.gradient.transition(cmd, Access::FragmentSampled);
+            Ok(())
+        })?;
+        Ok(textures)
+    }
+
+    /// Records pass `sobel_normals`: the gradients of `tex.intensity` into `tex.gradient`, which is
+    /// left writable-then-readable by later passes (they transition it to their own access).
+    pub fn record(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        tex: &VolumeTextures,
+    ) -> Result<()> {
         let push = NormalsPush {
-            dims: [v.dims[0] as i32, v.dims[1] as i32, v.dims[2] as i32],
+            dims: tex.dims.map(|d| d as i32),
             pad: 0,
             inv_spacing: [
-                (1.0 / v.spacing[0]) as f32,
-                (1.0 / v.spacing[1]) as f32,
-                (1.0 / v.spacing[2]) as f32,
+                (1.0 / tex.spacing[0]) as f32,
+                (1.0 / tex.spacing[1]) as f32,
+                (1.0 / tex.spacing[2]) as f32,
                 0.0,
             ],
         };
-        crate::gpu::submit_once(ctx, "volume textures", |cmd| {
-            profiler.reset(cmd);
-            profiler.pass(cmd, "upload", |cmd| {
-                crate::gpu::transfer::record_upload(
-                    ctx,
-                    cmd,
-                    &staging,
-                    &intensity,
-                    Access::ComputeSampled,
-                )
-            });
-            profiler.begin(cmd, "sobel_normals");
-            gradient.discard();
-            gradient.transition(cmd, Access::ComputeWrite);
-            self.pipeline.dispatch(
-                cmd,
-                &[
-                    Bind::Sampled(&intensity, &self.nearest),
-                    Bind::StorageImage(&gradient),
-                ],
-                &push,
-                group_count(extent, LOCAL_SIZE),
-            )?;
-            profiler.end(cmd);
-            intensity.transition(cmd, Access::FragmentSampled);
-            gradient.transition(cmd, Access::FragmentSampled);
-            Ok(())
-        })?;
-        Ok(VolumeTextures {
-            intensity,
-            gradient,
-            range,
-            dims: v.dims,
-            spacing: v.spacing,
-            occlusion: None,
-            bricks,
-        })
+        profiler.begin(cmd, "sobel_normals");
+        tex.intensity.transition(cmd, Access::ComputeSampled);
+        tex.gradient.discard();
+        tex.gradient.transition(cmd, Access::ComputeWrite);
+        self.pipeline.dispatch(
+            cmd,
+            &[
+                Bind::Sampled(&tex.intensity, &self.nearest),
+                Bind::StorageImage(&tex.gradient),
+            ],
+            &push,
+            group_count(tex.intensity.desc.extent, LOCAL_SIZE),
+        )?;
+        profiler.end(cmd);
+        Ok(())
+    }
+
+    /// The nearest-texel sampler the pass reads with (also right for `texelFetch` elsewhere).
+    pub fn nearest(&self) -> &Sampler {
+        &self.nearest
     }
 }
 

@@ -12,6 +12,7 @@
 //! - **Neighbours outside the volume** are left out of both sum and count (the paper does not say;
 //!   treating them as empty would darken every border).
 
+pub use crate::classify::mapping::{parse_mapping, Neighbourhood};
 use crate::error::{Error, Result};
 use crate::gpu::commands::memory_transition;
 use crate::gpu::pipeline::group_count;
@@ -56,15 +57,6 @@ pub struct SpectrumPush {
 
 /// Workgroup shape of the per-voxel passes (OCCLUSION_LOCAL_* in occlusion.glsl).
 pub const LOCAL_SIZE: [u32; 3] = [64, 2, 2];
-
-/// The neighbourhood and its weights (SPEC OS2).
-#[derive(Clone, Debug, PartialEq)]
-pub enum Neighbourhood {
-    /// All voxels within distance R, equally weighted.
-    Ball,
-    /// Gaussian weights exp(−d²/2σ²), σ = R/3, over the box |d|∞ ≤ R.
-    Gaussian,
-}
 
 /// What to compute.
 #[derive(Clone, Debug)]
@@ -128,37 +120,6 @@ pub struct OcclusionOutput {
     pub intensity_range: [f64; 2],
 }
 
-/// Parses `--mapping ramp|truncated:T0,T1|gaussian|tf:FILE` into (visibility, neighbourhood).
-/// T0 and T1 are fractions of the data range in [0, 1].
-pub fn parse_mapping(s: &str) -> Result<(Visibility, Neighbourhood)> {
-    let bad = || {
-        Error::Invalid(format!("mapping '{s}' is unknown; expected ramp, truncated:T0,T1 (fractions of the data range), gaussian or tf:FILE.json"))
-    };
-    match s.split_once(':') {
-        None if s == "ramp" => Ok((Visibility::Ramp, Neighbourhood::Ball)),
-        None if s == "gaussian" => Ok((Visibility::Ramp, Neighbourhood::Gaussian)),
-        Some(("truncated", rest)) => {
-            let v: Vec<f32> = rest
-                .split(',')
-                .map(|x| x.trim().parse::<f32>())
-                .collect::<std::result::Result<_, _>>()
-                .map_err(|_| bad())?;
-            match v[..] {
-                [t0, t1] if (0.0..=1.0).contains(&t0) && (0.0..=1.0).contains(&t1) && t0 < t1 => Ok((Visibility::Truncated { t0, t1 }, Neighbourhood::Ball)),
-                _ => Err(Error::Invalid(format!("truncated ramp '{rest}' needs cut-offs 0 <= T0 < T1 <= 1 (fractions of the data range)"))),
-            }
-        }
-        Some(("tf", path)) => {
-            let tf = crate::render::transfer::TransferFunction::load(std::path::Path::new(path))?;
-            Ok((
-                Visibility::Table(tf.table(256).iter().map(|c| c[3]).collect()),
-                Neighbourhood::Ball,
-            ))
-        }
-        _ => Err(bad()),
-    }
-}
-
 /// The occlusion pipelines.
 pub struct Occlusion {
     ctx: Arc<Context>,
@@ -166,6 +127,7 @@ pub struct Occlusion {
     ball: ComputePipeline,
     gauss_axis: ComputePipeline,
     gauss_finish: ComputePipeline,
+    to_float: ComputePipeline,
     spectrum: ComputePipeline,
 }
 
@@ -200,6 +162,12 @@ impl Occlusion {
                 &[StorageImage, StorageImage],
                 push,
             )?,
+            to_float: ComputePipeline::new(
+                ctx,
+                "occlusion/to_float.comp",
+                &[SampledImage, StorageImage],
+                push,
+            )?,
             spectrum: ComputePipeline::new(
                 ctx,
                 "occlusion/spectrum.comp",
@@ -209,8 +177,69 @@ impl Occlusion {
         })
     }
 
-    /// Computes O for `v` (and the spectrum when asked).
+    /// The context the pipelines were built on.
+    pub fn context(&self) -> &Arc<Context> {
+        &self.ctx
+    }
+
+    /// Computes O for `v` (and the spectrum when asked): upload, the passes, readback.
     pub fn compute(&self, v: &Volume, p: &OcclusionParams) -> Result<OcclusionOutput> {
+        let mut profiler = Profiler::new(&self.ctx, 1)?;
+        let input = OcclusionInput::upload(&self.ctx, v, &mut profiler)?;
+        let mut out = self.compute_on(&input, p)?;
+        let mut passes = profiler.results()?;
+        passes.append(&mut out.passes);
+        out.passes = passes;
+        Ok(out)
+    }
+
+    /// Computes O (and the spectrum when asked) for a volume already on the GPU and reads the
+    /// results back. Occlusion selection and sensitivity call this many times on one upload.
+    pub fn compute_on(
+        &self,
+        input: &OcclusionInput,
+        p: &OcclusionParams,
+    ) -> Result<OcclusionOutput> {
+        let ctx = &self.ctx;
+        let targets = self.targets(input, p)?;
+        let readback = staging_buffer(ctx, "occlusion readback", targets.occlusion.byte_size())?;
+        let mut profiler = Profiler::new(ctx, 3)?;
+        submit_once(ctx, "occlusion", |cmd| {
+            profiler.reset(cmd);
+            self.record(cmd, &mut profiler, input, &targets, p)?;
+            profiler.pass(cmd, "readback", |cmd| {
+                record_readback(ctx, cmd, &targets.occlusion, &readback)
+            });
+            Ok(())
+        })?;
+        let passes = profiler.results()?;
+        let o: Vec<f32> = bytemuck::pod_collect_to_vec(
+            readback
+                .mapped()
+                .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?,
+        );
+        let spacing = input.spacing.map(|s| s * p.stride as f64);
+        let spectrum =
+            match (&targets.spectrum, p.spectrum_bins) {
+                (Some(h), Some(bins)) => Some(Spectrum {
+                    bins,
+                    counts: bytemuck::pod_collect_to_vec(h.mapped().ok_or_else(|| {
+                        Error::Invalid("spectrum buffer is not host-visible".into())
+                    })?),
+                    intensity_range: input.range,
+                }),
+                _ => None,
+            };
+        Ok(OcclusionOutput {
+            occlusion: Volume::new(targets.out_dims, spacing, VoxelData::F32(o))?,
+            spectrum,
+            passes,
+            intensity_range: input.range,
+        })
+    }
+
+    /// Checks `p` and allocates the work images and buffers for `input`.
+    pub fn targets(&self, input: &OcclusionInput, p: &OcclusionParams) -> Result<OcclusionTargets> {
         let ctx = &self.ctx;
         if p.radius == 0 || p.radius > 1024 {
             return Err(Error::Invalid(format!(
@@ -224,19 +253,13 @@ impl Occlusion {
                 p.stride
             )));
         }
-        let (intensity, range) = normalised_f32(v);
-        let extent = extent_of(ctx, v.dims, 4, 4)?;
-        let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(p.stride as usize));
-        let out_extent = out_dims.map(|d| d as u32);
+        let extent = extent_of(ctx, input.dims, 4, 4)?;
+        let out_dims: [usize; 3] = input.dims.map(|d| d.div_ceil(p.stride as usize));
         let r32 = |name: &str, e: [u32; 3]| {
             Image::new(ctx, name, &ImageDesc::new_3d(vk::Format::R32_SFLOAT, e))
         };
-        let intensity_img = r32("occlusion intensity", extent)?;
-        let prefix = r32("occlusion prefix", extent)?;
-        let mapped = r32("occlusion mapped", extent)?;
-        let occlusion = r32("occlusion", out_extent)?;
-        let gauss_images = if p.neighbourhood == Neighbourhood::Gaussian {
-            extent_of(ctx, v.dims, 16, 2)?;
+        let gauss = if p.neighbourhood == Neighbourhood::Gaussian {
+            extent_of(ctx, input.dims, 16, 2)?;
             let rgba = |name: &str| {
                 Image::new(
                     ctx,
@@ -248,27 +271,22 @@ impl Occlusion {
         } else {
             None
         };
-        let mut staging = staging_buffer(ctx, "occlusion staging", intensity.len() * 4)?;
-        staging.write(bytemuck::cast_slice(&intensity))?;
-        let readback = staging_buffer(ctx, "occlusion readback", occlusion.byte_size())?;
-        let (mapping, t0, t1, table) = match &p.visibility {
-            Visibility::Ramp => (0, 0.0, 1.0, vec![0f32; 256]),
-            Visibility::Truncated { t0, t1 } => (1, *t0, *t1, vec![0f32; 256]),
-            Visibility::Table(t) => (2, 0.0, 1.0, t.clone()),
+        let table = match &p.visibility {
+            Visibility::Table(t) => t.clone(),
+            _ => vec![0f32; 256],
         };
         if table.len() != 256 {
             return Err(Error::Invalid(
                 "a transfer-function visibility table needs 256 entries".into(),
             ));
         }
-        let tf = Buffer::from_bytes(
+        let visibility = Buffer::from_bytes(
             ctx,
             "visibility table",
             vk::BufferUsageFlags::STORAGE_BUFFER,
             bytemuck::cast_slice(&table),
         )?;
-        let bins = p.spectrum_bins;
-        let hist = match bins {
+        let spectrum = match p.spectrum_bins {
             Some([bx, by]) => {
                 if bx == 0 || by == 0 || bx > 4096 || by > 4096 {
                     return Err(Error::Invalid(format!(
@@ -289,143 +307,232 @@ impl Occlusion {
             }
             None => None,
         };
+        Ok(OcclusionTargets {
+            prefix: r32("occlusion prefix", extent)?,
+            mapped: r32("occlusion mapped", extent)?,
+            occlusion: r32("occlusion", out_dims.map(|d| d as u32))?,
+            gauss,
+            visibility,
+            spectrum,
+            out_dims,
+        })
+    }
 
-        let dims = v.dims.map(|d| d as i32);
+    /// Records pass `occlusion` (and `spectrum` when `targets` has a histogram) into `cmd`. The
+    /// occlusion volume stays in `targets.occlusion`; its next user transitions it from the
+    /// compute write (or the spectrum's read) to its own access.
+    pub fn record(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        input: &OcclusionInput,
+        targets: &OcclusionTargets,
+        p: &OcclusionParams,
+    ) -> Result<()> {
+        let ctx = &self.ctx;
+        let (mapping, t0, t1) = match &p.visibility {
+            Visibility::Ramp => (0, 0.0, 1.0),
+            Visibility::Truncated { t0, t1 } => (1, *t0, *t1),
+            Visibility::Table(_) => (2, 0.0, 1.0),
+        };
+        let dims = input.dims.map(|d| d as i32);
+        let extent = input.intensity.desc.extent;
+        let out_extent = targets.occlusion.desc.extent;
         let push = OcclusionPush {
             dims,
             radius: p.radius as i32,
-            out_dims: out_dims.map(|d| d as i32),
+            out_dims: targets.out_dims.map(|d| d as i32),
             stride: p.stride as i32,
             mapping,
             axis: 0,
             t0,
             t1,
         };
-        let mut profiler = Profiler::new(ctx, 6)?;
-        submit_once(ctx, "occlusion", |cmd| {
-            profiler.reset(cmd);
-            profiler.pass(cmd, "upload", |cmd| {
-                record_upload(ctx, cmd, &staging, &intensity_img, Access::ComputeRead)
-            });
-            profiler.begin(cmd, "occlusion");
-            for img in [&prefix, &mapped, &occlusion] {
-                img.discard();
-                img.transition(cmd, Access::ComputeWrite);
+        let (prefix, mapped, occlusion) = (&targets.prefix, &targets.mapped, &targets.occlusion);
+        profiler.begin(cmd, "occlusion");
+        input.intensity.transition(cmd, Access::ComputeRead);
+        for img in [prefix, mapped, occlusion] {
+            img.discard();
+            img.transition(cmd, Access::ComputeWrite);
+        }
+        let rows = (input.dims[1] * input.dims[2]) as u32;
+        self.prefix.dispatch(
+            cmd,
+            &[
+                Bind::StorageImage(&input.intensity),
+                Bind::StorageImage(prefix),
+                Bind::StorageImage(mapped),
+                Bind::StorageBuffer(&targets.visibility),
+            ],
+            &push,
+            [rows.div_ceil(64), 1, 1],
+        )?;
+        match &targets.gauss {
+            None => {
+                prefix.transition(cmd, Access::ComputeRead);
+                self.ball.dispatch(
+                    cmd,
+                    &[Bind::StorageImage(prefix), Bind::StorageImage(occlusion)],
+                    &push,
+                    [out_extent[0].div_ceil(64), out_extent[1], out_extent[2]],
+                )?;
             }
-            let rows = (v.dims[1] * v.dims[2]) as u32;
-            self.prefix.dispatch(
+            Some((a, b)) => {
+                mapped.transition(cmd, Access::ComputeRead);
+                // x: mapped → a, y: a → b, z: b → a. The x pass reads `mapped` and ignores
+                // its `src` binding, which still needs an image: b, unwritten at that point.
+                b.discard();
+                for (axis, (src, dst)) in [(b, a), (a, b), (b, a)].into_iter().enumerate() {
+                    src.transition(cmd, Access::ComputeRead);
+                    dst.discard();
+                    dst.transition(cmd, Access::ComputeWrite);
+                    self.gauss_axis.dispatch(
+                        cmd,
+                        &[
+                            Bind::StorageImage(mapped),
+                            Bind::StorageImage(src),
+                            Bind::StorageImage(dst),
+                        ],
+                        &OcclusionPush {
+                            axis: axis as i32,
+                            ..push
+                        },
+                        group_count(extent, LOCAL_SIZE),
+                    )?;
+                }
+                a.transition(cmd, Access::ComputeRead);
+                self.gauss_finish.dispatch(
+                    cmd,
+                    &[Bind::StorageImage(a), Bind::StorageImage(occlusion)],
+                    &push,
+                    group_count(out_extent, LOCAL_SIZE),
+                )?;
+            }
+        }
+        profiler.end(cmd);
+        if let (Some(hist), Some([bx, by])) = (&targets.spectrum, p.spectrum_bins) {
+            profiler.begin(cmd, "spectrum");
+            occlusion.transition(cmd, Access::ComputeRead);
+            unsafe {
+                ctx.device
+                    .cmd_fill_buffer(cmd, hist.raw, 0, vk::WHOLE_SIZE, 0)
+            };
+            memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
+            let sp = SpectrumPush {
+                dims,
+                stride: p.stride as i32,
+                bins_x: bx as i32,
+                bins_y: by as i32,
+                pad0: 0,
+                pad1: 0,
+            };
+            self.spectrum.dispatch(
                 cmd,
                 &[
-                    Bind::StorageImage(&intensity_img),
-                    Bind::StorageImage(&prefix),
-                    Bind::StorageImage(&mapped),
-                    Bind::StorageBuffer(&tf),
+                    Bind::StorageImage(&input.intensity),
+                    Bind::StorageImage(occlusion),
+                    Bind::StorageBuffer(hist),
                 ],
-                &push,
-                [rows.div_ceil(64), 1, 1],
+                &sp,
+                group_count(extent, LOCAL_SIZE),
             )?;
-            match &gauss_images {
-                None => {
-                    prefix.transition(cmd, Access::ComputeRead);
-                    self.ball.dispatch(
-                        cmd,
-                        &[Bind::StorageImage(&prefix), Bind::StorageImage(&occlusion)],
-                        &push,
-                        [out_extent[0].div_ceil(64), out_extent[1], out_extent[2]],
-                    )?;
-                }
-                Some((a, b)) => {
-                    mapped.transition(cmd, Access::ComputeRead);
-                    // x: mapped → a, y: a → b, z: b → a. The x pass reads `mapped` and ignores
-                    // its `src` binding, which still needs an image: b, unwritten at that point.
-                    b.discard();
-                    for (axis, (src, dst)) in [(b, a), (a, b), (b, a)].into_iter().enumerate() {
-                        src.transition(cmd, Access::ComputeRead);
-                        dst.discard();
-                        dst.transition(cmd, Access::ComputeWrite);
-                        self.gauss_axis.dispatch(
-                            cmd,
-                            &[
-                                Bind::StorageImage(&mapped),
-                                Bind::StorageImage(src),
-                                Bind::StorageImage(dst),
-                            ],
-                            &OcclusionPush {
-                                axis: axis as i32,
-                                ..push
-                            },
-                            group_count(extent, LOCAL_SIZE),
-                        )?;
-                    }
-                    a.transition(cmd, Access::ComputeRead);
-                    self.gauss_finish.dispatch(
-                        cmd,
-                        &[Bind::StorageImage(a), Bind::StorageImage(&occlusion)],
-                        &push,
-                        group_count(out_extent, LOCAL_SIZE),
-                    )?;
-                }
-            }
+            memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::HostRead);
             profiler.end(cmd);
-            if let (Some(hist), Some([bx, by])) = (&hist, bins) {
-                profiler.begin(cmd, "spectrum");
-                unsafe {
-                    ctx.device
-                        .cmd_fill_buffer(cmd, hist.raw, 0, vk::WHOLE_SIZE, 0)
-                };
-                memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
-                occlusion.transition(cmd, Access::ComputeRead);
-                let sp = SpectrumPush {
-                    dims,
-                    stride: p.stride as i32,
-                    bins_x: bx as i32,
-                    bins_y: by as i32,
-                    pad0: 0,
-                    pad1: 0,
-                };
-                self.spectrum.dispatch(
-                    cmd,
-                    &[
-                        Bind::StorageImage(&intensity_img),
-                        Bind::StorageImage(&occlusion),
-                        Bind::StorageBuffer(hist),
-                    ],
-                    &sp,
-                    group_count(extent, LOCAL_SIZE),
-                )?;
-                memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::HostRead);
-                profiler.end(cmd);
-            }
-            profiler.pass(cmd, "readback", |cmd| {
-                record_readback(ctx, cmd, &occlusion, &readback)
+        }
+        Ok(())
+    }
+
+    /// Records pass `to_float`: the renderer's normalised R16 texture (sampled by compute with the
+    /// nearest-texel `sampler`) into a new R32F [`OcclusionInput`], without a host round trip.
+    pub fn record_input_from_texture(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        tex: &crate::passes::normals::VolumeTextures,
+        sampler: &crate::gpu::Sampler,
+    ) -> Result<OcclusionInput> {
+        let (normalised, dims, spacing, range) = (&tex.intensity, tex.dims, tex.spacing, tex.range);
+        let extent = extent_of(&self.ctx, dims, 4, 4)?;
+        let intensity = Image::new(
+            &self.ctx,
+            "occlusion intensity",
+            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent),
+        )?;
+        profiler.begin(cmd, "to_float");
+        normalised.transition(cmd, Access::ComputeSampled);
+        intensity.discard();
+        intensity.transition(cmd, Access::ComputeWrite);
+        self.to_float.dispatch(
+            cmd,
+            &[
+                Bind::Sampled(normalised, sampler),
+                Bind::StorageImage(&intensity),
+            ],
+            &OcclusionPush {
+                dims: dims.map(|d| d as i32),
+                ..Default::default()
+            },
+            group_count(extent, LOCAL_SIZE),
+        )?;
+        intensity.transition(cmd, Access::ComputeRead);
+        profiler.end(cmd);
+        Ok(OcclusionInput {
+            intensity,
+            dims,
+            spacing,
+            range,
+        })
+    }
+}
+
+/// The occlusion pass's input on the GPU: intensity normalised to [0, 1] as an R32F 3D image.
+pub struct OcclusionInput {
+    pub intensity: Image,
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+    /// The data values at 0 and 1.
+    pub range: [f64; 2],
+}
+
+impl OcclusionInput {
+    /// Uploads `v` normalised to [0, 1] in float (pass `upload`, one submission).
+    pub fn upload(ctx: &Arc<Context>, v: &Volume, profiler: &mut Profiler) -> Result<Self> {
+        let (intensity, range) = normalised_f32(v);
+        let extent = extent_of(ctx, v.dims, 4, 4)?;
+        let image = Image::new(
+            ctx,
+            "occlusion intensity",
+            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent),
+        )?;
+        let mut staging = staging_buffer(ctx, "occlusion staging", intensity.len() * 4)?;
+        staging.write(bytemuck::cast_slice(&intensity))?;
+        submit_once(ctx, "occlusion upload", |cmd| {
+            profiler.reset(cmd);
+            profiler.pass(cmd, "upload", |cmd| {
+                record_upload(ctx, cmd, &staging, &image, Access::ComputeRead)
             });
             Ok(())
         })?;
-        let passes = profiler.results()?;
-        let o: Vec<f32> = bytemuck::pod_collect_to_vec(
-            readback
-                .mapped()
-                .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?,
-        );
-        let spacing = v.spacing.map(|s| s * p.stride as f64);
-        let spectrum =
-            match (&hist, bins) {
-                (Some(h), Some(bins)) => Some(Spectrum {
-                    bins,
-                    counts: bytemuck::pod_collect_to_vec(h.mapped().ok_or_else(|| {
-                        Error::Invalid("spectrum buffer is not host-visible".into())
-                    })?),
-                    intensity_range: range,
-                }),
-                _ => None,
-            };
-        Ok(OcclusionOutput {
-            occlusion: Volume::new(out_dims, spacing, VoxelData::F32(o))?,
-            spectrum,
-            passes,
-            intensity_range: range,
+        Ok(OcclusionInput {
+            intensity: image,
+            dims: v.dims,
+            spacing: v.spacing,
+            range,
         })
     }
+}
+
+/// Work images and buffers of one occlusion computation; `occlusion` holds the result.
+pub struct OcclusionTargets {
+    prefix: Image,
+    mapped: Image,
+    /// O in [0, 1] at the output resolution.
+    pub occlusion: Image,
+    gauss: Option<(Image, Image)>,
+    visibility: Buffer,
+    /// The spectrum's histogram (host-visible), when asked for.
+    pub spectrum: Option<Buffer>,
+    pub out_dims: [usize; 3],
 }
 
 /// The voxels of `v` mapped linearly from [min, max] to [0, 1] as f32, and that range.
@@ -463,24 +570,5 @@ mod tests {
             "SpectrumPush",
             [dims, stride, bins_x, bins_y, pad0, pad1]
         );
-    }
-
-    #[test]
-    fn mapping_parsing() {
-        assert_eq!(
-            parse_mapping("ramp").unwrap(),
-            (Visibility::Ramp, Neighbourhood::Ball)
-        );
-        assert_eq!(
-            parse_mapping("gaussian").unwrap().1,
-            Neighbourhood::Gaussian
-        );
-        assert_eq!(
-            parse_mapping("truncated:0.1,0.5").unwrap().0,
-            Visibility::Truncated { t0: 0.1, t1: 0.5 }
-        );
-        assert!(parse_mapping("truncated:0.5,0.1").is_err());
-        assert!(parse_mapping("box").is_err());
-        assert!(parse_mapping("tf:/no/such.json").is_err());
     }
 }

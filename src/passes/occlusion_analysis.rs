@@ -13,7 +13,10 @@
 //! - The candidate with the largest score wins.
 
 use crate::error::{Error, Result};
-use crate::passes::occlusion::{normalised_f32, Neighbourhood, Occlusion, OcclusionParams};
+use crate::gpu::Profiler;
+use crate::passes::occlusion::{
+    normalised_f32, Neighbourhood, Occlusion, OcclusionInput, OcclusionParams,
+};
 use crate::volume::reference::occlusion::Visibility;
 use crate::volume::{Volume, VoxelData};
 use rayon::prelude::*;
@@ -59,10 +62,11 @@ fn sampled_voxel(o: usize, out_dims: [usize; 3], dims: [usize; 3], stride: usize
         + dims[0] * ((y * stride).min(dims[1] - 1) + dims[1] * (z * stride).min(dims[2] - 1))
 }
 
-/// Ball occlusion of `v` with `visibility`, at the output grid of `stride`, as plain values.
+/// Ball occlusion of the uploaded volume with `visibility`, at the output grid of `stride`, as
+/// plain values.
 fn ball_occlusion(
     occ: &Occlusion,
-    v: &Volume,
+    input: &OcclusionInput,
     radius: u32,
     visibility: Visibility,
     stride: u32,
@@ -74,7 +78,7 @@ fn ball_occlusion(
         stride,
         spectrum_bins: None,
     };
-    match occ.compute(v, &p)?.occlusion.data {
+    match occ.compute_on(input, &p)?.occlusion.data {
         VoxelData::F32(o) => Ok(o),
         _ => unreachable!("occlusion is float"),
     }
@@ -186,13 +190,15 @@ pub fn select(
     }
     // Local histograms: h[k][voxel] for the picked voxels.
     let mut hist = vec![vec![0f32; picks.len()]; BINS];
+    // One upload serves all the passes.
+    let input = OcclusionInput::upload(occ.context(), v, &mut Profiler::new(occ.context(), 1)?)?;
     let progress = crate::progress::bar(BINS as u64, "local histograms");
     for (k, h) in hist.iter_mut().enumerate() {
         progress.inc(1);
         let table: Vec<f32> = (0..256)
             .map(|t| if t * BINS / 256 == k { 1.0 } else { 0.0 })
             .collect();
-        let o = ball_occlusion(occ, v, radius, Visibility::Table(table), stride)?;
+        let o = ball_occlusion(occ, &input, radius, Visibility::Table(table), stride)?;
         for (j, &(oi, _)) in picks.iter().enumerate() {
             h[j] = o[oi];
         }
@@ -268,10 +274,11 @@ pub fn sensitivity(
     let s = stride as usize;
     let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(s));
     let mut rows = Vec::new();
+    let input = OcclusionInput::upload(occ.context(), v, &mut Profiler::new(occ.context(), 1)?)?;
     let progress = crate::progress::bar(radii.len() as u64, "radii");
     for &radius in radii {
         progress.inc(1);
-        let o = ball_occlusion(occ, v, radius, Visibility::Ramp, stride)?;
+        let o = ball_occlusion(occ, &input, radius, Visibility::Ramp, stride)?;
         let mut acc = vec![(0usize, 0.0f64, 0.0f64); bands];
         for (oi, &occl) in o.iter().enumerate() {
             let i = sampled_voxel(oi, out_dims, v.dims, s);

@@ -4,9 +4,7 @@
 //! are the only modules of `render/` that touch Vulkan.
 
 pub mod camera;
-pub mod features;
-pub mod otf;
 pub mod proxy;
 pub mod scene;
 pub mod slicer;
-pub mod transfer;
+pub mod targets;

@@ -1,69 +1,496 @@
-//! Everything a frame needs that is computed once per volume: the volume textures and normals,
-//! and the classification. The classification is one of: a 1D transfer function; a feature map
-//! turned into one (FM6); or an occlusion transfer function with its occlusion volume (OS4).
+//! Scenes: the whole composed render as a file ([`Scene`], JSON, versioned), and a volume prepared
+//! on the GPU for rendering ([`GpuScene`]).
+//!
+//! ## The file
+//! ```json
+//! {"version": 1,
+//!  "input": {"path": "../shared/data/volumes/cthead_stanford/cthead_stanford.nhdr"},
+//!  "classification": {"transfer": "ct-skin-bone"},
+//!  "focus": {"iso": 1300},
+//!  "camera": {"azimuth": 0, "elevation": 0, "distance": 2.4},
+//!  "size": [512, 512]}
+//! ```
+//! - `input`: `path` is a file, a DICOM folder or a phantom spec; `raw` describes a headerless
+//!   file (`dims`, `type`, `big_endian`, `offset`, `spacing`). Relative paths, here and in
+//!   `classification`, are relative to the scene file's folder.
+//! - `classification`: one of `{"transfer": PRESET or FILE.json}`, `{"occlusion": OTF.json}` (an
+//!   occlusion transfer function, which carries its AO radius and mapping) or
+//!   `{"features": features.json}`.
+//! - `focus`: `"none"`, `{"iso": V}` or `{"range": {"lo": A, "hi": B}}`, in data units.
+//! - `camera` (azimuth, elevation in degrees; distance and pan in bounding-sphere radii; `ortho`;
+//!   `fov_y`), `size`, `slices` (null: two per voxel), `one_pass`, `background` (RGB behind the
+//!   volume in PNGs), `lighting` (`ambient`, `diffuse`, `specular`, `shininess`).
+//! - `style` and `modulation`: parsed, for the perceptual styles and importance modulation. Until
+//!   those are built, rendering a scene that sets them is an error, never a silent skip.
+//!
+//! Every key is checked: an unknown key is an error that names it.
+//!
+//! ## On the GPU
+//! [`GpuScene::prepare`] runs the chain volume → normals → (occlusion) in one submission: the host
+//! uploads the volume once, and the occlusion volume that an occlusion transfer function needs is
+//! computed from the texture already on the GPU and sampled by the renderer where it lies.
 
-use crate::error::Result;
-use crate::gpu::{Context, PassTime, Profiler};
+use crate::classify::features::feature_transfer_function;
+use crate::classify::mapping::parse_mapping;
+use crate::classify::otf::OcclusionTf;
+use crate::classify::textures::ClassifyTextures;
+use crate::classify::transfer::TransferFunction;
+use crate::classify::{Classification, Focus};
+use crate::error::{Error, Result};
+use crate::gpu::{Context, Frames, FramesDesc, PassTime};
 use crate::passes::normals::{Normals, VolumeTextures};
-use crate::passes::occlusion::{parse_mapping, Occlusion, OcclusionParams};
-use crate::render::features::feature_transfer_function;
-use crate::render::otf::OcclusionTf;
-use crate::render::transfer::TransferFunction;
-use crate::volume::feature::FeatureMap;
-use crate::volume::Volume;
+use crate::passes::occlusion::{Occlusion, OcclusionParams};
+use crate::render::camera::Camera;
+use crate::render::slicer::{Lighting, View};
+use crate::volume::io::RawSpec;
+use crate::volume::{Volume, VoxelType};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
 use std::sync::Arc;
 
-/// How samples get colour and opacity.
-pub enum Classification {
-    /// A 1D transfer function.
-    Transfer(TransferFunction),
-    /// A feature map: each feature's private interval in its colour (FM6).
-    Features(FeatureMap),
-    /// An occlusion transfer function; its occlusion volume is computed here.
-    Occlusion(OcclusionTf),
+/// The scene-file version this build reads and writes.
+pub const SCENE_VERSION: u32 = 1;
+
+/// A headerless input's layout.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawInput {
+    pub dims: [usize; 3],
+    /// u8, u16, i16 or f32.
+    #[serde(rename = "type")]
+    pub voxel_type: String,
+    #[serde(default)]
+    pub big_endian: bool,
+    #[serde(default)]
+    pub offset: u64,
+    #[serde(default = "unit_spacing")]
+    pub spacing: [f64; 3],
 }
 
-/// A prepared volume.
+fn unit_spacing() -> [f64; 3] {
+    [1.0; 3]
+}
+
+/// What to load.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputSpec {
+    /// A file, a DICOM folder or a phantom spec (`phantom:shepp-logan:128`).
+    pub path: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub raw: Option<RawInput>,
+}
+
+/// How samples are classified, as named in a scene file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum ClassificationSpec {
+    /// A transfer-function preset or a JSON file.
+    Transfer(String),
+    /// An occlusion transfer function (JSON file).
+    Occlusion(String),
+    /// A feature map (features.json from `vellum migrate`).
+    Features(String),
+}
+
+impl Default for ClassificationSpec {
+    fn default() -> Self {
+        ClassificationSpec::Transfer("grey".into())
+    }
+}
+
+/// The camera, in the scene file's terms.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraSpec {
+    /// Degrees about +z; 0 looks from −y.
+    pub azimuth: f32,
+    /// Degrees towards +z, in [−90, 90].
+    pub elevation: f32,
+    /// Eye distance in bounding-sphere radii.
+    pub distance: f32,
+    pub ortho: bool,
+    /// Pan (x right, y up) in bounding-sphere radii.
+    pub pan: [f32; 2],
+    /// Vertical field of view in degrees.
+    pub fov_y: f32,
+}
+
+impl Default for CameraSpec {
+    fn default() -> Self {
+        CameraSpec::from(&DEFAULT_CAMERA)
+    }
+}
+
+/// The camera of `vellum render` without `--camera`.
+pub const DEFAULT_CAMERA: Camera = Camera {
+    azimuth_deg: 30.0,
+    elevation_deg: 20.0,
+    distance: 2.5,
+    ortho: false,
+    fov_y_deg: 50.0,
+    pan: glam::Vec2::ZERO,
+};
+
+impl From<&Camera> for CameraSpec {
+    fn from(c: &Camera) -> Self {
+        CameraSpec {
+            azimuth: c.azimuth_deg,
+            elevation: c.elevation_deg,
+            distance: c.distance,
+            ortho: c.ortho,
+            pan: c.pan.to_array(),
+            fov_y: c.fov_y_deg,
+        }
+    }
+}
+
+impl CameraSpec {
+    /// The camera, checked.
+    pub fn camera(&self) -> Result<Camera> {
+        let c = Camera {
+            azimuth_deg: self.azimuth,
+            elevation_deg: self.elevation,
+            distance: self.distance,
+            ortho: self.ortho,
+            fov_y_deg: self.fov_y,
+            pan: glam::Vec2::from_array(self.pan),
+        };
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+/// A perceptual style and its parameters (two-level paper §3, the styles issue). Parsed now; the
+/// styles themselves are not built yet.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct StyleSpec {
+    /// The paper's style number (1–15) or name.
+    pub style: Option<serde_json::Value>,
+    /// Edge colour (RGB), opacity and width in pixels.
+    pub edge_color: Option<[f32; 3]>,
+    pub edge_opacity: Option<f32>,
+    pub edge_width: Option<f32>,
+    /// Edge threshold in [0, 1].
+    pub threshold: Option<f32>,
+    /// DoG and Canny σ in pixels, and the DoG ratio k.
+    pub sigma: Option<f32>,
+    pub k: Option<f32>,
+    /// Kuwahara radius in pixels.
+    pub kuwahara_radius: Option<u32>,
+    /// Saturation factor of the context.
+    pub saturation: Option<f32>,
+}
+
+/// Importance modulation (importance paper §4, eq. 3–6). Parsed now; not built yet.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModulationSpec {
+    /// `raw` or `abs` (eq. 3, 4).
+    pub color: Option<String>,
+    pub gamma: Option<f32>,
+    /// t_l, t_h, k_l, k_h (eq. 5).
+    pub opacity: Option<[f32; 4]>,
+    /// t, f (eq. 6) and the seed of the stipple hash.
+    pub stipple: Option<[f32; 2]>,
+    pub seed: Option<u64>,
+    /// Importance radius R in voxels.
+    pub importance_radius: Option<u32>,
+    /// `focus`, `context` or `both`.
+    pub apply_to: Option<String>,
+    /// `ambient` or `phong`.
+    pub lighting: Option<String>,
+}
+
+/// The whole composed render.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Scene {
-    pub textures: VolumeTextures,
-    /// The 1D transfer function (unused by the shaders when `occlusion_tf` is set).
-    pub transfer: TransferFunction,
-    /// The 256×256 occlusion transfer-function table, when classifying by occlusion.
-    pub occlusion_tf: Option<Vec<[f32; 4]>>,
-    /// GPU time of `upload`, `sobel_normals` and, for occlusion, `occlusion`.
+    pub version: u32,
+    pub input: InputSpec,
+    #[serde(default)]
+    pub classification: ClassificationSpec,
+    #[serde(default)]
+    pub focus: Focus,
+    #[serde(default)]
+    pub camera: CameraSpec,
+    #[serde(default = "default_size")]
+    pub size: [u32; 2],
+    #[serde(default)]
+    pub slices: Option<u32>,
+    #[serde(default)]
+    pub one_pass: bool,
+    #[serde(default)]
+    pub background: [f32; 3],
+    #[serde(default)]
+    pub lighting: Lighting,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub style: Option<StyleSpec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub modulation: Option<ModulationSpec>,
+}
+
+fn default_size() -> [u32; 2] {
+    [512, 512]
+}
+
+/// Resolves `p` against `dir` unless it is absolute or a phantom spec.
+fn resolve(dir: &Path, p: &str) -> String {
+    if p.starts_with("phantom:") || Path::new(p).is_absolute() {
+        return p.to_string();
+    }
+    dir.join(p).to_string_lossy().into_owned()
+}
+
+/// Makes `p` absolute (for saving) unless it is a phantom spec or a preset name.
+fn absolute(p: &str) -> String {
+    if p.starts_with("phantom:") || crate::classify::transfer::PRESETS.contains(&p) {
+        return p.to_string();
+    }
+    std::path::absolute(p)
+        .map(|a| a.to_string_lossy().into_owned())
+        .unwrap_or_else(|_| p.to_string())
+}
+
+impl Scene {
+    /// A scene of `input` with every other field at its default.
+    pub fn new(input: InputSpec) -> Self {
+        Scene {
+            version: SCENE_VERSION,
+            input,
+            classification: ClassificationSpec::default(),
+            focus: Focus::None,
+            camera: CameraSpec::default(),
+            size: default_size(),
+            slices: None,
+            one_pass: false,
+            background: [0.0; 3],
+            lighting: Lighting::default(),
+            style: None,
+            modulation: None,
+        }
+    }
+
+    /// Parses a scene from JSON; relative paths stay as written.
+    pub fn from_json_str(json: &str) -> Result<Self> {
+        let scene: Scene = serde_json::from_str(json).map_err(|e| Error::Invalid(e.to_string()))?;
+        if scene.version != SCENE_VERSION {
+            return Err(Error::Invalid(format!(
+                "version {} is not supported; expected \"version\": {SCENE_VERSION}",
+                scene.version
+            )));
+        }
+        scene.validate()?;
+        Ok(scene)
+    }
+
+    /// Reads a scene file, resolving its relative paths against the file's folder. Every error
+    /// names the file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let in_file = |e: Error| Error::Invalid(format!("scene file {}: {e}", path.display()));
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let mut scene = Scene::from_json_str(&text).map_err(in_file)?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        scene.input.path = resolve(dir, &scene.input.path);
+        scene.classification = match &scene.classification {
+            ClassificationSpec::Transfer(t)
+                if !crate::classify::transfer::PRESETS.contains(&t.as_str()) =>
+            {
+                ClassificationSpec::Transfer(resolve(dir, t))
+            }
+            ClassificationSpec::Occlusion(f) => ClassificationSpec::Occlusion(resolve(dir, f)),
+            ClassificationSpec::Features(f) => ClassificationSpec::Features(resolve(dir, f)),
+            other => other.clone(),
+        };
+        Ok(scene)
+    }
+
+    /// Writes the scene as pretty JSON, atomically, with absolute paths so that it loads from any
+    /// folder.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let mut s = self.clone();
+        s.input.path = absolute(&s.input.path);
+        s.classification = match &s.classification {
+            ClassificationSpec::Transfer(t) => ClassificationSpec::Transfer(absolute(t)),
+            ClassificationSpec::Occlusion(f) => ClassificationSpec::Occlusion(absolute(f)),
+            ClassificationSpec::Features(f) => ClassificationSpec::Features(absolute(f)),
+        };
+        let json = serde_json::to_string_pretty(&s)
+            .map_err(|e| Error::Invalid(format!("scene cannot be written as JSON: {e}")))?;
+        crate::output::write_atomic(path, |w| {
+            use std::io::Write;
+            writeln!(w, "{json}")
+        })
+    }
+
+    /// Checks the values that serde's types do not: sizes, slices, background, lighting, camera.
+    pub fn validate(&self) -> Result<()> {
+        let [w, h] = self.size;
+        if w == 0 || h == 0 {
+            return Err(Error::Invalid(format!(
+                "size {w}x{h} is invalid; expected at least 1 pixel per side"
+            )));
+        }
+        if let Some(n) = self.slices {
+            if n == 0 || n > crate::render::slicer::MAX_SLICES {
+                return Err(Error::Invalid(format!(
+                    "slices {n} is invalid; expected 1..={}",
+                    crate::render::slicer::MAX_SLICES
+                )));
+            }
+        }
+        if !self.background.iter().all(|c| (0.0..=1.0).contains(c)) {
+            return Err(Error::Invalid(format!(
+                "background {:?} is invalid; expected R, G, B each in 0..1",
+                self.background
+            )));
+        }
+        self.focus.validate()?;
+        self.lighting.validate()?;
+        self.camera.camera()?;
+        Ok(())
+    }
+
+    /// Refuses what this build cannot render yet, rather than skipping it silently.
+    pub fn check_supported(&self) -> Result<()> {
+        if self.style.is_some() {
+            return Err(Error::Invalid(
+                "the scene sets a \"style\", but the perceptual styles are not built yet; remove the section".into(),
+            ));
+        }
+        if self.modulation.is_some() {
+            return Err(Error::Invalid(
+                "the scene sets a \"modulation\", but importance modulation is not built yet; remove the section".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The raw-file layout of the input, if any.
+    pub fn raw_spec(&self) -> Result<Option<RawSpec>> {
+        self.input
+            .raw
+            .as_ref()
+            .map(|r| {
+                Ok(RawSpec {
+                    dims: r.dims,
+                    voxel_type: VoxelType::parse(&r.voxel_type)?,
+                    big_endian: r.big_endian,
+                    offset: r.offset,
+                    spacing: r.spacing,
+                })
+            })
+            .transpose()
+    }
+
+    /// Loads the input volume.
+    pub fn load_volume(&self) -> Result<Volume> {
+        crate::input::load(&self.input.path, self.raw_spec()?.as_ref())
+    }
+
+    /// Loads the files the classification names.
+    pub fn classification(&self) -> Result<Classification> {
+        Ok(match &self.classification {
+            ClassificationSpec::Transfer(t) => {
+                Classification::Transfer(TransferFunction::from_arg(t)?)
+            }
+            ClassificationSpec::Occlusion(f) => {
+                Classification::Occlusion(OcclusionTf::load(Path::new(f))?)
+            }
+            ClassificationSpec::Features(f) => {
+                Classification::Features(crate::volume::feature::FeatureMap::load(Path::new(f))?)
+            }
+        })
+    }
+
+    /// The view: camera, size, slices, one pass or two levels, lighting.
+    pub fn view(&self) -> Result<View> {
+        Ok(View {
+            camera: self.camera.camera()?,
+            size: self.size,
+            slices: self.slices,
+            one_pass: self.one_pass,
+            lighting: self.lighting,
+        })
+    }
+}
+
+/// A volume prepared for rendering: its textures and normals, the classification's textures, the
+/// focus, and the occlusion volume when an occlusion transfer function needs one.
+pub struct GpuScene {
+    pub volume: VolumeTextures,
+    pub classify: ClassifyTextures,
+    pub focus: Focus,
+    /// GPU ms of `upload`, `sobel_normals` and, for occlusion, `to_float` and `occlusion`.
     pub passes: Vec<PassTime>,
 }
 
-/// Uploads `v`, computes its normals (and occlusion when asked), and resolves the classification.
-pub fn prepare(ctx: &Arc<Context>, v: &Volume, classification: Classification) -> Result<Scene> {
-    let mut profiler = Profiler::new(ctx, 2)?;
-    let mut textures = Normals::new(ctx)?.prepare(v, &mut profiler)?;
-    let mut passes = profiler.results()?;
-    let (transfer, occlusion_tf) = match classification {
-        Classification::Transfer(tf) => (tf, None),
-        Classification::Features(map) => {
-            let s = crate::volume::stats::stats(v, 0);
-            (feature_transfer_function(&map, [s.min, s.max])?, None)
-        }
-        Classification::Occlusion(otf) => {
-            let (visibility, neighbourhood) = parse_mapping(&otf.mapping)?;
-            let p = OcclusionParams {
-                radius: otf.radius,
-                visibility,
-                neighbourhood,
-                stride: otf.effective_stride(),
-                spectrum_bins: None,
+impl GpuScene {
+    /// Uploads `v`, computes its normals (and occlusion when the classification needs it) in one
+    /// submission, and creates the classification textures.
+    pub fn prepare(
+        ctx: &Arc<Context>,
+        v: &Volume,
+        classification: &Classification,
+        focus: Focus,
+    ) -> Result<GpuScene> {
+        focus.validate()?;
+        let normals = Normals::new(ctx)?;
+        let (mut volume, staging) = VolumeTextures::new(ctx, v)?;
+        let (transfer, otf) = match classification {
+            Classification::Transfer(tf) => (tf.clone(), None),
+            Classification::Features(map) => {
+                let s = crate::volume::stats::stats(v, 0);
+                (feature_transfer_function(map, [s.min, s.max])?, None)
+            }
+            Classification::Occlusion(otf) => {
+                let (visibility, neighbourhood) = parse_mapping(&otf.mapping)?;
+                let p = OcclusionParams {
+                    radius: otf.radius,
+                    visibility,
+                    neighbourhood,
+                    stride: otf.effective_stride(),
+                    spectrum_bins: None,
+                };
+                (TransferFunction::preset("grey")?, Some((otf.table()?, p)))
+            }
+        };
+        let occlusion = match &otf {
+            Some(_) => Some(Occlusion::new(ctx)?),
+            None => None,
+        };
+        let mut frames = Frames::new(ctx, &FramesDesc::one_shot("prepare scene", 8))?;
+        let (occlusion_image, _) = frames.frame(|f| {
+            volume.record_upload(ctx, f.cmd, f.profiler, &staging);
+            normals.record(f.cmd, f.profiler, &volume)?;
+            let image = match (&occlusion, &otf) {
+                (Some(occ), Some((_, p))) => {
+                    let input = occ.record_input_from_texture(
+                        f.cmd,
+                        f.profiler,
+                        &volume,
+                        normals.nearest(),
+                    )?;
+                    let targets = occ.targets(&input, p)?;
+                    occ.record(f.cmd, f.profiler, &input, &targets, p)?;
+                    // The input and work images drop here, mid-recording: their release is
+                    // deferred until this frame completes (gpu/lifetime.rs).
+                    Some(targets.occlusion)
+                }
+                _ => None,
             };
-            let occ = Occlusion::new(ctx)?.compute(v, &p)?;
-            passes.extend(occ.passes.into_iter().filter(|p| p.name == "occlusion"));
-            textures.attach_occlusion(ctx, &occ.occlusion)?;
-            (TransferFunction::preset("grey")?, Some(otf.table()?))
-        }
-    };
-    Ok(Scene {
-        textures,
-        transfer,
-        occlusion_tf,
-        passes,
-    })
+            Ok(image)
+        })?;
+        let passes = frames.finish()?;
+        volume.occlusion = occlusion_image;
+        let mut classify = ClassifyTextures::new(ctx, &transfer)?;
+        classify.set_occlusion_table(otf.map(|(table, _)| table))?;
+        Ok(GpuScene {
+            volume,
+            classify,
+            focus,
+            passes,
+        })
+    }
 }

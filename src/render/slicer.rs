@@ -1,28 +1,39 @@
 //! The 3D-texture slice renderer with two levels (SPEC TL2, TL3; two-level paper §3, §3.1).
 //!
 //! View-aligned proxy polygons are drawn back to front with premultiplied "over" blending. Each
-//! fragment samples the normalised intensity, looks colour and opacity up in the 1D transfer
-//! function (opacity corrected for the slice spacing), and shades with the Sobel gradient.
+//! fragment samples the normalised intensity, classifies it (`glsl/common/classify.glsl`: the 1D
+//! transfer function or the occlusion one, opacity corrected for the slice spacing) and shades it
+//! with the Sobel gradient (`glsl/common/shading.glsl`).
 //!
 //! Two levels: pass `focus` renders only the focus samples into three targets at once (Phong with
 //! specular, diffuse only, linear depth) plus a D32 depth buffer holding the nearest focus sample.
 //! Pass `context` renders every other sample, depth-tested against that buffer, so context hidden
 //! behind the focus is dropped. Pass `composite` lays the context over the focus. With an opaque
 //! focus this equals the classic single pass (`one_pass`), which is the paper's claim and a test.
+//!
+//! ## Frames
+//! [`Renderer::record`] records one frame into a caller's [`gpu::Frame`]: the per-frame uniforms
+//! and proxy vertices go into the frame's staging ring, the classification textures are
+//! re-uploaded only if they changed, and the layers land in persistent [`FrameTargets`]. Nothing
+//! is allocated in steady state. [`Renderer::render`] is the one-shot form for tools and tests: one
+//! frame plus a readback.
 
+use crate::classify::textures::ClassifyTextures;
+use crate::classify::transfer::TransferFunction;
+pub use crate::classify::Focus;
 use crate::error::{Error, Result};
 use crate::gpu::graphics::{
     begin_rendering, end_rendering, Blend, DepthState, GraphicsDesc, GraphicsPipeline, Load,
 };
 use crate::gpu::profiler::PassTime;
-use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
 use crate::gpu::{
-    submit_once, Access, Bind, BindingKind, Buffer, Context, Image, ImageDesc, Profiler, Sampler,
+    self, Access, Bind, BindingKind, BufferSlice, Context, Frames, FramesDesc, Image, ImageDesc,
+    Sampler,
 };
 use crate::passes::normals::VolumeTextures;
 use crate::render::camera::Camera;
 use crate::render::proxy::view_aligned_slices_in;
-use crate::render::transfer::TransferFunction;
+use crate::render::targets::{FrameTargets, TargetsReadback, COLOR, DEPTH, LINEAR_DEPTH};
 use ash::vk;
 use glam::Vec3;
 use std::sync::Arc;
@@ -40,61 +51,54 @@ pub struct SliceUniforms {
     pub focus: [f32; 4],
 }
 
-/// What the first level renders.
-#[derive(Copy, Clone, Debug, PartialEq)]
-pub enum Focus {
-    /// No focus: everything is context.
-    None,
-    /// Samples whose data value lies in [lo, hi] (data units), with the transfer function's opacity.
-    Range { lo: f64, hi: f64 },
-    /// Samples at or above the data value: an opaque isosurface.
-    Iso(f64),
+/// Phong lighting with a headlight (the light comes from the eye).
+#[derive(Copy, Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Lighting {
+    pub ambient: f32,
+    pub diffuse: f32,
+    pub specular: f32,
+    /// Specular exponent.
+    pub shininess: f32,
 }
 
-impl Focus {
-    /// Parses `--focus LO:HI` or `--iso V` (data units).
-    pub fn parse(range: Option<&str>, iso: Option<f64>) -> Result<Focus> {
-        match (range, iso) {
-            (Some(_), Some(_)) => Err(Error::Invalid(
-                "give either --focus LO:HI or --iso V, not both".into(),
-            )),
-            (None, Some(v)) if v.is_finite() => Ok(Focus::Iso(v)),
-            (None, Some(_)) => Err(Error::Invalid("--iso needs a finite value".into())),
-            (Some(r), None) => {
-                let parsed = r.split_once(':').and_then(|(a, b)| {
-                    Some((a.trim().parse::<f64>().ok()?, b.trim().parse::<f64>().ok()?))
-                });
-                match parsed {
-                    Some((lo, hi)) if lo <= hi && lo.is_finite() && hi.is_finite() => {
-                        Ok(Focus::Range { lo, hi })
-                    }
-                    _ => Err(Error::Invalid(format!(
-                        "--focus '{r}' is not an interval LO:HI of data values with LO <= HI"
-                    ))),
-                }
-            }
-            (None, None) => Ok(Focus::None),
-        }
-    }
-
-    /// (lo, hi, mode) on the normalised range of `data_range`.
-    fn normalised(&self, data_range: [f64; 2]) -> [f32; 3] {
-        let n = |v: f64| {
-            if data_range[1] > data_range[0] {
-                ((v - data_range[0]) / (data_range[1] - data_range[0])) as f32
-            } else {
-                0.0
-            }
-        };
-        match *self {
-            Focus::None => [0.0, 0.0, 0.0],
-            Focus::Range { lo, hi } => [n(lo), n(hi), 1.0],
-            Focus::Iso(v) => [n(v), f32::INFINITY, 2.0],
+impl Default for Lighting {
+    fn default() -> Self {
+        Lighting {
+            ambient: 0.25,
+            diffuse: 0.75,
+            specular: 0.35,
+            shininess: 24.0,
         }
     }
 }
 
-/// Parameters of one frame.
+impl Lighting {
+    /// Checks that the coefficients are finite and not negative.
+    pub fn validate(&self) -> Result<()> {
+        let all = [self.ambient, self.diffuse, self.specular, self.shininess];
+        if all.iter().all(|c| c.is_finite() && *c >= 0.0) {
+            Ok(())
+        } else {
+            Err(Error::Invalid(format!(
+                "lighting {self:?} is invalid; expected finite coefficients >= 0"
+            )))
+        }
+    }
+}
+
+/// What a frame looks at and how: everything but the volume and its classification.
+#[derive(Clone, Debug, PartialEq)]
+pub struct View {
+    pub camera: Camera,
+    pub size: [u32; 2],
+    /// Number of slice planes; `None` picks about two per voxel along the longest axis.
+    pub slices: Option<u32>,
+    pub one_pass: bool,
+    pub lighting: Lighting,
+}
+
+/// Parameters of one frame for the one-shot [`Renderer::render`].
 #[derive(Clone, Debug)]
 pub struct RenderParams {
     pub camera: Camera,
@@ -119,7 +123,7 @@ pub struct Layers {
     pub context: Vec<[f32; 4]>,
 }
 
-/// A rendered frame.
+/// A rendered frame on the host.
 #[derive(Clone, Debug)]
 pub struct Frame {
     pub size: [u32; 2],
@@ -132,9 +136,11 @@ pub struct Frame {
     pub slices: u32,
 }
 
-const COLOR: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
-const LINEAR_DEPTH: vk::Format = vk::Format::R32_SFLOAT;
-const DEPTH: vk::Format = vk::Format::D32_SFLOAT;
+/// What recording a frame decided.
+#[derive(Copy, Clone, Debug)]
+pub struct Recorded {
+    pub slices: u32,
+}
 
 /// The pipelines of the slice renderer.
 pub struct Renderer {
@@ -145,9 +151,8 @@ pub struct Renderer {
     composite: GraphicsPipeline,
     linear: Sampler,
     nearest: Sampler,
-    /// 1×1 stand-ins bound when no occlusion transfer function is used.
+    /// 1×1 stand-in bound when no occlusion volume is used.
     dummy_3d: Image,
-    dummy_2d: Image,
 }
 
 const SLICE_BINDINGS: [BindingKind; 6] = [
@@ -158,6 +163,9 @@ const SLICE_BINDINGS: [BindingKind; 6] = [
     BindingKind::SampledImage,
     BindingKind::SampledImage,
 ];
+
+/// Most slice planes a frame may draw.
+pub const MAX_SLICES: u32 = 16384;
 
 impl Renderer {
     /// Builds the four pipelines.
@@ -233,9 +241,7 @@ impl Renderer {
             "dummy occlusion",
             &ImageDesc::new_3d(vk::Format::R32_SFLOAT, [1, 1, 1]),
         )?;
-        let dummy_2d = Image::new(ctx, "dummy occlusion tf", &ImageDesc::new_2d(COLOR, [1, 1]))?;
         crate::gpu::transfer::upload(ctx, &dummy_3d, &[0u8; 4], Access::FragmentSampled)?;
-        crate::gpu::transfer::upload(ctx, &dummy_2d, &[0u8; 16], Access::FragmentSampled)?;
         Ok(Renderer {
             ctx: ctx.clone(),
             one_pass,
@@ -245,58 +251,70 @@ impl Renderer {
             linear: Sampler::new(ctx, true)?,
             nearest: Sampler::new(ctx, false)?,
             dummy_3d,
-            dummy_2d,
         })
     }
 
-    /// Renders one frame of `vol`. With `readback`, the composite (and the layers of a two-level
-    /// frame) come back to the host.
-    pub fn render(
+    /// Records one frame of `vol`, classified by `classify` with `focus`, as seen by `view`, into
+    /// `frame`; the layers land in `targets` (resized if needed). Passes: `focus`, `context`,
+    /// `composite`, or `one_pass`.
+    pub fn record(
         &self,
+        frame: &mut gpu::Frame,
         vol: &VolumeTextures,
-        params: &RenderParams,
-        readback: bool,
-    ) -> Result<Frame> {
+        classify: &mut ClassifyTextures,
+        focus: Focus,
+        view: &View,
+        targets: &mut FrameTargets,
+    ) -> Result<Recorded> {
         let ctx = &self.ctx;
-        let [w, h] = params.size;
+        let [w, h] = view.size;
         let max2d = ctx.info.max_image_dimension_2d;
         if w == 0 || h == 0 || w > max2d || h > max2d {
             return Err(Error::Invalid(format!(
                 "image size {w}x{h} is invalid; expected 1..={max2d} pixels per side"
             )));
         }
+        let uses_occlusion = classify.uses_occlusion();
+        let occlusion = match (uses_occlusion, &vol.occlusion) {
+            (false, _) => &self.dummy_3d,
+            (true, Some(o)) => o,
+            (true, None) => {
+                return Err(Error::Invalid("an occlusion transfer function needs an occlusion volume attached to the volume textures".into()))
+            }
+        };
+        view.lighting.validate()?;
         // The box in world units: physical size scaled so that its longest edge is 1.
         let physical: [f64; 3] = std::array::from_fn(|a| vol.dims[a] as f64 * vol.spacing[a]);
         let longest = physical.iter().copied().fold(0.0, f64::max);
         let half = Vec3::from_array(physical.map(|p| (0.5 * p / longest) as f32));
         let radius = half.length();
         let voxel = vol.spacing.iter().copied().fold(f64::INFINITY, f64::min) / longest;
-        let n_slices = params
+        let n_slices = view
             .slices
             .unwrap_or_else(|| 2 * *vol.dims.iter().max().unwrap_or(&1) as u32)
             .max(1);
-        if n_slices > 16384 {
+        if n_slices > MAX_SLICES {
             return Err(Error::Invalid(format!(
-                "{n_slices} slices are too many; expected at most 16384"
+                "{n_slices} slices are too many; expected at most {MAX_SLICES}"
             )));
         }
-        let cam = &params.camera;
+        let cam = &view.camera;
         let view_dir = cam.view_dir(radius);
         // Every pass draws the same planes, cut only by the bricks that can contribute to it, so
         // each fragment it draws is one the whole-box geometry would draw and skipped fragments
         // would all have been discarded. One pass and context: bricks whose intensities meet a
         // non-zero opacity (all bricks with an occlusion TF); the context also drops bricks that
         // are focus throughout. Focus: bricks that can hold focus samples.
-        let table: Vec<[f32; 4]> = params.transfer.table(256);
-        let focus_n = params.focus.normalised(vol.range);
+        let table = classify.transfer_table();
+        let focus_n = focus.normalised(vol.range);
         let visible: Vec<bool> = vol
             .bricks
             .range
             .iter()
-            .map(|r| params.occlusion_tf.is_some() || any_opacity(&table, r))
+            .map(|r| uses_occlusion || any_opacity(table, r))
             .collect();
         let boxes = |keep: &dyn Fn(usize) -> bool| brick_boxes(vol, half, keep);
-        let proxy = if params.one_pass {
+        let proxy = if view.one_pass {
             view_aligned_slices_in(half, view_dir, n_slices, &boxes(&|b| visible[b]))
         } else {
             view_aligned_slices_in(
@@ -306,7 +324,7 @@ impl Renderer {
                 &boxes(&|b| visible[b] && !all_focus(&vol.bricks.range[b], focus_n)),
             )
         };
-        let focus_proxy = (!params.one_pass).then(|| {
+        let focus_proxy = (!view.one_pass).then(|| {
             view_aligned_slices_in(
                 half,
                 view_dir,
@@ -316,6 +334,7 @@ impl Renderer {
         });
         let eye = cam.eye(radius);
         let light = -view_dir; // a headlight
+        let l = &view.lighting;
         let uniforms = SliceUniforms {
             view_proj: cam
                 .view_proj(w as f32 / h as f32, radius)
@@ -328,235 +347,175 @@ impl Renderer {
                 view_dir.z,
                 if cam.ortho { 1.0 } else { 0.0 },
             ],
-            light: [light.x, light.y, light.z, 24.0],
-            material: [0.25, 0.75, 0.35, (proxy.spacing as f64 / voxel) as f32],
-            focus: {
-                let f = params.focus.normalised(vol.range);
-                [
-                    f[0],
-                    f[1],
-                    f[2],
-                    if params.occlusion_tf.is_some() {
-                        1.0
-                    } else {
-                        0.0
-                    },
-                ]
-            },
+            light: [light.x, light.y, light.z, l.shininess],
+            material: [
+                l.ambient,
+                l.diffuse,
+                l.specular,
+                (proxy.spacing as f64 / voxel) as f32,
+            ],
+            focus: [
+                focus_n[0],
+                focus_n[1],
+                focus_n[2],
+                if uses_occlusion { 1.0 } else { 0.0 },
+            ],
         };
-        // The occlusion transfer function: a 256×256 table and the occlusion volume to index it.
-        let otf = match (&params.occlusion_tf, &vol.occlusion) {
-            (None, _) => None,
-            (Some(_), None) => {
-                return Err(Error::Invalid("an occlusion transfer function needs an occlusion volume attached to the volume textures".into()))
-            }
-            (Some(table), Some(occlusion)) => {
-                if table.len() != 256 * 256 {
-                    return Err(Error::Invalid("an occlusion transfer-function table needs 256×256 entries".into()));
-                }
-                let image = Image::new(ctx, "occlusion transfer function", &ImageDesc::new_2d(COLOR, [256, 256]))?;
-                crate::gpu::transfer::upload(ctx, &image, bytemuck::cast_slice(table), Access::FragmentSampled)?;
-                Some((image, occlusion))
-            }
-        };
-
-        let ubo = Buffer::from_bytes(
-            ctx,
-            "slice uniforms",
-            vk::BufferUsageFlags::UNIFORM_BUFFER,
-            bytemuck::bytes_of(&uniforms),
-        )?;
-        let vertices = Buffer::from_bytes(
-            ctx,
-            "proxy slices",
-            vk::BufferUsageFlags::VERTEX_BUFFER,
-            bytemuck::cast_slice(&proxy.vertices),
-        )?;
+        let ubo = frame.staging.push_pod(&uniforms)?;
+        let vertices = frame
+            .staging
+            .push(bytemuck::cast_slice(&proxy.vertices), 16)?;
+        let vertex_count = proxy.vertices.len() as u32;
         let focus_vertices = match &focus_proxy {
             Some(fp) => Some((
-                Buffer::from_bytes(
-                    ctx,
-                    "focus proxy slices",
-                    vk::BufferUsageFlags::VERTEX_BUFFER,
-                    bytemuck::cast_slice(&fp.vertices),
-                )?,
+                frame.staging.push(bytemuck::cast_slice(&fp.vertices), 16)?,
                 fp.vertices.len() as u32,
             )),
             None => None,
         };
-        let tf = Image::new(
-            ctx,
-            "transfer function",
-            &ImageDesc::new_2d(COLOR, [256, 1]),
-        )?;
-        let mut tf_staging = staging_buffer(ctx, "transfer function staging", table.len() * 16)?;
-        tf_staging.write(bytemuck::cast_slice(&table))?;
-
-        let target = |name: &str, format| {
-            let usage = if format == DEPTH {
-                vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT
-            } else {
-                vk::ImageUsageFlags::COLOR_ATTACHMENT
-                    | vk::ImageUsageFlags::SAMPLED
-                    | vk::ImageUsageFlags::TRANSFER_SRC
+        classify.record(frame, Access::FragmentSampled)?;
+        let t = targets.ensure([w, h], !view.one_pass)?;
+        let cmd = frame.cmd;
+        let profiler = &mut *frame.profiler;
+        vol.intensity.transition(cmd, Access::FragmentSampled);
+        vol.gradient.transition(cmd, Access::FragmentSampled);
+        occlusion.transition(cmd, Access::FragmentSampled);
+        let binds = [
+            Bind::UniformSlice(ubo),
+            Bind::Sampled(&vol.intensity, &self.linear),
+            Bind::Sampled(&vol.gradient, &self.linear),
+            Bind::Sampled(classify.transfer_image(), &self.linear),
+            Bind::Sampled(occlusion, &self.linear),
+            Bind::Sampled(classify.occlusion_image(), &self.linear),
+        ];
+        let draw_with =
+            |pipeline: &GraphicsPipeline, buffer: BufferSlice, count: u32| -> Result<()> {
+                pipeline.bind(cmd, &binds, &(), [w, h])?;
+                if count > 0 {
+                    unsafe {
+                        ctx.device
+                            .cmd_bind_vertex_buffers(cmd, 0, &[buffer.raw], &[buffer.offset]);
+                        ctx.device.cmd_draw(cmd, count, 1, 0, 0);
+                    }
+                }
+                Ok(())
             };
-            Image::new(ctx, name, &ImageDesc::new_2d(format, [w, h]).usage(usage))
-        };
-        let composite = target("composite", COLOR)?;
-        let two_level = !params.one_pass;
-        let layers = if two_level {
-            Some([
-                target("focus phong", COLOR)?,
-                target("focus diffuse", COLOR)?,
-                target("focus linear depth", LINEAR_DEPTH)?,
-                target("context", COLOR)?,
-            ])
-        } else {
-            None
-        };
-        let depth = if two_level {
-            Some(target("focus depth", DEPTH)?)
-        } else {
-            None
-        };
-        let readbacks: Vec<(&Image, Buffer)> = if readback {
-            let mut images = vec![&composite];
-            if let Some(l) = &layers {
-                images.extend(l.iter());
+        let clear = Load::Clear([0.0; 4]);
+        let composite = &t.composite;
+        match (&t.layers, view.one_pass) {
+            (Some(layers), false) => {
+                let (phong, diffuse, lin_depth, context, depth) = (
+                    &layers.focus_phong,
+                    &layers.focus_diffuse,
+                    &layers.focus_depth,
+                    &layers.context,
+                    &layers.depth,
+                );
+                profiler.begin(cmd, "focus");
+                begin_rendering(
+                    ctx,
+                    cmd,
+                    &[
+                        (phong, clear),
+                        (diffuse, clear),
+                        (lin_depth, Load::Clear([f32::INFINITY; 4])),
+                    ],
+                    Some((depth, Load::Clear([1.0; 4]))),
+                );
+                let (fv, fcount) = focus_vertices.unwrap_or((vertices, 0));
+                draw_with(&self.focus, fv, fcount)?;
+                end_rendering(ctx, cmd);
+                profiler.end(cmd);
+                profiler.begin(cmd, "context");
+                begin_rendering(ctx, cmd, &[(context, clear)], Some((depth, Load::Keep)));
+                draw_with(&self.context, vertices, vertex_count)?;
+                end_rendering(ctx, cmd);
+                profiler.end(cmd);
+                profiler.begin(cmd, "composite");
+                phong.transition(cmd, Access::FragmentSampled);
+                context.transition(cmd, Access::FragmentSampled);
+                begin_rendering(ctx, cmd, &[(composite, clear)], None);
+                self.composite.bind(
+                    cmd,
+                    &[
+                        Bind::Sampled(phong, &self.nearest),
+                        Bind::Sampled(context, &self.nearest),
+                    ],
+                    &(),
+                    [w, h],
+                )?;
+                unsafe { ctx.device.cmd_draw(cmd, 3, 1, 0, 0) };
+                end_rendering(ctx, cmd);
+                profiler.end(cmd);
             }
-            images
-                .into_iter()
-                .map(|i| {
-                    Ok((
-                        i,
-                        staging_buffer(ctx, &format!("{} readback", i.name), i.byte_size())?,
-                    ))
-                })
-                .collect::<Result<_>>()?
-        } else {
-            Vec::new()
-        };
+            _ => {
+                profiler.begin(cmd, "one_pass");
+                begin_rendering(ctx, cmd, &[(composite, clear)], None);
+                draw_with(&self.one_pass, vertices, vertex_count)?;
+                end_rendering(ctx, cmd);
+                profiler.end(cmd);
+            }
+        }
+        Ok(Recorded {
+            slices: proxy.slices,
+        })
+    }
 
-        let vertex_count = proxy.vertices.len() as u32;
-        let mut profiler = Profiler::new(ctx, 6)?;
-        submit_once(ctx, "render frame", |cmd| {
-            profiler.reset(cmd);
-            record_upload(ctx, cmd, &tf_staging, &tf, Access::FragmentSampled);
-            vol.intensity.transition(cmd, Access::FragmentSampled);
-            vol.gradient.transition(cmd, Access::FragmentSampled);
-            let binds = [
-                Bind::Uniform(&ubo),
-                Bind::Sampled(&vol.intensity, &self.linear),
-                Bind::Sampled(&vol.gradient, &self.linear),
-                Bind::Sampled(&tf, &self.linear),
-                Bind::Sampled(otf.as_ref().map_or(&self.dummy_3d, |o| o.1), &self.linear),
-                Bind::Sampled(otf.as_ref().map_or(&self.dummy_2d, |o| &o.0), &self.linear),
-            ];
-            let draw_with =
-                |pipeline: &GraphicsPipeline, buffer: &Buffer, count: u32| -> Result<()> {
-                    pipeline.bind(cmd, &binds, &(), [w, h])?;
-                    if count > 0 {
-                        unsafe {
-                            ctx.device
-                                .cmd_bind_vertex_buffers(cmd, 0, &[buffer.raw], &[0]);
-                            ctx.device.cmd_draw(cmd, count, 1, 0, 0);
-                        }
-                    }
-                    Ok(())
-                };
-            let draw = |pipeline: &GraphicsPipeline| draw_with(pipeline, &vertices, vertex_count);
-            let clear = Load::Clear([0.0; 4]);
-            match (&layers, &depth) {
-                (Some([phong, diffuse, lin_depth, context]), Some(depth)) => {
-                    profiler.begin(cmd, "focus");
-                    begin_rendering(
-                        ctx,
-                        cmd,
-                        &[
-                            (phong, clear),
-                            (diffuse, clear),
-                            (lin_depth, Load::Clear([f32::INFINITY; 4])),
-                        ],
-                        Some((depth, Load::Clear([1.0; 4]))),
-                    );
-                    let (fv, fcount) = focus_vertices
-                        .as_ref()
-                        .map_or((&vertices, 0), |(b, n)| (b, *n));
-                    draw_with(&self.focus, fv, fcount)?;
-                    end_rendering(ctx, cmd);
-                    profiler.end(cmd);
-                    profiler.begin(cmd, "context");
-                    begin_rendering(ctx, cmd, &[(context, clear)], Some((depth, Load::Keep)));
-                    draw(&self.context)?;
-                    end_rendering(ctx, cmd);
-                    profiler.end(cmd);
-                    profiler.begin(cmd, "composite");
-                    phong.transition(cmd, Access::FragmentSampled);
-                    context.transition(cmd, Access::FragmentSampled);
-                    begin_rendering(ctx, cmd, &[(&composite, clear)], None);
-                    self.composite.bind(
-                        cmd,
-                        &[
-                            Bind::Sampled(phong, &self.nearest),
-                            Bind::Sampled(context, &self.nearest),
-                        ],
-                        &(),
-                        [w, h],
-                    )?;
-                    unsafe { ctx.device.cmd_draw(cmd, 3, 1, 0, 0) };
-                    end_rendering(ctx, cmd);
-                    profiler.end(cmd);
-                }
-                _ => {
-                    profiler.begin(cmd, "one_pass");
-                    begin_rendering(ctx, cmd, &[(&composite, clear)], None);
-                    draw(&self.one_pass)?;
-                    end_rendering(ctx, cmd);
-                    profiler.end(cmd);
-                }
+    /// Renders one frame in one submission (the tools' path): the persistent-state types, used
+    /// once. With `readback`, the composite (and the layers of a two-level frame) come back to
+    /// the host.
+    pub fn render(
+        &self,
+        vol: &VolumeTextures,
+        params: &RenderParams,
+        readback: bool,
+    ) -> Result<Frame> {
+        let mut classify = ClassifyTextures::new(&self.ctx, &params.transfer)?;
+        classify.set_occlusion_table(params.occlusion_tf.clone())?;
+        let view = View {
+            camera: params.camera,
+            size: params.size,
+            slices: params.slices,
+            one_pass: params.one_pass,
+            lighting: Lighting::default(),
+        };
+        self.render_frame(vol, &mut classify, params.focus, &view, readback)
+    }
+
+    /// [`Renderer::render`] for a volume and classification that are already on the GPU.
+    pub fn render_frame(
+        &self,
+        vol: &VolumeTextures,
+        classify: &mut ClassifyTextures,
+        focus: Focus,
+        view: &View,
+        readback: bool,
+    ) -> Result<Frame> {
+        let ctx = &self.ctx;
+        let mut targets = FrameTargets::new(ctx);
+        let mut frames = Frames::new(ctx, &FramesDesc::one_shot("render frame", 8))?;
+        let mut host = None;
+        let (recorded, _) = frames.frame(|f| {
+            let r = self.record(f, vol, classify, focus, view, &mut targets)?;
+            if readback {
+                let rb = TargetsReadback::new(ctx, &targets)?;
+                f.profiler
+                    .pass(f.cmd, "readback", |cmd| rb.record(cmd, &targets));
+                host = Some(rb);
             }
-            if !readbacks.is_empty() {
-                profiler.pass(cmd, "readback", |cmd| {
-                    for (image, buffer) in &readbacks {
-                        record_readback(ctx, cmd, image, buffer);
-                    }
-                });
-            }
-            Ok(())
+            Ok(r)
         })?;
-        let passes = profiler.results()?;
-        let rgba = |b: &Buffer| -> Result<Vec<[f32; 4]>> {
-            let bytes = b
-                .mapped()
-                .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
-            Ok(bytemuck::pod_collect_to_vec(bytes))
-        };
-        let (composite_px, layers_px) = if readback {
-            let composite_px = rgba(&readbacks[0].1)?;
-            let layers_px = if two_level {
-                let depth_bytes = readbacks[3]
-                    .1
-                    .mapped()
-                    .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
-                Some(Layers {
-                    focus_phong: rgba(&readbacks[1].1)?,
-                    focus_diffuse: rgba(&readbacks[2].1)?,
-                    focus_depth: bytemuck::pod_collect_to_vec(depth_bytes),
-                    context: rgba(&readbacks[4].1)?,
-                })
-            } else {
-                None
-            };
-            (composite_px, layers_px)
-        } else {
-            (Vec::new(), None)
+        let passes = frames.finish()?;
+        let (composite, layers) = match &host {
+            Some(rb) => rb.read()?,
+            None => (Vec::new(), None),
         };
         Ok(Frame {
-            size: [w, h],
-            composite: composite_px,
-            layers: layers_px,
+            size: view.size,
+            composite,
+            layers,
             passes,
-            slices: proxy.slices,
+            slices: recorded.slices,
         })
     }
 }
@@ -708,17 +667,5 @@ mod tests {
             .collect();
         assert!(!any_opacity(&table, &[0, 30000]));
         assert!(any_opacity(&table, &[0, 33000]));
-    }
-
-    #[test]
-    fn focus_parsing() {
-        assert_eq!(
-            Focus::parse(Some("10:20"), None).unwrap(),
-            Focus::Range { lo: 10.0, hi: 20.0 }
-        );
-        assert_eq!(Focus::parse(None, Some(3.0)).unwrap(), Focus::Iso(3.0));
-        assert!(Focus::parse(Some("20:10"), None).is_err());
-        assert!(Focus::parse(Some("x"), None).is_err());
-        assert!(Focus::parse(Some("1:2"), Some(1.0)).is_err());
     }
 }

@@ -9,7 +9,9 @@ use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
+use vellum::classify::Focus;
 use vellum::gpu::{Context, ContextDesc};
+use vellum::render::scene::{ClassificationSpec, GpuScene, InputSpec, RawInput, Scene};
 use vellum::volume::io::RawSpec;
 use vellum::volume::{Volume, VoxelType};
 
@@ -35,6 +37,13 @@ struct Cli {
 struct InputArgs {
     /// File, DICOM folder, or phantom spec (phantom:shepp-logan:N, phantom:nested:N).
     input: String,
+    #[command(flatten)]
+    raw: RawArgs,
+}
+
+/// How to read a headerless input.
+#[derive(Args, Clone)]
+struct RawArgs {
     /// Raw input: dims as X,Y,Z.
     #[arg(long, value_name = "X,Y,Z")]
     raw_dims: Option<String>,
@@ -94,59 +103,7 @@ enum Command {
         json: bool,
     },
     /// Render a volume with 3D-texture slicing, in two levels (focus, context) or one pass.
-    Render {
-        #[command(flatten)]
-        input: InputArgs,
-        /// Transfer function: a preset (grey, ct-bone, ct-skin-bone, mri-brain) or a JSON file.
-        #[arg(long, default_value = "grey")]
-        tf: String,
-        /// Focus: an interval of data values LO:HI.
-        #[arg(long, value_name = "LO:HI")]
-        focus: Option<String>,
-        /// Focus: an isovalue in data units (an opaque surface).
-        #[arg(long, value_name = "V", allow_negative_numbers = true)]
-        iso: Option<f64>,
-        /// Camera: azimuth and elevation in degrees, distance in bounding-sphere radii.
-        #[arg(
-            long,
-            value_name = "AZ,EL,DIST",
-            default_value = "30,20,2.5",
-            allow_hyphen_values = true
-        )]
-        camera: String,
-        /// Orthographic instead of perspective projection.
-        #[arg(long)]
-        ortho: bool,
-        /// Pan the view: X,Y in bounding-sphere radii (x right, y up).
-        #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
-        pan: Option<String>,
-        /// Image size.
-        #[arg(long, value_name = "WxH", default_value = "512x512")]
-        size: String,
-        /// Number of slice planes (default: two per voxel along the longest axis).
-        #[arg(long)]
-        slices: Option<u32>,
-        /// The classic single pass instead of two levels.
-        #[arg(long)]
-        one_pass: bool,
-        /// Background colour behind the volume in the PNG, as R,G,B in 0..1.
-        #[arg(long, default_value = "0,0,0")]
-        background: String,
-        /// Occlusion transfer function (JSON): colour and opacity over (intensity, occlusion).
-        #[arg(long)]
-        otf: Option<PathBuf>,
-        /// A feature map (features.json from `vellum migrate`): each feature gets its colour (FM6).
-        #[arg(long, conflicts_with = "otf")]
-        features: Option<PathBuf>,
-        /// Output PNG.
-        #[arg(long)]
-        out: PathBuf,
-        /// Also write the layers as float channels to this OpenEXR file.
-        #[arg(long)]
-        exr: Option<PathBuf>,
-        #[arg(long)]
-        json: bool,
-    },
+    Render(Box<RenderArgs>),
     /// Ambient-occlusion volume and occlusion spectrum (SPEC OS1-OS3).
     Occlusion {
         #[command(flatten)]
@@ -220,6 +177,65 @@ enum Command {
     },
 }
 
+/// `vellum render`: a scene from flags, a scene file, or a scene file overridden by flags.
+#[derive(Args)]
+struct RenderArgs {
+    /// File, DICOM folder, or phantom spec; overrides the scene file's input.
+    input: Option<String>,
+    #[command(flatten)]
+    raw: RawArgs,
+    /// A scene file (JSON); every flag given on the command line overrides its value.
+    #[arg(long)]
+    scene: Option<PathBuf>,
+    /// Write the scene that this command line describes to a JSON file.
+    #[arg(long)]
+    save_scene: Option<PathBuf>,
+    /// Transfer function: a preset (grey, ct-bone, ct-skin-bone, mri-brain) or a JSON file [default: grey].
+    #[arg(long)]
+    tf: Option<String>,
+    /// Focus: an interval of data values LO:HI.
+    #[arg(long, value_name = "LO:HI", allow_hyphen_values = true)]
+    focus: Option<String>,
+    /// Focus: an isovalue in data units (an opaque surface).
+    #[arg(long, value_name = "V", allow_negative_numbers = true)]
+    iso: Option<f64>,
+    /// Camera: azimuth and elevation in degrees, distance in bounding-sphere radii [default: 30,20,2.5].
+    #[arg(long, value_name = "AZ,EL[,DIST]", allow_hyphen_values = true)]
+    camera: Option<String>,
+    /// Orthographic instead of perspective projection.
+    #[arg(long)]
+    ortho: bool,
+    /// Pan the view: X,Y in bounding-sphere radii (x right, y up).
+    #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
+    pan: Option<String>,
+    /// Image size [default: 512x512].
+    #[arg(long, value_name = "WxH")]
+    size: Option<String>,
+    /// Number of slice planes (default: two per voxel along the longest axis).
+    #[arg(long)]
+    slices: Option<u32>,
+    /// The classic single pass instead of two levels.
+    #[arg(long)]
+    one_pass: bool,
+    /// Background colour behind the volume in the PNG, as R,G,B in 0..1 [default: 0,0,0].
+    #[arg(long)]
+    background: Option<String>,
+    /// Occlusion transfer function (JSON): colour and opacity over (intensity, occlusion).
+    #[arg(long, conflicts_with = "tf")]
+    otf: Option<PathBuf>,
+    /// A feature map (features.json from `vellum migrate`): each feature gets its colour (FM6).
+    #[arg(long, conflicts_with_all = ["otf", "tf"])]
+    features: Option<PathBuf>,
+    /// Output PNG (required unless only --save-scene is asked for).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Also write the layers as float channels to this OpenEXR file.
+    #[arg(long)]
+    exr: Option<PathBuf>,
+    #[arg(long)]
+    json: bool,
+}
+
 #[derive(Subcommand)]
 enum BenchCommand {
     /// Frames per second of the slice renderer, one pass against two levels (paper Fig. 9).
@@ -249,8 +265,8 @@ enum BenchCommand {
     },
 }
 
-impl InputArgs {
-    fn raw_spec(&self) -> Result<Option<RawSpec>> {
+impl RawArgs {
+    fn spec(&self) -> Result<Option<RawSpec>> {
         match (&self.raw_dims, &self.raw_type) {
             (None, None) => Ok(None),
             (Some(d), Some(t)) => {
@@ -278,9 +294,11 @@ impl InputArgs {
             }
         }
     }
+}
 
+impl InputArgs {
     fn load(&self) -> Result<Volume> {
-        let raw = self.raw_spec()?;
+        let raw = self.raw.spec()?;
         Ok(vellum::input::load(&self.input, raw.as_ref())?)
     }
 }
@@ -366,43 +384,7 @@ fn run(cli: &Cli) -> Result<()> {
             slices.as_deref(),
             *json,
         ),
-        Command::Render {
-            input,
-            tf,
-            focus,
-            iso,
-            camera,
-            ortho,
-            pan,
-            size,
-            slices,
-            one_pass,
-            background,
-            otf,
-            features,
-            out,
-            exr,
-            json,
-        } => {
-            let opts = RenderOpts {
-                tf,
-                focus: focus.as_deref(),
-                iso: *iso,
-                camera,
-                ortho: *ortho,
-                pan: pan.as_deref(),
-                size,
-                slices: *slices,
-                one_pass: *one_pass,
-                background,
-                otf: otf.as_deref(),
-                features: features.as_deref(),
-                out,
-                exr: exr.as_deref(),
-                json: *json,
-            };
-            render(cli, input, &opts)
-        }
+        Command::Render(args) => render(cli, args),
         Command::Bench {
             which:
                 BenchCommand::Render {
@@ -628,25 +610,6 @@ fn importance(
     }
     Ok(())
 }
-
-struct RenderOpts<'a> {
-    tf: &'a str,
-    focus: Option<&'a str>,
-    iso: Option<f64>,
-    camera: &'a str,
-    ortho: bool,
-    pan: Option<&'a str>,
-    size: &'a str,
-    slices: Option<u32>,
-    one_pass: bool,
-    background: &'a str,
-    otf: Option<&'a std::path::Path>,
-    features: Option<&'a std::path::Path>,
-    out: &'a std::path::Path,
-    exr: Option<&'a std::path::Path>,
-    json: bool,
-}
-
 fn parse_size(s: &str) -> Result<[u32; 2]> {
     s.split_once(['x', 'X'])
         .and_then(|(w, h)| Some([w.trim().parse().ok()?, h.trim().parse().ok()?]))
@@ -662,57 +625,136 @@ fn parse_rgb(s: &str) -> Result<[f32; 3]> {
     Ok([v[0], v[1], v[2]])
 }
 
-fn render(cli: &Cli, input: &InputArgs, o: &RenderOpts) -> Result<()> {
-    use vellum::render::slicer::{to_rgb8, Focus, RenderParams, Renderer};
-    let mut camera = vellum::render::camera::Camera::parse(o.camera)?;
-    camera.ortho = o.ortho;
-    if let Some(p) = o.pan {
+/// Parses `--focus LO:HI` or `--iso V` (data units).
+fn parse_focus(range: Option<&str>, iso: Option<f64>) -> Result<Focus> {
+    match (range, iso) {
+        (Some(_), Some(_)) => anyhow::bail!("give either --focus LO:HI or --iso V, not both"),
+        (None, Some(v)) => {
+            anyhow::ensure!(v.is_finite(), "--iso needs a finite value");
+            Ok(Focus::Iso(v))
+        }
+        (Some(r), None) => {
+            let [lo, hi] = parse_interval(r).map_err(|_| {
+                anyhow::anyhow!(
+                    "--focus '{r}' is not an interval LO:HI of data values with LO <= HI"
+                )
+            })?;
+            Ok(Focus::Range { lo, hi })
+        }
+        (None, None) => Ok(Focus::None),
+    }
+}
+
+/// The scene a `render` command line describes: the scene file (or defaults) with every given
+/// flag applied over it.
+fn render_scene(a: &RenderArgs) -> Result<Scene> {
+    let mut scene = match (&a.scene, &a.input) {
+        (Some(path), _) => Scene::load(path)?,
+        (None, Some(input)) => Scene::new(InputSpec {
+            path: input.clone(),
+            raw: None,
+        }),
+        (None, None) => anyhow::bail!(
+            "render needs an input (a file, DICOM folder or phantom spec) or --scene FILE"
+        ),
+    };
+    if let Some(input) = &a.input {
+        scene.input = InputSpec {
+            path: input.clone(),
+            raw: None,
+        };
+    }
+    if let Some(raw) = a.raw.spec()? {
+        scene.input.raw = Some(RawInput {
+            dims: raw.dims,
+            voxel_type: raw.voxel_type.name().to_string(),
+            big_endian: raw.big_endian,
+            offset: raw.offset,
+            spacing: raw.spacing,
+        });
+    }
+    let path_arg = |p: &std::path::Path| p.to_string_lossy().into_owned();
+    if let Some(tf) = &a.tf {
+        scene.classification = ClassificationSpec::Transfer(tf.clone());
+    }
+    if let Some(otf) = &a.otf {
+        scene.classification = ClassificationSpec::Occlusion(path_arg(otf));
+    }
+    if let Some(f) = &a.features {
+        scene.classification = ClassificationSpec::Features(path_arg(f));
+    }
+    if a.focus.is_some() || a.iso.is_some() {
+        scene.focus = parse_focus(a.focus.as_deref(), a.iso)?;
+    }
+    if let Some(c) = &a.camera {
+        let parsed = vellum::render::camera::Camera::parse(c)?;
+        scene.camera.azimuth = parsed.azimuth_deg;
+        scene.camera.elevation = parsed.elevation_deg;
+        if c.split(',').count() == 3 {
+            scene.camera.distance = parsed.distance;
+        }
+    }
+    if a.ortho {
+        scene.camera.ortho = true;
+    }
+    if let Some(p) = &a.pan {
         let v: Vec<f32> = p.split(',').filter_map(|c| c.trim().parse().ok()).collect();
         anyhow::ensure!(
             v.len() == 2 && v.iter().all(|c| c.is_finite()),
             "--pan '{p}' is not X,Y in bounding-sphere radii"
         );
-        camera.pan = glam::Vec2::new(v[0], v[1]);
+        scene.camera.pan = [v[0], v[1]];
     }
-    camera.validate()?;
-    let params = RenderParams {
-        camera,
-        size: parse_size(o.size)?,
-        slices: o.slices,
-        focus: Focus::parse(o.focus, o.iso)?,
-        one_pass: o.one_pass,
-        transfer: vellum::render::transfer::TransferFunction::from_arg(o.tf)?,
-        occlusion_tf: None,
-    };
-    let background = parse_rgb(o.background)?;
-    use vellum::render::scene::{prepare, Classification};
-    let classification = match (o.features, o.otf) {
-        (Some(path), _) => {
-            Classification::Features(vellum::volume::feature::FeatureMap::load(path)?)
+    if let Some(size) = &a.size {
+        scene.size = parse_size(size)?;
+    }
+    if let Some(n) = a.slices {
+        scene.slices = Some(n);
+    }
+    if a.one_pass {
+        scene.one_pass = true;
+    }
+    if let Some(b) = &a.background {
+        scene.background = parse_rgb(b)?;
+    }
+    scene.validate()?;
+    Ok(scene)
+}
+
+fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
+    use vellum::render::slicer::{to_rgb8, Renderer};
+    let scene = render_scene(a)?;
+    if let Some(path) = &a.save_scene {
+        scene.save(path)?;
+        if a.out.is_none() {
+            println!("wrote the scene to {}", path.display());
+            return Ok(());
         }
-        (None, Some(path)) => {
-            Classification::Occlusion(vellum::render::otf::OcclusionTf::load(path)?)
-        }
-        (None, None) => Classification::Transfer(params.transfer.clone()),
-    };
-    let v = input.load()?;
+    }
+    let out = a.out.as_deref().ok_or_else(|| {
+        anyhow::anyhow!("render needs --out image.png (or only --save-scene FILE)")
+    })?;
+    scene.check_supported()?;
+    let classification = scene.classification()?;
+    let view = scene.view()?;
+    let v = scene.load_volume()?;
     let ctx = context(cli)?;
-    let scene = prepare(&ctx, &v, classification)?;
-    let params = RenderParams {
-        transfer: scene.transfer.clone(),
-        occlusion_tf: scene.occlusion_tf.clone(),
-        ..params
-    };
-    let frame = Renderer::new(&ctx)?.render(&scene.textures, &params, true)?;
+    let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus)?;
+    let frame = Renderer::new(&ctx)?.render_frame(
+        &gpu.volume,
+        &mut gpu.classify,
+        gpu.focus,
+        &view,
+        true,
+    )?;
     report_validation(&ctx);
     let [w, h] = frame.size;
-    vellum::output::write_png_rgb(o.out, w, h, &to_rgb8(&frame.composite, background))?;
-    if let Some(path) = o.exr {
+    vellum::output::write_png_rgb(out, w, h, &to_rgb8(&frame.composite, scene.background))?;
+    if let Some(path) = &a.exr {
         frame.write_exr(path)?;
     }
-    let prepare = scene.passes;
-    let passes: Vec<_> = prepare.iter().chain(&frame.passes).collect();
-    if o.json {
+    let passes: Vec<_> = gpu.passes.iter().chain(&frame.passes).collect();
+    if a.json {
         let map: serde_json::Map<String, serde_json::Value> = passes
             .iter()
             .map(|p| (p.name.clone(), json!(p.ms)))
@@ -726,7 +768,7 @@ fn render(cli: &Cli, input: &InputArgs, o: &RenderOpts) -> Result<()> {
     } else {
         println!(
             "rendered {} ({w}x{h}, {} slices) on {}",
-            input.input, frame.slices, ctx.info.name
+            scene.input.path, frame.slices, ctx.info.name
         );
         for p in passes {
             println!("  {:<14} {:>9.3} ms", p.name, p.ms);

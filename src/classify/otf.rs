@@ -17,8 +17,8 @@
 //! Regions, when present, are composited over the decoupled table (their colour replaces it where
 //! their alpha is higher). `radius`, `mapping` and `stride` say how to compute the occlusion volume.
 
+use crate::classify::transfer::TransferFunction;
 use crate::error::{Error, Result};
-use crate::render::transfer::TransferFunction;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 

@@ -17,8 +17,8 @@
 //! renderer's 256-entry table still has bins of its colour. Transparent points carry the colour of
 //! the band next to them, so texture filtering across a step never blends in black.
 
+use crate::classify::transfer::{ControlPoint, TransferFunction};
 use crate::error::{Error, Result};
-use crate::render::transfer::{ControlPoint, TransferFunction};
 use crate::volume::feature::FeatureMap;
 
 /// Opacity per voxel-length sample inside a feature's interval.

@@ -1,0 +1,86 @@
+//! The classification layer: how a sample of (value, occlusion, importance) gets colour and
+//! opacity, shared by every renderer and by the passes that need it (the occlusion pass maps
+//! intensity to visibility through a transfer function).
+//!
+//! It sits beneath both `passes/` and `render/` and holds:
+//! - the data: 1D transfer functions ([`transfer`]), occlusion transfer functions ([`otf`]) and
+//!   their visibility mappings ([`mapping`]), feature-map transfer functions ([`features`]), and the
+//!   focus of a two-level frame ([`Focus`]);
+//! - their persistent GPU textures ([`textures::ClassifyTextures`]), re-uploaded only when their
+//!   contents change;
+//! - in GLSL, `glsl/common/classify.glsl` and `glsl/common/shading.glsl`: pure functions of
+//!   (value, occlusion, ΔD) and of (normal, light, view), with no bindings inside, so that slice
+//!   shaders and compute shaders include the same code.
+//!
+//! Command-line grammar (`--focus LO:HI`, `tf:FILE`) is parsed by the binary; this layer takes
+//! typed values. File formats (transfer-function and occlusion-TF JSON) are parsed here.
+
+pub mod features;
+pub mod mapping;
+pub mod otf;
+pub mod textures;
+pub mod transfer;
+
+use crate::volume::feature::FeatureMap;
+use otf::OcclusionTf;
+use serde::{Deserialize, Serialize};
+use transfer::TransferFunction;
+
+/// What the first level of a two-level frame renders.
+#[derive(Copy, Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum Focus {
+    /// No focus: everything is context.
+    #[default]
+    None,
+    /// Samples whose data value lies in [lo, hi] (data units), with the transfer function's opacity.
+    Range { lo: f64, hi: f64 },
+    /// Samples at or above the data value: an opaque isosurface.
+    Iso(f64),
+}
+
+impl Focus {
+    /// (lo, hi, mode) on the normalised range of `data_range`; mode 0 none, 1 range, 2 iso (the
+    /// `focus` uniform of the shaders).
+    pub fn normalised(&self, data_range: [f64; 2]) -> [f32; 3] {
+        let n = |v: f64| {
+            if data_range[1] > data_range[0] {
+                ((v - data_range[0]) / (data_range[1] - data_range[0])) as f32
+            } else {
+                0.0
+            }
+        };
+        match *self {
+            Focus::None => [0.0, 0.0, 0.0],
+            Focus::Range { lo, hi } => [n(lo), n(hi), 1.0],
+            Focus::Iso(v) => [n(v), f32::INFINITY, 2.0],
+        }
+    }
+
+    /// Checks the values: finite, and lo <= hi.
+    pub fn validate(&self) -> crate::Result<()> {
+        let ok = match *self {
+            Focus::None => true,
+            Focus::Range { lo, hi } => lo.is_finite() && hi.is_finite() && lo <= hi,
+            Focus::Iso(v) => v.is_finite(),
+        };
+        if ok {
+            Ok(())
+        } else {
+            Err(crate::Error::Invalid(format!(
+                "focus {self:?} is invalid; expected finite data values with lo <= hi"
+            )))
+        }
+    }
+}
+
+/// How samples get colour and opacity.
+#[derive(Clone, Debug)]
+pub enum Classification {
+    /// A 1D transfer function.
+    Transfer(TransferFunction),
+    /// A feature map: each feature's private interval in its colour (FM6).
+    Features(FeatureMap),
+    /// An occlusion transfer function; its occlusion volume is computed when a scene is prepared.
+    Occlusion(OcclusionTf),
+}
