@@ -37,15 +37,16 @@ run: build
 	$(VELLUM) roundtrip $(INPUT)
 	@mkdir -p $(OUT)
 	$(VELLUM) importance $(INPUT) --radius 5 --out $(OUT)/importance_dd.nrrd --slices $(OUT)/importance_dd.png
-	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --out $(OUT)/render_two_level.png --exr $(OUT)/render_layers.exr
+	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --out $(OUT)/render_two_level.png --exr $(OUT)/render_layers.exr --save-scene $(OUT)/render_two_level.scene.json
 	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --one-pass --out $(OUT)/render_one_pass.png
 	$(VELLUM) occlusion phantom:nested:96 --radius 12 --out $(OUT)/occlusion_ao.nrrd --spectrum $(OUT)/occlusion_spectrum.png --spectrum-data $(OUT)/occlusion_spectrum.csv
-	$(VELLUM) render phantom:nested:64 --otf examples/nested_otf.json --camera 0,20,2.2 --size 512x512 --out $(OUT)/occlusion_otf.png
+	$(VELLUM) render --scene examples/occlusion_nested.json --size 512x512 --out $(OUT)/occlusion_otf.png
 	@rm -f $(OUT)/feature.features.json
 	$(VELLUM) migrate phantom:nested:128 --seed 92,64,64 --window 0.7:0.8 --label sphere --parent spheres --out $(OUT)/feature.nrrd
 	$(VELLUM) features $(OUT)/feature.features.json
 	$(VELLUM) render $(OUT)/feature.nrrd --features $(OUT)/feature.features.json --one-pass --camera 0,20,2.2 --size 512x512 --out $(OUT)/render_features.png
-	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr, render_one_pass.png,"
+	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr,"
+	@echo "  render_two_level.scene.json (the scene file of that render: vellum render --scene FILE), render_one_pass.png,"
 	@echo "  occlusion_ao.nrrd, occlusion_spectrum.png, occlusion_spectrum.csv, occlusion_otf.png,"
 	@echo "  feature.nrrd, feature.features.json, render_features.png"
 

@@ -9,7 +9,7 @@ layout(location = 0) out vec4 color;
 
 void main() {
     float s = sample_intensity();
-    bool focus = in_focus(s);
+    bool focus = sample_in_focus(s);
     if (MODE == 1 && focus) {
         discard;
     }

@@ -8,7 +8,7 @@ layout(location = 2) out vec4 linear_depth;  // distance along the view directio
 
 void main() {
     float s = sample_intensity();
-    if (!in_focus(s)) {
+    if (!sample_in_focus(s)) {
         discard;
     }
     vec4 c = classify(s, true);

@@ -1,7 +1,16 @@
-//! `vellum bench render` (SPEC TL8, two-level paper Fig. 9): frames per second of the slice
-//! renderer at several sizes, one pass against two levels, and the two-level overhead in percent
-//! (the paper measured 16–40 %). Frame time is the sum of the GPU passes of one frame (`one_pass`,
-//! or `focus` + `context` + `composite`), without readback, after one warm-up frame.
+//! `vellum bench render` (SPEC TL8, two-level paper Fig. 9): frame rates of the slice renderer with
+//! persistent GPU state and frames in flight.
+//!
+//! - **Levels:** one pass against two levels, frames alternating, and the two-level overhead in
+//!   percent (the paper measured 16–40 %). Frame time is the sum of the frame's GPU passes
+//!   (`one_pass`, or `focus` + `context` + `composite`), after a warm-up frame.
+//! - **Orbit:** 36 two-level frames with the camera turning 10° a frame, recorded into a ring of
+//!   2 frames in flight with persistent targets. It reports the median GPU ms per frame, the median
+//!   host ms spent recording and submitting a frame, the fps over the whole orbit (wall clock,
+//!   which on a CPU device is the GPU time plus whatever the host does meanwhile), and the GPU
+//!   memory allocations made after the first frame (0 is the design).
+//! - **Edits:** frames that change the transfer function between frames (only its 4 KiB texture is
+//!   re-uploaded) against frames that re-prepare the scene (upload the volume, recompute normals).
 //!
 //! Data: the CT head (cthead_stanford, 256×256×113, iso 1300 with ct-skin-bone) and the engine
 //! (256×256×128, iso 180 with grey) from ../shared/data; without the data, the Shepp–Logan
@@ -9,20 +18,25 @@
 
 use crate::bench::{median, shared_data};
 use crate::classify::transfer::TransferFunction;
+use crate::classify::{Classification, Focus};
 use crate::error::{Error, Result};
-use crate::gpu::{Context, PassTime, Profiler};
-use crate::passes::normals::Normals;
+use crate::gpu::{Context, FrameResult, Frames, FramesDesc, PassTime};
 use crate::render::camera::Camera;
-use crate::render::slicer::{Focus, RenderParams, Renderer};
+use crate::render::scene::GpuScene;
+use crate::render::slicer::{Lighting, Renderer, View};
+use crate::render::targets::FrameTargets;
 use crate::volume::{io, phantom, Volume};
 use serde::Serialize;
 use std::sync::Arc;
+use std::time::Instant;
 
 /// Options of `vellum bench render`.
 #[derive(Clone, Debug)]
 pub struct Options {
     pub repeat: usize,
     pub sizes: Vec<u32>,
+    /// Frames of the orbit (36 turns the camera once around).
+    pub orbit_frames: usize,
 }
 
 /// One row: a volume at one size.
@@ -44,6 +58,30 @@ pub struct Row {
     pub composite_ms: f64,
 }
 
+/// One orbit: a volume at one size, two levels, frames in flight.
+#[derive(Clone, Debug, Serialize)]
+pub struct OrbitRow {
+    pub data: String,
+    pub size: u32,
+    pub frames: usize,
+    pub frames_in_flight: usize,
+    /// Median GPU ms per frame (sum of the frame's timed passes).
+    pub gpu_ms: f64,
+    /// Median host ms per frame spent recording and submitting (proxy geometry included).
+    pub cpu_record_submit_ms: f64,
+    /// Frames over the orbit's wall time.
+    pub fps: f64,
+    /// GPU memory allocations made after the first frame.
+    pub allocations_after_first_frame: u64,
+    /// Wall ms per frame when the transfer function changes between frames (only its texture is
+    /// re-uploaded), measured like `fps`.
+    pub tf_edit_frame_ms: f64,
+    /// Bytes uploaded per frame during the transfer-function edits.
+    pub tf_edit_upload_bytes: u64,
+    /// Wall ms per frame that re-prepares the scene (volume upload, normals) before rendering.
+    pub reprepare_frame_ms: f64,
+}
+
 /// The table.
 #[derive(Clone, Debug, Serialize)]
 pub struct Table {
@@ -52,6 +90,7 @@ pub struct Table {
     /// ms of `sobel_normals` per volume, computed once before the frames.
     pub normals_ms: Vec<(String, f64)>,
     pub rows: Vec<Row>,
+    pub orbit: Vec<OrbitRow>,
 }
 
 fn volume(name: &str) -> Result<(Volume, String)> {
@@ -80,77 +119,91 @@ fn frame_ms(passes: &[PassTime]) -> f64 {
         .sum()
 }
 
+/// A renderer with persistent state: frames in flight and targets.
+struct Session<'a> {
+    renderer: &'a Renderer,
+    frames: Frames,
+    targets: FrameTargets,
+    scene: &'a mut GpuScene,
+}
+
+impl Session<'_> {
+    /// Records and submits one frame; returns the slices drawn.
+    fn frame(&mut self, view: &View) -> Result<u32> {
+        let (renderer, scene, targets) = (self.renderer, &mut *self.scene, &mut self.targets);
+        let (r, _) = self.frames.frame(|f| {
+            renderer.record(
+                f,
+                &scene.volume,
+                &mut scene.classify,
+                scene.focus,
+                view,
+                targets,
+            )
+        })?;
+        Ok(r.slices)
+    }
+
+    /// Waits for the frames in flight and returns every completed frame's timings.
+    fn drain(&mut self) -> Result<Vec<FrameResult>> {
+        self.frames.wait_idle()?;
+        Ok(self.frames.take_finished())
+    }
+}
+
+fn view(size: u32, azimuth: f32, one_pass: bool) -> View {
+    View {
+        camera: Camera {
+            azimuth_deg: azimuth,
+            ..crate::render::scene::DEFAULT_CAMERA
+        },
+        size: [size, size],
+        slices: None,
+        one_pass,
+        lighting: Lighting::default(),
+    }
+}
+
 /// Runs the benchmark.
 pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     let renderer = Renderer::new(ctx)?;
-    let normals = Normals::new(ctx)?;
     let mut rows = Vec::new();
+    let mut orbit = Vec::new();
     let mut normals_ms = Vec::new();
     for (name, iso, tf) in [
         ("cthead_stanford", 1300.0, "ct-skin-bone"),
         ("engine", 180.0, "grey"),
     ] {
         let (v, label) = volume(name)?;
-        let mut profiler = Profiler::new(ctx, 2)?;
-        let textures = normals.prepare(&v, &mut profiler)?;
-        normals_ms.push((
-            label.clone(),
-            crate::gpu::profiler::total_ms(&profiler.results()?, "sobel_normals"),
-        ));
         let focus = if label == name {
             Focus::Iso(iso)
         } else {
             Focus::Iso(0.9)
         };
+        let transfer = TransferFunction::preset(tf)?;
+        let classification = Classification::Transfer(transfer.clone());
+        let mut scene = GpuScene::prepare(ctx, &v, &classification, focus)?;
+        normals_ms.push((
+            label.clone(),
+            crate::gpu::profiler::total_ms(&scene.passes, "sobel_normals"),
+        ));
         for &size in &opts.sizes {
-            let params = |one_pass| RenderParams {
-                camera: Camera::parse("30,20,2.5").expect("valid camera"),
-                size: [size, size],
-                slices: None,
-                focus,
-                one_pass,
-                transfer: TransferFunction::preset(tf).expect("preset exists"),
-                occlusion_tf: None,
+            let mut s = Session {
+                renderer: &renderer,
+                frames: Frames::new(ctx, &FramesDesc::interactive("bench render"))?,
+                targets: FrameTargets::new(ctx),
+                scene: &mut scene,
             };
-            // One pass and two levels alternate frame by frame, so that both see the same
-            // machine: CPU devices drift in speed over seconds.
-            let (p1, p2) = (params(true), params(false));
-            let slices = renderer.render(&textures, &p1, false)?.slices;
-            renderer.render(&textures, &p2, false)?;
-            let (mut one, mut two) = (Vec::new(), Vec::new());
-            for _ in 0..opts.repeat {
-                one.push(renderer.render(&textures, &p1, false)?.passes);
-                two.push(renderer.render(&textures, &p2, false)?.passes);
-            }
-            // The overhead as the median of per-pair ratios, robust to drift between pairs.
-            let ratios: Vec<f64> = one
-                .iter()
-                .zip(&two)
-                .map(|(o, t)| frame_ms(t) / frame_ms(o))
-                .collect();
-            let one_ms = median(&one.iter().map(|p| frame_ms(p)).collect::<Vec<_>>());
-            let two_ms = median(&two.iter().map(|p| frame_ms(p)).collect::<Vec<_>>());
-            let pass = |n: &str| {
-                median(
-                    &two.iter()
-                        .map(|p| crate::gpu::profiler::total_ms(p, n))
-                        .collect::<Vec<_>>(),
-                )
-            };
-            log::info!("bench render: {label} {size}² one {one_ms:.1} ms, two {two_ms:.1} ms");
-            rows.push(Row {
-                data: label.clone(),
-                size,
-                slices,
-                one_pass_ms: one_ms,
-                two_level_ms: two_ms,
-                one_pass_fps: 1000.0 / one_ms,
-                two_level_fps: 1000.0 / two_ms,
-                overhead_percent: 100.0 * (median(&ratios) - 1.0),
-                focus_ms: pass("focus"),
-                context_ms: pass("context"),
-                composite_ms: pass("composite"),
-            });
+            rows.push(levels(&mut s, &label, size, opts.repeat)?);
+            let mut o = orbit_row(&mut s, &label, size, opts.orbit_frames, &transfer)?;
+            drop(s);
+            o.reprepare_frame_ms = reprepare(ctx, &renderer, &v, &classification, focus, size)?;
+            log::info!(
+                "bench render: {label} {size}² orbit {:.1} fps, GPU {:.1} ms",
+                o.fps,
+                o.gpu_ms
+            );
+            orbit.push(o);
         }
     }
     Ok(Table {
@@ -158,7 +211,141 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
         repeat: opts.repeat,
         normals_ms,
         rows,
+        orbit,
     })
+}
+
+/// One pass against two levels, alternating frame by frame so that both see the same machine:
+/// CPU devices drift in speed over seconds.
+fn levels(s: &mut Session, label: &str, size: u32, repeat: usize) -> Result<Row> {
+    let (one_view, two_view) = (view(size, 30.0, true), view(size, 30.0, false));
+    let slices = s.frame(&one_view)?;
+    s.frame(&two_view)?;
+    s.drain()?;
+    for _ in 0..repeat {
+        s.frame(&one_view)?;
+        s.frame(&two_view)?;
+    }
+    let done = s.drain()?;
+    let (one, two): (Vec<&FrameResult>, Vec<&FrameResult>) =
+        done.iter().partition(|r| r.index % 2 == 0);
+    let ratios: Vec<f64> = one
+        .iter()
+        .zip(&two)
+        .map(|(o, t)| frame_ms(&t.passes) / frame_ms(&o.passes))
+        .collect();
+    let ms =
+        |f: &[&FrameResult]| median(&f.iter().map(|r| frame_ms(&r.passes)).collect::<Vec<_>>());
+    let (one_ms, two_ms) = (ms(&one), ms(&two));
+    let pass = |n: &str| {
+        median(
+            &two.iter()
+                .map(|r| crate::gpu::profiler::total_ms(&r.passes, n))
+                .collect::<Vec<_>>(),
+        )
+    };
+    Ok(Row {
+        data: label.to_string(),
+        size,
+        slices,
+        one_pass_ms: one_ms,
+        two_level_ms: two_ms,
+        one_pass_fps: 1000.0 / one_ms,
+        two_level_fps: 1000.0 / two_ms,
+        overhead_percent: 100.0 * (median(&ratios) - 1.0),
+        focus_ms: pass("focus"),
+        context_ms: pass("context"),
+        composite_ms: pass("composite"),
+    })
+}
+
+/// The orbit and the transfer-function edits, on the session's persistent state.
+fn orbit_row(
+    s: &mut Session,
+    label: &str,
+    size: u32,
+    frames: usize,
+    base: &TransferFunction,
+) -> Result<OrbitRow> {
+    let ctx = s.renderer_context();
+    // The first frame may allocate (targets, staging growth); the rest must not.
+    s.frame(&view(size, 0.0, false))?;
+    s.drain()?;
+    let allocations = ctx.allocation_count();
+    let start = Instant::now();
+    let mut host = Vec::new();
+    for i in 1..=frames {
+        s.frame(&view(size, 10.0 * i as f32, false))?;
+        host.push(s.frames.host_times().record_submit_ms);
+    }
+    let done = s.drain()?;
+    let wall = start.elapsed().as_secs_f64();
+    let allocations_after_first_frame = ctx.allocation_count() - allocations;
+    let gpu_ms = median(&done.iter().map(|r| frame_ms(&r.passes)).collect::<Vec<_>>());
+
+    // Transfer-function edits: the opacity of every point scaled up and down between frames.
+    let uploads_before = uploaded_bytes(&ctx);
+    let edits = frames.min(12);
+    let start = Instant::now();
+    for i in 0..edits {
+        let scale = if i % 2 == 0 { 0.9 } else { 1.0 };
+        let mut tf = base.clone();
+        tf.points.iter_mut().for_each(|p| p.rgba[3] *= scale);
+        s.scene.classify.set_transfer(&tf);
+        s.frame(&view(size, 0.0, false))?;
+    }
+    s.drain()?;
+    let tf_edit_frame_ms = start.elapsed().as_secs_f64() * 1e3 / edits.max(1) as f64;
+    let tf_edit_upload_bytes = (uploaded_bytes(&ctx) - uploads_before) / edits.max(1) as u64;
+    s.scene.classify.set_transfer(base);
+    Ok(OrbitRow {
+        data: label.to_string(),
+        size,
+        frames,
+        frames_in_flight: s.frames.len(),
+        gpu_ms,
+        cpu_record_submit_ms: median(&host),
+        fps: frames as f64 / wall,
+        allocations_after_first_frame,
+        tf_edit_frame_ms,
+        tf_edit_upload_bytes,
+        reprepare_frame_ms: 0.0,
+    })
+}
+
+impl Session<'_> {
+    fn renderer_context(&self) -> Arc<Context> {
+        self.renderer.context().clone()
+    }
+}
+
+fn uploaded_bytes(ctx: &Context) -> u64 {
+    ctx.transfers().values().map(|t| t.upload_bytes).sum()
+}
+
+/// Wall ms per frame when every frame re-prepares the scene: volume upload, normals, then render.
+fn reprepare(
+    ctx: &Arc<Context>,
+    renderer: &Renderer,
+    v: &Volume,
+    classification: &Classification,
+    focus: Focus,
+    size: u32,
+) -> Result<f64> {
+    const FRAMES: usize = 3;
+    let start = Instant::now();
+    for _ in 0..FRAMES {
+        let mut scene = GpuScene::prepare(ctx, v, classification, focus)?;
+        let mut s = Session {
+            renderer,
+            frames: Frames::new(ctx, &FramesDesc::interactive("bench re-prepare"))?,
+            targets: FrameTargets::new(ctx),
+            scene: &mut scene,
+        };
+        s.frame(&view(size, 0.0, false))?;
+        s.drain()?;
+    }
+    Ok(start.elapsed().as_secs_f64() * 1e3 / FRAMES as f64)
 }
 
 impl Table {
@@ -176,6 +363,15 @@ impl Table {
             s += &format!(
                 "{:<20} {:>4}² {:>6} | {:>11.1} {:>5.2} | {:>13.1} {:>5.2} | {:>7.1}% | {:>6.1} {:>8.1} {:>10.1}\n",
                 r.data, r.size, r.slices, r.one_pass_ms, r.one_pass_fps, r.two_level_ms, r.two_level_fps, r.overhead_percent, r.focus_ms, r.context_ms, r.composite_ms
+            );
+        }
+        s +=
+            "\nOrbit: two levels, camera turning 10° a frame, persistent state, frames in flight\n";
+        s += "data                 size  frames | GPU ms/frame  host record+submit ms |    fps | allocs after 1st | TF edit ms/frame (bytes up) | re-prepare ms/frame\n";
+        for o in &self.orbit {
+            s += &format!(
+                "{:<20} {:>4}² {:>6} | {:>12.2} {:>22.3} | {:>6.2} | {:>16} | {:>16.2} ({:>7}) | {:>19.1}\n",
+                o.data, o.size, o.frames, o.gpu_ms, o.cpu_record_submit_ms, o.fps, o.allocations_after_first_frame, o.tf_edit_frame_ms, o.tf_edit_upload_bytes, o.reprepare_frame_ms
             );
         }
         s

@@ -200,6 +200,15 @@ impl Frame<'_> {
     }
 }
 
+/// Host time of the last [`Frames::frame`] call, in ms.
+#[derive(Copy, Clone, Debug, Default, serde::Serialize)]
+pub struct HostTimes {
+    /// Blocked on the fence of the slot's previous frame (the GPU is behind).
+    pub wait_ms: f64,
+    /// Recording the commands and submitting them.
+    pub record_submit_ms: f64,
+}
+
 /// A ring of frames in flight.
 pub struct Frames {
     ctx: Arc<Context>,
@@ -208,6 +217,7 @@ pub struct Frames {
     frame_index: u64,
     finished: VecDeque<FrameResult>,
     name: String,
+    last_host: HostTimes,
 }
 
 impl Frames {
@@ -220,6 +230,7 @@ impl Frames {
             frame_index: 0,
             finished: VecDeque::new(),
             name: desc.name.clone(),
+            last_host: HostTimes::default(),
         };
         for i in 0..desc.frames_in_flight.max(1) {
             let pool_info = vk::CommandPoolCreateInfo::default()
@@ -332,7 +343,9 @@ impl Frames {
     /// still in flight. Returns what `record` returned and the frame's index.
     pub fn frame<R>(&mut self, record: impl FnOnce(&mut Frame) -> Result<R>) -> Result<(R, u64)> {
         let i = self.next;
+        let started = std::time::Instant::now();
         self.retire_slot(i, true)?;
+        let waited = started.elapsed();
         let ctx = self.ctx.clone();
         let index = self.frame_index;
         let slot = &mut self.slots[i];
@@ -383,7 +396,16 @@ impl Frames {
         let out = recorded?;
         self.next = (i + 1) % self.slots.len();
         self.frame_index += 1;
+        self.last_host = HostTimes {
+            wait_ms: waited.as_secs_f64() * 1e3,
+            record_submit_ms: (started.elapsed() - waited).as_secs_f64() * 1e3,
+        };
         Ok((out, index))
+    }
+
+    /// Host times of the last frame recorded.
+    pub fn host_times(&self) -> HostTimes {
+        self.last_host
     }
 }
 

@@ -18,7 +18,7 @@ pub mod validation;
 pub use barrier::Access;
 pub use context::{Context, ContextDesc, DeviceCandidate, DeviceInfo};
 pub use frame::submit_once;
-pub use frame::{Frame, FrameResult, Frames, FramesDesc, StagingRing};
+pub use frame::{Frame, FrameResult, Frames, FramesDesc, HostTimes, StagingRing};
 pub use lifetime::TransferCount;
 pub use pipeline::{Bind, BindingKind, ComputePipeline};
 pub use profiler::{PassTime, Profiler};

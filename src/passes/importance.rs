@@ -64,9 +64,45 @@ pub const GAUSS_PASSES: [&str; 3] = ["gauss_x", "gauss_y", "gauss_z"];
 /// The compiled pipelines; build once, run on many volumes.
 pub struct ImportanceMap {
     ctx: Arc<Context>,
-    /// Gaussian pipelines by radius: R is a specialisation constant.
-    gauss: Mutex<HashMap<u32, Arc<ComputePipeline>>>,
+    /// Gaussian pipelines and their weights by radius: R is a specialisation constant.
+    gauss: Mutex<HashMap<u32, Gauss>>,
     subtract: ComputePipeline,
+}
+
+/// A Gaussian pipeline specialised for one radius, and its weights.
+#[derive(Clone)]
+struct Gauss {
+    pipeline: Arc<ComputePipeline>,
+    weights: Arc<Buffer>,
+}
+
+/// The images of the importance map for one volume size, kept on the GPU: `src` holds the volume
+/// as float, four x-neighbours per RGBA32F texel (see [`pack_rows`]); after
+/// [`ImportanceMap::record`], `a` holds ΔD in the same packing and `b` is scratch.
+pub struct ImportanceImages {
+    pub src: Image,
+    pub a: Image,
+    pub b: Image,
+    pub dims: [usize; 3],
+}
+
+impl ImportanceImages {
+    /// Allocates the three images for a volume of `dims`.
+    pub fn new(ctx: &Arc<Context>, dims: [usize; 3]) -> Result<Self> {
+        let extent = extent_of(ctx, [dims[0].div_ceil(4), dims[1], dims[2]], 16, 3)?;
+        let desc = ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent);
+        Ok(ImportanceImages {
+            src: Image::new(ctx, "importance src", &desc)?,
+            a: Image::new(ctx, "importance a", &desc)?,
+            b: Image::new(ctx, "importance b", &desc)?,
+            dims,
+        })
+    }
+
+    /// ΔD, once recorded.
+    pub fn delta_d(&self) -> &Image {
+        &self.a
+    }
 }
 
 /// ΔD with its timings.
@@ -100,29 +136,99 @@ impl ImportanceMap {
         })
     }
 
-    /// The Gaussian pipeline specialised for `radius_voxels` (built on first use).
-    fn gauss_pipeline(&self, radius_voxels: u32) -> Result<Arc<ComputePipeline>> {
-        let mut cache = self.gauss.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(p) = cache.get(&radius_voxels) {
-            return Ok(p.clone());
+    /// The Gaussian pipeline and weights for `radius_voxels` (built on first use).
+    fn gauss(&self, radius_voxels: u32) -> Result<Gauss> {
+        if radius_voxels > MAX_RADIUS {
+            return Err(Error::Invalid(format!(
+                "radius {radius_voxels} is too large; the importance map supports R up to {MAX_RADIUS} voxels"
+            )));
         }
-        let p = Arc::new(ComputePipeline::with_constants(
-            &self.ctx,
-            "importance/gauss1d.comp",
-            &[
-                BindingKind::StorageImage,
-                BindingKind::StorageImage,
-                BindingKind::StorageBuffer,
-            ],
-            std::mem::size_of::<GaussPush>() as u32,
-            &[radius_voxels, segment(radius_voxels), SEGMENT_X],
-        )?);
-        cache.insert(radius_voxels, p.clone());
-        Ok(p)
+        let mut cache = self.gauss.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(g) = cache.get(&radius_voxels) {
+            return Ok(g.clone());
+        }
+        let kernel: Vec<f32> = gaussian_kernel(radius_voxels)?
+            .iter()
+            .map(|&w| w as f32)
+            .collect();
+        let g = Gauss {
+            pipeline: Arc::new(ComputePipeline::with_constants(
+                &self.ctx,
+                "importance/gauss1d.comp",
+                &[
+                    BindingKind::StorageImage,
+                    BindingKind::StorageImage,
+                    BindingKind::StorageBuffer,
+                ],
+                std::mem::size_of::<GaussPush>() as u32,
+                &[radius_voxels, segment(radius_voxels), SEGMENT_X],
+            )?),
+            weights: Arc::new(Buffer::from_bytes(
+                &self.ctx,
+                "gaussian weights",
+                vk::BufferUsageFlags::STORAGE_BUFFER,
+                bytemuck::cast_slice(&kernel),
+            )?),
+        };
+        cache.insert(radius_voxels, g.clone());
+        Ok(g)
     }
 
-    /// Computes ΔD of `v` with radius `radius_voxels`. With `copy_reference`, the submission also
-    /// times a plain image copy of one float volume (pass `copy`), the bandwidth bound of a 1D pass.
+    /// Records passes `gauss_x`, `gauss_y`, `gauss_z` and `subtract`: ΔD of `images.src` into
+    /// `images.a`, on images that stay on the GPU.
+    pub fn record(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        images: &ImportanceImages,
+        radius_voxels: u32,
+    ) -> Result<()> {
+        let gauss = self.gauss(radius_voxels)?;
+        let (src, a, b) = (&images.src, &images.a, &images.b);
+        let extent = src.desc.extent;
+        let dims = images.dims.map(|d| d as i32);
+        // x: src → a, y: a → b, z: b → a.
+        let chain = [(src, a), (a, b), (b, a)];
+        for (axis, (input, output)) in chain.into_iter().enumerate() {
+            profiler.begin(cmd, GAUSS_PASSES[axis]);
+            input.transition(cmd, Access::ComputeRead);
+            output.discard();
+            output.transition(cmd, Access::ComputeWrite);
+            let push = GaussPush {
+                dims,
+                axis: axis as i32,
+                radius: radius_voxels as i32,
+                pad: [0; 3],
+            };
+            gauss.pipeline.dispatch(
+                cmd,
+                &[
+                    Bind::StorageImage(input),
+                    Bind::StorageImage(output),
+                    Bind::StorageBuffer(&gauss.weights),
+                ],
+                &push,
+                gauss_groups(extent, axis, radius_voxels),
+            )?;
+            profiler.end(cmd);
+        }
+        profiler.begin(cmd, "subtract");
+        // Subtract writes over the blurred image in place: a holds G∗V, and ΔD goes to a.
+        src.transition(cmd, Access::ComputeRead);
+        a.transition(cmd, Access::ComputeReadWrite);
+        self.subtract.dispatch(
+            cmd,
+            &[Bind::StorageImage(src), Bind::StorageImage(a)],
+            &SubtractPush { dims, pad: 0 },
+            group_count(extent, LOCAL_SIZE),
+        )?;
+        profiler.end(cmd);
+        Ok(())
+    }
+
+    /// Computes ΔD of `v` with radius `radius_voxels`: allocation, upload, the passes and
+    /// readback, timed as the paper's "Total". With `copy_reference`, the submission also times a
+    /// plain image copy of one float volume (pass `copy`), the bandwidth bound of a 1D pass.
     pub fn compute(
         &self,
         v: &Volume,
@@ -131,22 +237,11 @@ impl ImportanceMap {
     ) -> Result<ImportanceOutput> {
         let start = Instant::now();
         let ctx = &self.ctx;
-        let kernel: Vec<f32> = gaussian_kernel(radius_voxels)?
-            .iter()
-            .map(|&w| w as f32)
-            .collect();
-        if radius_voxels > MAX_RADIUS {
-            return Err(Error::Invalid(format!(
-                "radius {radius_voxels} is too large; the importance map supports R up to {MAX_RADIUS} voxels"
-            )));
-        }
+        // Fails early on a bad radius, before any allocation.
+        self.gauss(radius_voxels)?;
         v.check_finite("the input volume")?;
-        let extent = extent_of(ctx, [v.dims[0].div_ceil(4), v.dims[1], v.dims[2]], 16, 3)?;
-        let desc = ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent);
-        let src = Image::new(ctx, "importance src", &desc)?;
-        let a = Image::new(ctx, "importance a", &desc)?;
-        let b = Image::new(ctx, "importance b", &desc)?;
-        let mut staging = staging_buffer(ctx, "importance staging", src.byte_size())?;
+        let images = ImportanceImages::new(ctx, v.dims)?;
+        let mut staging = staging_buffer(ctx, "importance staging", images.src.byte_size())?;
         // Conversion to float (paper step 1), in parallel, straight into the staging memory and
         // packed four voxels per texel.
         let mapped = staging
@@ -155,69 +250,27 @@ impl ImportanceMap {
         let floats: &mut [f32] = bytemuck::try_cast_slice_mut(mapped)
             .map_err(|e| Error::Invalid(format!("staging memory cannot hold floats: {e}")))?;
         pack_rows_into(v, floats);
-        let weights = Buffer::from_bytes(
-            ctx,
-            "gaussian weights",
-            vk::BufferUsageFlags::STORAGE_BUFFER,
-            bytemuck::cast_slice(&kernel),
-        )?;
-
-        let dims = [v.dims[0] as i32, v.dims[1] as i32, v.dims[2] as i32];
-        let groups = group_count(extent, LOCAL_SIZE);
-        let gauss = self.gauss_pipeline(radius_voxels)?;
         let mut profiler = Profiler::new(ctx, 9)?;
         submit_once(ctx, "importance map", |cmd| {
             profiler.reset(cmd);
             profiler.pass(cmd, "upload", |cmd| {
-                record_upload(ctx, cmd, &staging, &src, Access::ComputeRead)
+                record_upload(ctx, cmd, &staging, &images.src, Access::ComputeRead)
             });
             // First writes to fresh memory pay page faults on CPU devices; take them here, in
             // their own pass, so that neither the filters nor the copy reference carry them.
             profiler.pass(cmd, "prepare", |cmd| {
-                for image in [&a, &b] {
+                for image in [&images.a, &images.b] {
                     clear_image(ctx, cmd, image);
                 }
             });
             if copy_reference {
-                profiler.pass(cmd, "copy", |cmd| copy_image(ctx, cmd, &src, &b));
+                profiler.pass(cmd, "copy", |cmd| {
+                    copy_image(ctx, cmd, &images.src, &images.b)
+                });
             }
-            // x: src → a, y: a → b, z: b → a.
-            let chain = [(&src, &a), (&a, &b), (&b, &a)];
-            for (axis, (input, output)) in chain.into_iter().enumerate() {
-                profiler.begin(cmd, GAUSS_PASSES[axis]);
-                input.transition(cmd, Access::ComputeRead);
-                output.discard();
-                output.transition(cmd, Access::ComputeWrite);
-                let push = GaussPush {
-                    dims,
-                    axis: axis as i32,
-                    radius: radius_voxels as i32,
-                    pad: [0; 3],
-                };
-                gauss.dispatch(
-                    cmd,
-                    &[
-                        Bind::StorageImage(input),
-                        Bind::StorageImage(output),
-                        Bind::StorageBuffer(&weights),
-                    ],
-                    &push,
-                    gauss_groups(extent, axis, radius_voxels),
-                )?;
-                profiler.end(cmd);
-            }
-            profiler.begin(cmd, "subtract");
-            // Subtract writes over the blurred image in place: a holds G∗V, and ΔD goes to a.
-            a.transition(cmd, Access::ComputeReadWrite);
-            self.subtract.dispatch(
-                cmd,
-                &[Bind::StorageImage(&src), Bind::StorageImage(&a)],
-                &SubtractPush { dims, pad: 0 },
-                groups,
-            )?;
-            profiler.end(cmd);
+            self.record(cmd, &mut profiler, &images, radius_voxels)?;
             profiler.pass(cmd, "readback", |cmd| {
-                record_readback(ctx, cmd, &a, &staging)
+                record_readback(ctx, cmd, images.delta_d(), &staging)
             });
             Ok(())
         })?;

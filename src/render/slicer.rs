@@ -254,6 +254,11 @@ impl Renderer {
         })
     }
 
+    /// The context the pipelines were built on.
+    pub fn context(&self) -> &Arc<Context> {
+        &self.ctx
+    }
+
     /// Records one frame of `vol`, classified by `classify` with `focus`, as seen by `view`, into
     /// `frame`; the layers land in `targets` (resized if needed). Passes: `focus`, `context`,
     /// `composite`, or `one_pass`.

@@ -248,6 +248,9 @@ enum BenchCommand {
         /// Square image sizes in pixels.
         #[arg(long, value_delimiter = ',', default_value = "256,512,1024")]
         sizes: Vec<u32>,
+        /// Frames of the orbit (10° a frame).
+        #[arg(long, default_value_t = 36)]
+        orbit_frames: usize,
     },
     /// The importance paper's Table 1: per-pass and total times for three volume sizes and R ∈ {1,5,10}.
     Table1 {
@@ -391,12 +394,14 @@ fn run(cli: &Cli) -> Result<()> {
                     json,
                     repeat,
                     sizes,
+                    orbit_frames,
                 },
         } => {
             let ctx = context(cli)?;
             let opts = vellum::bench::render::Options {
                 repeat: (*repeat).max(1),
                 sizes: sizes.clone(),
+                orbit_frames: (*orbit_frames).max(1),
             };
             let table = vellum::bench::render::run(&ctx, &opts)?;
             report_validation(&ctx);
@@ -734,10 +739,17 @@ fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
     let out = a.out.as_deref().ok_or_else(|| {
         anyhow::anyhow!("render needs --out image.png (or only --save-scene FILE)")
     })?;
-    scene.check_supported()?;
-    let classification = scene.classification()?;
+    // Errors from what a scene file names say which file and which key they came from.
+    let from = |key: &str, e: vellum::Error| match &a.scene {
+        Some(p) => anyhow::anyhow!("scene file {}: {key}: {e}", p.display()),
+        None => e.into(),
+    };
+    scene.check_supported().map_err(|e| from("scene", e))?;
+    let classification = scene
+        .classification()
+        .map_err(|e| from("classification", e))?;
     let view = scene.view()?;
-    let v = scene.load_volume()?;
+    let v = scene.load_volume().map_err(|e| from("input", e))?;
     let ctx = context(cli)?;
     let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus)?;
     let frame = Renderer::new(&ctx)?.render_frame(

@@ -1,0 +1,222 @@
+//! Scene files through the `vellum` binary (validation on): every example scene renders, a saved
+//! scene renders the same PNG as the command line that saved it, flags override the file, and
+//! each kind of bad scene file ends with one sentence that names the key or value, and no output.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn vellum(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_vellum"))
+        .args(args)
+        .env("VELLUM_VALIDATION", "1")
+        .env_remove("RUST_BACKTRACE")
+        .output()
+        .expect("run vellum")
+}
+
+fn ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("validation layer"), "{stderr}");
+}
+
+fn examples() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples")
+}
+
+/// The example scenes (files with a "version" key; the others are transfer functions).
+fn example_scenes() -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(examples())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.extension().is_some_and(|e| e == "json")
+                && std::fs::read_to_string(p).unwrap().contains("\"version\"")
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn every_example_scene_renders() {
+    let scenes = example_scenes();
+    assert!(scenes.len() >= 6, "{scenes:?}");
+    let needs_data = |p: &Path| std::fs::read_to_string(p).unwrap().contains("shared/data");
+    let have_data = common::shared_data().is_some();
+    let dir = tempfile::tempdir().unwrap();
+    for scene in scenes {
+        if needs_data(&scene) && !have_data {
+            continue;
+        }
+        let out = dir.path().join("x.png");
+        ok(&vellum(&[
+            "render",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]));
+        let img = image::open(&out).unwrap().to_rgb8();
+        let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 40)).count();
+        assert!(lit > 200, "{}: only {lit} lit pixels", scene.display());
+        std::fs::remove_file(&out).unwrap();
+    }
+}
+
+#[test]
+fn a_saved_scene_renders_the_same_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
+    ok(&vellum(&[
+        "render",
+        "phantom:nested:40",
+        "--iso",
+        "0.6",
+        "--camera",
+        "-30,35,2.7",
+        "--size",
+        "64x48",
+        "--background",
+        "0.2,0.1,0",
+        "--out",
+        &p("a.png"),
+        "--save-scene",
+        &p("scene.json"),
+    ]));
+    // From another folder: the saved paths do not depend on the working directory.
+    let out = Command::new(env!("CARGO_BIN_EXE_vellum"))
+        .args(["render", "--scene", &p("scene.json"), "--out", &p("b.png")])
+        .current_dir(std::env::temp_dir())
+        .env("VELLUM_VALIDATION", "1")
+        .output()
+        .unwrap();
+    ok(&out);
+    assert_eq!(
+        std::fs::read(p("a.png")).unwrap(),
+        std::fs::read(p("b.png")).unwrap()
+    );
+    // --save-scene alone writes the scene and renders nothing.
+    ok(&vellum(&[
+        "render",
+        "--scene",
+        &p("scene.json"),
+        "--size",
+        "32x32",
+        "--save-scene",
+        &p("small.json"),
+    ]));
+    let small = std::fs::read_to_string(p("small.json")).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&small).unwrap();
+    assert_eq!(
+        v["size"],
+        serde_json::json!([32, 32]),
+        "the flag overrides the file"
+    );
+    assert_eq!(
+        v["focus"],
+        serde_json::json!({"iso": 0.6}),
+        "the file's other values stay"
+    );
+    // A flag given with --scene overrides the file in the render too.
+    ok(&vellum(&[
+        "render",
+        "--scene",
+        &p("scene.json"),
+        "--size",
+        "24x20",
+        "--out",
+        &p("c.png"),
+    ]));
+    let c = image::open(p("c.png")).unwrap();
+    assert_eq!((c.width(), c.height()), (24, 20));
+}
+
+/// Writes `json` as a scene and renders it: it must fail with one sentence containing each of
+/// `phrases`, and write nothing.
+fn bad_scene(json: &str, phrases: &[&str]) {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("bad.json");
+    std::fs::write(&scene, json).unwrap();
+    let out_png = dir.path().join("out.png");
+    let out = vellum(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        out_png.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{json}: succeeded");
+    assert_ne!(out.status.code(), Some(101), "panicked: {stderr}");
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(
+        lines.len(),
+        1,
+        "{json}: expected one sentence, got {stderr}"
+    );
+    assert!(lines[0].starts_with("error: "), "{stderr}");
+    for p in phrases {
+        assert!(lines[0].contains(p), "{json}: expected '{p}' in {stderr}");
+    }
+    assert!(!out_png.exists(), "{json}: wrote an output");
+}
+
+#[test]
+fn bad_scene_files_get_one_sentence() {
+    let input = r#""input": {"path": "phantom:nested:16"}"#;
+    bad_scene(
+        &format!(r#"{{"version": 1, {input}, "colour": [1, 0, 0]}}"#),
+        &["unknown field `colour`", "expected one of"],
+    );
+    bad_scene(
+        &format!(r#"{{"version": 1, {input}, "size": "big"}}"#),
+        &["invalid type", "big", "bad.json"],
+    );
+    bad_scene(r#"{"version": 1}"#, &["missing field `input`"]);
+    bad_scene(
+        &format!(r#"{{"version": 1, {input}, "classification": {{"transfer": "rainbow"}}}}"#),
+        &["bad.json: classification", "rainbow", "preset"],
+    );
+    bad_scene(
+        &format!(r#"{{"version": 1, {input}, "classification": {{"curvature": "x"}}}}"#),
+        &["unknown variant `curvature`"],
+    );
+    bad_scene(
+        r#"{"version": 1, "input": {"path": "no/such/volume.nrrd"}}"#,
+        &["bad.json: input", "does not exist"],
+    );
+    bad_scene(
+        &format!(
+            r#"{{"version": 1, {input}, "classification": {{"occlusion": "missing_otf.json"}}}}"#
+        ),
+        &["missing_otf.json"],
+    );
+    bad_scene(
+        &format!(r#"{{"version": 2, {input}}}"#),
+        &["version 2", "\"version\": 1"],
+    );
+    bad_scene(
+        &format!(r#"{{"version": 1, {input}, "camera": {{"elevation": 120}}}}"#),
+        &["elevation 120"],
+    );
+    bad_scene(
+        &format!(r#"{{"version": 1, {input}, "style": {{"style": 7, "glow": 1}}}}"#),
+        &["unknown field `glow`"],
+    );
+    bad_scene(
+        &format!(r#"{{"version": 1, {input}, "style": {{"style": "dog"}}}}"#),
+        &["styles are not built yet"],
+    );
+    bad_scene(
+        &format!(r#"{{"version": 1, {input}, "modulation": {{"gamma": 5}}}}"#),
+        &["importance modulation is not built yet"],
+    );
+    bad_scene("{not json", &["bad.json", "key must be a string"]);
+}
