@@ -19,8 +19,13 @@ pub fn median(xs: &[f64]) -> f64 {
     }
 }
 
-/// Where ../shared/data is, if present beside the checkout.
+/// Where the shared data is: `VELLUM_DATA` when set (a machine where the binary runs away from
+/// its checkout), else ../shared/data beside the checkout, if present.
 pub fn shared_data() -> Option<std::path::PathBuf> {
+    if let Some(p) = std::env::var_os("VELLUM_DATA") {
+        let p = std::path::PathBuf::from(p);
+        return p.is_dir().then_some(p);
+    }
     let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
     p.is_dir().then_some(p)
 }

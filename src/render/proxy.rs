@@ -110,11 +110,14 @@ pub fn view_aligned_slices_in(
     let u = d.any_orthonormal_vector();
     let v = (-d).cross(u);
     let merge_eps = 1e-6 * half_extent.length();
-    let mut polygon: Vec<Vec3> = Vec::with_capacity(12);
+    let spacing = out.spacing;
 
-    for k in 0..n_slices {
-        let t = far - (k as f32 + 0.5) * out.spacing;
-        let mut any = false;
+    // The triangles of plane k, every box in order. Planes are independent, so they are cut in
+    // parallel (this is the host's share of a frame: tens of thousands of clips when a pass is cut
+    // to bricks) and concatenated in plane order, which keeps the output identical to a serial cut.
+    let plane = |polygon: &mut Vec<Vec3>, k: u32| -> Vec<[f32; 3]> {
+        let t = far - (k as f32 + 0.5) * spacing;
+        let mut tris = Vec::new();
         for (corners, depths, lo, hi) in &boxes {
             if t < *lo || t > *hi {
                 continue;
@@ -144,13 +147,22 @@ pub fn view_aligned_slices_in(
             });
             for i in 1..polygon.len() - 1 {
                 for p in [polygon[0], polygon[i], polygon[i + 1]] {
-                    out.vertices.push(p.to_array());
+                    tris.push(p.to_array());
                 }
             }
-            any = true;
         }
-        if any {
+        tris
+    };
+    use rayon::prelude::*;
+    let planes: Vec<Vec<[f32; 3]>> = (0..n_slices)
+        .into_par_iter()
+        .map_init(|| Vec::with_capacity(12), |polygon, k| plane(polygon, k))
+        .collect();
+    out.vertices.reserve(planes.iter().map(Vec::len).sum());
+    for tris in planes {
+        if !tris.is_empty() {
             out.slices += 1;
+            out.vertices.extend_from_slice(&tris);
         }
     }
     out

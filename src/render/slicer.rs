@@ -30,7 +30,7 @@ use crate::gpu::{
     self, Access, Bind, BindingKind, BufferSlice, Context, Frames, FramesDesc, Image, ImageDesc,
     Sampler,
 };
-use crate::passes::normals::VolumeTextures;
+use crate::passes::normals::{Bricks, VolumeTextures};
 use crate::render::camera::Camera;
 use crate::render::proxy::view_aligned_slices_in;
 use crate::render::targets::{FrameTargets, TargetsReadback, COLOR, DEPTH, LINEAR_DEPTH};
@@ -318,25 +318,31 @@ impl Renderer {
             .iter()
             .map(|r| uses_occlusion || any_opacity(table, r))
             .collect();
-        let boxes = |keep: &dyn Fn(usize) -> bool| brick_boxes(vol, half, keep);
-        let proxy = if view.one_pass {
-            view_aligned_slices_in(half, view_dir, n_slices, &boxes(&|b| visible[b]))
-        } else {
-            view_aligned_slices_in(
-                half,
-                view_dir,
-                n_slices,
-                &boxes(&|b| visible[b] && !all_focus(&vol.bricks.range[b], focus_n)),
-            )
+        let (bricks, dims) = (&vol.bricks, vol.dims);
+        let boxes = |keep: &dyn Fn(usize) -> bool| brick_boxes(bricks, dims, half, keep);
+        let context_proxy = || {
+            if view.one_pass {
+                view_aligned_slices_in(half, view_dir, n_slices, &boxes(&|b| visible[b]))
+            } else {
+                view_aligned_slices_in(
+                    half,
+                    view_dir,
+                    n_slices,
+                    &boxes(&|b| visible[b] && !all_focus(&bricks.range[b], focus_n)),
+                )
+            }
         };
-        let focus_proxy = (!view.one_pass).then(|| {
-            view_aligned_slices_in(
-                half,
-                view_dir,
-                n_slices,
-                &boxes(&|b| may_focus(&vol.bricks.range[b], focus_n)),
-            )
-        });
+        let focus_proxy = || {
+            (!view.one_pass).then(|| {
+                view_aligned_slices_in(
+                    half,
+                    view_dir,
+                    n_slices,
+                    &boxes(&|b| may_focus(&bricks.range[b], focus_n)),
+                )
+            })
+        };
+        let (proxy, focus_proxy) = rayon::join(context_proxy, focus_proxy);
         let eye = cam.eye(radius);
         let light = -view_dir; // a headlight
         let l = &view.lighting;
@@ -570,19 +576,20 @@ const BRICK_FRACTION: f64 = 0.5;
 /// [`BRICK_FRACTION`] of them do. Faces come from integer voxel coordinates through one formula, so
 /// neighbouring boxes share their corners exactly (no T-junctions: bricks are never merged).
 fn brick_boxes(
-    vol: &VolumeTextures,
+    bricks: &Bricks,
+    dims: [usize; 3],
     half: Vec3,
     keep: &dyn Fn(usize) -> bool,
 ) -> Vec<(Vec3, Vec3)> {
-    let n = vol.bricks.range.len();
+    let n = bricks.range.len();
     let kept: Vec<usize> = (0..n).filter(|&b| keep(b)).collect();
     if kept.len() as f64 > BRICK_FRACTION * n as f64 {
         return vec![(-half, half)];
     }
-    let world = |v: usize, a: usize| (v as f32 / vol.dims[a] as f32) * 2.0 * half[a] - half[a];
+    let world = |v: usize, a: usize| (v as f32 / dims[a] as f32) * 2.0 * half[a] - half[a];
     kept.into_iter()
         .map(|b| {
-            let (l, h) = vol.bricks.voxel_bounds(b, vol.dims);
+            let (l, h) = bricks.voxel_bounds(b, dims);
             (
                 Vec3::new(world(l[0], 0), world(l[1], 1), world(l[2], 2)),
                 Vec3::new(world(h[0], 0), world(h[1], 1), world(h[2], 2)),
