@@ -13,6 +13,7 @@ mod common;
 
 use common::Gpu;
 use std::collections::BTreeMap;
+use vellum::classify::modulation::Modulation;
 use vellum::classify::otf::OcclusionTf;
 use vellum::classify::transfer::TransferFunction;
 use vellum::classify::{Classification, Focus};
@@ -46,16 +47,7 @@ fn frame(
     v: &View,
 ) {
     frames
-        .frame(|f| {
-            renderer.record(
-                f,
-                &scene.volume,
-                &mut scene.classify,
-                scene.focus,
-                v,
-                targets,
-            )
-        })
+        .frame(|f| renderer.record(f, &scene.volume, &mut scene.classify, v, targets))
         .unwrap();
 }
 
@@ -78,7 +70,8 @@ fn orbit_allocates_nothing_after_the_first_frame() {
     let renderer = Renderer::new(ctx).unwrap();
     let v = phantom::shepp_logan(48);
     let tf = Classification::Transfer(TransferFunction::preset("grey").unwrap());
-    let mut scene = GpuScene::prepare(ctx, &v, &tf, Focus::Iso(0.9)).unwrap();
+    let mut scene =
+        GpuScene::prepare(ctx, &v, &tf, Focus::Iso(0.9), &Modulation::default()).unwrap();
     let mut frames = Frames::new(ctx, &FramesDesc::interactive("test orbit")).unwrap();
     let mut targets = FrameTargets::new(ctx);
     for one_pass in [false, true] {
@@ -148,6 +141,7 @@ fn transfer_function_edit_reuploads_only_its_texture() {
         &v,
         &Classification::Transfer(grey.clone()),
         Focus::None,
+        &Modulation::default(),
     )
     .unwrap();
     let mut frames = Frames::new(ctx, &FramesDesc::interactive("test edits")).unwrap();
@@ -222,8 +216,14 @@ fn occlusion_transfer_function_render_reads_no_volume_back() {
     )
     .unwrap();
     let v = phantom::nested(48);
-    let mut scene =
-        GpuScene::prepare(ctx, &v, &Classification::Occlusion(otf), Focus::None).unwrap();
+    let mut scene = GpuScene::prepare(
+        ctx,
+        &v,
+        &Classification::Occlusion(otf),
+        Focus::None,
+        &Modulation::default(),
+    )
+    .unwrap();
     let names: Vec<&str> = scene.passes.iter().map(|p| p.name.as_str()).collect();
     assert_eq!(names, ["upload", "sobel_normals", "to_float", "occlusion"]);
     assert!(scene.volume.occlusion.is_some());
@@ -232,7 +232,6 @@ fn occlusion_transfer_function_render_reads_no_volume_back() {
         .render_frame(
             &scene.volume,
             &mut scene.classify,
-            scene.focus,
             &view(0.0, 48, false),
             true,
         )
@@ -344,15 +343,16 @@ fn a_scene_file_round_trips_to_the_same_render() {
     let renderer = Renderer::new(ctx).unwrap();
     let render = |s: &Scene| {
         let v = s.load_volume().unwrap();
-        let mut g = GpuScene::prepare(ctx, &v, &s.classification().unwrap(), s.focus).unwrap();
+        let mut g = GpuScene::prepare(
+            ctx,
+            &v,
+            &s.classification().unwrap(),
+            s.focus,
+            &s.modulation.clone().unwrap_or_default(),
+        )
+        .unwrap();
         renderer
-            .render_frame(
-                &g.volume,
-                &mut g.classify,
-                g.focus,
-                &s.view().unwrap(),
-                true,
-            )
+            .render_frame(&g.volume, &mut g.classify, &s.view().unwrap(), true)
             .unwrap()
     };
     let (a, b) = (render(&scene), render(&loaded));
@@ -370,7 +370,8 @@ fn persistent_targets_are_read_back_by_name() {
     let renderer = Renderer::new(ctx).unwrap();
     let v = phantom::nested(32);
     let tf = Classification::Transfer(TransferFunction::preset("grey").unwrap());
-    let mut scene = GpuScene::prepare(ctx, &v, &tf, Focus::Iso(0.4)).unwrap();
+    let mut scene =
+        GpuScene::prepare(ctx, &v, &tf, Focus::Iso(0.4), &Modulation::default()).unwrap();
     let mut frames = Frames::new(ctx, &FramesDesc::interactive("test layers")).unwrap();
     let mut targets = FrameTargets::new(ctx);
     frame(

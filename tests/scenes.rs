@@ -216,7 +216,72 @@ fn bad_scene_files_get_one_sentence() {
     );
     bad_scene(
         &format!(r#"{{"version": 1, {input}, "modulation": {{"gamma": 5}}}}"#),
-        &["importance modulation is not built yet"],
+        &["unknown field `gamma`"],
+    );
+    bad_scene(
+        &format!(
+            r#"{{"version": 1, {input}, "modulation": {{"opacity": {{"t_low": 0.8, "t_high": 0.2, "k_low": 1, "k_high": 1}}}}}}"#
+        ),
+        &["bad.json", "t_l <= t_h"],
     );
     bad_scene("{not json", &["bad.json", "key must be a string"]);
+}
+
+/// Runs `render phantom:nested:24 <args> --out DIR/x.png`: one sentence containing `phrase`, no file.
+fn bad_flags(args: &[&str], phrase: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let out_png = dir.path().join("x.png");
+    let mut all = vec!["render", "phantom:nested:24", "--size", "16x16"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--out", out_png.to_str().unwrap()]);
+    let out = vellum(&all);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{args:?}: succeeded");
+    assert_ne!(out.status.code(), Some(101), "panicked: {stderr}");
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "{args:?}: {stderr}");
+    assert!(lines[0].starts_with("error: ") && lines[0].contains(phrase), "{args:?}: {stderr}");
+    assert!(!out_png.exists());
+}
+
+#[test]
+fn bad_modulation_flags_get_one_sentence() {
+    bad_flags(&["--opacity-mod", "0.8,0.2,1,1"], "t_l <= t_h");
+    bad_flags(&["--opacity-mod", "0.1,0.2,1"], "expected 4");
+    bad_flags(&["--color-mod", "raw", "--gamma", "inf"], "not a finite number");
+    bad_flags(&["--color-mod", "raw"], "--color-mod needs --gamma");
+    bad_flags(&["--gamma", "3"], "--gamma needs --color-mod");
+    bad_flags(&["--color-mod", "log", "--gamma", "3"], "expected raw or abs");
+    bad_flags(&["--stipple", "0.1,-2"], "f = -2");
+    bad_flags(&["--stipple", "1.5,2"], "outside [0, 1]");
+    bad_flags(&["--stipple", "0.1,2", "--importance-radius", "0"], "importance radius");
+    bad_flags(&["--stipple", "0.1,2", "--importance-radius", "40"], "radius 40");
+    bad_flags(&["--seed", "4"], "--seed needs --stipple");
+    bad_flags(&["--modulate", "focus"], "need an effect");
+}
+
+#[test]
+fn the_same_stipple_seed_gives_the_same_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, seed: &str| {
+        let p = dir.path().join(name);
+        ok(&vellum(&[
+            "render",
+            "phantom:shepp-logan:48",
+            "--size",
+            "64x64",
+            "--importance-radius",
+            "4",
+            "--stipple",
+            "0.1,10",
+            "--seed",
+            seed,
+            "--out",
+            p.to_str().unwrap(),
+        ]));
+        std::fs::read(p).unwrap()
+    };
+    let (a, b, c) = (run("a.png", "1"), run("b.png", "1"), run("c.png", "2"));
+    assert_eq!(a, b);
+    assert_ne!(a, c);
 }

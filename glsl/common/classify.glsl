@@ -39,4 +39,52 @@ vec4 classify_sample(vec4 rgba, float ratio, bool focus, vec4 focus_spec) {
     return c;
 }
 
+// Importance modulation (importance paper §4; twins in src/classify/modulation.rs).
+// ΔD is in normalised intensity units and n = |ΔD| / max |ΔD| in [0, 1].
+
+// Eq. 3 (mode 1, raw ΔD) or eq. 4 (mode 2, |ΔD|): rgb + ΔD·γ, floored at 0.
+vec3 modulate_color(vec3 rgb, float delta_d, int mode, float gamma) {
+    float d = mode == 2 ? abs(delta_d) : delta_d;
+    return max(rgb + vec3(d * gamma), vec3(0.0));
+}
+
+// Eq. 5 with p = (t_l, t_h, k_l, k_h), clamped to [0, 1].
+float modulate_opacity(float a, float n, vec4 p) {
+    if (n < p.x) {
+        return clamp(a * p.z * n, 0.0, 1.0);
+    }
+    if (n > p.y) {
+        return clamp(a * p.w * n, 0.0, 1.0);
+    }
+    return a;
+}
+
+// Eq. 6: white when n >= t or f·n >= r.
+bool stipple_is_white(float n, float r, float t, float f) {
+    return n >= t || f * n >= r;
+}
+
+// PCG3D (Jarzynski and Olano 2020), as classify::modulation::pcg3d.
+uvec3 pcg3d(uvec3 v) {
+    v = v * 1664525u + 1013904223u;
+    v.x += v.y * v.z;
+    v.y += v.z * v.x;
+    v.z += v.x * v.y;
+    v ^= v >> 16u;
+    v.x += v.y * v.z;
+    v.y += v.z * v.x;
+    v.z += v.x * v.y;
+    return v;
+}
+
+// Sub-voxel steps of the stipple grid (classify::modulation::STIPPLE_GRID).
+const float STIPPLE_GRID = 16.0;
+
+// r(s) in [0, 1) for a sample at continuous voxel coordinates `voxel`: stateless and seeded.
+float stipple_random(vec3 voxel, uint seed) {
+    uvec3 q = uvec3(ivec3(floor(voxel * STIPPLE_GRID)));
+    uvec3 v = q + seed * uvec3(0x9E3779B9u, 0x85EBCA6Bu, 0xC2B2AE35u);
+    return float(pcg3d(v).x >> 8u) / 16777216.0;
+}
+
 #endif

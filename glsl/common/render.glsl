@@ -19,6 +19,14 @@ struct SliceUniforms {
     vec4 light;          // xyz: unit direction towards the light (world); w: specular exponent
     vec4 material;       // ambient, diffuse, specular, opacity ratio (slice spacing / voxel)
     vec4 focus;          // lo, hi (normalised intensity), mode (0 none, 1 range, 2 iso), 1 = OTF
+    ivec4 mod_flags;     // colour mode (0 off, 1 raw, 2 abs), opacity on, stipple on, levels (1 focus, 2 context, 3 both)
+    vec4 mod_color;      // gamma, base colour (0 ambient, 1 phong)
+    vec4 mod_opacity;    // t_l, t_h, k_l, k_h (eq. 5)
+    vec4 mod_stipple;    // t, f (eq. 6)
+    uvec4 mod_seed;      // stipple seed
+    vec4 stipple_white;
+    vec4 stipple_black;
+    vec4 volume_dims;    // voxels along x, y, z
 };
 
 #define NORMALS_LOCAL_X 8

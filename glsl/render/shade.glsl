@@ -11,6 +11,8 @@ layout(set = 0, binding = 2) uniform sampler3D gradient;    // xyz gradient (wor
 layout(set = 0, binding = 3) uniform sampler2D transfer;    // 1D transfer function, 256 x 1
 layout(set = 0, binding = 4) uniform sampler3D occlusion;   // ambient occlusion O (OTF only)
 layout(set = 0, binding = 5) uniform sampler2D occlusion_tf; // 2D table over (s, O) (OTF only)
+layout(set = 0, binding = 6) uniform sampler3D importance;   // ΔD, normalised units (modulation only)
+layout(set = 0, binding = 7) readonly buffer ImportanceMax { uint max_abs_bits; } importance_max;
 
 layout(location = 0) in vec3 tex;
 layout(location = 1) in vec3 world;
@@ -25,18 +27,48 @@ float sample_intensity() {
     return texture(volume, tex).r;
 }
 
-// Colour (straight) and opacity of intensity s, the opacity corrected for the slice spacing
-// (material.w = spacing / voxel). focus.w = 1: the occlusion transfer function replaces the 1D one.
+// Whether importance modulation applies to a sample of the focus level (or of the context).
+bool modulated(bool focus) {
+    return ((focus ? 1 : 2) & u.mod_flags.w) != 0;
+}
+
+// n = |ΔD| / max |ΔD| in [0, 1].
+float importance_n(float delta_d) {
+    float m = uintBitsToFloat(importance_max.max_abs_bits);
+    return m > 0.0 ? min(abs(delta_d) / m, 1.0) : 0.0;
+}
+
+// Colour (straight) and opacity of intensity s, the opacity modulated (eq. 5) and then corrected
+// for the slice spacing (material.w = spacing / voxel). focus.w = 1: the occlusion transfer
+// function replaces the 1D one.
 vec4 classify(float s, bool focus) {
     vec4 rgba = u.focus.w > 0.5
         ? texture(occlusion_tf, occlusion_tf_coord(s, texture(occlusion, tex).r))
         : texture(transfer, vec2(s, 0.5));
+    if (u.mod_flags.y != 0 && modulated(focus)) {
+        rgba.a = modulate_opacity(rgba.a, importance_n(texture(importance, tex).r), u.mod_opacity);
+    }
     return classify_sample(rgba, u.material.w, focus, u.focus);
 }
 
 // Phong (with specular) and diffuse-only colours of a sample of straight colour `rgb`, lit by the
-// headlight.
-void shade(vec3 rgb, out vec3 phong, out vec3 diffuse) {
+// headlight, then modulated: a stippled sample takes one of the two stipple colours (eq. 6);
+// otherwise colour modulation adds ΔD·γ or |ΔD|·γ (eq. 3, 4) to the unlit or the lit colour.
+void shade(vec3 rgb, bool focus, out vec3 phong, out vec3 diffuse) {
     vec3 to_eye = u.view_dir.w > 0.5 ? -u.view_dir.xyz : normalize(u.eye.xyz - world);
     shade_phong(rgb, texture(gradient, tex), u.light.xyz, to_eye, u.material, u.light.w, phong, diffuse);
+    if (!modulated(focus)) {
+        return;
+    }
+    float delta_d = texture(importance, tex).r;
+    if (u.mod_flags.z != 0) {
+        float r = stipple_random(tex * u.volume_dims.xyz, u.mod_seed.x);
+        bool white = stipple_is_white(importance_n(delta_d), r, u.mod_stipple.x, u.mod_stipple.y);
+        phong = white ? u.stipple_white.rgb : u.stipple_black.rgb;
+        diffuse = phong;
+    } else if (u.mod_flags.x != 0) {
+        bool ambient = u.mod_color.y < 0.5;
+        phong = modulate_color(ambient ? rgb : phong, delta_d, u.mod_flags.x, u.mod_color.x);
+        diffuse = modulate_color(ambient ? rgb : diffuse, delta_d, u.mod_flags.x, u.mod_color.x);
+    }
 }

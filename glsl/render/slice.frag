@@ -18,6 +18,6 @@ void main() {
         discard;
     }
     vec3 phong, diffuse;
-    shade(c.rgb, phong, diffuse);
+    shade(c.rgb, focus, phong, diffuse);
     color = vec4(phong * c.a, c.a);
 }

@@ -16,7 +16,7 @@ void main() {
         discard;
     }
     vec3 p, d;
-    shade(c.rgb, p, d);
+    shade(c.rgb, true, p, d);
     phong = vec4(p * c.a, c.a);
     diffuse = vec4(d * c.a, c.a);
     linear_depth = vec4(dot(world - u.eye.xyz, u.view_dir.xyz), 0.0, 0.0, 1.0);

@@ -17,6 +17,7 @@
 //! phantom stands in and the row says so.
 
 use crate::bench::{median, shared_data};
+use crate::classify::modulation::Modulation;
 use crate::classify::transfer::TransferFunction;
 use crate::classify::{Classification, Focus};
 use crate::error::{Error, Result};
@@ -131,16 +132,9 @@ impl Session<'_> {
     /// Records and submits one frame; returns the slices drawn.
     fn frame(&mut self, view: &View) -> Result<u32> {
         let (renderer, scene, targets) = (self.renderer, &mut *self.scene, &mut self.targets);
-        let (r, _) = self.frames.frame(|f| {
-            renderer.record(
-                f,
-                &scene.volume,
-                &mut scene.classify,
-                scene.focus,
-                view,
-                targets,
-            )
-        })?;
+        let (r, _) = self
+            .frames
+            .frame(|f| renderer.record(f, &scene.volume, &mut scene.classify, view, targets))?;
         Ok(r.slices)
     }
 
@@ -182,7 +176,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
         };
         let transfer = TransferFunction::preset(tf)?;
         let classification = Classification::Transfer(transfer.clone());
-        let mut scene = GpuScene::prepare(ctx, &v, &classification, focus)?;
+        let mut scene = GpuScene::prepare(ctx, &v, &classification, focus, &Modulation::default())?;
         normals_ms.push((
             label.clone(),
             crate::gpu::profiler::total_ms(&scene.passes, "sobel_normals"),
@@ -335,7 +329,7 @@ fn reprepare(
     const FRAMES: usize = 3;
     let start = Instant::now();
     for _ in 0..FRAMES {
-        let mut scene = GpuScene::prepare(ctx, v, classification, focus)?;
+        let mut scene = GpuScene::prepare(ctx, v, classification, focus, &Modulation::default())?;
         let mut s = Session {
             renderer,
             frames: Frames::new(ctx, &FramesDesc::interactive("bench re-prepare"))?,

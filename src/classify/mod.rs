@@ -17,6 +17,7 @@
 
 pub mod features;
 pub mod mapping;
+pub mod modulation;
 pub mod otf;
 pub mod textures;
 pub mod transfer;

@@ -1,9 +1,13 @@
-//! The classification's persistent GPU textures: the 1D transfer function (256×1) and the
-//! occlusion transfer function (256×256 over intensity × occlusion). They are created once and
-//! re-uploaded through the frame's staging ring only when their contents change, so a frame
-//! after a transfer-function edit uploads 4 KiB and nothing else.
+//! The classification of a scene on the GPU: the focus, the importance modulation, and the
+//! persistent textures of the 1D transfer function (256×1) and the occlusion transfer function
+//! (256×256 over intensity × occlusion). The textures are created once and re-uploaded through
+//! the frame's staging ring only when their contents change, so a frame after a
+//! transfer-function edit uploads 4 KiB and nothing else. Focus and modulation are uniforms,
+//! written every frame.
 
+use crate::classify::modulation::Modulation;
 use crate::classify::transfer::TransferFunction;
+use crate::classify::Focus;
 use crate::error::{Error, Result};
 use crate::gpu::transfer::record_upload_from;
 use crate::gpu::{Access, Context, Frame, Image, ImageDesc};
@@ -57,20 +61,27 @@ impl Table {
     }
 }
 
-/// The transfer-function textures of a scene.
-pub struct ClassifyTextures {
+/// The classification of a scene: focus, modulation and the transfer-function textures.
+pub struct GpuClassification {
     ctx: Arc<Context>,
+    /// What the first level of a two-level frame renders.
+    pub focus: Focus,
+    /// Importance modulation; its ΔD volume must be attached to the volume textures when active.
+    pub modulation: Modulation,
     transfer: Table,
     /// The occlusion TF table, or a 1×1 stand-in while none is used (shaders bind something).
     occlusion: Table,
     uses_occlusion: bool,
 }
 
-impl ClassifyTextures {
-    /// Creates the textures for `tf`, with no occlusion transfer function.
-    pub fn new(ctx: &Arc<Context>, tf: &TransferFunction) -> Result<Self> {
-        Ok(ClassifyTextures {
+impl GpuClassification {
+    /// Creates the textures for `tf` with `focus`, no occlusion transfer function and no
+    /// modulation.
+    pub fn new(ctx: &Arc<Context>, tf: &TransferFunction, focus: Focus) -> Result<Self> {
+        Ok(GpuClassification {
             ctx: ctx.clone(),
+            focus,
+            modulation: Modulation::default(),
             transfer: Table::new(
                 ctx,
                 "transfer function",

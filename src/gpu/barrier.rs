@@ -24,6 +24,8 @@ pub enum Access {
     ComputeSampled,
     /// Sampled in a fragment shader.
     FragmentSampled,
+    /// Read as a storage buffer in a fragment shader.
+    FragmentStorageRead,
     /// Written as a colour attachment.
     ColorAttachment,
     /// Read and written as a depth attachment (depth test and write).
@@ -70,6 +72,7 @@ pub fn access_info(a: Access) -> AccessInfo {
             A::SHADER_SAMPLED_READ,
             L::SHADER_READ_ONLY_OPTIMAL,
         ),
+        Access::FragmentStorageRead => (S::FRAGMENT_SHADER, A::SHADER_STORAGE_READ, L::GENERAL),
         Access::ColorAttachment => (
             S::COLOR_ATTACHMENT_OUTPUT,
             A::COLOR_ATTACHMENT_READ | A::COLOR_ATTACHMENT_WRITE,

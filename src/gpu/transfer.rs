@@ -133,6 +133,30 @@ pub fn readback(ctx: &Arc<Context>, image: &Image) -> Result<Vec<u8>> {
     Ok(bytes.to_vec())
 }
 
+/// Reads the bytes of a (device-local) buffer back to the host, in one submission.
+pub fn readback_buffer(ctx: &Arc<Context>, buffer: &Buffer) -> Result<Vec<u8>> {
+    let staging = staging_buffer(
+        ctx,
+        &format!("{} readback", buffer.name),
+        buffer.size as usize,
+    )?;
+    ctx.count_transfer(&buffer.name, false, buffer.size);
+    submit_once(ctx, &format!("readback of {}", buffer.name), |cmd| {
+        memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferRead);
+        let region = vk::BufferCopy::default().size(buffer.size);
+        unsafe {
+            ctx.device
+                .cmd_copy_buffer(cmd, buffer.raw, staging.raw, &[region])
+        };
+        memory_transition(ctx, cmd, Access::TransferWrite, Access::HostRead);
+        Ok(())
+    })?;
+    staging
+        .mapped()
+        .map(<[u8]>::to_vec)
+        .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))
+}
+
 /// IEEE half-precision bits to f32 (for reading back R16F/RGBA16F images).
 pub fn f16_to_f32(bits: u16) -> f32 {
     let sign = if bits & 0x8000 != 0 { -1.0f32 } else { 1.0 };

@@ -67,6 +67,16 @@ pub struct ImportanceMap {
     /// Gaussian pipelines and their weights by radius: R is a specialisation constant.
     gauss: Mutex<HashMap<u32, Gauss>>,
     subtract: ComputePipeline,
+    pack: ComputePipeline,
+    unpack: ComputePipeline,
+}
+
+/// ΔD where the renderer samples it: an R32F volume in normalised intensity units, and max |ΔD|
+/// over the volume as the bits of a non-negative float in a storage buffer (never read back).
+pub struct ImportanceVolume {
+    pub delta_d: Image,
+    pub max_abs: Buffer,
+    pub radius_voxels: u32,
 }
 
 /// A Gaussian pipeline specialised for one radius, and its weights.
@@ -129,10 +139,23 @@ impl ImportanceMap {
             &[StorageImage, StorageImage],
             std::mem::size_of::<SubtractPush>() as u32,
         )?;
+        let push = std::mem::size_of::<SubtractPush>() as u32;
         Ok(ImportanceMap {
             ctx: ctx.clone(),
             gauss: Mutex::new(HashMap::new()),
             subtract,
+            pack: ComputePipeline::new(
+                ctx,
+                "importance/pack.comp",
+                &[SampledImage, StorageImage],
+                push,
+            )?,
+            unpack: ComputePipeline::new(
+                ctx,
+                "importance/unpack.comp",
+                &[StorageImage, StorageImage, StorageBuffer],
+                push,
+            )?,
         })
     }
 
@@ -224,6 +247,76 @@ impl ImportanceMap {
         )?;
         profiler.end(cmd);
         Ok(())
+    }
+
+    /// Records ΔD of the renderer's normalised volume texture, on the GPU from end to end: pass
+    /// `pack` (R16 texture → packed float, sampled with the nearest-texel `sampler`), the four
+    /// filter passes, and `unpack` (packed → R32F volume, with the max |ΔD| reduction). The work
+    /// images are released once the frame completes.
+    pub fn record_from_texture(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        tex: &crate::passes::normals::VolumeTextures,
+        sampler: &crate::gpu::Sampler,
+        radius_voxels: u32,
+    ) -> Result<ImportanceVolume> {
+        let ctx = &self.ctx;
+        self.gauss(radius_voxels)?;
+        let images = ImportanceImages::new(ctx, tex.dims)?;
+        let extent = images.src.desc.extent;
+        let dims = tex.dims.map(|d| d as i32);
+        profiler.begin(cmd, "pack");
+        tex.intensity.transition(cmd, Access::ComputeSampled);
+        images.src.discard();
+        images.src.transition(cmd, Access::ComputeWrite);
+        self.pack.dispatch(
+            cmd,
+            &[
+                Bind::Sampled(&tex.intensity, sampler),
+                Bind::StorageImage(&images.src),
+            ],
+            &SubtractPush { dims, pad: 0 },
+            group_count(extent, LOCAL_SIZE),
+        )?;
+        profiler.end(cmd);
+        self.record(cmd, profiler, &images, radius_voxels)?;
+        let delta_d = Image::new(
+            ctx,
+            "importance delta_d",
+            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent_of(ctx, tex.dims, 4, 1)?),
+        )?;
+        let max_abs = Buffer::new(ctx, "importance max", &crate::gpu::BufferDesc::storage(4))?;
+        profiler.begin(cmd, "unpack");
+        unsafe {
+            ctx.device
+                .cmd_fill_buffer(cmd, max_abs.raw, 0, vk::WHOLE_SIZE, 0)
+        };
+        crate::gpu::commands::memory_transition(
+            ctx,
+            cmd,
+            Access::TransferWrite,
+            Access::ComputeReadWrite,
+        );
+        images.a.transition(cmd, Access::ComputeRead);
+        delta_d.discard();
+        delta_d.transition(cmd, Access::ComputeWrite);
+        self.unpack.dispatch(
+            cmd,
+            &[
+                Bind::StorageImage(&images.a),
+                Bind::StorageImage(&delta_d),
+                Bind::StorageBuffer(&max_abs),
+            ],
+            &SubtractPush { dims, pad: 0 },
+            group_count(delta_d.desc.extent, LOCAL_SIZE),
+        )?;
+        profiler.end(cmd);
+        Ok(ImportanceVolume {
+            delta_d,
+            max_abs,
+            radius_voxels,
+        })
     }
 
     /// Computes ΔD of `v` with radius `radius_voxels`: allocation, upload, the passes and

@@ -38,6 +38,8 @@ pub struct VolumeTextures {
     pub occlusion: Option<Image>,
     /// Min and max of the normalised intensity per brick, for skipping bricks in a pass.
     pub bricks: Bricks,
+    /// ΔD of the normalised volume, for importance modulation.
+    pub importance: Option<crate::passes::importance::ImportanceVolume>,
 }
 
 /// Edge of a brick in voxels.
@@ -128,6 +130,7 @@ impl VolumeTextures {
                 spacing: v.spacing,
                 occlusion: None,
                 bricks,
+                importance: None,
             },
             staging,
         ))

@@ -20,8 +20,12 @@
 //! - `camera` (azimuth, elevation in degrees; distance and pan in bounding-sphere radii; `ortho`;
 //!   `fov_y`), `size`, `slices` (null: two per voxel), `one_pass`, `background` (RGB behind the
 //!   volume in PNGs), `lighting` (`ambient`, `diffuse`, `specular`, `shininess`).
-//! - `style` and `modulation`: parsed, for the perceptual styles and importance modulation. Until
-//!   those are built, rendering a scene that sets them is an error, never a silent skip.
+//! - `modulation`: importance modulation (`classify::modulation::Modulation`): `color`
+//!   (`{"mode": "raw"|"abs", "gamma": G}`), `opacity` (`{"t_low", "t_high", "k_low", "k_high"}`),
+//!   `stipple` (`{"t", "f", "seed", "white", "black"}`), `importance_radius`, `apply_to`
+//!   (`focus`, `context`, `both`) and `lighting` (`ambient`, `phong`).
+//! - `style`: parsed, for the perceptual styles. Until those are built, rendering a scene that
+//!   sets it is an error, never a silent skip.
 //!
 //! Every key is checked: an unknown key is an error that names it.
 //!
@@ -32,12 +36,14 @@
 
 use crate::classify::features::feature_transfer_function;
 use crate::classify::mapping::parse_mapping;
+use crate::classify::modulation::Modulation;
 use crate::classify::otf::OcclusionTf;
-use crate::classify::textures::ClassifyTextures;
+use crate::classify::textures::GpuClassification;
 use crate::classify::transfer::TransferFunction;
 use crate::classify::{Classification, Focus};
 use crate::error::{Error, Result};
 use crate::gpu::{Context, Frames, FramesDesc, PassTime};
+use crate::passes::importance::ImportanceMap;
 use crate::passes::normals::{Normals, VolumeTextures};
 use crate::passes::occlusion::{Occlusion, OcclusionParams};
 use crate::render::camera::Camera;
@@ -183,26 +189,6 @@ pub struct StyleSpec {
     pub saturation: Option<f32>,
 }
 
-/// Importance modulation (importance paper §4, eq. 3–6). Parsed now; not built yet.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields, default)]
-pub struct ModulationSpec {
-    /// `raw` or `abs` (eq. 3, 4).
-    pub color: Option<String>,
-    pub gamma: Option<f32>,
-    /// t_l, t_h, k_l, k_h (eq. 5).
-    pub opacity: Option<[f32; 4]>,
-    /// t, f (eq. 6) and the seed of the stipple hash.
-    pub stipple: Option<[f32; 2]>,
-    pub seed: Option<u64>,
-    /// Importance radius R in voxels.
-    pub importance_radius: Option<u32>,
-    /// `focus`, `context` or `both`.
-    pub apply_to: Option<String>,
-    /// `ambient` or `phong`.
-    pub lighting: Option<String>,
-}
-
 /// The whole composed render.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -228,7 +214,7 @@ pub struct Scene {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub style: Option<StyleSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub modulation: Option<ModulationSpec>,
+    pub modulation: Option<Modulation>,
 }
 
 fn default_size() -> [u32; 2] {
@@ -348,6 +334,9 @@ impl Scene {
         }
         self.focus.validate()?;
         self.lighting.validate()?;
+        if let Some(m) = &self.modulation {
+            m.validate()?;
+        }
         self.camera.camera()?;
         Ok(())
     }
@@ -357,11 +346,6 @@ impl Scene {
         if self.style.is_some() {
             return Err(Error::Invalid(
                 "the scene sets a \"style\", but the perceptual styles are not built yet; remove the section".into(),
-            ));
-        }
-        if self.modulation.is_some() {
-            return Err(Error::Invalid(
-                "the scene sets a \"modulation\", but importance modulation is not built yet; remove the section".into(),
             ));
         }
         Ok(())
@@ -416,26 +400,29 @@ impl Scene {
     }
 }
 
-/// A volume prepared for rendering: its textures and normals, the classification's textures, the
-/// focus, and the occlusion volume when an occlusion transfer function needs one.
+/// A volume prepared for rendering: its textures and normals, the occlusion volume when an
+/// occlusion transfer function needs one, ΔD when modulation needs it, and the classification
+/// (transfer-function textures, focus, modulation).
 pub struct GpuScene {
     pub volume: VolumeTextures,
-    pub classify: ClassifyTextures,
-    pub focus: Focus,
-    /// GPU ms of `upload`, `sobel_normals` and, for occlusion, `to_float` and `occlusion`.
+    pub classify: GpuClassification,
+    /// GPU ms of `upload`, `sobel_normals`; for occlusion `to_float` and `occlusion`; for
+    /// modulation `pack`, `gauss_x`, `gauss_y`, `gauss_z`, `subtract` and `unpack`.
     pub passes: Vec<PassTime>,
 }
 
 impl GpuScene {
-    /// Uploads `v`, computes its normals (and occlusion when the classification needs it) in one
-    /// submission, and creates the classification textures.
+    /// Uploads `v`, computes its normals (occlusion when the classification needs it, ΔD when
+    /// `modulation` is active) in one submission, and creates the classification textures.
     pub fn prepare(
         ctx: &Arc<Context>,
         v: &Volume,
         classification: &Classification,
         focus: Focus,
+        modulation: &Modulation,
     ) -> Result<GpuScene> {
         focus.validate()?;
+        modulation.validate()?;
         let normals = Normals::new(ctx)?;
         let (mut volume, staging) = VolumeTextures::new(ctx, v)?;
         let (transfer, otf) = match classification {
@@ -460,10 +447,24 @@ impl GpuScene {
             Some(_) => Some(Occlusion::new(ctx)?),
             None => None,
         };
+        let importance = match modulation.is_active() {
+            true => Some(ImportanceMap::new(ctx)?),
+            false => None,
+        };
         let mut frames = Frames::new(ctx, &FramesDesc::one_shot("prepare scene", 8))?;
-        let (occlusion_image, _) = frames.frame(|f| {
+        let ((occlusion_image, importance_volume), _) = frames.frame(|f| {
             volume.record_upload(ctx, f.cmd, f.profiler, &staging);
             normals.record(f.cmd, f.profiler, &volume)?;
+            let delta_d = match &importance {
+                Some(map) => Some(map.record_from_texture(
+                    f.cmd,
+                    f.profiler,
+                    &volume,
+                    normals.nearest(),
+                    modulation.importance_radius,
+                )?),
+                None => None,
+            };
             let image = match (&occlusion, &otf) {
                 (Some(occ), Some((_, p))) => {
                     let input = occ.record_input_from_texture(
@@ -480,16 +481,17 @@ impl GpuScene {
                 }
                 _ => None,
             };
-            Ok(image)
+            Ok((image, delta_d))
         })?;
         let passes = frames.finish()?;
         volume.occlusion = occlusion_image;
-        let mut classify = ClassifyTextures::new(ctx, &transfer)?;
+        volume.importance = importance_volume;
+        let mut classify = GpuClassification::new(ctx, &transfer, focus)?;
         classify.set_occlusion_table(otf.map(|(table, _)| table))?;
+        classify.modulation = modulation.clone();
         Ok(GpuScene {
             volume,
             classify,
-            focus,
             passes,
         })
     }

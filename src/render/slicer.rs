@@ -18,7 +18,8 @@
 //! is allocated in steady state. [`Renderer::render`] is the one-shot form for tools and tests: one
 //! frame plus a readback.
 
-use crate::classify::textures::ClassifyTextures;
+use crate::classify::modulation::Modulation;
+use crate::classify::textures::GpuClassification;
 use crate::classify::transfer::TransferFunction;
 pub use crate::classify::Focus;
 use crate::error::{Error, Result};
@@ -49,6 +50,59 @@ pub struct SliceUniforms {
     pub light: [f32; 4],
     pub material: [f32; 4],
     pub focus: [f32; 4],
+    /// x colour mode (0 off, 1 raw, 2 abs), y opacity on, z stipple on, w levels (1 focus,
+    /// 2 context, 3 both; 0 when nothing is modulated).
+    pub mod_flags: [i32; 4],
+    /// x γ, y base colour (0 ambient, 1 Phong).
+    pub mod_color: [f32; 4],
+    /// t_l, t_h, k_l, k_h (eq. 5).
+    pub mod_opacity: [f32; 4],
+    /// x t, y f (eq. 6).
+    pub mod_stipple: [f32; 4],
+    /// x stipple seed.
+    pub mod_seed: [u32; 4],
+    pub stipple_white: [f32; 4],
+    pub stipple_black: [f32; 4],
+    /// Volume size in voxels (xyz), for the stipple grid.
+    pub volume_dims: [f32; 4],
+}
+
+impl SliceUniforms {
+    /// Writes the modulation fields (all off when `m` is inactive).
+    fn set_modulation(&mut self, m: &Modulation, dims: [usize; 3]) {
+        use crate::classify::modulation::{ApplyTo, ColorMode, ModulateLighting};
+        let levels = match m.apply_to {
+            ApplyTo::Focus => 1,
+            ApplyTo::Context => 2,
+            ApplyTo::Both => 3,
+        };
+        self.mod_flags = [
+            match m.color.map(|c| c.mode) {
+                None => 0,
+                Some(ColorMode::Raw) => 1,
+                Some(ColorMode::Abs) => 2,
+            },
+            m.opacity.is_some() as i32,
+            m.stipple.is_some() as i32,
+            if m.is_active() { levels } else { 0 },
+        ];
+        self.mod_color = [
+            m.color.map_or(0.0, |c| c.gamma),
+            (m.lighting == ModulateLighting::Phong) as i32 as f32,
+            0.0,
+            0.0,
+        ];
+        if let Some(o) = &m.opacity {
+            self.mod_opacity = [o.t_low, o.t_high, o.k_low, o.k_high];
+        }
+        if let Some(st) = &m.stipple {
+            self.mod_stipple = [st.t, st.f, 0.0, 0.0];
+            self.mod_seed = [st.seed, 0, 0, 0];
+            self.stipple_white = [st.white[0], st.white[1], st.white[2], 1.0];
+            self.stipple_black = [st.black[0], st.black[1], st.black[2], 1.0];
+        }
+        self.volume_dims = [dims[0] as f32, dims[1] as f32, dims[2] as f32, 0.0];
+    }
 }
 
 /// Phong lighting with a headlight (the light comes from the eye).
@@ -151,17 +205,22 @@ pub struct Renderer {
     composite: GraphicsPipeline,
     linear: Sampler,
     nearest: Sampler,
-    /// 1×1 stand-in bound when no occlusion volume is used.
+    /// 1×1 stand-in bound when no occlusion or importance volume is used.
     dummy_3d: Image,
+    /// Stand-in for the max |ΔD| buffer.
+    dummy_max: crate::gpu::Buffer,
 }
 
-const SLICE_BINDINGS: [BindingKind; 6] = [
+/// Uniforms; intensity, gradient, TF, occlusion, OTF, ΔD; max |ΔD|.
+const SLICE_BINDINGS: [BindingKind; 8] = [
     BindingKind::UniformBuffer,
     BindingKind::SampledImage,
     BindingKind::SampledImage,
     BindingKind::SampledImage,
     BindingKind::SampledImage,
     BindingKind::SampledImage,
+    BindingKind::SampledImage,
+    BindingKind::StorageBuffer,
 ];
 
 /// Most slice planes a frame may draw.
@@ -251,6 +310,12 @@ impl Renderer {
             linear: Sampler::new(ctx, true)?,
             nearest: Sampler::new(ctx, false)?,
             dummy_3d,
+            dummy_max: crate::gpu::Buffer::from_bytes(
+                ctx,
+                "dummy importance max",
+                vk::BufferUsageFlags::STORAGE_BUFFER,
+                &[0u8; 4],
+            )?,
         })
     }
 
@@ -259,18 +324,18 @@ impl Renderer {
         &self.ctx
     }
 
-    /// Records one frame of `vol`, classified by `classify` with `focus`, as seen by `view`, into
-    /// `frame`; the layers land in `targets` (resized if needed). Passes: `focus`, `context`,
-    /// `composite`, or `one_pass`.
+    /// Records one frame of `vol`, classified by `classify` (transfer functions, focus,
+    /// modulation), as seen by `view`, into `frame`; the layers land in `targets` (resized if
+    /// needed). Passes: `focus`, `context`, `composite`, or `one_pass`.
     pub fn record(
         &self,
         frame: &mut gpu::Frame,
         vol: &VolumeTextures,
-        classify: &mut ClassifyTextures,
-        focus: Focus,
+        classify: &mut GpuClassification,
         view: &View,
         targets: &mut FrameTargets,
     ) -> Result<Recorded> {
+        let focus = classify.focus;
         let ctx = &self.ctx;
         let [w, h] = view.size;
         let max2d = ctx.info.max_image_dimension_2d;
@@ -288,6 +353,16 @@ impl Renderer {
             }
         };
         view.lighting.validate()?;
+        let modulation = classify.modulation.clone();
+        modulation.validate()?;
+        let importance = match (modulation.is_active(), &vol.importance) {
+            (false, _) => None,
+            (true, Some(i)) => Some(i),
+            (true, None) => return Err(Error::Invalid(
+                "importance modulation needs the importance map attached to the volume textures"
+                    .into(),
+            )),
+        };
         // The box in world units: physical size scaled so that its longest edge is 1.
         let physical: [f64; 3] = std::array::from_fn(|a| vol.dims[a] as f64 * vol.spacing[a]);
         let longest = physical.iter().copied().fold(0.0, f64::max);
@@ -346,7 +421,7 @@ impl Renderer {
         let eye = cam.eye(radius);
         let light = -view_dir; // a headlight
         let l = &view.lighting;
-        let uniforms = SliceUniforms {
+        let mut uniforms = SliceUniforms {
             view_proj: cam
                 .view_proj(w as f32 / h as f32, radius)
                 .to_cols_array_2d(),
@@ -371,7 +446,9 @@ impl Renderer {
                 focus_n[2],
                 if uses_occlusion { 1.0 } else { 0.0 },
             ],
+            ..bytemuck::Zeroable::zeroed()
         };
+        uniforms.set_modulation(&modulation, vol.dims);
         let ubo = frame.staging.push_pod(&uniforms)?;
         let vertices = frame
             .staging
@@ -391,6 +468,20 @@ impl Renderer {
         vol.intensity.transition(cmd, Access::FragmentSampled);
         vol.gradient.transition(cmd, Access::FragmentSampled);
         occlusion.transition(cmd, Access::FragmentSampled);
+        let (delta_d, delta_max) = match importance {
+            Some(i) => (&i.delta_d, &i.max_abs),
+            None => (&self.dummy_3d, &self.dummy_max),
+        };
+        if let Some(i) = importance {
+            i.delta_d.transition(cmd, Access::FragmentSampled);
+            // The reduction's atomics must be visible to the fragment shaders' reads.
+            crate::gpu::commands::memory_transition(
+                ctx,
+                cmd,
+                Access::ComputeReadWrite,
+                Access::FragmentStorageRead,
+            );
+        }
         let binds = [
             Bind::UniformSlice(ubo),
             Bind::Sampled(&vol.intensity, &self.linear),
@@ -398,6 +489,8 @@ impl Renderer {
             Bind::Sampled(classify.transfer_image(), &self.linear),
             Bind::Sampled(occlusion, &self.linear),
             Bind::Sampled(classify.occlusion_image(), &self.linear),
+            Bind::Sampled(delta_d, &self.linear),
+            Bind::StorageBuffer(delta_max),
         ];
         let draw_with =
             |pipeline: &GraphicsPipeline, buffer: BufferSlice, count: u32| -> Result<()> {
@@ -481,7 +574,7 @@ impl Renderer {
         params: &RenderParams,
         readback: bool,
     ) -> Result<Frame> {
-        let mut classify = ClassifyTextures::new(&self.ctx, &params.transfer)?;
+        let mut classify = GpuClassification::new(&self.ctx, &params.transfer, params.focus)?;
         classify.set_occlusion_table(params.occlusion_tf.clone())?;
         let view = View {
             camera: params.camera,
@@ -490,15 +583,14 @@ impl Renderer {
             one_pass: params.one_pass,
             lighting: Lighting::default(),
         };
-        self.render_frame(vol, &mut classify, params.focus, &view, readback)
+        self.render_frame(vol, &mut classify, &view, readback)
     }
 
     /// [`Renderer::render`] for a volume and classification that are already on the GPU.
     pub fn render_frame(
         &self,
         vol: &VolumeTextures,
-        classify: &mut ClassifyTextures,
-        focus: Focus,
+        classify: &mut GpuClassification,
         view: &View,
         readback: bool,
     ) -> Result<Frame> {
@@ -507,7 +599,7 @@ impl Renderer {
         let mut frames = Frames::new(ctx, &FramesDesc::one_shot("render frame", 8))?;
         let mut host = None;
         let (recorded, _) = frames.frame(|f| {
-            let r = self.record(f, vol, classify, focus, view, &mut targets)?;
+            let r = self.record(f, vol, classify, view, &mut targets)?;
             if readback {
                 let rb = TargetsReadback::new(ctx, &targets)?;
                 f.profiler
@@ -660,7 +752,15 @@ mod tests {
                 view_dir,
                 light,
                 material,
-                focus
+                focus,
+                mod_flags,
+                mod_color,
+                mod_opacity,
+                mod_stipple,
+                mod_seed,
+                stipple_white,
+                stipple_black,
+                volume_dims
             ]
         );
     }

@@ -9,6 +9,7 @@ use serde_json::json;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
+use vellum::classify::modulation::Modulation;
 use vellum::classify::Focus;
 use vellum::gpu::{Context, ContextDesc};
 use vellum::render::scene::{ClassificationSpec, GpuScene, InputSpec, RawInput, Scene};
@@ -226,6 +227,8 @@ struct RenderArgs {
     /// A feature map (features.json from `vellum migrate`): each feature gets its colour (FM6).
     #[arg(long, conflicts_with_all = ["otf", "tf"])]
     features: Option<PathBuf>,
+    #[command(flatten)]
+    modulation: ModulationArgs,
     /// Output PNG (required unless only --save-scene is asked for).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -234,6 +237,165 @@ struct RenderArgs {
     exr: Option<PathBuf>,
     #[arg(long)]
     json: bool,
+}
+
+/// Importance modulation (SPEC IM3–IM5): each flag overrides the scene file's value.
+#[derive(Args, Clone, Default)]
+struct ModulationArgs {
+    /// Colour modulation: raw ΔD (eq. 3) or |ΔD| (eq. 4); needs --gamma.
+    #[arg(long, value_name = "raw|abs")]
+    color_mod: Option<String>,
+    /// γ of colour modulation, per normalised-intensity unit of ΔD (may be negative).
+    #[arg(long, value_name = "G", allow_negative_numbers = true)]
+    gamma: Option<f32>,
+    /// Opacity modulation (eq. 5): t_l, t_h, k_l, k_h.
+    #[arg(long, value_name = "TL,TH,KL,KH")]
+    opacity_mod: Option<String>,
+    /// Stippling (eq. 6): threshold t in [0, 1] and density factor f >= 0.
+    #[arg(long, value_name = "T,F")]
+    stipple: Option<String>,
+    /// Seed of the stipple pattern [default: 0].
+    #[arg(long)]
+    seed: Option<u32>,
+    /// The stipple colours as R,G,B in 0..1 [defaults: white 1,1,1 and black 0,0,0].
+    #[arg(long, value_name = "R,G,B")]
+    stipple_white: Option<String>,
+    #[arg(long, value_name = "R,G,B")]
+    stipple_black: Option<String>,
+    /// Radius R of the importance map's Gaussian, in voxels [default: 10].
+    #[arg(long, value_name = "R")]
+    importance_radius: Option<u32>,
+    /// Which level is modulated [default: both].
+    #[arg(long, value_name = "focus|context|both")]
+    modulate: Option<String>,
+    /// What colour modulation adds to: the unlit colour or the Phong-lit one [default: phong].
+    #[arg(long, value_name = "ambient|phong")]
+    modulate_lighting: Option<String>,
+}
+
+impl ModulationArgs {
+    /// Applies the flags over `m` (the scene file's modulation, or none).
+    fn apply(&self, m: Option<Modulation>) -> Result<Option<Modulation>> {
+        use vellum::classify::modulation::{
+            ApplyTo, ColorMode, ColorModulation, ModulateLighting, OpacityModulation, Stipple,
+        };
+        let given = self.color_mod.is_some()
+            || self.gamma.is_some()
+            || self.opacity_mod.is_some()
+            || self.stipple.is_some()
+            || self.seed.is_some()
+            || self.stipple_white.is_some()
+            || self.stipple_black.is_some()
+            || self.importance_radius.is_some()
+            || self.modulate.is_some()
+            || self.modulate_lighting.is_some();
+        if !given {
+            return Ok(m);
+        }
+        let mut m = m.unwrap_or_default();
+        match (&self.color_mod, self.gamma) {
+            (Some(mode), Some(gamma)) => {
+                let mode = match mode.as_str() {
+                    "raw" => ColorMode::Raw,
+                    "abs" => ColorMode::Abs,
+                    other => anyhow::bail!("--color-mod '{other}' is unknown; expected raw or abs"),
+                };
+                m.color = Some(ColorModulation { mode, gamma });
+            }
+            (Some(_), None) => anyhow::bail!("--color-mod needs --gamma G"),
+            (None, Some(gamma)) => match &mut m.color {
+                Some(c) => c.gamma = gamma,
+                None => anyhow::bail!("--gamma needs --color-mod raw|abs"),
+            },
+            (None, None) => {}
+        }
+        if let Some(o) = &self.opacity_mod {
+            let v = parse_floats(o, "--opacity-mod", 4, "TL,TH,KL,KH (t_l, t_h, k_l, k_h)")?;
+            m.opacity = Some(OpacityModulation {
+                t_low: v[0],
+                t_high: v[1],
+                k_low: v[2],
+                k_high: v[3],
+            });
+        }
+        if let Some(st) = &self.stipple {
+            let v = parse_floats(st, "--stipple", 2, "T,F (threshold t and factor f)")?;
+            let old = m.stipple;
+            m.stipple = Some(Stipple {
+                t: v[0],
+                f: v[1],
+                seed: old.map_or(0, |s| s.seed),
+                white: old.map_or([1.0; 3], |s| s.white),
+                black: old.map_or([0.0; 3], |s| s.black),
+            });
+        }
+        let stipple_only = |flag: &str| anyhow::anyhow!("{flag} needs --stipple T,F");
+        if let Some(seed) = self.seed {
+            m.stipple
+                .as_mut()
+                .ok_or_else(|| stipple_only("--seed"))?
+                .seed = seed;
+        }
+        if let Some(c) = &self.stipple_white {
+            m.stipple
+                .as_mut()
+                .ok_or_else(|| stipple_only("--stipple-white"))?
+                .white = parse_rgb("--stipple-white", c)?;
+        }
+        if let Some(c) = &self.stipple_black {
+            m.stipple
+                .as_mut()
+                .ok_or_else(|| stipple_only("--stipple-black"))?
+                .black = parse_rgb("--stipple-black", c)?;
+        }
+        if let Some(r) = self.importance_radius {
+            m.importance_radius = r;
+        }
+        if let Some(a) = &self.modulate {
+            m.apply_to = match a.as_str() {
+                "focus" => ApplyTo::Focus,
+                "context" => ApplyTo::Context,
+                "both" => ApplyTo::Both,
+                other => anyhow::bail!(
+                    "--modulate '{other}' is unknown; expected focus, context or both"
+                ),
+            };
+        }
+        if let Some(l) = &self.modulate_lighting {
+            m.lighting = match l.as_str() {
+                "ambient" => ModulateLighting::Ambient,
+                "phong" => ModulateLighting::Phong,
+                other => anyhow::bail!(
+                    "--modulate-lighting '{other}' is unknown; expected ambient or phong"
+                ),
+            };
+        }
+        anyhow::ensure!(
+            m.is_active(),
+            "the modulation flags need an effect: --color-mod with --gamma, --opacity-mod or --stipple"
+        );
+        m.validate()?;
+        Ok(Some(m))
+    }
+}
+
+/// Parses `n` comma-separated finite numbers for `flag`.
+fn parse_floats(s: &str, flag: &str, n: usize, what: &str) -> Result<Vec<f32>> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| anyhow::anyhow!("{flag} '{s}' is not {n} numbers {what}"))?;
+    anyhow::ensure!(
+        v.len() == n,
+        "{flag} '{s}' has {} value(s); expected {n}: {what}",
+        v.len()
+    );
+    anyhow::ensure!(
+        v.iter().all(|x| x.is_finite()),
+        "{flag} '{s}' must be finite numbers"
+    );
+    Ok(v)
 }
 
 #[derive(Subcommand)]
@@ -621,11 +783,11 @@ fn parse_size(s: &str) -> Result<[u32; 2]> {
         .ok_or_else(|| anyhow::anyhow!("--size '{s}' is not WIDTHxHEIGHT like 512x512"))
 }
 
-fn parse_rgb(s: &str) -> Result<[f32; 3]> {
+fn parse_rgb(flag: &str, s: &str) -> Result<[f32; 3]> {
     let v: Vec<f32> = s.split(',').filter_map(|c| c.trim().parse().ok()).collect();
     anyhow::ensure!(
         v.len() == 3 && v.iter().all(|c| (0.0..=1.0).contains(c)),
-        "--background '{s}' is not R,G,B with each in 0..1"
+        "{flag} '{s}' is not R,G,B with each in 0..1"
     );
     Ok([v[0], v[1], v[2]])
 }
@@ -720,8 +882,9 @@ fn render_scene(a: &RenderArgs) -> Result<Scene> {
         scene.one_pass = true;
     }
     if let Some(b) = &a.background {
-        scene.background = parse_rgb(b)?;
+        scene.background = parse_rgb("--background", b)?;
     }
+    scene.modulation = a.modulation.apply(scene.modulation.take())?;
     scene.validate()?;
     Ok(scene)
 }
@@ -751,14 +914,9 @@ fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
     let view = scene.view()?;
     let v = scene.load_volume().map_err(|e| from("input", e))?;
     let ctx = context(cli)?;
-    let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus)?;
-    let frame = Renderer::new(&ctx)?.render_frame(
-        &gpu.volume,
-        &mut gpu.classify,
-        gpu.focus,
-        &view,
-        true,
-    )?;
+    let modulation = scene.modulation.clone().unwrap_or_default();
+    let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
+    let frame = Renderer::new(&ctx)?.render_frame(&gpu.volume, &mut gpu.classify, &view, true)?;
     report_validation(&ctx);
     let [w, h] = frame.size;
     vellum::output::write_png_rgb(out, w, h, &to_rgb8(&frame.composite, scene.background))?;
