@@ -6,6 +6,7 @@
 pub mod bench;
 pub mod classify;
 pub mod error;
+pub mod figures;
 pub mod gpu;
 pub mod input;
 pub mod output;

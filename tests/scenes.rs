@@ -240,7 +240,10 @@ fn bad_flags(args: &[&str], phrase: &str) {
     assert_ne!(out.status.code(), Some(101), "panicked: {stderr}");
     let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
     assert_eq!(lines.len(), 1, "{args:?}: {stderr}");
-    assert!(lines[0].starts_with("error: ") && lines[0].contains(phrase), "{args:?}: {stderr}");
+    assert!(
+        lines[0].starts_with("error: ") && lines[0].contains(phrase),
+        "{args:?}: {stderr}"
+    );
     assert!(!out_png.exists());
 }
 
@@ -248,14 +251,26 @@ fn bad_flags(args: &[&str], phrase: &str) {
 fn bad_modulation_flags_get_one_sentence() {
     bad_flags(&["--opacity-mod", "0.8,0.2,1,1"], "t_l <= t_h");
     bad_flags(&["--opacity-mod", "0.1,0.2,1"], "expected 4");
-    bad_flags(&["--color-mod", "raw", "--gamma", "inf"], "not a finite number");
+    bad_flags(
+        &["--color-mod", "raw", "--gamma", "inf"],
+        "not a finite number",
+    );
     bad_flags(&["--color-mod", "raw"], "--color-mod needs --gamma");
     bad_flags(&["--gamma", "3"], "--gamma needs --color-mod");
-    bad_flags(&["--color-mod", "log", "--gamma", "3"], "expected raw or abs");
+    bad_flags(
+        &["--color-mod", "log", "--gamma", "3"],
+        "expected raw or abs",
+    );
     bad_flags(&["--stipple", "0.1,-2"], "f = -2");
     bad_flags(&["--stipple", "1.5,2"], "outside [0, 1]");
-    bad_flags(&["--stipple", "0.1,2", "--importance-radius", "0"], "importance radius");
-    bad_flags(&["--stipple", "0.1,2", "--importance-radius", "40"], "radius 40");
+    bad_flags(
+        &["--stipple", "0.1,2", "--importance-radius", "0"],
+        "importance radius",
+    );
+    bad_flags(
+        &["--stipple", "0.1,2", "--importance-radius", "40"],
+        "radius 40",
+    );
     bad_flags(&["--seed", "4"], "--seed needs --stipple");
     bad_flags(&["--modulate", "focus"], "need an effect");
 }

@@ -171,6 +171,11 @@ enum Command {
     Migrate(features::MigrateArgs),
     /// Print the tree of a feature map (features.json).
     Features(features::FeaturesArgs),
+    /// The papers' figures, rendered again as labelled contact sheets.
+    Figures {
+        #[command(subcommand)]
+        which: FiguresCommand,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -399,6 +404,20 @@ fn parse_floats(s: &str, flag: &str, n: usize, what: &str) -> Result<Vec<f32>> {
 }
 
 #[derive(Subcommand)]
+enum FiguresCommand {
+    /// The importance paper's Figures 3–9 (colour and opacity modulation, stippling) on the CT body
+    /// and the CT head.
+    Importance {
+        /// Folder for the PNG sheets (created if missing).
+        #[arg(long)]
+        out_dir: PathBuf,
+        /// Tile size in pixels.
+        #[arg(long, default_value_t = 320)]
+        size: u32,
+    },
+}
+
+#[derive(Subcommand)]
 enum BenchCommand {
     /// Frames per second of the slice renderer, one pass against two levels (paper Fig. 9).
     Render {
@@ -606,6 +625,17 @@ fn run(cli: &Cli) -> Result<()> {
             out,
             csv,
         } => occlusion_sensitivity(cli, input, radii, *bands, *stride, out, csv.as_deref()),
+        Command::Figures {
+            which: FiguresCommand::Importance { out_dir, size },
+        } => {
+            let ctx = context(cli)?;
+            let files = vellum::figures::importance(&ctx, out_dir, *size)?;
+            report_validation(&ctx);
+            for f in files {
+                println!("wrote {}", f.display());
+            }
+            Ok(())
+        }
         Command::Migrate(args) => features::migrate(args),
         Command::Features(args) => features::print_tree(args),
         Command::Bench {
