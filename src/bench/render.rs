@@ -9,6 +9,8 @@
 //!   host ms spent recording and submitting a frame, the fps over the whole orbit (wall clock,
 //!   which on a CPU device is the GPU time plus whatever the host does meanwhile), and the GPU
 //!   memory allocations made after the first frame (0 is the design).
+//! - **Modulation:** the two-level frame again with colour and opacity modulation by ΔD (one more
+//!   3D texture fetch per sample), interleaved with the plain frames; its extra cost in percent.
 //! - **Edits:** frames that change the transfer function between frames (only its 4 KiB texture is
 //!   re-uploaded) against frames that re-prepare the scene (upload the volume, recompute normals).
 //!
@@ -53,6 +55,11 @@ pub struct Row {
     /// Median over frame pairs of (two-level − one-pass) / one-pass, in percent; the frames of a
     /// pair run back to back.
     pub overhead_percent: f64,
+    /// Median ms of the two-level frame with colour (abs, Phong, γ 0.5) and opacity (1, 1, 2, 1)
+    /// modulation by ΔD (R = 10).
+    pub modulated_ms: f64,
+    /// Median over frame triples of (modulated − two-level) / two-level, in percent.
+    pub modulation_percent: f64,
     /// Median ms of each pass of the two-level frame.
     pub focus_ms: f64,
     pub context_ms: f64,
@@ -176,7 +183,9 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
         };
         let transfer = TransferFunction::preset(tf)?;
         let classification = Classification::Transfer(transfer.clone());
-        let mut scene = GpuScene::prepare(ctx, &v, &classification, focus, &Modulation::default())?;
+        // ΔD is attached once; frames switch the modulation on and off.
+        let mut scene = GpuScene::prepare(ctx, &v, &classification, focus, &modulated())?;
+        scene.classify.modulation = Modulation::default();
         normals_ms.push((
             label.clone(),
             crate::gpu::profiler::total_ms(&scene.passes, "sobel_normals"),
@@ -209,24 +218,54 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     })
 }
 
-/// One pass against two levels, alternating frame by frame so that both see the same machine:
-/// CPU devices drift in speed over seconds.
+/// The modulation the bench measures: colour and opacity, one ΔD fetch per sample.
+fn modulated() -> Modulation {
+    use crate::classify::modulation::{ColorMode, ColorModulation, OpacityModulation};
+    Modulation {
+        color: Some(ColorModulation {
+            mode: ColorMode::Abs,
+            gamma: 0.5,
+        }),
+        opacity: Some(OpacityModulation {
+            t_low: 1.0,
+            t_high: 1.0,
+            k_low: 2.0,
+            k_high: 1.0,
+        }),
+        ..Modulation::default()
+    }
+}
+
+/// One pass, two levels and two modulated levels, alternating frame by frame so that all see the
+/// same machine: CPU devices drift in speed over seconds.
 fn levels(s: &mut Session, label: &str, size: u32, repeat: usize) -> Result<Row> {
     let (one_view, two_view) = (view(size, 30.0, true), view(size, 30.0, false));
-    let slices = s.frame(&one_view)?;
-    s.frame(&two_view)?;
+    let triple = |s: &mut Session| -> Result<u32> {
+        s.scene.classify.modulation = Modulation::default();
+        let slices = s.frame(&one_view)?;
+        s.frame(&two_view)?;
+        s.scene.classify.modulation = modulated();
+        s.frame(&two_view)?;
+        s.scene.classify.modulation = Modulation::default();
+        Ok(slices)
+    };
+    let slices = triple(s)?;
     s.drain()?;
     for _ in 0..repeat {
-        s.frame(&one_view)?;
-        s.frame(&two_view)?;
+        triple(s)?;
     }
     let done = s.drain()?;
-    let (one, two): (Vec<&FrameResult>, Vec<&FrameResult>) =
-        done.iter().partition(|r| r.index % 2 == 0);
+    let by = |k: u64| -> Vec<&FrameResult> { done.iter().filter(|r| r.index % 3 == k).collect() };
+    let (one, two, modd) = (by(0), by(1), by(2));
     let ratios: Vec<f64> = one
         .iter()
         .zip(&two)
         .map(|(o, t)| frame_ms(&t.passes) / frame_ms(&o.passes))
+        .collect();
+    let mod_ratios: Vec<f64> = two
+        .iter()
+        .zip(&modd)
+        .map(|(t, m)| frame_ms(&m.passes) / frame_ms(&t.passes))
         .collect();
     let ms =
         |f: &[&FrameResult]| median(&f.iter().map(|r| frame_ms(&r.passes)).collect::<Vec<_>>());
@@ -247,6 +286,8 @@ fn levels(s: &mut Session, label: &str, size: u32, repeat: usize) -> Result<Row>
         one_pass_fps: 1000.0 / one_ms,
         two_level_fps: 1000.0 / two_ms,
         overhead_percent: 100.0 * (median(&ratios) - 1.0),
+        modulated_ms: ms(&modd),
+        modulation_percent: 100.0 * (median(&mod_ratios) - 1.0),
         focus_ms: pass("focus"),
         context_ms: pass("context"),
         composite_ms: pass("composite"),
@@ -352,11 +393,11 @@ impl Table {
         for (d, ms) in &self.normals_ms {
             s += &format!("sobel_normals {d}: {ms:.1} ms (once per volume)\n");
         }
-        s += "data                 size  slices | one pass ms   fps | two levels ms   fps | overhead | focus  context  composite ms\n";
+        s += "data                 size  slices | one pass ms   fps | two levels ms   fps | overhead | modulated ms  extra | focus  context  composite ms\n";
         for r in &self.rows {
             s += &format!(
-                "{:<20} {:>4}² {:>6} | {:>11.1} {:>5.2} | {:>13.1} {:>5.2} | {:>7.1}% | {:>6.1} {:>8.1} {:>10.1}\n",
-                r.data, r.size, r.slices, r.one_pass_ms, r.one_pass_fps, r.two_level_ms, r.two_level_fps, r.overhead_percent, r.focus_ms, r.context_ms, r.composite_ms
+                "{:<20} {:>4}² {:>6} | {:>11.2} {:>5.1} | {:>13.2} {:>5.1} | {:>7.1}% | {:>12.2} {:>5.1}% | {:>6.2} {:>8.2} {:>10.2}\n",
+                r.data, r.size, r.slices, r.one_pass_ms, r.one_pass_fps, r.two_level_ms, r.two_level_fps, r.overhead_percent, r.modulated_ms, r.modulation_percent, r.focus_ms, r.context_ms, r.composite_ms
             );
         }
         s +=
