@@ -4,10 +4,10 @@
 //!
 //! It sits beneath both `passes/` and `render/` and holds:
 //! - the data: 1D transfer functions ([`transfer`]), occlusion transfer functions ([`otf`]) and
-//!   their visibility mappings ([`mapping`]), feature-map transfer functions ([`features`]), and the
-//!   focus of a two-level frame ([`Focus`]);
-//! - their persistent GPU textures ([`textures::ClassifyTextures`]), re-uploaded only when their
-//!   contents change;
+//!   their visibility mappings ([`mapping`]), feature-map transfer functions ([`features`]), the
+//!   focus of a two-level frame ([`Focus`]) and importance modulation ([`modulation`]);
+//! - their persistent GPU state ([`textures::GpuClassification`]): textures re-uploaded only when
+//!   their contents change, focus and modulation as per-frame uniforms;
 //! - in GLSL, `glsl/common/classify.glsl` and `glsl/common/shading.glsl`: pure functions of
 //!   (value, occlusion, ΔD) and of (normal, light, view), with no bindings inside, so that slice
 //!   shaders and compute shaders include the same code.
