@@ -8,6 +8,7 @@ pub mod classify;
 pub mod error;
 pub mod figures;
 pub mod gpu;
+pub mod imaging;
 pub mod input;
 pub mod output;
 pub mod passes;
