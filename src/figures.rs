@@ -272,6 +272,7 @@ pub fn importance_sheets(ctx: &Arc<Context>, size: u32) -> Result<Vec<(&'static 
             slices: None,
             one_pass: true,
             lighting: Lighting::default(),
+            style: None,
         };
         let mut tiles = Vec::new();
         for tile in &fig.tiles {

@@ -161,6 +161,7 @@ fn view(size: u32, azimuth: f32, one_pass: bool) -> View {
         slices: None,
         one_pass,
         lighting: Lighting::default(),
+        style: None,
     }
 }
 

@@ -79,7 +79,12 @@ fn across_difference(a: &Plane, b: &Plane) -> Plane {
     Plane {
         width: a.width,
         height: a.height,
-        data: a.data.iter().zip(&b.data).map(|(x, y)| (x - y).abs()).collect(),
+        data: a
+            .data
+            .iter()
+            .zip(&b.data)
+            .map(|(x, y)| (x - y).abs())
+            .collect(),
     }
 }
 
@@ -112,9 +117,8 @@ pub fn normalise(p: &Plane) -> Plane {
             if v <= 0.01 || v >= 1.0 {
                 continue;
             }
-            let is_max = (-1..=1).all(|dy| {
-                (-1..=1).all(|dx| (dx == 0 && dy == 0) || s.at(x + dx, y + dy) <= v)
-            });
+            let is_max = (-1..=1)
+                .all(|dy| (-1..=1).all(|dx| (dx == 0 && dy == 0) || s.at(x + dx, y + dy) <= v));
             if is_max {
                 sum += v as f64;
                 n += 1;
@@ -196,7 +200,9 @@ pub fn saliency(rgb: &[[f32; 3]], width: usize, height: usize) -> Plane {
     let r = pyramid(channel(&|p| p[0] - (p[1] + p[2]) / 2.0));
     let g = pyramid(channel(&|p| p[1] - (p[0] + p[2]) / 2.0));
     let b = pyramid(channel(&|p| p[2] - (p[0] + p[1]) / 2.0));
-    let y = pyramid(channel(&|p| (p[0] + p[1]) / 2.0 - (p[0] - p[1]).abs() / 2.0 - p[2]));
+    let y = pyramid(channel(&|p| {
+        (p[0] + p[1]) / 2.0 - (p[0] - p[1]).abs() / 2.0 - p[2]
+    }));
     let i = pyramid(Plane {
         width,
         height,
@@ -284,7 +290,11 @@ mod tests {
             .collect();
         let mut img = vec![[0.5f32; 3]; w * h];
         for (k, &(cx, cy)) in centres.iter().enumerate() {
-            let c = if k == odd { odd_colour } else { [0.1, 0.2, 0.9] };
+            let c = if k == odd {
+                odd_colour
+            } else {
+                [0.1, 0.2, 0.9]
+            };
             for y in 0..h {
                 for x in 0..w {
                     let (dx, dy) = (x as f32 + 0.5 - cx, y as f32 + 0.5 - cy);
@@ -312,7 +322,10 @@ mod tests {
             let (x, y) = ((at % 256) as f32 + 0.5, (at / 256) as f32 + 0.5);
             let (cx, cy) = centres[odd];
             let d = ((x - cx).powi(2) + (y - cy).powi(2)).sqrt();
-            assert!(d <= 20.0, "disc {odd}: the most salient point ({x}, {y}) is {d} px from it");
+            assert!(
+                d <= 20.0,
+                "disc {odd}: the most salient point ({x}, {y}) is {d} px from it"
+            );
         }
     }
 
@@ -326,6 +339,11 @@ mod tests {
         }
         let (a, b) = (normalise(&one), normalise(&many));
         let peak = |p: &Plane| p.data.iter().copied().fold(0.0f32, f32::max);
-        assert!(peak(&a) > 0.99 && peak(&b) < 0.1, "{} {}", peak(&a), peak(&b));
+        assert!(
+            peak(&a) > 0.99 && peak(&b) < 0.1,
+            "{} {}",
+            peak(&a),
+            peak(&b)
+        );
     }
 }

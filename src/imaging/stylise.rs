@@ -138,7 +138,10 @@ mod tests {
             .collect();
         let k = kuwahara(&img, w, h, 2);
         for y in 0..h {
-            assert!(k[y * w + 5][0] < 0.1 && k[y * w + 6][0] > 0.9, "row {y} step kept");
+            assert!(
+                k[y * w + 5][0] < 0.1 && k[y * w + 6][0] > 0.9,
+                "row {y} step kept"
+            );
         }
     }
 }

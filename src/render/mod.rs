@@ -4,7 +4,9 @@
 //! are the only modules of `render/` that touch Vulkan.
 
 pub mod camera;
+pub mod post;
 pub mod proxy;
 pub mod scene;
 pub mod slicer;
+pub mod style;
 pub mod targets;

@@ -24,8 +24,9 @@
 //!   (`{"mode": "raw"|"abs", "gamma": G}`), `opacity` (`{"t_low", "t_high", "k_low", "k_high"}`),
 //!   `stipple` (`{"t", "f", "seed", "white", "black"}`), `importance_radius`, `apply_to`
 //!   (`focus`, `context`, `both`) and `lighting` (`ambient`, `phong`).
-//! - `style`: parsed, for the perceptual styles. Until those are built, rendering a scene that
-//!   sets it is an error, never a silent skip.
+//! - `style`: a perceptual style of the two-level paper, `{"style": 2 | "dog", "params": {..}}`
+//!   (`render::style`). Styles 4–12 need object-space lines, which are not built yet: a scene
+//!   that asks for one is refused, never rendered without them.
 //!
 //! Every key is checked: an unknown key is an error that names it.
 //!
@@ -48,6 +49,7 @@ use crate::passes::normals::{Normals, VolumeTextures};
 use crate::passes::occlusion::{Occlusion, OcclusionParams};
 use crate::render::camera::Camera;
 use crate::render::slicer::{Lighting, View};
+use crate::render::style::{Style, StyleParams};
 use crate::volume::io::RawSpec;
 use crate::volume::{Volume, VoxelType};
 use serde::{Deserialize, Serialize};
@@ -167,26 +169,31 @@ impl CameraSpec {
     }
 }
 
-/// A perceptual style and its parameters (two-level paper §3, the styles issue). Parsed now; the
-/// styles themselves are not built yet.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields, default)]
+/// A perceptual style and its parameters, as the scene file holds them:
+/// `{"style": 2 | "dog", "params": {"dog_sigma": 1.5, ...}}` (see `render::style::StyleParams`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct StyleSpec {
-    /// The paper's style number (1–15) or name.
-    pub style: Option<serde_json::Value>,
-    /// Edge colour (RGB), opacity and width in pixels.
-    pub edge_color: Option<[f32; 3]>,
-    pub edge_opacity: Option<f32>,
-    pub edge_width: Option<f32>,
-    /// Edge threshold in [0, 1].
-    pub threshold: Option<f32>,
-    /// DoG and Canny σ in pixels, and the DoG ratio k.
-    pub sigma: Option<f32>,
-    pub k: Option<f32>,
-    /// Kuwahara radius in pixels.
-    pub kuwahara_radius: Option<u32>,
-    /// Saturation factor of the context.
-    pub saturation: Option<f32>,
+    /// The paper's style number (1–15) or its name.
+    pub style: serde_json::Value,
+    #[serde(default)]
+    pub params: StyleParams,
+}
+
+impl StyleSpec {
+    /// The style, checked (unknown, not built, or bad parameters are refused).
+    pub fn resolve(&self) -> Result<Style> {
+        let name = match &self.style {
+            serde_json::Value::String(s) => s.clone(),
+            serde_json::Value::Number(n) => n.to_string(),
+            other => {
+                return Err(Error::Invalid(format!(
+                    "style {other} is neither a number nor a name"
+                )))
+            }
+        };
+        Style::new(&name, self.params)
+    }
 }
 
 /// The whole composed render.
@@ -341,16 +348,6 @@ impl Scene {
         Ok(())
     }
 
-    /// Refuses what this build cannot render yet, rather than skipping it silently.
-    pub fn check_supported(&self) -> Result<()> {
-        if self.style.is_some() {
-            return Err(Error::Invalid(
-                "the scene sets a \"style\", but the perceptual styles are not built yet; remove the section".into(),
-            ));
-        }
-        Ok(())
-    }
-
     /// The raw-file layout of the input, if any.
     pub fn raw_spec(&self) -> Result<Option<RawSpec>> {
         self.input
@@ -396,6 +393,7 @@ impl Scene {
             slices: self.slices,
             one_pass: self.one_pass,
             lighting: self.lighting,
+            style: self.style.as_ref().map(StyleSpec::resolve).transpose()?,
         })
     }
 }
@@ -451,7 +449,7 @@ impl GpuScene {
             true => Some(ImportanceMap::new(ctx)?),
             false => None,
         };
-        let mut frames = Frames::new(ctx, &FramesDesc::one_shot("prepare scene", 8))?;
+        let mut frames = Frames::new(ctx, &FramesDesc::one_shot("prepare scene", 16))?;
         let ((occlusion_image, importance_volume), _) = frames.frame(|f| {
             volume.record_upload(ctx, f.cmd, f.profiler, &staging);
             normals.record(f.cmd, f.profiler, &volume)?;

@@ -33,7 +33,9 @@ use crate::gpu::{
 };
 use crate::passes::normals::{Bricks, VolumeTextures};
 use crate::render::camera::Camera;
+use crate::render::post::Post;
 use crate::render::proxy::view_aligned_slices_in;
+use crate::render::style::Style;
 use crate::render::targets::{FrameTargets, TargetsReadback, COLOR, DEPTH, LINEAR_DEPTH};
 use ash::vk;
 use glam::Vec3;
@@ -150,6 +152,8 @@ pub struct View {
     pub slices: Option<u32>,
     pub one_pass: bool,
     pub lighting: Lighting,
+    /// A perceptual style (two-level frames only), recorded after the levels.
+    pub style: Option<Style>,
 }
 
 /// Parameters of one frame for the one-shot [`Renderer::render`].
@@ -209,6 +213,8 @@ pub struct Renderer {
     dummy_3d: Image,
     /// Stand-in for the max |ΔD| buffer.
     dummy_max: crate::gpu::Buffer,
+    /// The style passes, built on the first styled frame.
+    post: std::sync::OnceLock<Post>,
 }
 
 /// Uniforms; intensity, gradient, TF, occlusion, OTF, ΔD; max |ΔD|.
@@ -316,6 +322,7 @@ impl Renderer {
                 vk::BufferUsageFlags::STORAGE_BUFFER,
                 &[0u8; 4],
             )?,
+            post: std::sync::OnceLock::new(),
         })
     }
 
@@ -353,6 +360,23 @@ impl Renderer {
             }
         };
         view.lighting.validate()?;
+        if let Some(style) = &view.style {
+            if view.one_pass {
+                return Err(Error::Invalid(format!(
+                    "style {} ({}) works on the two levels; drop --one-pass",
+                    style.def.number, style.def.name
+                )));
+            }
+            if style.def.needs_focus() && focus == Focus::None {
+                return Err(Error::Invalid(format!(
+                    "style {} ({}) works on the focus layer; give a focus with --iso V or --focus LO:HI",
+                    style.def.number, style.def.name
+                )));
+            }
+            if self.post.get().is_none() {
+                let _ = self.post.set(Post::new(ctx)?);
+            }
+        }
         let modulation = classify.modulation.clone();
         modulation.validate()?;
         let importance = match (modulation.is_active(), &vol.importance) {
@@ -462,7 +486,7 @@ impl Renderer {
             None => None,
         };
         classify.record(frame, Access::FragmentSampled)?;
-        let t = targets.ensure([w, h], !view.one_pass)?;
+        let t = targets.ensure([w, h], !view.one_pass, view.style.is_some())?;
         let cmd = frame.cmd;
         let profiler = &mut *frame.profiler;
         vol.intensity.transition(cmd, Access::FragmentSampled);
@@ -551,6 +575,10 @@ impl Renderer {
                 unsafe { ctx.device.cmd_draw(cmd, 3, 1, 0, 0) };
                 end_rendering(ctx, cmd);
                 profiler.end(cmd);
+                if let (Some(style), Some(post)) = (&view.style, &t.post) {
+                    let pipelines = self.post.get().expect("built above");
+                    pipelines.record(cmd, profiler, style, t, post)?;
+                }
             }
             _ => {
                 profiler.begin(cmd, "one_pass");
@@ -582,6 +610,7 @@ impl Renderer {
             slices: params.slices,
             one_pass: params.one_pass,
             lighting: Lighting::default(),
+            style: None,
         };
         self.render_frame(vol, &mut classify, &view, readback)
     }
@@ -596,7 +625,7 @@ impl Renderer {
     ) -> Result<Frame> {
         let ctx = &self.ctx;
         let mut targets = FrameTargets::new(ctx);
-        let mut frames = Frames::new(ctx, &FramesDesc::one_shot("render frame", 8))?;
+        let mut frames = Frames::new(ctx, &FramesDesc::one_shot("render frame", 32))?;
         let mut host = None;
         let (recorded, _) = frames.frame(|f| {
             let r = self.record(f, vol, classify, view, &mut targets)?;

@@ -42,6 +42,8 @@ pub struct TargetImages {
     pub size: [u32; 2],
     pub composite: Image,
     pub layers: Option<TargetLayers>,
+    /// The style passes' images, from the first styled frame on.
+    pub post: Option<crate::render::post::PostTargets>,
 }
 
 /// Persistent targets, resized on demand.
@@ -73,15 +75,22 @@ impl FrameTargets {
         }
     }
 
-    /// Makes sure the targets have `size`, with the two-level layers when `two_level`. Allocates
-    /// only on a change of size or the first two-level frame.
-    pub fn ensure(&mut self, size: [u32; 2], two_level: bool) -> Result<&TargetImages> {
+    /// Makes sure the targets have `size`, with the two-level layers when `two_level` and the
+    /// style passes' images when `styled`. Allocates only on a change of size or the first frame
+    /// that needs more.
+    pub fn ensure(
+        &mut self,
+        size: [u32; 2],
+        two_level: bool,
+        styled: bool,
+    ) -> Result<&TargetImages> {
         let ctx = &self.ctx;
         if self.images.as_ref().is_none_or(|i| i.size != size) {
             self.images = Some(TargetImages {
                 size,
                 composite: target(ctx, "composite", COLOR, size)?,
                 layers: None,
+                post: None,
             });
         }
         let images = self.images.as_mut().expect("set above");
@@ -93,6 +102,9 @@ impl FrameTargets {
                 context: target(ctx, "context", COLOR, size)?,
                 depth: target(ctx, "focus.depth.d32", DEPTH, size)?,
             });
+        }
+        if styled && images.post.is_none() {
+            images.post = Some(crate::render::post::PostTargets::new(ctx, size)?);
         }
         self.two_level = two_level;
         Ok(images)

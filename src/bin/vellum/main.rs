@@ -234,6 +234,8 @@ struct RenderArgs {
     features: Option<PathBuf>,
     #[command(flatten)]
     modulation: ModulationArgs,
+    #[command(flatten)]
+    style: StyleArgs,
     /// Output PNG (required unless only --save-scene is asked for).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -242,6 +244,115 @@ struct RenderArgs {
     exr: Option<PathBuf>,
     #[arg(long)]
     json: bool,
+}
+
+/// A perceptual style (SPEC TL4–TL7) and its parameters: each flag overrides the scene file's value.
+#[derive(Args, Clone, Default)]
+struct StyleArgs {
+    /// A style of the two-level paper, by number (1-15) or name (e.g. 2 or dog; see `vellum styles`).
+    #[arg(long, value_name = "N|NAME")]
+    style: Option<String>,
+    /// Edge colour as R,G,B in 0..1 [default: 0,0,0].
+    #[arg(long, value_name = "R,G,B")]
+    edge_color: Option<String>,
+    /// Edge opacity in [0, 1] [default: 1].
+    #[arg(long, allow_negative_numbers = true)]
+    edge_opacity: Option<f32>,
+    /// Edge width in pixels [default: 1].
+    #[arg(long)]
+    edge_width: Option<u32>,
+    /// Threshold of the style's edge detector, in [0, 1]: Sobel's on the gradient magnitude
+    /// [0.08], DoG's ε [0.005], Canny's high threshold [0.1].
+    #[arg(long, allow_negative_numbers = true)]
+    edge_threshold: Option<f32>,
+    /// σ in pixels of the DoG's narrow Gaussian or Canny's smoothing [default: 1].
+    #[arg(long, allow_negative_numbers = true)]
+    sigma: Option<f32>,
+    /// Ratio of the DoG's wide σ [default: 1.6].
+    #[arg(long, allow_negative_numbers = true)]
+    dog_k: Option<f32>,
+    /// Kuwahara radius in pixels [default: 4].
+    #[arg(long, allow_negative_numbers = true)]
+    kuwahara_radius: Option<i64>,
+    /// Saturation factor of the context for style 14 [default: 0.2].
+    #[arg(long, allow_negative_numbers = true)]
+    saturation: Option<f32>,
+}
+
+impl StyleArgs {
+    /// Applies the flags over the scene file's style, if any.
+    fn apply(
+        &self,
+        spec: Option<vellum::render::scene::StyleSpec>,
+    ) -> Result<Option<vellum::render::scene::StyleSpec>> {
+        use vellum::render::style::StyleDef;
+        let params_given = self.edge_color.is_some()
+            || self.edge_opacity.is_some()
+            || self.edge_width.is_some()
+            || self.edge_threshold.is_some()
+            || self.sigma.is_some()
+            || self.dog_k.is_some()
+            || self.kuwahara_radius.is_some()
+            || self.saturation.is_some();
+        let mut spec = match (&self.style, spec) {
+            (Some(s), old) => vellum::render::scene::StyleSpec {
+                style: serde_json::Value::String(s.clone()),
+                params: old.map(|o| o.params).unwrap_or_default(),
+            },
+            (None, Some(old)) => old,
+            (None, None) if params_given => {
+                anyhow::bail!("the style flags need --style N|NAME")
+            }
+            (None, None) => return Ok(None),
+        };
+        let p = &mut spec.params;
+        if let Some(c) = &self.edge_color {
+            p.edge_color = parse_rgb("--edge-color", c)?;
+        }
+        if let Some(v) = self.edge_opacity {
+            p.edge_opacity = v;
+        }
+        if let Some(v) = self.edge_width {
+            p.edge_width = v;
+        }
+        let name = match &spec.style {
+            serde_json::Value::String(s) => s.clone(),
+            other => other.to_string(),
+        };
+        let def = StyleDef::find(&name)?;
+        if let Some(t) = self.edge_threshold {
+            use vellum::render::style::EdgeKind;
+            match def.edges {
+                Some(EdgeKind::Sobel) => p.sobel_threshold = t,
+                Some(EdgeKind::Dog) => p.dog_threshold = t,
+                Some(EdgeKind::Canny) => p.canny_high = t,
+                None => anyhow::bail!(
+                    "--edge-threshold has no effect on style {} ({}), which draws no image-space edges",
+                    def.number,
+                    def.name
+                ),
+            }
+        }
+        if let Some(v) = self.sigma {
+            p.dog_sigma = v;
+            p.canny_sigma = v;
+        }
+        if let Some(v) = self.dog_k {
+            p.dog_k = v;
+        }
+        if let Some(r) = self.kuwahara_radius {
+            anyhow::ensure!(
+                (1..=16).contains(&r),
+                "Kuwahara radius {r} is invalid; expected 1..=16 pixels"
+            );
+            p.kuwahara_radius = r as u32;
+        }
+        if let Some(v) = self.saturation {
+            p.saturation = v;
+        }
+        spec.resolve()?;
+        Ok(Some(spec))
+    }
 }
 
 /// Importance modulation (SPEC IM3–IM5): each flag overrides the scene file's value.
@@ -915,6 +1026,7 @@ fn render_scene(a: &RenderArgs) -> Result<Scene> {
         scene.background = parse_rgb("--background", b)?;
     }
     scene.modulation = a.modulation.apply(scene.modulation.take())?;
+    scene.style = a.style.apply(scene.style.take())?;
     scene.validate()?;
     Ok(scene)
 }
@@ -937,11 +1049,10 @@ fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
         Some(p) => anyhow::anyhow!("scene file {}: {key}: {e}", p.display()),
         None => e.into(),
     };
-    scene.check_supported().map_err(|e| from("scene", e))?;
     let classification = scene
         .classification()
         .map_err(|e| from("classification", e))?;
-    let view = scene.view()?;
+    let view = scene.view().map_err(|e| from("style", e))?;
     let v = scene.load_volume().map_err(|e| from("input", e))?;
     let ctx = context(cli)?;
     let modulation = scene.modulation.clone().unwrap_or_default();

@@ -1,0 +1,334 @@
+//! The 15 styles of the two-level paper's study (§4, SPEC TL7), by number and name, and their
+//! parameters. One table says what each style is made of; `render/post.rs` records the passes.
+//!
+//! Styles 4–12 need object-space lines (silhouettes, suggestive contours), which are not built
+//! yet: asking for one is an error that says so, never a silent skip.
+
+use crate::error::{Error, Result};
+use serde::{Deserialize, Serialize};
+
+/// An image-space edge detector on the focus layer (TL4).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum EdgeKind {
+    Sobel,
+    Dog,
+    Canny,
+}
+
+/// Object-space lines (TL5).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum LineKind {
+    Silhouettes,
+    SuggestiveContours,
+}
+
+/// Abstraction of the context layer (TL6).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum Abstraction {
+    Kuwahara,
+    Saturation,
+}
+
+/// One style of the table.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct StyleDef {
+    /// The paper's number, 1–15.
+    pub number: u32,
+    /// Its name: lower case, parts joined by `+`.
+    pub name: &'static str,
+    pub edges: Option<EdgeKind>,
+    pub lines: Option<LineKind>,
+    pub abstraction: Option<Abstraction>,
+}
+
+const fn style(
+    number: u32,
+    name: &'static str,
+    edges: Option<EdgeKind>,
+    lines: Option<LineKind>,
+    abstraction: Option<Abstraction>,
+) -> StyleDef {
+    StyleDef {
+        number,
+        name,
+        edges,
+        lines,
+        abstraction,
+    }
+}
+
+use Abstraction::*;
+use EdgeKind::*;
+use LineKind::*;
+
+/// The paper's 15 styles, in its order.
+pub const STYLES: [StyleDef; 15] = [
+    style(1, "sobel", Some(Sobel), None, None),
+    style(2, "dog", Some(Dog), None, None),
+    style(3, "canny", Some(Canny), None, None),
+    style(4, "silhouettes", None, Some(Silhouettes), None),
+    style(
+        5,
+        "suggestive-contours",
+        None,
+        Some(SuggestiveContours),
+        None,
+    ),
+    style(6, "sobel+silhouettes", Some(Sobel), Some(Silhouettes), None),
+    style(7, "dog+silhouettes", Some(Dog), Some(Silhouettes), None),
+    style(8, "canny+silhouettes", Some(Canny), Some(Silhouettes), None),
+    style(
+        9,
+        "sobel+suggestive-contours",
+        Some(Sobel),
+        Some(SuggestiveContours),
+        None,
+    ),
+    style(
+        10,
+        "dog+suggestive-contours",
+        Some(Dog),
+        Some(SuggestiveContours),
+        None,
+    ),
+    style(
+        11,
+        "canny+suggestive-contours",
+        Some(Canny),
+        Some(SuggestiveContours),
+        None,
+    ),
+    style(
+        12,
+        "dog+suggestive-contours+kuwahara",
+        Some(Dog),
+        Some(SuggestiveContours),
+        Some(Kuwahara),
+    ),
+    style(13, "kuwahara", None, None, Some(Kuwahara)),
+    style(14, "saturation", None, None, Some(Saturation)),
+    style(15, "none", None, None, None),
+];
+
+impl StyleDef {
+    /// Looks a style up by number or by name (case and spaces ignored; "suggestive" stands for
+    /// "suggestive-contours").
+    pub fn find(s: &str) -> Result<&'static StyleDef> {
+        let key: String = s
+            .trim()
+            .to_lowercase()
+            .chars()
+            .filter(|c| !c.is_whitespace())
+            .collect();
+        let found = match key.parse::<u32>() {
+            Ok(n) => STYLES.iter().find(|d| d.number == n),
+            Err(_) => {
+                let key = key.replace("suggestive-contours", "suggestive");
+                STYLES
+                    .iter()
+                    .find(|d| d.name.replace("suggestive-contours", "suggestive") == key)
+            }
+        };
+        found.ok_or_else(|| {
+            Error::Invalid(format!(
+                "style {s:?} is unknown; expected a number 1-15 or one of: {}",
+                STYLES
+                    .iter()
+                    .map(|d| format!("{} {}", d.number, d.name))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ))
+        })
+    }
+
+    /// Whether this build can render the style (styles with object-space lines cannot yet).
+    pub fn available(&self) -> bool {
+        self.lines.is_none()
+    }
+
+    /// Why the style cannot be rendered, if it cannot.
+    pub fn unavailable_reason(&self) -> Option<String> {
+        self.lines.map(|l| {
+            format!(
+                "style {} ({}) needs object-space {}, which are not built yet",
+                self.number,
+                self.name,
+                match l {
+                    LineKind::Silhouettes => "silhouettes",
+                    LineKind::SuggestiveContours => "suggestive contours",
+                }
+            )
+        })
+    }
+
+    /// Whether the style works on the focus layer (and so needs a focus).
+    pub fn needs_focus(&self) -> bool {
+        self.edges.is_some() || self.lines.is_some()
+    }
+}
+
+/// Parameters of the styles; every field has the default the gallery uses.
+#[derive(Copy, Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StyleParams {
+    /// Edge colour (RGB in [0, 1]), opacity in [0, 1] and line width in pixels (1–15).
+    pub edge_color: [f32; 3],
+    pub edge_opacity: f32,
+    pub edge_width: u32,
+    /// Sobel: threshold on the normalised gradient magnitude, in [0, 1].
+    pub sobel_threshold: f32,
+    /// DoG: σ in pixels, the ratio k of the wider σ, XDoG's τ (1 = plain DoG), the threshold ε in
+    /// [0, 1] and the sharpness φ of the soft threshold.
+    pub dog_sigma: f32,
+    pub dog_k: f32,
+    pub dog_tau: f32,
+    pub dog_threshold: f32,
+    pub dog_phi: f32,
+    /// Canny: smoothing σ in pixels, the high threshold in [0, 1], and the low one as a fraction
+    /// of it.
+    pub canny_sigma: f32,
+    pub canny_high: f32,
+    pub canny_low_ratio: f32,
+    /// Kuwahara radius in pixels (1–16).
+    pub kuwahara_radius: u32,
+    /// Saturation factor of the context (0 grey, 1 unchanged; at most 4).
+    pub saturation: f32,
+}
+
+impl Default for StyleParams {
+    fn default() -> Self {
+        StyleParams {
+            edge_color: [0.0; 3],
+            edge_opacity: 1.0,
+            edge_width: 1,
+            sobel_threshold: 0.08,
+            dog_sigma: 1.0,
+            dog_k: 1.6,
+            dog_tau: 1.0,
+            dog_threshold: 0.005,
+            dog_phi: 100.0,
+            canny_sigma: 1.0,
+            canny_high: 0.1,
+            canny_low_ratio: 0.4,
+            kuwahara_radius: 4,
+            saturation: 0.2,
+        }
+    }
+}
+
+impl StyleParams {
+    /// Checks every value; one sentence naming it when one is out of range.
+    pub fn validate(&self) -> Result<()> {
+        let unit = |name: &str, v: f32| {
+            if (0.0..=1.0).contains(&v) {
+                Ok(())
+            } else {
+                Err(Error::Invalid(format!("{name} {v} is outside [0, 1]")))
+            }
+        };
+        let positive = |name: &str, v: f32, max: f32| {
+            if v.is_finite() && v > 0.0 && v <= max {
+                Ok(())
+            } else {
+                Err(Error::Invalid(format!(
+                    "{name} {v} is invalid; expected a number in (0, {max}]"
+                )))
+            }
+        };
+        for (c, v) in self.edge_color.iter().enumerate() {
+            unit(&format!("edge colour component {c}"), *v)?;
+        }
+        unit("edge opacity", self.edge_opacity)?;
+        unit("the Sobel threshold", self.sobel_threshold)?;
+        unit("the DoG threshold", self.dog_threshold)?;
+        unit("the Canny high threshold", self.canny_high)?;
+        unit("the Canny low ratio", self.canny_low_ratio)?;
+        positive("the DoG σ", self.dog_sigma, 16.0)?;
+        positive("the DoG k", self.dog_k, 8.0)?;
+        positive("the DoG τ", self.dog_tau, 2.0)?;
+        positive("the DoG φ", self.dog_phi, 1.0e4)?;
+        positive("the Canny σ", self.canny_sigma, 16.0)?;
+        if self.dog_k * self.dog_sigma > 16.0 {
+            return Err(Error::Invalid(format!(
+                "the DoG's wider σ k·σ = {} is larger than 16 pixels",
+                self.dog_k * self.dog_sigma
+            )));
+        }
+        if !(1..=15).contains(&self.edge_width) {
+            return Err(Error::Invalid(format!(
+                "edge width {} is invalid; expected 1..=15 pixels",
+                self.edge_width
+            )));
+        }
+        if !(1..=16).contains(&self.kuwahara_radius) {
+            return Err(Error::Invalid(format!(
+                "Kuwahara radius {} is invalid; expected 1..=16 pixels",
+                self.kuwahara_radius
+            )));
+        }
+        if !(self.saturation.is_finite() && (0.0..=4.0).contains(&self.saturation)) {
+            return Err(Error::Invalid(format!(
+                "saturation factor {} is invalid; expected 0..=4",
+                self.saturation
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// A style with its parameters, ready to record.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Style {
+    pub def: &'static StyleDef,
+    pub params: StyleParams,
+}
+
+impl Style {
+    /// The style named `s` (number or name) with `params`, checked: unknown styles, styles that
+    /// are not built and bad parameters are refused with one sentence.
+    pub fn new(s: &str, params: StyleParams) -> Result<Style> {
+        let def = StyleDef::find(s)?;
+        if let Some(why) = def.unavailable_reason() {
+            return Err(Error::Invalid(why));
+        }
+        params.validate()?;
+        Ok(Style { def, params })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn styles_by_number_and_name() {
+        assert_eq!(StyleDef::find("7").unwrap().name, "dog+silhouettes");
+        assert_eq!(StyleDef::find("DoG + Silhouettes").unwrap().number, 7);
+        assert_eq!(StyleDef::find("dog+suggestive").unwrap().number, 10);
+        assert_eq!(StyleDef::find("none").unwrap().number, 15);
+        for (i, d) in STYLES.iter().enumerate() {
+            assert_eq!(d.number as usize, i + 1);
+            assert_eq!(StyleDef::find(d.name).unwrap(), d);
+        }
+        let e = StyleDef::find("16").unwrap_err().to_string();
+        assert!(e.contains("1 sobel") && e.contains("15 none"), "{e}");
+        let e = Style::new("dog+silhouettes", StyleParams::default()).unwrap_err();
+        assert!(e.to_string().contains("not built yet"), "{e}");
+        assert!(Style::new("13", StyleParams::default()).is_ok());
+        assert_eq!(STYLES.iter().filter(|d| d.available()).count(), 6);
+    }
+
+    #[test]
+    fn bad_parameters() {
+        let bad = |f: fn(&mut StyleParams)| {
+            let mut p = StyleParams::default();
+            f(&mut p);
+            p.validate().unwrap_err().to_string()
+        };
+        assert!(bad(|p| p.sobel_threshold = 1.5).contains("outside [0, 1]"));
+        assert!(bad(|p| p.dog_sigma = -1.0).contains("DoG σ"));
+        assert!(bad(|p| p.kuwahara_radius = 0).contains("Kuwahara radius"));
+        assert!(bad(|p| p.canny_high = -0.1).contains("Canny high"));
+        assert!(StyleParams::default().validate().is_ok());
+    }
+}
