@@ -35,6 +35,7 @@ fn view(azimuth: f32, size: u32, one_pass: bool) -> View {
         slices: None,
         one_pass,
         lighting: Lighting::default(),
+        style: None,
     }
 }
 

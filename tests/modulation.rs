@@ -42,6 +42,7 @@ fn render(gpu: &Gpu, s: &mut GpuScene, camera: &str, size: u32) -> Frame {
         slices: None,
         one_pass: false,
         lighting: Lighting::default(),
+        style: None,
     };
     Renderer::new(&gpu.ctx)
         .unwrap()

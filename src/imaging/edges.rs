@@ -13,7 +13,7 @@ pub fn sobel_at(p: &Plane, x: i64, y: i64) -> (f32, f32) {
 }
 
 /// The largest Sobel magnitude of an image in [0, 1]: magnitudes are divided by it.
-pub const SOBEL_MAX: f32 = 5.656_854_2; // 4·√2
+pub const SOBEL_MAX: f32 = 4.0 * std::f32::consts::SQRT_2;
 
 /// Sobel magnitude, normalised to [0, 1].
 pub fn sobel_magnitude(p: &Plane) -> Plane {

@@ -299,6 +299,8 @@ impl StyleArgs {
                 style: serde_json::Value::String(s.clone()),
                 params: old.map(|o| o.params).unwrap_or_default(),
             },
+            // Checked with the scene file's name when the view is made.
+            (None, Some(old)) if !params_given => return Ok(Some(old)),
             (None, Some(old)) => old,
             (None, None) if params_given => {
                 anyhow::bail!("the style flags need --style N|NAME")
