@@ -212,7 +212,11 @@ fn bad_scene_files_get_one_sentence() {
     );
     bad_scene(
         &format!(r#"{{"version": 1, {input}, "style": {{"style": 7}}}}"#),
-        &["bad.json: style", "style 7 (dog+silhouettes) needs object-space silhouettes", "not built yet"],
+        &[
+            "bad.json: style",
+            "style 7 (dog+silhouettes) needs object-space silhouettes",
+            "not built yet",
+        ],
     );
     bad_scene(
         &format!(r#"{{"version": 1, {input}, "style": {{"style": "glow"}}}}"#),
@@ -292,13 +296,31 @@ fn bad_modulation_flags_get_one_sentence() {
 #[test]
 fn bad_style_flags_get_one_sentence() {
     bad_flags(&["--iso", "0.4", "--style", "99"], "expected a number 1-15");
-    bad_flags(&["--iso", "0.4", "--style", "dog+silhouettes"], "not built yet");
-    bad_flags(&["--iso", "0.4", "--style", "2", "--sigma", "-2"], "DoG σ -2");
-    bad_flags(&["--iso", "0.4", "--style", "13", "--kuwahara-radius", "-3"], "Kuwahara radius -3");
-    bad_flags(&["--iso", "0.4", "--style", "1", "--edge-threshold", "1.5"], "outside [0, 1]");
-    bad_flags(&["--iso", "0.4", "--style", "13", "--edge-threshold", "0.5"], "no effect");
+    bad_flags(
+        &["--iso", "0.4", "--style", "dog+silhouettes"],
+        "not built yet",
+    );
+    bad_flags(
+        &["--iso", "0.4", "--style", "2", "--sigma", "-2"],
+        "DoG σ -2",
+    );
+    bad_flags(
+        &["--iso", "0.4", "--style", "13", "--kuwahara-radius", "-3"],
+        "Kuwahara radius -3",
+    );
+    bad_flags(
+        &["--iso", "0.4", "--style", "1", "--edge-threshold", "1.5"],
+        "outside [0, 1]",
+    );
+    bad_flags(
+        &["--iso", "0.4", "--style", "13", "--edge-threshold", "0.5"],
+        "no effect",
+    );
     bad_flags(&["--style", "3"], "works on the focus layer");
-    bad_flags(&["--iso", "0.4", "--style", "3", "--one-pass"], "drop --one-pass");
+    bad_flags(
+        &["--iso", "0.4", "--style", "3", "--one-pass"],
+        "drop --one-pass",
+    );
     bad_flags(&["--sigma", "2"], "need --style");
 }
 
