@@ -325,3 +325,131 @@ fn sheet(title: &str, tiles: &[(String, Vec<u8>)], size: usize) -> Canvas {
     }
     c
 }
+
+/// One tile of a style gallery.
+pub struct GalleryTile {
+    pub def: &'static crate::render::style::StyleDef,
+    /// The rendered frame (with its layers), or `None` for a style this build cannot render.
+    pub frame: Option<crate::render::slicer::Frame>,
+    /// Mean saliency inside the focus (where the focus depth is finite) and outside it.
+    pub saliency: Option<(f64, f64)>,
+}
+
+/// The paper's Fig. 11 for any scene: every style of the table rendered from `view` (a two-level
+/// view; its own style is ignored) with `params`, and a labelled contact sheet of them. Styles that
+/// need object-space lines get a dark tile that says so. With `saliency`, each rendered style's
+/// mean saliency inside and outside the focus.
+pub fn style_gallery(
+    ctx: &Arc<Context>,
+    scene: &mut GpuScene,
+    view: &View,
+    params: crate::render::style::StyleParams,
+    background: [f32; 3],
+    saliency: bool,
+) -> Result<(Canvas, Vec<GalleryTile>)> {
+    use crate::render::style::{Style, STYLES};
+    params.validate()?;
+    let renderer = Renderer::new(ctx)?;
+    let [w, h] = view.size.map(|s| s as usize);
+    let mut tiles = Vec::new();
+    for def in STYLES.iter() {
+        let frame = if def.available() {
+            let v = View {
+                style: Some(Style { def, params }),
+                ..view.clone()
+            };
+            Some(renderer.render_frame(&scene.volume, &mut scene.classify, &v, true)?)
+        } else {
+            None
+        };
+        let sal = match (&frame, saliency) {
+            (Some(f), true) => Some(focus_saliency(f, background)?),
+            _ => None,
+        };
+        tiles.push(GalleryTile {
+            def,
+            frame,
+            saliency: sal,
+        });
+    }
+    const COLUMNS: usize = 5;
+    const PAD: usize = 8;
+    const SCALE: i64 = 2;
+    let label_h = 5 * SCALE as usize + 2 * PAD;
+    let rows = tiles.len().div_ceil(COLUMNS);
+    let mut c = Canvas::new(
+        PAD + COLUMNS * (w + PAD),
+        PAD + rows * (h + label_h),
+        [24, 24, 24],
+    );
+    for (i, t) in tiles.iter().enumerate() {
+        let (x0, y0) = (
+            PAD + (i % COLUMNS) * (w + PAD),
+            PAD + (i / COLUMNS) * (h + label_h),
+        );
+        match &t.frame {
+            Some(f) => {
+                let rgb = to_rgb8(&f.composite, background);
+                for y in 0..h {
+                    for x in 0..w {
+                        let p = 3 * (y * w + x);
+                        c.set(
+                            (x0 + x) as i64,
+                            (y0 + y) as i64,
+                            [rgb[p], rgb[p + 1], rgb[p + 2]],
+                        );
+                    }
+                }
+            }
+            None => {
+                c.rect(x0 as i64, y0 as i64, w as i64, h as i64, [48, 48, 48]);
+                c.text(
+                    x0 as i64 + 6,
+                    (y0 + h / 2) as i64 - 5,
+                    "NEEDS LINES",
+                    SCALE,
+                    [150, 150, 150],
+                );
+                c.text(
+                    x0 as i64 + 6,
+                    (y0 + h / 2) as i64 + 8,
+                    "NOT BUILT YET",
+                    SCALE,
+                    [150, 150, 150],
+                );
+            }
+        }
+        let label = format!("{} {}", t.def.number, t.def.name);
+        let scale = if Canvas::text_width(&label, SCALE) as usize <= w {
+            SCALE
+        } else {
+            1
+        };
+        c.text(
+            x0 as i64,
+            (y0 + h + PAD / 2) as i64,
+            &label,
+            scale,
+            [235, 235, 235],
+        );
+    }
+    Ok((c, tiles))
+}
+
+/// Mean saliency of a frame's picture (over `background`) inside and outside its focus.
+pub fn focus_saliency(
+    frame: &crate::render::slicer::Frame,
+    background: [f32; 3],
+) -> Result<(f64, f64)> {
+    let layers = frame.layers.as_ref().ok_or_else(|| {
+        Error::Invalid("saliency against the focus needs a two-level frame".into())
+    })?;
+    let [w, h] = frame.size.map(|s| s as usize);
+    let rgb: Vec<[f32; 3]> = to_rgb8(&frame.composite, background)
+        .chunks(3)
+        .map(|p| [p[0], p[1], p[2]].map(|c| c as f32 / 255.0))
+        .collect();
+    let map = crate::imaging::saliency::saliency(&rgb, w, h);
+    let mask: Vec<bool> = layers.focus_depth.iter().map(|d| d.is_finite()).collect();
+    Ok(crate::imaging::saliency::inside_outside(&map, &mask))
+}

@@ -349,3 +349,65 @@ fn the_same_stipple_seed_gives_the_same_png() {
     assert_eq!(a, b);
     assert_ne!(a, c);
 }
+
+#[test]
+fn the_styles_gallery_and_the_saliency_command() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
+    let out = vellum(&[
+        "styles",
+        "phantom:nested:40",
+        "--iso",
+        "0.4",
+        "--size",
+        "48x48",
+        "--out",
+        &p("gallery.png"),
+        "--out-dir",
+        &p("each"),
+        "--exr",
+        "--saliency",
+        "--json",
+    ]);
+    ok(&out);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let styles = v["styles"].as_array().unwrap();
+    assert_eq!(styles.len(), 15);
+    let rendered: Vec<u64> = styles
+        .iter()
+        .filter(|s| s["rendered"] == true)
+        .map(|s| s["number"].as_u64().unwrap())
+        .collect();
+    assert_eq!(rendered, [1, 2, 3, 13, 14, 15]);
+    for s in styles.iter().filter(|s| s["rendered"] == false) {
+        assert!(s["reason"].as_str().unwrap().contains("not built yet"));
+    }
+    for s in styles.iter().filter(|s| s["rendered"] == true) {
+        let share = s["focus_share"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&share), "{s}");
+    }
+    let g = image::open(p("gallery.png")).unwrap();
+    assert!(g.width() > 5 * 48 && g.height() > 3 * 48);
+    for f in [
+        "style02_dog.png",
+        "style02_dog.exr",
+        "style13_kuwahara.png",
+        "style15_none.exr",
+    ] {
+        assert!(dir.path().join("each").join(f).exists(), "{f}");
+    }
+    assert!(!dir.path().join("each/style07_dog_silhouettes.png").exists());
+    let sal = vellum(&[
+        "saliency",
+        &p("each/style02_dog.png"),
+        "--mask",
+        &p("each/style02_dog.png"),
+        "--out",
+        &p("map.png"),
+        "--json",
+    ]);
+    ok(&sal);
+    let s: serde_json::Value = serde_json::from_slice(&sal.stdout).unwrap();
+    assert!(s["mean_inside"].as_f64().unwrap() > s["mean_outside"].as_f64().unwrap());
+    assert!(image::open(p("map.png")).is_ok());
+}
