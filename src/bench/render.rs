@@ -409,3 +409,181 @@ impl Table {
         s
     }
 }
+
+/// One style at one size: `vellum bench styles`.
+#[derive(Clone, Debug, Serialize)]
+pub struct StyleRow {
+    pub data: String,
+    pub size: u32,
+    pub style: u32,
+    pub name: String,
+    /// Median GPU ms of the whole frame (levels and style passes).
+    pub frame_ms: f64,
+    pub fps: f64,
+    /// Median GPU ms of the style's own passes.
+    pub post_ms: f64,
+    /// Median GPU ms of each style pass, by name.
+    pub passes: Vec<(String, f64)>,
+    /// The unstyled one-pass frame at this size, and the two-level overhead of this style's frame
+    /// over it in percent.
+    pub one_pass_ms: f64,
+    pub overhead_percent: f64,
+}
+
+/// `vellum bench styles` (two-level paper Fig. 9): the frame rate of every style this build can
+/// render, with each style pass's GPU time, beside the one-pass frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct StylesTable {
+    pub device: String,
+    pub repeat: usize,
+    pub rows: Vec<StyleRow>,
+}
+
+/// Names of the style passes (render/post.rs).
+const POST_PASSES: [&str; 9] = [
+    "luminance",
+    "blur",
+    "sobel",
+    "dog",
+    "canny",
+    "hysteresis",
+    "kuwahara",
+    "saturation",
+    "style_composite",
+];
+
+/// Runs `vellum bench styles`: frames of every available style and of the one pass, interleaved
+/// round by round, on the CT head and the engine.
+pub fn run_styles(ctx: &Arc<Context>, opts: &Options) -> Result<StylesTable> {
+    use crate::render::style::{Style, StyleParams, STYLES};
+    let renderer = Renderer::new(ctx)?;
+    let styles: Vec<Style> = STYLES
+        .iter()
+        .filter(|d| d.available())
+        .map(|d| Style {
+            def: d,
+            params: StyleParams::default(),
+        })
+        .collect();
+    let mut rows = Vec::new();
+    for (name, iso, tf) in [
+        ("cthead_stanford", 1300.0, "ct-skin-bone"),
+        ("engine", 180.0, "grey"),
+    ] {
+        let (v, label) = volume(name)?;
+        let focus = if label == name {
+            Focus::Iso(iso)
+        } else {
+            Focus::Iso(0.9)
+        };
+        let classification = Classification::Transfer(TransferFunction::preset(tf)?);
+        let mut scene = GpuScene::prepare(ctx, &v, &classification, focus, &Modulation::default())?;
+        for &size in &opts.sizes {
+            let mut s = Session {
+                renderer: &renderer,
+                frames: Frames::new(ctx, &FramesDesc::interactive("bench styles"))?,
+                targets: FrameTargets::new(ctx),
+                scene: &mut scene,
+            };
+            // Round: the one pass, then each style; frame k of a round is variant k.
+            let variants = styles.len() + 1;
+            let round = |s: &mut Session| -> Result<()> {
+                s.frame(&view(size, 30.0, true))?;
+                for st in &styles {
+                    s.frame(&View {
+                        style: Some(*st),
+                        ..view(size, 30.0, false)
+                    })?;
+                }
+                Ok(())
+            };
+            round(&mut s)?;
+            s.drain()?;
+            for _ in 0..opts.repeat {
+                round(&mut s)?;
+            }
+            let done = s.drain()?;
+            let of = |k: usize| -> Vec<&FrameResult> {
+                done.iter()
+                    .filter(|r| r.index as usize % variants == k)
+                    .collect()
+            };
+            let one_pass_ms = median(
+                &of(0)
+                    .iter()
+                    .map(|r| frame_ms(&r.passes))
+                    .collect::<Vec<_>>(),
+            );
+            for (k, st) in styles.iter().enumerate() {
+                let frames = of(k + 1);
+                let frame_ms_med = median(
+                    &frames
+                        .iter()
+                        .map(|r| frame_ms(&r.passes))
+                        .collect::<Vec<_>>(),
+                );
+                let pass = |n: &str| {
+                    median(
+                        &frames
+                            .iter()
+                            .map(|r| crate::gpu::profiler::total_ms(&r.passes, n))
+                            .collect::<Vec<_>>(),
+                    )
+                };
+                let passes: Vec<(String, f64)> = POST_PASSES
+                    .iter()
+                    .map(|n| (n.to_string(), pass(n)))
+                    .filter(|(_, ms)| *ms > 0.0)
+                    .collect();
+                rows.push(StyleRow {
+                    data: label.clone(),
+                    size,
+                    style: st.def.number,
+                    name: st.def.name.to_string(),
+                    frame_ms: frame_ms_med,
+                    fps: 1000.0 / frame_ms_med,
+                    post_ms: passes.iter().map(|p| p.1).sum(),
+                    passes,
+                    one_pass_ms,
+                    overhead_percent: 100.0 * (frame_ms_med / one_pass_ms - 1.0),
+                });
+            }
+        }
+    }
+    Ok(StylesTable {
+        device: ctx.info.name.clone(),
+        repeat: opts.repeat,
+        rows,
+    })
+}
+
+impl StylesTable {
+    /// The table as text.
+    pub fn to_text(&self) -> String {
+        let mut s = format!(
+            "Style frame rates on {}, median of {} frame(s); overhead against the one pass\n",
+            self.device, self.repeat
+        );
+        s += "data                 size  style                 | frame ms     fps | style passes ms | vs one pass | passes\n";
+        for r in &self.rows {
+            let passes: Vec<String> = r
+                .passes
+                .iter()
+                .map(|(n, ms)| format!("{n} {ms:.3}"))
+                .collect();
+            s += &format!(
+                "{:<20} {:>4}² {:>2} {:<18} | {:>8.2} {:>7.1} | {:>15.3} | {:>+10.1}% | {}\n",
+                r.data,
+                r.size,
+                r.style,
+                r.name,
+                r.frame_ms,
+                r.fps,
+                r.post_ms,
+                r.overhead_percent,
+                passes.join(", ")
+            );
+        }
+        s
+    }
+}

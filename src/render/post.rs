@@ -152,6 +152,10 @@ impl Post {
         layers: &TargetImages,
         post: &PostTargets,
     ) -> Result<()> {
+        if style.def.edges.is_none() && style.def.abstraction.is_none() {
+            // Style 15: the plain two-level composite is already in place.
+            return Ok(());
+        }
         let l = layers
             .layers
             .as_ref()

@@ -591,6 +591,17 @@ enum FiguresCommand {
 
 #[derive(Subcommand)]
 enum BenchCommand {
+    /// Frame rate of every style the build can render, with each style pass's GPU time (paper Fig. 9).
+    Styles {
+        #[arg(long)]
+        json: bool,
+        /// Frames per style; each figure is the median.
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+        /// Square image sizes in pixels.
+        #[arg(long, value_delimiter = ',', default_value = "256,512,1024")]
+        sizes: Vec<u32>,
+    },
     /// Frames per second of the slice renderer, one pass against two levels (paper Fig. 9).
     Render {
         #[arg(long)]
@@ -798,6 +809,24 @@ fn run(cli: &Cli) -> Result<()> {
             csv,
         } => occlusion_sensitivity(cli, input, radii, *bands, *stride, out, csv.as_deref()),
         Command::Styles(args) => styles(cli, args),
+        Command::Bench {
+            which:
+                BenchCommand::Styles {
+                    json,
+                    repeat,
+                    sizes,
+                },
+        } => {
+            let ctx = context(cli)?;
+            let opts = vellum::bench::render::Options {
+                repeat: (*repeat).max(1),
+                sizes: sizes.clone(),
+                orbit_frames: 0,
+            };
+            let table = vellum::bench::render::run_styles(&ctx, &opts)?;
+            report_validation(&ctx);
+            print_report(*json, &table, || table.to_text())
+        }
         Command::Saliency {
             image,
             mask,
