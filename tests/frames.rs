@@ -39,17 +39,36 @@ fn view(azimuth: f32, size: u32, one_pass: bool) -> View {
     }
 }
 
-/// Records one frame of `scene` (no readback).
-fn frame(
-    frames: &mut Frames,
-    renderer: &Renderer,
-    scene: &mut GpuScene,
-    targets: &mut FrameTargets,
-    v: &View,
-) {
-    frames
-        .frame(|f| renderer.record(f, &scene.volume, &mut scene.classify, v, targets))
-        .unwrap();
+/// A renderer with persistent state for one scene: frames in flight and targets. Fields drop in
+/// order, so the renderer's pipelines and the scene's images go while frames may still be in
+/// flight: deferred release must hold them (a first version destroyed pipelines at once, and this
+/// test binary crashed on lavapipe).
+struct Rig {
+    renderer: Renderer,
+    scene: GpuScene,
+    frames: Frames,
+    targets: FrameTargets,
+}
+
+impl Rig {
+    fn new(gpu: &Gpu, v: &vellum::volume::Volume, tf: &str, focus: Focus) -> Rig {
+        let ctx = &gpu.ctx;
+        let tf = Classification::Transfer(TransferFunction::preset(tf).unwrap());
+        Rig {
+            renderer: Renderer::new(ctx).unwrap(),
+            scene: GpuScene::prepare(ctx, v, &tf, focus, &Modulation::default()).unwrap(),
+            frames: Frames::new(ctx, &FramesDesc::interactive("test")).unwrap(),
+            targets: FrameTargets::new(ctx),
+        }
+    }
+
+    /// Records one frame (no readback).
+    fn frame(&mut self, v: &View) {
+        let (renderer, scene, targets) = (&self.renderer, &mut self.scene, &mut self.targets);
+        self.frames
+            .frame(|f| renderer.record(f, &scene.volume, &mut scene.classify, v, targets))
+            .unwrap();
+    }
 }
 
 /// Transfers that changed between two snapshots, by name.
@@ -68,40 +87,22 @@ fn changed(
 fn orbit_allocates_nothing_after_the_first_frame() {
     let gpu = Gpu::new();
     let ctx = &gpu.ctx;
-    let renderer = Renderer::new(ctx).unwrap();
-    let v = phantom::shepp_logan(48);
-    let tf = Classification::Transfer(TransferFunction::preset("grey").unwrap());
-    let mut scene =
-        GpuScene::prepare(ctx, &v, &tf, Focus::Iso(0.9), &Modulation::default()).unwrap();
-    let mut frames = Frames::new(ctx, &FramesDesc::interactive("test orbit")).unwrap();
-    let mut targets = FrameTargets::new(ctx);
+    let mut rig = Rig::new(&gpu, &phantom::shepp_logan(48), "grey", Focus::Iso(0.9));
     for one_pass in [false, true] {
-        frame(
-            &mut frames,
-            &renderer,
-            &mut scene,
-            &mut targets,
-            &view(0.0, 64, one_pass),
-        );
+        rig.frame(&view(0.0, 64, one_pass));
     }
     let after_first = ctx.allocation_count();
     for i in 1..=24 {
         let one_pass = i % 5 == 0;
-        frame(
-            &mut frames,
-            &renderer,
-            &mut scene,
-            &mut targets,
-            &view(10.0 * i as f32, 64, one_pass),
-        );
+        rig.frame(&view(10.0 * i as f32, 64, one_pass));
         assert_eq!(
             ctx.allocation_count(),
             after_first,
             "frame {i} allocated GPU memory"
         );
     }
-    frames.wait_idle().unwrap();
-    let done = frames.take_finished();
+    rig.frames.wait_idle().unwrap();
+    let done = rig.frames.take_finished();
     assert_eq!(done.len(), 26, "every frame reports its timings once");
     assert!(
         done.windows(2).all(|w| w[0].index < w[1].index),
@@ -111,22 +112,10 @@ fn orbit_allocates_nothing_after_the_first_frame() {
     assert_eq!(names, ["focus", "context", "composite"]);
     assert!(done.iter().all(|r| r.passes.iter().all(|p| p.ms >= 0.0)));
     // A change of size reallocates the targets, once.
-    frame(
-        &mut frames,
-        &renderer,
-        &mut scene,
-        &mut targets,
-        &view(0.0, 80, false),
-    );
+    rig.frame(&view(0.0, 80, false));
     let resized = ctx.allocation_count();
     assert!(resized > after_first);
-    frame(
-        &mut frames,
-        &renderer,
-        &mut scene,
-        &mut targets,
-        &view(10.0, 80, false),
-    );
+    rig.frame(&view(10.0, 80, false));
     assert_eq!(ctx.allocation_count(), resized);
 }
 
@@ -134,51 +123,21 @@ fn orbit_allocates_nothing_after_the_first_frame() {
 fn transfer_function_edit_reuploads_only_its_texture() {
     let gpu = Gpu::new();
     let ctx = &gpu.ctx;
-    let renderer = Renderer::new(ctx).unwrap();
-    let v = phantom::nested(40);
-    let grey = TransferFunction::preset("grey").unwrap();
-    let mut scene = GpuScene::prepare(
-        ctx,
-        &v,
-        &Classification::Transfer(grey.clone()),
-        Focus::None,
-        &Modulation::default(),
-    )
-    .unwrap();
-    let mut frames = Frames::new(ctx, &FramesDesc::interactive("test edits")).unwrap();
-    let mut targets = FrameTargets::new(ctx);
-    frame(
-        &mut frames,
-        &renderer,
-        &mut scene,
-        &mut targets,
-        &view(0.0, 48, false),
-    );
+    let mut rig = Rig::new(&gpu, &phantom::nested(40), "grey", Focus::None);
+    rig.frame(&view(0.0, 48, false));
     let t0 = ctx.transfers();
-    frame(
-        &mut frames,
-        &renderer,
-        &mut scene,
-        &mut targets,
-        &view(5.0, 48, false),
-    );
+    rig.frame(&view(5.0, 48, false));
     let t1 = ctx.transfers();
     assert!(
         changed(&t0, &t1).is_empty(),
         "a frame with no edit uploaded {:?}",
         changed(&t0, &t1)
     );
-    scene
+    rig.scene
         .classify
         .set_transfer(&TransferFunction::preset("ct-bone").unwrap());
     let allocations = ctx.allocation_count();
-    frame(
-        &mut frames,
-        &renderer,
-        &mut scene,
-        &mut targets,
-        &view(5.0, 48, false),
-    );
+    rig.frame(&view(5.0, 48, false));
     let t2 = ctx.transfers();
     assert_eq!(changed(&t1, &t2), ["transfer function"]);
     let tf = t2["transfer function"];
@@ -193,18 +152,12 @@ fn transfer_function_edit_reuploads_only_its_texture() {
         "an edit allocates nothing"
     );
     // Setting the same function again changes nothing.
-    scene
+    rig.scene
         .classify
         .set_transfer(&TransferFunction::preset("ct-bone").unwrap());
-    frame(
-        &mut frames,
-        &renderer,
-        &mut scene,
-        &mut targets,
-        &view(5.0, 48, false),
-    );
+    rig.frame(&view(5.0, 48, false));
     assert!(changed(&t2, &ctx.transfers()).is_empty());
-    frames.wait_idle().unwrap();
+    rig.frames.wait_idle().unwrap();
 }
 
 #[test]
@@ -368,45 +321,28 @@ fn a_scene_file_round_trips_to_the_same_render() {
 fn persistent_targets_are_read_back_by_name() {
     let gpu = Gpu::new();
     let ctx = &gpu.ctx;
-    let renderer = Renderer::new(ctx).unwrap();
-    let v = phantom::nested(32);
-    let tf = Classification::Transfer(TransferFunction::preset("grey").unwrap());
-    let mut scene =
-        GpuScene::prepare(ctx, &v, &tf, Focus::Iso(0.4), &Modulation::default()).unwrap();
-    let mut frames = Frames::new(ctx, &FramesDesc::interactive("test layers")).unwrap();
-    let mut targets = FrameTargets::new(ctx);
-    frame(
-        &mut frames,
-        &renderer,
-        &mut scene,
-        &mut targets,
-        &view(0.0, 40, false),
-    );
+    let mut rig = Rig::new(&gpu, &phantom::nested(32), "grey", Focus::Iso(0.4));
+    rig.frame(&view(0.0, 40, false));
     for name in vellum::render::targets::LAYER_NAMES {
-        assert!(targets.layer(name).is_some(), "{name}");
+        assert!(rig.targets.layer(name).is_some(), "{name}");
     }
-    let rb = TargetsReadback::new(ctx, &targets).unwrap();
-    frames
+    let rb = TargetsReadback::new(ctx, &rig.targets).unwrap();
+    let targets = &rig.targets;
+    rig.frames
         .frame(|f| {
-            rb.record(f.cmd, &targets);
+            rb.record(f.cmd, targets);
             Ok(())
         })
         .unwrap();
-    frames.wait_idle().unwrap();
+    rig.frames.wait_idle().unwrap();
     let (composite, layers) = rb.read().unwrap();
     let layers = layers.expect("two-level layers");
     assert_eq!(composite.len(), 40 * 40);
     assert!(layers.focus_depth.iter().any(|d| d.is_finite()));
     // After a one-pass frame only the composite is current.
-    frame(
-        &mut frames,
-        &renderer,
-        &mut scene,
-        &mut targets,
-        &view(0.0, 40, true),
-    );
-    assert!(targets.layer("composite").is_some() && targets.layer("focus.phong").is_none());
-    frames.wait_idle().unwrap();
+    rig.frame(&view(0.0, 40, true));
+    assert!(rig.targets.layer("composite").is_some() && rig.targets.layer("focus.phong").is_none());
+    rig.frames.wait_idle().unwrap();
 }
 
 #[test]

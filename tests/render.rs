@@ -9,7 +9,6 @@
 mod common;
 
 use common::Gpu;
-use std::path::PathBuf;
 use vellum::classify::transfer::TransferFunction;
 use vellum::gpu::transfer::{f16_to_f32, readback};
 use vellum::gpu::Profiler;
@@ -166,42 +165,11 @@ fn reference_cases() -> Vec<(&'static str, Volume, RenderParams)> {
 fn renders_match_reference_images() {
     let gpu = Gpu::new();
     let renderer = Renderer::new(&gpu.ctx).unwrap();
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/reference");
-    let update = std::env::var("VELLUM_UPDATE_REFERENCES").as_deref() == Ok("1");
     for (file, v, p) in reference_cases() {
         let tex = textures(&gpu, &v);
         let frame = renderer.render(&tex, &p, true).unwrap();
         let rgb = to_rgb8(&frame.composite, [0.0, 0.0, 0.0]);
-        let path = dir.join(file);
-        if update {
-            vellum::output::write_png_rgb(&path, p.size[0], p.size[1], &rgb).unwrap();
-            eprintln!("updated {}", path.display());
-            continue;
-        }
-        let stored = image::open(&path)
-            .unwrap_or_else(|e| {
-                panic!(
-                    "{}: {e}; regenerate with VELLUM_UPDATE_REFERENCES=1",
-                    path.display()
-                )
-            })
-            .to_rgb8();
-        assert_eq!(
-            (stored.width(), stored.height()),
-            (p.size[0], p.size[1]),
-            "{file}: size"
-        );
-        let (mut sum, mut max) = (0u64, 0u8);
-        for (a, b) in stored.as_raw().iter().zip(&rgb) {
-            let d = a.abs_diff(*b);
-            sum += d as u64;
-            max = max.max(d);
-        }
-        let mean = sum as f64 / rgb.len() as f64;
-        assert!(
-            mean <= 1.0 && max <= 24,
-            "{file}: mean {mean:.3}/255, max {max}/255 against the stored reference"
-        );
+        common::check_reference(file, p.size[0], p.size[1], &rgb);
     }
 }
 

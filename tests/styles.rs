@@ -272,8 +272,6 @@ fn style_references() {
         return;
     };
     let gpu = Gpu::new();
-    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/reference/styles");
-    let update = std::env::var("VELLUM_UPDATE_REFERENCES").as_deref() == Ok("1");
     for style in [1, 2, 3, 13, 14, 15] {
         let t = styled(
             &gpu,
@@ -286,30 +284,11 @@ fn style_references() {
         );
         let pixels = rgba(&gpu, &t.images().unwrap().composite);
         let rgb = vellum::render::slicer::to_rgb8(&pixels, [0.0; 3]);
-        let path = dir.join(format!("cthead_style{style:02}.png"));
-        if update {
-            std::fs::create_dir_all(&dir).unwrap();
-            vellum::output::write_png_rgb(&path, 128, 128, &rgb).unwrap();
-            continue;
-        }
-        let stored = image::open(&path)
-            .unwrap_or_else(|e| {
-                panic!(
-                    "{}: {e}; regenerate with VELLUM_UPDATE_REFERENCES=1",
-                    path.display()
-                )
-            })
-            .to_rgb8();
-        let (mut sum, mut max) = (0u64, 0u8);
-        for (a, b) in stored.as_raw().iter().zip(&rgb) {
-            let d = a.abs_diff(*b);
-            sum += d as u64;
-            max = max.max(d);
-        }
-        let mean = sum as f64 / rgb.len() as f64;
-        assert!(
-            mean <= 1.0 && max <= 24,
-            "style {style}: mean {mean:.3}, max {max}"
+        common::check_reference(
+            &format!("styles/cthead_style{style:02}.png"),
+            128,
+            128,
+            &rgb,
         );
     }
 }

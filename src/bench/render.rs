@@ -118,6 +118,34 @@ fn volume(name: &str) -> Result<(Volume, String)> {
     ))
 }
 
+/// A bench volume: its label (the dataset, or the phantom standing in), the volume, its focus and
+/// transfer function.
+struct BenchVolume {
+    label: String,
+    volume: Volume,
+    focus: Focus,
+    transfer: TransferFunction,
+}
+
+/// The CT head (iso 1300, ct-skin-bone) and the engine (iso 180, grey), or phantoms standing in.
+fn bench_volumes() -> Result<Vec<BenchVolume>> {
+    [
+        ("cthead_stanford", 1300.0, "ct-skin-bone"),
+        ("engine", 180.0, "grey"),
+    ]
+    .into_iter()
+    .map(|(name, iso, tf)| {
+        let (volume, label) = volume(name)?;
+        Ok(BenchVolume {
+            focus: Focus::Iso(if label == name { iso } else { 0.9 }),
+            label,
+            volume,
+            transfer: TransferFunction::preset(tf)?,
+        })
+    })
+    .collect()
+}
+
 fn frame_ms(passes: &[PassTime]) -> f64 {
     passes
         .iter()
@@ -171,17 +199,8 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     let mut rows = Vec::new();
     let mut orbit = Vec::new();
     let mut normals_ms = Vec::new();
-    for (name, iso, tf) in [
-        ("cthead_stanford", 1300.0, "ct-skin-bone"),
-        ("engine", 180.0, "grey"),
-    ] {
-        let (v, label) = volume(name)?;
-        let focus = if label == name {
-            Focus::Iso(iso)
-        } else {
-            Focus::Iso(0.9)
-        };
-        let transfer = TransferFunction::preset(tf)?;
+    for b in bench_volumes()? {
+        let (v, label, focus, transfer) = (b.volume, b.label, b.focus, b.transfer);
         let classification = Classification::Transfer(transfer.clone());
         // ΔD is attached once; frames switch the modulation on and off.
         let mut scene = GpuScene::prepare(ctx, &v, &classification, focus, &modulated())?;
@@ -466,17 +485,9 @@ pub fn run_styles(ctx: &Arc<Context>, opts: &Options) -> Result<StylesTable> {
         })
         .collect();
     let mut rows = Vec::new();
-    for (name, iso, tf) in [
-        ("cthead_stanford", 1300.0, "ct-skin-bone"),
-        ("engine", 180.0, "grey"),
-    ] {
-        let (v, label) = volume(name)?;
-        let focus = if label == name {
-            Focus::Iso(iso)
-        } else {
-            Focus::Iso(0.9)
-        };
-        let classification = Classification::Transfer(TransferFunction::preset(tf)?);
+    for b in bench_volumes()? {
+        let (v, label, focus) = (b.volume, b.label, b.focus);
+        let classification = Classification::Transfer(b.transfer);
         let mut scene = GpuScene::prepare(ctx, &v, &classification, focus, &Modulation::default())?;
         for &size in &opts.sizes {
             let mut s = Session {

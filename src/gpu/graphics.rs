@@ -242,7 +242,11 @@ impl GraphicsPipeline {
 
 impl Drop for GraphicsPipeline {
     fn drop(&mut self) {
-        unsafe { self.ctx.device.destroy_pipeline(self.raw, None) };
+        // Deferred while a submission that may use it is in flight (gpu/lifetime.rs).
+        let raw = self.raw;
+        self.ctx.retire(Box::new(move |ctx| unsafe {
+            ctx.device.destroy_pipeline(raw, None)
+        }));
     }
 }
 

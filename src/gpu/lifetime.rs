@@ -5,7 +5,8 @@
 //! have completed. A buffer or image dropped while work that may use it is still in flight is not
 //! destroyed at once: its handles and memory go on a list tagged with the newest serial that can
 //! reference it, and they are freed once that serial completes (Granite's per-frame destroy lists,
-//! kajiya's deferred release, keyed by one counter instead of one list per frame). A resource
+//! kajiya's deferred release, keyed by one counter instead of one list per frame). Buffers,
+//! images, samplers, pipelines, pipeline layouts and query pools all go through it. A resource
 //! dropped while nothing is in flight or being recorded is freed immediately, so one-shot tools
 //! behave exactly as before.
 //!

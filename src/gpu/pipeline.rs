@@ -210,12 +210,12 @@ impl PipelineLayout {
 
 impl Drop for PipelineLayout {
     fn drop(&mut self) {
-        unsafe {
-            self.ctx.device.destroy_pipeline_layout(self.raw, None);
-            self.ctx
-                .device
-                .destroy_descriptor_set_layout(self.set_layout, None);
-        }
+        // Deferred while a submission that may use it is in flight (gpu/lifetime.rs).
+        let (raw, set_layout) = (self.raw, self.set_layout);
+        self.ctx.retire(Box::new(move |ctx| unsafe {
+            ctx.device.destroy_pipeline_layout(raw, None);
+            ctx.device.destroy_descriptor_set_layout(set_layout, None);
+        }));
     }
 }
 
@@ -343,7 +343,10 @@ impl ComputePipeline {
 
 impl Drop for ComputePipeline {
     fn drop(&mut self) {
-        unsafe { self.ctx.device.destroy_pipeline(self.raw, None) };
+        let raw = self.raw;
+        self.ctx.retire(Box::new(move |ctx| unsafe {
+            ctx.device.destroy_pipeline(raw, None)
+        }));
     }
 }
 

@@ -150,7 +150,11 @@ impl Profiler {
 
 impl Drop for Profiler {
     fn drop(&mut self) {
-        unsafe { self.ctx.device.destroy_query_pool(self.pool, None) };
+        // Deferred while a submission that may write its queries is in flight.
+        let pool = self.pool;
+        self.ctx.retire(Box::new(move |ctx| unsafe {
+            ctx.device.destroy_query_pool(pool, None)
+        }));
     }
 }
 

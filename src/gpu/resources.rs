@@ -473,6 +473,10 @@ impl Sampler {
 
 impl Drop for Sampler {
     fn drop(&mut self) {
-        unsafe { self.ctx.device.destroy_sampler(self.raw, None) };
+        // Deferred while a submission that may use it is in flight (gpu/lifetime.rs).
+        let raw = self.raw;
+        self.ctx.retire(Box::new(move |ctx| unsafe {
+            ctx.device.destroy_sampler(raw, None)
+        }));
     }
 }

@@ -59,3 +59,42 @@ pub fn real_volume(name: &str) -> Option<vellum::volume::Volume> {
     let path = root.join("volumes").join(name).join(format!("{name}.nhdr"));
     Some(vellum::volume::io::load(&path, None).expect("real volume loads"))
 }
+
+/// Compares an 8-bit RGB image (`width`×`height`) with the stored reference `file` under
+/// tests/reference/ within a mean of 1/255 and a max of 24/255 per channel, or writes it as the new
+/// reference when `VELLUM_UPDATE_REFERENCES=1` (look at every one before committing it).
+pub fn check_reference(file: &str, width: u32, height: u32, rgb: &[u8]) {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/reference")
+        .join(file);
+    if std::env::var("VELLUM_UPDATE_REFERENCES").as_deref() == Ok("1") {
+        std::fs::create_dir_all(path.parent().expect("a folder")).unwrap();
+        vellum::output::write_png_rgb(&path, width, height, rgb).unwrap();
+        eprintln!("updated {}", path.display());
+        return;
+    }
+    let stored = image::open(&path)
+        .unwrap_or_else(|e| {
+            panic!(
+                "{}: {e}; regenerate with VELLUM_UPDATE_REFERENCES=1",
+                path.display()
+            )
+        })
+        .to_rgb8();
+    assert_eq!(
+        (stored.width(), stored.height()),
+        (width, height),
+        "{file}: size"
+    );
+    let (mut sum, mut max) = (0u64, 0u8);
+    for (a, b) in stored.as_raw().iter().zip(rgb) {
+        let d = a.abs_diff(*b);
+        sum += d as u64;
+        max = max.max(d);
+    }
+    let mean = sum as f64 / rgb.len() as f64;
+    assert!(
+        mean <= 1.0 && max <= 24,
+        "{file}: mean {mean:.3}/255, max {max}/255 against the stored reference"
+    );
+}
