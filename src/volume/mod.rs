@@ -4,6 +4,7 @@
 //! Voxel order is x fastest, then y, then z, as in NRRD and NIfTI files on disk.
 
 pub mod feature;
+pub mod geometry;
 pub mod io;
 pub mod phantom;
 pub mod reference;
@@ -149,6 +150,8 @@ pub struct Volume {
     pub spacing: [f64; 3],
     /// The voxels, x fastest.
     pub data: VoxelData,
+    /// Origin and directions in LPS (see `geometry`); defaults when the source says nothing.
+    pub geometry: geometry::Geometry,
 }
 
 /// Largest voxel count vellum accepts from a file header before reading data (16 Gi voxels), so a
@@ -178,7 +181,15 @@ impl Volume {
             dims,
             spacing,
             data,
+            geometry: geometry::Geometry::default(),
         })
+    }
+
+    /// The same volume placed by `g` (checked).
+    pub fn with_geometry(mut self, g: geometry::Geometry) -> Result<Self> {
+        g.validate()?;
+        self.geometry = g;
+        Ok(self)
     }
 
     /// Voxel type.

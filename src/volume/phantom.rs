@@ -61,6 +61,7 @@ fn sample(n: usize, f: impl Fn(f64, f64, f64) -> f32 + Sync) -> Volume {
         dims: [n; 3],
         spacing: [1.0; 3],
         data: VoxelData::F32(data),
+        geometry: Default::default(),
     }
 }
 

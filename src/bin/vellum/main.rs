@@ -902,6 +902,8 @@ fn info(input: &InputArgs, json: bool) -> Result<()> {
     if json {
         let out = json!({
             "input": input.input, "dims": v.dims, "voxel_type": v.voxel_type(), "spacing": v.spacing,
+            "origin": v.geometry.origin, "direction": v.geometry.direction,
+            "orientation": v.geometry.orientation_code(), "space": v.geometry.space,
             "min": s.min, "max": s.max, "mean": s.mean, "histogram": s.histogram, "sha256": v.sha256_hex(),
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -920,6 +922,21 @@ fn info(input: &InputArgs, json: bool) -> Result<()> {
         "spacing: {} x {} x {}",
         v.spacing[0], v.spacing[1], v.spacing[2]
     );
+    let g = &v.geometry;
+    println!(
+        "origin:  {} {} {} (LPS, mm)",
+        g.origin[0], g.origin[1], g.origin[2]
+    );
+    for (r, row) in g.direction.iter().enumerate() {
+        println!(
+            "{}{:>10.6} {:>10.6} {:>10.6}",
+            if r == 0 { "direction: " } else { "           " },
+            row[0],
+            row[1],
+            row[2]
+        );
+    }
+    println!("orientation: {}", g.orientation_code());
     println!("range:   {} .. {}", s.min, s.max);
     println!("mean:    {:.4}", s.mean);
     println!("sha256:  {}", v.sha256_hex());

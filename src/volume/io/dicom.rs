@@ -13,6 +13,7 @@ use rayon::prelude::*;
 
 use super::{build, decode, voxel_count, FileType};
 use crate::error::{Error, Result};
+use crate::volume::geometry::Geometry;
 use crate::volume::{Volume, VoxelData};
 
 /// The uncompressed transfer syntaxes: (UID, name, big endian).
@@ -134,6 +135,13 @@ pub(super) fn read(dir: &Path) -> Result<Volume> {
                     "several slices share the same position; expected one slice per position (a single series)",
                 ));
             }
+            let (lo, hi) = (gaps[0], gaps[gaps.len() - 1]);
+            if hi - lo > SPACING_TOLERANCE * z_spacing {
+                return Err(Error::format(
+                    dir,
+                    format!("slices are unevenly spaced ({lo:.4} to {hi:.4} mm apart); expected one spacing within {}%, as resampling an uneven series is not supported", SPACING_TOLERANCE * 100.0),
+                ));
+            }
         }
     } else if slices.iter().all(|s| s.instance.is_some()) {
         slices.sort_by_key(|s| s.instance);
@@ -161,8 +169,22 @@ pub(super) fn read(dir: &Path) -> Result<Volume> {
         let params: Vec<(f64, f64)> = slices.iter().map(|s| (s.slope, s.intercept)).collect();
         data = rescale(&data, &params, first.rows * first.cols);
     }
-    build(dir, dims, spacing, data)
+    let v = build(dir, dims, spacing, data)?;
+    // The geometry: row and column directions, their normal (the sorted slices run along it),
+    // and the first slice's position.
+    match (first.orientation, first.position, normal) {
+        (Some(o), Some(p), Some(n)) => v
+            .with_geometry(
+                Geometry::lps(p, [[o[0], o[1], o[2]], [o[3], o[4], o[5]], n])
+                    .map_err(|e| Error::format(dir, e.to_string()))?,
+            )
+            .map_err(|e| Error::format(dir, e.to_string())),
+        _ => Ok(v),
+    }
 }
+
+/// Largest spread of slice gaps, as a fraction of the median gap, taken as one spacing.
+const SPACING_TOLERANCE: f64 = 0.01;
 
 /// Parses one file; `None` when it is not DICOM (and not named `.dcm`) or holds no image.
 fn read_slice(path: &Path) -> Result<Option<Slice>> {

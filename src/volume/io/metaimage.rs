@@ -8,6 +8,7 @@ use std::path::Path;
 
 use super::{build, decode, decoder, parse_list, read_payload, voxel_count, Compression, FileType};
 use crate::error::{Error, Result};
+use crate::volume::geometry::{Geometry, Space};
 use crate::volume::Volume;
 
 /// Longest header vellum reads before giving up on finding `ElementDataFile`.
@@ -155,7 +156,48 @@ pub(super) fn read(path: &Path) -> Result<Volume> {
         skip,
         expected,
     )?;
-    build(path, dims, spacing, decode(ty, big_endian, &bytes))
+    let geometry = geometry(path, &fields)?;
+    build(path, dims, spacing, decode(ty, big_endian, &bytes))?
+        .with_geometry(geometry)
+        .map_err(|e| Error::format(path, e.to_string()))
+}
+
+/// The geometry from `TransformMatrix` (or `Orientation`/`Rotation`; axis i's direction is the
+/// i-th triple, as ITK reads it) and `Offset` (or `Origin`/`Position`). MetaImage geometry is in
+/// LPS, as ITK writes it; a header with neither field nor `AnatomicalOrientation` has no known
+/// orientation.
+fn geometry(path: &Path, fields: &[(String, String)]) -> Result<Geometry> {
+    let field = |k: &str| {
+        fields
+            .iter()
+            .find(|(key, _)| key == k)
+            .map(|(_, v)| v.as_str())
+    };
+    let matrix = ["transformmatrix", "orientation", "rotation"]
+        .iter()
+        .find_map(|k| field(k));
+    let offset = ["offset", "origin", "position"]
+        .iter()
+        .find_map(|k| field(k));
+    let axes = match matrix {
+        Some(m) => {
+            let v: Vec<f64> = parse_list(path, "TransformMatrix", m, 9)?;
+            [0, 1, 2].map(|i| [v[3 * i], v[3 * i + 1], v[3 * i + 2]])
+        }
+        None => crate::volume::geometry::IDENTITY,
+    };
+    let origin = match offset {
+        Some(o) => {
+            let v: Vec<f64> = parse_list(path, "Offset", o, 3)?;
+            [v[0], v[1], v[2]]
+        }
+        None => [0.0; 3],
+    };
+    let mut g = Geometry::lps(origin, axes).map_err(|e| Error::format(path, e.to_string()))?;
+    if matrix.is_none() && offset.is_none() && field("anatomicalorientation").is_none() {
+        g.space = Space::Unknown;
+    }
+    Ok(g)
 }
 
 fn file_type(path: &Path, name: &str) -> Result<FileType> {

@@ -1,7 +1,8 @@
-//! NIfTI-1 single files (`.nii`, `.nii.gz`), the common currency of neuroimaging. Only the voxel
-//! grid, pixdim spacing and intensity scaling are used; the orientation matrices are ignored, so
-//! voxels stay in file order (as the copies in `shared/data/volumes` do). Spacing is taken as
-//! millimetres whatever `xyzt_units` says.
+//! NIfTI-1 single files (`.nii`, `.nii.gz`), the common currency of neuroimaging. Voxels stay in
+//! file order (as the copies in `shared/data/volumes` do); spacing comes from pixdim (taken as
+//! millimetres whatever `xyzt_units` says), intensity scaling is applied, and the geometry comes
+//! from the sform when `sform_code > 0`, else the qform (quaternion) when `qform_code > 0`, else
+//! none (spacing only), converted from NIfTI's RAS to LPS.
 
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
@@ -11,6 +12,7 @@ use rayon::prelude::*;
 
 use super::{build, decode, decoder, read_error, read_payload, voxel_count, Compression, FileType};
 use crate::error::{Error, Result};
+use crate::volume::geometry::{ras_to_lps, Geometry};
 use crate::volume::{Volume, VoxelData};
 
 const HEADER_BYTES: usize = 348;
@@ -118,10 +120,59 @@ pub(super) fn read(path: &Path) -> Result<Volume> {
 
     let datatype = i16_at(70);
     let ty = file_type(path, datatype)?;
-    let spacing = [1, 2, 3].map(|i| match f32_at(76 + 4 * i).abs() as f64 {
+    let pixdim: Vec<f32> = (0..4).map(|i| f32_at(76 + 4 * i)).collect();
+    let spacing = [1, 2, 3].map(|i| match pixdim[i].abs() as f64 {
         s if s.is_finite() && s > 0.0 => s,
         _ => 1.0,
     });
+    let (qform_code, sform_code) = (i16_at(252), i16_at(254));
+    let geometry = if sform_code > 0 {
+        let row = |o: usize| -> [f64; 4] { std::array::from_fn(|k| f32_at(o + 4 * k) as f64) };
+        let (x, y, z) = (row(280), row(296), row(312));
+        let axes = [0, 1, 2].map(|c| ras_to_lps([x[c], y[c], z[c]]));
+        Some(Geometry::lps(ras_to_lps([x[3], y[3], z[3]]), axes))
+    } else if qform_code > 0 {
+        let (b, c, d) = (f32_at(256) as f64, f32_at(260) as f64, f32_at(264) as f64);
+        let a = (1.0 - (b * b + c * c + d * d)).max(0.0).sqrt();
+        let r = [
+            [
+                a * a + b * b - c * c - d * d,
+                2.0 * (b * c - a * d),
+                2.0 * (b * d + a * c),
+            ],
+            [
+                2.0 * (b * c + a * d),
+                a * a + c * c - b * b - d * d,
+                2.0 * (c * d - a * b),
+            ],
+            [
+                2.0 * (b * d - a * c),
+                2.0 * (c * d + a * b),
+                a * a + d * d - b * b - c * c,
+            ],
+        ];
+        let qfac = if pixdim[0] < 0.0 { -1.0 } else { 1.0 };
+        let axes = [0, 1, 2].map(|k| {
+            let s = if k == 2 { qfac } else { 1.0 };
+            ras_to_lps([s * r[0][k], s * r[1][k], s * r[2][k]])
+        });
+        let origin = [f32_at(268) as f64, f32_at(272) as f64, f32_at(276) as f64];
+        Some(Geometry::lps(ras_to_lps(origin), axes))
+    } else {
+        if pixdim[1..4].iter().any(|&p| p < 0.0) {
+            return Err(Error::format(
+                path,
+                format!(
+                    "pixdims {:?} are negative while both qform_code and sform_code are 0; expected positive voxel sizes when no orientation is given",
+                    &pixdim[1..4]
+                ),
+            ));
+        }
+        None
+    };
+    let geometry = geometry
+        .transpose()
+        .map_err(|e| Error::format(path, format!("the orientation is unusable: {e}")))?;
     let vox_offset = f32_at(108);
     if !(vox_offset >= HEADER_BYTES as f32 && vox_offset.fract() == 0.0) {
         return Err(Error::format(
@@ -144,7 +195,13 @@ pub(super) fn read(path: &Path) -> Result<Volume> {
                 .collect(),
         );
     }
-    build(path, dims, spacing, data)
+    let v = build(path, dims, spacing, data)?;
+    match geometry {
+        Some(g) => v
+            .with_geometry(g)
+            .map_err(|e| Error::format(path, e.to_string())),
+        None => Ok(v),
+    }
 }
 
 fn file_type(path: &Path, datatype: i16) -> Result<FileType> {

@@ -15,6 +15,7 @@ use super::{
     FileType,
 };
 use crate::error::{Error, Result};
+use crate::volume::geometry::{Geometry, Space};
 use crate::volume::{Volume, VoxelType};
 
 /// Longest header vellum reads, so a binary file with no blank line is not read whole as a header.
@@ -133,7 +134,64 @@ pub(super) fn read(path: &Path) -> Result<Volume> {
             expected,
         )?
     };
-    build(path, dims, spacing, decode(ty, big_endian, &bytes))
+    let geometry = geometry(path, &fields, first)?;
+    build(path, dims, spacing, decode(ty, big_endian, &bytes))?
+        .with_geometry(geometry)
+        .map_err(|e| Error::format(path, e.to_string()))
+}
+
+/// The geometry from `space`, `space directions` and `space origin`, in LPS. Without `space`
+/// (or with one that is not a 3D anatomical space) the directions and origin are kept but the
+/// orientation is unknown; with `spacings` only, the identity.
+fn geometry(path: &Path, fields: &HashMap<String, String>, first: usize) -> Result<Geometry> {
+    let space = fields
+        .get("space")
+        .map(|s| s.trim().to_lowercase().replace(' ', ""));
+    // Sign flips from the file's space to LPS.
+    let (flip, anatomical) = match space.as_deref() {
+        Some("left-posterior-superior" | "lps") => ([1.0, 1.0, 1.0], true),
+        Some("right-anterior-superior" | "ras") => ([-1.0, -1.0, 1.0], true),
+        Some("left-anterior-superior" | "las") => ([1.0, -1.0, 1.0], true),
+        _ => ([1.0; 3], false),
+    };
+    let to_lps = |v: &[f64]| -> [f64; 3] { std::array::from_fn(|r| flip[r] * v[r]) };
+    let axes = match fields.get("spacedirections") {
+        Some(dirs) => {
+            let vectors = parse_directions(path, dirs)?;
+            let mut axes = [[0.0; 3]; 3];
+            for (a, v) in axes.iter_mut().zip(vectors.iter().skip(first)) {
+                let v = v.as_ref().filter(|v| v.len() == 3).ok_or_else(|| {
+                    Error::format(
+                        path,
+                        "space directions needs a 3-vector for every spatial axis",
+                    )
+                })?;
+                *a = to_lps(v);
+            }
+            axes
+        }
+        None => crate::volume::geometry::IDENTITY,
+    };
+    let origin = match fields.get("spaceorigin") {
+        Some(o) => {
+            let v = parse_directions(path, o)?;
+            match v.as_slice() {
+                [Some(p)] if p.len() == 3 => to_lps(p),
+                _ => {
+                    return Err(Error::format(
+                        path,
+                        format!("space origin '{o}' is malformed; expected '(x,y,z)'"),
+                    ))
+                }
+            }
+        }
+        None => [0.0; 3],
+    };
+    let mut g = Geometry::lps(origin, axes).map_err(|e| Error::format(path, e.to_string()))?;
+    if !anatomical {
+        g.space = Space::Unknown;
+    }
+    Ok(g)
 }
 
 /// Reads the magic line and `key: value` fields up to a blank line (attached) or the end of the
@@ -338,13 +396,28 @@ fn write_to(path: &Path, volume: &Volume) -> io::Result<()> {
         VoxelType::F32 => "float",
     };
     let [x, y, z] = volume.dims;
-    let [sx, sy, sz] = volume.spacing;
+    let g = &volume.geometry;
+    // Space directions are the axis directions scaled by the spacing; `{}` prints the shortest
+    // decimal that parses back to the same f64, so geometry round-trips exactly.
+    let dir = |c: usize| {
+        let a = g.axis(c).map(|v| v * volume.spacing[c]);
+        format!("({},{},{})", a[0], a[1], a[2])
+    };
+    let [ox, oy, oz] = g.origin;
+    // A volume with no known anatomical orientation says only how many space axes there are.
+    let space = match g.space {
+        Space::Lps => "space: left-posterior-superior",
+        Space::Unknown => "space dimension: 3",
+    };
     let mut out = io::BufWriter::new(File::create(path)?);
-    // `{}` prints the shortest decimal that parses back to the same f64, so spacings round-trip.
     write!(
         out,
-        "NRRD0004\n# written by vellum\ntype: {type_name}\ndimension: 3\nsizes: {x} {y} {z}\n\
-         spacings: {sx} {sy} {sz}\nendian: little\nencoding: gzip\n\n"
+        "NRRD0004\n# written by vellum\ntype: {type_name}\ndimension: 3\n{space}\n\
+         sizes: {x} {y} {z}\nspace directions: {} {} {}\nspace origin: ({ox},{oy},{oz})\n\
+         endian: little\nencoding: gzip\n\n",
+        dir(0),
+        dir(1),
+        dir(2)
     )?;
     let mut gz = GzEncoder::new(out, flate2::Compression::default());
     gz.write_all(volume.data.as_bytes())?;
