@@ -1,6 +1,6 @@
 # vellum: `make run` and `make test` are the two entry points. Each first installs whatever is
 # missing on a Debian 12 machine (apt packages for Vulkan, lavapipe, validation and shaderc; scipy
-# for the CPU peer), then builds.
+# for the CPU peer and SimpleITK, the geometry tests' reference), then builds.
 
 SHELL := /bin/bash
 APT_PACKAGES := mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan-validationlayers \
@@ -22,7 +22,7 @@ deps:
 		$(SUDO) apt-get update -qq && \
 		$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing; \
 	fi
-	@python3 -c "import scipy, numpy" 2>/dev/null || python3 -m pip install --quiet scipy numpy
+	@python3 -c "import scipy, numpy, SimpleITK" 2>/dev/null || python3 -m pip install --quiet scipy numpy SimpleITK
 
 build: deps
 	cargo build --release --locked

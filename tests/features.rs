@@ -336,7 +336,7 @@ fn skull_mask_migrates() {
     let dir = root.join("volumes/mri_head_seg3d");
     let vol = vellum::volume::io::load(&dir.join("mri_head_seg3d.nhdr"), None).unwrap();
     let mask = vellum::volume::io::load(&dir.join("mri_head_seg3d_skull_mask.nhdr"), None).unwrap();
-    let roi = Roi::from_mask(&mask, vol.dims).unwrap();
+    let roi = Roi::from_mask(&mask, &vol).unwrap();
     let t = Instant::now();
     let m = migrate(&vol, &roi, &MigrateParams::default()).unwrap();
     let wall = t.elapsed().as_secs_f64();

@@ -374,7 +374,8 @@ impl ImportanceMap {
         let packed: &[f32] = bytemuck::try_cast_slice(out)
             .map_err(|e| Error::Invalid(format!("readback memory does not hold floats: {e}")))?;
         let delta = unpack_rows(packed, v.dims);
-        let delta_d = Volume::new(v.dims, v.spacing, VoxelData::F32(delta))?;
+        let delta_d =
+            Volume::new(v.dims, v.spacing, VoxelData::F32(delta))?.with_geometry(v.geometry)?;
         Ok(ImportanceOutput {
             delta_d,
             passes,

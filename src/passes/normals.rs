@@ -34,6 +34,8 @@ pub struct VolumeTextures {
     pub range: [f64; 2],
     pub dims: [usize; 3],
     pub spacing: [f64; 3],
+    /// Origin and directions of the volume (see `volume::geometry`).
+    pub geometry: crate::volume::geometry::Geometry,
     /// Ambient occlusion in [0, 1] for occlusion transfer functions (R32F, possibly coarser).
     pub occlusion: Option<Image>,
     /// Min and max of the normalised intensity per brick, for skipping bricks in a pass.
@@ -128,6 +130,7 @@ impl VolumeTextures {
                 range,
                 dims: v.dims,
                 spacing: v.spacing,
+                geometry: v.geometry,
                 occlusion: None,
                 bricks,
                 importance: None,

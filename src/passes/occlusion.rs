@@ -231,7 +231,10 @@ impl Occlusion {
                 _ => None,
             };
         Ok(OcclusionOutput {
-            occlusion: Volume::new(targets.out_dims, spacing, VoxelData::F32(o))?,
+            // Output voxel o samples input voxel o·stride: the same origin and directions, the
+            // spacing scaled by the stride.
+            occlusion: Volume::new(targets.out_dims, spacing, VoxelData::F32(o))?
+                .with_geometry(input.geometry)?,
             spectrum,
             passes,
             intensity_range: input.range,
@@ -480,6 +483,7 @@ impl Occlusion {
             intensity,
             dims,
             spacing,
+            geometry: tex.geometry,
             range,
         })
     }
@@ -490,6 +494,7 @@ pub struct OcclusionInput {
     pub intensity: Image,
     pub dims: [usize; 3],
     pub spacing: [f64; 3],
+    pub geometry: crate::volume::geometry::Geometry,
     /// The data values at 0 and 1.
     pub range: [f64; 2],
 }
@@ -517,6 +522,7 @@ impl OcclusionInput {
             intensity: image,
             dims: v.dims,
             spacing: v.spacing,
+            geometry: v.geometry,
             range,
         })
     }

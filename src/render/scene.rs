@@ -73,6 +73,9 @@ pub struct RawInput {
     pub offset: u64,
     #[serde(default = "unit_spacing")]
     pub spacing: [f64; 3],
+    /// Position of voxel (0,0,0) in LPS millimetres: the volume is then axis-aligned in LPS.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub origin: Option<[f64; 3]>,
 }
 
 fn unit_spacing() -> [f64; 3] {
@@ -367,7 +370,14 @@ impl Scene {
 
     /// Loads the input volume.
     pub fn load_volume(&self) -> Result<Volume> {
-        crate::input::load(&self.input.path, self.raw_spec()?.as_ref())
+        let v = crate::input::load(&self.input.path, self.raw_spec()?.as_ref())?;
+        match self.input.raw.as_ref().and_then(|r| r.origin) {
+            Some(o) => v.with_geometry(crate::volume::geometry::Geometry::lps(
+                o,
+                crate::volume::geometry::IDENTITY,
+            )?),
+            None => Ok(v),
+        }
     }
 
     /// Loads the files the classification names.

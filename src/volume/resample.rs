@@ -76,7 +76,8 @@ pub fn trilinear(v: &Volume, dims: [usize; 3]) -> Result<Volume> {
             VoxelData::F32((0..n).into_par_iter().map(|i| sample(i) as f32).collect())
         }
     };
-    Volume::new(dims, spacing, data)
+    // The same box in space: origin and directions are kept.
+    Volume::new(dims, spacing, data)?.with_geometry(v.geometry)
 }
 
 #[cfg(test)]

@@ -117,8 +117,7 @@ pub fn migrate(args: &MigrateArgs) -> Result<()> {
     let roi = match (&args.mask, &args.seed, &args.window) {
         (Some(mask), _, _) => {
             let mask = vellum::input::load(mask, None)?;
-            Roi::from_mask(&mask, volume.dims)
-                .with_context(|| format!("--mask {}", mask_name(args)))?
+            Roi::from_mask(&mask, &volume).with_context(|| format!("--mask {}", mask_name(args)))?
         }
         (None, Some(seeds), Some(window)) => Roi::grow(
             &volume,

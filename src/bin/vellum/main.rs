@@ -57,6 +57,13 @@ struct RawArgs {
     /// Raw input: bytes to skip before the voxels.
     #[arg(long, value_name = "BYTES", default_value_t = 0)]
     offset: u64,
+    /// Raw input: voxel spacing as SX,SY,SZ (millimetres) [default: 1,1,1].
+    #[arg(long, value_name = "SX,SY,SZ")]
+    raw_spacing: Option<String>,
+    /// Raw input: the position of voxel (0,0,0) in LPS millimetres, as X,Y,Z; the volume is then
+    /// taken as axis-aligned in LPS.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    raw_origin: Option<String>,
 }
 
 #[derive(Subcommand)]
@@ -635,6 +642,9 @@ enum BenchCommand {
 impl RawArgs {
     fn spec(&self) -> Result<Option<RawSpec>> {
         match (&self.raw_dims, &self.raw_type) {
+            (None, None) if self.raw_spacing.is_some() || self.raw_origin.is_some() => {
+                anyhow::bail!("--raw-spacing and --raw-origin need a raw input: --raw-dims X,Y,Z and --raw-type")
+            }
             (None, None) => Ok(None),
             (Some(d), Some(t)) => {
                 let dims: Vec<usize> = d
@@ -653,7 +663,18 @@ impl RawArgs {
                     voxel_type: VoxelType::parse(t)?,
                     big_endian: self.big_endian,
                     offset: self.offset,
-                    spacing: [1.0; 3],
+                    spacing: match &self.raw_spacing {
+                        Some(sp) => {
+                            let v =
+                                parse_floats(sp, "--raw-spacing", 3, "SX,SY,SZ in millimetres")?;
+                            anyhow::ensure!(
+                                v.iter().all(|x| *x > 0.0),
+                                "--raw-spacing '{sp}' must be three positive numbers"
+                            );
+                            [v[0] as f64, v[1] as f64, v[2] as f64]
+                        }
+                        None => [1.0; 3],
+                    },
                 }))
             }
             _ => {
@@ -663,9 +684,27 @@ impl RawArgs {
     }
 }
 
+impl RawArgs {
+    /// The origin given with --raw-origin, as LPS geometry.
+    fn origin(&self) -> Result<Option<[f64; 3]>> {
+        self.raw_origin
+            .as_deref()
+            .map(|o| {
+                let v = parse_floats(o, "--raw-origin", 3, "X,Y,Z in LPS millimetres")?;
+                Ok([v[0] as f64, v[1] as f64, v[2] as f64])
+            })
+            .transpose()
+    }
+}
+
 impl InputArgs {
     fn load(&self) -> Result<Volume> {
         let raw = self.raw.spec()?;
+        if let Some(o) = self.raw.origin()? {
+            let v = vellum::input::load(&self.input, raw.as_ref())?;
+            let g = vellum::volume::geometry::Geometry::lps(o, vellum::volume::geometry::IDENTITY)?;
+            return Ok(v.with_geometry(g)?);
+        }
         Ok(vellum::input::load(&self.input, raw.as_ref())?)
     }
 }
@@ -1093,6 +1132,7 @@ fn render_scene(a: &RenderArgs) -> Result<Scene> {
             big_endian: raw.big_endian,
             offset: raw.offset,
             spacing: raw.spacing,
+            origin: a.raw.origin()?,
         });
     }
     let path_arg = |p: &std::path::Path| p.to_string_lossy().into_owned();

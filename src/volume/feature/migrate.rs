@@ -161,7 +161,8 @@ pub fn migrate(volume: &Volume, roi: &Roi, params: &MigrateParams) -> Result<Mig
         VoxelType::F32 => interval.map(|v| v as f32 as f64),
         _ => interval,
     };
-    let feature_volume = Volume::new(volume.dims, volume.spacing, data)?;
+    let feature_volume =
+        Volume::new(volume.dims, volume.spacing, data)?.with_geometry(volume.geometry)?;
     let report = MigrationReport {
         in_range,
         roi_range,

@@ -34,14 +34,51 @@ impl Roi {
     }
 
     /// The ROI of a mask volume: every nonzero voxel. The mask must be aligned voxel for voxel
-    /// with the data, so its dims must equal `data_dims`.
-    pub fn from_mask(mask: &Volume, data_dims: [usize; 3]) -> Result<Self> {
+    /// with `data`: the same dims and, when both know their orientation, the same origin
+    /// (within 1e-3 mm), directions (within 1e-4) and spacing (within 1e-4 relative).
+    pub fn from_mask(mask: &Volume, data: &Volume) -> Result<Self> {
+        let data_dims = data.dims;
         if mask.dims != data_dims {
             let [a, b, c] = mask.dims;
             let [x, y, z] = data_dims;
             return Err(Error::Invalid(format!(
                 "the mask is {a}x{b}x{c} but the volume is {x}x{y}x{z}; expected a mask aligned voxel for voxel with the volume"
             )));
+        }
+        let (gm, gd) = (&mask.geometry, &data.geometry);
+        if gm.is_oriented() && gd.is_oriented() {
+            let far = |a: &[f64], b: &[f64], tol: f64| {
+                a.iter()
+                    .zip(b)
+                    .any(|(x, y)| (x - y).abs() > tol * y.abs().max(1.0))
+            };
+            let why = if far(&gm.origin, &gd.origin, 1e-3) {
+                Some(format!(
+                    "its origin is {:?} mm but the volume's is {:?}",
+                    gm.origin, gd.origin
+                ))
+            } else if far(
+                gm.direction.as_flattened(),
+                gd.direction.as_flattened(),
+                1e-4,
+            ) {
+                Some(format!(
+                    "its directions are {:?} but the volume's are {:?}",
+                    gm.direction, gd.direction
+                ))
+            } else if far(&mask.spacing, &data.spacing, 1e-4) {
+                Some(format!(
+                    "its spacing is {:?} but the volume's is {:?}",
+                    mask.spacing, data.spacing
+                ))
+            } else {
+                None
+            };
+            if let Some(why) = why {
+                return Err(Error::Invalid(format!(
+                    "the mask does not lie on the volume's grid: {why}; expected the same geometry"
+                )));
+            }
         }
         let flags = (0..mask.len())
             .map(|i| mask.data.get_f64(i) != 0.0)
@@ -222,12 +259,21 @@ mod tests {
     fn masks_must_match_the_data() {
         let data = volume([4, 4, 4], |_| 0);
         let mask = volume([4, 4, 3], |p| (p[0] == 1) as u8);
-        let e = Roi::from_mask(&mask, data.dims).unwrap_err().to_string();
+        let e = Roi::from_mask(&mask, &data).unwrap_err().to_string();
         assert!(e.contains("mask is 4x4x3 but the volume is 4x4x4"), "{e}");
         let mask = volume([4, 4, 4], |p| 7 * (p[0] == 1) as u8);
-        let roi = Roi::from_mask(&mask, data.dims).unwrap();
+        let roi = Roi::from_mask(&mask, &data).unwrap();
         assert_eq!(roi.count(), 16);
         assert_eq!(roi.to_volume([1.0; 3]).unwrap().data.get_f64(1), 1.0);
+        // Oriented volumes must also agree in origin.
+        use crate::volume::geometry::{Geometry, IDENTITY};
+        let placed = |o: [f64; 3]| Geometry::lps(o, IDENTITY).unwrap();
+        let data = data.with_geometry(placed([0.0; 3])).unwrap();
+        let shifted = mask.clone().with_geometry(placed([5.0, 0.0, 0.0])).unwrap();
+        let e = Roi::from_mask(&shifted, &data).unwrap_err().to_string();
+        assert!(e.contains("origin is [5.0, 0.0, 0.0]"), "{e}");
+        let same = mask.with_geometry(placed([0.0; 3])).unwrap();
+        assert!(Roi::from_mask(&same, &data).is_ok());
     }
 
     #[test]
