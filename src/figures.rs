@@ -273,6 +273,7 @@ pub fn importance_sheets(ctx: &Arc<Context>, size: u32) -> Result<Vec<(&'static 
             one_pass: true,
             lighting: Lighting::default(),
             style: None,
+            fit: false,
         };
         let mut tiles = Vec::new();
         for tile in &fig.tiles {

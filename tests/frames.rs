@@ -36,6 +36,7 @@ fn view(azimuth: f32, size: u32, one_pass: bool) -> View {
         one_pass,
         lighting: Lighting::default(),
         style: None,
+        fit: false,
     }
 }
 
@@ -288,7 +289,7 @@ fn a_scene_file_round_trips_to_the_same_render() {
     });
     scene.focus = Focus::Iso(0.9);
     scene.size = [56, 48];
-    scene.camera.azimuth = -40.0;
+    scene.camera.azimuth = Some(-40.0);
     scene.lighting.specular = 0.6;
     let path = dir.path().join("scene.json");
     scene.save(&path).unwrap();
@@ -306,7 +307,12 @@ fn a_scene_file_round_trips_to_the_same_render() {
         )
         .unwrap();
         renderer
-            .render_frame(&g.volume, &mut g.classify, &s.view().unwrap(), true)
+            .render_frame(
+                &g.volume,
+                &mut g.classify,
+                &s.view(v.geometry.is_oriented()).unwrap(),
+                true,
+            )
             .unwrap()
     };
     let (a, b) = (render(&scene), render(&loaded));

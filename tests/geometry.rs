@@ -362,3 +362,135 @@ fn a_mask_on_another_grid_is_refused() {
     );
     assert!(!out_file.exists());
 }
+
+/// A cube with a marker only at its high-x end, placed so that index x points superior: the
+/// default view of an oriented volume (anterior, superior up) shows the marker at the top. The
+/// same voxels with no orientation keep the volume's own axes (+z up): the marker is not on top.
+#[test]
+fn the_superior_end_is_up_by_default() {
+    use vellum::classify::modulation::Modulation;
+    use vellum::classify::transfer::TransferFunction;
+    use vellum::classify::{Classification, Focus};
+    use vellum::render::scene::{CameraSpec, GpuScene};
+    use vellum::render::slicer::{Lighting, Renderer, View};
+    use vellum::volume::geometry::Geometry;
+    use vellum::volume::{Volume, VoxelData};
+    let gpu = common::Gpu::new();
+    let n = 24usize;
+    let data: Vec<f32> = (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
+            let d = |a: usize, c: f32| (a as f32 - c).powi(2);
+            let marker = d(x, 20.0) + d(y, 11.5) + d(z, 11.5) <= 9.0;
+            let body = d(x, 11.5) + d(y, 11.5) + d(z, 11.5) <= 36.0;
+            if marker {
+                1.0
+            } else if body {
+                0.3
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let plain = Volume::new([n; 3], [1.0; 3], VoxelData::F32(data)).unwrap();
+    // Index x → superior (+z), y → left (+x), z → posterior (+y): a rotation.
+    let oriented = plain
+        .clone()
+        .with_geometry(
+            Geometry::lps(
+                [10.0, -5.0, 3.0],
+                [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            )
+            .unwrap(),
+        )
+        .unwrap();
+    // A transfer function that shows only the marker.
+    let tf = TransferFunction::from_json_str(
+        r#"{"name": "marker", "points": [{"x": 0.0, "rgba": [1, 1, 1, 0]}, {"x": 0.8, "rgba": [1, 1, 1, 0]}, {"x": 0.9, "rgba": [1, 1, 1, 1]}]}"#,
+    )
+    .unwrap();
+    let renderer = Renderer::new(&gpu.ctx).unwrap();
+    let marker_row = |v: &Volume| {
+        let mut scene = GpuScene::prepare(
+            &gpu.ctx,
+            v,
+            &Classification::Transfer(tf.clone()),
+            Focus::None,
+            &Modulation::default(),
+        )
+        .unwrap();
+        let (camera, fit) = CameraSpec::default()
+            .camera(v.geometry.is_oriented())
+            .unwrap();
+        assert!(fit, "no distance given: the volume is framed");
+        let view = View {
+            camera,
+            size: [64, 64],
+            slices: None,
+            one_pass: true,
+            lighting: Lighting::default(),
+            style: None,
+            fit,
+        };
+        let f = renderer
+            .render_frame(&scene.volume, &mut scene.classify, &view, true)
+            .unwrap();
+        let (mut sum, mut count) = (0.0, 0.0);
+        for (i, p) in f.composite.iter().enumerate() {
+            if p[3] > 0.3 {
+                sum += (i / 64) as f64;
+                count += 1.0;
+            }
+        }
+        assert!(count > 5.0, "the marker shows ({count} px)");
+        sum / count
+    };
+    let up = marker_row(&oriented);
+    assert!(
+        up < 20.0,
+        "oriented: the marker's mean row is {up} of 64, expected near the top"
+    );
+    let plain_row = marker_row(&plain);
+    assert!(
+        plain_row > 24.0,
+        "unoriented: the marker's mean row is {plain_row}, not on top"
+    );
+}
+
+/// The default framing fills the image with the volume's box: a long thin box touches the margin
+/// on its long side.
+#[test]
+fn the_default_framing_fits_the_projected_box() {
+    use glam::Vec3;
+    use vellum::render::camera::Camera;
+    let c = Camera {
+        azimuth_deg: 0.0,
+        elevation_deg: 0.0,
+        ..Camera::default()
+    };
+    let half = Vec3::new(1.0, 0.2, 0.1);
+    let corners: Vec<Vec3> = (0..8)
+        .map(|i: u32| {
+            Vec3::new(
+                if i & 1 == 1 { half.x } else { -half.x },
+                if i & 2 == 2 { half.y } else { -half.y },
+                if i & 4 == 4 { half.z } else { -half.z },
+            )
+        })
+        .collect();
+    let radius = half.length();
+    let d = c.fit_distance(&corners, radius, 1.0, 0.05);
+    let m = Camera { distance: d, ..c }.view_proj(1.0, radius);
+    let extent = corners
+        .iter()
+        .map(|&p| {
+            let q = m * p.extend(1.0);
+            (q.x / q.w).abs().max((q.y / q.w).abs())
+        })
+        .fold(0.0f32, f32::max);
+    assert!(
+        (extent - 0.95).abs() < 1e-3,
+        "extent {extent} at distance {d}"
+    );
+    assert!(d < 2.5, "closer than the bounding-sphere framing: {d}");
+}

@@ -43,6 +43,7 @@ fn render(gpu: &Gpu, s: &mut GpuScene, camera: &str, size: u32) -> Frame {
         one_pass: false,
         lighting: Lighting::default(),
         style: None,
+        fit: false,
     };
     Renderer::new(&gpu.ctx)
         .unwrap()

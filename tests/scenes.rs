@@ -325,6 +325,13 @@ fn bad_style_flags_get_one_sentence() {
 }
 
 #[test]
+fn bad_view_flags_get_one_sentence() {
+    bad_flags(&["--view", "sideways"], "view \"sideways\" is unknown");
+    bad_flags(&["--view", "left", "--camera", "0,0"], "not both");
+    bad_flags(&["--camera", "0,120"], "elevation 120");
+}
+
+#[test]
 fn the_same_stipple_seed_gives_the_same_png() {
     let dir = tempfile::tempdir().unwrap();
     let run = |name: &str, seed: &str| {

@@ -69,6 +69,7 @@ fn styled(
         one_pass: false,
         lighting: Lighting::default(),
         style: Some(Style::new(style, StyleParams::default()).unwrap()),
+        fit: false,
     };
     let renderer = Renderer::new(ctx).unwrap();
     let mut targets = FrameTargets::new(ctx);

@@ -190,6 +190,7 @@ fn view(size: u32, azimuth: f32, one_pass: bool) -> View {
         one_pass,
         lighting: Lighting::default(),
         style: None,
+        fit: false,
     }
 }
 

@@ -220,6 +220,42 @@ impl Camera {
     pub fn view_proj(&self, aspect: f32, radius: f32) -> Mat4 {
         self.projection(aspect, radius) * self.view(radius)
     }
+
+    /// The distance (in bounding-sphere radii) at which `corners` (world units) fill the image of
+    /// `aspect` up to `margin` (a fraction of the half-size) on the tighter side: the framing of a
+    /// volume's projected bounding box rather than of its bounding sphere. In perspective the eye
+    /// stays outside the bounding sphere (distance ≥ 1.05).
+    pub fn fit_distance(&self, corners: &[Vec3], radius: f32, aspect: f32, margin: f32) -> f32 {
+        let extent = |d: f32| {
+            let c = Camera {
+                distance: d,
+                ..*self
+            };
+            let m = c.view_proj(aspect, radius);
+            corners
+                .iter()
+                .map(|&p| {
+                    let q = m * p.extend(1.0);
+                    (q.x / q.w).abs().max((q.y / q.w).abs())
+                })
+                .fold(0.0f32, f32::max)
+        };
+        let goal = 1.0 - margin;
+        let (mut lo, mut hi) = (if self.ortho { 0.05 } else { 1.05 }, 100.0f32);
+        if extent(lo) <= goal {
+            return lo;
+        }
+        // The projected extent shrinks as the eye moves away: bisect for the goal.
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if extent(mid) > goal {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        hi
+    }
 }
 
 #[cfg(test)]

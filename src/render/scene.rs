@@ -17,8 +17,10 @@
 //!   occlusion transfer function, which carries its AO radius and mapping) or
 //!   `{"features": features.json}`.
 //! - `focus`: `"none"`, `{"iso": V}` or `{"range": {"lo": A, "hi": B}}`, in data units.
-//! - `camera` (azimuth, elevation in degrees; distance and pan in bounding-sphere radii; `ortho`;
-//!   `fov_y`), `size`, `slices` (null: two per voxel), `one_pass`, `background` (RGB behind the
+//! - `camera`: `view` (anterior, posterior, left, right, superior, inferior) or `azimuth` and
+//!   `elevation` in degrees; `distance` and `pan` in bounding-sphere radii; `ortho`; `fov_y`.
+//!   Left out, the view is anterior with superior up for an oriented volume, and the distance
+//!   fits the volume's projected bounding box (see [`CameraSpec`]); `size`, `slices` (null: two per voxel), `one_pass`, `background` (RGB behind the
 //!   volume in PNGs), `lighting` (`ambient`, `diffuse`, `specular`, `shininess`).
 //! - `modulation`: importance modulation (`classify::modulation::Modulation`): `color`
 //!   (`{"mode": "raw"|"abs", "gamma": G}`), `opacity` (`{"t_low", "t_high", "k_low", "k_high"}`),
@@ -110,16 +112,59 @@ impl Default for ClassificationSpec {
     }
 }
 
-/// The camera, in the scene file's terms.
+/// A named view of an oriented volume, in LPS patient space: where the eye is.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NamedView {
+    Anterior,
+    Posterior,
+    Left,
+    Right,
+    Superior,
+    Inferior,
+}
+
+impl NamedView {
+    /// Azimuth and elevation in degrees (the camera's axes are the volume's world axes: LPS when
+    /// the orientation is known, so azimuth 0 puts the eye on the anterior side with superior up).
+    pub fn angles(self) -> (f32, f32) {
+        match self {
+            NamedView::Anterior => (0.0, 0.0),
+            NamedView::Posterior => (180.0, 0.0),
+            NamedView::Left => (90.0, 0.0),
+            NamedView::Right => (-90.0, 0.0),
+            NamedView::Superior => (0.0, 90.0),
+            NamedView::Inferior => (0.0, -90.0),
+        }
+    }
+
+    /// Parses a view name.
+    pub fn parse(s: &str) -> Result<Self> {
+        serde_json::from_value(serde_json::Value::String(s.to_lowercase())).map_err(|_| {
+            Error::Invalid(format!(
+                "view {s:?} is unknown; expected anterior, posterior, left, right, superior or inferior"
+            ))
+        })
+    }
+}
+
+/// The camera, in the scene file's terms. Every field may be left out:
+/// - `view` (a [`NamedView`]) or `azimuth` and `elevation` in degrees; without them, the anterior
+///   view with superior up for a volume whose orientation is known, else azimuth 30, elevation 20
+///   in the volume's own axes (+z up);
+/// - `distance` in bounding-sphere radii; without it, the distance that fits the volume's projected
+///   bounding box in the image with a 5 % margin.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraSpec {
-    /// Degrees about +z; 0 looks from −y.
-    pub azimuth: f32,
-    /// Degrees towards +z, in [−90, 90].
-    pub elevation: f32,
-    /// Eye distance in bounding-sphere radii.
-    pub distance: f32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub view: Option<NamedView>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub azimuth: Option<f32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub elevation: Option<f32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distance: Option<f32>,
     pub ortho: bool,
     /// Pan (x right, y up) in bounding-sphere radii.
     pub pan: [f32; 2],
@@ -129,11 +174,19 @@ pub struct CameraSpec {
 
 impl Default for CameraSpec {
     fn default() -> Self {
-        CameraSpec::from(&DEFAULT_CAMERA)
+        CameraSpec {
+            view: None,
+            azimuth: None,
+            elevation: None,
+            distance: None,
+            ortho: false,
+            pan: [0.0; 2],
+            fov_y: DEFAULT_CAMERA.fov_y_deg,
+        }
     }
 }
 
-/// The camera of `vellum render` without `--camera`.
+/// The camera of a volume with no known orientation, without `--camera`.
 pub const DEFAULT_CAMERA: Camera = Camera {
     azimuth_deg: 30.0,
     elevation_deg: 20.0,
@@ -146,9 +199,10 @@ pub const DEFAULT_CAMERA: Camera = Camera {
 impl From<&Camera> for CameraSpec {
     fn from(c: &Camera) -> Self {
         CameraSpec {
-            azimuth: c.azimuth_deg,
-            elevation: c.elevation_deg,
-            distance: c.distance,
+            view: None,
+            azimuth: Some(c.azimuth_deg),
+            elevation: Some(c.elevation_deg),
+            distance: Some(c.distance),
             ortho: c.ortho,
             pan: c.pan.to_array(),
             fov_y: c.fov_y_deg,
@@ -157,18 +211,34 @@ impl From<&Camera> for CameraSpec {
 }
 
 impl CameraSpec {
-    /// The camera, checked.
-    pub fn camera(&self) -> Result<Camera> {
+    /// The camera for a volume whose orientation is known (`oriented`) or not, checked, and
+    /// whether its distance is to be fitted to the volume.
+    pub fn camera(&self, oriented: bool) -> Result<(Camera, bool)> {
+        let (az, el) = match (self.view, self.azimuth, self.elevation) {
+            (Some(_), Some(_), _) | (Some(_), _, Some(_)) => return Err(Error::Invalid(
+                "the camera gives both a named view and azimuth/elevation; expected one of them"
+                    .into(),
+            )),
+            (Some(v), None, None) => v.angles(),
+            (None, az, el) => {
+                let (daz, del) = if oriented {
+                    NamedView::Anterior.angles()
+                } else {
+                    (DEFAULT_CAMERA.azimuth_deg, DEFAULT_CAMERA.elevation_deg)
+                };
+                (az.unwrap_or(daz), el.unwrap_or(del))
+            }
+        };
         let c = Camera {
-            azimuth_deg: self.azimuth,
-            elevation_deg: self.elevation,
-            distance: self.distance,
+            azimuth_deg: az,
+            elevation_deg: el,
+            distance: self.distance.unwrap_or(DEFAULT_CAMERA.distance),
             ortho: self.ortho,
             fov_y_deg: self.fov_y,
             pan: glam::Vec2::from_array(self.pan),
         };
         c.validate()?;
-        Ok(c)
+        Ok((c, self.distance.is_none()))
     }
 }
 
@@ -347,7 +417,7 @@ impl Scene {
         if let Some(m) = &self.modulation {
             m.validate()?;
         }
-        self.camera.camera()?;
+        self.camera.camera(false)?;
         Ok(())
     }
 
@@ -395,10 +465,14 @@ impl Scene {
         })
     }
 
-    /// The view: camera, size, slices, one pass or two levels, lighting.
-    pub fn view(&self) -> Result<View> {
+    /// The view of a volume whose orientation is known (`oriented`) or not: camera (fitted to
+    /// the volume when the scene gives no distance), size, slices, one pass or two levels,
+    /// lighting, style.
+    pub fn view(&self, oriented: bool) -> Result<View> {
+        let (camera, fit) = self.camera.camera(oriented)?;
         Ok(View {
-            camera: self.camera.camera()?,
+            camera,
+            fit,
             size: self.size,
             slices: self.slices,
             one_pass: self.one_pass,

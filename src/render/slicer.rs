@@ -154,7 +154,12 @@ pub struct View {
     pub lighting: Lighting,
     /// A perceptual style (two-level frames only), recorded after the levels.
     pub style: Option<Style>,
+    /// Frame the volume's projected bounding box (replacing the camera's distance).
+    pub fit: bool,
 }
+
+/// Margin left around a fitted volume, as a fraction of the image's half-size.
+pub const FIT_MARGIN: f32 = 0.05;
 
 /// Parameters of one frame for the one-shot [`Renderer::render`].
 #[derive(Clone, Debug)]
@@ -402,8 +407,29 @@ impl Renderer {
                 "{n_slices} slices are too many; expected at most {MAX_SLICES}"
             )));
         }
-        let cam = &view.camera;
-        let view_dir = cam.view_dir(radius);
+        // The camera lives in world space: LPS for a volume whose orientation is known, where the
+        // box is turned by its direction matrix R about its centre; else the box's own axes. So
+        // the box-frame quantities are R^T applied to the world ones, and box → clip is VP · R.
+        let rot = match vol.geometry.is_oriented() {
+            true => {
+                glam::Mat3::from_cols_array_2d(&vol.geometry.direction.map(|r| r.map(|v| v as f32)))
+                    .transpose()
+            }
+            false => glam::Mat3::IDENTITY,
+        };
+        let aspect = w as f32 / h as f32;
+        let mut cam = view.camera;
+        if view.fit {
+            let corners: Vec<Vec3> = (0..8)
+                .map(|i| {
+                    let sign = |k: u32| if (i >> k) & 1 == 1 { 1.0 } else { -1.0 };
+                    rot * Vec3::new(sign(0) * half.x, sign(1) * half.y, sign(2) * half.z)
+                })
+                .collect();
+            cam.distance = cam.fit_distance(&corners, radius, aspect, FIT_MARGIN);
+        }
+        let cam = &cam;
+        let view_dir = rot.transpose() * cam.view_dir(radius);
         // Every pass draws the same planes, cut only by the bricks that can contribute to it, so
         // each fragment it draws is one the whole-box geometry would draw and skipped fragments
         // would all have been discarded. One pass and context: bricks whose intensities meet a
@@ -442,12 +468,11 @@ impl Renderer {
             })
         };
         let (proxy, focus_proxy) = rayon::join(context_proxy, focus_proxy);
-        let eye = cam.eye(radius);
+        let eye = rot.transpose() * cam.eye(radius);
         let light = -view_dir; // a headlight
         let l = &view.lighting;
         let mut uniforms = SliceUniforms {
-            view_proj: cam
-                .view_proj(w as f32 / h as f32, radius)
+            view_proj: (cam.view_proj(aspect, radius) * glam::Mat4::from_mat3(rot))
                 .to_cols_array_2d(),
             half_extent: [half.x, half.y, half.z, 0.0],
             eye: [eye.x, eye.y, eye.z, 0.0],
@@ -611,6 +636,7 @@ impl Renderer {
             one_pass: params.one_pass,
             lighting: Lighting::default(),
             style: None,
+            fit: false,
         };
         self.render_frame(vol, &mut classify, &view, readback)
     }

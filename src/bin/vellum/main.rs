@@ -227,9 +227,14 @@ struct RenderArgs {
     /// Focus: an isovalue in data units (an opaque surface).
     #[arg(long, value_name = "V", allow_negative_numbers = true)]
     iso: Option<f64>,
-    /// Camera: azimuth and elevation in degrees, distance in bounding-sphere radii [default: 30,20,2.5].
+    /// Camera: azimuth and elevation in degrees (in LPS for an oriented volume: 0,0 is the anterior
+    /// view), distance in bounding-sphere radii. Default: anterior for an oriented volume, else
+    /// 30,20; without DIST the volume's projected bounding box fills the image.
     #[arg(long, value_name = "AZ,EL[,DIST]", allow_hyphen_values = true)]
     camera: Option<String>,
+    /// A named view of an oriented volume: anterior, posterior, left, right, superior, inferior.
+    #[arg(long, value_name = "NAME")]
+    view: Option<String>,
     /// Orthographic instead of perspective projection.
     #[arg(long)]
     ortho: bool,
@@ -1148,13 +1153,21 @@ fn render_scene(a: &RenderArgs) -> Result<Scene> {
     if a.focus.is_some() || a.iso.is_some() {
         scene.focus = parse_focus(a.focus.as_deref(), a.iso)?;
     }
+    if a.camera.is_some() && a.view.is_some() {
+        anyhow::bail!("give either --camera AZ,EL[,DIST] or --view NAME, not both");
+    }
     if let Some(c) = &a.camera {
         let parsed = vellum::render::camera::Camera::parse(c)?;
-        scene.camera.azimuth = parsed.azimuth_deg;
-        scene.camera.elevation = parsed.elevation_deg;
-        if c.split(',').count() == 3 {
-            scene.camera.distance = parsed.distance;
-        }
+        scene.camera.view = None;
+        scene.camera.azimuth = Some(parsed.azimuth_deg);
+        scene.camera.elevation = Some(parsed.elevation_deg);
+        // Without DIST the volume is framed.
+        scene.camera.distance = (c.split(',').count() == 3).then_some(parsed.distance);
+    }
+    if let Some(v) = &a.view {
+        scene.camera.view = Some(vellum::render::scene::NamedView::parse(v)?);
+        scene.camera.azimuth = None;
+        scene.camera.elevation = None;
     }
     if a.ortho {
         scene.camera.ortho = true;
@@ -1206,8 +1219,10 @@ fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
     let classification = scene
         .classification()
         .map_err(|e| from("classification", e))?;
-    let view = scene.view().map_err(|e| from("style", e))?;
     let v = scene.load_volume().map_err(|e| from("input", e))?;
+    let view = scene
+        .view(v.geometry.is_oriented())
+        .map_err(|e| from("style", e))?;
     let ctx = context(cli)?;
     let modulation = scene.modulation.clone().unwrap_or_default();
     let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
@@ -1265,6 +1280,7 @@ fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
         one_pass: false,
         lighting: Lighting::default(),
         style: None,
+        fit: a.camera.split(',').count() == 2,
     };
     let v = a.input.load()?;
     let ctx = context(cli)?;
