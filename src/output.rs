@@ -1,5 +1,21 @@
-//! Writing result files without ever leaving a partial one behind: everything is written under a
-//! temporary name in the destination folder and renamed into place only once complete.
+//! Writing result files without ever leaving a partial one behind.
+//!
+//! ## One file
+//! Everything is written under a temporary name in the destination folder (`.vellum.PID.N.tmp`,
+//! short so that a name near the file-system limit still fits), flushed to disk, and renamed into
+//! place only once complete.
+//!
+//! ## All of a command's files, or none
+//! Between [`begin`] and [`commit`], completed files stay under their temporary names: `commit`
+//! renames them all, and [`abort`] (or an error, or Ctrl-C through [`remove_pending`]) removes them
+//! all. A command therefore writes every output or none, and two outputs with the same path are
+//! refused. Outside a transaction (library use, tests) each file is renamed as soon as it is
+//! complete.
+//!
+//! ## Special paths
+//! Only regular files are replaced: an output path that exists and is a device, FIFO, socket or
+//! folder, or a symbolic link, is refused with a sentence (rename would replace the node itself,
+//! not write through it).
 //!
 //! Formats: 8-bit PNG for looking at, multi-layer float OpenEXR for post-processing (one file holds
 //! every render target of a frame as named layers, so researchers can recombine them).
@@ -7,41 +23,148 @@
 use crate::error::{Error, Result};
 use std::fs::File;
 use std::io::{BufWriter, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+
+/// Completed temporary files waiting for [`commit`], as (temporary, final) paths; `None` when no
+/// transaction is open.
+static PENDING: Mutex<Option<Vec<(PathBuf, PathBuf)>>> = Mutex::new(None);
+/// Temporary files being written right now (removed on Ctrl-C too).
+static WRITING: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+static COUNTER: AtomicU64 = AtomicU64::new(0);
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Opens a transaction: files written from now on are renamed into place by [`commit`].
+pub fn begin() {
+    *lock(&PENDING) = Some(Vec::new());
+}
+
+/// Renames every completed file into place and closes the transaction.
+pub fn commit() -> Result<()> {
+    let pending = lock(&PENDING).take().unwrap_or_default();
+    for (i, (tmp, path)) in pending.iter().enumerate() {
+        if let Err(e) = std::fs::rename(tmp, path) {
+            // Nothing sensible is left to do with the rest: remove them, report this one.
+            for (t, _) in &pending[i..] {
+                let _ = std::fs::remove_file(t);
+            }
+            return Err(Error::io(path, e));
+        }
+    }
+    Ok(())
+}
+
+/// Removes every completed file of the transaction and closes it.
+pub fn abort() {
+    if let Some(pending) = lock(&PENDING).take() {
+        for (tmp, _) in pending {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
+}
+
+/// Removes every temporary file, complete or being written (for a signal handler, which then
+/// exits).
+pub fn remove_pending() {
+    for tmp in lock(&WRITING).iter() {
+        let _ = std::fs::remove_file(tmp);
+    }
+    abort();
+}
+
+/// Refuses `path` when it exists and is not a regular file, or is a symbolic link.
+fn check_destination(path: &Path) -> Result<()> {
+    match std::fs::symlink_metadata(path) {
+        Err(_) => Ok(()),
+        Ok(m) if m.file_type().is_symlink() => Err(Error::Invalid(format!(
+            "{} is a symbolic link; vellum writes results only to regular files, so give the link's target",
+            path.display()
+        ))),
+        Ok(m) if !m.is_file() => Err(Error::Invalid(format!(
+            "{} exists and is not a regular file (a folder, device, FIFO or socket); vellum writes results only to regular files",
+            path.display()
+        ))),
+        Ok(_) => Ok(()),
+    }
+}
+
+/// Refuses an output whose extension does not name its format (`expected` without the dot).
+pub fn check_extension(path: &Path, expected: &[&str], format: &str) -> Result<()> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    if expected.iter().any(|e| name.ends_with(&format!(".{e}"))) {
+        Ok(())
+    } else {
+        Err(Error::Invalid(format!(
+            "{} does not end in .{}; it would hold {format}",
+            path.display(),
+            expected.join(" or .")
+        )))
+    }
+}
 
 /// Writes `path` through `fill`, atomically: on any error the destination is untouched and the
-/// temporary file is removed.
+/// temporary file is removed. Inside a transaction ([`begin`]), the file is renamed into place
+/// by [`commit`].
 pub fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
 ) -> Result<()> {
-    let name = path.file_name().ok_or_else(|| {
-        Error::Invalid(format!(
+    if path.file_name().is_none() {
+        return Err(Error::Invalid(format!(
             "{} has no file name; expected a path to a file",
             path.display()
-        ))
-    })?;
+        )));
+    }
+    check_destination(path)?;
+    if let Some(pending) = lock(&PENDING).as_ref() {
+        if pending.iter().any(|(_, p)| p == path) {
+            return Err(Error::Invalid(format!(
+                "{} is given for two outputs of one command; expected a separate path for each",
+                path.display()
+            )));
+        }
+    }
     let tmp = path.with_file_name(format!(
-        ".{}.{}.tmp",
-        name.to_string_lossy(),
-        std::process::id()
+        ".vellum.{}.{}.tmp",
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
     ));
+    lock(&WRITING).push(tmp.clone());
     let result = (|| {
         let mut w = BufWriter::new(File::create(&tmp)?);
         fill(&mut w)?;
         w.flush()?;
-        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        std::fs::rename(&tmp, path)
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()
     })();
-    result.map_err(|e| {
+    lock(&WRITING).retain(|t| t != &tmp);
+    if let Err(e) = result {
         let _ = std::fs::remove_file(&tmp);
-        Error::io(path, e)
-    })
+        return Err(Error::io(path, e));
+    }
+    let mut pending = lock(&PENDING);
+    match pending.as_mut() {
+        Some(list) => {
+            list.push((tmp, path.to_path_buf()));
+            Ok(())
+        }
+        None => std::fs::rename(&tmp, path).map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            Error::io(path, e)
+        }),
+    }
 }
 
 /// Writes an 8-bit RGB image as PNG, atomically.
 pub fn write_png_rgb(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<()> {
     use image::ImageEncoder;
+    check_extension(path, &["png"], "a PNG image")?;
     write_atomic(path, |w| {
         image::codecs::png::PngEncoder::new(w)
             .write_image(rgb, width, height, image::ExtendedColorType::Rgb8)
@@ -76,6 +199,7 @@ pub fn write_exr_layers(path: &Path, width: u32, height: u32, layers: &[ExrLayer
         Layer, LayerAttributes, Text, WritableImage,
     };
 
+    check_extension(path, &["exr"], "OpenEXR layers")?;
     let invalid = |msg: String| Error::Invalid(format!("EXR {}: {msg}", path.display()));
     let size = (width as usize, height as usize);
     let pixels = size.0 * size.1;

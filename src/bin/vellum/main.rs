@@ -754,9 +754,20 @@ fn main() -> ExitCode {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or(level))
         .format_timestamp(None)
         .init();
-    match run(&cli) {
+    // Ctrl-C or SIGTERM removes the command's temporary files; nothing partial stays behind.
+    if let Err(e) = ctrlc::set_handler(|| {
+        vellum::output::remove_pending();
+        std::process::exit(130);
+    }) {
+        log::warn!("no Ctrl-C handler: {e}");
+    }
+    // Every output of the command, or none (see output.rs).
+    vellum::output::begin();
+    let result = run(&cli).and_then(|()| Ok(vellum::output::commit()?));
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            vellum::output::abort();
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }

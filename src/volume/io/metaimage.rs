@@ -2,7 +2,6 @@
 //! files whose data follows the header (`ElementDataFile = LOCAL`). ITK writes zlib streams for
 //! `CompressedData = True`; a gzip stream is also accepted, by its magic bytes.
 
-use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
@@ -16,7 +15,7 @@ const MAX_HEADER_BYTES: u64 = 1 << 20;
 
 /// Reads a `.mhd` or `.mha` file.
 pub(super) fn read(path: &Path) -> Result<Volume> {
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let file = super::open_regular(path)?;
     let mut reader = BufReader::new(file);
     let mut fields: Vec<(String, String)> = Vec::new();
     let mut line = Vec::new();
@@ -118,7 +117,7 @@ pub(super) fn read(path: &Path) -> Result<Volume> {
         ));
     } else {
         let data_path = path.parent().unwrap_or(Path::new(".")).join(name);
-        let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
+        let file = super::open_regular(&data_path)?;
         (data_path, BufReader::new(file))
     };
     let expected = n * ty.size();

@@ -97,10 +97,26 @@ enum Sniffed {
     Nifti,
 }
 
+/// Opens a file for reading, refusing anything that is not a regular file: a FIFO would block
+/// forever and a device such as /dev/zero never ends.
+pub(crate) fn open_regular(path: &Path) -> Result<File> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        return Err(Error::io(
+            path,
+            io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "it is not a regular file (a folder, FIFO, device or socket); expected a volume file",
+            ),
+        ));
+    }
+    File::open(path).map_err(|e| Error::io(path, e))
+}
+
 /// Recognises NRRD ("NRRD" magic) and NIfTI-1 (sizeof_hdr 348, possibly gzipped) by content.
 fn sniff(path: &Path) -> Result<Option<Sniffed>> {
     let mut head = Vec::with_capacity(348);
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let file = open_regular(path)?;
     file.take(348)
         .read_to_end(&mut head)
         .map_err(|e| Error::io(path, e))?;
@@ -117,7 +133,7 @@ fn sniff(path: &Path) -> Result<Option<Sniffed>> {
         return Ok(Some(Sniffed::Nifti));
     }
     if head.starts_with(&[0x1f, 0x8b]) {
-        let file = File::open(path).map_err(|e| Error::io(path, e))?;
+        let file = open_regular(path)?;
         let mut inner = Vec::with_capacity(4);
         // A failure to decompress just means "not a gzipped NIfTI".
         let _ = MultiGzDecoder::new(BufReader::new(file))

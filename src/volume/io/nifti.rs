@@ -4,7 +4,6 @@
 //! from the sform when `sform_code > 0`, else the qform (quaternion) when `qform_code > 0`, else
 //! none (spacing only), converted from NIfTI's RAS to LPS.
 
-use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
@@ -19,7 +18,7 @@ const HEADER_BYTES: usize = 348;
 
 /// Reads a NIfTI-1 file, gzipped or not (decided by the gzip magic, not the name).
 pub(super) fn read(path: &Path) -> Result<Volume> {
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let file = super::open_regular(path)?;
     let mut buffered = BufReader::new(file);
     let head = buffered.fill_buf().map_err(|e| Error::io(path, e))?;
     let compression = if head.starts_with(&[0x1f, 0x8b]) {

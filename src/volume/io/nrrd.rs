@@ -4,7 +4,7 @@
 //! axis of size 1 is accepted), and only the encodings vellum can write, plus raw.
 
 use std::collections::HashMap;
-use std::fs::{self, File};
+use std::fs::File;
 use std::io::{self, BufRead, BufReader, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
@@ -23,7 +23,7 @@ const MAX_HEADER_BYTES: u64 = 1 << 20;
 
 /// Reads an attached or detached NRRD file.
 pub(super) fn read(path: &Path) -> Result<Volume> {
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let file = super::open_regular(path)?;
     let mut reader = BufReader::new(file);
     let fields = read_header(path, &mut reader)?;
     let field = |k: &str| fields.get(k).map(String::as_str);
@@ -100,7 +100,7 @@ pub(super) fn read(path: &Path) -> Result<Volume> {
     let (data_path, mut data) = match field("datafile") {
         Some(name) => {
             let data_path = data_file(path, name)?;
-            let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
+            let file = super::open_regular(&data_path)?;
             (data_path, BufReader::new(file))
         }
         None => (path.to_path_buf(), reader),
@@ -364,31 +364,15 @@ fn data_file(path: &Path, name: &str) -> Result<PathBuf> {
     Ok(path.parent().unwrap_or(Path::new(".")).join(name))
 }
 
-/// Writes `volume` as an attached-header, gzip-encoded NRRD. The file is written under a temporary
-/// name in the same folder and renamed into place, so a failure never leaves a partial file at `path`.
+/// Writes `volume` as an attached-header, gzip-encoded NRRD, through `output::write_atomic`: a
+/// failure never leaves a partial file at `path`, and inside a command's transaction the file
+/// appears only with the command's other outputs.
 pub fn write_nrrd(path: &Path, volume: &Volume) -> Result<()> {
-    let name = path.file_name().ok_or_else(|| {
-        Error::Invalid(format!(
-            "{} has no file name; expected a path to a .nrrd file",
-            path.display()
-        ))
-    })?;
-    let tmp = path.with_file_name(format!(
-        ".{}.{}.tmp",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let result = write_to(&tmp, volume).and_then(|()| fs::rename(&tmp, path));
-    result.map_err(|e| {
-        let _ = fs::remove_file(&tmp);
-        let msg = format!(
-            "could not write the NRRD file ({e}); expected a writable path in an existing folder"
-        );
-        Error::io(path, io::Error::new(e.kind(), msg))
-    })
+    crate::output::check_extension(path, &["nrrd"], "an NRRD volume")?;
+    crate::output::write_atomic(path, |w| write_to(w, volume))
 }
 
-fn write_to(path: &Path, volume: &Volume) -> io::Result<()> {
+fn write_to(out: &mut impl Write, volume: &Volume) -> io::Result<()> {
     let type_name = match volume.voxel_type() {
         VoxelType::U8 => "uint8",
         VoxelType::U16 => "uint16",
@@ -409,7 +393,6 @@ fn write_to(path: &Path, volume: &Volume) -> io::Result<()> {
         Space::Lps => "space: left-posterior-superior",
         Space::Unknown => "space dimension: 3",
     };
-    let mut out = io::BufWriter::new(File::create(path)?);
     write!(
         out,
         "NRRD0004\n# written by vellum\ntype: {type_name}\ndimension: 3\n{space}\n\
@@ -421,8 +404,6 @@ fn write_to(path: &Path, volume: &Volume) -> io::Result<()> {
     )?;
     let mut gz = GzEncoder::new(out, flate2::Compression::default());
     gz.write_all(volume.data.as_bytes())?;
-    gz.finish()?
-        .into_inner()
-        .map_err(|e| e.into_error())?
-        .sync_all()
+    gz.finish()?;
+    Ok(())
 }

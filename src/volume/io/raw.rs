@@ -1,7 +1,6 @@
 //! Headerless voxel files described on the command line. With no header to cross-check, the file
 //! size is the only guard against wrong dims or type, so it must match exactly.
 
-use std::fs::File;
 use std::io::{BufReader, Seek, SeekFrom};
 use std::path::Path;
 
@@ -14,7 +13,7 @@ use crate::volume::Volume;
 pub(super) fn read(path: &Path, spec: &RawSpec) -> Result<Volume> {
     let n = voxel_count(path, spec.dims)?;
     let expected = n * spec.voxel_type.size();
-    let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut file = super::open_regular(path)?;
     let gz = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("gz"));

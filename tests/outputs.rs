@@ -1,0 +1,196 @@
+//! Outputs are all or nothing, and special paths are refused (part of the hardening issue):
+//! - a command whose second output fails leaves no first output (and no temporary files);
+//! - two outputs of one command with the same path are refused;
+//! - an output path that exists and is not a regular file (a FIFO here), or is a symbolic link,
+//!   is refused and left as it was;
+//! - an output whose extension does not name its format is refused;
+//! - an input that is a FIFO, or a detached NRRD whose data file is /dev/zero, is refused at once
+//!   rather than read forever.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn vellum(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_vellum"))
+        .args(args)
+        .env("VELLUM_VALIDATION", "1")
+        .env_remove("RUST_BACKTRACE")
+        .output()
+        .expect("run vellum")
+}
+
+fn fails_with(out: &Output, phrase: &str) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "succeeded: {stderr}");
+    assert_ne!(out.status.code(), Some(101), "panicked: {stderr}");
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "{stderr}");
+    assert!(
+        lines[0].starts_with("error: ") && lines[0].contains(phrase),
+        "expected '{phrase}' in {stderr}"
+    );
+}
+
+/// Nothing in `dir` but `keep`.
+fn only(dir: &Path, keep: &[&str]) {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    let mut want: Vec<String> = keep.iter().map(|s| s.to_string()).collect();
+    want.sort();
+    assert_eq!(names, want, "files left in {}", dir.display());
+}
+
+fn mkfifo(path: &Path) {
+    let ok = Command::new("mkfifo").arg(path).status().unwrap().success();
+    assert!(ok, "mkfifo {}", path.display());
+}
+
+#[test]
+fn a_failing_output_leaves_no_other_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let s = |n: &str| d.join(n).to_string_lossy().into_owned();
+    let out = vellum(&[
+        "render",
+        "phantom:nested:16",
+        "--size",
+        "16x16",
+        "--out",
+        &s("a.png"),
+        "--exr",
+        &s("missing/b.exr"),
+    ]);
+    fails_with(&out, "missing/b.exr");
+    only(d, &[]);
+    // An existing first output is left as it was.
+    std::fs::write(d.join("a.png"), b"old").unwrap();
+    fails_with(
+        &vellum(&[
+            "render",
+            "phantom:nested:16",
+            "--size",
+            "16x16",
+            "--out",
+            &s("a.png"),
+            "--exr",
+            &s("missing/b.exr"),
+        ]),
+        "missing/b.exr",
+    );
+    assert_eq!(std::fs::read(d.join("a.png")).unwrap(), b"old");
+    only(d, &["a.png"]);
+    // The same command with a good path writes both.
+    let ok = vellum(&[
+        "render",
+        "phantom:nested:16",
+        "--size",
+        "16x16",
+        "--out",
+        &s("a.png"),
+        "--exr",
+        &s("b.exr"),
+    ]);
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    only(d, &["a.png", "b.exr"]);
+}
+
+#[test]
+fn two_outputs_with_one_path_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("x.nrrd").to_string_lossy().into_owned();
+    fails_with(
+        &vellum(&[
+            "migrate",
+            "phantom:nested:64",
+            "--seed",
+            "46,32,32",
+            "--window",
+            "0.7:0.8",
+            "--label",
+            "s",
+            "--out",
+            &p,
+            "--features",
+            &p,
+        ]),
+        "given for two outputs",
+    );
+    only(dir.path(), &[]);
+}
+
+#[test]
+fn special_output_paths_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("f.nrrd");
+    mkfifo(&fifo);
+    fails_with(
+        &vellum(&["convert", "phantom:shepp-logan:8", fifo.to_str().unwrap()]),
+        "is not a regular file",
+    );
+    assert!(std::fs::symlink_metadata(&fifo)
+        .unwrap()
+        .file_type()
+        .is_fifo_like());
+    let target = dir.path().join("t.nrrd");
+    std::fs::write(&target, b"keep").unwrap();
+    let link = dir.path().join("l.nrrd");
+    std::os::unix::fs::symlink(&target, &link).unwrap();
+    fails_with(
+        &vellum(&["convert", "phantom:shepp-logan:8", link.to_str().unwrap()]),
+        "symbolic link",
+    );
+    assert_eq!(std::fs::read(&target).unwrap(), b"keep");
+    fails_with(
+        &vellum(&["convert", "phantom:shepp-logan:8", "/dev/null"]),
+        "does not end in .nrrd",
+    );
+    let png = dir.path().join("x.jpg");
+    fails_with(
+        &vellum(&[
+            "render",
+            "phantom:nested:8",
+            "--size",
+            "8x8",
+            "--out",
+            png.to_str().unwrap(),
+        ]),
+        "does not end in .png",
+    );
+    only(dir.path(), &["f.nrrd", "t.nrrd", "l.nrrd"]);
+}
+
+trait FifoLike {
+    fn is_fifo_like(&self) -> bool;
+}
+
+impl FifoLike for std::fs::FileType {
+    fn is_fifo_like(&self) -> bool {
+        use std::os::unix::fs::FileTypeExt;
+        self.is_fifo()
+    }
+}
+
+#[test]
+fn endless_inputs_are_refused_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("in.nrrd");
+    mkfifo(&fifo);
+    fails_with(
+        &vellum(&["info", fifo.to_str().unwrap()]),
+        "not a regular file",
+    );
+    let header = dir.path().join("zero.nhdr");
+    std::fs::write(
+        &header,
+        "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: /dev/zero\n",
+    )
+    .unwrap();
+    fails_with(&vellum(&["info", header.to_str().unwrap()]), "/dev/zero");
+}
