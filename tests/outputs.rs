@@ -194,3 +194,115 @@ fn endless_inputs_are_refused_at_once() {
     .unwrap();
     fails_with(&vellum(&["info", header.to_str().unwrap()]), "/dev/zero");
 }
+
+#[test]
+fn numeric_parameters_are_checked_where_they_are_parsed() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("x.png").to_string_lossy().into_owned();
+    // Stride 0 in every command that takes a stride (occlusion-sensitivity documents 0 as "pick
+    // one").
+    for args in [
+        vec![
+            "occlusion",
+            "phantom:nested:16",
+            "--radius",
+            "2",
+            "--stride",
+            "0",
+        ],
+        vec![
+            "occlusion-select",
+            "phantom:nested:16",
+            "--interval",
+            "0.1:0.5",
+            "--radius",
+            "2",
+            "--stride",
+            "0",
+        ],
+    ] {
+        fails_with(&vellum(&args), "output stride 0 is invalid");
+    }
+    fails_with(
+        &vellum(&[
+            "occlusion-sensitivity",
+            "phantom:nested:16",
+            "--radii",
+            "2",
+            "--bands",
+            "100000000",
+            "--out",
+            &png,
+        ]),
+        "expected 1..=1024",
+    );
+    fails_with(
+        &vellum(&[
+            "occlusion-sensitivity",
+            "phantom:nested:16",
+            "--radii",
+            "1,5000",
+            "--out",
+            &png,
+        ]),
+        "occlusion radius 5000",
+    );
+    fails_with(
+        &vellum(&[
+            "importance",
+            "phantom:shepp-logan:16",
+            "--radius",
+            "4294967295",
+        ]),
+        "radius 4294967295 is too large",
+    );
+    fails_with(
+        &vellum(&[
+            "render",
+            "phantom:nested:16",
+            "--slices",
+            "0",
+            "--out",
+            &png,
+        ]),
+        "slices 0 is invalid",
+    );
+    fails_with(
+        &vellum(&["render", "phantom:nested:16", "--iso", "7", "--out", &png]),
+        "outside the data range",
+    );
+    fails_with(
+        &vellum(&[
+            "render",
+            "phantom:nested:16",
+            "--focus",
+            "0.2:0.5",
+            "--one-pass",
+            "--out",
+            &png,
+        ]),
+        "--one-pass draws a single level",
+    );
+    fails_with(
+        &vellum(&["bench", "table1", "--cases", "bogus", "--no-scipy"]),
+        "selects no case",
+    );
+    // The validation switch is read by every command that opens a device.
+    let out = Command::new(env!("CARGO_BIN_EXE_vellum"))
+        .args(["roundtrip", "phantom:nested:8"])
+        .env("VELLUM_VALIDATION", "maybe")
+        .output()
+        .unwrap();
+    fails_with(&out, "VELLUM_VALIDATION=\"maybe\"");
+    let out = Command::new(env!("CARGO_BIN_EXE_vellum"))
+        .args(["devices", "--json"])
+        .env("VELLUM_DEVICE", "99")
+        .output()
+        .unwrap();
+    assert!(
+        !out.status.success(),
+        "VELLUM_DEVICE=99 devices --json must fail"
+    );
+    assert!(String::from_utf8_lossy(&out.stderr).contains("selector \"99\""));
+    only(dir.path(), &[]);
+}

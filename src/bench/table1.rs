@@ -192,6 +192,14 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
         .flat_map(|c| RADII.iter().map(move |&r| (c.name, r)))
         .filter(|&(c, r)| wanted(&opts.cases, c, r))
         .count();
+    if total == 0 {
+        return Err(crate::error::Error::Invalid(format!(
+            "--cases {:?} selects no case; expected names among {} with an optional :R (R in {:?}), e.g. ct-head:10",
+            opts.cases.as_deref().unwrap_or(""),
+            CASES.iter().map(|c| c.name).collect::<Vec<_>>().join(", "),
+            RADII
+        )));
+    }
     let progress = crate::progress::bar(total as u64, "table 1");
     for PaperCase {
         name: case,

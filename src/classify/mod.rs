@@ -58,6 +58,28 @@ impl Focus {
         }
     }
 
+    /// Refuses a focus that selects nothing, or everything, of data in `range` (min, max): an
+    /// isovalue outside the range, or an interval that misses it.
+    pub fn check_in(&self, range: [f64; 2]) -> crate::Result<()> {
+        let [min, max] = range;
+        let outside = match *self {
+            Focus::None => false,
+            Focus::Iso(v) => v < min || v > max,
+            Focus::Range { lo, hi } => hi < min || lo > max,
+        };
+        if outside {
+            let what = match *self {
+                Focus::Iso(v) => format!("the isovalue {v}"),
+                Focus::Range { lo, hi } => format!("the focus interval {lo}:{hi}"),
+                Focus::None => unreachable!("no focus is never outside"),
+            };
+            return Err(crate::Error::Invalid(format!(
+                "{what} lies outside the data range {min} .. {max}; expected a value within it"
+            )));
+        }
+        Ok(())
+    }
+
     /// Checks the values: finite, and lo <= hi.
     pub fn validate(&self) -> crate::Result<()> {
         let ok = match *self {

@@ -32,18 +32,21 @@ pub struct ContextDesc {
 
 impl ContextDesc {
     /// Resolves the validation switch: explicit value, then `VELLUM_VALIDATION`, then debug/release.
-    pub fn validation_enabled(&self) -> bool {
+    pub fn validation_enabled(&self) -> Result<bool> {
         if let Some(v) = self.validation {
-            return v;
+            return Ok(v);
         }
         match std::env::var("VELLUM_VALIDATION")
             .ok()
             .as_deref()
             .map(str::trim)
         {
-            Some("1" | "true" | "on" | "yes") => true,
-            Some("0" | "false" | "off" | "no") => false,
-            _ => cfg!(debug_assertions),
+            Some("1" | "true" | "on" | "yes") => Ok(true),
+            Some("0" | "false" | "off" | "no") => Ok(false),
+            None | Some("") => Ok(cfg!(debug_assertions)),
+            Some(other) => Err(Error::Invalid(format!(
+                "VELLUM_VALIDATION={other:?} is not understood; expected 1 or 0 (or true/false, on/off, yes/no)"
+            ))),
         }
     }
 
@@ -416,7 +419,7 @@ pub fn probe_devices(desc: &ContextDesc) -> Result<(Vec<DeviceCandidate>, Option
 impl Context {
     /// Creates the instance and the chosen device.
     pub fn new(desc: &ContextDesc) -> Result<Arc<Context>> {
-        let validation = desc.validation_enabled();
+        let validation = desc.validation_enabled()?;
         let entry = load_entry()?;
         let messages = Box::new(MessageCounts::default());
         let (instance, has_debug_utils) = create_instance(&entry, validation, &messages)?;

@@ -244,18 +244,7 @@ impl Occlusion {
     /// Checks `p` and allocates the work images and buffers for `input`.
     pub fn targets(&self, input: &OcclusionInput, p: &OcclusionParams) -> Result<OcclusionTargets> {
         let ctx = &self.ctx;
-        if p.radius == 0 || p.radius > 1024 {
-            return Err(Error::Invalid(format!(
-                "occlusion radius {} is invalid; expected 1..=1024 voxels",
-                p.radius
-            )));
-        }
-        if p.stride == 0 || p.stride > 64 {
-            return Err(Error::Invalid(format!(
-                "output stride {} is invalid; expected 1..=64",
-                p.stride
-            )));
-        }
+        check_radius_stride(p.radius, p.stride)?;
         let extent = extent_of(ctx, input.dims, 4, 4)?;
         let out_dims: [usize; 3] = input.dims.map(|d| d.div_ceil(p.stride as usize));
         let r32 = |name: &str, e: [u32; 3]| {
@@ -539,6 +528,22 @@ pub struct OcclusionTargets {
     /// The spectrum's histogram (host-visible), when asked for.
     pub spectrum: Option<Buffer>,
     pub out_dims: [usize; 3],
+}
+
+/// Checks an occlusion radius (1..=1024 voxels) and output stride (1..=64), the same rule for
+/// every command that takes them.
+pub fn check_radius_stride(radius: u32, stride: u32) -> Result<()> {
+    if radius == 0 || radius > 1024 {
+        return Err(Error::Invalid(format!(
+            "occlusion radius {radius} is invalid; expected 1..=1024 voxels"
+        )));
+    }
+    if stride == 0 || stride > 64 {
+        return Err(Error::Invalid(format!(
+            "output stride {stride} is invalid; expected 1..=64"
+        )));
+    }
+    Ok(())
 }
 
 /// The voxels of `v` mapped linearly from [min, max] to [0, 1] as f32, and that range.

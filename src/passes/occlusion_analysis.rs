@@ -158,6 +158,7 @@ pub fn select(
     stride: u32,
 ) -> Result<Selection> {
     const BINS: usize = 16;
+    crate::passes::occlusion::check_radius_stride(radius, stride)?;
     let (intensity, range) = normalised_f32(v);
     let span = range[1] - range[0];
     if span <= 0.0 {
@@ -261,6 +262,11 @@ pub struct SensitivityRow {
     pub variance: f64,
 }
 
+/// Most intensity bands of a sensitivity plot.
+pub const MAX_BANDS: usize = 1024;
+/// Most radii of a sensitivity plot.
+pub const MAX_RADII: usize = 64;
+
 /// Variance of occlusion (ramp mapping, ball) within each of `bands` intensity bands, for each
 /// radius (SPEC OS7, paper Fig. 6). Band edges are in data units.
 pub fn sensitivity(
@@ -270,6 +276,22 @@ pub fn sensitivity(
     bands: usize,
     stride: u32,
 ) -> Result<Vec<SensitivityRow>> {
+    if bands == 0 || bands > MAX_BANDS {
+        return Err(Error::Invalid(format!(
+            "{bands} intensity bands are invalid; expected 1..={MAX_BANDS}"
+        )));
+    }
+    if radii.is_empty() || radii.len() > MAX_RADII {
+        return Err(Error::Invalid(format!(
+            "{} radii are invalid; expected 1..={MAX_RADII}",
+            radii.len()
+        )));
+    }
+    // Radii first: an automatic stride follows from them, so it must not take the blame.
+    for &r in radii {
+        crate::passes::occlusion::check_radius_stride(r, 1)?;
+    }
+    crate::passes::occlusion::check_radius_stride(1, stride)?;
     let (intensity, range) = normalised_f32(v);
     let s = stride as usize;
     let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(s));

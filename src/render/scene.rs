@@ -507,6 +507,7 @@ impl GpuScene {
         modulation.validate()?;
         let normals = Normals::new(ctx)?;
         let (mut volume, staging) = VolumeTextures::new(ctx, v)?;
+        focus.check_in(volume.range)?;
         let (transfer, otf) = match classification {
             Classification::Transfer(tf) => (tf.clone(), None),
             Classification::Features(map) => {

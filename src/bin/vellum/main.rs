@@ -928,11 +928,22 @@ fn devices(cli: &Cli, json: bool) -> Result<()> {
         validation: Some(false),
         device: cli.device.clone(),
     })?;
+    let selector = ContextDesc {
+        validation: None,
+        device: cli.device.clone(),
+    }
+    .device_selector();
     if json {
         println!(
             "{}",
             serde_json::to_string_pretty(&json!({ "devices": candidates, "chosen": chosen }))?
         );
+        if chosen.is_none() {
+            anyhow::bail!(
+                "no device matches{}; the listing above gives each device's reason",
+                selector.map_or(String::new(), |s| format!(" the selector {s:?}"))
+            );
+        }
         return Ok(());
     }
     for c in &candidates {
@@ -946,7 +957,12 @@ fn devices(cli: &Cli, json: bool) -> Result<()> {
         }
     }
     if chosen.is_none() {
-        anyhow::bail!("no listed device can be used (see the reasons above)");
+        match selector {
+            Some(s) => anyhow::bail!(
+                "no device matches the selector {s:?}; expected an index or part of a name from the list above"
+            ),
+            None => anyhow::bail!("no listed device can be used (see the reasons above)"),
+        }
     }
     Ok(())
 }
@@ -1202,6 +1218,11 @@ fn render_scene(a: &RenderArgs) -> Result<Scene> {
     }
     if let Some(b) = &a.background {
         scene.background = parse_rgb("--background", b)?;
+    }
+    if scene.one_pass && matches!(scene.focus, Focus::Range { .. }) {
+        anyhow::bail!(
+            "--one-pass draws a single level, which a --focus LO:HI interval would not change; drop one of them (--iso V does work in one pass: it makes the surface opaque)"
+        );
     }
     scene.modulation = a.modulation.apply(scene.modulation.take())?;
     scene.style = a.style.apply(scene.style.take())?;
