@@ -47,11 +47,11 @@ pub enum Error {
     Format { path: PathBuf, msg: String },
 
     /// Float voxels that are NaN or infinite.
-    #[error("{what} has {count} NaN or infinite voxels; expected finite values")]
+    #[error("{what} has {count} NaN or infinite voxels (64-bit values beyond ±3.4e38 do not fit the 32-bit floats vellum computes in); expected finite values")]
     NonFinite { what: String, count: usize },
 
     /// The volume does not fit what the device supports.
-    #[error("volume of {dims:?} voxels exceeds the device: {limit}")]
+    #[error("a volume of {}x{}x{} voxels exceeds the device: {limit}", dims[0], dims[1], dims[2])]
     TooLarge { dims: [usize; 3], limit: String },
 
     /// Any other input that does not make sense (bad flag values, malformed specs).

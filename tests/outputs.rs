@@ -306,3 +306,51 @@ fn numeric_parameters_are_checked_where_they_are_parsed() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("selector \"99\""));
     only(dir.path(), &[]);
 }
+
+#[test]
+fn messages_say_what_was_expected() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(
+        d.join("neg.nrrd"),
+        "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 16 -16 16\nencoding: raw\n\n",
+    )
+    .unwrap();
+    fails_with(
+        &vellum(&["info", d.join("neg.nrrd").to_str().unwrap()]),
+        "expected 3 whole numbers of zero or more",
+    );
+    std::os::unix::fs::symlink(d.join("loop.nrrd"), d.join("loop.nrrd")).unwrap();
+    fails_with(
+        &vellum(&["info", d.join("loop.nrrd").to_str().unwrap()]),
+        "symbolic link that leads nowhere",
+    );
+    let mut big =
+        b"NRRD0004\ntype: double\ndimension: 3\nsizes: 2 1 1\nendian: little\nencoding: raw\n\n"
+            .to_vec();
+    big.extend(1e300f64.to_le_bytes());
+    big.extend(1.0f64.to_le_bytes());
+    std::fs::write(d.join("big.nrrd"), big).unwrap();
+    fails_with(
+        &vellum(&["info", d.join("big.nrrd").to_str().unwrap()]),
+        "beyond ±3.4e38",
+    );
+    std::fs::write(
+        d.join("otf.json"),
+        r#"{"name": "x", "radius": 4, "mapping": "ramp", "transfer": "rainbow"}"#,
+    )
+    .unwrap();
+    let png = d.join("x.png");
+    fails_with(
+        &vellum(&[
+            "render",
+            "phantom:nested:16",
+            "--otf",
+            d.join("otf.json").to_str().unwrap(),
+            "--out",
+            png.to_str().unwrap(),
+        ]),
+        "otf.json: \"transfer\"",
+    );
+    assert!(!png.exists());
+}

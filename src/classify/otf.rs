@@ -97,6 +97,13 @@ impl OcclusionTf {
             .map_err(|e| Error::format(path, format!("not an occlusion transfer function ({e}); see the format in render/otf.rs or the README")))?;
         otf.validate()
             .map_err(|e| Error::format(path, e.to_string()))?;
+        // What the file names must resolve too, so that its errors name the file.
+        crate::classify::mapping::parse_mapping(&otf.mapping)
+            .map_err(|e| Error::format(path, format!("\"mapping\": {e}")))?;
+        if let Some(t) = &otf.transfer {
+            TransferFunction::from_arg(t)
+                .map_err(|e| Error::format(path, format!("\"transfer\": {e}")))?;
+        }
         Ok(otf)
     }
 

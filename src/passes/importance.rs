@@ -99,6 +99,9 @@ pub struct ImportanceImages {
 impl ImportanceImages {
     /// Allocates the three images for a volume of `dims`.
     pub fn new(ctx: &Arc<Context>, dims: [usize; 3]) -> Result<Self> {
+        // Three float images; checked on the volume's own dims so that a refusal names them.
+        ctx.check_image_3d(dims, 4, 3)?;
+        // They hold four voxels per texel along x.
         let extent = extent_of(ctx, [dims[0].div_ceil(4), dims[1], dims[2]], 16, 3)?;
         let desc = ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent);
         Ok(ImportanceImages {

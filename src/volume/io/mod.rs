@@ -46,6 +46,15 @@ pub struct RawSpec {
 /// a DICOM series and a file by its extension (`.nrrd`, `.nhdr`, `.nii`, `.nii.gz`, `.mhd`, `.mha`)
 /// or, failing that, by its first bytes. Float volumes with NaN or infinite voxels are rejected.
 pub fn load(path: &Path, raw: Option<&RawSpec>) -> Result<Volume> {
+    if !path.exists() && std::fs::symlink_metadata(path).is_ok() {
+        return Err(Error::io(
+            path,
+            io::Error::new(
+                io::ErrorKind::NotFound,
+                "it is a symbolic link that leads nowhere (a loop, or a missing target); expected a volume file or DICOM folder",
+            ),
+        ));
+    }
     if !path.exists() {
         return Err(Error::io(
             path,
@@ -319,6 +328,8 @@ pub(crate) fn decode(ty: FileType, big_endian: bool, bytes: &[u8]) -> VoxelData 
         FileType::U32 => VoxelData::F32(convert(bytes, be, |b| u32::from_le_bytes(b) as f32)),
         FileType::I32 => VoxelData::F32(convert(bytes, be, |b| i32::from_le_bytes(b) as f32)),
         FileType::F32 => VoxelData::F32(convert(bytes, be, f32::from_le_bytes)),
+        // Values beyond f32's range become infinite here and are then reported as out of range
+        // (see `load`), not as NaN.
         FileType::F64 => VoxelData::F32(convert(bytes, be, |b| f64::from_le_bytes(b) as f32)),
     }
 }
@@ -333,9 +344,15 @@ pub(crate) fn parse_list<T: std::str::FromStr>(
     let items: Option<Vec<T>> = value.split_whitespace().map(|s| s.parse().ok()).collect();
     match items {
         Some(v) if v.len() == n => Ok(v),
-        _ => Err(Error::format(
-            path,
-            format!("field '{field}' is '{value}'; expected {n} numbers"),
-        )),
+        _ => {
+            let kind = match std::any::type_name::<T>() {
+                "usize" | "u64" | "u32" => "whole numbers of zero or more",
+                _ => "numbers",
+            };
+            Err(Error::format(
+                path,
+                format!("field '{field}' is '{value}'; expected {n} {kind}"),
+            ))
+        }
     }
 }
