@@ -354,3 +354,40 @@ fn messages_say_what_was_expected() {
     );
     assert!(!png.exists());
 }
+
+#[test]
+fn a_feature_map_for_another_volume_or_with_no_features_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/features");
+    let map = examples.join("nested_sphere.features.json");
+    let png = d.join("x.png");
+    fails_with(
+        &vellum(&[
+            "render",
+            "phantom:nested:64",
+            "--features",
+            map.to_str().unwrap(),
+            "--out",
+            png.to_str().unwrap(),
+        ]),
+        "was made for nested_sphere.nrrd",
+    );
+    std::fs::write(
+        d.join("empty.json"),
+        r#"{"version": 1, "context_range": [0, 1], "nodes": []}"#,
+    )
+    .unwrap();
+    fails_with(
+        &vellum(&[
+            "render",
+            examples.join("nested_sphere.nrrd").to_str().unwrap(),
+            "--features",
+            d.join("empty.json").to_str().unwrap(),
+            "--out",
+            png.to_str().unwrap(),
+        ]),
+        "holds no features",
+    );
+    assert!(!png.exists());
+}

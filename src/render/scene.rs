@@ -460,7 +460,24 @@ impl Scene {
                 Classification::Occlusion(OcclusionTf::load(Path::new(f))?)
             }
             ClassificationSpec::Features(f) => {
-                Classification::Features(crate::volume::feature::FeatureMap::load(Path::new(f))?)
+                let map = crate::volume::feature::FeatureMap::load(Path::new(f))?;
+                if map.nodes.is_empty() {
+                    return Err(Error::Invalid(format!(
+                        "the feature map {f} holds no features; expected one made by `vellum migrate`"
+                    )));
+                }
+                // A map names the volume it was made for; rendering another one would colour
+                // intervals that mean nothing there.
+                let input = Path::new(&self.input.path).file_name();
+                if let (Some(named), Some(input)) = (&map.volume, input) {
+                    if Path::new(named).file_name() != Some(input) {
+                        return Err(Error::Invalid(format!(
+                            "the feature map {f} was made for {named}, not {}; expected the feature volume it describes",
+                            input.to_string_lossy()
+                        )));
+                    }
+                }
+                Classification::Features(map)
             }
         })
     }
