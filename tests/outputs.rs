@@ -283,6 +283,29 @@ fn numeric_parameters_are_checked_where_they_are_parsed() {
         ]),
         "--one-pass draws a single level",
     );
+    // Values that may be negative are taken as values, not flags; the rest get a sentence.
+    fails_with(
+        &vellum(&[
+            "render",
+            "phantom:nested:16",
+            "--size",
+            "-64x64",
+            "--out",
+            &png,
+        ]),
+        "whole pixels of 1 or more",
+    );
+    fails_with(
+        &vellum(&[
+            "render",
+            "phantom:nested:16",
+            "--focus",
+            "-2000:-500",
+            "--out",
+            &png,
+        ]),
+        "the focus interval -2000:-500 lies outside the data range",
+    );
     fails_with(
         &vellum(&["bench", "table1", "--cases", "bogus", "--no-scipy"]),
         "selects no case",

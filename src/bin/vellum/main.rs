@@ -145,7 +145,7 @@ enum Command {
         #[command(flatten)]
         input: InputArgs,
         /// Intensity interval of interest, in data units.
-        #[arg(long, value_name = "LO:HI")]
+        #[arg(long, value_name = "LO:HI", allow_hyphen_values = true)]
         interval: String,
         #[arg(long, default_value_t = 16)]
         radius: u32,
@@ -242,7 +242,7 @@ struct RenderArgs {
     #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
     pan: Option<String>,
     /// Image size [default: 512x512].
-    #[arg(long, value_name = "WxH")]
+    #[arg(long, value_name = "WxH", allow_hyphen_values = true)]
     size: Option<String>,
     /// Number of slice planes (default: two per voxel along the longest axis).
     #[arg(long)]
@@ -296,7 +296,12 @@ struct StylesArgs {
     )]
     camera: String,
     /// Size of each tile.
-    #[arg(long, value_name = "WxH", default_value = "256x256")]
+    #[arg(
+        long,
+        value_name = "WxH",
+        default_value = "256x256",
+        allow_hyphen_values = true
+    )]
     size: String,
     /// Background colour as R,G,B in 0..1.
     #[arg(long, default_value = "0,0,0")]
@@ -1106,7 +1111,12 @@ fn importance(
 fn parse_size(s: &str) -> Result<[u32; 2]> {
     s.split_once(['x', 'X'])
         .and_then(|(w, h)| Some([w.trim().parse().ok()?, h.trim().parse().ok()?]))
-        .ok_or_else(|| anyhow::anyhow!("--size '{s}' is not WIDTHxHEIGHT like 512x512"))
+        .filter(|[w, h]: &[u32; 2]| *w > 0 && *h > 0)
+        .ok_or_else(|| {
+            anyhow::anyhow!(
+                "--size '{s}' is not WIDTHxHEIGHT in whole pixels of 1 or more, like 512x512"
+            )
+        })
 }
 
 fn parse_rgb(flag: &str, s: &str) -> Result<[f32; 3]> {
