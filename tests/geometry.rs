@@ -13,18 +13,10 @@
 
 mod common;
 
+use common::vellum;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-
-fn vellum(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_vellum"))
-        .args(args)
-        .env("VELLUM_VALIDATION", "1")
-        .env_remove("RUST_BACKTRACE")
-        .output()
-        .expect("run vellum")
-}
 
 fn ok(out: &Output) -> Value {
     assert!(
@@ -271,16 +263,7 @@ fn bad_file(name: &str, bytes: &[u8], phrase: &str) {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join(name);
     std::fs::write(&path, bytes).unwrap();
-    let out = vellum(&["info", path.to_str().unwrap()]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{name}: succeeded");
-    assert_ne!(out.status.code(), Some(101), "panicked: {stderr}");
-    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert_eq!(lines.len(), 1, "{stderr}");
-    assert!(
-        lines[0].contains(phrase),
-        "{name}: expected '{phrase}' in {stderr}"
-    );
+    common::fails_with(&vellum(&["info", path.to_str().unwrap()]), phrase);
 }
 
 fn nrrd_with(directions: &str, origin: &str) -> Vec<u8> {

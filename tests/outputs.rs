@@ -7,29 +7,11 @@
 //! - an input that is a FIFO, or a detached NRRD whose data file is /dev/zero, is refused at once
 //!   rather than read forever.
 
+mod common;
+
+use common::{fails_with, vellum};
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn vellum(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_vellum"))
-        .args(args)
-        .env("VELLUM_VALIDATION", "1")
-        .env_remove("RUST_BACKTRACE")
-        .output()
-        .expect("run vellum")
-}
-
-fn fails_with(out: &Output, phrase: &str) {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "succeeded: {stderr}");
-    assert_ne!(out.status.code(), Some(101), "panicked: {stderr}");
-    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert_eq!(lines.len(), 1, "{stderr}");
-    assert!(
-        lines[0].starts_with("error: ") && lines[0].contains(phrase),
-        "expected '{phrase}' in {stderr}"
-    );
-}
+use std::process::Command;
 
 /// Nothing in `dir` but `keep`.
 fn only(dir: &Path, keep: &[&str]) {

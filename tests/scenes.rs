@@ -4,17 +4,9 @@
 
 mod common;
 
+use common::vellum;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-
-fn vellum(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_vellum"))
-        .args(args)
-        .env("VELLUM_VALIDATION", "1")
-        .env_remove("RUST_BACKTRACE")
-        .output()
-        .expect("run vellum")
-}
 
 fn ok(out: &Output) {
     assert!(
@@ -152,19 +144,7 @@ fn bad_scene(json: &str, phrases: &[&str]) {
         "--out",
         out_png.to_str().unwrap(),
     ]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{json}: succeeded");
-    assert_ne!(out.status.code(), Some(101), "panicked: {stderr}");
-    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert_eq!(
-        lines.len(),
-        1,
-        "{json}: expected one sentence, got {stderr}"
-    );
-    assert!(lines[0].starts_with("error: "), "{stderr}");
-    for p in phrases {
-        assert!(lines[0].contains(p), "{json}: expected '{p}' in {stderr}");
-    }
+    common::fails_with_all(&out, phrases);
     assert!(!out_png.exists(), "{json}: wrote an output");
 }
 
@@ -252,16 +232,7 @@ fn bad_flags(args: &[&str], phrase: &str) {
     let mut all = vec!["render", "phantom:nested:24", "--size", "16x16"];
     all.extend_from_slice(args);
     all.extend_from_slice(&["--out", out_png.to_str().unwrap()]);
-    let out = vellum(&all);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{args:?}: succeeded");
-    assert_ne!(out.status.code(), Some(101), "panicked: {stderr}");
-    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
-    assert_eq!(lines.len(), 1, "{args:?}: {stderr}");
-    assert!(
-        lines[0].starts_with("error: ") && lines[0].contains(phrase),
-        "{args:?}: {stderr}"
-    );
+    common::fails_with(&vellum(&all), phrase);
     assert!(!out_png.exists());
 }
 

@@ -98,3 +98,32 @@ pub fn check_reference(file: &str, width: u32, height: u32, rgb: &[u8]) {
         "{file}: mean {mean:.3}/255, max {max}/255 against the stored reference"
     );
 }
+
+/// Runs the `vellum` binary with `args`, validation on and no backtraces.
+pub fn vellum(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_vellum"))
+        .args(args)
+        .env("VELLUM_VALIDATION", "1")
+        .env_remove("RUST_BACKTRACE")
+        .output()
+        .expect("run vellum")
+}
+
+/// Asserts failure with exactly one line on stderr, starting "error:" and containing every one of
+/// `phrases`, and no panic.
+pub fn fails_with_all(out: &std::process::Output, phrases: &[&str]) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "succeeded: {stderr}");
+    assert_ne!(out.status.code(), Some(101), "panicked: {stderr}");
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "expected one sentence, got: {stderr}");
+    assert!(lines[0].starts_with("error: "), "{stderr}");
+    for p in phrases {
+        assert!(lines[0].contains(p), "expected '{p}' in {stderr}");
+    }
+}
+
+/// [`fails_with_all`] for one phrase.
+pub fn fails_with(out: &std::process::Output, phrase: &str) {
+    fails_with_all(out, &[phrase]);
+}
