@@ -147,7 +147,67 @@ fn messenger_info(counts: &MessageCounts) -> vk::DebugUtilsMessengerCreateInfoEX
         .user_data(counts as *const MessageCounts as *mut std::ffi::c_void)
 }
 
+/// Environment variables through which a user points the Vulkan loader at driver manifests.
+const DRIVER_VARS: [&str; 3] = ["VK_DRIVER_FILES", "VK_ICD_FILENAMES", "VK_ADD_DRIVER_FILES"];
+
+/// Checks the driver manifests named by [`DRIVER_VARS`]: the loader turns a missing or malformed
+/// manifest into an unrelated error (often "out of host memory"), so when it fails we look for
+/// the cause ourselves. Returns a sentence naming the variable, the file and what is wrong.
+fn driver_manifest_problem() -> Option<String> {
+    for var in DRIVER_VARS {
+        let Some(value) = std::env::var_os(var) else {
+            continue;
+        };
+        for path in std::env::split_paths(&value) {
+            if path.as_os_str().is_empty() || path.is_dir() {
+                continue;
+            }
+            let shown = path.display();
+            let text = match std::fs::read_to_string(&path) {
+                Ok(t) => t,
+                Err(e) => return Some(format!("{var} names {shown}, which cannot be read ({e})")),
+            };
+            let json: serde_json::Value = match serde_json::from_str(&text) {
+                Ok(j) => j,
+                Err(e) => {
+                    return Some(format!(
+                        "{var} names {shown}, which is not a valid driver manifest: its JSON is broken ({e})"
+                    ))
+                }
+            };
+            if json
+                .pointer("/ICD/library_path")
+                .and_then(|v| v.as_str())
+                .is_none()
+            {
+                return Some(format!(
+                    "{var} names {shown}, which is not a valid driver manifest: it has no ICD.library_path"
+                ));
+            }
+        }
+    }
+    None
+}
+
+/// Replaces a loader failure by the driver manifest problem behind it, when there is one.
+fn explain_loader_failure(e: Error) -> Error {
+    match (&e, driver_manifest_problem()) {
+        (Error::Vulkan { .. } | Error::NoDevice(_), Some(problem)) => Error::NoDevice(format!(
+            "the Vulkan loader could not load a driver: {problem}; expected a valid manifest, or the variable unset"
+        )),
+        _ => e,
+    }
+}
+
 fn create_instance(
+    entry: &ash::Entry,
+    validation: bool,
+    counts: &MessageCounts,
+) -> Result<(ash::Instance, bool)> {
+    create_instance_inner(entry, validation, counts).map_err(explain_loader_failure)
+}
+
+fn create_instance_inner(
     entry: &ash::Entry,
     validation: bool,
     counts: &MessageCounts,
@@ -401,8 +461,9 @@ pub fn probe_devices(desc: &ContextDesc) -> Result<(Vec<DeviceCandidate>, Option
     let counts = MessageCounts::default();
     let (instance, _) = create_instance(&entry, false, &counts)?;
     let result = (|| {
-        let pds =
-            unsafe { instance.enumerate_physical_devices() }.vk("listing physical devices")?;
+        let pds = unsafe { instance.enumerate_physical_devices() }
+            .vk("listing physical devices")
+            .map_err(explain_loader_failure)?;
         let candidates = pds
             .iter()
             .enumerate()
@@ -462,14 +523,16 @@ impl Context {
             }
         };
 
-        let pds =
-            match unsafe { instance.enumerate_physical_devices() }.vk("listing physical devices") {
-                Ok(p) => p,
-                Err(e) => {
-                    destroy_messenger(&debug_instance);
-                    return Err(e);
-                }
-            };
+        let pds = match unsafe { instance.enumerate_physical_devices() }
+            .vk("listing physical devices")
+            .map_err(explain_loader_failure)
+        {
+            Ok(p) => p,
+            Err(e) => {
+                destroy_messenger(&debug_instance);
+                return Err(e);
+            }
+        };
         let mut candidates = Vec::new();
         let mut families = Vec::new();
         for (i, &pd) in pds.iter().enumerate() {

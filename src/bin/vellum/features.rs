@@ -11,7 +11,6 @@ use vellum::volume::feature::{
     self, parse_color, parse_seeds, parse_window, Connectivity, Feature, FeatureMap, MigrateParams,
     MigrationReport, Roi,
 };
-use vellum::volume::io::nrrd::write_nrrd;
 
 #[derive(Args)]
 pub struct MigrateArgs {
@@ -22,7 +21,12 @@ pub struct MigrateArgs {
     #[arg(long, value_name = "MASK", required_unless_present = "seed", conflicts_with_all = ["seed", "window"])]
     mask: Option<String>,
     /// ROI by seeded region growing from these voxels.
-    #[arg(long, value_name = "X,Y,Z[;X,Y,Z...]", requires = "window")]
+    #[arg(
+        long,
+        value_name = "X,Y,Z[;X,Y,Z...]",
+        requires = "window",
+        allow_hyphen_values = true
+    )]
     seed: Option<String>,
     /// Intensity window of the region growing, inclusive, in data units.
     #[arg(
@@ -43,19 +47,23 @@ pub struct MigrateArgs {
     parent: Option<String>,
     /// The gap ε between the data and the private interval, in data units (default: 5% of the
     /// input range).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     epsilon: Option<f64>,
+    /// Let the new feature's fuzzy boundary keep eq. 10's values inside earlier features' private
+    /// intervals (counted and reported) instead of moving them just outside.
+    #[arg(long)]
+    allow_overlap: bool,
     /// Free text stored with the feature.
     #[arg(long, default_value = "")]
     description: String,
     /// Default colour as R,G,B in 0..1 (default: the next colour of the palette).
-    #[arg(long, value_name = "R,G,B")]
+    #[arg(long, value_name = "R,G,B", allow_hyphen_values = true)]
     color: Option<String>,
     /// Feature map to append to when it exists, else to create (default: OUT with the extension
     /// .features.json, always new).
     #[arg(long, value_name = "FEATURES.json")]
     features: Option<PathBuf>,
-    /// Output feature volume (.nrrd).
+    /// Output feature volume (.nrrd, .nii or .nii.gz).
     #[arg(long)]
     out: PathBuf,
     /// Print the report as JSON.
@@ -133,6 +141,11 @@ pub fn migrate(args: &MigrateArgs) -> Result<()> {
 
     let params = MigrateParams {
         epsilon: args.epsilon,
+        protected: existing
+            .as_ref()
+            .map(|m| m.features().iter().map(|(_, f)| f.interval).collect())
+            .unwrap_or_default(),
+        allow_overlap: args.allow_overlap,
         ..Default::default()
     };
     let migration = feature::migrate(&volume, &roi, &params)?;
@@ -151,9 +164,27 @@ pub fn migrate(args: &MigrateArgs) -> Result<()> {
         .with_context(|| map_path.display().to_string())?;
 
     let t = Instant::now();
-    write_nrrd(&args.out, &migration.volume)?;
+    vellum::volume::io::write(&args.out, &migration.volume)?;
     map.save(&map_path)?;
     let written_ms = t.elapsed().as_secs_f64() * 1e3;
+    if append {
+        for o in report.overlaps.iter().filter(|o| o.voxels > o.moved) {
+            let owner = map
+                .features()
+                .iter()
+                .find(|(_, f)| f.interval == o.interval)
+                .map(|(_, f)| f.label.clone())
+                .unwrap_or_default();
+            log::warn!(
+                "{} boundary voxels of '{}' lie inside the private interval [{}, {}] of '{owner}'{}",
+                o.voxels - o.moved,
+                args.label,
+                num(o.interval[0]),
+                num(o.interval[1]),
+                if args.allow_overlap { " (--allow-overlap)" } else { " (no free value nearby)" }
+            );
+        }
+    }
 
     if args.json {
         let out = json!({
@@ -220,6 +251,17 @@ fn print_report(
         "  category 1: eq. 10 {}, only ROI found {}, only outside found {}, beyond δ_i {}, beyond δ_o {}, by mask {}",
         k.flipped, k.inside_only, k.outside_only, k.beyond_inside, k.beyond_outside, k.by_mask
     );
+    for o in &r.overlaps {
+        if o.voxels > 0 {
+            println!(
+                "  earlier interval [{}, {}]: {} boundary voxels fell inside it, {} moved out",
+                num(o.interval[0]),
+                num(o.interval[1]),
+                o.voxels,
+                o.moved
+            );
+        }
+    }
     println!(
         "  times: categorise {:.1} ms, migrate {:.1} ms, reconstruct {:.1} ms, total {:.1} ms (load {:.1} ms, write {:.1} ms)",
         t.categorise_ms, t.migrate_ms, t.reconstruct_ms, t.total_ms, loaded_ms, written_ms

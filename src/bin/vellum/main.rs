@@ -46,7 +46,7 @@ struct InputArgs {
 #[derive(Args, Clone)]
 struct RawArgs {
     /// Raw input: dims as X,Y,Z.
-    #[arg(long, value_name = "X,Y,Z")]
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
     raw_dims: Option<String>,
     /// Raw input: voxel type.
     #[arg(long, value_name = "u8|u16|i16|f32")]
@@ -58,7 +58,7 @@ struct RawArgs {
     #[arg(long, value_name = "BYTES", default_value_t = 0)]
     offset: u64,
     /// Raw input: voxel spacing as SX,SY,SZ (millimetres) [default: 1,1,1].
-    #[arg(long, value_name = "SX,SY,SZ")]
+    #[arg(long, value_name = "SX,SY,SZ", allow_hyphen_values = true)]
     raw_spacing: Option<String>,
     /// Raw input: the position of voxel (0,0,0) in LPS millimetres, as X,Y,Z; the volume is then
     /// taken as axis-aligned in LPS.
@@ -84,7 +84,7 @@ enum Command {
     Convert {
         #[command(flatten)]
         input: InputArgs,
-        /// Output .nrrd path.
+        /// Output volume: .nrrd, .nii or .nii.gz (the extension picks the format).
         output: PathBuf,
     },
     /// Upload a volume to a 3D image on the GPU, read it back and check it is bit-exact.
@@ -101,7 +101,7 @@ enum Command {
         /// Gaussian radius R in voxels (σ = R/3).
         #[arg(long, default_value_t = 5)]
         radius: u32,
-        /// Write ΔD as a float NRRD.
+        /// Write ΔD as a float volume (.nrrd, .nii or .nii.gz).
         #[arg(long)]
         out: Option<PathBuf>,
         /// Write the three middle slices as a thermal PNG.
@@ -125,7 +125,7 @@ enum Command {
         /// Output resolution: one occlusion voxel per STRIDE³ input voxels (exact at the voxel it samples).
         #[arg(long, default_value_t = 1)]
         stride: u32,
-        /// Write the occlusion volume as a float NRRD.
+        /// Write the occlusion volume as a float volume (.nrrd, .nii or .nii.gz).
         #[arg(long)]
         out: Option<PathBuf>,
         /// Write the spectrum as a log-scaled PNG with axes.
@@ -159,7 +159,12 @@ enum Command {
         #[command(flatten)]
         input: InputArgs,
         /// Radii in voxels.
-        #[arg(long, value_delimiter = ',', default_value = "4,8,16,32,64")]
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "4,8,16,32,64",
+            allow_hyphen_values = true
+        )]
         radii: Vec<u32>,
         /// Intensity bands.
         #[arg(long, default_value_t = 8)]
@@ -251,7 +256,7 @@ struct RenderArgs {
     #[arg(long)]
     one_pass: bool,
     /// Background colour behind the volume in the PNG, as R,G,B in 0..1 [default: 0,0,0].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     background: Option<String>,
     /// Occlusion transfer function (JSON): colour and opacity over (intensity, occlusion).
     #[arg(long, conflicts_with = "tf")]
@@ -304,7 +309,7 @@ struct StylesArgs {
     )]
     size: String,
     /// Background colour as R,G,B in 0..1.
-    #[arg(long, default_value = "0,0,0")]
+    #[arg(long, default_value = "0,0,0", allow_hyphen_values = true)]
     background: String,
     /// The contact sheet (PNG).
     #[arg(long)]
@@ -329,7 +334,7 @@ struct StyleArgs {
     #[arg(long, value_name = "N|NAME")]
     style: Option<String>,
     /// Edge colour as R,G,B in 0..1 [default: 0,0,0].
-    #[arg(long, value_name = "R,G,B")]
+    #[arg(long, value_name = "R,G,B", allow_hyphen_values = true)]
     edge_color: Option<String>,
     /// Edge opacity in [0, 1] [default: 1].
     #[arg(long, allow_negative_numbers = true)]
@@ -443,18 +448,18 @@ struct ModulationArgs {
     #[arg(long, value_name = "G", allow_negative_numbers = true)]
     gamma: Option<f32>,
     /// Opacity modulation (eq. 5): t_l, t_h, k_l, k_h.
-    #[arg(long, value_name = "TL,TH,KL,KH")]
+    #[arg(long, value_name = "TL,TH,KL,KH", allow_hyphen_values = true)]
     opacity_mod: Option<String>,
     /// Stippling (eq. 6): threshold t in [0, 1] and density factor f >= 0.
-    #[arg(long, value_name = "T,F")]
+    #[arg(long, value_name = "T,F", allow_hyphen_values = true)]
     stipple: Option<String>,
     /// Seed of the stipple pattern [default: 0].
     #[arg(long)]
     seed: Option<u32>,
     /// The stipple colours as R,G,B in 0..1 [defaults: white 1,1,1 and black 0,0,0].
-    #[arg(long, value_name = "R,G,B")]
+    #[arg(long, value_name = "R,G,B", allow_hyphen_values = true)]
     stipple_white: Option<String>,
-    #[arg(long, value_name = "R,G,B")]
+    #[arg(long, value_name = "R,G,B", allow_hyphen_values = true)]
     stipple_black: Option<String>,
     /// Radius R of the importance map's Gaussian, in voxels [default: 10].
     #[arg(long, value_name = "R")]
@@ -616,7 +621,12 @@ enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         repeat: usize,
         /// Square image sizes in pixels.
-        #[arg(long, value_delimiter = ',', default_value = "256,512,1024")]
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "256,512,1024",
+            allow_hyphen_values = true
+        )]
         sizes: Vec<u32>,
     },
     /// Frames per second of the slice renderer, one pass against two levels (paper Fig. 9).
@@ -627,7 +637,12 @@ enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         repeat: usize,
         /// Square image sizes in pixels.
-        #[arg(long, value_delimiter = ',', default_value = "256,512,1024")]
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "256,512,1024",
+            allow_hyphen_values = true
+        )]
         sizes: Vec<u32>,
         /// Frames of the orbit (10° a frame).
         #[arg(long, default_value_t = 36)]
@@ -644,7 +659,7 @@ enum BenchCommand {
         #[arg(long)]
         no_scipy: bool,
         /// Only these cases (e.g. "ct-body:1,salmon:10"); default all nine.
-        #[arg(long)]
+        #[arg(long, allow_hyphen_values = true)]
         cases: Option<String>,
     },
 }
@@ -742,6 +757,56 @@ unsafe extern "C" {
     fn signal(signum: i32, handler: usize) -> usize;
 }
 
+/// Lets every option take a negative number as its value (`--focus -2000:-500`, `--radius -5`),
+/// so that a negative value is parsed, and refused with a sentence where it makes no sense,
+/// instead of being taken for an unknown flag. List-valued options also set
+/// `allow_hyphen_values` where they are declared.
+fn negatives(cmd: clap::Command) -> clap::Command {
+    cmd.mut_args(|a| {
+        if a.get_action().takes_values() && !a.is_positional() {
+            a.allow_negative_numbers(true)
+        } else {
+            a
+        }
+    })
+    .mut_subcommands(negatives)
+}
+
+/// The command line, parsed; a negative value for a whole-number option gets a sentence.
+fn parse_cli() -> Cli {
+    use clap::error::{ContextKind, ContextValue, ErrorKind};
+    use clap::{CommandFactory, FromArgMatches};
+    let parsed = negatives(Cli::command())
+        .try_get_matches()
+        .and_then(|m| Cli::from_arg_matches(&m));
+    match parsed {
+        Ok(cli) => cli,
+        Err(e) => {
+            let text = |k| match e.get(k) {
+                Some(ContextValue::String(s)) => Some(s.clone()),
+                _ => None,
+            };
+            let unsigned = std::error::Error::source(&e).is_some_and(|s| {
+                let s = s.to_string();
+                s.contains("invalid digit") || s.contains("is not in 0..")
+            });
+            if let (ErrorKind::ValueValidation, Some(arg), Some(value), true) = (
+                e.kind(),
+                text(ContextKind::InvalidArg),
+                text(ContextKind::InvalidValue),
+                unsigned,
+            ) {
+                if value.starts_with('-') {
+                    let name = arg.split_whitespace().next().unwrap_or(&arg);
+                    eprintln!("error: {name} is {value}; expected a whole number of zero or more");
+                    std::process::exit(2);
+                }
+            }
+            e.exit()
+        }
+    }
+}
+
 fn main() -> ExitCode {
     // Rust ignores SIGPIPE, which turns `vellum info x | head` into a panic in println!. Restore
     // the default so the CLI ends quietly like other Unix tools (13 = SIGPIPE, 0 = SIG_DFL).
@@ -750,7 +815,7 @@ fn main() -> ExitCode {
     unsafe {
         signal(13, 0);
     }
-    let cli = Cli::parse();
+    let cli = parse_cli();
     let level = match cli.verbose {
         0 => "warn",
         1 => "info",
@@ -785,7 +850,7 @@ fn run(cli: &Cli) -> Result<()> {
         Command::Info { input, json } => info(input, *json),
         Command::Convert { input, output } => {
             let v = input.load()?;
-            vellum::volume::io::nrrd::write_nrrd(output, &v)?;
+            vellum::volume::io::write(output, &v)?;
             println!(
                 "wrote {} ({}x{}x{} {})",
                 output.display(),
@@ -1068,7 +1133,7 @@ fn importance(
     let r = map.compute(&v, radius, false)?;
     report_validation(&ctx);
     if let Some(path) = out {
-        vellum::volume::io::nrrd::write_nrrd(path, &r.delta_d)
+        vellum::volume::io::write(path, &r.delta_d)
             .with_context(|| format!("writing ΔD to {}", path.display()))?;
     }
     if let Some(path) = slices {
@@ -1519,7 +1584,7 @@ fn occlusion(
     let wall_ms = start.elapsed().as_secs_f64() * 1e3;
     report_validation(&ctx);
     if let Some(path) = out {
-        vellum::volume::io::nrrd::write_nrrd(path, &r.occlusion)
+        vellum::volume::io::write(path, &r.occlusion)
             .with_context(|| format!("writing the occlusion volume to {}", path.display()))?;
     }
     if let Some(s) = &r.spectrum {

@@ -37,12 +37,37 @@ use crate::volume::{stats, Volume, VoxelData, VoxelType};
 pub const DEFAULT_EPSILON_FRACTION: f64 = 0.05;
 
 /// The knobs of a migration.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct MigrateParams {
     /// ε of eq. 2 in data units; `None` for [`DEFAULT_EPSILON_FRACTION`] of the input range.
     pub epsilon: Option<f64>,
     /// The region grow of §3.4.
     pub grow: RegionGrow,
+    /// Private intervals of earlier features in the input (a feature volume), kept private: see
+    /// [`Overlap`].
+    pub protected: Vec<[f64; 2]>,
+    /// Keep eq. 10's values even where they fall inside a protected interval (only count them).
+    pub allow_overlap: bool,
+}
+
+/// What the fuzzy boundary of a new feature did to one earlier private interval.
+///
+/// Eq. 10 ramps a boundary voxel from its surroundings δ_o up to the moved ROI, δ_i + Δ, which lies
+/// above every earlier interval; so the ramp crosses them, and a few boundary voxels of the new
+/// feature land inside an earlier feature's interval, where its transfer function would paint them
+/// as that feature. The paper promises each feature a private interval, so by default such voxels
+/// are moved just outside the interval, to whichever side is nearer, by half of this migration's
+/// ε (the gap the transfer function leaves empty). That keeps the profile monotone, and so the
+/// boundary's position, while the step inside the ramp costs a little smoothness on those voxels
+/// only. With [`MigrateParams::allow_overlap`] they keep eq. 10's value and are only counted.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Overlap {
+    /// The earlier feature's private interval.
+    pub interval: [f64; 2],
+    /// Boundary voxels of the new feature whose eq. 10 value fell inside it.
+    pub voxels: usize,
+    /// Of those, the ones moved out of it.
+    pub moved: usize,
 }
 
 /// Wall-clock time of each stage, in milliseconds.
@@ -81,6 +106,8 @@ pub struct MigrationReport {
     pub roi_voxels: usize,
     /// Voxels per category.
     pub categories: CategoryCounts,
+    /// Fuzzy-boundary voxels that fell inside earlier private intervals, per protected interval.
+    pub overlaps: Vec<Overlap>,
     /// How the category-1 voxels were reconstructed.
     pub reconstruction: ReconstructionCounts,
     /// Stage times.
@@ -151,10 +178,19 @@ pub fn migrate(volume: &Volume, roi: &Roi, params: &MigrateParams) -> Result<Mig
 
     let t = Instant::now();
     let reconstruction = reconstruct(&categories, roi, &values, delta, &params.grow, &mut out);
+    let gap = if integer {
+        (epsilon / 2.0).ceil().max(1.0)
+    } else {
+        epsilon / 2.0
+    };
+    let overlaps = keep_private(&categories.labels, &values, &mut out, params, gap, integer);
     let reconstruct_ms = ms(t);
 
     let (data, output_range) = convert(volume.voxel_type(), &out);
     let output_type = data.voxel_type();
+    if output_type == VoxelType::F32 {
+        check_f32_resolution(params.epsilon, in_range, roi_range, interval, integer)?;
+    }
     // Float voxels hold the interval's ends as f32; rounding is monotone, so the shifted voxels
     // stay inside the rounded interval.
     let interval = match output_type {
@@ -174,6 +210,7 @@ pub fn migrate(volume: &Volume, roi: &Roi, params: &MigrateParams) -> Result<Mig
         output_range,
         roi_voxels,
         categories: counts,
+        overlaps,
         reconstruction,
         timings: Timings {
             categorise_ms,
@@ -201,6 +238,106 @@ fn body_range(labels: &[Category], values: &[f32]) -> Option<[f64; 2]> {
             |a, b| (a.0.min(b.0), a.1.max(b.1)),
         );
     (lo <= hi).then_some([lo as f64, hi as f64])
+}
+
+/// Finds, and unless allowed moves, fuzzy-boundary values inside protected intervals (see
+/// [`Overlap`]). `gap` is how far outside an interval a moved voxel lands. A voxel that was in the
+/// interval before the migration (one of the earlier feature's own) is left alone.
+fn keep_private(
+    labels: &[Category],
+    before: &[f32],
+    out: &mut [f64],
+    params: &MigrateParams,
+    gap: f64,
+    integer: bool,
+) -> Vec<Overlap> {
+    // Integer outputs are rounded later: judge the value they will have.
+    let inside = |v: f64, i: &[f64; 2]| {
+        let v = if integer { v.round() } else { v };
+        v >= i[0] && v <= i[1]
+    };
+    let free = |v: f64| !params.protected.iter().any(|i| inside(v, i));
+    let mut overlaps: Vec<Overlap> = params
+        .protected
+        .iter()
+        .map(|&interval| Overlap {
+            interval,
+            voxels: 0,
+            moved: 0,
+        })
+        .collect();
+    if overlaps.is_empty() {
+        return overlaps;
+    }
+    for ((v, c), &old) in out.iter_mut().zip(labels).zip(before) {
+        if *c != Category::FuzzyBoundary {
+            continue;
+        }
+        let Some(k) = params.protected.iter().position(|i| inside(*v, i)) else {
+            continue;
+        };
+        if inside(old as f64, &params.protected[k]) {
+            continue;
+        }
+        overlaps[k].voxels += 1;
+        if params.allow_overlap {
+            continue;
+        }
+        let [a, b] = params.protected[k];
+        let (below, above) = (a - gap, b + gap);
+        let order = if *v - a <= b - *v {
+            [below, above]
+        } else {
+            [above, below]
+        };
+        if let Some(&to) = order.iter().find(|&&t| free(t)) {
+            *v = to;
+            overlaps[k].moved += 1;
+        }
+    }
+    overlaps
+}
+
+/// The spacing of f32 values near `m`.
+fn f32_spacing(m: f64) -> f64 {
+    let m = (m.abs() as f32).max(f32::MIN_POSITIVE);
+    let next = f32::from_bits(m.to_bits() + 1);
+    (next - m) as f64
+}
+
+/// Refuses a private interval placed so high (by a huge ε) that f32 cannot tell the feature's
+/// values apart there, while it could in the input: for integer data, whole numbers must stay
+/// exact; for float data, the spacing of f32 values must stay within 1/4096 of the ROI's range.
+fn check_f32_resolution(
+    given: Option<f64>,
+    in_range: [f64; 2],
+    roi_range: [f64; 2],
+    interval: [f64; 2],
+    integer: bool,
+) -> Result<()> {
+    let width = roi_range[1] - roi_range[0];
+    let tolerance = if integer { 1.0 } else { width / 4096.0 };
+    let step = f32_spacing(interval[0].abs().max(interval[1].abs()));
+    let input_step = f32_spacing(in_range[0].abs().max(in_range[1].abs()));
+    if width <= 0.0 || step <= tolerance || step <= input_step {
+        return Ok(());
+    }
+    // The highest magnitude whose f32 spacing is at most the tolerance.
+    let top = 2f64.powf(tolerance.log2().floor() + 24.0);
+    let most = top - in_range[1] - width;
+    let expected = if most > 0.0 {
+        format!("expected epsilon below {most:.6e}")
+    } else {
+        "expected data whose magnitude is small against its range".into()
+    };
+    let what = match given {
+        Some(e) => format!("epsilon {e} places"),
+        None => "the default epsilon places".into(),
+    };
+    Err(Error::Invalid(format!(
+        "{what} the private interval at {:.6e}, where 32-bit floats are {step:.3e} apart, so the feature's range of {width} would collapse to a few values; {expected}",
+        interval[0]
+    )))
 }
 
 /// ε as given (checked) or the default, rounded up to a whole number for integer data.

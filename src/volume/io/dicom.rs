@@ -162,7 +162,7 @@ pub(super) fn read(dir: &Path) -> Result<Volume> {
         .iter()
         .flat_map(|s| s.pixels.iter().copied())
         .collect();
-    let mut data = decode(ty, false, &bytes);
+    let mut data = decode(dir, ty, false, &bytes)?;
     drop(bytes);
     mask_unused_bits(&mut data, first.bits_stored);
     if slices.iter().any(|s| s.slope != 1.0 || s.intercept != 0.0) {

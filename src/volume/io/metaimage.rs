@@ -156,7 +156,7 @@ pub(super) fn read(path: &Path) -> Result<Volume> {
         expected,
     )?;
     let geometry = geometry(path, &fields)?;
-    build(path, dims, spacing, decode(ty, big_endian, &bytes))?
+    build(path, dims, spacing, decode(path, ty, big_endian, &bytes)?)?
         .with_geometry(geometry)
         .map_err(|e| Error::format(path, e.to_string()))
 }

@@ -5,16 +5,18 @@
 //! count the header promises and turns decompression failures into sentences, and [`decode`],
 //! which converts the file's type and byte order into one of the four [`VoxelType`]s vellum keeps.
 //! Types vellum does not keep are widened: int8 becomes i16 (exact), and uint32, int32 and float64
-//! become f32, which is exact only up to 2^24 in magnitude (float64 also loses precision). A
+//! become f32, which is exact only up to 2^24 in magnitude (float64 also loses precision): a file
+//! whose rounding would merge distinct values is refused, and visible rounding is warned about. A
 //! header is checked with [`check_dims`] before any voxel buffer is allocated, so a corrupt size
 //! cannot make us try to allocate terabytes.
 
 mod dicom;
 mod metaimage;
-mod nifti;
+pub mod nifti;
 pub mod nrrd;
 mod raw;
 
+pub use nifti::write_nifti;
 pub use nrrd::write_nrrd;
 
 use std::fs::File;
@@ -40,6 +42,21 @@ pub struct RawSpec {
     pub offset: u64,
     /// Physical voxel size along x, y, z.
     pub spacing: [f64; 3],
+}
+
+/// Writes a volume in the format its extension names: `.nrrd` (gzip-encoded NRRD), `.nii` or
+/// `.nii.gz` (NIfTI-1). Any other extension is refused before anything is written.
+pub fn write(path: &Path, volume: &Volume) -> Result<()> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    if name.ends_with(".nii") || name.ends_with(".nii.gz") {
+        write_nifti(path, volume)
+    } else {
+        crate::output::check_extension(path, &["nrrd", "nii", "nii.gz"], "a volume")?;
+        write_nrrd(path, volume)
+    }
 }
 
 /// Loads a volume. With `raw` the file is read as headerless voxels; otherwise a folder is read as
@@ -317,21 +334,119 @@ fn convert<const N: usize, T: Send>(
 
 /// Decodes voxels of file type `ty` into vellum's types, widening as described in the module docs.
 /// `bytes.len()` must be a multiple of the type size.
-pub(crate) fn decode(ty: FileType, big_endian: bool, bytes: &[u8]) -> VoxelData {
+///
+/// uint32, int32 and float64 voxels become f32. Where that rounding is large against the data's
+/// own range, the data is refused (it would collapse: uint32 values 4000000000..4000000255 become
+/// two floats); where it is merely visible, a warning says how much was lost. See
+/// [`check_precision`].
+pub(crate) fn decode(
+    path: &Path,
+    ty: FileType,
+    big_endian: bool,
+    bytes: &[u8],
+) -> Result<VoxelData> {
     debug_assert_eq!(bytes.len() % ty.size(), 0);
     let be = big_endian;
-    match ty {
+    Ok(match ty {
         FileType::U8 => VoxelData::U8(bytes.to_vec()),
         FileType::I8 => VoxelData::I16(bytes.par_iter().map(|&b| b as i8 as i16).collect()),
         FileType::U16 => VoxelData::U16(convert(bytes, be, u16::from_le_bytes)),
         FileType::I16 => VoxelData::I16(convert(bytes, be, i16::from_le_bytes)),
-        FileType::U32 => VoxelData::F32(convert(bytes, be, |b| u32::from_le_bytes(b) as f32)),
-        FileType::I32 => VoxelData::F32(convert(bytes, be, |b| i32::from_le_bytes(b) as f32)),
+        FileType::U32 => narrow(
+            path,
+            "uint32",
+            convert(bytes, be, |b| u32::from_le_bytes(b) as f64),
+        )?,
+        FileType::I32 => narrow(
+            path,
+            "int32",
+            convert(bytes, be, |b| i32::from_le_bytes(b) as f64),
+        )?,
         FileType::F32 => VoxelData::F32(convert(bytes, be, f32::from_le_bytes)),
-        // Values beyond f32's range become infinite here and are then reported as out of range
-        // (see `load`), not as NaN.
-        FileType::F64 => VoxelData::F32(convert(bytes, be, |b| f64::from_le_bytes(b) as f32)),
+        FileType::F64 => narrow(path, "float64", convert(bytes, be, f64::from_le_bytes))?,
+    })
+}
+
+/// Rounding to f32 that is at most this fraction of the data range passes silently: it is below
+/// what any transfer function, histogram or image of vellum can show.
+pub const PRECISION_SILENT: f64 = 1e-6;
+/// Rounding beyond this fraction of the data range refuses the file: a 4096-entry table could no
+/// longer tell neighbouring values apart.
+pub const PRECISION_REFUSED: f64 = 1.0 / 4096.0;
+
+/// What rounding wider values to f32 did to them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PrecisionLoss {
+    /// (min, max) of the values as stored (finite ones only).
+    pub range: [f64; 2],
+    /// Voxels whose f32 value differs from the stored one.
+    pub changed: usize,
+    /// The largest |f32 − stored| over finite voxels that fit f32's range.
+    pub max_error: f64,
+}
+
+/// Measures the rounding of `values` to f32. Values beyond f32's range are left to the finiteness
+/// check of [`load`], which names them.
+pub fn precision_loss(values: &[f64]) -> PrecisionLoss {
+    let (lo, hi, changed, err) = values
+        .par_iter()
+        .filter(|v| v.is_finite() && v.abs() <= f32::MAX as f64)
+        .map(|&v| {
+            let e = (v - v as f32 as f64).abs();
+            (v, v, (e > 0.0) as usize, e)
+        })
+        .reduce(
+            || (f64::INFINITY, f64::NEG_INFINITY, 0, 0.0),
+            |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 + b.2, a.3.max(b.3)),
+        );
+    PrecisionLoss {
+        range: if lo <= hi { [lo, hi] } else { [0.0, 0.0] },
+        changed,
+        max_error: err,
     }
+}
+
+/// Refuses, warns about or accepts `loss` (see [`PRECISION_SILENT`] and [`PRECISION_REFUSED`]).
+/// Returns the warning, if any.
+pub fn check_precision(
+    path: &Path,
+    type_name: &str,
+    loss: &PrecisionLoss,
+) -> Result<Option<String>> {
+    let width = loss.range[1] - loss.range[0];
+    if loss.changed == 0 || width <= 0.0 || loss.max_error <= PRECISION_SILENT * width {
+        return Ok(None);
+    }
+    let [lo, hi] = loss.range;
+    let e = loss.max_error;
+    let percent = 100.0 * e / width;
+    if e > PRECISION_REFUSED * width {
+        return Err(Error::format(
+            path,
+            format!(
+                "its {type_name} values {lo}..{hi} do not fit 32-bit floats, which vellum computes in: \
+                 rounding moves them by up to {e} ({percent:.3}% of their range), so distinct values would merge; \
+                 expected values whose magnitude is small against their range (subtract an offset, or store them as float32)"
+            ),
+        ));
+    }
+    Ok(Some(format!(
+        "{}: {} of its {type_name} voxels change when rounded to 32-bit floats, by up to {e} ({percent:.4}% of the range {lo}..{hi})",
+        path.display(),
+        loss.changed
+    )))
+}
+
+/// Rounds wide values to f32 after [`check_precision`], logging its warning.
+fn narrow(path: &Path, type_name: &str, values: Vec<f64>) -> Result<VoxelData> {
+    if let Some(warning) = check_precision(path, type_name, &precision_loss(&values))? {
+        log::warn!("{warning}");
+    }
+    // Values beyond f32's range become infinite here and are then reported as out of range (see
+    // `load`), not as NaN.
+    Ok(VoxelData::F32(
+        values.par_iter().map(|&v| v as f32).collect(),
+    ))
 }
 
 /// Parses a whitespace-separated list of exactly `n` numbers for header field `field`.

@@ -49,6 +49,6 @@ pub(super) fn read(path: &Path, spec: &RawSpec) -> Result<Volume> {
             expected,
         )?
     };
-    let data = decode(spec.voxel_type.into(), spec.big_endian, &bytes);
+    let data = decode(path, spec.voxel_type.into(), spec.big_endian, &bytes)?;
     build(path, spec.dims, spec.spacing, data)
 }
