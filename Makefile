@@ -12,7 +12,7 @@ ISO ?= 0.9
 OUT ?= out
 VELLUM := ./target/release/vellum
 
-.PHONY: deps build run test bench fmt
+.PHONY: deps build run test bench fuzz fmt
 
 deps:
 	@command -v cargo >/dev/null || { echo "cargo is missing: install Rust 1.85+ (https://rustup.rs)"; exit 1; }
@@ -59,6 +59,12 @@ run: build
 # validation: a missing or wrong barrier fails the test like any other validation message.
 test: deps
 	VELLUM_SYNC_VALIDATION=1 cargo test --locked
+
+# The long fuzz run (see src/fuzz.rs): a million mutated inputs per reader, each under a 5 s
+# watchdog; prints inputs, refusals, crashes, the slowest input and peak memory. INPUTS=N to change.
+INPUTS ?= 1000000
+fuzz: deps
+	cargo run --release --locked --example fuzz -- --inputs $(INPUTS)
 
 bench: build
 	$(VELLUM) bench table1

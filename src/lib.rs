@@ -7,6 +7,7 @@ pub mod bench;
 pub mod classify;
 pub mod error;
 pub mod figures;
+pub mod fuzz;
 pub mod gpu;
 pub mod imaging;
 pub mod input;

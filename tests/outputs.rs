@@ -83,28 +83,60 @@ fn a_failing_output_leaves_no_other_output() {
     only(d, &["a.png", "b.exr"]);
 }
 
+/// Every pair of output flags of every command that has several, given one path (written two
+/// ways, relative and absolute), is refused before any work and leaves nothing behind.
 #[test]
 fn two_outputs_with_one_path_are_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let p = dir.path().join("x.nrrd").to_string_lossy().into_owned();
-    fails_with(
-        &vellum(&[
-            "migrate",
-            "phantom:nested:64",
-            "--seed",
-            "46,32,32",
-            "--window",
-            "0.7:0.8",
-            "--label",
-            "s",
-            "--out",
-            &p,
-            "--features",
-            &p,
-        ]),
-        "given for two outputs",
-    );
-    only(dir.path(), &[]);
+    let d = dir.path();
+    let base: &[(&[&str], &[&str])] = &[
+        (&["importance", "phantom:nested:16"], &["--out", "--slices"]),
+        (
+            &["occlusion", "phantom:nested:16", "--radius", "2"],
+            &["--out", "--spectrum", "--spectrum-data"],
+        ),
+        (
+            &["occlusion-sensitivity", "phantom:nested:16", "--radii", "2"],
+            &["--out", "--csv"],
+        ),
+        (
+            &["render", "phantom:nested:16"],
+            &["--out", "--exr", "--save-scene"],
+        ),
+        (
+            &[
+                "migrate",
+                "phantom:nested:64",
+                "--seed",
+                "46,32,32",
+                "--window",
+                "0.7:0.8",
+                "--label",
+                "s",
+            ],
+            &["--out", "--features"],
+        ),
+    ];
+    let mut pairs = 0;
+    for (command, flags) in base {
+        for (i, a) in flags.iter().enumerate() {
+            for b in &flags[i + 1..] {
+                // One spelling relative to the working directory, the other absolute.
+                let out = Command::new(env!("CARGO_BIN_EXE_vellum"))
+                    .args(*command)
+                    .args([a, &"same.out", b])
+                    .arg(d.join("same.out"))
+                    .current_dir(d)
+                    .env("VELLUM_VALIDATION", "1")
+                    .output()
+                    .unwrap();
+                fails_with(&out, "is given for two outputs of one command");
+                only(d, &[]);
+                pairs += 1;
+            }
+        }
+    }
+    assert_eq!(pairs, 9);
 }
 
 #[test]
@@ -159,22 +191,90 @@ impl FifoLike for std::fs::FileType {
     }
 }
 
+/// A FIFO behind every reader (each volume format by name, raw input, a DICOM folder, each JSON
+/// file), and /dev/zero behind every reader that names a second file, is refused at once.
 #[test]
 fn endless_inputs_are_refused_at_once() {
     let dir = tempfile::tempdir().unwrap();
-    let fifo = dir.path().join("in.nrrd");
-    mkfifo(&fifo);
+    let d = dir.path();
+    let png = d.join("x.png").to_string_lossy().into_owned();
+    let path = |n: &str| d.join(n).to_string_lossy().into_owned();
+    for name in [
+        "in.nrrd",
+        "in.nhdr",
+        "in.nii",
+        "in.nii.gz",
+        "in.mhd",
+        "in.mha",
+        "in.raw",
+        "in",
+    ] {
+        mkfifo(&d.join(name));
+        fails_with(&vellum(&["info", &path(name)]), "not a regular file");
+    }
     fails_with(
-        &vellum(&["info", fifo.to_str().unwrap()]),
+        &vellum(&[
+            "info",
+            &path("in.raw"),
+            "--raw-dims",
+            "4,4,4",
+            "--raw-type",
+            "u8",
+        ]),
         "not a regular file",
     );
-    let header = dir.path().join("zero.nhdr");
+    std::fs::create_dir(d.join("series")).unwrap();
+    mkfifo(&d.join("series/slice.dcm"));
+    fails_with(&vellum(&["info", &path("series")]), "holds no DICOM images");
+    for json in ["tf.json", "otf.json", "map.features.json", "scene.json"] {
+        mkfifo(&d.join(json));
+    }
+    for (flag, file) in [
+        ("--tf", "tf.json"),
+        ("--otf", "otf.json"),
+        ("--features", "map.features.json"),
+        ("--scene", "scene.json"),
+    ] {
+        let f = path(file);
+        let mut args = vec!["render", "phantom:nested:16", flag, &f, "--out", &png];
+        if flag == "--scene" {
+            args.remove(1);
+        }
+        fails_with(&vellum(&args), "not a regular file");
+    }
+    fails_with(
+        &vellum(&["features", &path("map.features.json")]),
+        "not a regular file",
+    );
+    // /dev/zero as the data file of a detached header, and as a raw input.
     std::fs::write(
-        &header,
+        d.join("zero.nhdr"),
         "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: /dev/zero\n",
     )
     .unwrap();
-    fails_with(&vellum(&["info", header.to_str().unwrap()]), "/dev/zero");
+    std::fs::write(
+        d.join("zero.mhd"),
+        "NDims = 3\nDimSize = 4 4 4\nElementType = MET_UCHAR\nElementDataFile = /dev/zero\n",
+    )
+    .unwrap();
+    for name in ["zero.nhdr", "zero.mhd"] {
+        fails_with(&vellum(&["info", &path(name)]), "/dev/zero");
+    }
+    fails_with(
+        &vellum(&[
+            "info",
+            "/dev/zero",
+            "--raw-dims",
+            "4,4,4",
+            "--raw-type",
+            "u8",
+        ]),
+        "not a regular file",
+    );
+    fails_with(
+        &vellum(&["render", "--scene", "/dev/zero", "--out", &png]),
+        "not a regular file",
+    );
 }
 
 #[test]

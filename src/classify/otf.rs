@@ -92,7 +92,7 @@ fn default_mapping() -> String {
 impl OcclusionTf {
     /// Reads and checks a JSON file.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::volume::io::read_text(path)?;
         let otf: OcclusionTf = serde_json::from_str(&text)
             .map_err(|e| Error::format(path, format!("not an occlusion transfer function ({e}); see the format in render/otf.rs or the README")))?;
         otf.validate()

@@ -154,7 +154,7 @@ impl TransferFunction {
 
     /// Reads a JSON file; an unnamed function takes the file stem as its name.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::volume::io::read_text(path)?;
         let mut tf = Self::from_json_str(&text).map_err(|e| match e {
             Error::Invalid(msg) => Error::format(path, msg),
             other => other,

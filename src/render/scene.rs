@@ -355,7 +355,7 @@ impl Scene {
     /// names the file.
     pub fn load(path: &Path) -> Result<Self> {
         let in_file = |e: Error| Error::Invalid(format!("scene file {}: {e}", path.display()));
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::volume::io::read_text(path)?;
         let mut scene = Scene::from_json_str(&text).map_err(in_file)?;
         let dir = path.parent().unwrap_or(Path::new("."));
         scene.input.path = resolve(dir, &scene.input.path);

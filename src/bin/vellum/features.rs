@@ -80,6 +80,15 @@ pub struct FeaturesArgs {
     json: bool,
 }
 
+impl MigrateArgs {
+    /// The files this command writes (for the binary's duplicate check).
+    pub fn outputs(&self) -> Vec<&Path> {
+        let mut v = vec![self.out.as_path()];
+        v.extend(self.features.as_deref());
+        v
+    }
+}
+
 /// The map path (explicit or beside the output) and whether an existing one is appended to.
 fn map_path(args: &MigrateArgs) -> (PathBuf, bool) {
     match &args.features {

@@ -6,7 +6,7 @@ mod features;
 use anyhow::{Context as _, Result};
 use clap::{Args, Parser, Subcommand};
 use serde_json::json;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use vellum::classify::modulation::Modulation;
@@ -844,7 +844,50 @@ fn main() -> ExitCode {
     }
 }
 
+/// The output files a command will write, as given.
+fn output_paths(command: &Command) -> Vec<&Path> {
+    fn all<'a>(v: &[&'a Option<PathBuf>]) -> Vec<&'a Path> {
+        v.iter().filter_map(|p| p.as_deref()).collect()
+    }
+    match command {
+        Command::Convert { output, .. } => vec![output.as_path()],
+        Command::Importance { out, slices, .. } => all(&[out, slices]),
+        Command::Render(a) => all(&[&a.out, &a.exr, &a.save_scene]),
+        Command::Occlusion {
+            out,
+            spectrum,
+            spectrum_data,
+            ..
+        } => all(&[out, spectrum, spectrum_data]),
+        Command::OcclusionSensitivity { out, csv, .. } => {
+            let mut v = all(&[csv]);
+            v.push(out.as_path());
+            v
+        }
+        Command::Migrate(a) => a.outputs(),
+        Command::Saliency { out, .. } => all(&[out]),
+        Command::Styles(a) => vec![a.out.as_path()],
+        _ => vec![],
+    }
+}
+
+/// Refuses two outputs of one command at the same path, before any work is done.
+fn check_distinct_outputs(command: &Command) -> Result<()> {
+    let paths = output_paths(command);
+    for (i, a) in paths.iter().enumerate() {
+        let key = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+        if paths[..i].iter().any(|b| key(b) == key(a)) {
+            anyhow::bail!(
+                "{} is given for two outputs of one command; expected a separate path for each",
+                a.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 fn run(cli: &Cli) -> Result<()> {
+    check_distinct_outputs(&cli.command)?;
     match &cli.command {
         Command::Devices { json } => devices(cli, *json),
         Command::Info { input, json } => info(input, *json),

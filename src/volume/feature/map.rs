@@ -299,7 +299,7 @@ impl FeatureMap {
 
     /// Reads and validates a map file.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = crate::volume::io::read_text(path)?;
         Self::from_json_str(&text).map_err(|e| match e {
             Error::Invalid(msg) => Error::format(path, msg),
             other => other,

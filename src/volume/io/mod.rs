@@ -126,17 +126,53 @@ enum Sniffed {
 /// Opens a file for reading, refusing anything that is not a regular file: a FIFO would block
 /// forever and a device such as /dev/zero never ends.
 pub(crate) fn open_regular(path: &Path) -> Result<File> {
+    open_regular_as(path, "a volume file")
+}
+
+/// [`open_regular`] with what the file should have been (`expected`) in the sentence.
+fn open_regular_as(path: &Path, expected: &str) -> Result<File> {
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if !meta.is_file() {
         return Err(Error::io(
             path,
             io::Error::new(
                 io::ErrorKind::InvalidInput,
-                "it is not a regular file (a folder, FIFO, device or socket); expected a volume file",
+                format!(
+                    "it is not a regular file (a folder, FIFO, device or socket); expected {expected}"
+                ),
             ),
         ));
     }
     File::open(path).map_err(|e| Error::io(path, e))
+}
+
+/// The largest text file vellum reads (transfer functions, occlusion TFs, feature maps, scenes):
+/// far above any real one, and small enough that a wrong path cannot exhaust memory.
+pub const MAX_TEXT_BYTES: u64 = 64 << 20;
+
+/// Reads a JSON or other text file: a regular file (a FIFO would block forever and a device never
+/// ends) of at most [`MAX_TEXT_BYTES`], in UTF-8.
+pub fn read_text(path: &Path) -> Result<String> {
+    let file = open_regular_as(path, "a JSON file")?;
+    let mut bytes = Vec::new();
+    file.take(MAX_TEXT_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| Error::io(path, e))?;
+    if bytes.len() as u64 > MAX_TEXT_BYTES {
+        return Err(Error::format(
+            path,
+            format!(
+                "it is larger than {} MiB; expected a text file of settings",
+                MAX_TEXT_BYTES >> 20
+            ),
+        ));
+    }
+    String::from_utf8(bytes).map_err(|e| {
+        Error::format(
+            path,
+            format!("it is not UTF-8 text ({e}); expected a JSON file"),
+        )
+    })
 }
 
 /// Recognises NRRD ("NRRD" magic) and NIfTI-1 (sizeof_hdr 348, possibly gzipped) by content.
