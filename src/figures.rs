@@ -274,6 +274,7 @@ pub fn importance_sheets(ctx: &Arc<Context>, size: u32) -> Result<Vec<(&'static 
             lighting: Lighting::default(),
             style: None,
             fit: false,
+            raycast: None,
         };
         let mut tiles = Vec::new();
         for tile in &fig.tiles {

@@ -37,6 +37,7 @@ fn view(azimuth: f32, size: u32, one_pass: bool) -> View {
         lighting: Lighting::default(),
         style: None,
         fit: false,
+        raycast: None,
     }
 }
 

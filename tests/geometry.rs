@@ -414,6 +414,7 @@ fn the_superior_end_is_up_by_default() {
             lighting: Lighting::default(),
             style: None,
             fit,
+            raycast: None,
         };
         let f = renderer
             .render_frame(&scene.volume, &mut scene.classify, &view, true)

@@ -44,6 +44,7 @@ fn render(gpu: &Gpu, s: &mut GpuScene, camera: &str, size: u32) -> Frame {
         lighting: Lighting::default(),
         style: None,
         fit: false,
+        raycast: None,
     };
     Renderer::new(&gpu.ctx)
         .unwrap()

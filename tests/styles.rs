@@ -70,6 +70,7 @@ fn styled(
         lighting: Lighting::default(),
         style: Some(Style::new(style, StyleParams::default()).unwrap()),
         fit: false,
+        raycast: None,
     };
     let renderer = Renderer::new(ctx).unwrap();
     let mut targets = FrameTargets::new(ctx);

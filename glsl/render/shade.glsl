@@ -1,6 +1,7 @@
 // The slicer's glue between its bindings and the shared classification and shading functions
 // (glsl/common/classify.glsl, shading.glsl): one-pass, focus and context fragment shaders include
-// it, so all levels see exactly the same samples.
+// it, and so does the ray caster (with RAYCAST defined), so all levels and both renderers see
+// exactly the same samples.
 #include "render.glsl"
 #include "classify.glsl"
 #include "shading.glsl"
@@ -14,8 +15,14 @@ layout(set = 0, binding = 5) uniform sampler2D occlusion_tf; // 2D table over (s
 layout(set = 0, binding = 6) uniform sampler3D importance;   // ΔD, normalised units (modulation only)
 layout(set = 0, binding = 7) readonly buffer ImportanceMax { uint max_abs_bits; } importance_max;
 
+#ifdef RAYCAST
+// The ray caster sets the sample's position before each call.
+vec3 tex;
+vec3 world;
+#else
 layout(location = 0) in vec3 tex;
 layout(location = 1) in vec3 world;
+#endif
 
 bool sample_in_focus(float s) {
     return in_focus(s, u.focus);

@@ -191,6 +191,7 @@ fn view(size: u32, azimuth: f32, one_pass: bool) -> View {
         lighting: Lighting::default(),
         style: None,
         fit: false,
+        raycast: None,
     }
 }
 

@@ -38,6 +38,8 @@ pub enum Bind<'a> {
     Uniform(&'a Buffer),
     /// Uniforms at a range of a buffer, e.g. a frame's staging ring.
     UniformSlice(BufferSlice),
+    /// A read-only storage range of a buffer, e.g. per-frame tables in the staging ring.
+    StorageSlice(BufferSlice),
 }
 
 impl Bind<'_> {
@@ -45,7 +47,7 @@ impl Bind<'_> {
         match self {
             Bind::StorageImage(_) => BindingKind::StorageImage,
             Bind::Sampled(..) => BindingKind::SampledImage,
-            Bind::StorageBuffer(_) => BindingKind::StorageBuffer,
+            Bind::StorageBuffer(_) | Bind::StorageSlice(_) => BindingKind::StorageBuffer,
             Bind::Uniform(_) | Bind::UniformSlice(_) => BindingKind::UniformBuffer,
         }
     }
@@ -166,7 +168,7 @@ impl PipelineLayout {
                         .offset(0)
                         .range(vk::WHOLE_SIZE),
                 ),
-                Bind::UniformSlice(slice) => buffer_infos.push(
+                Bind::UniformSlice(slice) | Bind::StorageSlice(slice) => buffer_infos.push(
                     vk::DescriptorBufferInfo::default()
                         .buffer(slice.raw)
                         .offset(slice.offset)
@@ -187,7 +189,10 @@ impl PipelineLayout {
                         ii += 1;
                         w.image_info(std::slice::from_ref(&image_infos[ii - 1]))
                     }
-                    Bind::StorageBuffer(_) | Bind::Uniform(_) | Bind::UniformSlice(_) => {
+                    Bind::StorageBuffer(_)
+                    | Bind::Uniform(_)
+                    | Bind::UniformSlice(_)
+                    | Bind::StorageSlice(_) => {
                         bi += 1;
                         w.buffer_info(std::slice::from_ref(&buffer_infos[bi - 1]))
                     }

@@ -6,6 +6,7 @@
 pub mod camera;
 pub mod post;
 pub mod proxy;
+pub mod raycast;
 pub mod scene;
 pub mod slicer;
 pub mod style;

@@ -40,6 +40,24 @@ const EDGES: [(usize, usize); 12] = [
     (3, 7), // along z
 ];
 
+/// The nearest and farthest depth of the box `[-half_extent, +half_extent]` along the unit vector
+/// `d`: the planes of a frame lie between them, plane k at `far - (k + 0.5) * spacing` with
+/// `spacing = (far - near) / n_slices` (the ray caster samples the same planes).
+pub fn depth_span(half_extent: Vec3, d: Vec3) -> (f32, f32) {
+    let depths: [f32; 8] = std::array::from_fn(|i| {
+        let sign = |k: usize| if (i >> k) & 1 == 1 { 1.0 } else { -1.0 };
+        Vec3::new(
+            sign(0) * half_extent.x,
+            sign(1) * half_extent.y,
+            sign(2) * half_extent.z,
+        )
+        .dot(d)
+    });
+    let far = depths.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let near = depths.iter().copied().fold(f32::INFINITY, f32::min);
+    (near, far)
+}
+
 /// Slices the box `[-half_extent, +half_extent]` (world units) with `n_slices` planes perpendicular
 /// to `view_dir` (pointing from the eye into the scene; normalised here). The planes are evenly
 /// spaced between the farthest and the nearest box corner, the first half a spacing inside the
@@ -80,9 +98,7 @@ pub fn view_aligned_slices_in(
             )
         })
     };
-    let depths = corners_of(-half_extent, half_extent).map(|c| c.dot(d));
-    let far = depths.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    let near = depths.iter().copied().fold(f32::INFINITY, f32::min);
+    let (near, far) = depth_span(half_extent, d);
     let mut out = ProxySlices {
         spacing: if n_slices == 0 {
             0.0

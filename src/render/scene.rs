@@ -295,6 +295,9 @@ pub struct Scene {
     pub style: Option<StyleSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub modulation: Option<Modulation>,
+    /// Ray cast with these options instead of slicing (`render::raycast`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub raycast: Option<crate::render::raycast::RayOptions>,
 }
 
 fn default_size() -> [u32; 2] {
@@ -335,6 +338,7 @@ impl Scene {
             lighting: Lighting::default(),
             style: None,
             modulation: None,
+            raycast: None,
         }
     }
 
@@ -495,6 +499,7 @@ impl Scene {
             one_pass: self.one_pass,
             lighting: self.lighting,
             style: self.style.as_ref().map(StyleSpec::resolve).transpose()?,
+            raycast: self.raycast,
         })
     }
 }

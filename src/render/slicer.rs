@@ -34,7 +34,8 @@ use crate::gpu::{
 use crate::passes::normals::{Bricks, VolumeTextures};
 use crate::render::camera::Camera;
 use crate::render::post::Post;
-use crate::render::proxy::view_aligned_slices_in;
+use crate::render::proxy::{depth_span, view_aligned_slices_in, ProxySlices};
+use crate::render::raycast::{RayOptions, RayPush, BRICK_FOCUS, BRICK_VISIBLE};
 use crate::render::style::Style;
 use crate::render::targets::{FrameTargets, TargetsReadback, COLOR, DEPTH, LINEAR_DEPTH};
 use ash::vk;
@@ -156,6 +157,8 @@ pub struct View {
     pub style: Option<Style>,
     /// Frame the volume's projected bounding box (replacing the camera's distance).
     pub fit: bool,
+    /// Ray cast instead of slicing (same planes, same layers; see `render::raycast`).
+    pub raycast: Option<RayOptions>,
 }
 
 /// Margin left around a fitted volume, as a fraction of the image's half-size.
@@ -220,6 +223,8 @@ pub struct Renderer {
     dummy_max: crate::gpu::Buffer,
     /// The style passes, built on the first styled frame.
     post: std::sync::OnceLock<Post>,
+    /// The ray caster, built on the first ray-cast frame.
+    raycaster: std::sync::OnceLock<crate::gpu::ComputePipeline>,
 }
 
 /// Uniforms; intensity, gradient, TF, occlusion, OTF, ΔD; max |ΔD|.
@@ -328,6 +333,7 @@ impl Renderer {
                 &[0u8; 4],
             )?,
             post: std::sync::OnceLock::new(),
+            raycaster: std::sync::OnceLock::new(),
         })
     }
 
@@ -467,7 +473,25 @@ impl Renderer {
                 )
             })
         };
-        let (proxy, focus_proxy) = rayon::join(context_proxy, focus_proxy);
+        let raycast = view.raycast;
+        if let Some(r) = &raycast {
+            r.validate()?;
+            if self.raycaster.get().is_none() {
+                let _ = self.raycaster.set(crate::render::raycast::pipeline(ctx)?);
+            }
+        }
+        let (near, far) = depth_span(half, view_dir.normalize());
+        let (proxy, focus_proxy) = match raycast {
+            Some(_) => (
+                ProxySlices {
+                    spacing: (far - near) / n_slices as f32,
+                    slices: n_slices,
+                    ..ProxySlices::default()
+                },
+                None,
+            ),
+            None => rayon::join(context_proxy, focus_proxy),
+        };
         let eye = rot.transpose() * cam.eye(radius);
         let light = -view_dir; // a headlight
         let l = &view.lighting;
@@ -510,26 +534,43 @@ impl Renderer {
             )),
             None => None,
         };
-        classify.record(frame, Access::FragmentSampled)?;
+        // Per-brick flags for the ray caster's empty-space skipping.
+        let brick_flags = match raycast {
+            Some(_) => {
+                let flags: Vec<u32> = (0..bricks.range.len())
+                    .map(|b| {
+                        let v = if visible[b] { BRICK_VISIBLE } else { 0 };
+                        let f = if may_focus(&bricks.range[b], focus_n) { BRICK_FOCUS } else { 0 };
+                        v | f
+                    })
+                    .collect();
+                Some(frame.staging.push(bytemuck::cast_slice(&flags), 256)?)
+            }
+            None => None,
+        };
+        let sampled = match raycast {
+            Some(_) => Access::ComputeSampled,
+            None => Access::FragmentSampled,
+        };
+        classify.record(frame, sampled)?;
         let t = targets.ensure([w, h], !view.one_pass, view.style.is_some())?;
         let cmd = frame.cmd;
         let profiler = &mut *frame.profiler;
-        vol.intensity.transition(cmd, Access::FragmentSampled);
-        vol.gradient.transition(cmd, Access::FragmentSampled);
-        occlusion.transition(cmd, Access::FragmentSampled);
+        vol.intensity.transition(cmd, sampled);
+        vol.gradient.transition(cmd, sampled);
+        occlusion.transition(cmd, sampled);
         let (delta_d, delta_max) = match importance {
             Some(i) => (&i.delta_d, &i.max_abs),
             None => (&self.dummy_3d, &self.dummy_max),
         };
         if let Some(i) = importance {
-            i.delta_d.transition(cmd, Access::FragmentSampled);
-            // The reduction's atomics must be visible to the fragment shaders' reads.
-            crate::gpu::commands::memory_transition(
-                ctx,
-                cmd,
-                Access::ComputeReadWrite,
-                Access::FragmentStorageRead,
-            );
+            i.delta_d.transition(cmd, sampled);
+            // The reduction's atomics must be visible to the shaders' reads.
+            let read = match raycast {
+                Some(_) => Access::ComputeRead,
+                None => Access::FragmentStorageRead,
+            };
+            crate::gpu::commands::memory_transition(ctx, cmd, Access::ComputeReadWrite, read);
         }
         let binds = [
             Bind::UniformSlice(ubo),
@@ -555,8 +596,48 @@ impl Renderer {
             };
         let clear = Load::Clear([0.0; 4]);
         let composite = &t.composite;
-        match (&t.layers, view.one_pass) {
-            (Some(layers), false) => {
+        match (raycast, &t.layers, view.one_pass) {
+            (Some(r), layers, one_pass) => {
+                let layers = layers.as_ref().filter(|_| !one_pass);
+                let out = |pick: fn(&crate::render::targets::TargetLayers) -> &Image| {
+                    layers.map_or(composite, pick)
+                };
+                let images = [
+                    out(|l| &l.focus_phong),
+                    out(|l| &l.focus_diffuse),
+                    out(|l| &l.focus_depth),
+                    out(|l| &l.context),
+                    composite,
+                ];
+                for image in images {
+                    image.transition(cmd, Access::ComputeWrite);
+                }
+                let mut ray_binds: Vec<Bind> = binds.into_iter().collect();
+                ray_binds.extend(images.map(Bind::StorageImage));
+                ray_binds.push(Bind::StorageSlice(brick_flags.expect("pushed above")));
+                let inv = (cam.view_proj(aspect, radius) * glam::Mat4::from_mat3(rot)).inverse();
+                let c = bricks.counts.map(|n| n as i32);
+                let push = RayPush {
+                    inv_view_proj: inv.to_cols_array_2d(),
+                    planes: [far, proxy.spacing, n_slices as f32, r.ert],
+                    bricks: [c[0], c[1], c[2], crate::passes::normals::BRICK as i32],
+                    flags: [
+                        (!one_pass) as i32,
+                        r.skip_empty as i32,
+                        r.jitter.map_or(0, |j| j.max(1) as i32),
+                        r.refine_iso as i32,
+                    ],
+                };
+                let pipeline = self.raycaster.get().expect("built above");
+                let groups = crate::gpu::pipeline::group_count(
+                    [w, h, 1],
+                    crate::render::raycast::LOCAL,
+                );
+                profiler.begin(cmd, "raycast");
+                pipeline.dispatch(cmd, &ray_binds, &push, groups)?;
+                profiler.end(cmd);
+            }
+            (None, Some(layers), false) => {
                 let (phong, diffuse, lin_depth, context, depth) = (
                     &layers.focus_phong,
                     &layers.focus_diffuse,
@@ -600,10 +681,6 @@ impl Renderer {
                 unsafe { ctx.device.cmd_draw(cmd, 3, 1, 0, 0) };
                 end_rendering(ctx, cmd);
                 profiler.end(cmd);
-                if let (Some(style), Some(post)) = (&view.style, &t.post) {
-                    let pipelines = self.post.get().expect("built above");
-                    pipelines.record(cmd, profiler, style, t, post)?;
-                }
             }
             _ => {
                 profiler.begin(cmd, "one_pass");
@@ -612,6 +689,10 @@ impl Renderer {
                 end_rendering(ctx, cmd);
                 profiler.end(cmd);
             }
+        }
+        if let (Some(style), Some(post), false) = (&view.style, &t.post, view.one_pass) {
+            let pipelines = self.post.get().expect("built above");
+            pipelines.record(cmd, profiler, style, t, post)?;
         }
         Ok(Recorded {
             slices: proxy.slices,
@@ -637,6 +718,7 @@ impl Renderer {
             lighting: Lighting::default(),
             style: None,
             fit: false,
+            raycast: None,
         };
         self.render_frame(vol, &mut classify, &view, readback)
     }

@@ -255,6 +255,21 @@ struct RenderArgs {
     /// The classic single pass instead of two levels.
     #[arg(long)]
     one_pass: bool,
+    /// Renderer: view-aligned slicing, or ray casting at the same planes (same layers and styles).
+    #[arg(long, value_name = "slicer|raycast")]
+    renderer: Option<String>,
+    /// Ray caster: jitter the sample planes per pixel with this seed (default: no jitter).
+    #[arg(long, value_name = "SEED")]
+    jitter: Option<u32>,
+    /// Ray caster: stop a ray once its opacity reaches this, in (0, 1] [default: 0.99].
+    #[arg(long, value_name = "A")]
+    ert: Option<f32>,
+    /// Ray caster: do not skip empty bricks.
+    #[arg(long)]
+    no_skip_empty: bool,
+    /// Ray caster with --iso: refine the surface hit between planes (exact depth, no rings).
+    #[arg(long)]
+    refine_iso: bool,
     /// Background colour behind the volume in the PNG, as R,G,B in 0..1 [default: 0,0,0].
     #[arg(long, allow_hyphen_values = true)]
     background: Option<String>,
@@ -751,6 +766,10 @@ fn report_validation(ctx: &Context) {
         );
     }
 }
+
+/// Caps single allocations where a file's claims are trusted (see `vellum::alloc`).
+#[global_allocator]
+static ALLOCATOR: vellum::alloc::CappedAllocator = vellum::alloc::CappedAllocator;
 
 #[cfg(unix)]
 unsafe extern "C" {
@@ -1334,6 +1353,34 @@ fn render_scene(a: &RenderArgs) -> Result<Scene> {
     if a.one_pass {
         scene.one_pass = true;
     }
+    match a.renderer.as_deref() {
+        None => {}
+        Some("slicer") => scene.raycast = None,
+        Some("raycast") => scene.raycast = Some(scene.raycast.unwrap_or_default()),
+        Some(other) => anyhow::bail!("--renderer {other:?} is unknown; expected slicer or raycast"),
+    }
+    let ray_flags = a.jitter.is_some() || a.ert.is_some() || a.no_skip_empty || a.refine_iso;
+    match (&mut scene.raycast, ray_flags) {
+        (Some(r), _) => {
+            if let Some(seed) = a.jitter {
+                r.jitter = Some(seed);
+            }
+            if let Some(ert) = a.ert {
+                r.ert = ert;
+            }
+            if a.no_skip_empty {
+                r.skip_empty = false;
+            }
+            if a.refine_iso {
+                r.refine_iso = true;
+            }
+            r.validate()?;
+        }
+        (None, true) => anyhow::bail!(
+            "--jitter, --ert, --no-skip-empty and --refine-iso set the ray caster; add --renderer raycast"
+        ),
+        (None, false) => {}
+    }
     if let Some(b) = &a.background {
         scene.background = parse_rgb("--background", b)?;
     }
@@ -1431,6 +1478,7 @@ fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
         lighting: Lighting::default(),
         style: None,
         fit: a.camera.split(',').count() == 2,
+        raycast: None,
     };
     let v = a.input.load()?;
     let ctx = context(cli)?;

@@ -299,8 +299,17 @@ fn check_lengths(bytes: &[u8]) -> std::result::Result<(), String> {
             [0xFE, 0xFF, 0x00, 0xE0]
         };
         let opens_items = bytes.get(start..start + 4) == Some(&item_tag[..]);
+        // A sequence by its VR, or in implicit VR by the dictionary, as the parser decides.
+        let sequence = if explicit && group != 0xFFFE {
+            &bytes[pos + 4..pos + 6] == b"SQ"
+        } else {
+            use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry, VirtualVr};
+            dicom_object::StandardDataDictionary
+                .by_tag(Tag(group, elem))
+                .is_some_and(|e| e.vr() == VirtualVr::Exact(dicom_core::VR::SQ))
+        };
         let is_item = group == 0xFFFE && elem == 0xE000;
-        pos = if opens_items || (is_item && !fragments) {
+        pos = if opens_items || sequence || (is_item && !fragments) {
             start
         } else {
             start + len as usize
@@ -323,8 +332,12 @@ fn read_slice(path: &Path) -> Result<Option<Slice>> {
             format!("{claim}; expected a complete DICOM file"),
         ));
     }
+    // Whatever the check cannot follow, the cap catches: no allocation of the parse may exceed
+    // 16 times the file plus 64 MiB (the pixel data of a slice is at most the file's size).
+    let cap = 16 * bytes.len() + (64 << 20);
     drop(bytes);
-    let obj = match dicom_object::open_file(path) {
+    let opened = crate::alloc::with_cap(cap, || dicom_object::open_file(path));
+    let obj = match opened {
         Ok(obj) => obj,
         Err(e) if is_dcm => {
             return Err(Error::format(
