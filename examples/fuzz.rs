@@ -9,10 +9,6 @@ use std::time::{Duration, Instant};
 
 use vellum::fuzz::{self, FuzzOptions};
 
-/// Caps single allocations where a file's claims are trusted (see `vellum::alloc`).
-#[global_allocator]
-static ALLOCATOR: vellum::alloc::CappedAllocator = vellum::alloc::CappedAllocator;
-
 fn value<T: std::str::FromStr>(args: &[String], flag: &str, default: T) -> Result<T, String> {
     match args.iter().position(|a| a == flag) {
         None => Ok(default),

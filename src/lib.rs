@@ -3,7 +3,6 @@
 //! Layers (see ARCHITECTURE.md): [`gpu`] knows Vulkan and nothing about volumes; [`volume`] knows
 //! volumes and nothing about Vulkan; [`passes`] joins them, one module per technique.
 
-pub mod alloc;
 pub mod bench;
 pub mod classify;
 pub mod error;

@@ -10,10 +10,6 @@ use std::time::Duration;
 
 use vellum::fuzz::{self, FuzzOptions};
 
-/// As in the binary: the DICOM reader's allocation cap needs it (see `vellum::alloc`).
-#[global_allocator]
-static ALLOCATOR: vellum::alloc::CappedAllocator = vellum::alloc::CappedAllocator;
-
 #[test]
 fn readers_survive_mutated_real_files() {
     let Some(data) = common::shared_data() else {

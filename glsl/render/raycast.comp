@@ -93,6 +93,9 @@ void main() {
         float ert = p.planes.w;
         // The previous plane's sample, for refining an isosurface hit (t < 0: none).
         float prev_t = -1.0, prev_s = 0.0;
+        // The brick of the last sample and its flags, looked up once per brick.
+        ivec3 cur_brick = ivec3(-1);
+        uint cur_flags = 0u;
         for (float k = k_front; k >= k_back; k -= 1.0) {
             float t = (far - (k + 0.5 + jitter) * spacing - od) / cos_t;
             if (t < t_in || t > t_out) {
@@ -102,7 +105,11 @@ void main() {
             tex = world / (2.0 * u.half_extent.xyz) + 0.5;
             if (p.flags.y != 0) {
                 ivec3 bk = brick_of(tex);
-                uint f = brick_flags[bk.x + p.bricks.x * (bk.y + p.bricks.y * bk.z)];
+                if (bk != cur_brick) {
+                    cur_brick = bk;
+                    cur_flags = brick_flags[bk.x + p.bricks.x * (bk.y + p.bricks.y * bk.z)];
+                }
+                uint f = cur_flags;
                 // One pass needs visible bricks; two levels need visible context in front of
                 // the first focus sample, or focus.
                 uint need = two ? (first ? 3u : 2u) : 1u;

@@ -1,7 +1,8 @@
 // The slicer's glue between its bindings and the shared classification and shading functions
 // (glsl/common/classify.glsl, shading.glsl): one-pass, focus and context fragment shaders include
 // it, and so does the ray caster (with RAYCAST defined), so all levels and both renderers see
-// exactly the same samples.
+// exactly the same samples. Textures have one level and are read with textureLod(.., 0): compute
+// shaders have no derivatives for an implicit level.
 #include "render.glsl"
 #include "classify.glsl"
 #include "shading.glsl"
@@ -31,7 +32,7 @@ bool sample_in_focus(float s) {
 // The normalised intensity of this fragment's sample. Shaders classify it first and discard
 // before paying for the transfer function, the gradient and the lighting.
 float sample_intensity() {
-    return texture(volume, tex).r;
+    return textureLod(volume, tex, 0.0).r;
 }
 
 // Whether importance modulation applies to a sample of the focus level (or of the context).
@@ -50,10 +51,10 @@ float importance_n(float delta_d) {
 // function replaces the 1D one.
 vec4 classify(float s, bool focus) {
     vec4 rgba = u.focus.w > 0.5
-        ? texture(occlusion_tf, occlusion_tf_coord(s, texture(occlusion, tex).r))
-        : texture(transfer, vec2(s, 0.5));
+        ? textureLod(occlusion_tf, occlusion_tf_coord(s, textureLod(occlusion, tex, 0.0).r), 0.0)
+        : textureLod(transfer, vec2(s, 0.5), 0.0);
     if (u.mod_flags.y != 0 && modulated(focus)) {
-        rgba.a = modulate_opacity(rgba.a, importance_n(texture(importance, tex).r), u.mod_opacity);
+        rgba.a = modulate_opacity(rgba.a, importance_n(textureLod(importance, tex, 0.0).r), u.mod_opacity);
     }
     return classify_sample(rgba, u.material.w, focus, u.focus);
 }
@@ -63,11 +64,11 @@ vec4 classify(float s, bool focus) {
 // otherwise colour modulation adds ΔD·γ or |ΔD|·γ (eq. 3, 4) to the unlit or the lit colour.
 void shade(vec3 rgb, bool focus, out vec3 phong, out vec3 diffuse) {
     vec3 to_eye = u.view_dir.w > 0.5 ? -u.view_dir.xyz : normalize(u.eye.xyz - world);
-    shade_phong(rgb, texture(gradient, tex), u.light.xyz, to_eye, u.material, u.light.w, phong, diffuse);
+    shade_phong(rgb, textureLod(gradient, tex, 0.0), u.light.xyz, to_eye, u.material, u.light.w, phong, diffuse);
     if (!modulated(focus)) {
         return;
     }
-    float delta_d = texture(importance, tex).r;
+    float delta_d = textureLod(importance, tex, 0.0).r;
     if (u.mod_flags.z != 0) {
         float r = stipple_random(tex * u.volume_dims.xyz, u.mod_seed.x);
         bool white = stipple_is_white(importance_n(delta_d), r, u.mod_stipple.x, u.mod_stipple.y);

@@ -63,6 +63,12 @@ pub struct Row {
     pub focus_ms: f64,
     pub context_ms: f64,
     pub composite_ms: f64,
+    /// Median ms of the ray caster's one-pass and two-level frames (same planes, default options).
+    pub raycast_one_pass_ms: f64,
+    pub raycast_two_level_ms: f64,
+    /// Median over frame groups of ray-cast / sliced two-level ms (below 1: the ray caster is
+    /// faster).
+    pub raycast_ratio: f64,
 }
 
 /// One orbit: a volume at one size, two levels, frames in flight.
@@ -179,6 +185,13 @@ impl Session<'_> {
     }
 }
 
+fn ray_view(size: u32, azimuth: f32, one_pass: bool) -> View {
+    View {
+        raycast: Some(crate::render::raycast::RayOptions::default()),
+        ..view(size, azimuth, one_pass)
+    }
+}
+
 fn view(size: u32, azimuth: f32, one_pass: bool) -> View {
     View {
         camera: Camera {
@@ -258,6 +271,7 @@ fn modulated() -> Modulation {
 /// same machine: CPU devices drift in speed over seconds.
 fn levels(s: &mut Session, label: &str, size: u32, repeat: usize) -> Result<Row> {
     let (one_view, two_view) = (view(size, 30.0, true), view(size, 30.0, false));
+    let (ray_one, ray_two) = (ray_view(size, 30.0, true), ray_view(size, 30.0, false));
     let triple = |s: &mut Session| -> Result<u32> {
         s.scene.classify.modulation = Modulation::default();
         let slices = s.frame(&one_view)?;
@@ -265,6 +279,8 @@ fn levels(s: &mut Session, label: &str, size: u32, repeat: usize) -> Result<Row>
         s.scene.classify.modulation = modulated();
         s.frame(&two_view)?;
         s.scene.classify.modulation = Modulation::default();
+        s.frame(&ray_one)?;
+        s.frame(&ray_two)?;
         Ok(slices)
     };
     let slices = triple(s)?;
@@ -273,8 +289,13 @@ fn levels(s: &mut Session, label: &str, size: u32, repeat: usize) -> Result<Row>
         triple(s)?;
     }
     let done = s.drain()?;
-    let by = |k: u64| -> Vec<&FrameResult> { done.iter().filter(|r| r.index % 3 == k).collect() };
-    let (one, two, modd) = (by(0), by(1), by(2));
+    let by = |k: u64| -> Vec<&FrameResult> { done.iter().filter(|r| r.index % 5 == k).collect() };
+    let (one, two, modd, r_one, r_two) = (by(0), by(1), by(2), by(3), by(4));
+    let ray_ratios: Vec<f64> = two
+        .iter()
+        .zip(&r_two)
+        .map(|(t, r)| frame_ms(&r.passes) / frame_ms(&t.passes))
+        .collect();
     let ratios: Vec<f64> = one
         .iter()
         .zip(&two)
@@ -309,6 +330,9 @@ fn levels(s: &mut Session, label: &str, size: u32, repeat: usize) -> Result<Row>
         focus_ms: pass("focus"),
         context_ms: pass("context"),
         composite_ms: pass("composite"),
+        raycast_one_pass_ms: ms(&r_one),
+        raycast_two_level_ms: ms(&r_two),
+        raycast_ratio: median(&ray_ratios),
     })
 }
 
@@ -411,11 +435,11 @@ impl Table {
         for (d, ms) in &self.normals_ms {
             s += &format!("sobel_normals {d}: {ms:.1} ms (once per volume)\n");
         }
-        s += "data                 size  slices | one pass ms   fps | two levels ms   fps | overhead | modulated ms  extra | focus  context  composite ms\n";
+        s += "data                 size  slices | one pass ms   fps | two levels ms   fps | overhead | modulated ms  extra | focus  context  composite ms | raycast one ms  two ms  ray/slice\n";
         for r in &self.rows {
             s += &format!(
-                "{:<20} {:>4}² {:>6} | {:>11.2} {:>5.1} | {:>13.2} {:>5.1} | {:>7.1}% | {:>12.2} {:>5.1}% | {:>6.2} {:>8.2} {:>10.2}\n",
-                r.data, r.size, r.slices, r.one_pass_ms, r.one_pass_fps, r.two_level_ms, r.two_level_fps, r.overhead_percent, r.modulated_ms, r.modulation_percent, r.focus_ms, r.context_ms, r.composite_ms
+                "{:<20} {:>4}² {:>6} | {:>11.2} {:>5.1} | {:>13.2} {:>5.1} | {:>7.1}% | {:>12.2} {:>5.1}% | {:>6.2} {:>8.2} {:>10.2} | {:>14.2} {:>7.2} {:>9.2}\n",
+                r.data, r.size, r.slices, r.one_pass_ms, r.one_pass_fps, r.two_level_ms, r.two_level_fps, r.overhead_percent, r.modulated_ms, r.modulation_percent, r.focus_ms, r.context_ms, r.composite_ms, r.raycast_one_pass_ms, r.raycast_two_level_ms, r.raycast_ratio
             );
         }
         s +=

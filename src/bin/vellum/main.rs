@@ -767,10 +767,6 @@ fn report_validation(ctx: &Context) {
     }
 }
 
-/// Caps single allocations where a file's claims are trusted (see `vellum::alloc`).
-#[global_allocator]
-static ALLOCATOR: vellum::alloc::CappedAllocator = vellum::alloc::CappedAllocator;
-
 #[cfg(unix)]
 unsafe extern "C" {
     fn signal(signum: i32, handler: usize) -> usize;

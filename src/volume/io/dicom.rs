@@ -186,134 +186,45 @@ pub(super) fn read(dir: &Path) -> Result<Volume> {
 /// Largest spread of slice gaps, as a fraction of the median gap, taken as one spacing.
 const SPACING_TOLERANCE: f64 = 0.01;
 
-/// Walks a Part 10 file's elements as a flat stream (sequence and item markers included) and
-/// refuses the first defined length that runs past the end of the file, reading headers as the
-/// parser (dicom-encoding) does. Anything it cannot follow (no "DICM", deflated data) is left to
-/// the parser.
+/// Refuses a file in which dicom-rs would be asked to allocate more than the file holds: its
+/// parser reserves whatever length an element claims before reading the value, so a 4 KB file can
+/// ask for gigabytes. The check walks the file with the parser itself (so it sees exactly the
+/// elements, sequences and encodings the real parse will), stopping at each header to compare the
+/// claimed length with the file's size, before the value is read. A file the parser cannot read
+/// passes here and is refused by the real parse with its own message.
 fn check_lengths(bytes: &[u8]) -> std::result::Result<(), String> {
+    use dicom_encoding::transfer_syntax::TransferSyntaxIndex;
+    use dicom_parser::dataset::DataToken;
     if bytes.len() < 132 || &bytes[128..132] != b"DICM" {
         return Ok(());
     }
-    let u16_at = |p: usize, big: bool| {
-        let b = [bytes[p], bytes[p + 1]];
-        if big {
-            u16::from_be_bytes(b)
-        } else {
-            u16::from_le_bytes(b)
-        }
+    let mut source = std::io::Cursor::new(&bytes[128..]);
+    let Ok(meta) = dicom_object::FileMetaTable::from_reader(&mut source) else {
+        return Ok(());
     };
-    let u32_at = |p: usize, big: bool| {
-        let b = [bytes[p], bytes[p + 1], bytes[p + 2], bytes[p + 3]];
-        if big {
-            u32::from_be_bytes(b)
-        } else {
-            u32::from_le_bytes(b)
-        }
+    let ts_uid = meta.transfer_syntax().trim_end_matches(['\0', ' ']);
+    let Some(ts) = dicom_transfer_syntax_registry::TransferSyntaxRegistry.get(ts_uid) else {
+        return Ok(());
     };
-    // VRs with a 16-bit length (PS3.5 7.1.2); every other one, and an unknown one (read as UN,
-    // as the parser does), has two reserved bytes and a 32-bit length.
-    let short_vr = |vr: &[u8]| {
-        matches!(
-            vr,
-            b"AE"
-                | b"AS"
-                | b"AT"
-                | b"CS"
-                | b"DA"
-                | b"DS"
-                | b"DT"
-                | b"FL"
-                | b"FD"
-                | b"IS"
-                | b"LO"
-                | b"LT"
-                | b"PN"
-                | b"SH"
-                | b"SL"
-                | b"SS"
-                | b"ST"
-                | b"TM"
-                | b"UI"
-                | b"UL"
-                | b"US"
-        )
+    let Ok(reader) = dicom_parser::DataSetReader::new_with_ts(source, ts) else {
+        return Ok(());
     };
-    // (header bytes, value length) of the element at `p`, or None when it cannot be followed.
-    let element = |p: usize, explicit: bool, big: bool| -> Option<(u16, u16, usize, u32)> {
-        if p + 8 > bytes.len() {
-            return None;
-        }
-        let (group, elem) = (u16_at(p, big), u16_at(p + 2, big));
-        if group == 0xFFFE || !explicit {
-            return Some((group, elem, 8, u32_at(p + 4, big)));
-        }
-        let vr = &bytes[p + 4..p + 6];
-        if short_vr(vr) {
-            Some((group, elem, 8, u16_at(p + 6, big) as u32))
-        } else {
-            (p + 12 <= bytes.len()).then(|| (group, elem, 12, u32_at(p + 8, big)))
-        }
-    };
-    let mut pos = 132;
-    let mut syntax = String::new();
-    let mut meta = true;
-    let (mut explicit, mut big) = (true, false);
-    // Inside encapsulated pixel data, items are fragments of bytes, not elements.
-    let mut fragments = false;
-    while let Some((group, elem, header, len)) = element(pos, explicit, big) {
-        if meta && group != 2 {
-            meta = false;
-            match syntax.trim_end_matches(['\0', ' ']) {
-                "1.2.840.10008.1.2" => explicit = false,
-                "1.2.840.10008.1.2.2" => big = true,
-                "1.2.840.10008.1.2.1.99" => return Ok(()),
-                _ => {}
+    let total = bytes.len() as u64;
+    for token in reader {
+        let (what, len) = match token {
+            Ok(DataToken::ElementHeader(h)) => (format!("element {}", h.tag), h.len),
+            Ok(DataToken::SequenceStart { tag, len }) => (format!("sequence {tag}"), len),
+            Ok(DataToken::ItemStart { len }) => ("an item".to_string(), len),
+            Ok(_) => continue,
+            Err(_) => return Ok(()),
+        };
+        if let Some(n) = len.get() {
+            if n as u64 > total {
+                return Err(format!(
+                    "{what} claims {n} bytes but the whole file holds {total}"
+                ));
             }
-            continue;
         }
-        let start = pos + header;
-        match (group, elem) {
-            (0x7FE0, 0x0010) if len == u32::MAX => fragments = true,
-            (0xFFFE, 0xE0DD) => fragments = false,
-            _ => {}
-        }
-        if len == u32::MAX {
-            pos = start;
-            continue;
-        }
-        let left = bytes.len().saturating_sub(start);
-        if len as usize > left {
-            return Err(format!(
-                "element ({group:04X},{elem:04X}) claims {len} bytes but only {left} follow it"
-            ));
-        }
-        if meta && elem == 0x0010 {
-            syntax = String::from_utf8_lossy(&bytes[start..start + len as usize]).into_owned();
-        }
-        // A value that opens with an item tag is a sequence (whatever the VR says, as the parser
-        // reads it), and an item outside pixel data holds elements: both are walked into, since
-        // the parser reads their elements too. Anything else is skipped whole.
-        let item_tag = if big {
-            [0xFF, 0xFE, 0xE0, 0x00]
-        } else {
-            [0xFE, 0xFF, 0x00, 0xE0]
-        };
-        let opens_items = bytes.get(start..start + 4) == Some(&item_tag[..]);
-        // A sequence by its VR, or in implicit VR by the dictionary, as the parser decides.
-        let sequence = if explicit && group != 0xFFFE {
-            &bytes[pos + 4..pos + 6] == b"SQ"
-        } else {
-            use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry, VirtualVr};
-            dicom_object::StandardDataDictionary
-                .by_tag(Tag(group, elem))
-                .is_some_and(|e| e.vr() == VirtualVr::Exact(dicom_core::VR::SQ))
-        };
-        let is_item = group == 0xFFFE && elem == 0xE000;
-        pos = if opens_items || sequence || (is_item && !fragments) {
-            start
-        } else {
-            start + len as usize
-        };
     }
     Ok(())
 }
@@ -323,8 +234,8 @@ fn read_slice(path: &Path) -> Result<Option<Slice>> {
     let is_dcm = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("dcm"));
-    // The parser allocates whatever length an element claims before reading it: a 70 KB file
-    // can ask for gigabytes. Check the claims against the file's size first.
+    // The parser allocates whatever length an element claims before reading it: a 4 KB file can
+    // ask for gigabytes. Check the claims against the file's size first.
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     if let Err(claim) = check_lengths(&bytes) {
         return Err(Error::format(
@@ -332,12 +243,8 @@ fn read_slice(path: &Path) -> Result<Option<Slice>> {
             format!("{claim}; expected a complete DICOM file"),
         ));
     }
-    // Whatever the check cannot follow, the cap catches: no allocation of the parse may exceed
-    // 16 times the file plus 64 MiB (the pixel data of a slice is at most the file's size).
-    let cap = 16 * bytes.len() + (64 << 20);
     drop(bytes);
-    let opened = crate::alloc::with_cap(cap, || dicom_object::open_file(path));
-    let obj = match opened {
+    let obj = match dicom_object::open_file(path) {
         Ok(obj) => obj,
         Err(e) if is_dcm => {
             return Err(Error::format(
