@@ -85,6 +85,9 @@ fn main() -> ExitCode {
             for m in &r.crash_messages {
                 println!("    crash: {m}");
             }
+            for m in &r.unclear_messages {
+                println!("    not one line: {m:?}");
+            }
         }
         println!(
             "no hangs past {} ms (the watchdog would have stopped the run); peak memory {peak:.0} MiB; {:.0} s; seed {}",

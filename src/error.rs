@@ -94,3 +94,27 @@ impl<T> VkContext<T> for std::result::Result<T, ash::vk::Result> {
         })
     }
 }
+
+/// A message as one line: control characters echoed from an input (a field name or a UID with a
+/// newline in it) are escaped, so that an error is always one line on the terminal.
+pub fn one_line(message: &str) -> String {
+    message
+        .chars()
+        .flat_map(|c| match c {
+            '\n' => vec!['\\', 'n'],
+            '\r' => vec!['\\', 'r'],
+            '\t' => vec!['\\', 't'],
+            c if c.is_control() => c.escape_unicode().collect(),
+            c => vec![c],
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod one_line_tests {
+    #[test]
+    fn control_characters_are_escaped() {
+        assert_eq!(super::one_line("a\nb\tc\u{7}"), "a\\nb\\tc\\u{7}");
+        assert_eq!(super::one_line("plain"), "plain");
+    }
+}

@@ -68,10 +68,13 @@ pub struct TargetReport {
     pub max_ms: f64,
     /// Mean time per input, in microseconds.
     pub mean_us: f64,
-    /// Refusals whose message is not one sentence (empty, several lines, or a bare OS error).
+    /// Refusals whose message, as the command line shows it (`error::one_line`), is empty or not
+    /// one line.
     pub unclear: u64,
     /// A few distinct crash messages.
     pub crash_messages: Vec<String>,
+    /// A few refusals that were not one line (saved as unclear-TARGET-N).
+    pub unclear_messages: Vec<String>,
 }
 
 /// Options of a run.
@@ -600,9 +603,15 @@ fn fuzz_target(
             Ok(Ok(())) => r.accepted += 1,
             Ok(Err(e)) => {
                 r.refused += 1;
-                let text = e.to_string();
+                // What the command line shows: the message made one line.
+                let text = crate::error::one_line(&e.to_string());
                 if text.trim().is_empty() || text.contains('\n') {
                     r.unclear += 1;
+                    if r.unclear_messages.len() < 3 {
+                        r.unclear_messages.push(text);
+                        let saved = options.work_dir.join(format!("unclear-{}-{i}", t.name));
+                        let _ = std::fs::write(saved, &bytes);
+                    }
                 }
             }
             Err(panic) => {

@@ -7,7 +7,8 @@
 //! - a migration ε so large that f32 cannot tell the feature's values apart is refused;
 //! - stacked migrations keep earlier private intervals private (hydrogen_atom, the case),
 //!   or with `--allow-overlap` keep eq. 10's values and say how many voxels fell inside;
-//! - a broken driver manifest behind VK_ICD_FILENAMES is named, not reported as out of memory.
+//! - a broken driver manifest behind VK_ICD_FILENAMES is named, not reported as out of memory;
+//! - a DICOM element claiming more bytes than its file is refused before anything is reserved.
 
 mod common;
 
@@ -416,4 +417,56 @@ fn a_broken_driver_manifest_is_named() {
         fails_with(&out, "is not a valid driver manifest: its JSON is broken");
         fails_with(&out, var);
     }
+}
+
+/// A DICOM element that claims more bytes than its file holds (here the meta group's SOP class,
+/// turned into a 4-byte-length VR claiming 3.7 GB) is refused before dicom-rs reserves the memory.
+#[test]
+fn dicom_length_claims_beyond_the_file_are_refused() {
+    let Some(data) = common::shared_data() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let series = data.join("formats/dicom/vs_seg001_t1");
+    let mut slices: Vec<_> = std::fs::read_dir(&series)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    slices.sort();
+    let mut bytes = std::fs::read(&slices[0]).unwrap();
+    let at = bytes[132..400]
+        .windows(4)
+        .position(|w| w == [2, 0, 2, 0])
+        .unwrap()
+        + 132;
+    bytes[at + 4..at + 6].copy_from_slice(b"UN");
+    bytes[at + 8..at + 12].copy_from_slice(&0xE000_0000u32.to_le_bytes());
+    std::fs::create_dir(dir.path().join("s")).unwrap();
+    std::fs::write(dir.path().join("s/slice.dcm"), &bytes).unwrap();
+    fails_with(
+        &vellum(&["info", dir.path().join("s").to_str().unwrap()]),
+        "meta element (0002,0002) claims 3758096384 bytes but the whole file holds",
+    );
+}
+
+/// A message that echoes a newline from the input (found by fuzzing: a scene field name, an OTF
+/// field, a DICOM transfer syntax UID) is still one line: control characters are escaped.
+#[test]
+fn echoed_control_characters_keep_errors_on_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("s.json");
+    std::fs::write(
+        &scene,
+        "{\"version\": 1, \"in\\nput\": {\"path\": \"phantom:nested:16\"}}",
+    )
+    .unwrap();
+    let png = dir.path().join("x.png");
+    let out = vellum(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        png.to_str().unwrap(),
+    ]);
+    fails_with(&out, "unknown field `in\\nput`");
 }

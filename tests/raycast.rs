@@ -39,7 +39,10 @@ fn view(camera: &str, size: u32, one_pass: bool, raycast: Option<RayOptions>) ->
 
 /// Mean and max absolute difference of the 8-bit composites over black, in 1/255 units.
 fn diff8(a: &Frame, b: &Frame) -> (f64, u8) {
-    let (x, y) = (to_rgb8(&a.composite, [0.0; 3]), to_rgb8(&b.composite, [0.0; 3]));
+    let (x, y) = (
+        to_rgb8(&a.composite, [0.0; 3]),
+        to_rgb8(&b.composite, [0.0; 3]),
+    );
     let mut sum = 0u64;
     let mut max = 0u8;
     for (p, q) in x.iter().zip(&y) {
@@ -92,7 +95,12 @@ fn ray_casting_matches_slicing_at_the_same_planes() {
         for one_pass in [true, false] {
             let mut render = |ray: Option<RayOptions>| {
                 renderer
-                    .render_frame(&s.volume, &mut s.classify, &view(camera, size, one_pass, ray), true)
+                    .render_frame(
+                        &s.volume,
+                        &mut s.classify,
+                        &view(camera, size, one_pass, ray),
+                        true,
+                    )
                     .unwrap()
             };
             let slicer = render(None);
@@ -100,7 +108,10 @@ fn ray_casting_matches_slicing_at_the_same_planes() {
             let (mean, max) = diff8(&slicer, &rays);
             let level = if one_pass { "one pass" } else { "two levels" };
             println!("{name} {level}: mean {mean:.3}/255, max {max}/255");
-            assert!(mean <= 2.0 && max <= 8, "{name} {level}: mean {mean}/255, max {max}/255");
+            assert!(
+                mean <= 2.0 && max <= 8,
+                "{name} {level}: mean {mean}/255, max {max}/255"
+            );
             let names: Vec<&str> = rays.passes.iter().map(|p| p.name.as_str()).collect();
             assert_eq!(names, ["raycast", "readback"], "{name}");
             let lit = rays.composite.iter().filter(|p| p[3] > 0.5).count();
@@ -126,7 +137,10 @@ fn ray_casting_matches_slicing_at_the_same_planes() {
                 );
                 assert!(close as f64 >= 0.98 * both.len() as f64, "{name}");
                 let (ha, hb) = (hit(&a.focus_depth) as f64, hit(&b.focus_depth) as f64);
-                assert!((ha - hb).abs() <= 0.02 * ha.max(1.0), "{name}: {ha} vs {hb}");
+                assert!(
+                    (ha - hb).abs() <= 0.02 * ha.max(1.0),
+                    "{name}: {ha} vs {hb}"
+                );
             }
         }
     }
@@ -140,7 +154,12 @@ fn two_levels_equal_one_pass_and_speed_ups_keep_the_image() {
         let mut s = scene(&gpu, &v, tf, focus);
         let mut render = |one_pass: bool, ray: RayOptions| {
             renderer
-                .render_frame(&s.volume, &mut s.classify, &view(camera, 96, one_pass, Some(ray)), true)
+                .render_frame(
+                    &s.volume,
+                    &mut s.classify,
+                    &view(camera, 96, one_pass, Some(ray)),
+                    true,
+                )
                 .unwrap()
         };
         let base = RayOptions::default();
@@ -152,8 +171,17 @@ fn two_levels_equal_one_pass_and_speed_ups_keep_the_image() {
 
         for one_pass in [true, false] {
             let skip = render(one_pass, base);
-            let full = render(one_pass, RayOptions { skip_empty: false, ..base });
-            assert_eq!(skip.composite, full.composite, "{name}: skipping changed the image");
+            let full = render(
+                one_pass,
+                RayOptions {
+                    skip_empty: false,
+                    ..base
+                },
+            );
+            assert_eq!(
+                skip.composite, full.composite,
+                "{name}: skipping changed the image"
+            );
             let exact = render(one_pass, RayOptions { ert: 1.0, ..base });
             let worst = skip
                 .composite
@@ -165,7 +193,10 @@ fn two_levels_equal_one_pass_and_speed_ups_keep_the_image() {
             // shaded colour: ambient + diffuse + specular of the default lighting.
             let l = Lighting::default();
             let bound = 0.01 * (l.ambient + l.diffuse + l.specular) + 1e-4;
-            assert!(worst <= bound, "{name}: early termination moved a pixel by {worst}");
+            assert!(
+                worst <= bound,
+                "{name}: early termination moved a pixel by {worst}"
+            );
         }
     }
 }
@@ -181,10 +212,20 @@ fn ray_casts_match_reference_images() {
             ..RayOptions::default()
         };
         let f = renderer
-            .render_frame(&s.volume, &mut s.classify, &view(camera, 128, false, Some(jittered)), true)
+            .render_frame(
+                &s.volume,
+                &mut s.classify,
+                &view(camera, 128, false, Some(jittered)),
+                true,
+            )
             .unwrap();
         let rgb = to_rgb8(&f.composite, [0.0; 3]);
-        common::check_reference(&format!("raycast/{name}_two_level_jitter.png"), 128, 128, &rgb);
+        common::check_reference(
+            &format!("raycast/{name}_two_level_jitter.png"),
+            128,
+            128,
+            &rgb,
+        );
     }
 }
 
@@ -215,7 +256,12 @@ fn refined_isosurface_hits_the_sphere() {
                 ..RayOptions::default()
             };
             let f = renderer
-                .render_frame(&s.volume, &mut s.classify, &view(camera, 65, false, Some(ray)), true)
+                .render_frame(
+                    &s.volume,
+                    &mut s.classify,
+                    &view(camera, 65, false, Some(ray)),
+                    true,
+                )
                 .unwrap();
             f.layers.unwrap().focus_depth[32 * 65 + 32]
         };
@@ -224,9 +270,15 @@ fn refined_isosurface_hits_the_sphere() {
         let expected = cam.eye(radius).length() - 0.5 * r as f32;
         let refined = depth_at_centre(true, &mut s);
         let plain = depth_at_centre(false, &mut s);
-        let (e1, e0) = ((refined - expected).abs() / voxel, (plain - expected).abs() / voxel);
+        let (e1, e0) = (
+            (refined - expected).abs() / voxel,
+            (plain - expected).abs() / voxel,
+        );
         println!("{camera}: refined error {e1:.4} voxel, unrefined {e0:.4} voxel");
-        assert!(e1 < 0.05, "{camera}: refined depth {refined} vs {expected} ({e1} voxel)");
+        assert!(
+            e1 < 0.05,
+            "{camera}: refined depth {refined} vs {expected} ({e1} voxel)"
+        );
     }
 }
 
@@ -249,23 +301,52 @@ fn the_command_line_ray_casts() {
     ];
     let mut first = base.to_vec();
     let (a, scene, b) = (p("a.png"), p("a.json"), p("b.png"));
-    first.extend(["--jitter", "5", "--refine-iso", "--out", &a, "--save-scene", &scene]);
+    first.extend([
+        "--jitter",
+        "5",
+        "--refine-iso",
+        "--out",
+        &a,
+        "--save-scene",
+        &scene,
+    ]);
     let out = vellum(&first);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let saved: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&scene).unwrap()).unwrap();
     assert_eq!(saved["raycast"]["jitter"], 5);
     assert_eq!(saved["raycast"]["refine_iso"], true);
     let out = vellum(&["render", "--scene", &scene, "--out", &b]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
 
     let png = p("x.png");
     let slicer = ["render", "phantom:nested:32", "--out", &png];
-    fails_with(&vellum(&[&slicer[..], &["--jitter", "3"]].concat()), "add --renderer raycast");
-    fails_with(&vellum(&[&base[..], &["--ert", "0", "--out", &png]].concat()), "expected a value in (0, 1]");
     fails_with(
-        &vellum(&["render", "phantom:nested:32", "--renderer", "marching", "--out", &png]),
+        &vellum(&[&slicer[..], &["--jitter", "3"]].concat()),
+        "add --renderer raycast",
+    );
+    fails_with(
+        &vellum(&[&base[..], &["--ert", "0", "--out", &png]].concat()),
+        "expected a value in (0, 1]",
+    );
+    fails_with(
+        &vellum(&[
+            "render",
+            "phantom:nested:32",
+            "--renderer",
+            "marching",
+            "--out",
+            &png,
+        ]),
         "expected slicer or raycast",
     );
 }

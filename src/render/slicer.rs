@@ -540,7 +540,11 @@ impl Renderer {
                 let flags: Vec<u32> = (0..bricks.range.len())
                     .map(|b| {
                         let v = if visible[b] { BRICK_VISIBLE } else { 0 };
-                        let f = if may_focus(&bricks.range[b], focus_n) { BRICK_FOCUS } else { 0 };
+                        let f = if may_focus(&bricks.range[b], focus_n) {
+                            BRICK_FOCUS
+                        } else {
+                            0
+                        };
                         v | f
                     })
                     .collect();
@@ -629,10 +633,8 @@ impl Renderer {
                     ],
                 };
                 let pipeline = self.raycaster.get().expect("built above");
-                let groups = crate::gpu::pipeline::group_count(
-                    [w, h, 1],
-                    crate::render::raycast::LOCAL,
-                );
+                let groups =
+                    crate::gpu::pipeline::group_count([w, h, 1], crate::render::raycast::LOCAL);
                 profiler.begin(cmd, "raycast");
                 pipeline.dispatch(cmd, &ray_binds, &push, groups)?;
                 profiler.end(cmd);

@@ -853,7 +853,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             vellum::output::abort();
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", vellum::error::one_line(&format!("{e:#}")));
             ExitCode::FAILURE
         }
     }

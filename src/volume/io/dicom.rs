@@ -198,6 +198,66 @@ fn check_lengths(bytes: &[u8]) -> std::result::Result<(), String> {
     if bytes.len() < 132 || &bytes[128..132] != b"DICM" {
         return Ok(());
     }
+    let total = bytes.len() as u64;
+    // The meta group is read by dicom-object's own loop, which also reserves before it reads:
+    // walk its explicit little-endian headers first, as that loop does, for as many bytes as the
+    // group length says.
+    let u32_at = |p: usize| {
+        bytes
+            .get(p..p + 4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let group_length = u32_at(140).unwrap_or(0) as u64;
+    let (mut pos, start) = (144usize, 144u64);
+    while (pos as u64) < start + group_length && pos + 8 <= bytes.len() {
+        let tag = (
+            u16::from_le_bytes([bytes[pos], bytes[pos + 1]]),
+            u16::from_le_bytes([bytes[pos + 2], bytes[pos + 3]]),
+        );
+        let vr = &bytes[pos + 4..pos + 6];
+        let short = matches!(
+            vr,
+            b"AE"
+                | b"AS"
+                | b"AT"
+                | b"CS"
+                | b"DA"
+                | b"DS"
+                | b"DT"
+                | b"FL"
+                | b"FD"
+                | b"IS"
+                | b"LO"
+                | b"LT"
+                | b"PN"
+                | b"SH"
+                | b"SL"
+                | b"SS"
+                | b"ST"
+                | b"TM"
+                | b"UI"
+                | b"UL"
+                | b"US"
+        );
+        let (header, len) = if short {
+            (
+                8,
+                u16::from_le_bytes([bytes[pos + 6], bytes[pos + 7]]) as u64,
+            )
+        } else {
+            match u32_at(pos + 8) {
+                Some(n) => (12, n as u64),
+                None => break,
+            }
+        };
+        if len > total && len != u32::MAX as u64 {
+            return Err(format!(
+                "meta element ({:04X},{:04X}) claims {len} bytes but the whole file holds {total}",
+                tag.0, tag.1
+            ));
+        }
+        pos += header + len as usize;
+    }
     let mut source = std::io::Cursor::new(&bytes[128..]);
     let Ok(meta) = dicom_object::FileMetaTable::from_reader(&mut source) else {
         return Ok(());
@@ -209,7 +269,6 @@ fn check_lengths(bytes: &[u8]) -> std::result::Result<(), String> {
     let Ok(reader) = dicom_parser::DataSetReader::new_with_ts(source, ts) else {
         return Ok(());
     };
-    let total = bytes.len() as u64;
     for token in reader {
         let (what, len) = match token {
             Ok(DataToken::ElementHeader(h)) => (format!("element {}", h.tag), h.len),
