@@ -470,3 +470,26 @@ fn echoed_control_characters_keep_errors_on_one_line() {
     ]);
     fails_with(&out, "unknown field `in\\nput`");
 }
+
+/// Misspelt environment switches are refused by every command, including those that never
+/// create a device.
+#[test]
+fn environment_switches_are_checked_by_every_command() {
+    for (var, value) in [
+        ("VELLUM_VALIDATION", "maybe"),
+        ("VELLUM_SYNC_VALIDATION", "yes please"),
+    ] {
+        for args in [
+            &["devices"][..],
+            &["info", "phantom:nested:16"],
+            &["features", "x.json"],
+        ] {
+            let out = Command::new(env!("CARGO_BIN_EXE_vellum"))
+                .args(args)
+                .env(var, value)
+                .output()
+                .unwrap();
+            fails_with(&out, &format!("{var}=\"{value}\" is not understood"));
+        }
+    }
+}

@@ -50,6 +50,23 @@ impl ContextDesc {
         }
     }
 
+    /// Checks the environment switches every command reads (`VELLUM_VALIDATION`,
+    /// `VELLUM_SYNC_VALIDATION`), so a misspelt value is refused by any command, not only by the
+    /// ones that create a device.
+    pub fn check_environment() -> Result<()> {
+        ContextDesc::default().validation_enabled()?;
+        match std::env::var("VELLUM_SYNC_VALIDATION")
+            .ok()
+            .as_deref()
+            .map(str::trim)
+        {
+            None | Some("" | "0" | "1") => Ok(()),
+            Some(other) => Err(Error::Invalid(format!(
+                "VELLUM_SYNC_VALIDATION={other:?} is not understood; expected 1 (on) or 0 (off)"
+            ))),
+        }
+    }
+
     /// Resolves the device selector: explicit value, then `VELLUM_DEVICE`.
     pub fn device_selector(&self) -> Option<String> {
         self.device
@@ -247,7 +264,7 @@ fn create_instance_inner(
     };
     // VELLUM_SYNC_VALIDATION=1 adds the layer's synchronization validation, which reports missing
     // or wrong barriers (hazards) that the default checks do not.
-    let sync = validation && std::env::var("VELLUM_SYNC_VALIDATION").as_deref() == Ok("1");
+    let sync = validation && std::env::var("VELLUM_SYNC_VALIDATION").is_ok_and(|v| v.trim() == "1");
     if sync {
         let layer_exts =
             unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER)) }

@@ -902,6 +902,7 @@ fn check_distinct_outputs(command: &Command) -> Result<()> {
 }
 
 fn run(cli: &Cli) -> Result<()> {
+    ContextDesc::check_environment()?;
     check_distinct_outputs(&cli.command)?;
     match &cli.command {
         Command::Devices { json } => devices(cli, *json),
