@@ -29,7 +29,7 @@ build: deps
 
 # The main job on the built-in phantom (or INPUT=path ISO=value): figures, a GPU round trip, the
 # importance map as NRRD and thermal slices, a two-level render as PNG plus layered EXR and its
-# scene file, a styled render, the style gallery, importance stippling, and the
+# scene file, a styled render, a ray-cast render, the style gallery, importance stippling, and the
 # nested phantom's occlusion volume, spectrum and occlusion-transfer-function render, and a
 # migrated phantom feature rendered in its own colour.
 run: build
@@ -41,6 +41,7 @@ run: build
 	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --out $(OUT)/render_two_level.png --exr $(OUT)/render_layers.exr --save-scene $(OUT)/render_two_level.scene.json
 	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --one-pass --out $(OUT)/render_one_pass.png
 	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --style canny --out $(OUT)/render_style_canny.png
+	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --renderer raycast --refine-iso --out $(OUT)/render_raycast.png
 	$(VELLUM) styles $(INPUT) --iso $(ISO) --tf grey --size 192x192 --out $(OUT)/styles_gallery.png
 	$(VELLUM) render $(INPUT) --tf grey --camera 30,20,2.5 --size 512x512 --one-pass --importance-radius 5 --stipple 0.1,10 --seed 1 --out $(OUT)/render_stipple.png
 	$(VELLUM) occlusion phantom:nested:96 --radius 12 --out $(OUT)/occlusion_ao.nrrd --spectrum $(OUT)/occlusion_spectrum.png --spectrum-data $(OUT)/occlusion_spectrum.csv
@@ -51,7 +52,8 @@ run: build
 	$(VELLUM) render $(OUT)/feature.nrrd --features $(OUT)/feature.features.json --one-pass --camera 0,20,2.2 --size 512x512 --out $(OUT)/render_features.png
 	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr,"
 	@echo "  render_two_level.scene.json (the scene file of that render: vellum render --scene FILE), render_one_pass.png,"
-	@echo "  render_style_canny.png, styles_gallery.png (the 15 styles), render_stipple.png (importance stippling),"
+	@echo "  render_style_canny.png, render_raycast.png (the ray caster, refined isosurface), styles_gallery.png (the 15 styles),"
+	@echo "  render_stipple.png (importance stippling),"
 	@echo "  occlusion_ao.nrrd, occlusion_spectrum.png, occlusion_spectrum.csv, occlusion_otf.png,"
 	@echo "  feature.nrrd, feature.features.json, render_features.png"
 
