@@ -8,7 +8,11 @@
 //!   the bricks' edges, which pixels rasterisation gives a polygon against which ray parameters
 //!   fall inside the box (a sample on the edge is in one and not the other: one sample's worth);
 //! - the two-level identity (opaque focus: two levels equal one pass) holds for the ray caster;
-//! - empty-space skipping does not change the image (bit for bit);
+//! - with equal world steps instead of the slicer's planes, the composite stays within a mean of
+//!   2/255 of the slicer's (observed ≤ 1.1/255). No max is asserted there: a thin opaque structure
+//!   (the CT head's bone, the phantom's skull) can be hit on one sampling and missed on the other
+//!   at a pixel, which moves that pixel by up to its whole value;
+//! - empty-space skipping does not change the image (bit for bit), with either sampling;
 //! - early termination changes no pixel by more than (1 − ert) × the brightest shaded colour;
 //! - reference images of the ray caster.
 
@@ -19,7 +23,7 @@ use vellum::classify::modulation::Modulation;
 use vellum::classify::transfer::TransferFunction;
 use vellum::classify::{Classification, Focus};
 use vellum::render::camera::Camera;
-use vellum::render::raycast::RayOptions;
+use vellum::render::raycast::{RayOptions, Sampling};
 use vellum::render::scene::GpuScene;
 use vellum::render::slicer::{to_rgb8, Frame, Lighting, Renderer, View};
 use vellum::volume::{phantom, Volume};
@@ -112,6 +116,15 @@ fn ray_casting_matches_slicing_at_the_same_planes() {
                 mean <= 2.0 && max <= 8,
                 "{name} {level}: mean {mean}/255, max {max}/255"
             );
+            // Equal world steps move samples off the planes away from the image centre, and
+            // correct opacity for the true step there: a bounded difference, not an identity.
+            let world = render(Some(RayOptions {
+                sampling: Sampling::WorldSteps,
+                ..RayOptions::default()
+            }));
+            let (wmean, wmax) = diff8(&slicer, &world);
+            println!("{name} {level}, world steps: mean {wmean:.3}/255, max {wmax}/255");
+            assert!(wmean <= 2.0, "{name} {level} world steps: mean {wmean}/255");
             let names: Vec<&str> = rays.passes.iter().map(|p| p.name.as_str()).collect();
             assert_eq!(names, ["raycast", "readback"], "{name}");
             let lit = rays.composite.iter().filter(|p| p[3] > 0.5).count();
@@ -169,7 +182,12 @@ fn two_levels_equal_one_pass_and_speed_ups_keep_the_image() {
         println!("{name}: two levels vs one pass: mean {mean:.3}/255, max {max}/255");
         assert!(mean < 1.0 && max <= 8, "{name}: mean {mean}, max {max}");
 
-        for one_pass in [true, false] {
+        for (one_pass, sampling) in [
+            (true, Sampling::Planes),
+            (false, Sampling::Planes),
+            (false, Sampling::WorldSteps),
+        ] {
+            let base = RayOptions { sampling, ..base };
             let skip = render(one_pass, base);
             let full = render(
                 one_pass,

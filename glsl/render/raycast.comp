@@ -2,9 +2,10 @@
 // The ray caster (SPEC §6): one invocation per pixel writes the same layers as the slicer's passes
 // (focus.phong, focus.diffuse, focus.depth, context, composite; or the one-pass composite).
 //
-// Samples lie where the slicer's view-aligned planes cross the ray (depth steps of `spacing`
-// along the view direction), so at the same number of planes both renderers sample the same
-// points and use the same opacity correction; a per-pixel jitter moves them off the planes.
+// By default samples lie where the slicer's view-aligned planes cross the ray (depth steps of
+// `spacing` along the view direction), so at the same number of planes both renderers sample the
+// same points and use the same opacity correction; or they are `spacing` apart along each ray
+// (equal world steps, which that correction then fits exactly). A per-pixel jitter moves them.
 // Front to back: a focus sample composites into the focus layers and the first one sets the
 // depth; a context sample counts only in front of the first focus sample (the slicer's depth
 // test). Rays stop once their opacity reaches `ert` (early termination), and skip bricks that
@@ -26,7 +27,8 @@ layout(push_constant) uniform Push {
     mat4 inv_view_proj;   // clip -> box frame
     vec4 planes;          // x: depth of plane 0 along view_dir (farthest), y: spacing, z: planes, w: ert
     ivec4 bricks;         // brick counts xyz, w: brick size in voxels
-    ivec4 flags;          // x: two levels, y: skip empty bricks, z: jitter seed (0 off), w: refine iso hits
+    ivec4 flags;          // x: two levels, y: skip empty bricks, z: jitter seed (0 off),
+                          // w: bit 0 refine iso hits, bit 1 equal steps along each ray
 } p;
 
 const float INF = 1.0 / 0.0;
@@ -76,19 +78,28 @@ void main() {
     bool two = p.flags.x != 0;
     float cos_t = dot(dir, d);
     if (t_out > t_in && cos_t > 0.0) {
-        // Plane k has depth far - (k + 0.5) spacing along d; depth along the ray is
-        // dot(o, d) + t cos_t. Walk k downwards (front to back) from the first plane at or
-        // behind the entry.
+        // Samples are t(m) = a + b m for m = m_first, m_first + 1, ... (front to back).
+        // Planes: plane k has depth far - (k + 0.5) spacing along d, and depth along the ray is
+        // dot(o, d) + t cos_t; with m = -k, a and b follow, and m stays within the planes.
+        // Equal steps: spacing along the ray from the box entry.
         float od = dot(o, d);
         float far = p.planes.x, spacing = p.planes.y;
         float jitter = 0.0;
         if (p.flags.z != 0) {
             jitter = float(pcg3d(uvec3(px, uint(p.flags.z))).x >> 8u) / 16777216.0 - 0.5;
         }
-        float k_front = floor((far - (od + t_in * cos_t)) / spacing - 0.5 - jitter);
-        float k_back = ceil((far - (od + t_out * cos_t)) / spacing - 0.5 - jitter);
-        k_front = min(k_front, p.planes.z - 1.0);
-        k_back = max(k_back, 0.0);
+        float a, b, m_first, m_last;
+        if ((p.flags.w & 2) == 0) {
+            a = (far - (0.5 + jitter) * spacing - od) / cos_t;
+            b = spacing / cos_t;
+            m_first = max(ceil((t_in - a) / b), 1.0 - p.planes.z);
+            m_last = min(floor((t_out - a) / b), 0.0);
+        } else {
+            a = t_in + (0.5 + jitter) * spacing;
+            b = spacing;
+            m_first = 0.0;
+            m_last = floor((t_out - a) / b);
+        }
         bool first = true;
         float ert = p.planes.w;
         // The previous plane's sample, for refining an isosurface hit (t < 0: none).
@@ -96,8 +107,8 @@ void main() {
         // The brick of the last sample and its flags, looked up once per brick.
         ivec3 cur_brick = ivec3(-1);
         uint cur_flags = 0u;
-        for (float k = k_front; k >= k_back; k -= 1.0) {
-            float t = (far - (k + 0.5 + jitter) * spacing - od) / cos_t;
+        for (float m = m_first; m <= m_last; m += 1.0) {
+            float t = a + b * m;
             if (t < t_in || t > t_out) {
                 continue;
             }
@@ -114,19 +125,18 @@ void main() {
                 // the first focus sample, or focus.
                 uint need = two ? (first ? 3u : 2u) : 1u;
                 if ((f & need) == 0u) {
-                    // Resume at the first plane at or behind the brick's exit (less a hair, so
-                    // that rounding can only revisit this brick, never skip a plane of the next),
-                    // and always at least one plane further.
-                    float te = brick_exit(bk, o, dir) - 1e-4 * spacing / cos_t;
-                    float k_next = floor((far - (od + te * cos_t)) / spacing - 0.5 - jitter);
-                    k = min(k_next, k - 1.0) + 1.0;
+                    // Resume at the first sample at or behind the brick's exit (less a hair, so
+                    // that rounding can only revisit this brick, never skip a sample of the
+                    // next), and always at least one sample further.
+                    float te = brick_exit(bk, o, dir) - 1e-4 * b;
+                    m = max(ceil((te - a) / b), m + 1.0) - 1.0;
                     prev_t = -1.0;
                     continue;
                 }
             }
             float s = sample_intensity();
             bool focus = sample_in_focus(s);
-            bool refine = two && focus && first && p.flags.w != 0 && int(u.focus.z) == FOCUS_ISO;
+            bool refine = two && focus && first && (p.flags.w & 1) != 0 && int(u.focus.z) == FOCUS_ISO;
             if (refine && prev_t >= 0.0 && s > prev_s) {
                 // Regula falsi between the previous plane (below the isovalue) and this one.
                 float ta = prev_t, sa = prev_s, tb = t, sb = s;

@@ -12,6 +12,10 @@
 //! points, which is what makes their images comparable pixel for pixel; the ray caster composites
 //! front to back in registers, the slicer back to front in a float target.
 //!
+//! With `sampling: world-steps`, samples are instead one spacing apart along each ray from the box
+//! entry, which is what the opacity correction assumes on every ray; images then differ from the
+//! slicer's off the image centre (a test bounds by how much).
+//!
 //! ## Speed-ups that keep the image
 //! - Empty-space skipping: bricks (16³ voxels with a one-voxel apron) that hold nothing visible
 //!   under the current transfer function and focus are stepped over to the first plane behind
@@ -49,6 +53,36 @@ pub struct RayOptions {
     /// for an exact depth and a surface without slicing rings. Off by default: it moves samples,
     /// so images no longer match the slicer's.
     pub refine_iso: bool,
+    /// Where samples lie: on the slicer's planes (the default, images comparable with the
+    /// slicer's), or at equal steps of the plane spacing along each ray.
+    pub sampling: Sampling,
+}
+
+/// Where the ray caster samples.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Sampling {
+    /// Where the slicer's view-aligned planes cross each ray: steps of the plane spacing in depth,
+    /// so spacing / cos θ along an off-axis ray, with the slicer's opacity correction.
+    #[default]
+    Planes,
+    /// Equal steps of the plane spacing along each ray, from the box entry: the opacity correction
+    /// (spacing / voxel) then holds exactly on every ray, at the cost of sample positions that
+    /// differ from the slicer's off the axis.
+    WorldSteps,
+}
+
+impl Sampling {
+    /// Parses `planes` or `world-steps`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "planes" => Ok(Sampling::Planes),
+            "world-steps" => Ok(Sampling::WorldSteps),
+            other => Err(Error::Invalid(format!(
+                "sampling {other:?} is unknown; expected planes or world-steps"
+            ))),
+        }
+    }
 }
 
 impl Default for RayOptions {
@@ -58,6 +92,7 @@ impl Default for RayOptions {
             ert: 0.99,
             skip_empty: true,
             refine_iso: false,
+            sampling: Sampling::Planes,
         }
     }
 }
@@ -86,7 +121,8 @@ pub struct RayPush {
     pub planes: [f32; 4],
     /// Brick counts along x, y, z, and the brick size in voxels.
     pub bricks: [i32; 4],
-    /// Two levels, skip empty bricks, jitter seed (0 off), refine isosurface hits.
+    /// Two levels, skip empty bricks, jitter seed (0 off), bit 0 refine isosurface hits | bit 1
+    /// equal world steps.
     pub flags: [i32; 4],
 }
 

@@ -629,7 +629,9 @@ impl Renderer {
                         (!one_pass) as i32,
                         r.skip_empty as i32,
                         r.jitter.map_or(0, |j| j.max(1) as i32),
-                        r.refine_iso as i32,
+                        r.refine_iso as i32
+                            | ((r.sampling == crate::render::raycast::Sampling::WorldSteps) as i32)
+                                << 1,
                     ],
                 };
                 let pipeline = self.raycaster.get().expect("built above");

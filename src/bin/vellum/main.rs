@@ -270,6 +270,9 @@ struct RenderArgs {
     /// Ray caster with --iso: refine the surface hit between planes (exact depth, no rings).
     #[arg(long)]
     refine_iso: bool,
+    /// Ray caster: samples on the slicer's planes (default) or equal steps along each ray.
+    #[arg(long, value_name = "planes|world-steps")]
+    sampling: Option<String>,
     /// Background colour behind the volume in the PNG, as R,G,B in 0..1 [default: 0,0,0].
     #[arg(long, allow_hyphen_values = true)]
     background: Option<String>,
@@ -1356,7 +1359,11 @@ fn render_scene(a: &RenderArgs) -> Result<Scene> {
         Some("raycast") => scene.raycast = Some(scene.raycast.unwrap_or_default()),
         Some(other) => anyhow::bail!("--renderer {other:?} is unknown; expected slicer or raycast"),
     }
-    let ray_flags = a.jitter.is_some() || a.ert.is_some() || a.no_skip_empty || a.refine_iso;
+    let ray_flags = a.jitter.is_some()
+        || a.ert.is_some()
+        || a.no_skip_empty
+        || a.refine_iso
+        || a.sampling.is_some();
     match (&mut scene.raycast, ray_flags) {
         (Some(r), _) => {
             if let Some(seed) = a.jitter {
@@ -1371,10 +1378,13 @@ fn render_scene(a: &RenderArgs) -> Result<Scene> {
             if a.refine_iso {
                 r.refine_iso = true;
             }
+            if let Some(s) = &a.sampling {
+                r.sampling = vellum::render::raycast::Sampling::parse(s)?;
+            }
             r.validate()?;
         }
         (None, true) => anyhow::bail!(
-            "--jitter, --ert, --no-skip-empty and --refine-iso set the ray caster; add --renderer raycast"
+            "--jitter, --ert, --no-skip-empty, --refine-iso and --sampling set the ray caster; add --renderer raycast"
         ),
         (None, false) => {}
     }
