@@ -68,9 +68,11 @@ INPUTS ?= 1000000
 fuzz: deps
 	cargo run --release --locked --example fuzz -- --inputs $(INPUTS)
 
+# The benches' peers: scipy (installed by deps) and VTK's Python wheel for the renderer comparison.
 bench: build
+	@python3 -c "import vtk" 2>/dev/null || python3 -m pip install --quiet vtk
 	$(VELLUM) bench table1
-	$(VELLUM) bench render
+	$(VELLUM) bench render --peer vtk
 	$(VELLUM) bench styles
 
 fmt:

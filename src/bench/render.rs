@@ -104,6 +104,8 @@ pub struct Table {
     pub normals_ms: Vec<(String, f64)>,
     pub rows: Vec<Row>,
     pub orbit: Vec<OrbitRow>,
+    /// The VTK comparison, with `--peer vtk`.
+    pub peer: Option<PeerTable>,
 }
 
 fn volume(name: &str) -> Result<(Volume, String)> {
@@ -249,6 +251,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
         normals_ms,
         rows,
         orbit,
+        peer: None,
     })
 }
 
@@ -621,6 +624,155 @@ impl StylesTable {
                 passes.join(", ")
             );
         }
+        s
+    }
+}
+
+/// One size of the peer comparison: the same one-pass render of the CT head (ct-bone, shading,
+/// linear interpolation, about two samples per voxel) by VTK and by both our renderers.
+#[derive(Clone, Debug, Serialize)]
+pub struct PeerRow {
+    pub size: u32,
+    /// VTK vtkGPUVolumeRayCastMapper: median wall ms of Render + WaitForCompletion.
+    pub vtk_ms: f64,
+    /// Ours: median GPU ms of the one-pass frame (slicer, then ray caster).
+    pub slicer_ms: f64,
+    pub raycast_ms: f64,
+    /// VTK's time over ours (above 1: we are faster).
+    pub vtk_over_slicer: f64,
+    pub vtk_over_raycast: f64,
+}
+
+/// The peer comparison (`bench render --peer vtk`).
+#[derive(Clone, Debug, Serialize)]
+pub struct PeerTable {
+    /// VTK's OpenGL renderer string.
+    pub vtk_renderer: String,
+    pub frames: usize,
+    pub rows: Vec<PeerRow>,
+    /// Where VTK's first frame of each size was written.
+    pub images: String,
+}
+
+/// Runs `benches/vtk_peer.py` on the CT head and our slicer and ray caster on the same view,
+/// transfer function and sizes, over the same orbit of `frames` frames.
+pub fn vtk_peer(ctx: &Arc<Context>, sizes: &[u32], frames: usize) -> Result<PeerTable> {
+    let (v, label) = volume("cthead_stanford")?;
+    if label != "cthead_stanford" {
+        return Err(Error::Invalid(
+            "the VTK peer renders the CT head, which needs ../shared/data (or VELLUM_DATA)".into(),
+        ));
+    }
+    let tf = TransferFunction::preset("ct-bone")?;
+    let dir = std::env::temp_dir().join(format!("vellum-vtk-peer-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    let raw = dir.join("cthead.u16");
+    std::fs::write(&raw, v.data.as_bytes()).map_err(|e| Error::io(&raw, e))?;
+    let tf_path = dir.join("ct-bone.json");
+    std::fs::write(&tf_path, tf.to_json()).map_err(|e| Error::io(&tf_path, e))?;
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/vtk_peer.py");
+    let list = sizes
+        .iter()
+        .map(u32::to_string)
+        .collect::<Vec<_>>()
+        .join(",");
+    let out = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(&raw)
+        .args(v.dims.iter().map(|d| d.to_string()))
+        .args(v.spacing.iter().map(|s| s.to_string()))
+        .arg(&tf_path)
+        .arg(&list)
+        .arg(frames.to_string())
+        .arg(&dir)
+        .output()
+        .map_err(|e| Error::Invalid(format!("the VTK peer could not run python3 ({e})")))?;
+    let _ = std::fs::remove_file(&raw);
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        let last = err
+            .lines()
+            .rev()
+            .find(|l| !l.trim().is_empty())
+            .unwrap_or("");
+        return Err(Error::Invalid(format!(
+            "the VTK peer failed ({last}); expected python3 with the vtk wheel (pip install vtk)"
+        )));
+    }
+    let peer: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .map_err(|e| Error::Invalid(format!("the VTK peer printed no JSON ({e})")))?;
+
+    let renderer = Renderer::new(ctx)?;
+    let classification = Classification::Transfer(tf);
+    let mut scene = GpuScene::prepare(
+        ctx,
+        &v,
+        &classification,
+        Focus::None,
+        &Modulation::default(),
+    )?;
+    let mut rows = Vec::new();
+    for (i, &size) in sizes.iter().enumerate() {
+        let mut s = Session {
+            renderer: &renderer,
+            frames: Frames::new(ctx, &FramesDesc::interactive("bench peer"))?,
+            targets: FrameTargets::new(ctx),
+            scene: &mut scene,
+        };
+        // Warm-up, then the orbit, slicer and ray caster alternating frame by frame.
+        s.frame(&view(size, 30.0, true))?;
+        s.frame(&ray_view(size, 30.0, true))?;
+        s.drain()?;
+        for k in 0..frames {
+            let az = 40.0 + 10.0 * k as f32;
+            s.frame(&view(size, az, true))?;
+            s.frame(&ray_view(size, az, true))?;
+        }
+        let done = s.drain()?;
+        let ms = |parity: u64| {
+            median(
+                &done
+                    .iter()
+                    .filter(|r| r.index % 2 == parity)
+                    .map(|r| frame_ms(&r.passes))
+                    .collect::<Vec<_>>(),
+            )
+        };
+        let (slicer_ms, raycast_ms) = (ms(0), ms(1));
+        let vtk_ms = peer["sizes"][i]["median_ms"].as_f64().unwrap_or(f64::NAN);
+        rows.push(PeerRow {
+            size,
+            vtk_ms,
+            slicer_ms,
+            raycast_ms,
+            vtk_over_slicer: vtk_ms / slicer_ms,
+            vtk_over_raycast: vtk_ms / raycast_ms,
+        });
+    }
+    Ok(PeerTable {
+        vtk_renderer: peer["renderer"].as_str().unwrap_or("").to_string(),
+        frames,
+        rows,
+        images: dir.display().to_string(),
+    })
+}
+
+impl PeerTable {
+    /// The comparison as text.
+    pub fn to_text(&self) -> String {
+        let mut s = format!(
+            "\nPeer: VTK vtkGPUVolumeRayCastMapper on {} against vellum, CT head, ct-bone, one pass, \
+             median of {} orbit frames (VTK: wall ms of Render; vellum: GPU ms)\n",
+            self.vtk_renderer, self.frames
+        );
+        s += "size | VTK ms | slicer ms | ray caster ms | VTK/slicer | VTK/ray caster\n";
+        for r in &self.rows {
+            s += &format!(
+                "{:>4}² | {:>6.1} | {:>9.1} | {:>13.1} | {:>10.2} | {:>14.2}\n",
+                r.size, r.vtk_ms, r.slicer_ms, r.raycast_ms, r.vtk_over_slicer, r.vtk_over_raycast
+            );
+        }
+        s += &format!("VTK's first frames: {}/vtk_SIZE.png\n", self.images);
         s
     }
 }

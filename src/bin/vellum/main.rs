@@ -665,6 +665,10 @@ enum BenchCommand {
         /// Frames of the orbit (10° a frame).
         #[arg(long, default_value_t = 36)]
         orbit_frames: usize,
+        /// Also render the CT head with a peer, VTK's GPU ray caster (benches/vtk_peer.py, needs
+        /// `pip install vtk`), on the same orbit, and report the ratios.
+        #[arg(long, value_name = "vtk")]
+        peer: Option<String>,
     },
     /// The importance paper's Table 1: per-pass and total times for three volume sizes and R ∈ {1,5,10}.
     Table1 {
@@ -946,6 +950,7 @@ fn run(cli: &Cli) -> Result<()> {
                     repeat,
                     sizes,
                     orbit_frames,
+                    peer,
                 },
         } => {
             let ctx = context(cli)?;
@@ -954,9 +959,21 @@ fn run(cli: &Cli) -> Result<()> {
                 sizes: sizes.clone(),
                 orbit_frames: (*orbit_frames).max(1),
             };
-            let table = vellum::bench::render::run(&ctx, &opts)?;
+            if let Some(other) = peer.as_deref().filter(|p| *p != "vtk") {
+                anyhow::bail!("--peer {other:?} is unknown; expected vtk");
+            }
+            let mut table = vellum::bench::render::run(&ctx, &opts)?;
+            if peer.is_some() {
+                table.peer = Some(vellum::bench::render::vtk_peer(
+                    &ctx,
+                    &opts.sizes,
+                    opts.orbit_frames,
+                )?);
+            }
             report_validation(&ctx);
-            print_report(*json, &table, || table.to_text())
+            print_report(*json, &table, || {
+                table.to_text() + &table.peer.as_ref().map(|p| p.to_text()).unwrap_or_default()
+            })
         }
         Command::Occlusion {
             input,
