@@ -367,4 +367,26 @@ fn the_command_line_ray_casts() {
         ]),
         "expected slicer or raycast",
     );
+    // The style gallery on the ray caster.
+    let gallery = p("gallery.png");
+    let styles = [
+        "styles",
+        "phantom:nested:32",
+        "--iso",
+        "0.6",
+        "--size",
+        "48x48",
+        "--out",
+    ];
+    let out = vellum(&[&styles[..], &[gallery.as_str(), "--renderer", "raycast"]].concat());
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(std::fs::metadata(&gallery).unwrap().len() > 1000);
+    fails_with(
+        &vellum(&[&styles[..], &[gallery.as_str(), "--renderer", "cone"]].concat()),
+        "expected slicer or raycast",
+    );
 }

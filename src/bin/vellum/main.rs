@@ -343,6 +343,9 @@ struct StylesArgs {
     saliency: bool,
     #[arg(long)]
     json: bool,
+    /// Renderer of every style: slicer (default) or raycast (the same layers, so the same styles).
+    #[arg(long, value_name = "slicer|raycast")]
+    renderer: Option<String>,
 }
 
 /// A perceptual style (SPEC TL4–TL7) and its parameters: each flag overrides the scene file's value.
@@ -1502,7 +1505,13 @@ fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
         lighting: Lighting::default(),
         style: None,
         fit: a.camera.split(',').count() == 2,
-        raycast: None,
+        raycast: match a.renderer.as_deref() {
+            None | Some("slicer") => None,
+            Some("raycast") => Some(vellum::render::raycast::RayOptions::default()),
+            Some(other) => {
+                anyhow::bail!("--renderer {other:?} is unknown; expected slicer or raycast")
+            }
+        },
     };
     let v = a.input.load()?;
     let ctx = context(cli)?;
