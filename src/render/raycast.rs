@@ -131,23 +131,19 @@ pub const BRICK_VISIBLE: u32 = 1;
 /// Brick flag: may hold focus samples.
 pub const BRICK_FOCUS: u32 = 2;
 
-/// Bindings: the slicer's eight, then the five layers as storage images and the brick flags.
-pub const RAY_BINDINGS: [BindingKind; 14] = [
-    BindingKind::UniformBuffer,
-    BindingKind::SampledImage,
-    BindingKind::SampledImage,
-    BindingKind::SampledImage,
-    BindingKind::SampledImage,
-    BindingKind::SampledImage,
-    BindingKind::SampledImage,
-    BindingKind::StorageBuffer,
-    BindingKind::StorageImage,
-    BindingKind::StorageImage,
-    BindingKind::StorageImage,
-    BindingKind::StorageImage,
-    BindingKind::StorageImage,
-    BindingKind::StorageBuffer,
-];
+/// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images and the
+/// brick flags.
+pub const RAY_BINDINGS: [BindingKind; 14] = {
+    let slicer = crate::render::slicer::SLICE_BINDINGS;
+    let mut all = [BindingKind::StorageImage; 14];
+    let mut i = 0;
+    while i < slicer.len() {
+        all[i] = slicer[i];
+        i += 1;
+    }
+    all[13] = BindingKind::StorageBuffer;
+    all
+};
 
 /// Workgroup size of `raycast.comp`.
 pub const LOCAL: [u32; 3] = [8, 8, 1];

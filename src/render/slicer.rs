@@ -227,8 +227,9 @@ pub struct Renderer {
     raycaster: std::sync::OnceLock<crate::gpu::ComputePipeline>,
 }
 
-/// Uniforms; intensity, gradient, TF, occlusion, OTF, ΔD; max |ΔD|.
-const SLICE_BINDINGS: [BindingKind; 8] = [
+/// Uniforms; intensity, gradient, TF, occlusion, OTF, ΔD; max |ΔD| (`shade.glsl`, which the ray
+/// caster shares).
+pub const SLICE_BINDINGS: [BindingKind; 8] = [
     BindingKind::UniformBuffer,
     BindingKind::SampledImage,
     BindingKind::SampledImage,
