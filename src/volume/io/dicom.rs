@@ -186,6 +186,14 @@ pub(super) fn read(dir: &Path) -> Result<Volume> {
 /// Largest spread of slice gaps, as a fraction of the median gap, taken as one spacing.
 const SPACING_TOLERANCE: f64 = 0.01;
 
+/// Where a Part 10 file's "DICM" magic is: after the 128-byte preamble, or at the start of a file
+/// written without one (which the parser also accepts).
+fn magic_offset(bytes: &[u8]) -> Option<usize> {
+    [128, 0]
+        .into_iter()
+        .find(|&at| bytes.get(at..at + 4) == Some(&b"DICM"[..]))
+}
+
 /// Refuses a file in which dicom-rs would be asked to allocate more than the file holds: its
 /// parser reserves whatever length an element claims before reading the value, so a 4 KB file can
 /// ask for gigabytes. The check walks the file with the parser itself (so it sees exactly the
@@ -193,72 +201,44 @@ const SPACING_TOLERANCE: f64 = 0.01;
 /// claimed length with the file's size, before the value is read. A file the parser cannot read
 /// passes here and is refused by the real parse with its own message.
 fn check_lengths(bytes: &[u8]) -> std::result::Result<(), String> {
+    use dicom_encoding::decode::Decode;
     use dicom_encoding::transfer_syntax::TransferSyntaxIndex;
     use dicom_parser::dataset::DataToken;
-    if bytes.len() < 132 || &bytes[128..132] != b"DICM" {
+    let Some(magic) = magic_offset(bytes) else {
         return Ok(());
-    }
-    let total = bytes.len() as u64;
-    // The meta group is read by dicom-object's own loop, which also reserves before it reads:
-    // walk its explicit little-endian headers first, as that loop does, for as many bytes as the
-    // group length says.
-    let u32_at = |p: usize| {
-        bytes
-            .get(p..p + 4)
-            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     };
-    let group_length = u32_at(140).unwrap_or(0) as u64;
-    let (mut pos, start) = (144usize, 144u64);
-    while (pos as u64) < start + group_length && pos + 8 <= bytes.len() {
-        let tag = (
-            u16::from_le_bytes([bytes[pos], bytes[pos + 1]]),
-            u16::from_le_bytes([bytes[pos + 2], bytes[pos + 3]]),
-        );
-        let vr = &bytes[pos + 4..pos + 6];
-        let short = matches!(
-            vr,
-            b"AE"
-                | b"AS"
-                | b"AT"
-                | b"CS"
-                | b"DA"
-                | b"DS"
-                | b"DT"
-                | b"FL"
-                | b"FD"
-                | b"IS"
-                | b"LO"
-                | b"LT"
-                | b"PN"
-                | b"SH"
-                | b"SL"
-                | b"SS"
-                | b"ST"
-                | b"TM"
-                | b"UI"
-                | b"UL"
-                | b"US"
-        );
-        let (header, len) = if short {
-            (
-                8,
-                u16::from_le_bytes([bytes[pos + 6], bytes[pos + 7]]) as u64,
-            )
-        } else {
-            match u32_at(pos + 8) {
-                Some(n) => (12, n as u64),
-                None => break,
+    let total = bytes.len() as u64;
+    let too_long = |what: String, n: u32| {
+        Err(format!(
+            "{what} claims {n} bytes but the whole file holds {total}"
+        ))
+    };
+    // The meta group is read by dicom-object's own loop, which also reserves before it reads:
+    // walk its headers first with the same explicit little-endian decoder, for as many bytes as
+    // its group length says.
+    let decoder = dicom_encoding::decode::file_header_decoder();
+    let mut meta = std::io::Cursor::new(&bytes[magic + 4..]);
+    if let Ok((header, _)) = decoder.decode_header(&mut meta) {
+        let mut group_length = [0u8; 4];
+        if header.len.get() == Some(4)
+            && std::io::Read::read_exact(&mut meta, &mut group_length).is_ok()
+        {
+            let end = meta.position() + u32::from_le_bytes(group_length) as u64;
+            while meta.position() < end {
+                let Ok((h, _)) = decoder.decode_header(&mut meta) else {
+                    break;
+                };
+                match h.len.get() {
+                    Some(n) if n as u64 > total => {
+                        return too_long(format!("meta element {}", h.tag), n)
+                    }
+                    Some(n) => meta.set_position(meta.position() + n as u64),
+                    None => break,
+                }
             }
-        };
-        if len > total && len != u32::MAX as u64 {
-            return Err(format!(
-                "meta element ({:04X},{:04X}) claims {len} bytes but the whole file holds {total}",
-                tag.0, tag.1
-            ));
         }
-        pos += header + len as usize;
     }
-    let mut source = std::io::Cursor::new(&bytes[128..]);
+    let mut source = std::io::Cursor::new(&bytes[magic..]);
     let Ok(meta) = dicom_object::FileMetaTable::from_reader(&mut source) else {
         return Ok(());
     };
@@ -277,12 +257,8 @@ fn check_lengths(bytes: &[u8]) -> std::result::Result<(), String> {
             Ok(_) => continue,
             Err(_) => return Ok(()),
         };
-        if let Some(n) = len.get() {
-            if n as u64 > total {
-                return Err(format!(
-                    "{what} claims {n} bytes but the whole file holds {total}"
-                ));
-            }
+        if let Some(n) = len.get().filter(|&n| n as u64 > total) {
+            return too_long(what, n);
         }
     }
     Ok(())
@@ -302,8 +278,13 @@ fn read_slice(path: &Path) -> Result<Option<Slice>> {
             format!("{claim}; expected a complete DICOM file"),
         ));
     }
+    // Parsed from the bytes already read, from the magic on, as open_file would read the file.
+    let parsed = match magic_offset(&bytes) {
+        Some(at) => dicom_object::from_reader(&bytes[at..]),
+        None => dicom_object::open_file(path),
+    };
     drop(bytes);
-    let obj = match dicom_object::open_file(path) {
+    let obj = match parsed {
         Ok(obj) => obj,
         Err(e) if is_dcm => {
             return Err(Error::format(
