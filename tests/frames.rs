@@ -354,9 +354,23 @@ fn persistent_targets_are_read_back_by_name() {
 
 #[test]
 fn no_pass_imports_the_renderer() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/passes");
-    for entry in std::fs::read_dir(dir).unwrap() {
-        let path = entry.unwrap().path();
+    let mut pending = vec![std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src/passes")];
+    let mut files = Vec::new();
+    while let Some(dir) = pending.pop() {
+        for entry in std::fs::read_dir(dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                pending.push(path);
+            } else {
+                files.push(path);
+            }
+        }
+    }
+    assert!(
+        files.iter().any(|f| f.ends_with("occlusion_fft/gpu.rs")),
+        "sub-folders are walked"
+    );
+    for path in files {
         let text = std::fs::read_to_string(&path).unwrap();
         assert!(
             !text.contains("crate::render"),

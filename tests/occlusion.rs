@@ -27,6 +27,8 @@ fn params(
         neighbourhood,
         stride,
         spectrum_bins: Some([64, 64]),
+        method: vellum::passes::occlusion::Method::Runs,
+        pad: None,
     }
 }
 
@@ -224,6 +226,8 @@ fn nested_spheres_separate_in_the_spectrum() {
         neighbourhood: Neighbourhood::Ball,
         stride: 1,
         spectrum_bins: Some([bins as u32, bins as u32]),
+        method: vellum::passes::occlusion::Method::Runs,
+        pad: None,
     };
     let out = occ.compute(&v, &p).unwrap();
     let (VoxelData::F32(d), VoxelData::F32(o)) = (&v.data, &out.occlusion.data) else {
@@ -308,6 +312,8 @@ fn occlusion_tf_render_tells_equal_intensities_apart() {
                 neighbourhood: Neighbourhood::Ball,
                 stride: 1,
                 spectrum_bins: None,
+                method: vellum::passes::occlusion::Method::Runs,
+                pad: None,
             },
         )
         .unwrap();
@@ -357,7 +363,8 @@ fn adaptive_selection_separates_the_spheres() {
     let gpu = Gpu::new();
     let occ = Occlusion::new(&gpu.ctx).unwrap();
     let v = phantom::nested(40);
-    let sel = select(&occ, &v, [0.7, 0.8], 8, 1).unwrap();
+    use vellum::passes::occlusion::Method;
+    let sel = select(&occ, &v, [0.7, 0.8], 8, 1, Method::Runs).unwrap();
     assert_eq!(sel.candidates.len(), 36);
     assert!(sel.candidates.windows(2).all(|w| w[0].score >= w[1].score));
     let b = &sel.best;
@@ -369,8 +376,23 @@ fn adaptive_selection_separates_the_spheres() {
         b.means.last().unwrap() - b.means.first().unwrap() > 0.4,
         "clusters must be far apart: {b:?}"
     );
-    // OS7: one row per (radius, band), variances non-negative.
-    let rows = sensitivity(&occ, &v, &[2, 4, 8], 4, 1).unwrap();
+    // The fast path (FFT on the CPU and on the GPU) scores every candidate the same, to round-off.
+    for method in [Method::FftCpu, Method::FftGpu] {
+        let fast = select(&occ, &v, [0.7, 0.8], 8, 1, method).unwrap();
+        assert_eq!((fast.best.t0, fast.best.t1), (b.t0, b.t1), "{method:?}");
+        for (a, c) in sel.candidates.iter().zip(&fast.candidates) {
+            assert!(
+                (a.score - c.score).abs() <= 1e-6 * a.score.abs().max(1e-3),
+                "{method:?}"
+            );
+        }
+    }
+    // OS7: one row per (radius, band), variances non-negative; the same with the FFT.
+    let rows = sensitivity(&occ, &v, &[2, 4, 8], 4, 1, Method::Runs).unwrap();
     assert_eq!(rows.len(), 12);
     assert!(rows.iter().all(|r| r.variance >= 0.0) && rows.iter().any(|r| r.variance > 0.0));
+    let fast = sensitivity(&occ, &v, &[2, 4, 8], 4, 1, Method::FftCpu).unwrap();
+    for (a, c) in rows.iter().zip(&fast) {
+        assert!((a.variance - c.variance).abs() <= 1e-6, "{a:?} {c:?}");
+    }
 }

@@ -1,6 +1,7 @@
 //! Benchmarks behind `vellum bench`. Figures are GPU timestamps per pass, set beside a plain copy
 //! of the same bytes and a CPU peer measured in the same run; no test depends on them.
 
+pub mod occlusion;
 pub mod render;
 pub mod table1;
 
@@ -28,4 +29,30 @@ pub fn shared_data() -> Option<std::path::PathBuf> {
     }
     let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
     p.is_dir().then_some(p)
+}
+
+/// Runs the peer script `benches/<script>` with python3 and `args`, and parses its stdout as JSON;
+/// `None`, with a warning, when python3, the script or its libraries fail.
+pub fn python_peer(script: &str, args: &[std::ffi::OsString]) -> Option<serde_json::Value> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("benches")
+        .join(script);
+    match std::process::Command::new("python3")
+        .arg(&path)
+        .args(args)
+        .output()
+    {
+        Ok(o) if o.status.success() => serde_json::from_slice(&o.stdout).ok(),
+        Ok(o) => {
+            log::warn!(
+                "{script} failed: {}",
+                String::from_utf8_lossy(&o.stderr).trim()
+            );
+            None
+        }
+        Err(e) => {
+            log::warn!("{script} could not run python3: {e}");
+            None
+        }
+    }
 }

@@ -150,37 +150,18 @@ fn wanted(filter: &Option<String>, case: &str, r: u32) -> bool {
 
 /// Runs scipy on `v` with radius `r`; `None` (with a warning) when python3 or scipy is missing.
 fn scipy_ms(v: &Volume, r: u32, repeat: usize) -> Option<f64> {
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/scipy_peer.py");
     let dir = std::env::temp_dir().join(format!("vellum-scipy-{}", std::process::id()));
     std::fs::create_dir_all(&dir).ok()?;
     let raw = dir.join("volume.f32");
     let floats = v.data.to_f32();
     std::fs::write(&raw, bytemuck::cast_slice::<f32, u8>(&floats)).ok()?;
-    let out = std::process::Command::new("python3")
-        .arg(&script)
-        .arg(&raw)
-        .args(v.dims.iter().map(|d| d.to_string()))
-        .arg(r.to_string())
-        .arg(repeat.to_string())
-        .output();
+    let mut args: Vec<std::ffi::OsString> = vec![raw.clone().into()];
+    args.extend(v.dims.iter().map(|d| d.to_string().into()));
+    args.push(r.to_string().into());
+    args.push(repeat.to_string().into());
+    let out = crate::bench::python_peer("scipy_peer.py", &args);
     let _ = std::fs::remove_dir_all(&dir);
-    match out {
-        Ok(o) if o.status.success() => {
-            let parsed: serde_json::Value = serde_json::from_slice(&o.stdout).ok()?;
-            parsed["median_ms"].as_f64()
-        }
-        Ok(o) => {
-            log::warn!(
-                "scipy peer failed: {}",
-                String::from_utf8_lossy(&o.stderr).trim()
-            );
-            None
-        }
-        Err(e) => {
-            log::warn!("scipy peer could not run python3: {e}");
-            None
-        }
-    }
+    out?["median_ms"].as_f64()
 }
 
 /// Runs the table.

@@ -7,7 +7,7 @@ use crate::error::{Error, Result};
 pub use crate::volume::reference::occlusion::Visibility;
 
 /// The neighbourhood and its weights (SPEC OS2).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Neighbourhood {
     /// All voxels within distance R, equally weighted.
     Ball,

@@ -105,6 +105,10 @@ pub struct DeviceInfo {
     pub device_local_heap_bytes: u64,
     /// Alignment of uniform-buffer offsets.
     pub min_uniform_buffer_offset_alignment: u64,
+    /// Bytes of shared memory a compute workgroup may declare.
+    pub max_compute_shared_memory: u32,
+    /// Whether storage images may use the extended formats (RG32F among them); enabled when true.
+    pub storage_image_extended_formats: bool,
 }
 
 /// The instance, device, queue and allocator. Create once, share as `Arc<Context>`.
@@ -587,8 +591,15 @@ impl Context {
             .maintenance4(true);
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
         // independentBlend: the focus pass blends two targets and replaces the third.
-        let mut f2 = vk::PhysicalDeviceFeatures2::default()
-            .features(vk::PhysicalDeviceFeatures::default().independent_blend(true));
+        // shaderStorageImageExtendedFormats where offered: the FFT occlusion's complex fields are
+        // RG32F storage images (passes/occlusion_fft/gpu.rs says so when it is missing).
+        let extended_formats = unsafe { instance.get_physical_device_features(physical) }
+            .shader_storage_image_extended_formats;
+        let mut f2 = vk::PhysicalDeviceFeatures2::default().features(
+            vk::PhysicalDeviceFeatures::default()
+                .independent_blend(true)
+                .shader_storage_image_extended_formats(extended_formats == vk::TRUE),
+        );
         let ext_ptrs = [ash::khr::push_descriptor::NAME.as_ptr()];
         let info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_info)
@@ -647,6 +658,8 @@ impl Context {
             timestamp_period_ns: props.limits.timestamp_period,
             device_local_heap_bytes,
             min_uniform_buffer_offset_alignment: props.limits.min_uniform_buffer_offset_alignment,
+            max_compute_shared_memory: props.limits.max_compute_shared_memory_size,
+            storage_image_extended_formats: extended_formats == vk::TRUE,
         };
         log::info!(
             "using device [{chosen}] {} ({}, {})",

@@ -5,4 +5,5 @@ pub mod importance;
 pub mod normals;
 pub mod occlusion;
 pub mod occlusion_analysis;
+pub mod occlusion_fft;
 pub mod volume_image;

@@ -11,6 +11,9 @@
 //!   at the input voxel it samples.
 //! - **Neighbours outside the volume** are left out of both sum and count (the paper does not say;
 //!   treating them as empty would darken every border).
+//! - **FFT convolution** (`passes::occlusion_fft`): the same O for either neighbourhood at a cost
+//!   that does not grow with R, on the GPU (`FftGpu`) or the CPU (`fft-cpu`). [`Method`] picks one;
+//!   `auto` follows the cost model in [`estimate_ms`].
 
 pub use crate::classify::mapping::{parse_mapping, Neighbourhood};
 use crate::error::{Error, Result};
@@ -23,10 +26,16 @@ use crate::gpu::{
     submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, Profiler,
 };
+use crate::passes::occlusion_fft::{
+    cpu::{CpuFft, HalfSpectrum},
+    gpu::{FftGpu, FftWork, Mapping},
+    Denominator, Kernel,
+};
 use crate::passes::volume_image::extent_of;
 use crate::volume::reference::occlusion::Visibility;
 use crate::volume::{Volume, VoxelData};
 use ash::vk;
+use std::cell::{OnceCell, RefCell};
 use std::sync::Arc;
 
 /// Push constants of the occlusion passes (GLSL twin: `OcclusionPush` in occlusion.glsl).
@@ -58,6 +67,118 @@ pub struct SpectrumPush {
 /// Workgroup shape of the per-voxel passes (OCCLUSION_LOCAL_* in occlusion.glsl).
 pub const LOCAL_SIZE: [u32; 3] = [64, 2, 2];
 
+/// How the neighbourhood sum is computed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// The cheapest by [`estimate_ms`] on this device.
+    #[default]
+    Auto,
+    /// Direct sums on the GPU: x-runs of prefix sums for the ball (O(R²) per voxel), separable
+    /// passes for the Gaussian (O(R)).
+    Runs,
+    /// FFT convolution on compute.
+    FftGpu,
+    /// FFT convolution on the CPU (realfft, rayon).
+    FftCpu,
+}
+
+impl Method {
+    pub const NAMES: &'static str = "auto, runs, fft-gpu or fft-cpu";
+
+    pub fn parse(s: &str) -> Result<Self> {
+        Ok(match s {
+            "auto" => Method::Auto,
+            "runs" => Method::Runs,
+            "fft-gpu" => Method::FftGpu,
+            "fft-cpu" => Method::FftCpu,
+            _ => {
+                return Err(Error::Invalid(format!(
+                    "occlusion method '{s}' is unknown; expected {}",
+                    Self::NAMES
+                )))
+            }
+        })
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Auto => "auto",
+            Method::Runs => "runs",
+            Method::FftGpu => "fft-gpu",
+            Method::FftCpu => "fft-cpu",
+        }
+    }
+}
+
+/// Measured cost constants (BENCHMARKS.md, "Ambient occlusion by FFT").
+struct Costs {
+    /// ns per output voxel per x-run (ball runs).
+    runs: f64,
+    /// ns per voxel per tap, three separable passes (Gaussian runs).
+    taps: f64,
+    /// ns per padded point per log2(padded points), one transform (GPU FFT).
+    fft_gpu: f64,
+}
+
+/// Costs on this device kind: the CPU kinds (lavapipe) were measured on the 2-core development
+/// machine, the GPU kinds are scaled from the runs pass measured on an H100.
+fn costs(device_type: &str) -> Costs {
+    match device_type {
+        "CPU" => Costs {
+            runs: 1.9,
+            taps: 3.0,
+            fft_gpu: 4.3,
+        },
+        _ => Costs {
+            runs: 0.0025,
+            taps: 0.002,
+            fft_gpu: 0.004,
+        },
+    }
+}
+
+/// The CPU FFT's constant: ns per padded point per log2(padded points) per transform, on one
+/// core (measured on the development machine; divided by the rayon threads).
+const FFT_CPU_NS: f64 = 0.3;
+
+/// Estimated milliseconds of `method` (not `Auto`) for `dims` at radius and stride on a device
+/// of `device_type`. Transforms: the forward of the data and the inverse count about 2.5 full
+/// transforms with pruning, the kernel spectrum one more.
+pub fn estimate_ms(
+    method: Method,
+    device_type: &str,
+    dims: [usize; 3],
+    p: &OcclusionParams,
+) -> f64 {
+    let c = costs(device_type);
+    let r = p.radius as f64;
+    let out: f64 = dims
+        .iter()
+        .map(|&d| d.div_ceil(p.stride as usize) as f64)
+        .product();
+    let voxels: f64 = dims.iter().map(|&d| d as f64).product();
+    let pad = p
+        .pad
+        .unwrap_or_else(|| crate::passes::occlusion_fft::padded_dims(dims, p.radius));
+    let points: f64 = pad.iter().map(|&d| d as f64).product();
+    let transforms = 3.5 * points * points.log2().max(1.0);
+    let ns = match method {
+        Method::Runs => match p.neighbourhood {
+            // The disk of runs, clipped by the volume's extent in y and z.
+            Neighbourhood::Ball => {
+                let (ry, rz) = (r.min(dims[1] as f64), r.min(dims[2] as f64));
+                out * std::f64::consts::PI * ry * rz.max(1.0) * c.runs
+            }
+            Neighbourhood::Gaussian => voxels * 3.0 * (2.0 * r + 1.0) * c.taps,
+        },
+        Method::FftGpu => transforms * c.fft_gpu,
+        Method::FftCpu => transforms * FFT_CPU_NS / rayon::current_num_threads() as f64,
+        Method::Auto => 0.0,
+    };
+    ns / 1e6
+}
+
 /// What to compute.
 #[derive(Clone, Debug)]
 pub struct OcclusionParams {
@@ -68,6 +189,9 @@ pub struct OcclusionParams {
     pub stride: u32,
     /// Spectrum bins (intensity, occlusion), or `None` for no spectrum.
     pub spectrum_bins: Option<[u32; 2]>,
+    pub method: Method,
+    /// The FFT's padded size, when a sweep shares one larger than this radius needs.
+    pub pad: Option<[usize; 3]>,
 }
 
 /// The 2D histogram of (intensity, occlusion): `counts[o * bins[0] + i]`.
@@ -118,11 +242,35 @@ pub struct OcclusionOutput {
     pub spectrum: Option<Spectrum>,
     pub passes: Vec<PassTime>,
     pub intensity_range: [f64; 2],
+    /// The method that ran (never `Auto`).
+    pub method: Method,
+}
+
+/// The CPU FFT's kernel spectrum, kept for the next computation with the same kernel and size.
+struct CpuKernel {
+    kernel: Kernel,
+    dims: [usize; 3],
+    pad: [usize; 3],
+    spectrum: Arc<Vec<f32>>,
+}
+
+/// The CPU FFT's data spectrum, kept for a radius sweep over the same input and mapping.
+struct CpuData {
+    host: Arc<Vec<f32>>,
+    visibility: Visibility,
+    pad: [usize; 3],
+    spectrum: Arc<HalfSpectrum>,
 }
 
 /// The occlusion pipelines.
 pub struct Occlusion {
     ctx: Arc<Context>,
+    /// Built on first use (compiling them costs time on lavapipe).
+    fft: OnceCell<FftGpu>,
+    /// The GPU FFT's images and kernel spectrum of the last computation.
+    fft_work: RefCell<Option<FftWork>>,
+    cpu_kernel: RefCell<Option<CpuKernel>>,
+    cpu_data: RefCell<Option<CpuData>>,
     prefix: ComputePipeline,
     ball: ComputePipeline,
     gauss_axis: ComputePipeline,
@@ -138,6 +286,10 @@ impl Occlusion {
         let push = std::mem::size_of::<OcclusionPush>() as u32;
         Ok(Occlusion {
             ctx: ctx.clone(),
+            fft: OnceCell::new(),
+            fft_work: RefCell::new(None),
+            cpu_kernel: RefCell::new(None),
+            cpu_data: RefCell::new(None),
             prefix: ComputePipeline::new(
                 ctx,
                 "occlusion/prefix_x.comp",
@@ -193,6 +345,40 @@ impl Occlusion {
         Ok(out)
     }
 
+    /// The method `p` asks for, with `Auto` resolved by [`estimate_ms`]: runs or the GPU FFT on
+    /// a GPU; on a CPU device (lavapipe), the cheapest of the three. `gpu_only` leaves the CPU
+    /// method out (a recorded frame cannot run it).
+    pub fn choose(&self, dims: [usize; 3], p: &OcclusionParams, gpu_only: bool) -> Result<Method> {
+        if p.method != Method::Auto {
+            if gpu_only && p.method == Method::FftCpu {
+                return Err(Error::Invalid(
+                    "occlusion recorded into a frame runs on the GPU; --method fft-cpu is for the occlusion commands".into(),
+                ));
+            }
+            return Ok(p.method);
+        }
+        let ty = self.ctx.info.device_type.as_str();
+        let mut best = (Method::Runs, estimate_ms(Method::Runs, ty, dims, p));
+        let pad = p
+            .pad
+            .unwrap_or_else(|| crate::passes::occlusion_fft::padded_dims(dims, p.radius));
+        let entries = crate::passes::occlusion_fft::denominator_entries(dims, p.radius);
+        let mut candidates = Vec::new();
+        if FftGpu::check(&self.ctx, dims, pad, p.stride as usize, entries).is_ok() {
+            candidates.push(Method::FftGpu);
+        }
+        if !gpu_only && ty == "CPU" {
+            candidates.push(Method::FftCpu);
+        }
+        for m in candidates {
+            let ms = estimate_ms(m, ty, dims, p);
+            if ms < best.1 {
+                best = (m, ms);
+            }
+        }
+        Ok(best.0)
+    }
+
     /// Computes O (and the spectrum when asked) for a volume already on the GPU and reads the
     /// results back. Occlusion selection and sensitivity call this many times on one upload.
     pub fn compute_on(
@@ -200,8 +386,13 @@ impl Occlusion {
         input: &OcclusionInput,
         p: &OcclusionParams,
     ) -> Result<OcclusionOutput> {
+        check_radius_stride(p.radius, p.stride)?;
+        let method = self.choose(input.dims, p, false)?;
+        if method == Method::FftCpu {
+            return self.compute_cpu(input, p);
+        }
         let ctx = &self.ctx;
-        let targets = self.targets(input, p)?;
+        let targets = self.targets_for(input, p, method)?;
         let readback = staging_buffer(ctx, "occlusion readback", targets.occlusion.byte_size())?;
         let mut profiler = Profiler::new(ctx, 3)?;
         submit_once(ctx, "occlusion", |cmd| {
@@ -230,27 +421,185 @@ impl Occlusion {
                 }),
                 _ => None,
             };
+        let out_dims = targets.out_dims;
+        // The FFT work (with its kernel spectrum) serves the next call with the same shape.
+        if let Some(work) = targets.fft {
+            *self.fft_work.borrow_mut() = Some(work);
+        }
         Ok(OcclusionOutput {
             // Output voxel o samples input voxel o·stride: the same origin and directions, the
             // spacing scaled by the stride.
-            occlusion: Volume::new(targets.out_dims, spacing, VoxelData::F32(o))?
+            occlusion: Volume::new(out_dims, spacing, VoxelData::F32(o))?
                 .with_geometry(input.geometry)?,
             spectrum,
             passes,
             intensity_range: input.range,
+            method,
         })
     }
 
-    /// Checks `p` and allocates the work images and buffers for `input`.
+    /// The FFT method on the CPU for an uploaded input (which keeps its host copy).
+    fn compute_cpu(&self, input: &OcclusionInput, p: &OcclusionParams) -> Result<OcclusionOutput> {
+        use crate::passes::occlusion_fft::{available_memory, check_pad, cpu_bytes, padded_dims};
+        use rayon::prelude::*;
+        let host = input.host.clone().ok_or_else(|| {
+            Error::Invalid(
+                "the CPU FFT needs the volume on the host; this input lives only on the GPU".into(),
+            )
+        })?;
+        let dims = input.dims;
+        let stride = p.stride as usize;
+        let kernel = Kernel::new(p.neighbourhood, p.radius);
+        let pad = p.pad.unwrap_or_else(|| padded_dims(dims, p.radius));
+        check_pad(dims, pad, p.radius)?;
+        let entries = crate::passes::occlusion_fft::denominator_entries(dims, p.radius);
+        let need = cpu_bytes(dims, pad, stride, entries);
+        if let Some(have) = available_memory() {
+            if need > have {
+                return Err(Error::Invalid(format!(
+                    "--method fft-cpu would need {:.0} MiB of memory for {dims:?} padded to {pad:?} but {:.0} MiB are available; use a smaller radius",
+                    need as f64 / 1048576.0,
+                    have as f64 / 1048576.0
+                )));
+            }
+        }
+        let mut passes = Vec::new();
+        let mut timed = |name: &str, start: std::time::Instant| {
+            passes.push(PassTime {
+                name: name.to_string(),
+                ms: start.elapsed().as_secs_f64() * 1e3,
+            })
+        };
+        let fft = CpuFft::new(pad);
+        let t = std::time::Instant::now();
+        let cached = self.cpu_data.borrow().as_ref().and_then(|c| {
+            (Arc::ptr_eq(&c.host, &host) && c.visibility == p.visibility && c.pad == pad)
+                .then(|| c.spectrum.clone())
+        });
+        let data = match cached {
+            Some(d) => d,
+            None => {
+                let mapped: Vec<f32> = host.par_iter().map(|&s| p.visibility.apply(s)).collect();
+                let d = Arc::new(fft.data_spectrum(&mapped, dims));
+                *self.cpu_data.borrow_mut() = Some(CpuData {
+                    host: host.clone(),
+                    visibility: p.visibility.clone(),
+                    pad,
+                    spectrum: d.clone(),
+                });
+                d
+            }
+        };
+        timed("fft forward (cpu)", t);
+        let t = std::time::Instant::now();
+        let cached = self.cpu_kernel.borrow().as_ref().and_then(|c| {
+            (c.kernel == kernel && c.dims == dims && c.pad == pad).then(|| c.spectrum.clone())
+        });
+        let k = match cached {
+            Some(k) => k,
+            None => {
+                let k = Arc::new(fft.kernel_spectrum(kernel, dims));
+                *self.cpu_kernel.borrow_mut() = Some(CpuKernel {
+                    kernel,
+                    dims,
+                    pad,
+                    spectrum: k.clone(),
+                });
+                k
+            }
+        };
+        let den = Denominator::new(dims, kernel);
+        timed("kernel (cpu)", t);
+        let t = std::time::Instant::now();
+        let o = fft.convolve(&data, &k, dims, &den, stride);
+        timed("fft inverse (cpu)", t);
+        let out_dims = dims.map(|d| d.div_ceil(stride));
+        let spectrum = match p.spectrum_bins {
+            Some(bins) => {
+                check_bins(bins)?;
+                let t = std::time::Instant::now();
+                let counts = crate::volume::reference::occlusion::spectrum(
+                    &host,
+                    dims,
+                    &o,
+                    out_dims,
+                    stride,
+                    bins.map(|b| b as usize),
+                );
+                timed("spectrum (cpu)", t);
+                Some(Spectrum {
+                    bins,
+                    counts,
+                    intensity_range: input.range,
+                })
+            }
+            None => None,
+        };
+        Ok(OcclusionOutput {
+            occlusion: Volume::new(
+                out_dims,
+                input.spacing.map(|s| s * p.stride as f64),
+                VoxelData::F32(o),
+            )?
+            .with_geometry(input.geometry)?,
+            spectrum,
+            passes,
+            intensity_range: input.range,
+            method: Method::FftCpu,
+        })
+    }
+
+    /// Checks `p` and allocates the work images and buffers for `input`, for a method that runs
+    /// on the GPU.
     pub fn targets(&self, input: &OcclusionInput, p: &OcclusionParams) -> Result<OcclusionTargets> {
+        check_radius_stride(p.radius, p.stride)?;
+        let method = self.choose(input.dims, p, true)?;
+        self.targets_for(input, p, method)
+    }
+
+    fn fft_gpu(&self) -> Result<&FftGpu> {
+        if self.fft.get().is_none() {
+            let f = FftGpu::new(&self.ctx)?;
+            let _ = self.fft.set(f);
+        }
+        self.fft
+            .get()
+            .ok_or_else(|| Error::Invalid("the FFT pipelines could not be kept".into()))
+    }
+
+    fn targets_for(
+        &self,
+        input: &OcclusionInput,
+        p: &OcclusionParams,
+        method: Method,
+    ) -> Result<OcclusionTargets> {
         let ctx = &self.ctx;
         check_radius_stride(p.radius, p.stride)?;
         let extent = extent_of(ctx, input.dims, 4, 4)?;
         let out_dims: [usize; 3] = input.dims.map(|d| d.div_ceil(p.stride as usize));
+        let fft = match method {
+            Method::FftGpu => {
+                self.fft_gpu()?;
+                let kernel = Kernel::new(p.neighbourhood, p.radius);
+                let pad = p.pad.unwrap_or_else(|| {
+                    crate::passes::occlusion_fft::padded_dims(input.dims, p.radius)
+                });
+                let stride = p.stride as usize;
+                let cached = self.fft_work.borrow_mut().take();
+                Some(match cached {
+                    Some(w) if w.serves(input.dims, pad, kernel, stride) => w,
+                    _ => {
+                        drop(cached);
+                        FftWork::new(ctx, input.dims, pad, kernel, stride)?
+                    }
+                })
+            }
+            _ => None,
+        };
         let r32 = |name: &str, e: [u32; 3]| {
             Image::new(ctx, name, &ImageDesc::new_3d(vk::Format::R32_SFLOAT, e))
         };
-        let gauss = if p.neighbourhood == Neighbourhood::Gaussian {
+        let gauss = if fft.is_none() && p.neighbourhood == Neighbourhood::Gaussian {
             extent_of(ctx, input.dims, 16, 2)?;
             let rgba = |name: &str| {
                 Image::new(
@@ -280,11 +629,7 @@ impl Occlusion {
         )?;
         let spectrum = match p.spectrum_bins {
             Some([bx, by]) => {
-                if bx == 0 || by == 0 || bx > 4096 || by > 4096 {
-                    return Err(Error::Invalid(format!(
-                        "spectrum bins {bx}x{by} are invalid; expected 1..=4096 each"
-                    )));
-                }
+                check_bins([bx, by])?;
                 Some(Buffer::new(
                     ctx,
                     "spectrum",
@@ -299,11 +644,19 @@ impl Occlusion {
             }
             None => None,
         };
+        let (prefix, mapped) = match fft {
+            Some(_) => (None, None),
+            None => (
+                Some(r32("occlusion prefix", extent)?),
+                Some(r32("occlusion mapped", extent)?),
+            ),
+        };
         Ok(OcclusionTargets {
-            prefix: r32("occlusion prefix", extent)?,
-            mapped: r32("occlusion mapped", extent)?,
+            prefix,
+            mapped,
             occlusion: r32("occlusion", out_dims.map(|d| d as u32))?,
             gauss,
+            fft,
             visibility,
             spectrum,
             out_dims,
@@ -321,7 +674,6 @@ impl Occlusion {
         targets: &OcclusionTargets,
         p: &OcclusionParams,
     ) -> Result<()> {
-        let ctx = &self.ctx;
         let (mapping, t0, t1) = match &p.visibility {
             Visibility::Ramp => (0, 0.0, 1.0),
             Visibility::Truncated { t0, t1 } => (1, *t0, *t1),
@@ -340,9 +692,26 @@ impl Occlusion {
             t0,
             t1,
         };
-        let (prefix, mapped, occlusion) = (&targets.prefix, &targets.mapped, &targets.occlusion);
+        let occlusion = &targets.occlusion;
         profiler.begin(cmd, "occlusion");
         input.intensity.transition(cmd, Access::ComputeRead);
+        if let Some(work) = &targets.fft {
+            self.fft_gpu()?.record(
+                cmd,
+                work,
+                &input.intensity,
+                &targets.visibility,
+                &Mapping { mapping, t0, t1 },
+                occlusion,
+            )?;
+            profiler.end(cmd);
+            return self.record_spectrum(cmd, profiler, input, targets, p);
+        }
+        let (Some(prefix), Some(mapped)) = (&targets.prefix, &targets.mapped) else {
+            return Err(Error::Invalid(
+                "occlusion targets lack their work images".into(),
+            ));
+        };
         for img in [prefix, mapped, occlusion] {
             img.discard();
             img.transition(cmd, Access::ComputeWrite);
@@ -402,6 +771,22 @@ impl Occlusion {
             }
         }
         profiler.end(cmd);
+        self.record_spectrum(cmd, profiler, input, targets, p)
+    }
+
+    /// Records pass `spectrum` when `targets` has a histogram.
+    fn record_spectrum(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        input: &OcclusionInput,
+        targets: &OcclusionTargets,
+        p: &OcclusionParams,
+    ) -> Result<()> {
+        let ctx = &self.ctx;
+        let dims = input.dims.map(|d| d as i32);
+        let extent = input.intensity.desc.extent;
+        let occlusion = &targets.occlusion;
         if let (Some(hist), Some([bx, by])) = (&targets.spectrum, p.spectrum_bins) {
             profiler.begin(cmd, "spectrum");
             occlusion.transition(cmd, Access::ComputeRead);
@@ -474,6 +859,7 @@ impl Occlusion {
             spacing,
             geometry: tex.geometry,
             range,
+            host: None,
         })
     }
 }
@@ -486,6 +872,9 @@ pub struct OcclusionInput {
     pub geometry: crate::volume::geometry::Geometry,
     /// The data values at 0 and 1.
     pub range: [f64; 2],
+    /// The same normalised intensities on the host, when the input was uploaded from there (the
+    /// CPU FFT reads them).
+    pub host: Option<Arc<Vec<f32>>>,
 }
 
 impl OcclusionInput {
@@ -513,21 +902,34 @@ impl OcclusionInput {
             spacing: v.spacing,
             geometry: v.geometry,
             range,
+            host: Some(Arc::new(intensity)),
         })
     }
 }
 
 /// Work images and buffers of one occlusion computation; `occlusion` holds the result.
 pub struct OcclusionTargets {
-    prefix: Image,
-    mapped: Image,
+    prefix: Option<Image>,
+    mapped: Option<Image>,
     /// O in [0, 1] at the output resolution.
     pub occlusion: Image,
     gauss: Option<(Image, Image)>,
+    /// The FFT method's images, when it runs.
+    fft: Option<FftWork>,
     visibility: Buffer,
     /// The spectrum's histogram (host-visible), when asked for.
     pub spectrum: Option<Buffer>,
     pub out_dims: [usize; 3],
+}
+
+/// Checks spectrum bins (1..=4096 each).
+fn check_bins([bx, by]: [u32; 2]) -> Result<()> {
+    if bx == 0 || by == 0 || bx > 4096 || by > 4096 {
+        return Err(Error::Invalid(format!(
+            "spectrum bins {bx}x{by} are invalid; expected 1..=4096 each"
+        )));
+    }
+    Ok(())
 }
 
 /// Checks an occlusion radius (1..=1024 voxels) and output stride (1..=64), the same rule for

@@ -15,7 +15,7 @@
 use crate::error::{Error, Result};
 use crate::gpu::Profiler;
 use crate::passes::occlusion::{
-    normalised_f32, Neighbourhood, Occlusion, OcclusionInput, OcclusionParams,
+    normalised_f32, Method, Neighbourhood, Occlusion, OcclusionInput, OcclusionParams,
 };
 use crate::volume::reference::occlusion::Visibility;
 use crate::volume::{Volume, VoxelData};
@@ -70,6 +70,8 @@ fn ball_occlusion(
     radius: u32,
     visibility: Visibility,
     stride: u32,
+    method: Method,
+    pad: Option<[usize; 3]>,
 ) -> Result<Vec<f32>> {
     let p = OcclusionParams {
         radius,
@@ -77,6 +79,8 @@ fn ball_occlusion(
         neighbourhood: Neighbourhood::Ball,
         stride,
         spectrum_bins: None,
+        method,
+        pad,
     };
     match occ.compute_on(input, &p)?.occlusion.data {
         VoxelData::F32(o) => Ok(o),
@@ -156,6 +160,7 @@ pub fn select(
     interval: [f64; 2],
     radius: u32,
     stride: u32,
+    method: Method,
 ) -> Result<Selection> {
     const BINS: usize = 16;
     crate::passes::occlusion::check_radius_stride(radius, stride)?;
@@ -199,7 +204,15 @@ pub fn select(
         let table: Vec<f32> = (0..256)
             .map(|t| if t * BINS / 256 == k { 1.0 } else { 0.0 })
             .collect();
-        let o = ball_occlusion(occ, &input, radius, Visibility::Table(table), stride)?;
+        let o = ball_occlusion(
+            occ,
+            &input,
+            radius,
+            Visibility::Table(table),
+            stride,
+            method,
+            None,
+        )?;
         for (j, &(oi, _)) in picks.iter().enumerate() {
             h[j] = o[oi];
         }
@@ -275,6 +288,7 @@ pub fn sensitivity(
     radii: &[u32],
     bands: usize,
     stride: u32,
+    method: Method,
 ) -> Result<Vec<SensitivityRow>> {
     if bands == 0 || bands > MAX_BANDS {
         return Err(Error::Invalid(format!(
@@ -297,10 +311,14 @@ pub fn sensitivity(
     let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(s));
     let mut rows = Vec::new();
     let input = OcclusionInput::upload(occ.context(), v, &mut Profiler::new(occ.context(), 1)?)?;
+    // One padded size for the whole sweep (the largest radius's), so the FFT methods transform the
+    // data once and only the kernel changes.
+    let largest = radii.iter().copied().max().unwrap_or(1);
+    let pad = Some(crate::passes::occlusion_fft::padded_dims(v.dims, largest));
     let progress = crate::progress::bar(radii.len() as u64, "radii");
     for &radius in radii {
         progress.inc(1);
-        let o = ball_occlusion(occ, &input, radius, Visibility::Ramp, stride)?;
+        let o = ball_occlusion(occ, &input, radius, Visibility::Ramp, stride, method, pad)?;
         let mut acc = vec![(0usize, 0.0f64, 0.0f64); bands];
         for (oi, &occl) in o.iter().enumerate() {
             let i = sampled_voxel(oi, out_dims, v.dims, s);

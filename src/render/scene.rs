@@ -544,6 +544,8 @@ impl GpuScene {
                     neighbourhood,
                     stride: otf.effective_stride(),
                     spectrum_bins: None,
+                    method: Default::default(),
+                    pad: None,
                 };
                 (TransferFunction::preset("grey")?, Some((otf.table()?, p)))
             }

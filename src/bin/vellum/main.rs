@@ -137,6 +137,9 @@ enum Command {
         /// Spectrum bins along intensity and occlusion.
         #[arg(long, default_value_t = 256)]
         bins: u32,
+        /// How the neighbourhood sum is computed: auto (a measured cost model), runs (direct sums on the GPU), fft-gpu or fft-cpu (FFT convolution, a cost that does not grow with the radius).
+        #[arg(long, default_value = "auto")]
+        method: String,
         #[arg(long)]
         json: bool,
     },
@@ -151,6 +154,9 @@ enum Command {
         radius: u32,
         #[arg(long, default_value_t = 1)]
         stride: u32,
+        /// How the neighbourhood sum is computed: auto (a measured cost model), runs (direct sums on the GPU), fft-gpu or fft-cpu (FFT convolution, a cost that does not grow with the radius).
+        #[arg(long, default_value = "auto")]
+        method: String,
         #[arg(long)]
         json: bool,
     },
@@ -169,9 +175,13 @@ enum Command {
         /// Intensity bands.
         #[arg(long, default_value_t = 8)]
         bands: usize,
-        /// Output stride; 0 picks the largest radius / 16 (at least 1).
+        /// Output stride; 0 picks 1 when an FFT method serves the largest radius, else the largest radius / 16 (at least 1).
         #[arg(long, default_value_t = 0)]
         stride: u32,
+        /// How the neighbourhood sum is computed: auto (a measured cost model), runs (direct sums on the GPU), fft-gpu or fft-cpu (FFT convolution, a cost that does not grow with the radius).
+        #[arg(long, default_value = "auto")]
+        method: String,
+
         /// The plot (PNG).
         #[arg(long)]
         out: PathBuf,
@@ -673,6 +683,29 @@ enum BenchCommand {
         #[arg(long, value_name = "vtk")]
         peer: Option<String>,
     },
+    /// Ambient occlusion against the radius for each method (ms, the cost model's estimate, memory),
+    /// the crossover radius, and scipy's FFT convolution as a peer.
+    Occlusion {
+        #[arg(long)]
+        json: bool,
+        /// A volume or phantom spec [default: the bonsai, 256³, from ../shared/data].
+        input: Option<String>,
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "4,8,16,32,64,100",
+            allow_hyphen_values = true
+        )]
+        radii: Vec<u32>,
+        #[arg(long, value_delimiter = ',', default_value = "runs,fft-gpu,fft-cpu")]
+        methods: Vec<String>,
+        /// Skip a method whose estimated time exceeds this (its estimate is reported instead).
+        #[arg(long, default_value_t = 150.0)]
+        max_seconds: f64,
+        /// Peer: scipy (scipy.signal.fftconvolve, benches/ao_peer.py).
+        #[arg(long, value_name = "scipy")]
+        peer: Option<String>,
+    },
     /// The importance paper's Table 1: per-pass and total times for three volume sizes and R ∈ {1,5,10}.
     Table1 {
         #[arg(long)]
@@ -987,6 +1020,7 @@ fn run(cli: &Cli) -> Result<()> {
             spectrum,
             spectrum_data,
             bins,
+            method,
             json,
         } => occlusion(
             cli,
@@ -998,6 +1032,7 @@ fn run(cli: &Cli) -> Result<()> {
             spectrum.as_deref(),
             spectrum_data.as_deref(),
             *bins,
+            method,
             *json,
         ),
         Command::OcclusionSelect {
@@ -1005,16 +1040,27 @@ fn run(cli: &Cli) -> Result<()> {
             interval,
             radius,
             stride,
+            method,
             json,
-        } => occlusion_select(cli, input, interval, *radius, *stride, *json),
+        } => occlusion_select(cli, input, interval, *radius, *stride, method, *json),
         Command::OcclusionSensitivity {
             input,
             radii,
             bands,
             stride,
+            method,
             out,
             csv,
-        } => occlusion_sensitivity(cli, input, radii, *bands, *stride, out, csv.as_deref()),
+        } => occlusion_sensitivity(
+            cli,
+            input,
+            radii,
+            *bands,
+            *stride,
+            method,
+            out,
+            csv.as_deref(),
+        ),
         Command::Styles(args) => styles(cli, args),
         Command::Bench {
             which:
@@ -1053,6 +1099,49 @@ fn run(cli: &Cli) -> Result<()> {
         }
         Command::Migrate(args) => features::migrate(args),
         Command::Features(args) => features::print_tree(args),
+        Command::Bench {
+            which:
+                BenchCommand::Occlusion {
+                    json,
+                    input,
+                    radii,
+                    methods,
+                    max_seconds,
+                    peer,
+                },
+        } => {
+            use vellum::passes::occlusion::{check_radius_stride, Method};
+            if let Some(other) = peer.as_deref().filter(|p| *p != "scipy") {
+                anyhow::bail!("--peer {other:?} is unknown; expected scipy");
+            }
+            for &r in radii {
+                check_radius_stride(r, 1)?;
+            }
+            let methods = methods
+                .iter()
+                .map(|m| match Method::parse(m)? {
+                    Method::Auto => Err(anyhow::anyhow!(
+                        "--methods takes runs, fft-gpu and fft-cpu; auto picks among them"
+                    )),
+                    m => Ok(m),
+                })
+                .collect::<Result<Vec<_>>>()?;
+            anyhow::ensure!(
+                max_seconds.is_finite() && *max_seconds > 0.0,
+                "--max-seconds {max_seconds} is invalid; expected a positive number"
+            );
+            let ctx = context(cli)?;
+            let opts = vellum::bench::occlusion::Options {
+                input: input.clone(),
+                radii: radii.clone(),
+                methods,
+                max_seconds: *max_seconds,
+                scipy: peer.is_some(),
+            };
+            let table = vellum::bench::occlusion::run(&ctx, &opts)?;
+            report_validation(&ctx);
+            print_report(*json, &table, || table.to_text())
+        }
         Command::Bench {
             which:
                 BenchCommand::Table1 {
@@ -1689,10 +1778,12 @@ fn occlusion(
     spectrum_png: Option<&std::path::Path>,
     spectrum_csv: Option<&std::path::Path>,
     bins: u32,
+    method: &str,
     json: bool,
 ) -> Result<()> {
-    use vellum::passes::occlusion::{parse_mapping, Occlusion, OcclusionParams};
+    use vellum::passes::occlusion::{parse_mapping, Method, Occlusion, OcclusionParams};
     let (visibility, neighbourhood) = parse_mapping(mapping)?;
+    let method = Method::parse(method)?;
     let v = input.load()?;
     let ctx = context(cli)?;
     let want_spectrum = spectrum_png.is_some() || spectrum_csv.is_some() || json;
@@ -1702,6 +1793,8 @@ fn occlusion(
         neighbourhood,
         stride,
         spectrum_bins: want_spectrum.then_some([bins, bins]),
+        method,
+        pad: None,
     };
     let start = std::time::Instant::now();
     let r = Occlusion::new(&ctx)?.compute(&v, &params)?;
@@ -1738,12 +1831,15 @@ fn occlusion(
         let out = json!({
             "device": ctx.info.name, "radius": radius, "mapping": mapping, "stride": stride, "dims": v.dims,
             "occlusion_dims": r.occlusion.dims, "occlusion_range": [stats.min, stats.max], "passes": passes, "total_ms": wall_ms,
+            "method": r.method.name(),
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         println!(
-            "occlusion of {} (R = {radius}, {mapping}, stride {stride}) on {}",
-            input.input, ctx.info.name
+            "occlusion of {} (R = {radius}, {mapping}, stride {stride}, method {}) on {}",
+            input.input,
+            r.method.name(),
+            ctx.info.name
         );
         println!(
             "  occlusion {}x{}x{}, range {:.4} .. {:.4}",
@@ -1770,14 +1866,17 @@ fn occlusion_select(
     interval: &str,
     radius: u32,
     stride: u32,
+    method: &str,
     json: bool,
 ) -> Result<()> {
     let interval = parse_interval(interval)?;
+    let method = vellum::passes::occlusion::Method::parse(method)?;
     let v = input.load()?;
     let ctx = context(cli)?;
     let occ = vellum::passes::occlusion::Occlusion::new(&ctx)?;
     let start = std::time::Instant::now();
-    let sel = vellum::passes::occlusion_analysis::select(&occ, &v, interval, radius, stride)?;
+    let sel =
+        vellum::passes::occlusion_analysis::select(&occ, &v, interval, radius, stride, method)?;
     report_validation(&ctx);
     if json {
         println!(
@@ -1817,28 +1916,49 @@ fn occlusion_select(
     Ok(())
 }
 
+#[allow(clippy::too_many_arguments)]
 fn occlusion_sensitivity(
     cli: &Cli,
     input: &InputArgs,
     radii: &[u32],
     bands: usize,
     stride: u32,
+    method: &str,
     out: &std::path::Path,
     csv: Option<&std::path::Path>,
 ) -> Result<()> {
+    use vellum::passes::occlusion::{Method, Neighbourhood, OcclusionParams};
+    use vellum::volume::reference::occlusion::Visibility;
     anyhow::ensure!(
         !radii.is_empty() && bands > 0,
         "give at least one radius and one band"
     );
-    let stride = if stride == 0 {
-        (radii.iter().copied().max().unwrap_or(16) / 16).max(1)
-    } else {
-        stride
-    };
+    let method = Method::parse(method)?;
     let v = input.load()?;
     let ctx = context(cli)?;
     let occ = vellum::passes::occlusion::Occlusion::new(&ctx)?;
-    let rows = vellum::passes::occlusion_analysis::sensitivity(&occ, &v, radii, bands, stride)?;
+    let largest = radii.iter().copied().max().unwrap_or(16);
+    let stride = if stride == 0 {
+        // Full resolution when an FFT method serves the largest radius there (its cost does not
+        // grow with R); otherwise the runs method's cost calls for a coarser output.
+        let p = OcclusionParams {
+            radius: largest,
+            visibility: Visibility::Ramp,
+            neighbourhood: Neighbourhood::Ball,
+            stride: 1,
+            spectrum_bins: None,
+            method,
+            pad: None,
+        };
+        match occ.choose(v.dims, &p, false)? {
+            Method::FftCpu | Method::FftGpu => 1,
+            _ => (largest / 16).max(1),
+        }
+    } else {
+        stride
+    };
+    let rows =
+        vellum::passes::occlusion_analysis::sensitivity(&occ, &v, radii, bands, stride, method)?;
     report_validation(&ctx);
     let c = vellum::passes::occlusion_analysis::sensitivity_plot(&rows);
     vellum::output::write_png_rgb(out, c.width as u32, c.height as u32, &c.rgb)?;
