@@ -378,3 +378,35 @@ fn sensitivity_sweeps_to_r100_at_full_resolution_on_the_fast_path() {
     let rows = std::fs::read_to_string(&csv).unwrap();
     assert!(rows.lines().any(|l| l.starts_with("100,")));
 }
+
+#[test]
+fn sizes_beyond_memory_are_refused_with_the_need_and_the_limit() {
+    use vellum::passes::occlusion_fft::{
+        check_cpu_memory, denominator_entries, gpu::FftGpu, padded_dims,
+    };
+    let gpu = Gpu::new();
+    // 1000³ at R = 64: several GiB of spectra, beyond lavapipe's 2 GiB heap (checked before any
+    // allocation).
+    let dims = [1000, 1000, 1000];
+    let pad = padded_dims(dims, 64);
+    let heap = gpu.ctx.info.device_local_heap_bytes;
+    if heap < 8 << 30 {
+        let e = FftGpu::check(&gpu.ctx, dims, pad, 1, denominator_entries(dims, 64))
+            .expect_err("too large for the heap")
+            .to_string();
+        assert!(
+            e.contains("MiB of device memory")
+                && e.contains(&format!("{:.0} MiB", heap as f64 / 1048576.0)),
+            "{e}"
+        );
+        assert_eq!(e.lines().count(), 1);
+    }
+    let e = check_cpu_memory(dims, pad, 1, Some(1 << 30))
+        .expect_err("1 GiB is too little")
+        .to_string();
+    assert!(
+        e.contains("fft-cpu would need") && e.contains("1024 MiB are available"),
+        "{e}"
+    );
+    assert!(check_cpu_memory([64; 3], padded_dims([64; 3], 8), 1, Some(1 << 30)).is_ok());
+}

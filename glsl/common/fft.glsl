@@ -9,10 +9,9 @@
 #ifndef VELLUM_FFT_GLSL
 #define VELLUM_FFT_GLSL
 
-#define FFT_LOCAL 128
 #define FFT_MAX_N 4096
 // Values one invocation holds in a stage: ceil(n / (r · FFT_LOCAL)) · r <= n / FFT_LOCAL + r.
-#define FFT_MAXV 40
+#define FFT_MAXV (FFT_MAX_N / FFT_LOCAL + 8)
 
 shared vec2 line[FFT_MAX_N];
 

@@ -46,6 +46,9 @@ struct FftPush {
     int pad0;
 };
 
+// Invocations per line of the FFT passes (glsl/common/fft.glsl).
+#define FFT_LOCAL 64
+
 #define OCCLUSION_LOCAL_X 64
 #define OCCLUSION_LOCAL_Y 2
 #define OCCLUSION_LOCAL_Z 2

@@ -5,7 +5,7 @@
 // written: the later passes read them as zero.
 #include "occlusion.glsl"
 
-layout(local_size_x = 128, local_size_y = 1, local_size_z = 1) in;
+layout(local_size_x = FFT_LOCAL, local_size_y = 1, local_size_z = 1) in;
 
 layout(set = 0, binding = 0, r32f) uniform readonly image3D intensity;
 layout(set = 0, binding = 1, rg32f) uniform writeonly image3D spectrum;

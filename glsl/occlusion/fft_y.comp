@@ -3,7 +3,7 @@
 // beyond pc.live.y are read as zero (the forward x pass never wrote them).
 #include "occlusion.glsl"
 
-layout(local_size_x = 128, local_size_y = 1, local_size_z = 1) in;
+layout(local_size_x = FFT_LOCAL, local_size_y = 1, local_size_z = 1) in;
 
 layout(set = 0, binding = 0, rg32f) uniform image3D data;
 

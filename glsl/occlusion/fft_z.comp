@@ -7,7 +7,7 @@
 //   the output samples (z = oz · stride) are written, to `result`. The spectrum stays intact.
 #include "occlusion.glsl"
 
-layout(local_size_x = 128, local_size_y = 1, local_size_z = 1) in;
+layout(local_size_x = FFT_LOCAL, local_size_y = 1, local_size_z = 1) in;
 
 layout(set = 0, binding = 0, rg32f) uniform readonly image3D spectrum;
 layout(set = 0, binding = 1, r32f) uniform image3D kernel_hat;

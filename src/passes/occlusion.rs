@@ -440,7 +440,9 @@ impl Occlusion {
 
     /// The FFT method on the CPU for an uploaded input (which keeps its host copy).
     fn compute_cpu(&self, input: &OcclusionInput, p: &OcclusionParams) -> Result<OcclusionOutput> {
-        use crate::passes::occlusion_fft::{available_memory, check_pad, cpu_bytes, padded_dims};
+        use crate::passes::occlusion_fft::{
+            available_memory, check_cpu_memory, check_pad, padded_dims,
+        };
         use rayon::prelude::*;
         let host = input.host.clone().ok_or_else(|| {
             Error::Invalid(
@@ -452,17 +454,7 @@ impl Occlusion {
         let kernel = Kernel::new(p.neighbourhood, p.radius);
         let pad = p.pad.unwrap_or_else(|| padded_dims(dims, p.radius));
         check_pad(dims, pad, p.radius)?;
-        let entries = crate::passes::occlusion_fft::denominator_entries(dims, p.radius);
-        let need = cpu_bytes(dims, pad, stride, entries);
-        if let Some(have) = available_memory() {
-            if need > have {
-                return Err(Error::Invalid(format!(
-                    "--method fft-cpu would need {:.0} MiB of memory for {dims:?} padded to {pad:?} but {:.0} MiB are available; use a smaller radius",
-                    need as f64 / 1048576.0,
-                    have as f64 / 1048576.0
-                )));
-            }
-        }
+        check_cpu_memory(dims, pad, stride, available_memory())?;
         let mut passes = Vec::new();
         let mut timed = |name: &str, start: std::time::Instant| {
             passes.push(PassTime {

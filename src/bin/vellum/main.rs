@@ -1846,9 +1846,9 @@ fn occlusion(
             r.occlusion.dims[0], r.occlusion.dims[1], r.occlusion.dims[2], stats.min, stats.max
         );
         for p in &r.passes {
-            println!("  {:<10} {:>10.3} ms", p.name, p.ms);
+            println!("  {:<18} {:>10.3} ms", p.name, p.ms);
         }
-        println!("  total      {wall_ms:>10.3} ms");
+        println!("  {:<18} {wall_ms:>10.3} ms", "total");
     }
     Ok(())
 }

@@ -278,6 +278,36 @@ pub fn cpu_bytes(dims: [usize; 3], pad: [usize; 3], stride: usize, den_entries: 
         + den_entries as u64 * 4
 }
 
+/// Refuses a CPU FFT whose working memory (`cpu_bytes`) exceeds `available`, in one sentence
+/// with both figures.
+pub fn check_cpu_memory(
+    dims: [usize; 3],
+    pad: [usize; 3],
+    stride: usize,
+    available: Option<u64>,
+) -> Result<()> {
+    let need = cpu_bytes(dims, pad, stride, denominator_entries_for_pad(dims, pad));
+    match available {
+        Some(have) if need > have => Err(Error::Invalid(format!(
+            "--method fft-cpu would need {:.0} MiB of memory for {dims:?} padded to {pad:?} but {:.0} MiB are available; use a smaller radius",
+            need as f64 / 1048576.0,
+            have as f64 / 1048576.0
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// Denominator entries at the largest radius `pad` can serve.
+fn denominator_entries_for_pad(dims: [usize; 3], pad: [usize; 3]) -> usize {
+    (0..3)
+        .map(|a| {
+            axis_classes(dims[a], (pad[a] - dims[a]).min(dims[a].saturating_sub(1)))
+                .1
+                .len()
+        })
+        .product()
+}
+
 /// Memory this machine has available (MemAvailable), where the system says.
 pub fn available_memory() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
