@@ -6,6 +6,7 @@
 pub mod feature;
 pub mod geometry;
 pub mod io;
+pub mod lines;
 pub mod phantom;
 pub mod reference;
 pub mod resample;

@@ -34,10 +34,54 @@ fn parse(rest: &str) -> Result<Volume> {
     match name {
         "shepp-logan" | "shepp_logan" => Ok(shepp_logan(n)),
         "nested" => Ok(nested(n)),
+        "sphere" => Ok(smooth_sphere(n)),
+        "torus" => Ok(smooth_torus(n)),
+        "ellipsoid" => Ok(smooth_ellipsoid(n)),
         other => Err(Error::Invalid(format!(
-            "unknown phantom '{other}'; expected phantom:shepp-logan[:N] or phantom:nested[:N]"
+            "unknown phantom '{other}'; expected phantom:NAME[:N] with NAME shepp-logan, nested, sphere, torus or ellipsoid"
         ))),
     }
+}
+
+/// Smooth phantoms for line drawings: 0.5 + 0.5 tanh(d / SMOOTH_WIDTH) of a signed distance d
+/// (positive inside, in [-1, 1] coordinates), so f = 0.5 is the exact shape and every derivative
+/// exists.
+pub const SMOOTH_WIDTH: f64 = 0.08;
+/// Radius of `phantom:sphere` in [-1, 1] coordinates.
+pub const SPHERE_RADIUS: f64 = 0.6;
+/// Major and minor radius of `phantom:torus` (axis along z).
+pub const TORUS_RADII: [f64; 2] = [0.55, 0.25];
+/// Semi-axes of `phantom:ellipsoid`.
+pub const ELLIPSOID_AXES: [f64; 3] = [0.75, 0.5, 0.35];
+
+fn smooth(d: f64) -> f32 {
+    (0.5 + 0.5 * (d / SMOOTH_WIDTH).tanh()) as f32
+}
+
+/// A sphere of radius [`SPHERE_RADIUS`] at the centre, with a smooth profile.
+pub fn smooth_sphere(n: usize) -> Volume {
+    sample(n, |x, y, z| {
+        smooth(SPHERE_RADIUS - (x * x + y * y + z * z).sqrt())
+    })
+}
+
+/// A torus around z with radii [`TORUS_RADII`], with a smooth profile: saddle-shaped on the inside.
+pub fn smooth_torus(n: usize) -> Volume {
+    let [big, small] = TORUS_RADII;
+    sample(n, |x, y, z| {
+        let q = (x * x + y * y).sqrt() - big;
+        smooth(small - (q * q + z * z).sqrt())
+    })
+}
+
+/// An ellipsoid with semi-axes [`ELLIPSOID_AXES`], with a smooth profile (an approximate distance:
+/// the level set f = 0.5 is the exact ellipsoid).
+pub fn smooth_ellipsoid(n: usize) -> Volume {
+    let [a, b, c] = ELLIPSOID_AXES;
+    sample(n, |x, y, z| {
+        let k = ((x / a).powi(2) + (y / b).powi(2) + (z / c).powi(2)).sqrt();
+        smooth((1.0 - k) * c)
+    })
 }
 
 /// Fills an n^3 volume with `f(x, y, z)` evaluated at voxel centres in [-1, 1]^3, one z slice per task.

@@ -1,0 +1,195 @@
+//! Object-space lines (issue 11, SPEC TL5): analytic checks of the CPU reference on smooth
+//! phantoms whose f = 0.5 level set is known exactly, and the GPU extraction against it.
+//!
+//! - A sphere seen orthographically: the silhouette is one closed loop whose projection is a
+//!   circle of the sphere's radius (within 0.1 voxel), and there is no suggestive contour, since
+//!   κ_r > 0 everywhere on a sphere.
+//! - A torus seen along its axis: silhouettes on the outer rim (R + r) and the inner hole (R − r);
+//!   seen obliquely, suggestive contours where it is saddle-shaped (the inner half).
+//! - A view change moves the silhouette of an ellipsoid.
+
+mod common;
+
+use vellum::volume::lines::{extract, Eye, LineParams, Segment, SILHOUETTE, SUGGESTIVE};
+use vellum::volume::{phantom, Volume, VoxelData};
+
+fn values(v: &Volume) -> Vec<f32> {
+    match &v.data {
+        VoxelData::F32(d) => d.clone(),
+        _ => panic!("float phantom"),
+    }
+}
+
+fn params() -> LineParams {
+    LineParams {
+        iso: 0.5,
+        ..LineParams::default()
+    }
+}
+
+/// Endpoints keyed to 1e-4 voxel that end an odd number of segments. A closed set of curves has
+/// none: each endpoint is shared by two segments (four where the curve passes through a vertex
+/// of the iso-surface's triangles, whose triangles all contribute).
+fn open_ends(segs: &[Segment]) -> usize {
+    let mut counts = std::collections::HashMap::new();
+    for s in segs {
+        for p in [s.a, s.b] {
+            let key = [0, 1, 2].map(|i| (p[i] * 1e4).round() as i64);
+            *counts.entry(key).or_insert(0) += 1;
+        }
+    }
+    counts.values().filter(|&&c| c % 2 == 1).count()
+}
+
+fn of_kind(segs: &[Segment], kind: f32) -> Vec<Segment> {
+    segs.iter().copied().filter(|s| s.kind() == kind).collect()
+}
+
+/// Largest distance from any point of `a` (endpoints and midpoints) to the segments of `b`.
+pub fn directed_hausdorff(a: &[Segment], b: &[Segment]) -> f32 {
+    let dist = |p: [f32; 3], s: &Segment| {
+        let d: [f32; 3] = std::array::from_fn(|i| s.b[i] - s.a[i]);
+        let w: [f32; 3] = std::array::from_fn(|i| p[i] - s.a[i]);
+        let dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        let t = if dd > 0.0 {
+            ((w[0] * d[0] + w[1] * d[1] + w[2] * d[2]) / dd).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let q: [f32; 3] = std::array::from_fn(|i| s.a[i] + t * d[i] - p[i]);
+        (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt()
+    };
+    a.iter()
+        .flat_map(|s| {
+            let m: [f32; 3] = std::array::from_fn(|i| 0.5 * (s.a[i] + s.b[i]));
+            [[s.a[0], s.a[1], s.a[2]], m, [s.b[0], s.b[1], s.b[2]]]
+        })
+        .map(|p| b.iter().map(|s| dist(p, s)).fold(f32::INFINITY, f32::min))
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn sphere_silhouette_is_one_closed_circle_and_has_no_suggestive_contours() {
+    let n = 64;
+    let v = phantom::smooth_sphere(n);
+    let c = (n - 1) as f32 / 2.0;
+    let radius = phantom::SPHERE_RADIUS as f32 * c;
+    let segs = extract(
+        &values(&v),
+        v.dims,
+        [1.0; 3],
+        Eye::Direction([0.0, 0.0, 1.0]),
+        &params(),
+    );
+    let sil = of_kind(&segs, SILHOUETTE);
+    assert!(sil.len() > 100, "{} silhouette segments", sil.len());
+    assert_eq!(open_ends(&sil), 0, "the silhouette is closed");
+    let mut worst = 0f32;
+    for s in &sil {
+        for p in [s.a, s.b] {
+            let r = ((p[0] - c).powi(2) + (p[1] - c).powi(2)).sqrt();
+            worst = worst.max((r - radius).abs());
+            // In the plane through the centre, perpendicular to the view.
+            assert!(
+                (p[2] - c).abs() < 1.0,
+                "silhouette point off the equator: {p:?}"
+            );
+        }
+    }
+    assert!(worst < 0.1, "projected radius off by {worst} voxel");
+    let length: f32 = sil.iter().map(Segment::length).sum();
+    let circumference = 2.0 * std::f32::consts::PI * radius;
+    assert!(
+        (length / circumference - 1.0).abs() < 0.02,
+        "length {length} vs {circumference}"
+    );
+    assert_eq!(
+        of_kind(&segs, SUGGESTIVE).len(),
+        0,
+        "no suggestive contours on a sphere"
+    );
+}
+
+#[test]
+fn torus_has_rim_and_hole_silhouettes_and_suggestive_contours_on_its_saddle() {
+    let n = 80;
+    let v = phantom::smooth_torus(n);
+    let c = (n - 1) as f32 / 2.0;
+    let [big, small] = phantom::TORUS_RADII.map(|r| r as f32 * c);
+    let vals = values(&v);
+    let segs = extract(
+        &vals,
+        v.dims,
+        [1.0; 3],
+        Eye::Direction([0.0, 0.0, 1.0]),
+        &params(),
+    );
+    let sil = of_kind(&segs, SILHOUETTE);
+    let radii: Vec<f32> = sil
+        .iter()
+        .map(|s| ((s.a[0] - c).powi(2) + (s.a[1] - c).powi(2)).sqrt())
+        .collect();
+    let near = |r: f32| radii.iter().filter(|&&x| (x - r).abs() < 0.3).count();
+    assert!(near(big + small) > 50, "outer rim: {}", near(big + small));
+    assert!(near(big - small) > 20, "inner hole: {}", near(big - small));
+    assert_eq!(
+        near(big + small) + near(big - small),
+        sil.len(),
+        "nothing else"
+    );
+    assert_eq!(open_ends(&sil), 0, "closed loops");
+    // Obliquely, suggestive contours appear, and only where the torus is saddle-shaped: the
+    // inner half, nearer the axis than the tube's centre circle.
+    let oblique = Eye::Direction([0.0, -0.8f32.sin(), 0.8f32.cos()]);
+    let segs = extract(&vals, v.dims, [1.0; 3], oblique, &params());
+    let sc = of_kind(&segs, SUGGESTIVE);
+    assert!(sc.len() > 20, "{} suggestive segments", sc.len());
+    for s in &sc {
+        let r = ((s.a[0] - c).powi(2) + (s.a[1] - c).powi(2)).sqrt();
+        assert!(
+            r < big + 0.5,
+            "suggestive contour on the convex outer half at r = {r}"
+        );
+    }
+}
+
+#[test]
+fn a_view_change_moves_the_silhouette_of_an_ellipsoid() {
+    let v = phantom::smooth_ellipsoid(64);
+    let vals = values(&v);
+    let p = LineParams {
+        suggestive: false,
+        ..params()
+    };
+    let a = extract(&vals, v.dims, [1.0; 3], Eye::Direction([0.0, 0.0, 1.0]), &p);
+    let b = extract(&vals, v.dims, [1.0; 3], Eye::Direction([0.6, 0.0, 0.8]), &p);
+    assert!(!a.is_empty() && !b.is_empty());
+    assert!(directed_hausdorff(&a, &b) > 3.0, "the silhouette moved");
+    // A perspective eye far away along z approaches the orthographic one.
+    let c = 31.5;
+    let far = extract(&vals, v.dims, [1.0; 3], Eye::Point([c, c, c + 1e5]), &p);
+    assert!(directed_hausdorff(&a, &far) < 0.05 && directed_hausdorff(&far, &a) < 0.05);
+    // Anisotropic spacing: a volume squashed 2× along z, with spacing 2, has the same lines.
+    let n = 64;
+    let squashed: Vec<f32> = (0..n * n * (n / 2))
+        .map(|i| vals[(i % (n * n)) + n * n * (2 * (i / (n * n)))])
+        .collect();
+    let s = extract(
+        &squashed,
+        [n, n, n / 2],
+        [1.0, 1.0, 2.0],
+        Eye::Direction([0.6, 0.0, 0.8]),
+        &p,
+    );
+    let stretched: Vec<Segment> = s
+        .iter()
+        .map(|q| Segment {
+            a: [q.a[0], q.a[1], 2.0 * q.a[2], q.a[3]],
+            b: [q.b[0], q.b[1], 2.0 * q.b[2], q.b[3]],
+        })
+        .collect();
+    assert!(
+        directed_hausdorff(&stretched, &b) < 1.5,
+        "spacing respected"
+    );
+}
