@@ -45,26 +45,54 @@ fn of_kind(segs: &[Segment], kind: f32) -> Vec<Segment> {
     segs.iter().copied().filter(|s| s.kind() == kind).collect()
 }
 
-/// Largest distance from any point of `a` (endpoints and midpoints) to the segments of `b`.
-pub fn directed_hausdorff(a: &[Segment], b: &[Segment]) -> f32 {
-    let dist = |p: [f32; 3], s: &Segment| {
-        let d: [f32; 3] = std::array::from_fn(|i| s.b[i] - s.a[i]);
-        let w: [f32; 3] = std::array::from_fn(|i| p[i] - s.a[i]);
-        let dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-        let t = if dd > 0.0 {
-            ((w[0] * d[0] + w[1] * d[1] + w[2] * d[2]) / dd).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let q: [f32; 3] = std::array::from_fn(|i| s.a[i] + t * d[i] - p[i]);
-        (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt()
+fn point_segment(p: [f32; 3], s: &Segment) -> f32 {
+    let d: [f32; 3] = std::array::from_fn(|i| s.b[i] - s.a[i]);
+    let w: [f32; 3] = std::array::from_fn(|i| p[i] - s.a[i]);
+    let dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    let t = if dd > 0.0 {
+        ((w[0] * d[0] + w[1] * d[1] + w[2] * d[2]) / dd).clamp(0.0, 1.0)
+    } else {
+        0.0
     };
+    let q: [f32; 3] = std::array::from_fn(|i| s.a[i] + t * d[i] - p[i]);
+    (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt()
+}
+
+/// Largest distance from any point of `a` (endpoints and midpoints) to the segments of `b`.
+/// Segments are bucketed by voxel; a point looks in the buckets around it (segments are shorter
+/// than two voxels) and scans everything only when those are empty.
+pub fn directed_hausdorff(a: &[Segment], b: &[Segment]) -> f32 {
+    let key = |p: [f32; 3]| p.map(|c| c.floor() as i64);
+    let mut grid: std::collections::HashMap<[i64; 3], Vec<usize>> = Default::default();
+    for (i, s) in b.iter().enumerate() {
+        grid.entry(key([s.a[0], s.a[1], s.a[2]]))
+            .or_default()
+            .push(i);
+    }
     a.iter()
         .flat_map(|s| {
             let m: [f32; 3] = std::array::from_fn(|i| 0.5 * (s.a[i] + s.b[i]));
             [[s.a[0], s.a[1], s.a[2]], m, [s.b[0], s.b[1], s.b[2]]]
         })
-        .map(|p| b.iter().map(|s| dist(p, s)).fold(f32::INFINITY, f32::min))
+        .map(|p| {
+            let k = key(p);
+            let mut best = f32::INFINITY;
+            for dz in -2..=2 {
+                for dy in -2..=2 {
+                    for dx in -2..=2 {
+                        if let Some(list) = grid.get(&[k[0] + dx, k[1] + dy, k[2] + dz]) {
+                            for &i in list {
+                                best = best.min(point_segment(p, &b[i]));
+                            }
+                        }
+                    }
+                }
+            }
+            if best > 1.0 {
+                best = b.iter().map(|s| point_segment(p, s)).fold(best, f32::min);
+            }
+            best
+        })
         .fold(0.0, f32::max)
 }
 
@@ -191,5 +219,95 @@ fn a_view_change_moves_the_silhouette_of_an_ellipsoid() {
     assert!(
         directed_hausdorff(&stretched, &b) < 1.5,
         "spacing respected"
+    );
+}
+
+/// The CPU reference on the same normalised values and τ the GPU pass sees.
+fn cpu_reference(v: &Volume, iso: f32, eye: Eye, p: &LineParams) -> Vec<Segment> {
+    let (values, [lo, hi]) = vellum::passes::occlusion::normalised_f32(v);
+    let iso = ((iso as f64 - lo) / (hi - lo)) as f32;
+    let spacing = v.spacing.map(|s| s as f32);
+    extract(&values, v.dims, spacing, eye, &LineParams { iso, ..*p })
+}
+
+#[test]
+fn gpu_segments_equal_the_cpu_reference() {
+    use vellum::passes::lines::LineExtractor;
+    let gpu = common::Gpu::new();
+    let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let cases: Vec<(Volume, f32, Eye, &str)> = vec![
+        (
+            phantom::smooth_torus(64),
+            0.5,
+            Eye::Direction([0.0, -0.8f32.sin(), 0.8f32.cos()]),
+            "torus",
+        ),
+        (
+            phantom::smooth_ellipsoid(48),
+            0.5,
+            Eye::Point([80.0, 20.0, 60.0]),
+            "ellipsoid, perspective",
+        ),
+        (
+            phantom::shepp_logan(64),
+            0.3,
+            Eye::Direction([0.3, 0.5, 0.81]),
+            "shepp-logan",
+        ),
+    ];
+    for (v, iso, eye, name) in &cases {
+        for stride in [1, 2] {
+            let p = LineParams {
+                iso: *iso,
+                stride,
+                ..LineParams::default()
+            };
+            let got = lines.extract(v, *eye, &p, 1 << 20).unwrap();
+            assert!(!got.overflowed());
+            let want = cpu_reference(v, *iso, *eye, &p);
+            for kind in [SILHOUETTE, SUGGESTIVE] {
+                let (g, w) = (of_kind(&got.segments, kind), of_kind(&want, kind));
+                let (lg, lw): (f32, f32) = (
+                    g.iter().map(Segment::length).sum(),
+                    w.iter().map(Segment::length).sum(),
+                );
+                let tol = (w.len() / 200).max(2);
+                assert!(
+                    g.len().abs_diff(w.len()) <= tol,
+                    "{name} stride {stride} kind {kind}: {} vs {}",
+                    g.len(),
+                    w.len()
+                );
+                assert!(
+                    (lg - lw).abs() <= 0.01 * lw.max(1.0),
+                    "{name} kind {kind}: length {lg} vs {lw}"
+                );
+                if !w.is_empty() {
+                    let h = directed_hausdorff(&g, &w).max(directed_hausdorff(&w, &g));
+                    assert!(
+                        h < 0.05,
+                        "{name} stride {stride} kind {kind}: Hausdorff {h} voxel"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn an_overflow_is_reported_and_bounded() {
+    use vellum::passes::lines::LineExtractor;
+    let gpu = common::Gpu::new();
+    let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let v = phantom::smooth_torus(64);
+    let eye = Eye::Direction([0.0, 0.0, 1.0]);
+    let full = lines
+        .extract(&v, eye, &LineParams::default(), 1 << 20)
+        .unwrap();
+    let small = lines.extract(&v, eye, &LineParams::default(), 50).unwrap();
+    assert!(small.overflowed() && small.segments.len() == 50);
+    assert_eq!(
+        small.found, full.found,
+        "the count goes on past the capacity"
     );
 }

@@ -2,6 +2,7 @@
 //! CPU twin in `volume::reference` that tests compare it with.
 
 pub mod importance;
+pub mod lines;
 pub mod normals;
 pub mod occlusion;
 pub mod occlusion_analysis;

@@ -1,0 +1,17 @@
+// Shader interface of the line extraction (twin: `LinesPush` in src/passes/lines.rs).
+#ifndef VELLUM_LINES_GLSL
+#define VELLUM_LINES_GLSL
+
+struct LinesPush {
+    ivec3 dims;                  // volume size
+    int stride;                  // visit every stride-th cell (1 all, 2 interactive)
+    vec3 spacing;                // physical size of a voxel
+    float iso;                   // τ on the normalised scale
+    vec4 eye;                    // w = 0: unit direction towards the eye; w = 1: eye position (physical)
+    int kinds;                   // bit 0 silhouettes, bit 1 suggestive contours
+    float cos_c;                 // cos θ_c
+    float derivative_threshold;  // t_d
+    uint capacity;               // segments the buffer holds
+};
+
+#endif

@@ -1,0 +1,215 @@
+#version 460
+// Object-space lines (SPEC TL5): silhouettes and suggestive contours on f = τ, one cell per
+// invocation, appended to a buffer through an atomic counter. The GPU twin of
+// src/volume/lines.rs, which documents the method; the arithmetic follows it step by step.
+#include "lines.glsl"
+
+layout(local_size_x = 4, local_size_y = 4, local_size_z = 4) in;
+
+layout(set = 0, binding = 0, r32f) uniform readonly image3D volume;
+
+struct Segment {
+    vec4 a;   // index coordinates; a.w = kind (0 silhouette, 1 suggestive contour)
+    vec4 b;
+};
+
+// `count` keeps counting past `capacity`: the caller learns how many were lost.
+layout(set = 0, binding = 1) buffer Lines {
+    uint count;
+    uint pad0;
+    uint pad1;
+    uint pad2;
+    Segment segs[];
+};
+
+layout(push_constant) uniform Push { LinesPush pc; };
+
+struct Point {
+    vec3 p;
+    vec3 g;
+    float ndotv;
+    float kappa;
+};
+
+Point lerp_point(Point a, Point b, float t) {
+    Point r;
+    r.p = a.p + t * (b.p - a.p);
+    r.g = a.g + t * (b.g - a.g);
+    r.ndotv = a.ndotv + t * (b.ndotv - a.ndotv);
+    r.kappa = a.kappa + t * (b.kappa - a.kappa);
+    return r;
+}
+
+float at(ivec3 q) {
+    return imageLoad(volume, clamp(q, ivec3(0), pc.dims - 1)).r;
+}
+
+vec3 view_at(vec3 x) {
+    return pc.eye.w == 0.0 ? normalize(pc.eye.xyz) : normalize(pc.eye.xyz - x);
+}
+
+void emit(Point a, Point b, float kind) {
+    uint i = atomicAdd(count, 1u);
+    if (i < pc.capacity) {
+        segs[i].a = vec4(a.p, kind);
+        segs[i].b = vec4(b.p, 0.0);
+    }
+}
+
+bool before(vec3 a, vec3 b) {
+    return a.x < b.x || (a.x == b.x && (a.y < b.y || (a.y == b.y && a.z < b.z)));
+}
+
+// The zero segment of h (0: n·v, 1: κ_r) over triangle t; false when h keeps its sign.
+bool zero_segment(Point t[3], int which, out Point e0, out Point e1) {
+    float v[3];
+    for (int i = 0; i < 3; ++i) {
+        v[i] = which == 0 ? t[i].ndotv : t[i].kappa;
+    }
+    int n = 0;
+    for (int k = 0; k < 3; ++k) {
+        int i = k, j = (k + 1) % 3;
+        if ((v[i] >= 0.0) != (v[j] >= 0.0)) {
+            if (!before(t[i].p, t[j].p)) {
+                int s = i;
+                i = j;
+                j = s;
+            }
+            Point p = lerp_point(t[i], t[j], v[i] / (v[i] - v[j]));
+            if (n == 0) {
+                e0 = p;
+            } else {
+                e1 = p;
+            }
+            ++n;
+        }
+    }
+    return n == 2;
+}
+
+void triangle(Point t[3]) {
+    Point a, b;
+    if ((pc.kinds & 1) != 0 && zero_segment(t, 0, a, b)) {
+        emit(a, b, 0.0);
+    }
+    if ((pc.kinds & 2) != 0 && zero_segment(t, 1, a, b)) {
+        Point m = lerp_point(a, b, 0.5);
+        vec3 x = m.p * pc.spacing;
+        vec3 n = normalize(-m.g);
+        vec3 v = view_at(x);
+        float ndotv = dot(n, v);
+        vec3 p0 = t[0].p * pc.spacing, p1 = t[1].p * pc.spacing, p2 = t[2].p * pc.spacing;
+        vec3 e1 = p1 - p0, e2 = p2 - p0;
+        float d1 = t[1].kappa - t[0].kappa, d2 = t[2].kappa - t[0].kappa;
+        float a11 = dot(e1, e1), a12 = dot(e1, e2), a22 = dot(e2, e2);
+        float det = a11 * a22 - a12 * a12;
+        if (ndotv > 0.0 && ndotv < pc.cos_c && det > 1e-20) {
+            float ca = (d1 * a22 - d2 * a12) / det;
+            float cb = (d2 * a11 - d1 * a12) / det;
+            vec3 grad = ca * e1 + cb * e2;
+            vec3 w = normalize(v - ndotv * n);
+            if (dot(grad, w) > pc.derivative_threshold) {
+                emit(a, b, 1.0);
+            }
+        }
+    }
+}
+
+const ivec4 TETS[6] = ivec4[6](ivec4(0, 1, 3, 7), ivec4(0, 1, 5, 7), ivec4(0, 2, 3, 7),
+                               ivec4(0, 2, 6, 7), ivec4(0, 4, 5, 7), ivec4(0, 4, 6, 7));
+
+void main() {
+    ivec3 c = ivec3(gl_GlobalInvocationID) * pc.stride;
+    if (any(greaterThanEqual(c, pc.dims - 1))) {
+        return;
+    }
+    float f[8];
+    int inside = 0;
+    for (int i = 0; i < 8; ++i) {
+        f[i] = at(c + ivec3(i & 1, (i >> 1) & 1, (i >> 2) & 1));
+        inside += f[i] >= pc.iso ? 1 : 0;
+    }
+    if (inside == 0 || inside == 8) {
+        return;
+    }
+    Point pts[8];
+    vec3 s = pc.spacing;
+    for (int i = 0; i < 8; ++i) {
+        ivec3 q = c + ivec3(i & 1, (i >> 1) & 1, (i >> 2) & 1);
+        float f0 = at(q);
+        vec3 g = vec3(at(q + ivec3(1, 0, 0)) - at(q - ivec3(1, 0, 0)),
+                      at(q + ivec3(0, 1, 0)) - at(q - ivec3(0, 1, 0)),
+                      at(q + ivec3(0, 0, 1)) - at(q - ivec3(0, 0, 1))) / (2.0 * s);
+        float hxx = (at(q + ivec3(1, 0, 0)) - 2.0 * f0 + at(q - ivec3(1, 0, 0))) / (s.x * s.x);
+        float hyy = (at(q + ivec3(0, 1, 0)) - 2.0 * f0 + at(q - ivec3(0, 1, 0))) / (s.y * s.y);
+        float hzz = (at(q + ivec3(0, 0, 1)) - 2.0 * f0 + at(q - ivec3(0, 0, 1))) / (s.z * s.z);
+        float hxy = (at(q + ivec3(1, 1, 0)) - at(q + ivec3(1, -1, 0)) - at(q + ivec3(-1, 1, 0))
+                     + at(q + ivec3(-1, -1, 0))) / (4.0 * s.x * s.y);
+        float hxz = (at(q + ivec3(1, 0, 1)) - at(q + ivec3(1, 0, -1)) - at(q + ivec3(-1, 0, 1))
+                     + at(q + ivec3(-1, 0, -1))) / (4.0 * s.x * s.z);
+        float hyz = (at(q + ivec3(0, 1, 1)) - at(q + ivec3(0, 1, -1)) - at(q + ivec3(0, -1, 1))
+                     + at(q + ivec3(0, -1, -1))) / (4.0 * s.y * s.z);
+        vec3 p = vec3(q);
+        vec3 v = view_at(p * s);
+        float gl = max(length(g), 1e-30);
+        vec3 n = -g / gl;
+        float ndotv = dot(n, v);
+        vec3 w = v - ndotv * n;
+        float ww = dot(w, w);
+        vec3 hw = vec3(hxx * w.x + hxy * w.y + hxz * w.z,
+                       hxy * w.x + hyy * w.y + hyz * w.z,
+                       hxz * w.x + hyz * w.y + hzz * w.z);
+        pts[i].p = p;
+        pts[i].g = g;
+        pts[i].ndotv = ndotv;
+        pts[i].kappa = ww > 1e-12 ? -dot(w, hw) / (gl * ww) : 0.0;
+    }
+    for (int k = 0; k < 6; ++k) {
+        ivec4 tet = TETS[k];
+        float sv[4] = float[4](f[tet.x] - pc.iso, f[tet.y] - pc.iso, f[tet.z] - pc.iso,
+                               f[tet.w] - pc.iso);
+        int ins[4];
+        int outs[4];
+        int ni = 0, no = 0;
+        for (int j = 0; j < 4; ++j) {
+            if (sv[j] >= 0.0) {
+                ins[ni++] = j;
+            } else {
+                outs[no++] = j;
+            }
+        }
+        if (ni == 0 || ni == 4) {
+            continue;
+        }
+        // Crossing on edge (a, b) of the tetrahedron, from the lower corner index to the higher.
+        #define CROSS(A, B, OUT) { \
+            int ca_ = (A), cb_ = (B); \
+            if (tet[ca_] > tet[cb_]) { int t_ = ca_; ca_ = cb_; cb_ = t_; } \
+            OUT = lerp_point(pts[tet[ca_]], pts[tet[cb_]], sv[ca_] / (sv[ca_] - sv[cb_])); }
+        if (ni == 1 || ni == 3) {
+            int lone = ni == 1 ? ins[0] : outs[0];
+            int o[3];
+            int m = 0;
+            for (int j = 0; j < 4; ++j) {
+                if (j != lone) {
+                    o[m++] = j;
+                }
+            }
+            Point t[3];
+            CROSS(lone, o[0], t[0]);
+            CROSS(lone, o[1], t[1]);
+            CROSS(lone, o[2], t[2]);
+            triangle(t);
+        } else {
+            Point ac, ad, bd, bc;
+            CROSS(ins[0], outs[0], ac);
+            CROSS(ins[0], outs[1], ad);
+            CROSS(ins[1], outs[1], bd);
+            CROSS(ins[1], outs[0], bc);
+            Point t0[3] = Point[3](ac, ad, bd);
+            Point t1[3] = Point[3](ac, bd, bc);
+            triangle(t0);
+            triangle(t1);
+        }
+    }
+}

@@ -1,0 +1,244 @@
+//! Object-space lines on compute (SPEC TL5, issue 11): silhouettes and suggestive contours of
+//! f = τ, one cell per invocation, appended to a bounded buffer through an atomic counter. The
+//! method and its CPU twin are in `volume::lines`; `glsl/lines/extract.comp` follows it step by
+//! step, so the two segment sets agree to float round-off.
+//!
+//! The buffer holds at most `capacity` segments. The counter keeps counting past it, so an
+//! overflow is reported with the number of segments lost, and memory is never overrun.
+
+use crate::error::{Error, Result};
+use crate::gpu::commands::memory_transition;
+use crate::gpu::pipeline::group_count;
+use crate::gpu::resources::BufferLocation;
+use crate::gpu::{
+    submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    Profiler,
+};
+use crate::passes::occlusion::OcclusionInput;
+use crate::volume::lines::{Eye, LineParams, Segment};
+use crate::volume::Volume;
+use ash::vk;
+use std::sync::Arc;
+
+/// Push constants of `extract` (GLSL twin: `LinesPush` in lines.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct LinesPush {
+    pub dims: [i32; 3],
+    pub stride: i32,
+    pub spacing: [f32; 3],
+    pub iso: f32,
+    pub eye: [f32; 4],
+    pub kinds: i32,
+    pub cos_c: f32,
+    pub derivative_threshold: f32,
+    pub capacity: u32,
+}
+
+/// Bytes before the first segment (the counter and its padding).
+const HEADER: u64 = 16;
+/// Default capacity: 1 M segments (32 MiB).
+pub const DEFAULT_CAPACITY: u32 = 1 << 20;
+
+/// The extracted lines.
+#[derive(Clone, Debug)]
+pub struct LineSet {
+    pub segments: Vec<Segment>,
+    /// Segments found, including those the buffer could not hold.
+    pub found: u64,
+    pub ms: f64,
+}
+
+impl LineSet {
+    pub fn overflowed(&self) -> bool {
+        self.found > self.segments.len() as u64
+    }
+}
+
+/// The segment buffer: a counter and `capacity` segments, readable by the host.
+pub struct LineBuffer {
+    pub buffer: Buffer,
+    pub capacity: u32,
+}
+
+impl LineBuffer {
+    pub fn new(ctx: &Arc<Context>, capacity: u32) -> Result<Self> {
+        let bytes = HEADER + capacity as u64 * std::mem::size_of::<Segment>() as u64;
+        if capacity == 0 || bytes > ctx.info.max_storage_buffer_range as u64 {
+            return Err(Error::Invalid(format!(
+                "a line buffer of {capacity} segments is invalid; {} binds at most {} segments",
+                ctx.info.name,
+                (ctx.info.max_storage_buffer_range as u64 - HEADER)
+                    / std::mem::size_of::<Segment>() as u64
+            )));
+        }
+        Ok(LineBuffer {
+            buffer: Buffer::new(
+                ctx,
+                "line segments",
+                &BufferDesc {
+                    size: bytes,
+                    usage: vk::BufferUsageFlags::STORAGE_BUFFER
+                        | vk::BufferUsageFlags::TRANSFER_DST,
+                    location: BufferLocation::Readback,
+                },
+            )?,
+            capacity,
+        })
+    }
+
+    /// The segments and the count after the recorded work has completed.
+    pub fn read(&self) -> Result<(Vec<Segment>, u64)> {
+        let bytes = self
+            .buffer
+            .mapped()
+            .ok_or_else(|| Error::Invalid("the line buffer is not host-visible".into()))?;
+        let found = u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as u64;
+        let kept = found.min(self.capacity as u64) as usize;
+        let size = std::mem::size_of::<Segment>();
+        let start = HEADER as usize;
+        Ok((
+            bytemuck::pod_collect_to_vec(&bytes[start..start + kept * size]),
+            found,
+        ))
+    }
+}
+
+/// The extraction pipeline.
+pub struct LineExtractor {
+    ctx: Arc<Context>,
+    extract: ComputePipeline,
+}
+
+impl LineExtractor {
+    pub fn new(ctx: &Arc<Context>) -> Result<Self> {
+        Ok(LineExtractor {
+            ctx: ctx.clone(),
+            extract: ComputePipeline::new(
+                ctx,
+                "lines/extract.comp",
+                &[BindingKind::StorageImage, BindingKind::StorageBuffer],
+                std::mem::size_of::<LinesPush>() as u32,
+            )?,
+        })
+    }
+
+    /// Records pass `lines` into `cmd`: resets the counter and extracts from `values` (the
+    /// normalised R32F volume; `params.iso` on the same scale).
+    #[allow(clippy::too_many_arguments)]
+    pub fn record(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        values: &Image,
+        dims: [usize; 3],
+        spacing: [f32; 3],
+        eye: Eye,
+        params: &LineParams,
+        out: &LineBuffer,
+    ) -> Result<()> {
+        let ctx = &self.ctx;
+        profiler.begin(cmd, "lines");
+        unsafe {
+            ctx.device
+                .cmd_fill_buffer(cmd, out.buffer.raw, 0, HEADER, 0)
+        };
+        memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
+        values.transition(cmd, Access::ComputeRead);
+        let eye = match eye {
+            Eye::Direction(d) => [d[0], d[1], d[2], 0.0],
+            Eye::Point(p) => [p[0], p[1], p[2], 1.0],
+        };
+        let s = params.stride.max(1);
+        let cells = dims.map(|d| (d.saturating_sub(1) as u32).div_ceil(s));
+        self.extract.dispatch(
+            cmd,
+            &[Bind::StorageImage(values), Bind::StorageBuffer(&out.buffer)],
+            &LinesPush {
+                dims: dims.map(|d| d as i32),
+                stride: s as i32,
+                spacing,
+                iso: params.iso,
+                eye,
+                kinds: params.silhouettes as i32 | (params.suggestive as i32) << 1,
+                cos_c: params.min_angle_deg.to_radians().cos(),
+                derivative_threshold: params.derivative_threshold,
+                capacity: out.capacity,
+            },
+            group_count(cells, [4, 4, 4]),
+        )?;
+        memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::HostRead);
+        profiler.end(cmd);
+        Ok(())
+    }
+
+    /// Uploads `v`, extracts its lines (`params.iso` in data units) and reads them back.
+    /// `spacing` defaults to the volume's.
+    pub fn extract(
+        &self,
+        v: &Volume,
+        eye: Eye,
+        params: &LineParams,
+        capacity: u32,
+    ) -> Result<LineSet> {
+        let ctx = &self.ctx;
+        let mut profiler = Profiler::new(ctx, 2)?;
+        let input = OcclusionInput::upload(ctx, v, &mut profiler)?;
+        let [lo, hi] = input.range;
+        let iso = if hi > lo {
+            ((params.iso as f64 - lo) / (hi - lo)) as f32
+        } else {
+            0.5
+        };
+        let p = LineParams { iso, ..*params };
+        let out = LineBuffer::new(ctx, capacity)?;
+        let spacing = v.spacing.map(|s| s as f32);
+        let mut profiler = Profiler::new(ctx, 1)?;
+        submit_once(ctx, "lines", |cmd| {
+            profiler.reset(cmd);
+            self.record(
+                cmd,
+                &mut profiler,
+                &input.intensity,
+                v.dims,
+                spacing,
+                eye,
+                &p,
+                &out,
+            )
+        })?;
+        let ms = profiler.results()?.iter().map(|t| t.ms).sum();
+        let (segments, found) = out.read()?;
+        Ok(LineSet {
+            segments,
+            found,
+            ms,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::interface::assert_glsl_layout;
+
+    #[test]
+    fn push_constants_match_glsl() {
+        assert_glsl_layout!(
+            LinesPush,
+            "lines.glsl",
+            "LinesPush",
+            [
+                dims,
+                stride,
+                spacing,
+                iso,
+                eye,
+                kinds,
+                cos_c,
+                derivative_threshold,
+                capacity
+            ]
+        );
+    }
+}
