@@ -191,12 +191,8 @@ fn bad_scene_files_get_one_sentence() {
         &["unknown field `glow`"],
     );
     bad_scene(
-        &format!(r#"{{"version": 1, {input}, "style": {{"style": 7}}}}"#),
-        &[
-            "bad.json: style",
-            "style 7 (dog+silhouettes) needs object-space silhouettes",
-            "not built yet",
-        ],
+        &format!(r#"{{"version": 1, {input}, "style": {{"style": 7, "params": {{"line_stride": 0}}}}}}"#),
+        &["bad.json: style", "line stride 0 is invalid"],
     );
     bad_scene(
         &format!(r#"{{"version": 1, {input}, "style": {{"style": "glow"}}}}"#),
@@ -268,8 +264,15 @@ fn bad_modulation_flags_get_one_sentence() {
 fn bad_style_flags_get_one_sentence() {
     bad_flags(&["--iso", "0.4", "--style", "99"], "expected a number 1-15");
     bad_flags(
-        &["--iso", "0.4", "--style", "dog+silhouettes"],
-        "not built yet",
+        &[
+            "--iso",
+            "0.4",
+            "--style",
+            "dog+silhouettes",
+            "--line-angle",
+            "95",
+        ],
+        "line angle 95 is invalid",
     );
     bad_flags(
         &["--iso", "0.4", "--style", "2", "--sigma", "-2"],
@@ -356,10 +359,11 @@ fn the_styles_gallery_and_the_saliency_command() {
         .filter(|s| s["rendered"] == true)
         .map(|s| s["number"].as_u64().unwrap())
         .collect();
-    assert_eq!(rendered, [1, 2, 3, 13, 14, 15]);
-    for s in styles.iter().filter(|s| s["rendered"] == false) {
-        assert!(s["reason"].as_str().unwrap().contains("not built yet"));
-    }
+    assert_eq!(
+        rendered,
+        (1..=15).collect::<Vec<u64>>(),
+        "every style renders"
+    );
     for s in styles.iter().filter(|s| s["rendered"] == true) {
         let share = s["focus_share"].as_f64().unwrap();
         assert!((0.0..=1.0).contains(&share), "{s}");
@@ -374,7 +378,7 @@ fn the_styles_gallery_and_the_saliency_command() {
     ] {
         assert!(dir.path().join("each").join(f).exists(), "{f}");
     }
-    assert!(!dir.path().join("each/style07_dog_silhouettes.png").exists());
+    assert!(dir.path().join("each/style07_dog_silhouettes.png").exists());
     let sal = vellum(&[
         "saliency",
         &p("each/style02_dog.png"),

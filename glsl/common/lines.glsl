@@ -14,4 +14,12 @@ struct LinesPush {
     uint capacity;               // segments the buffer holds
 };
 
+// Push constants of the line rasteriser (twin: `RasterPush` in src/passes/lines.rs).
+struct RasterPush {
+    mat4 index_to_clip;   // voxel index -> clip, the renderer's box -> clip after index -> box
+    vec4 depth;           // linear depth of index p: dot(p, depth.xyz) + depth.w (box units)
+    vec4 params;          // x: depth bias (box units), y: the value written to edges
+    uvec4 capacity_size;  // x: capacity; y, z: image size
+};
+
 #endif

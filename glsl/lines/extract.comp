@@ -6,19 +6,22 @@
 
 layout(local_size_x = 4, local_size_y = 4, local_size_z = 4) in;
 
-layout(set = 0, binding = 0, r32f) uniform readonly image3D volume;
+// The normalised volume: the renderer's R16 texture or an R32F upload, read texel by texel.
+layout(set = 0, binding = 0) uniform sampler3D volume;
 
 struct Segment {
     vec4 a;   // index coordinates; a.w = kind (0 silhouette, 1 suggestive contour)
     vec4 b;
 };
 
-// `count` keeps counting past `capacity`: the caller learns how many were lost.
+// The header is also the indirect dispatch of the rasteriser (64 segments per workgroup):
+// `groups` grows by one with every 64th stored segment. `count` keeps counting past `capacity`,
+// so the caller learns how many were lost.
 layout(set = 0, binding = 1) buffer Lines {
+    uint groups;
+    uint one_y;
+    uint one_z;
     uint count;
-    uint pad0;
-    uint pad1;
-    uint pad2;
     Segment segs[];
 };
 
@@ -41,7 +44,7 @@ Point lerp_point(Point a, Point b, float t) {
 }
 
 float at(ivec3 q) {
-    return imageLoad(volume, clamp(q, ivec3(0), pc.dims - 1)).r;
+    return texelFetch(volume, clamp(q, ivec3(0), pc.dims - 1), 0).r;
 }
 
 vec3 view_at(vec3 x) {
@@ -51,6 +54,9 @@ vec3 view_at(vec3 x) {
 void emit(Point a, Point b, float kind) {
     uint i = atomicAdd(count, 1u);
     if (i < pc.capacity) {
+        if (i % 64u == 0u) {
+            atomicAdd(groups, 1u);
+        }
         segs[i].a = vec4(a.p, kind);
         segs[i].b = vec4(b.p, 0.0);
     }

@@ -32,6 +32,8 @@ pub enum Access {
     DepthAttachment,
     /// Read on the host after the GPU wrote it.
     HostRead,
+    /// Read as the arguments of an indirect dispatch and as storage by the dispatched shader.
+    IndirectRead,
 }
 
 /// The synchronization2 view of an [`Access`].
@@ -84,6 +86,11 @@ pub fn access_info(a: Access) -> AccessInfo {
             L::DEPTH_ATTACHMENT_OPTIMAL,
         ),
         Access::HostRead => (S::HOST, A::HOST_READ, L::GENERAL),
+        Access::IndirectRead => (
+            S::DRAW_INDIRECT | S::COMPUTE_SHADER,
+            A::INDIRECT_COMMAND_READ | A::SHADER_STORAGE_READ,
+            L::GENERAL,
+        ),
     };
     AccessInfo {
         stage,

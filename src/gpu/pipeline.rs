@@ -346,6 +346,34 @@ impl ComputePipeline {
     }
 }
 
+impl ComputePipeline {
+    /// Binds the pipeline, pushes `binds` and `push`, and dispatches the workgroup counts stored
+    /// at `offset` of `args` (a VkDispatchIndirectCommand written by an earlier pass).
+    pub fn dispatch_indirect<P: bytemuck::Pod>(
+        &self,
+        cmd: vk::CommandBuffer,
+        binds: &[Bind],
+        push: &P,
+        args: &crate::gpu::Buffer,
+        offset: u64,
+    ) -> Result<()> {
+        unsafe {
+            self.ctx
+                .device
+                .cmd_bind_pipeline(cmd, vk::PipelineBindPoint::COMPUTE, self.raw)
+        };
+        self.layout.push(
+            cmd,
+            vk::PipelineBindPoint::COMPUTE,
+            &self.name,
+            binds,
+            bytemuck::bytes_of(push),
+        )?;
+        unsafe { self.ctx.device.cmd_dispatch_indirect(cmd, args.raw, offset) };
+        Ok(())
+    }
+}
+
 impl Drop for ComputePipeline {
     fn drop(&mut self) {
         let raw = self.raw;

@@ -12,7 +12,7 @@ use crate::gpu::pipeline::group_count;
 use crate::gpu::resources::BufferLocation;
 use crate::gpu::{
     submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    Profiler,
+    Profiler, Sampler,
 };
 use crate::passes::occlusion::OcclusionInput;
 use crate::volume::lines::{Eye, LineParams, Segment};
@@ -35,8 +35,21 @@ pub struct LinesPush {
     pub capacity: u32,
 }
 
-/// Bytes before the first segment (the counter and its padding).
+/// Push constants of `raster` (GLSL twin: `RasterPush` in lines.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct RasterPush {
+    pub index_to_clip: [[f32; 4]; 4],
+    pub depth: [f32; 4],
+    pub params: [f32; 4],
+    pub capacity_size: [u32; 4],
+}
+
+/// Bytes before the first segment: the rasteriser's indirect dispatch (groups, 1, 1) and the
+/// segment counter.
 const HEADER: u64 = 16;
+/// The header before extraction: no groups yet, no segments.
+const HEADER_INIT: [u32; 4] = [0, 1, 1, 0];
 /// Default capacity: 1 M segments (32 MiB).
 pub const DEFAULT_CAPACITY: u32 = 1 << 20;
 
@@ -79,7 +92,8 @@ impl LineBuffer {
                 &BufferDesc {
                     size: bytes,
                     usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                        | vk::BufferUsageFlags::TRANSFER_DST,
+                        | vk::BufferUsageFlags::TRANSFER_DST
+                        | vk::BufferUsageFlags::INDIRECT_BUFFER,
                     location: BufferLocation::Readback,
                 },
             )?,
@@ -93,7 +107,7 @@ impl LineBuffer {
             .buffer
             .mapped()
             .ok_or_else(|| Error::Invalid("the line buffer is not host-visible".into()))?;
-        let found = u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as u64;
+        let found = u32::from_le_bytes([bytes[12], bytes[13], bytes[14], bytes[15]]) as u64;
         let kept = found.min(self.capacity as u64) as usize;
         let size = std::mem::size_of::<Segment>();
         let start = HEADER as usize;
@@ -104,10 +118,28 @@ impl LineBuffer {
     }
 }
 
-/// The extraction pipeline.
+/// The extraction and drawing pipelines.
 pub struct LineExtractor {
     ctx: Arc<Context>,
     extract: ComputePipeline,
+    raster: ComputePipeline,
+    nearest: Sampler,
+}
+
+/// Where the lines are drawn: the frame's geometry, in the renderer's box frame.
+#[derive(Clone, Copy, Debug)]
+pub struct RasterView {
+    /// Box → clip.
+    pub view_proj: [[f32; 4]; 4],
+    /// box = index · scale + offset, per axis.
+    pub index_scale: [f32; 3],
+    pub index_offset: [f32; 3],
+    pub eye: [f32; 3],
+    pub view_dir: [f32; 3],
+    /// Depth bias in box units: a line pixel is drawn up to this far behind the focus.
+    pub bias: f32,
+    /// The value written to the edge image.
+    pub value: f32,
 }
 
 impl LineExtractor {
@@ -117,14 +149,74 @@ impl LineExtractor {
             extract: ComputePipeline::new(
                 ctx,
                 "lines/extract.comp",
-                &[BindingKind::StorageImage, BindingKind::StorageBuffer],
+                &[BindingKind::SampledImage, BindingKind::StorageBuffer],
                 std::mem::size_of::<LinesPush>() as u32,
             )?,
+            raster: ComputePipeline::new(
+                ctx,
+                "lines/raster.comp",
+                &[
+                    BindingKind::StorageBuffer,
+                    BindingKind::StorageImage,
+                    BindingKind::StorageImage,
+                ],
+                std::mem::size_of::<RasterPush>() as u32,
+            )?,
+            nearest: Sampler::new(ctx, false)?,
         })
     }
 
-    /// Records pass `lines` into `cmd`: resets the counter and extracts from `values` (the
-    /// normalised R32F volume; `params.iso` on the same scale).
+    /// Records pass `lines_draw`: the segments of `lines` (extracted earlier in this command
+    /// buffer) into `edges`, depth-tested against `focus_depth`. One invocation per stored
+    /// segment, by an indirect dispatch the extraction wrote.
+    pub fn record_raster(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        lines: &LineBuffer,
+        view: &RasterView,
+        focus_depth: &Image,
+        edges: &Image,
+    ) -> Result<()> {
+        let ctx = &self.ctx;
+        profiler.begin(cmd, "lines_draw");
+        memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
+        focus_depth.transition(cmd, Access::ComputeRead);
+        edges.transition(cmd, Access::ComputeReadWrite);
+        let e = edges.desc.extent;
+        // index → box is a scale and an offset per axis; fold it into the matrix and the depth.
+        let (sc, off) = (
+            glam::Vec3::from_array(view.index_scale),
+            glam::Vec3::from_array(view.index_offset),
+        );
+        let index_to_box = glam::Mat4::from_translation(off) * glam::Mat4::from_scale(sc);
+        let index_to_clip = glam::Mat4::from_cols_array_2d(&view.view_proj) * index_to_box;
+        let vd = glam::Vec3::from_array(view.view_dir);
+        let coef = sc * vd;
+        let constant = (off - glam::Vec3::from_array(view.eye)).dot(vd);
+        self.raster.dispatch_indirect(
+            cmd,
+            &[
+                Bind::StorageBuffer(&lines.buffer),
+                Bind::StorageImage(focus_depth),
+                Bind::StorageImage(edges),
+            ],
+            &RasterPush {
+                index_to_clip: index_to_clip.to_cols_array_2d(),
+                depth: [coef.x, coef.y, coef.z, constant],
+                params: [view.bias, view.value, 0.0, 0.0],
+                capacity_size: [lines.capacity, e[0], e[1], 0],
+            },
+            &lines.buffer,
+            0,
+        )?;
+        profiler.end(cmd);
+        Ok(())
+    }
+
+    /// Records pass `lines` into `cmd`: resets the header and extracts from `values` (a
+    /// normalised volume texture, R16 or R32F, read texel by texel; `params.iso` on the same
+    /// scale).
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -139,12 +231,14 @@ impl LineExtractor {
     ) -> Result<()> {
         let ctx = &self.ctx;
         profiler.begin(cmd, "lines");
+        // The previous frame's readers (the rasteriser's indirect read) are done before this write.
+        memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
         unsafe {
             ctx.device
-                .cmd_fill_buffer(cmd, out.buffer.raw, 0, HEADER, 0)
+                .cmd_update_buffer(cmd, out.buffer.raw, 0, bytemuck::cast_slice(&HEADER_INIT))
         };
         memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
-        values.transition(cmd, Access::ComputeRead);
+        values.transition(cmd, Access::ComputeSampled);
         let eye = match eye {
             Eye::Direction(d) => [d[0], d[1], d[2], 0.0],
             Eye::Point(p) => [p[0], p[1], p[2], 1.0],
@@ -153,7 +247,10 @@ impl LineExtractor {
         let cells = dims.map(|d| (d.saturating_sub(1) as u32).div_ceil(s));
         self.extract.dispatch(
             cmd,
-            &[Bind::StorageImage(values), Bind::StorageBuffer(&out.buffer)],
+            &[
+                Bind::Sampled(values, &self.nearest),
+                Bind::StorageBuffer(&out.buffer),
+            ],
             &LinesPush {
                 dims: dims.map(|d| d as i32),
                 stride: s as i32,
@@ -167,7 +264,6 @@ impl LineExtractor {
             },
             group_count(cells, [4, 4, 4]),
         )?;
-        memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::HostRead);
         profiler.end(cmd);
         Ok(())
     }
@@ -221,6 +317,16 @@ impl LineExtractor {
 mod tests {
     use super::*;
     use crate::gpu::interface::assert_glsl_layout;
+
+    #[test]
+    fn raster_push_constants_match_glsl() {
+        assert_glsl_layout!(
+            RasterPush,
+            "lines.glsl",
+            "RasterPush",
+            [index_to_clip, depth, params, capacity_size]
+        );
+    }
 
     #[test]
     fn push_constants_match_glsl() {

@@ -20,10 +20,27 @@ use crate::gpu::{
     Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image, ImageDesc,
     Profiler,
 };
+use crate::passes::lines::{LineBuffer, LineExtractor, RasterView};
 use crate::render::style::{Abstraction, EdgeKind, Style};
 use crate::render::targets::TargetImages;
+use crate::volume::lines::{Eye, LineParams};
 use ash::vk;
 use std::sync::Arc;
+
+/// Object-space lines of a frame (styles 4–12): what to extract, from which volume, and where
+/// to draw it. The renderer fills it in; [`Post::record`] extracts and draws the lines into the
+/// edge image before the style composite.
+pub struct LinesDraw<'a> {
+    pub extractor: &'a LineExtractor,
+    pub buffer: &'a LineBuffer,
+    /// The normalised volume texture.
+    pub volume: &'a Image,
+    pub dims: [usize; 3],
+    pub spacing: [f32; 3],
+    pub eye: Eye,
+    pub params: LineParams,
+    pub view: RasterView,
+}
 
 /// Push constants of the post passes (GLSL twin: `PostPush` in post.glsl).
 #[repr(C)]
@@ -70,7 +87,8 @@ impl PostTargets {
                 &ImageDesc::new_2d(format, size).usage(
                     vk::ImageUsageFlags::STORAGE
                         | vk::ImageUsageFlags::SAMPLED
-                        | vk::ImageUsageFlags::TRANSFER_SRC,
+                        | vk::ImageUsageFlags::TRANSFER_SRC
+                        | vk::ImageUsageFlags::TRANSFER_DST,
                 ),
             )
         };
@@ -151,8 +169,9 @@ impl Post {
         style: &Style,
         layers: &TargetImages,
         post: &PostTargets,
+        lines: Option<LinesDraw>,
     ) -> Result<()> {
-        if style.def.edges.is_none() && style.def.abstraction.is_none() {
+        if style.def.edges.is_none() && style.def.abstraction.is_none() && lines.is_none() {
             // Style 15: the plain two-level composite is already in place.
             return Ok(());
         }
@@ -232,6 +251,45 @@ impl Post {
                 }
             }
         }
+        let has_lines = lines.is_some();
+        if let Some(d) = lines {
+            if style.def.edges.is_none() {
+                // Lines alone: start from an empty edge image.
+                post.edges.discard();
+                post.edges.transition(cmd, Access::TransferWrite);
+                unsafe {
+                    self.ctx.device.cmd_clear_color_image(
+                        cmd,
+                        post.edges.raw,
+                        vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                        &vk::ClearColorValue::default(),
+                        &[vk::ImageSubresourceRange {
+                            aspect_mask: vk::ImageAspectFlags::COLOR,
+                            base_mip_level: 0,
+                            level_count: 1,
+                            base_array_layer: 0,
+                            layer_count: 1,
+                        }],
+                    )
+                };
+            }
+            d.extractor.record(
+                cmd, profiler, d.volume, d.dims, d.spacing, d.eye, &d.params, d.buffer,
+            )?;
+            let view = RasterView {
+                // Canny's edge image holds classes: 2 is an edge.
+                value: 1.0 + edge_offset as f32,
+                ..d.view
+            };
+            d.extractor.record_raster(
+                cmd,
+                profiler,
+                d.buffer,
+                &view,
+                &l.focus_depth,
+                &post.edges,
+            )?;
+        }
         let context = match style.def.abstraction {
             None => &l.context,
             Some(a) => {
@@ -257,13 +315,13 @@ impl Post {
                 ],
                 flags: [
                     (p.edge_width.max(1) as i32 - 1) / 2,
-                    style.def.edges.is_some() as i32,
+                    (style.def.edges.is_some() || has_lines) as i32,
                     edge_offset,
                     0,
                 ],
                 ..base
             };
-            if style.def.edges.is_none() {
+            if style.def.edges.is_none() && !has_lines {
                 // The binding still needs an image: a defined one.
                 post.edges.transition(cmd, Access::ComputeRead);
             }

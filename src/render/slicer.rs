@@ -225,6 +225,12 @@ pub struct Renderer {
     post: std::sync::OnceLock<Post>,
     /// The ray caster, built on the first ray-cast frame.
     raycaster: std::sync::OnceLock<crate::gpu::ComputePipeline>,
+    /// Object-space line extraction and its segment buffer, built on the first frame of a style
+    /// with lines.
+    lines: std::sync::OnceLock<(
+        crate::passes::lines::LineExtractor,
+        crate::passes::lines::LineBuffer,
+    )>,
 }
 
 /// Uniforms; intensity, gradient, TF, occlusion, OTF, ΔD; max |ΔD| (`shade.glsl`, which the ray
@@ -335,6 +341,7 @@ impl Renderer {
             )?,
             post: std::sync::OnceLock::new(),
             raycaster: std::sync::OnceLock::new(),
+            lines: std::sync::OnceLock::new(),
         })
     }
 
@@ -384,6 +391,14 @@ impl Renderer {
                     "style {} ({}) works on the focus layer; give a focus with --iso V or --focus LO:HI",
                     style.def.number, style.def.name
                 )));
+            }
+            if style.def.lines.is_some() && self.lines.get().is_none() {
+                let extractor = crate::passes::lines::LineExtractor::new(ctx)?;
+                let buffer = crate::passes::lines::LineBuffer::new(
+                    ctx,
+                    crate::passes::lines::DEFAULT_CAPACITY,
+                )?;
+                let _ = self.lines.set((extractor, buffer));
             }
             if self.post.get().is_none() {
                 let _ = self.post.set(Post::new(ctx)?);
@@ -697,11 +712,65 @@ impl Renderer {
         }
         if let (Some(style), Some(post), false) = (&view.style, &t.post, view.one_pass) {
             let pipelines = self.post.get().expect("built above");
-            pipelines.record(cmd, profiler, style, t, post)?;
+            let lines = match (style.def.lines, self.lines.get()) {
+                (Some(kind), Some((extractor, buffer))) => {
+                    let p = &style.params;
+                    let spacing = vol.spacing.map(|s| s as f32);
+                    let longest = longest as f32;
+                    let scale = spacing.map(|s| s / longest);
+                    let offset: [f32; 3] = std::array::from_fn(|a| {
+                        (0.5 - 0.5 * vol.dims[a] as f32) * spacing[a] / longest
+                    });
+                    // The eye in the extraction's frame (index × spacing): box · longest plus the
+                    // box centre's position there.
+                    let eye_line = if cam.ortho {
+                        crate::volume::lines::Eye::Direction((-view_dir).to_array())
+                    } else {
+                        crate::volume::lines::Eye::Point(std::array::from_fn(|a| {
+                            eye[a] * longest + (0.5 * vol.dims[a] as f32 - 0.5) * spacing[a]
+                        }))
+                    };
+                    let min_spacing = spacing.iter().copied().fold(f32::INFINITY, f32::min);
+                    Some(crate::render::post::LinesDraw {
+                        extractor,
+                        buffer,
+                        volume: &vol.intensity,
+                        dims: vol.dims,
+                        spacing,
+                        eye: eye_line,
+                        params: crate::volume::lines::LineParams {
+                            // The focus surface: the isovalue, or a range's lower bound.
+                            iso: focus_n[0],
+                            silhouettes: kind == crate::render::style::LineKind::Silhouettes,
+                            suggestive: kind == crate::render::style::LineKind::SuggestiveContours,
+                            min_angle_deg: p.line_angle,
+                            derivative_threshold: p.line_derivative_threshold,
+                            stride: p.line_stride,
+                        },
+                        view: crate::passes::lines::RasterView {
+                            view_proj: uniforms.view_proj,
+                            index_scale: scale,
+                            index_offset: offset,
+                            eye: eye.to_array(),
+                            view_dir: view_dir.to_array(),
+                            bias: p.line_depth_bias * min_spacing / longest,
+                            value: 1.0,
+                        },
+                    })
+                }
+                _ => None,
+            };
+            pipelines.record(cmd, profiler, style, t, post, lines)?;
         }
         Ok(Recorded {
             slices: proxy.slices,
         })
+    }
+
+    /// The object-space lines of the last styled frame (read after it completes), if a style with
+    /// lines has been recorded.
+    pub fn line_buffer(&self) -> Option<&crate::passes::lines::LineBuffer> {
+        self.lines.get().map(|(_, b)| b)
     }
 
     /// Renders one frame in one submission (the tools' path): the persistent-state types, used

@@ -1,8 +1,9 @@
 //! The 15 styles of the two-level paper's study (§4, SPEC TL7), by number and name, and their
 //! parameters. One table says what each style is made of; `render/post.rs` records the passes.
 //!
-//! Styles 4–12 need object-space lines (silhouettes, suggestive contours), which are not built
-//! yet: asking for one is an error that says so, never a silent skip.
+//! Styles 4–12 draw object-space lines (silhouettes, suggestive contours; `volume::lines`,
+//! `passes::lines`) into the same edge layer as the image-space detectors, depth-tested against
+//! the focus, so the composite draws both in the edge colour.
 
 use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
@@ -141,24 +142,14 @@ impl StyleDef {
         })
     }
 
-    /// Whether this build can render the style (styles with object-space lines cannot yet).
+    /// Whether this build can render the style (all 15 since the object-space lines landed).
     pub fn available(&self) -> bool {
-        self.lines.is_none()
+        self.unavailable_reason().is_none()
     }
 
-    /// Why the style cannot be rendered, if it cannot.
+    /// Why the style cannot be rendered, if it cannot (kept for front ends that list styles).
     pub fn unavailable_reason(&self) -> Option<String> {
-        self.lines.map(|l| {
-            format!(
-                "style {} ({}) needs object-space {}, which are not built yet",
-                self.number,
-                self.name,
-                match l {
-                    LineKind::Silhouettes => "silhouettes",
-                    LineKind::SuggestiveContours => "suggestive contours",
-                }
-            )
-        })
+        None
     }
 
     /// Whether the style works on the focus layer (and so needs a focus).
@@ -193,6 +184,14 @@ pub struct StyleParams {
     pub kuwahara_radius: u32,
     /// Saturation factor of the context (0 grey, 1 unchanged; at most 4).
     pub saturation: f32,
+    /// Object-space lines: θ_c in degrees (suggestive contours closer than this to facing the
+    /// viewer are dropped), the derivative threshold t_d, the depth bias in voxels behind the
+    /// focus within which a line still shows, and the cell stride (1 all cells; 2 the cheaper
+    /// interactive mode).
+    pub line_angle: f32,
+    pub line_derivative_threshold: f32,
+    pub line_depth_bias: f32,
+    pub line_stride: u32,
 }
 
 impl Default for StyleParams {
@@ -212,6 +211,10 @@ impl Default for StyleParams {
             canny_low_ratio: 0.4,
             kuwahara_radius: 4,
             saturation: 0.2,
+            line_angle: 20.0,
+            line_derivative_threshold: 1e-4,
+            line_depth_bias: 1.5,
+            line_stride: 1,
         }
     }
 }
@@ -266,6 +269,24 @@ impl StyleParams {
                 self.kuwahara_radius
             )));
         }
+        if !(self.line_angle.is_finite() && (0.0..90.0).contains(&self.line_angle)) {
+            return Err(Error::Invalid(format!(
+                "line angle {} is invalid; expected 0 <= θ_c < 90 degrees",
+                self.line_angle
+            )));
+        }
+        if !self.line_derivative_threshold.is_finite() {
+            return Err(Error::Invalid(
+                "the line derivative threshold must be a finite number".into(),
+            ));
+        }
+        positive("the line depth bias", self.line_depth_bias, 64.0)?;
+        if !(1..=8).contains(&self.line_stride) {
+            return Err(Error::Invalid(format!(
+                "line stride {} is invalid; expected 1..=8 cells",
+                self.line_stride
+            )));
+        }
         if !(self.saturation.is_finite() && (0.0..=4.0).contains(&self.saturation)) {
             return Err(Error::Invalid(format!(
                 "saturation factor {} is invalid; expected 0..=4",
@@ -312,10 +333,9 @@ mod tests {
         }
         let e = StyleDef::find("16").unwrap_err().to_string();
         assert!(e.contains("1 sobel") && e.contains("15 none"), "{e}");
-        let e = Style::new("dog+silhouettes", StyleParams::default()).unwrap_err();
-        assert!(e.to_string().contains("not built yet"), "{e}");
+        assert!(Style::new("dog+silhouettes", StyleParams::default()).is_ok());
         assert!(Style::new("13", StyleParams::default()).is_ok());
-        assert_eq!(STYLES.iter().filter(|d| d.available()).count(), 6);
+        assert_eq!(STYLES.iter().filter(|d| d.available()).count(), 15);
     }
 
     #[test]

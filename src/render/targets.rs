@@ -127,6 +127,10 @@ impl FrameTargets {
         if name == "composite" {
             return Some(&i.composite);
         }
+        if name == "style.edges" {
+            // The style's edge layer: image-space edges and object-space lines.
+            return i.post.as_ref().map(|p| &p.edges);
+        }
         let l = i.layers.as_ref().filter(|_| self.two_level)?;
         match name {
             "focus.phong" => Some(&l.focus_phong),

@@ -389,6 +389,19 @@ struct StyleArgs {
     /// Saturation factor of the context for style 14 [default: 0.2].
     #[arg(long, allow_negative_numbers = true)]
     saturation: Option<f32>,
+    /// Object-space lines (styles 4-12): θ_c in degrees; suggestive contours closer than this to
+    /// facing the viewer are dropped [default: 20].
+    #[arg(long, allow_negative_numbers = true)]
+    line_angle: Option<f32>,
+    /// Object-space lines: the least D_w κ_r of a suggestive contour, per mm² [default: 0.0001].
+    #[arg(long, allow_negative_numbers = true)]
+    line_threshold: Option<f32>,
+    /// Object-space lines: how far behind the focus surface, in voxels, a line still shows [default: 1.5].
+    #[arg(long, allow_negative_numbers = true)]
+    line_bias: Option<f32>,
+    /// Object-space lines: visit every Nth cell (1 all; 2 the interactive mode) [default: 1].
+    #[arg(long)]
+    line_stride: Option<u32>,
 }
 
 impl StyleArgs {
@@ -405,7 +418,11 @@ impl StyleArgs {
             || self.sigma.is_some()
             || self.dog_k.is_some()
             || self.kuwahara_radius.is_some()
-            || self.saturation.is_some();
+            || self.saturation.is_some()
+            || self.line_angle.is_some()
+            || self.line_threshold.is_some()
+            || self.line_bias.is_some()
+            || self.line_stride.is_some();
         let mut spec = match (&self.style, spec) {
             (Some(s), old) => vellum::render::scene::StyleSpec {
                 style: serde_json::Value::String(s.clone()),
@@ -463,6 +480,18 @@ impl StyleArgs {
         }
         if let Some(v) = self.saturation {
             p.saturation = v;
+        }
+        if let Some(v) = self.line_angle {
+            p.line_angle = v;
+        }
+        if let Some(v) = self.line_threshold {
+            p.line_derivative_threshold = v;
+        }
+        if let Some(v) = self.line_bias {
+            p.line_depth_bias = v;
+        }
+        if let Some(v) = self.line_stride {
+            p.line_stride = v;
         }
         spec.resolve()?;
         Ok(Some(spec))
