@@ -191,7 +191,9 @@ fn bad_scene_files_get_one_sentence() {
         &["unknown field `glow`"],
     );
     bad_scene(
-        &format!(r#"{{"version": 1, {input}, "style": {{"style": 7, "params": {{"line_stride": 0}}}}}}"#),
+        &format!(
+            r#"{{"version": 1, {input}, "style": {{"style": 7, "params": {{"line_stride": 0}}}}}}"#
+        ),
         &["bad.json: style", "line stride 0 is invalid"],
     );
     bad_scene(

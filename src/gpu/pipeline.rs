@@ -325,18 +325,7 @@ impl ComputePipeline {
                 msg: format!("{groups:?} workgroups exceed the device limit {limit:?}"),
             });
         }
-        unsafe {
-            self.ctx
-                .device
-                .cmd_bind_pipeline(cmd, vk::PipelineBindPoint::COMPUTE, self.raw)
-        };
-        self.layout.push(
-            cmd,
-            vk::PipelineBindPoint::COMPUTE,
-            &self.name,
-            binds,
-            bytemuck::bytes_of(push),
-        )?;
+        self.bind(cmd, binds, push)?;
         unsafe {
             self.ctx
                 .device
@@ -357,6 +346,18 @@ impl ComputePipeline {
         args: &crate::gpu::Buffer,
         offset: u64,
     ) -> Result<()> {
+        self.bind(cmd, binds, push)?;
+        unsafe { self.ctx.device.cmd_dispatch_indirect(cmd, args.raw, offset) };
+        Ok(())
+    }
+
+    /// Binds the pipeline and pushes `binds` and `push`.
+    fn bind<P: bytemuck::Pod>(
+        &self,
+        cmd: vk::CommandBuffer,
+        binds: &[Bind],
+        push: &P,
+    ) -> Result<()> {
         unsafe {
             self.ctx
                 .device
@@ -368,9 +369,7 @@ impl ComputePipeline {
             &self.name,
             binds,
             bytemuck::bytes_of(push),
-        )?;
-        unsafe { self.ctx.device.cmd_dispatch_indirect(cmd, args.raw, offset) };
-        Ok(())
+        )
     }
 }
 
