@@ -449,3 +449,79 @@ fn hidden_lines_are_culled_by_the_focus_depth() {
         open.len()
     );
 }
+
+/// Runs `vellum lines` with `args` and returns its JSON report.
+fn lines_json(args: &[&str]) -> serde_json::Value {
+    let mut all = vec!["lines"];
+    all.extend_from_slice(args);
+    all.push("--json");
+    common::ok_json(&common::vellum(&all))
+}
+
+#[test]
+fn the_lines_command_writes_a_png_and_an_svg_of_the_visible_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
+    let j = lines_json(&[
+        "phantom:torus:48",
+        "--iso",
+        "0.5",
+        "--camera",
+        "20,35",
+        "--size",
+        "96x96",
+        "--out",
+        &p("lines.png"),
+        "--svg",
+        &p("lines.svg"),
+    ]);
+    assert!(j["silhouette_segments"].as_u64().unwrap() > 50, "{j}");
+    assert!(j["suggestive_segments"].as_u64().unwrap() > 0, "{j}");
+    assert_eq!(j["overflowed"], false);
+    let svg = std::fs::read_to_string(p("lines.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+    let paths = svg.matches("<path d=\"M").count();
+    assert!(paths > 0, "visible paths");
+    // Every coordinate lies on the image.
+    for path in svg.split("<path d=\"").skip(1) {
+        let d = &path[..path.find('"').unwrap()];
+        for n in d.split(['M', 'L', ' ']).filter(|t| !t.is_empty()) {
+            let v: f32 = n.parse().unwrap();
+            assert!((0.0..=96.0).contains(&v), "{v}");
+        }
+    }
+    assert!(image::open(p("lines.png")).is_ok());
+    // Only the silhouettes: no suggestive group content.
+    let j = lines_json(&[
+        "phantom:sphere:40",
+        "--iso",
+        "0.5",
+        "--kind",
+        "silhouettes",
+        "--size",
+        "64x64",
+        "--out",
+        &p("s.png"),
+        "--svg",
+        &p("s.svg"),
+    ]);
+    assert_eq!(j["suggestive_segments"], 0);
+    common::fails_with(
+        &common::vellum(&[
+            "lines",
+            "phantom:sphere:16",
+            "--iso",
+            "0.5",
+            "--kind",
+            "ridges",
+            "--out",
+            &p("x.png"),
+        ]),
+        "--kind \"ridges\" is unknown",
+    );
+    common::fails_with(
+        &common::vellum(&["lines", "phantom:sphere:16", "--out", &p("y.png")]),
+        "give a focus",
+    );
+    assert!(!dir.path().join("x.png").exists() && !dir.path().join("y.png").exists());
+}

@@ -127,7 +127,7 @@ pub struct LineExtractor {
 }
 
 /// Where the lines are drawn: the frame's geometry, in the renderer's box frame.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RasterView {
     /// Box → clip.
     pub view_proj: [[f32; 4]; 4],
@@ -140,6 +140,80 @@ pub struct RasterView {
     pub bias: f32,
     /// The value written to the edge image.
     pub value: f32,
+}
+
+impl RasterView {
+    /// Voxel index → clip: the renderer's box → clip after index → box (a scale and an offset
+    /// per axis).
+    pub fn index_to_clip(&self) -> glam::Mat4 {
+        let (sc, off) = (
+            glam::Vec3::from_array(self.index_scale),
+            glam::Vec3::from_array(self.index_offset),
+        );
+        glam::Mat4::from_cols_array_2d(&self.view_proj)
+            * glam::Mat4::from_translation(off)
+            * glam::Mat4::from_scale(sc)
+    }
+
+    /// The linear depth of voxel index p is `dot(p, coef) + constant` (box units, as focus.depth).
+    pub fn depth_terms(&self) -> ([f32; 3], f32) {
+        let vd = glam::Vec3::from_array(self.view_dir);
+        let coef = glam::Vec3::from_array(self.index_scale) * vd;
+        let constant =
+            (glam::Vec3::from_array(self.index_offset) - glam::Vec3::from_array(self.eye)).dot(vd);
+        (coef.to_array(), constant)
+    }
+
+    /// The pieces of `s` that pass the rasteriser's depth test against `focus_depth` (`size`
+    /// pixels, rows top to bottom), as polylines in pixel coordinates: the same sampling and rule
+    /// as raster.comp, for vector output.
+    pub fn visible_pieces(
+        &self,
+        s: &Segment,
+        focus_depth: &[f32],
+        size: [u32; 2],
+    ) -> Vec<Vec<[f32; 2]>> {
+        let m = self.index_to_clip();
+        let (coef, constant) = self.depth_terms();
+        let mut ends = [[0f32; 2]; 2];
+        let mut depth = [0f32; 2];
+        for (k, p) in [s.a, s.b].iter().enumerate() {
+            let clip = m * glam::Vec4::new(p[0], p[1], p[2], 1.0);
+            if clip.w <= 0.0 {
+                return Vec::new();
+            }
+            ends[k] = [
+                (clip.x / clip.w * 0.5 + 0.5) * size[0] as f32,
+                (clip.y / clip.w * 0.5 + 0.5) * size[1] as f32,
+            ];
+            depth[k] = p[0] * coef[0] + p[1] * coef[1] + p[2] * coef[2] + constant;
+        }
+        let d = [ends[1][0] - ends[0][0], ends[1][1] - ends[0][1]];
+        let steps = d[0].abs().max(d[1].abs()).ceil().clamp(1.0, 4096.0) as u32;
+        let mut pieces: Vec<Vec<[f32; 2]>> = Vec::new();
+        let mut open = false;
+        for i in 0..=steps {
+            let t = i as f32 / steps as f32;
+            let q = [ends[0][0] + t * d[0], ends[0][1] + t * d[1]];
+            let (x, y) = (q[0].floor() as i64, q[1].floor() as i64);
+            let inside = x >= 0 && y >= 0 && x < size[0] as i64 && y < size[1] as i64;
+            let z = depth[0] + t * (depth[1] - depth[0]);
+            let shown = inside
+                && z <= focus_depth[(y as usize) * size[0] as usize + x as usize] + self.bias;
+            match (shown, open) {
+                (true, false) => pieces.push(vec![q]),
+                (true, true) => {
+                    if let Some(last) = pieces.last_mut() {
+                        last.push(q);
+                    }
+                }
+                _ => {}
+            }
+            open = shown;
+        }
+        pieces.retain(|p| p.len() > 1);
+        pieces
+    }
 }
 
 impl LineExtractor {
@@ -184,16 +258,8 @@ impl LineExtractor {
         focus_depth.transition(cmd, Access::ComputeRead);
         edges.transition(cmd, Access::ComputeReadWrite);
         let e = edges.desc.extent;
-        // index → box is a scale and an offset per axis; fold it into the matrix and the depth.
-        let (sc, off) = (
-            glam::Vec3::from_array(view.index_scale),
-            glam::Vec3::from_array(view.index_offset),
-        );
-        let index_to_box = glam::Mat4::from_translation(off) * glam::Mat4::from_scale(sc);
-        let index_to_clip = glam::Mat4::from_cols_array_2d(&view.view_proj) * index_to_box;
-        let vd = glam::Vec3::from_array(view.view_dir);
-        let coef = sc * vd;
-        let constant = (off - glam::Vec3::from_array(view.eye)).dot(vd);
+        let index_to_clip = view.index_to_clip();
+        let (coef, constant) = view.depth_terms();
         self.raster.dispatch_indirect(
             cmd,
             &[
@@ -203,7 +269,7 @@ impl LineExtractor {
             ],
             &RasterPush {
                 index_to_clip: index_to_clip.to_cols_array_2d(),
-                depth: [coef.x, coef.y, coef.z, constant],
+                depth: [coef[0], coef[1], coef[2], constant],
                 params: [view.bias, view.value, 0.0, 0.0],
                 capacity_size: [lines.capacity, e[0], e[1], 0],
             },

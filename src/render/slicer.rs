@@ -231,6 +231,8 @@ pub struct Renderer {
         crate::passes::lines::LineExtractor,
         crate::passes::lines::LineBuffer,
     )>,
+    /// The geometry the last styled frame drew its lines with (for vector output).
+    last_lines: std::sync::Mutex<Option<crate::passes::lines::RasterView>>,
 }
 
 /// Uniforms; intensity, gradient, TF, occlusion, OTF, ΔD; max |ΔD| (`shade.glsl`, which the ray
@@ -342,6 +344,7 @@ impl Renderer {
             post: std::sync::OnceLock::new(),
             raycaster: std::sync::OnceLock::new(),
             lines: std::sync::OnceLock::new(),
+            last_lines: std::sync::Mutex::new(None),
         })
     }
 
@@ -731,6 +734,18 @@ impl Renderer {
                         }))
                     };
                     let min_spacing = spacing.iter().copied().fold(f32::INFINITY, f32::min);
+                    let raster = crate::passes::lines::RasterView {
+                        view_proj: uniforms.view_proj,
+                        index_scale: scale,
+                        index_offset: offset,
+                        eye: eye.to_array(),
+                        view_dir: view_dir.to_array(),
+                        bias: p.line_depth_bias * min_spacing / longest,
+                        value: 1.0,
+                    };
+                    if let Ok(mut last) = self.last_lines.lock() {
+                        *last = Some(raster);
+                    }
                     Some(crate::render::post::LinesDraw {
                         extractor,
                         buffer,
@@ -741,21 +756,15 @@ impl Renderer {
                         params: crate::volume::lines::LineParams {
                             // The focus surface: the isovalue, or a range's lower bound.
                             iso: focus_n[0],
-                            silhouettes: kind == crate::render::style::LineKind::Silhouettes,
-                            suggestive: kind == crate::render::style::LineKind::SuggestiveContours,
+                            silhouettes: p.line_both
+                                || kind == crate::render::style::LineKind::Silhouettes,
+                            suggestive: p.line_both
+                                || kind == crate::render::style::LineKind::SuggestiveContours,
                             min_angle_deg: p.line_angle,
                             derivative_threshold: p.line_derivative_threshold,
                             stride: p.line_stride,
                         },
-                        view: crate::passes::lines::RasterView {
-                            view_proj: uniforms.view_proj,
-                            index_scale: scale,
-                            index_offset: offset,
-                            eye: eye.to_array(),
-                            view_dir: view_dir.to_array(),
-                            bias: p.line_depth_bias * min_spacing / longest,
-                            value: 1.0,
-                        },
+                        view: raster,
                     })
                 }
                 _ => None,
@@ -771,6 +780,11 @@ impl Renderer {
     /// lines has been recorded.
     pub fn line_buffer(&self) -> Option<&crate::passes::lines::LineBuffer> {
         self.lines.get().map(|(_, b)| b)
+    }
+
+    /// The geometry the last styled frame drew its lines with.
+    pub fn last_lines_view(&self) -> Option<crate::passes::lines::RasterView> {
+        self.last_lines.lock().ok().and_then(|l| *l)
     }
 
     /// Renders one frame in one submission (the tools' path): the persistent-state types, used

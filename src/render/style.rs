@@ -192,6 +192,8 @@ pub struct StyleParams {
     pub line_derivative_threshold: f32,
     pub line_depth_bias: f32,
     pub line_stride: u32,
+    /// Draw both kinds of lines whatever the style's kind (`vellum lines --kind both`).
+    pub line_both: bool,
 }
 
 impl Default for StyleParams {
@@ -215,6 +217,7 @@ impl Default for StyleParams {
             line_derivative_threshold: 1e-4,
             line_depth_bias: 1.5,
             line_stride: 1,
+            line_both: false,
         }
     }
 }

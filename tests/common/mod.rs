@@ -127,3 +127,13 @@ pub fn fails_with_all(out: &std::process::Output, phrases: &[&str]) {
 pub fn fails_with(out: &std::process::Output, phrase: &str) {
     fails_with_all(out, &[phrase]);
 }
+
+/// Asserts success and parses stdout as JSON.
+pub fn ok_json(out: &std::process::Output) -> serde_json::Value {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}

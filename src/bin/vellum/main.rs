@@ -112,6 +112,9 @@ enum Command {
     },
     /// Render a volume with 3D-texture slicing, in two levels (focus, context) or one pass.
     Render(Box<RenderArgs>),
+    /// Object-space lines (silhouettes, suggestive contours) of the focus surface, drawn into the
+    /// two-level frame (PNG) and written as vector paths of their visible parts (SVG).
+    Lines(Box<LinesArgs>),
     /// Ambient-occlusion volume and occlusion spectrum (SPEC OS1-OS3).
     Occlusion {
         #[command(flatten)]
@@ -304,6 +307,19 @@ struct RenderArgs {
     exr: Option<PathBuf>,
     #[arg(long)]
     json: bool,
+}
+
+/// `vellum lines`: the render flags, a kind of line, and the SVG.
+#[derive(Args)]
+struct LinesArgs {
+    #[command(flatten)]
+    render: RenderArgs,
+    /// Which lines: silhouettes, suggestive (contours) or both.
+    #[arg(long, default_value = "both")]
+    kind: String,
+    /// Write the visible segments as SVG paths (pixel coordinates of the PNG).
+    #[arg(long)]
+    svg: Option<PathBuf>,
 }
 
 /// `vellum styles`: the gallery of the 15 styles.
@@ -940,6 +956,7 @@ fn output_paths(command: &Command) -> Vec<&Path> {
         Command::Convert { output, .. } => vec![output.as_path()],
         Command::Importance { out, slices, .. } => all(&[out, slices]),
         Command::Render(a) => all(&[&a.out, &a.exr, &a.save_scene]),
+        Command::Lines(a) => all(&[&a.render.out, &a.render.exr, &a.svg]),
         Command::Occlusion {
             out,
             spectrum,
@@ -1008,6 +1025,7 @@ fn run(cli: &Cli) -> Result<()> {
             *json,
         ),
         Command::Render(args) => render(cli, args),
+        Command::Lines(args) => lines(cli, args),
         Command::Bench {
             which:
                 BenchCommand::Render {
@@ -1538,6 +1556,138 @@ fn render_scene(a: &RenderArgs) -> Result<Scene> {
     scene.style = a.style.apply(scene.style.take())?;
     scene.validate()?;
     Ok(scene)
+}
+
+fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
+    use std::io::Write;
+    use vellum::render::slicer::{to_rgb8, Renderer};
+    let (style, both) = match a.kind.as_str() {
+        "silhouettes" => ("silhouettes", false),
+        "suggestive" => ("suggestive", false),
+        "both" => ("silhouettes", true),
+        k => anyhow::bail!("--kind {k:?} is unknown; expected silhouettes, suggestive or both"),
+    };
+    anyhow::ensure!(
+        a.render.style.style.is_none(),
+        "lines takes --kind, not --style; the style is the lines"
+    );
+    let out = a
+        .render
+        .out
+        .as_deref()
+        .ok_or_else(|| anyhow::anyhow!("lines needs --out image.png"))?;
+    let mut scene = render_scene(&a.render)?;
+    let mut params = scene.style.take().map(|s| s.params).unwrap_or_default();
+    params.line_both = both;
+    scene.style = Some(vellum::render::scene::StyleSpec {
+        style: serde_json::Value::String(style.into()),
+        params,
+    });
+    let classification = scene.classification()?;
+    let v = scene.load_volume()?;
+    let view = scene.view(v.geometry.is_oriented())?;
+    let ctx = context(cli)?;
+    let modulation = scene.modulation.clone().unwrap_or_default();
+    let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
+    let renderer = Renderer::new(&ctx)?;
+    let frame = renderer.render_frame(&gpu.volume, &mut gpu.classify, &view, true)?;
+    report_validation(&ctx);
+    let (segments, found) = match renderer.line_buffer() {
+        Some(b) => b.read()?,
+        None => (Vec::new(), 0),
+    };
+    let raster = renderer
+        .last_lines_view()
+        .ok_or_else(|| anyhow::anyhow!("the frame drew no lines; give a focus with --iso V"))?;
+    let depth = frame
+        .layers
+        .as_ref()
+        .map(|l| l.focus_depth.clone())
+        .ok_or_else(|| anyhow::anyhow!("lines need a two-level frame; drop --one-pass"))?;
+    let [w, h] = frame.size;
+    // Visible pieces per kind, in the PNG's pixel coordinates.
+    let mut pieces: [Vec<Vec<[f32; 2]>>; 2] = [Vec::new(), Vec::new()];
+    for seg in &segments {
+        let k = (seg.kind() > 0.5) as usize;
+        pieces[k].extend(raster.visible_pieces(seg, &depth, [w, h]));
+    }
+    vellum::output::write_png_rgb(out, w, h, &to_rgb8(&frame.composite, scene.background))?;
+    if let Some(path) = &a.render.exr {
+        frame.write_exr(path)?;
+    }
+    if let Some(path) = &a.svg {
+        let colour = |c: [f32; 3]| {
+            format!(
+                "#{:02x}{:02x}{:02x}",
+                (c[0] * 255.0) as u8,
+                (c[1] * 255.0) as u8,
+                (c[2] * 255.0) as u8
+            )
+        };
+        let p = &scene.style.as_ref().map(|s| s.params).unwrap_or_default();
+        vellum::output::write_atomic(path, |f| {
+            writeln!(
+                f,
+                r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}">"#
+            )?;
+            writeln!(
+                f,
+                "<!-- vellum lines of {}: visible parts only -->",
+                scene.input.path
+            )?;
+            for (k, name) in [(0, "silhouettes"), (1, "suggestive-contours")] {
+                writeln!(
+                    f,
+                    r#"<g id="{name}" fill="none" stroke="{}" stroke-width="{}" stroke-linecap="round" stroke-linejoin="round">"#,
+                    colour(p.edge_color),
+                    p.edge_width
+                )?;
+                for piece in &pieces[k] {
+                    let mut d = String::new();
+                    for (i, q) in piece.iter().enumerate() {
+                        d.push_str(&format!(
+                            "{}{:.2} {:.2}",
+                            if i == 0 { "M" } else { " L" },
+                            q[0],
+                            q[1]
+                        ));
+                    }
+                    writeln!(f, r#"<path d="{d}"/>"#)?;
+                }
+                writeln!(f, "</g>")?;
+            }
+            writeln!(f, "</svg>")?;
+            Ok(())
+        })?;
+    }
+    let stored = segments.len() as u64;
+    let report = json!({
+        "device": ctx.info.name,
+        "kind": a.kind,
+        "segments_found": found,
+        "segments_stored": stored,
+        "overflowed": found > stored,
+        "silhouette_segments": segments.iter().filter(|s| s.kind() < 0.5).count(),
+        "suggestive_segments": segments.iter().filter(|s| s.kind() > 0.5).count(),
+        "visible_paths": [pieces[0].len(), pieces[1].len()],
+        "passes": frame.passes.iter().map(|p| (p.name.clone(), json!(p.ms))).collect::<serde_json::Map<_, _>>(),
+    });
+    if a.render.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "lines of {} ({w}x{h}) on {}: {found} segments ({} silhouette, {} suggestive), {} visible paths",
+            scene.input.path,
+            ctx.info.name,
+            report["silhouette_segments"],
+            report["suggestive_segments"],
+            pieces[0].len() + pieces[1].len()
+        );
+        if found > stored {
+            println!("  the buffer held {stored} of them; the rest were dropped");
+        }
+    }
+    Ok(())
 }
 
 fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
