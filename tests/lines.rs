@@ -342,6 +342,18 @@ const W: usize = 192;
 
 /// A red-silhouette two-level frame of `v`: (composite RGBA, focus linear depth), W².
 fn silhouette_frame(gpu: &common::Gpu, v: &Volume) -> (Vec<[f32; 4]>, Vec<f32>) {
+    styled_frame(gpu, v, "silhouettes", "0,0,1.8", W as u32)
+}
+
+/// A two-level frame of `v` in `style` with red edges over an opaque white focus and a
+/// transparent context: (composite RGBA, focus linear depth).
+fn styled_frame(
+    gpu: &common::Gpu,
+    v: &Volume,
+    style: &str,
+    camera: &str,
+    size: u32,
+) -> (Vec<[f32; 4]>, Vec<f32>) {
     use vellum::classify::modulation::Modulation;
     use vellum::classify::transfer::TransferFunction;
     use vellum::classify::{Classification, Focus};
@@ -379,12 +391,12 @@ fn silhouette_frame(gpu: &common::Gpu, v: &Volume) -> (Vec<[f32; 4]>, Vec<f32>) 
         ..StyleParams::default()
     };
     let view = View {
-        camera: Camera::parse("0,0,1.8").unwrap(),
-        size: [W as u32, W as u32],
+        camera: Camera::parse(camera).unwrap(),
+        size: [size, size],
         slices: None,
         one_pass: false,
         lighting: Lighting::default(),
-        style: Some(Style::new("silhouettes", params).unwrap()),
+        style: Some(Style::new(style, params).unwrap()),
         fit: false,
         raycast: None,
     };
@@ -524,4 +536,28 @@ fn the_lines_command_writes_a_png_and_an_svg_of_the_visible_lines() {
         "give a focus",
     );
     assert!(!dir.path().join("x.png").exists() && !dir.path().join("y.png").exists());
+}
+
+/// Reference images of styles 4, 5 and 11 (silhouettes, suggestive contours, Canny + suggestive
+/// contours) on the torus; regenerate with `VELLUM_UPDATE_REFERENCES=1 cargo test --test lines`
+/// and look at each one.
+#[test]
+fn line_styles_match_reference_images() {
+    let gpu = common::Gpu::new();
+    let v = phantom::smooth_torus(64);
+    for (style, file) in [
+        ("4", "lines/torus_style04_silhouettes.png"),
+        ("5", "lines/torus_style05_suggestive.png"),
+        ("11", "lines/torus_style11_canny_suggestive.png"),
+    ] {
+        let (c, _) = styled_frame(&gpu, &v, style, "20,35,2.2", 160);
+        // Over a white background, as the gallery shows them.
+        let rgb: Vec<u8> = c
+            .iter()
+            .flat_map(|p| {
+                [0, 1, 2].map(|i| ((p[i] + (1.0 - p[3])).clamp(0.0, 1.0) * 255.0).round() as u8)
+            })
+            .collect();
+        common::check_reference(file, 160, 160, &rgb);
+    }
 }
