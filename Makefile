@@ -43,6 +43,7 @@ run: build
 	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --style canny --out $(OUT)/render_style_canny.png
 	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --renderer raycast --refine-iso --out $(OUT)/render_raycast.png
 	$(VELLUM) styles $(INPUT) --iso $(ISO) --tf grey --size 192x192 --out $(OUT)/styles_gallery.png
+	$(VELLUM) lines phantom:torus:96 --iso 0.5 --tf examples/tf_surface_only.json --camera 20,35,2.2 --size 512x512 --edge-color 0.8,0.1,0.1 --edge-width 2 --out $(OUT)/lines_torus.png --svg $(OUT)/lines_torus.svg
 	$(VELLUM) render $(INPUT) --tf grey --camera 30,20,2.5 --size 512x512 --one-pass --importance-radius 5 --stipple 0.1,10 --seed 1 --out $(OUT)/render_stipple.png
 	$(VELLUM) occlusion phantom:nested:96 --radius 12 --out $(OUT)/occlusion_ao.nrrd --spectrum $(OUT)/occlusion_spectrum.png --spectrum-data $(OUT)/occlusion_spectrum.csv
 	$(VELLUM) render --scene examples/occlusion_nested.json --size 512x512 --out $(OUT)/occlusion_otf.png
@@ -53,6 +54,7 @@ run: build
 	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr,"
 	@echo "  render_two_level.scene.json (the scene file of that render: vellum render --scene FILE), render_one_pass.png,"
 	@echo "  render_style_canny.png, render_raycast.png (the ray caster, refined isosurface), styles_gallery.png (the 15 styles),"
+	@echo "  lines_torus.png, lines_torus.svg (object-space lines; the SVG holds their visible parts),"
 	@echo "  render_stipple.png (importance stippling),"
 	@echo "  occlusion_ao.nrrd, occlusion_spectrum.png, occlusion_spectrum.csv, occlusion_otf.png,"
 	@echo "  feature.nrrd, feature.features.json, render_features.png"

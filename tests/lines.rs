@@ -374,7 +374,7 @@ fn styled_frame(
     };
     let tf = TransferFunction::new(
         "focus only",
-        vec![cp(0.0, 0.0), cp(0.45, 0.0), cp(0.5, 1.0), cp(1.0, 1.0)],
+        vec![cp(0.0, 0.0), cp(0.498, 0.0), cp(0.5, 1.0), cp(1.0, 1.0)],
     )
     .unwrap();
     let mut scene = GpuScene::prepare(

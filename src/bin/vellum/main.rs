@@ -224,7 +224,7 @@ enum Command {
 }
 
 /// `vellum render`: a scene from flags, a scene file, or a scene file overridden by flags.
-#[derive(Args)]
+#[derive(Args, Clone)]
 struct RenderArgs {
     /// File, DICOM folder, or phantom spec; overrides the scene file's input.
     input: Option<String>,
@@ -1576,7 +1576,10 @@ fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
         .out
         .as_deref()
         .ok_or_else(|| anyhow::anyhow!("lines needs --out image.png"))?;
-    let mut scene = render_scene(&a.render)?;
+    // The style flags (edge colour, width, line parameters) apply to the lines' style.
+    let mut args = a.render.clone();
+    args.style.style = Some(style.into());
+    let mut scene = render_scene(&args)?;
     let mut params = scene.style.take().map(|s| s.params).unwrap_or_default();
     params.line_both = both;
     scene.style = Some(vellum::render::scene::StyleSpec {
