@@ -561,3 +561,30 @@ fn line_styles_match_reference_images() {
         common::check_reference(file, 160, 160, &rgb);
     }
 }
+
+#[test]
+fn bench_lines_reports_every_kind_and_both_modes() {
+    let j = common::ok_json(&common::vellum(&[
+        "bench",
+        "lines",
+        "phantom:torus:32",
+        "--iso",
+        "0.5",
+        "--json",
+    ]));
+    let rows = j["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 6, "3 kinds × full and interactive");
+    for r in rows {
+        let (g, c) = (
+            r["gpu_segments"].as_u64().unwrap(),
+            r["cpu_segments"].as_u64().unwrap(),
+        );
+        assert!(g.abs_diff(c) <= (c / 100).max(2), "{r}");
+    }
+    let full = rows[0]["gpu_segments"].as_u64().unwrap();
+    let interactive = rows[1]["gpu_segments"].as_u64().unwrap();
+    assert!(
+        interactive > 0 && interactive < full,
+        "every other cell finds fewer: {interactive} of {full}"
+    );
+}

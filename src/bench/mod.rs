@@ -1,6 +1,7 @@
 //! Benchmarks behind `vellum bench`. Figures are GPU timestamps per pass, set beside a plain copy
 //! of the same bytes and a CPU peer measured in the same run; no test depends on them.
 
+pub mod lines;
 pub mod occlusion;
 pub mod render;
 pub mod table1;

@@ -728,6 +728,17 @@ enum BenchCommand {
         #[arg(long, value_name = "vtk")]
         peer: Option<String>,
     },
+    /// Object-space line extraction per kind, full and interactive (every other cell), on the
+    /// GPU pass and the CPU reference, with segment counts.
+    Lines {
+        #[arg(long)]
+        json: bool,
+        /// A volume or phantom spec [default: the CT head from ../shared/data, and a 128³ torus].
+        input: Option<String>,
+        /// The isovalue for INPUT, in data units.
+        #[arg(long, allow_negative_numbers = true)]
+        iso: Option<f64>,
+    },
     /// Ambient occlusion against the radius for each method (ms, the cost model's estimate, memory),
     /// the crossover radius, and scipy's FFT convolution as a peer.
     Occlusion {
@@ -1146,6 +1157,19 @@ fn run(cli: &Cli) -> Result<()> {
         }
         Command::Migrate(args) => features::migrate(args),
         Command::Features(args) => features::print_tree(args),
+        Command::Bench {
+            which: BenchCommand::Lines { json, input, iso },
+        } => {
+            let input = match (input, iso) {
+                (Some(i), Some(v)) => Some((i.clone(), *v)),
+                (None, None) => None,
+                _ => anyhow::bail!("bench lines takes an input and --iso V together"),
+            };
+            let ctx = context(cli)?;
+            let table = vellum::bench::lines::run(&ctx, &vellum::bench::lines::Options { input })?;
+            report_validation(&ctx);
+            print_report(*json, &table, || table.to_text())
+        }
         Command::Bench {
             which:
                 BenchCommand::Occlusion {

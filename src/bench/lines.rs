@@ -1,0 +1,138 @@
+//! `vellum bench lines`: object-space line extraction (issue 11) per kind, full against the
+//! interactive mode (every other cell), on the GPU pass and on the CPU reference, with segment
+//! counts. The GPU figure is the `lines` pass's timestamp; the upload is not counted.
+
+use crate::bench::shared_data;
+use crate::error::Result;
+use crate::gpu::Context;
+use crate::passes::lines::{LineExtractor, DEFAULT_CAPACITY};
+use crate::volume::lines::{extract, Eye, LineParams};
+use crate::volume::{io, phantom, Volume};
+use serde::Serialize;
+use std::sync::Arc;
+
+pub struct Options {
+    /// A volume path or phantom spec with its isovalue; default the CT head (iso 1300) and a
+    /// 128³ torus.
+    pub input: Option<(String, f64)>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub data: String,
+    pub dims: [usize; 3],
+    pub kind: &'static str,
+    /// 1 = every cell, 2 = the interactive mode.
+    pub stride: u32,
+    pub gpu_ms: f64,
+    pub gpu_segments: u64,
+    pub cpu_ms: f64,
+    pub cpu_segments: usize,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Table {
+    pub device: String,
+    pub threads: usize,
+    pub rows: Vec<Row>,
+}
+
+fn cases(input: &Option<(String, f64)>) -> Result<Vec<(Volume, String, f64)>> {
+    if let Some((spec, iso)) = input {
+        return Ok(vec![(crate::input::load(spec, None)?, spec.clone(), *iso)]);
+    }
+    let mut v = Vec::new();
+    if let Some(root) = shared_data() {
+        let path = root.join("volumes/cthead_stanford/cthead_stanford.nhdr");
+        if path.exists() {
+            v.push((io::load(&path, None)?, "CT head, iso 1300".into(), 1300.0));
+        }
+    }
+    v.push((
+        phantom::smooth_torus(128),
+        "torus 128³, iso 0.5".into(),
+        0.5,
+    ));
+    Ok(v)
+}
+
+pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
+    let lines = LineExtractor::new(ctx)?;
+    // Azimuth 30°, elevation 20°: the renderer's default view of an unoriented volume.
+    let (a, e) = (30f32.to_radians(), 20f32.to_radians());
+    let eye = Eye::Direction([a.sin() * e.cos(), -a.cos() * e.cos(), e.sin()]);
+    let mut rows = Vec::new();
+    for (v, data, iso) in cases(&opts.input)? {
+        let (values, [lo, hi]) = crate::passes::occlusion::normalised_f32(&v);
+        let iso_n = if hi > lo {
+            ((iso - lo) / (hi - lo)) as f32
+        } else {
+            0.5
+        };
+        let spacing = v.spacing.map(|s| s as f32);
+        for (kind, sil, sc) in [
+            ("silhouettes", true, false),
+            ("suggestive", false, true),
+            ("both", true, true),
+        ] {
+            for stride in [1, 2] {
+                let p = LineParams {
+                    iso: iso as f32,
+                    silhouettes: sil,
+                    suggestive: sc,
+                    stride,
+                    ..LineParams::default()
+                };
+                let gpu = lines.extract(&v, eye, &p, DEFAULT_CAPACITY)?;
+                let start = std::time::Instant::now();
+                let cpu = extract(
+                    &values,
+                    v.dims,
+                    spacing,
+                    eye,
+                    &LineParams { iso: iso_n, ..p },
+                );
+                rows.push(Row {
+                    data: data.clone(),
+                    dims: v.dims,
+                    kind,
+                    stride,
+                    gpu_ms: gpu.ms,
+                    gpu_segments: gpu.found,
+                    cpu_ms: start.elapsed().as_secs_f64() * 1e3,
+                    cpu_segments: cpu.len(),
+                });
+            }
+        }
+    }
+    Ok(Table {
+        device: ctx.info.name.clone(),
+        threads: rayon::current_num_threads(),
+        rows,
+    })
+}
+
+impl Table {
+    pub fn to_text(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "object-space lines on {} (CPU reference on {} threads)",
+            self.device, self.threads
+        );
+        let _ = writeln!(
+            s,
+            "{:<22} {:<12} {:>6} {:>10} {:>10} {:>10} {:>10}",
+            "data", "kind", "stride", "GPU ms", "segments", "CPU ms", "segments"
+        );
+        for r in &self.rows {
+            let _ = writeln!(
+                s,
+                "{:<22} {:<12} {:>6} {:>10.1} {:>10} {:>10.1} {:>10}",
+                r.data, r.kind, r.stride, r.gpu_ms, r.gpu_segments, r.cpu_ms, r.cpu_segments
+            );
+        }
+        s
+    }
+}
