@@ -27,8 +27,8 @@
 //!   `stipple` (`{"t", "f", "seed", "white", "black"}`), `importance_radius`, `apply_to`
 //!   (`focus`, `context`, `both`) and `lighting` (`ambient`, `phong`).
 //! - `style`: a perceptual style of the two-level paper, `{"style": 2 | "dog", "params": {..}}`
-//!   (`render::style`). Styles 4–12 need object-space lines, which are not built yet: a scene
-//!   that asks for one is refused, never rendered without them.
+//!   (`render::style`). Styles 4–12 draw object-space lines; their `params` include
+//!   `line_angle`, `line_derivative_threshold`, `line_depth_bias`, `line_stride` and `line_both`.
 //!
 //! Every key is checked: an unknown key is an error that names it.
 //!
@@ -254,7 +254,7 @@ pub struct StyleSpec {
 }
 
 impl StyleSpec {
-    /// The style, checked (unknown, not built, or bad parameters are refused).
+    /// The style, checked (unknown styles and bad parameters are refused).
     pub fn resolve(&self) -> Result<Style> {
         let name = match &self.style {
             serde_json::Value::String(s) => s.clone(),
