@@ -354,20 +354,13 @@ fn styled_frame(
     camera: &str,
     size: u32,
 ) -> (Vec<[f32; 4]>, Vec<f32>) {
-    use vellum::classify::modulation::Modulation;
-    use vellum::classify::transfer::TransferFunction;
+    use vellum::classify::transfer::{ControlPoint, TransferFunction};
     use vellum::classify::{Classification, Focus};
     use vellum::gpu::transfer::readback;
-    use vellum::gpu::{Frames, FramesDesc};
-    use vellum::render::camera::Camera;
-    use vellum::render::scene::GpuScene;
-    use vellum::render::slicer::{Lighting, Renderer, View};
     use vellum::render::style::{Style, StyleParams};
-    use vellum::render::targets::FrameTargets;
     let ctx = &gpu.ctx;
     // Opaque white focus and a transparent context: the context is composited over the lines,
     // as over every edge, so a visible context would hide them.
-    use vellum::classify::transfer::ControlPoint;
     let cp = |x: f32, a: f32| ControlPoint {
         x,
         rgba: [1.0, 1.0, 1.0, a],
@@ -377,36 +370,20 @@ fn styled_frame(
         vec![cp(0.0, 0.0), cp(0.498, 0.0), cp(0.5, 1.0), cp(1.0, 1.0)],
     )
     .unwrap();
-    let mut scene = GpuScene::prepare(
-        ctx,
-        v,
-        &Classification::Transfer(tf),
-        Focus::Iso(0.5),
-        &Modulation::default(),
-    )
-    .unwrap();
     let params = StyleParams {
         edge_color: [1.0, 0.0, 0.0],
         edge_width: 3,
         ..StyleParams::default()
     };
-    let view = View {
-        camera: Camera::parse(camera).unwrap(),
-        size: [size, size],
-        slices: None,
-        one_pass: false,
-        lighting: Lighting::default(),
-        style: Some(Style::new(style, params).unwrap()),
-        fit: false,
-        raycast: None,
-    };
-    let renderer = Renderer::new(ctx).unwrap();
-    let mut targets = FrameTargets::new(ctx);
-    let mut frames = Frames::new(ctx, &FramesDesc::one_shot("lines", 32)).unwrap();
-    frames
-        .frame(|f| renderer.record(f, &scene.volume, &mut scene.classify, &view, &mut targets))
-        .unwrap();
-    let passes = frames.finish().unwrap();
+    let (targets, passes) = common::styled_frame(
+        ctx,
+        v,
+        &Classification::Transfer(tf),
+        Focus::Iso(0.5),
+        camera,
+        size,
+        Style::new(style, params).unwrap(),
+    );
     assert!(passes.iter().any(|p| p.name == "lines_draw"));
     let composite =
         bytemuck::pod_collect_to_vec(&readback(ctx, targets.layer("composite").unwrap()).unwrap());

@@ -17,15 +17,11 @@
 mod common;
 
 use common::Gpu;
-use vellum::classify::modulation::Modulation;
 use vellum::classify::transfer::TransferFunction;
 use vellum::classify::{Classification, Focus};
 use vellum::gpu::transfer::readback;
-use vellum::gpu::{Frames, FramesDesc, Image};
+use vellum::gpu::Image;
 use vellum::imaging::{edges, stylise, Plane};
-use vellum::render::camera::Camera;
-use vellum::render::scene::GpuScene;
-use vellum::render::slicer::{Lighting, Renderer, View};
 use vellum::render::style::{Style, StyleParams};
 use vellum::render::targets::FrameTargets;
 use vellum::volume::{phantom, Volume};
@@ -53,32 +49,15 @@ fn styled(
     size: u32,
     style: &str,
 ) -> FrameTargets {
-    let ctx = &gpu.ctx;
-    let mut scene = GpuScene::prepare(
-        ctx,
+    let (targets, passes) = common::styled_frame(
+        &gpu.ctx,
         v,
         &Classification::Transfer(TransferFunction::preset(tf).unwrap()),
         focus,
-        &Modulation::default(),
-    )
-    .unwrap();
-    let view = View {
-        camera: Camera::parse(camera).unwrap(),
-        size: [size, size],
-        slices: None,
-        one_pass: false,
-        lighting: Lighting::default(),
-        style: Some(Style::new(style, StyleParams::default()).unwrap()),
-        fit: false,
-        raycast: None,
-    };
-    let renderer = Renderer::new(ctx).unwrap();
-    let mut targets = FrameTargets::new(ctx);
-    let mut frames = Frames::new(ctx, &FramesDesc::one_shot("styled", 32)).unwrap();
-    frames
-        .frame(|f| renderer.record(f, &scene.volume, &mut scene.classify, &view, &mut targets))
-        .unwrap();
-    let passes = frames.finish().unwrap();
+        camera,
+        size,
+        Style::new(style, StyleParams::default()).unwrap(),
+    );
     let names: Vec<&str> = passes.iter().map(|p| p.name.as_str()).collect();
     let plain = style == "15" || style == "none";
     assert_eq!(names.contains(&"style_composite"), !plain, "{names:?}");

@@ -137,3 +137,48 @@ pub fn ok_json(out: &std::process::Output) -> serde_json::Value {
     );
     serde_json::from_slice(&out.stdout).unwrap()
 }
+
+/// Renders one styled two-level frame of `v` (classified by `classification`, focus `focus`,
+/// `camera` as `--camera` takes it, a square image of `size`) into persistent targets, and
+/// returns them with the frame's pass timings.
+pub fn styled_frame(
+    ctx: &Arc<Context>,
+    v: &vellum::volume::Volume,
+    classification: &vellum::classify::Classification,
+    focus: vellum::classify::Focus,
+    camera: &str,
+    size: u32,
+    style: vellum::render::style::Style,
+) -> (
+    vellum::render::targets::FrameTargets,
+    Vec<vellum::gpu::profiler::PassTime>,
+) {
+    use vellum::render::slicer::{Lighting, Renderer, View};
+    let mut scene = vellum::render::scene::GpuScene::prepare(
+        ctx,
+        v,
+        classification,
+        focus,
+        &vellum::classify::modulation::Modulation::default(),
+    )
+    .unwrap();
+    let view = View {
+        camera: vellum::render::camera::Camera::parse(camera).unwrap(),
+        size: [size, size],
+        slices: None,
+        one_pass: false,
+        lighting: Lighting::default(),
+        style: Some(style),
+        fit: false,
+        raycast: None,
+    };
+    let renderer = Renderer::new(ctx).unwrap();
+    let mut targets = vellum::render::targets::FrameTargets::new(ctx);
+    let mut frames =
+        vellum::gpu::Frames::new(ctx, &vellum::gpu::FramesDesc::one_shot("styled", 32)).unwrap();
+    frames
+        .frame(|f| renderer.record(f, &scene.volume, &mut scene.classify, &view, &mut targets))
+        .unwrap();
+    let passes = frames.finish().unwrap();
+    (targets, passes)
+}
