@@ -3,8 +3,11 @@
 # for the CPU peer and SimpleITK, the geometry tests' reference), then builds.
 
 SHELL := /bin/bash
+# The second line is the viewer's: the X libraries winit opens at run time, and Xvfb, xauth,
+# xdotool and xwd, with which the viewer's tests drive a real window.
 APT_PACKAGES := mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan-validationlayers \
-	libshaderc-dev glslc
+	libshaderc-dev glslc \
+	libx11-6 libx11-xcb1 libxcursor1 libxi6 libxrandr2 libxkbcommon-x11-0 xvfb xauth xdotool x11-apps
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 INPUT ?= phantom:shepp-logan:128
 # Focus isovalue of the two-level render, in the input's data units (the phantom's skull is 1.0).
@@ -12,10 +15,10 @@ ISO ?= 0.9
 OUT ?= out
 VELLUM := ./target/release/vellum
 
-.PHONY: deps build run test bench fuzz fmt
+.PHONY: deps build run view test bench fuzz fmt
 
 deps:
-	@command -v cargo >/dev/null || { echo "cargo is missing: install Rust 1.85+ (https://rustup.rs)"; exit 1; }
+	@command -v cargo >/dev/null || { echo "cargo is missing: install Rust 1.95+ (https://rustup.rs)"; exit 1; }
 	@missing=$$(for p in $(APT_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
 	if [ -n "$$missing" ]; then \
 		echo "installing: $$missing"; \
@@ -61,6 +64,10 @@ run: build
 
 # Every test, with the Khronos validation layer on (debug build), including its synchronization
 # validation: a missing or wrong barrier fails the test like any other validation message.
+# The windowed viewer on INPUT (needs a display; under no display: xvfb-run -a make view).
+view: build
+	$(VELLUM) view $(INPUT)
+
 test: deps
 	VELLUM_SYNC_VALIDATION=1 cargo test --locked
 

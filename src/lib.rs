@@ -16,6 +16,7 @@ pub mod passes;
 pub mod plot;
 pub mod progress;
 pub mod render;
+pub mod viewer;
 pub mod volume;
 
 pub use error::{Error, Result};

@@ -45,7 +45,7 @@ fn corrupt_and_load(src: &Path, companions: &[&Path], rng: &mut Rng, variants: u
             // Flip a few bytes, biased towards the header.
             1 => {
                 for _ in 0..4 {
-                    let limit = if rng.next() % 2 == 0 {
+                    let limit = if rng.next().is_multiple_of(2) {
                         bytes.len().min(600)
                     } else {
                         bytes.len()

@@ -87,6 +87,9 @@ fn every_option_takes_a_negative_value_as_a_value() {
                 .current_dir(cwd.path())
                 .env("VELLUM_VALIDATION", "1")
                 .env_remove("RUST_BACKTRACE")
+                // `view` with a value that passes would open a window and wait for a user.
+                .env_remove("DISPLAY")
+                .env_remove("WAYLAND_DISPLAY")
                 .output()
                 .unwrap();
             let stderr = String::from_utf8_lossy(&out.stderr);

@@ -76,6 +76,16 @@ impl ContextDesc {
     }
 }
 
+/// What a window needs from the instance and device: the surface extensions the windowing system
+/// asks for (`ash_window::enumerate_required_extensions`) and `VK_KHR_swapchain`.
+#[derive(Clone, Debug, Default)]
+pub struct Presentation {
+    /// Instance extensions for surfaces on this display.
+    pub instance_extensions: Vec<&'static CStr>,
+    /// Enable `VK_KHR_swapchain` on the device (a device without it is rejected, with the reason).
+    pub swapchain: bool,
+}
+
 /// A physical device as seen during selection.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct DeviceCandidate {
@@ -124,7 +134,9 @@ pub struct Context {
     pub push_descriptor: ash::khr::push_descriptor::Device,
     pub queue_family: u32,
     queue: Mutex<vk::Queue>,
-    allocator: ManuallyDrop<Mutex<Allocator>>,
+    /// Shared (an `Arc`) so that egui's renderer can allocate through it; every holder is dropped
+    /// before the context (the viewer drops its egui renderer first).
+    allocator: ManuallyDrop<Arc<Mutex<Allocator>>>,
     pub info: DeviceInfo,
     /// Every physical device, with the reason it was rejected where it was.
     pub candidates: Vec<DeviceCandidate>,
@@ -135,6 +147,8 @@ pub struct Context {
     messages: Box<MessageCounts>,
     /// Submission serials, deferred release and resource accounting (see `gpu/lifetime.rs`).
     pub(crate) lifetimes: crate::gpu::lifetime::Lifetimes,
+    /// Created with `VK_KHR_swapchain`.
+    presentation: bool,
 }
 
 impl std::fmt::Debug for Context {
@@ -224,14 +238,16 @@ fn create_instance(
     entry: &ash::Entry,
     validation: bool,
     counts: &MessageCounts,
+    extra: &[&CStr],
 ) -> Result<(ash::Instance, bool)> {
-    create_instance_inner(entry, validation, counts).map_err(explain_loader_failure)
+    create_instance_inner(entry, validation, counts, extra).map_err(explain_loader_failure)
 }
 
 fn create_instance_inner(
     entry: &ash::Entry,
     validation: bool,
     counts: &MessageCounts,
+    extra: &[&CStr],
 ) -> Result<(ash::Instance, bool)> {
     // SAFETY: plain enumeration calls on a loaded entry.
     let layers =
@@ -266,6 +282,15 @@ fn create_instance_inner(
     } else {
         vec![]
     };
+    for e in extra {
+        if !exts.iter().any(|x| x.extension_name_as_c_str() == Ok(*e)) {
+            return Err(Error::NoDevice(format!(
+                "the Vulkan instance lacks {} which this window system needs; install the Vulkan loader and a driver with surface support",
+                e.to_string_lossy()
+            )));
+        }
+        ext_ptrs.push(e.as_ptr());
+    }
     // VELLUM_SYNC_VALIDATION=1 adds the layer's synchronization validation, which reports missing
     // or wrong barriers (hazards) that the default checks do not.
     let sync = validation && std::env::var("VELLUM_SYNC_VALIDATION").is_ok_and(|v| v.trim() == "1");
@@ -332,6 +357,7 @@ fn examine(
     instance: &ash::Instance,
     pd: vk::PhysicalDevice,
     index: usize,
+    presentation: bool,
 ) -> Result<(DeviceCandidate, Option<u32>)> {
     let mut driver = vk::PhysicalDeviceDriverProperties::default();
     let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
@@ -380,6 +406,13 @@ fn examine(
         .any(|e| e.extension_name_as_c_str() == Ok(ash::khr::push_descriptor::NAME))
     {
         reasons.push("lacks VK_KHR_push_descriptor".into());
+    }
+    if presentation
+        && !exts
+            .iter()
+            .any(|e| e.extension_name_as_c_str() == Ok(ash::khr::swapchain::NAME))
+    {
+        reasons.push("lacks VK_KHR_swapchain (it cannot present to a window)".into());
     }
     let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
     let wanted = vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE;
@@ -480,7 +513,7 @@ fn choose(candidates: &[DeviceCandidate], selector: Option<&str>) -> Result<usiz
 pub fn probe_devices(desc: &ContextDesc) -> Result<(Vec<DeviceCandidate>, Option<usize>)> {
     let entry = load_entry()?;
     let counts = MessageCounts::default();
-    let (instance, _) = create_instance(&entry, false, &counts)?;
+    let (instance, _) = create_instance(&entry, false, &counts, &[])?;
     let result = (|| {
         let pds = unsafe { instance.enumerate_physical_devices() }
             .vk("listing physical devices")
@@ -488,7 +521,7 @@ pub fn probe_devices(desc: &ContextDesc) -> Result<(Vec<DeviceCandidate>, Option
         let candidates = pds
             .iter()
             .enumerate()
-            .map(|(i, &pd)| examine(&instance, pd, i).map(|(c, _)| c))
+            .map(|(i, &pd)| examine(&instance, pd, i, false).map(|(c, _)| c))
             .collect::<Result<Vec<_>>>()?;
         let chosen = choose(&candidates, desc.device_selector().as_deref()).ok();
         Ok((candidates, chosen))
@@ -501,10 +534,16 @@ pub fn probe_devices(desc: &ContextDesc) -> Result<(Vec<DeviceCandidate>, Option
 impl Context {
     /// Creates the instance and the chosen device.
     pub fn new(desc: &ContextDesc) -> Result<Arc<Context>> {
+        Self::with_presentation(desc, &Presentation::default())
+    }
+
+    /// Creates the instance and the chosen device with what a window needs (`present`).
+    pub fn with_presentation(desc: &ContextDesc, present: &Presentation) -> Result<Arc<Context>> {
         let validation = desc.validation_enabled()?;
         let entry = load_entry()?;
         let messages = Box::new(MessageCounts::default());
-        let (instance, has_debug_utils) = create_instance(&entry, validation, &messages)?;
+        let (instance, has_debug_utils) =
+            create_instance(&entry, validation, &messages, &present.instance_extensions)?;
         // From here on, failures must destroy what exists: a guard struct would be heavier than
         // this closure-and-cleanup pair.
         let made = Self::finish(
@@ -514,6 +553,7 @@ impl Context {
             validation,
             messages,
             desc,
+            present.swapchain,
         );
         if made.is_err() {
             // SAFETY: `finish` destroyed everything it created before returning its error.
@@ -529,6 +569,7 @@ impl Context {
         validation: bool,
         messages: Box<MessageCounts>,
         desc: &ContextDesc,
+        presentation: bool,
     ) -> Result<Arc<Context>> {
         let (debug_instance, messenger) = if has_debug_utils {
             let di = ash::ext::debug_utils::Instance::new(&entry, &instance);
@@ -557,7 +598,7 @@ impl Context {
         let mut candidates = Vec::new();
         let mut families = Vec::new();
         for (i, &pd) in pds.iter().enumerate() {
-            match examine(&instance, pd, i) {
+            match examine(&instance, pd, i, presentation) {
                 Ok((c, f)) => {
                     if let Some(r) = &c.rejected {
                         log::info!("device [{i}] {} rejected: {r}", c.name);
@@ -600,7 +641,10 @@ impl Context {
                 .independent_blend(true)
                 .shader_storage_image_extended_formats(extended_formats == vk::TRUE),
         );
-        let ext_ptrs = [ash::khr::push_descriptor::NAME.as_ptr()];
+        let mut ext_ptrs = vec![ash::khr::push_descriptor::NAME.as_ptr()];
+        if presentation {
+            ext_ptrs.push(ash::khr::swapchain::NAME.as_ptr());
+        }
         let info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_info)
             .enabled_extension_names(&ext_ptrs)
@@ -681,14 +725,27 @@ impl Context {
             push_descriptor,
             queue_family,
             queue: Mutex::new(queue),
-            allocator: ManuallyDrop::new(Mutex::new(allocator)),
+            allocator: ManuallyDrop::new(Arc::new(Mutex::new(allocator))),
             info,
             candidates,
             chosen,
             validation,
             messages,
             lifetimes: Default::default(),
+            presentation,
         }))
+    }
+
+    /// Says on stderr if the validation layer complained (the messages themselves are logged at
+    /// debug level: `-vv`). The tools call it before they exit; tests read [`Context::messages`].
+    pub fn report_validation(&self) {
+        let m = self.messages();
+        if !m.is_clean() {
+            eprintln!(
+                "warning: the Vulkan validation layer reported {} error(s) and {} warning(s); run with -vv to see them",
+                m.errors, m.warnings
+            );
+        }
     }
 
     /// Validation messages counted so far.
@@ -701,6 +758,23 @@ impl Context {
         // A poisoned lock means a panic happened mid-allocation elsewhere; the allocator itself is
         // still consistent, so carry on.
         self.allocator.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// The allocator, shared, for libraries that allocate through gpu-allocator themselves (egui's
+    /// renderer). Drop every clone before the context.
+    pub fn shared_allocator(&self) -> Arc<Mutex<Allocator>> {
+        Arc::clone(&self.allocator)
+    }
+
+    /// Whether the device was created with `VK_KHR_swapchain`.
+    pub fn can_present(&self) -> bool {
+        self.presentation
+    }
+
+    /// The queue's handle, for a library that submits by itself (egui's texture uploads) on this
+    /// thread between our frames.
+    pub fn queue_handle(&self) -> vk::Queue {
+        *self.queue()
     }
 
     /// The queue, locked for one submission.
@@ -780,6 +854,9 @@ impl Drop for Context {
             let _ = self.device.device_wait_idle();
             for garbage in self.lifetimes.drain_all() {
                 garbage(self);
+            }
+            if Arc::strong_count(&self.allocator) > 1 {
+                log::error!("the allocator is still shared while the context is dropped");
             }
             ManuallyDrop::drop(&mut self.allocator);
             self.device.destroy_device(None);

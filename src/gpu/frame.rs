@@ -191,6 +191,18 @@ pub struct Frame<'a> {
     keep: &'a mut Vec<Box<dyn Any>>,
     /// The frame's number in its ring, from 0.
     pub index: u64,
+    /// The ring slot it records into (`index % len`): per-slot objects such as a swapchain's
+    /// acquire semaphores are indexed by it.
+    pub slot: usize,
+}
+
+/// Semaphores a frame's submission waits on and signals (a swapchain's acquire and present).
+#[derive(Clone, Debug, Default)]
+pub struct SubmitSync {
+    /// Semaphores to wait for, each before the given stages.
+    pub wait: Vec<(vk::Semaphore, vk::PipelineStageFlags2)>,
+    /// Semaphores signalled once the frame's commands complete.
+    pub signal: Vec<vk::Semaphore>,
 }
 
 impl Frame<'_> {
@@ -342,6 +354,23 @@ impl Frames {
     /// Records one frame with `record` and submits it. Blocks only while the slot it needs is
     /// still in flight. Returns what `record` returned and the frame's index.
     pub fn frame<R>(&mut self, record: impl FnOnce(&mut Frame) -> Result<R>) -> Result<(R, u64)> {
+        self.frame_sync(|f| Ok((record(f)?, SubmitSync::default())))
+    }
+
+    /// Waits until the next frame's slot is free and returns its index: per-slot objects (an
+    /// acquire semaphore) may then be reused before [`Frames::frame_sync`] records into it.
+    pub fn next_slot(&mut self) -> Result<usize> {
+        let i = self.next;
+        self.retire_slot(i, true)?;
+        Ok(i)
+    }
+
+    /// [`Frames::frame`] whose submission also waits on and signals the semaphores `record`
+    /// returns (a window's frame: wait for the acquired image, signal for presentation).
+    pub fn frame_sync<R>(
+        &mut self,
+        record: impl FnOnce(&mut Frame) -> Result<(R, SubmitSync)>,
+    ) -> Result<(R, u64)> {
         let i = self.next;
         let started = std::time::Instant::now();
         self.retire_slot(i, true)?;
@@ -367,13 +396,35 @@ impl Frames {
                 staging: &mut slot.staging,
                 keep: &mut slot.keep,
                 index,
+                slot: i,
             };
-            let out = record(&mut frame)?;
+            let (out, sync) = record(&mut frame)?;
             unsafe { ctx.device.end_command_buffer(slot.cmd) }
                 .vk(format!("ending frame {index} of {}", self.name))?;
             let serial = ctx.next_serial();
             let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(slot.cmd)];
-            let submit = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_infos)];
+            let waits: Vec<_> = sync
+                .wait
+                .iter()
+                .map(|&(s, stage)| {
+                    vk::SemaphoreSubmitInfo::default()
+                        .semaphore(s)
+                        .stage_mask(stage)
+                })
+                .collect();
+            let signals: Vec<_> = sync
+                .signal
+                .iter()
+                .map(|&s| {
+                    vk::SemaphoreSubmitInfo::default()
+                        .semaphore(s)
+                        .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+                })
+                .collect();
+            let submit = [vk::SubmitInfo2::default()
+                .command_buffer_infos(&cmd_infos)
+                .wait_semaphore_infos(&waits)
+                .signal_semaphore_infos(&signals)];
             {
                 let queue = ctx.queue();
                 if let Err(e) = unsafe { ctx.device.queue_submit2(*queue, &submit, slot.fence) }

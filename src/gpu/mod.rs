@@ -12,13 +12,14 @@ pub mod pipeline;
 pub mod profiler;
 pub mod resources;
 pub mod shaders;
+pub mod swapchain;
 pub mod transfer;
 pub mod validation;
 
 pub use barrier::Access;
-pub use context::{Context, ContextDesc, DeviceCandidate, DeviceInfo};
+pub use context::{Context, ContextDesc, DeviceCandidate, DeviceInfo, Presentation};
 pub use frame::submit_once;
-pub use frame::{Frame, FrameResult, Frames, FramesDesc, HostTimes, StagingRing};
+pub use frame::{Frame, FrameResult, Frames, FramesDesc, HostTimes, StagingRing, SubmitSync};
 pub use lifetime::TransferCount;
 pub use pipeline::{Bind, BindingKind, ComputePipeline};
 pub use profiler::{PassTime, Profiler};

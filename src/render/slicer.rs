@@ -443,17 +443,7 @@ impl Renderer {
             false => glam::Mat3::IDENTITY,
         };
         let aspect = w as f32 / h as f32;
-        let mut cam = view.camera;
-        if view.fit {
-            let corners: Vec<Vec3> = (0..8)
-                .map(|i| {
-                    let sign = |k: u32| if (i >> k) & 1 == 1 { 1.0 } else { -1.0 };
-                    rot * Vec3::new(sign(0) * half.x, sign(1) * half.y, sign(2) * half.z)
-                })
-                .collect();
-            cam.distance = cam.fit_distance(&corners, radius, aspect, FIT_MARGIN);
-        }
-        let cam = &cam;
+        let cam = &frame_camera(vol, view);
         let view_dir = rot.transpose() * cam.view_dir(radius);
         // Every pass draws the same planes, cut only by the bricks that can contribute to it, so
         // each fragment it draws is one the whole-box geometry would draw and skipped fragments
@@ -846,6 +836,41 @@ impl Renderer {
             slices: recorded.slices,
         })
     }
+}
+
+/// The volume's box in world units (physical size scaled so that its longest edge is 1): its half
+/// extents and the rotation from the box's axes to world space (LPS for an oriented volume).
+fn world_box(vol: &VolumeTextures) -> (Vec3, glam::Mat3) {
+    let physical: [f64; 3] = std::array::from_fn(|a| vol.dims[a] as f64 * vol.spacing[a]);
+    let longest = physical.iter().copied().fold(0.0, f64::max);
+    let half = Vec3::from_array(physical.map(|p| (0.5 * p / longest) as f32));
+    let rot = match vol.geometry.is_oriented() {
+        true => {
+            glam::Mat3::from_cols_array_2d(&vol.geometry.direction.map(|r| r.map(|v| v as f32)))
+                .transpose()
+        }
+        false => glam::Mat3::IDENTITY,
+    };
+    (half, rot)
+}
+
+/// The camera a frame of `vol` seen by `view` uses: `view.camera`, with its distance fitted to the
+/// volume's projected bounding box when `view.fit` (the viewer turns a fitted distance into an
+/// explicit one before zooming).
+pub fn frame_camera(vol: &VolumeTextures, view: &View) -> Camera {
+    let mut cam = view.camera;
+    if view.fit {
+        let (half, rot) = world_box(vol);
+        let corners: Vec<Vec3> = (0..8)
+            .map(|i| {
+                let sign = |k: u32| if (i >> k) & 1 == 1 { 1.0 } else { -1.0 };
+                rot * Vec3::new(sign(0) * half.x, sign(1) * half.y, sign(2) * half.z)
+            })
+            .collect();
+        let aspect = view.size[0].max(1) as f32 / view.size[1].max(1) as f32;
+        cam.distance = cam.fit_distance(&corners, half.length(), aspect, FIT_MARGIN);
+    }
+    cam
 }
 
 /// Brick range in normalised units with one u16 step of margin for rounding between the CPU

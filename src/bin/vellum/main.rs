@@ -198,6 +198,9 @@ enum Command {
     Features(features::FeaturesArgs),
     /// Every style of the two-level paper on one volume: a labelled contact sheet (its Fig. 11).
     Styles(Box<StylesArgs>),
+    /// Open a window on a volume (the built-in phantom when none is given) or a scene file: orbit,
+    /// edit the transfer function over the histogram, pick styles, save scenes and screenshots.
+    View(Box<ViewArgs>),
     /// The Itti-Koch-Niebur saliency map of an image, and its mean inside and outside a mask.
     Saliency {
         /// A PNG image.
@@ -320,6 +323,44 @@ struct LinesArgs {
     /// Write the visible segments as SVG paths (pixel coordinates of the PNG).
     #[arg(long)]
     svg: Option<PathBuf>,
+}
+
+/// `vellum view`: the windowed viewer.
+#[derive(Args)]
+struct ViewArgs {
+    /// File, DICOM folder, or phantom spec [default: phantom:shepp-logan:128]; overrides the scene
+    /// file's input.
+    input: Option<String>,
+    /// A scene file (JSON), as `render --scene` reads and the viewer saves.
+    #[arg(long)]
+    scene: Option<PathBuf>,
+    /// Transfer function: a preset (grey, ct-bone, ct-skin-bone, mri-brain) or a JSON file.
+    #[arg(long)]
+    tf: Option<String>,
+    /// Focus: an interval of data values LO:HI.
+    #[arg(long, value_name = "LO:HI", allow_hyphen_values = true)]
+    focus: Option<String>,
+    /// Focus: an isovalue in data units.
+    #[arg(long, value_name = "V", allow_negative_numbers = true)]
+    iso: Option<f64>,
+    /// Window size [default: 1100x700].
+    #[arg(long, value_name = "WxH")]
+    size: Option<String>,
+    /// Folder for screenshots (key S): vellum-0001.png, ... [default: the current folder].
+    #[arg(long, value_name = "DIR")]
+    screenshot_dir: Option<PathBuf>,
+    /// Write a screenshot of the volume view to this PNG when the window closes.
+    #[arg(long, value_name = "PNG")]
+    screenshot_on_exit: Option<PathBuf>,
+    /// Present without waiting for vertical blank (MAILBOX or IMMEDIATE where offered).
+    #[arg(long)]
+    no_vsync: bool,
+    /// Orbit N frames at full quality, print the frame rate and frame-time percentiles, and close.
+    #[arg(long, value_name = "N")]
+    bench: Option<u32>,
+    /// With --bench: print the report as JSON.
+    #[arg(long)]
+    json: bool,
 }
 
 /// `vellum styles`: the gallery of the 15 styles.
@@ -857,13 +898,7 @@ fn context(cli: &Cli) -> Result<Arc<Context>> {
 
 /// Says on stderr if the validation layer complained (the messages themselves are at -vv).
 fn report_validation(ctx: &Context) {
-    let m = ctx.messages();
-    if !m.is_clean() {
-        eprintln!(
-            "warning: the Vulkan validation layer reported {} error(s) and {} warning(s); run with -vv to see them",
-            m.errors, m.warnings
-        );
-    }
+    ctx.report_validation();
 }
 
 #[cfg(unix)]
@@ -1120,6 +1155,7 @@ fn run(cli: &Cli) -> Result<()> {
             csv.as_deref(),
         ),
         Command::Styles(args) => styles(cli, args),
+        Command::View(args) => view(cli, args),
         Command::Bench {
             which:
                 BenchCommand::Styles {
@@ -1771,6 +1807,77 @@ fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
         );
         for p in passes {
             println!("  {:<14} {:>9.3} ms", p.name, p.ms);
+        }
+    }
+    Ok(())
+}
+
+fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
+    let mut scene = match &a.scene {
+        Some(path) => Scene::load(path)?,
+        None => Scene::new(InputSpec {
+            path: "phantom:shepp-logan:128".into(),
+            raw: None,
+        }),
+    };
+    if let Some(input) = &a.input {
+        scene.input = InputSpec {
+            path: input.clone(),
+            raw: None,
+        };
+    }
+    if let Some(tf) = &a.tf {
+        scene.classification = ClassificationSpec::Transfer(tf.clone());
+    }
+    if a.focus.is_some() || a.iso.is_some() {
+        scene.focus = parse_focus(a.focus.as_deref(), a.iso)?;
+    }
+    let window_size = match &a.size {
+        Some(s) => parse_size(s)?,
+        None => [1100, 700],
+    };
+    if let Some(0) = a.bench {
+        anyhow::bail!("--bench 0 is invalid; expected a number of frames of 1 or more");
+    }
+    anyhow::ensure!(
+        a.json <= a.bench.is_some(),
+        "--json prints the report of --bench N; add --bench"
+    );
+    if let Some(p) = &a.screenshot_on_exit {
+        vellum::output::check_extension(p, &["png"], "a PNG image")?;
+    }
+    let screenshot_dir = a
+        .screenshot_dir
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("."));
+    anyhow::ensure!(
+        screenshot_dir.is_dir(),
+        "--screenshot-dir {} is not a folder; expected an existing folder",
+        screenshot_dir.display()
+    );
+    // The viewer's files (screenshots, scenes) land when they are made, each atomically, not at
+    // the end of the command: close the command's all-or-nothing transaction.
+    vellum::output::commit()?;
+    let report = vellum::viewer::run(vellum::viewer::ViewOptions {
+        scene,
+        device: cli.device.clone(),
+        window_size,
+        screenshot_dir,
+        screenshot_on_exit: a.screenshot_on_exit.clone(),
+        vsync: !a.no_vsync,
+        bench_frames: a.bench.map(|n| n + 5),
+    })?;
+    if let Some(r) = report {
+        if a.json {
+            println!("{}", serde_json::to_string_pretty(&r)?);
+        } else {
+            println!(
+                "{} at {}x{} on {}: {:.1} fps over {} frames; frame time p50 {:.2} ms, p95 {:.2} ms, p99 {:.2} ms",
+                r.input, r.size[0], r.size[1], r.device, r.fps, r.frames, r.p50_ms, r.p95_ms, r.p99_ms
+            );
+            for (name, ms) in &r.gpu_ms {
+                println!("  {name:<14} {ms:>9.3} ms (median GPU)");
+            }
         }
     }
     Ok(())

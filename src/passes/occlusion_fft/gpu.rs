@@ -58,7 +58,7 @@ pub const SHARED_BYTES: u32 = (MAX_LENGTH * 8) as u32;
 pub fn radices(mut n: usize) -> Vec<u32> {
     let mut out = Vec::new();
     for r in [4, 2, 3, 5] {
-        while n % r == 0 && n > 1 {
+        while n.is_multiple_of(r) && n > 1 {
             out.push(r as u32);
             n /= r;
         }

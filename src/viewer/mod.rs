@@ -1,0 +1,1127 @@
+//! `vellum view`: the windowed viewer. A winit window, a swapchain, our renderer drawing the
+//! volume into its persistent layers, a present pass that lays the composite over the background
+//! into the swapchain image, and egui's panels over it, all in one frame of a two-slot ring
+//! (`gpu::Frames`): the CPU records frame N+1 while the GPU runs frame N.
+//!
+//! The viewer edits a [`Scene`], the structure `vellum render --scene` reads. A saved scene
+//! renders from the command line to the image the window shows (a test compares them), so the
+//! viewer and the CLI are one renderer.
+//!
+//! Adaptive quality: while the camera moves or a control is dragged, frames render at half the
+//! window's resolution and the present pass scales them up; [`REFINE_AFTER`] after the last
+//! change, one frame at full resolution follows and the loop goes idle until the next event.
+
+mod ui;
+
+use crate::classify::transfer::TransferFunction;
+use crate::classify::Classification;
+use crate::error::{Error, Result};
+use crate::gpu::graphics::{GraphicsDesc, GraphicsPipeline};
+use crate::gpu::swapchain::{Acquired, Swapchain};
+use crate::gpu::{
+    Access, Bind, BindingKind, Context, ContextDesc, Frames, FramesDesc, Presentation, Sampler,
+    SubmitSync,
+};
+use crate::render::scene::{ClassificationSpec, GpuScene, InputSpec, NamedView, Scene};
+use crate::render::slicer::{frame_camera, to_rgb8, Renderer};
+use crate::render::targets::{FrameTargets, TargetsReadback};
+use crate::volume::Volume;
+use ash::vk;
+use std::path::{Path, PathBuf};
+use std::sync::{mpsc, Arc};
+use std::time::{Duration, Instant};
+use ui::Model;
+use winit::application::ApplicationHandler;
+use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
+use winit::keyboard::{Key, NamedKey};
+use winit::raw_window_handle::{HasDisplayHandle, HasWindowHandle};
+use winit::window::{Window, WindowId};
+
+/// How long after the last change frames stay at reduced resolution.
+pub const REFINE_AFTER: Duration = Duration::from_millis(200);
+
+/// What `vellum view` was asked to do.
+#[derive(Clone, Debug)]
+pub struct ViewOptions {
+    /// The scene to open (its input, classification, focus, camera, style...).
+    pub scene: Scene,
+    /// Device selector (index or name), as `--device`.
+    pub device: Option<String>,
+    /// Window size in pixels.
+    pub window_size: [u32; 2],
+    /// Where screenshots (key S) go.
+    pub screenshot_dir: PathBuf,
+    /// A screenshot written when the window closes.
+    pub screenshot_on_exit: Option<PathBuf>,
+    /// Present with vsync (FIFO); off picks MAILBOX or IMMEDIATE where offered.
+    pub vsync: bool,
+    /// Orbit this many frames at full quality, report the frame times, and close.
+    pub bench_frames: Option<u32>,
+}
+
+/// Frame times of a `--bench` orbit.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct BenchReport {
+    pub device: String,
+    pub input: String,
+    pub size: [u32; 2],
+    pub frames: usize,
+    pub fps: f64,
+    pub p50_ms: f64,
+    pub p95_ms: f64,
+    pub p99_ms: f64,
+    /// Median GPU ms per pass over the orbit.
+    pub gpu_ms: Vec<(String, f64)>,
+}
+
+/// Opens the window and runs until it is closed. Returns the bench report in bench mode.
+pub fn run(opts: ViewOptions) -> Result<Option<BenchReport>> {
+    let event_loop =
+        EventLoop::new().map_err(|e| Error::Invalid(format!("cannot open a window: {e}")))?;
+    let mut app = App {
+        opts,
+        running: None,
+        error: None,
+        report: None,
+    };
+    event_loop
+        .run_app(&mut app)
+        .map_err(|e| Error::Invalid(format!("the window's event loop failed: {e}")))?;
+    if let Some(r) = &app.running {
+        r.ctx.report_validation();
+    }
+    drop(app.running.take());
+    match app.error {
+        Some(e) => Err(e),
+        None => Ok(app.report),
+    }
+}
+
+struct App {
+    opts: ViewOptions,
+    running: Option<Running>,
+    /// An error that ended the viewer (before the window could show it).
+    error: Option<Error>,
+    report: Option<BenchReport>,
+}
+
+/// A volume loaded on a worker thread.
+struct Loaded {
+    scene: Scene,
+    volume: Volume,
+    classification: Classification,
+    tf: TransferFunction,
+    histogram: Vec<u64>,
+    range: [f64; 2],
+}
+
+fn load(scene: Scene) -> Result<Loaded> {
+    let classification = scene.classification()?;
+    let volume = scene.load_volume()?;
+    let tf = match &classification {
+        Classification::Transfer(tf) => tf.clone(),
+        _ => TransferFunction::preset("grey")?,
+    };
+    let s = crate::volume::stats::stats(&volume, 256);
+    Ok(Loaded {
+        scene,
+        classification,
+        tf,
+        histogram: s.histogram,
+        range: [s.min, s.max],
+        volume,
+    })
+}
+
+/// Camera drag in progress.
+#[derive(Copy, Clone, Debug)]
+enum Drag {
+    Orbit,
+    Pan,
+}
+
+/// Everything that exists while the window is open. Field order is drop order: the frame ring
+/// first (it waits for the GPU), egui's renderer before the context whose allocator it shares,
+/// the swapchain before the window.
+struct Running {
+    frames: Frames,
+    egui_renderer: egui_ash_renderer::Renderer<egui_ash_renderer::allocator::GpuAllocator>,
+    egui_pool: CommandPool,
+    swapchain: Swapchain,
+    present: GraphicsPipeline,
+    sampler: Sampler,
+    targets: FrameTargets,
+    renderer: Renderer,
+    gpu: GpuScene,
+    model: Model,
+    /// The scene as last applied to the GPU state, to see what changed.
+    applied: Scene,
+    applied_tf: TransferFunction,
+    /// The camera of the loaded scene, for reset.
+    home: crate::render::scene::CameraSpec,
+    egui_ctx: egui::Context,
+    egui_state: egui_winit::State,
+    pending_load: Option<mpsc::Receiver<Result<Loaded>>>,
+    drag: Option<(Drag, [f64; 2])>,
+    cursor: [f64; 2],
+    shift: bool,
+    ctrl: bool,
+    last_click: Option<Instant>,
+    last_change: Instant,
+    refined: bool,
+    resize: bool,
+    screenshot: Option<PathBuf>,
+    screenshot_dir: PathBuf,
+    pending_free: Vec<egui::TextureId>,
+    /// The volume view in window pixels (x, y, width, height): the window less the panel.
+    view_rect: [u32; 4],
+    show_panel: bool,
+    last_layout: String,
+    last_present: Option<Instant>,
+    frame_ms: Vec<f64>,
+    gpu_history: Vec<Vec<(String, f64)>>,
+    bench_left: Option<u32>,
+    errors_in_a_row: u32,
+    window: Arc<Window>,
+    ctx: Arc<Context>,
+}
+
+/// egui uploads its textures through a command pool of its own.
+struct CommandPool {
+    ctx: Arc<Context>,
+    raw: vk::CommandPool,
+}
+
+impl Drop for CommandPool {
+    fn drop(&mut self) {
+        unsafe {
+            let _ = self.ctx.device.device_wait_idle();
+            self.ctx.device.destroy_command_pool(self.raw, None);
+        }
+    }
+}
+
+impl ApplicationHandler for App {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.running.is_some() {
+            return;
+        }
+        match Running::new(event_loop, &self.opts) {
+            Ok(r) => self.running = Some(r),
+            Err(e) => {
+                self.error = Some(e);
+                event_loop.exit();
+            }
+        }
+    }
+
+    fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        let Some(r) = self.running.as_mut() else {
+            return;
+        };
+        let response = r.egui_state.on_window_event(&r.window, &event);
+        if response.repaint {
+            r.window.request_redraw();
+        }
+        match event {
+            WindowEvent::CloseRequested => self.close(event_loop),
+            WindowEvent::Resized(_) => {
+                r.resize = true;
+                r.changed();
+            }
+            WindowEvent::DroppedFile(path) => {
+                r.start_load_input(path.to_string_lossy().into_owned());
+            }
+            WindowEvent::ModifiersChanged(m) => {
+                r.shift = m.state().shift_key();
+                r.ctrl = m.state().control_key();
+            }
+            WindowEvent::CursorMoved { position, .. } => {
+                let p = [position.x, position.y];
+                if let Some((kind, last)) = r.drag {
+                    r.camera_drag(kind, [p[0] - last[0], p[1] - last[1]]);
+                    r.drag = Some((kind, p));
+                }
+                r.cursor = p;
+            }
+            WindowEvent::MouseInput { state, button, .. } if !response.consumed => match state {
+                ElementState::Pressed => {
+                    let kind = match button {
+                        MouseButton::Left if r.shift => Some(Drag::Pan),
+                        MouseButton::Left => Some(Drag::Orbit),
+                        MouseButton::Right | MouseButton::Middle => Some(Drag::Pan),
+                        _ => None,
+                    };
+                    if button == MouseButton::Left {
+                        let now = Instant::now();
+                        if r.last_click
+                            .is_some_and(|t| now - t < Duration::from_millis(350))
+                        {
+                            r.reset_camera();
+                        }
+                        r.last_click = Some(now);
+                    }
+                    r.drag = kind.map(|k| (k, r.cursor));
+                }
+                ElementState::Released => r.drag = None,
+            },
+            WindowEvent::MouseInput {
+                state: ElementState::Released,
+                ..
+            } => r.drag = None,
+            WindowEvent::MouseWheel { delta, .. } if !response.consumed => {
+                let steps = match delta {
+                    MouseScrollDelta::LineDelta(_, y) => y as f64,
+                    MouseScrollDelta::PixelDelta(p) => p.y / 40.0,
+                };
+                r.zoom(steps);
+            }
+            WindowEvent::KeyboardInput { event, .. }
+                if !response.consumed && event.state == ElementState::Pressed =>
+            {
+                match &event.logical_key {
+                    Key::Named(NamedKey::Escape) => r.model.requests.quit = true,
+                    Key::Character(c) => match c.as_str() {
+                        "q" | "Q" => r.model.requests.quit = true,
+                        "s" | "S" if r.ctrl => {
+                            r.model.requests.save_scene = Some(r.model.scene_path.clone());
+                        }
+                        "s" | "S" => r.model.requests.screenshot = true,
+                        "o" | "O" => {
+                            r.model.scene.camera.ortho = !r.model.scene.camera.ortho;
+                        }
+                        "r" | "R" => r.reset_camera(),
+                        "h" | "H" => {
+                            r.show_panel = !r.show_panel;
+                            r.changed();
+                        }
+                        d @ ("1" | "2" | "3" | "4" | "5" | "6") => {
+                            let v = [
+                                NamedView::Anterior,
+                                NamedView::Posterior,
+                                NamedView::Left,
+                                NamedView::Right,
+                                NamedView::Superior,
+                                NamedView::Inferior,
+                            ][d.parse::<usize>().unwrap_or(1) - 1];
+                            ui::set_view(&mut r.model.scene, v);
+                        }
+                        _ => {}
+                    },
+                    _ => {}
+                }
+                r.window.request_redraw();
+            }
+            WindowEvent::RedrawRequested => {
+                if let Err(e) = r.redraw() {
+                    r.errors_in_a_row += 1;
+                    log::error!("{e}");
+                    r.model.message = e.to_string();
+                    // The device is gone or keeps failing: say so and stop, with the sentence.
+                    if r.errors_in_a_row >= 3 {
+                        self.error = Some(e);
+                        event_loop.exit();
+                        return;
+                    }
+                    r.window.request_redraw();
+                } else {
+                    r.errors_in_a_row = 0;
+                }
+                if r.model.requests.quit {
+                    self.close(event_loop);
+                    return;
+                }
+                if let Some(r) = self.running.as_mut() {
+                    if let Some(0) = r.bench_left {
+                        self.report = Some(r.bench_report());
+                        event_loop.exit();
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn about_to_wait(&mut self, event_loop: &ActiveEventLoop) {
+        let Some(r) = self.running.as_mut() else {
+            return;
+        };
+        r.poll_load();
+        if r.model.scene != r.applied || r.model.tf != r.applied_tf {
+            r.changed();
+        }
+        let busy = r.bench_left.is_some() || r.pending_load.is_some();
+        let refine_at = r.last_change + REFINE_AFTER;
+        if busy || r.model.requests.screenshot || Instant::now() < refine_at || !r.refined {
+            r.window.request_redraw();
+        }
+        if Instant::now() < refine_at {
+            event_loop.set_control_flow(ControlFlow::WaitUntil(refine_at));
+        } else if busy {
+            event_loop.set_control_flow(ControlFlow::Poll);
+        } else {
+            event_loop.set_control_flow(ControlFlow::Wait);
+        }
+    }
+}
+
+impl App {
+    /// Closes the window, first writing the exit screenshot when one was asked for.
+    fn close(&mut self, event_loop: &ActiveEventLoop) {
+        if let (Some(r), Some(path)) = (self.running.as_mut(), self.opts.screenshot_on_exit.clone())
+        {
+            r.screenshot = Some(path);
+            if let Err(e) = r.redraw() {
+                self.error = Some(e);
+            }
+        }
+        event_loop.exit();
+    }
+}
+
+impl Running {
+    fn new(event_loop: &ActiveEventLoop, opts: &ViewOptions) -> Result<Self> {
+        let loaded = load(opts.scene.clone())?;
+        let attrs = Window::default_attributes()
+            .with_title(format!("vellum: {}", opts.scene.input.path))
+            .with_inner_size(winit::dpi::PhysicalSize::new(
+                opts.window_size[0],
+                opts.window_size[1],
+            ));
+        let window = Arc::new(
+            event_loop
+                .create_window(attrs)
+                .map_err(|e| Error::Invalid(format!("cannot create a window: {e}")))?,
+        );
+        let display = window
+            .display_handle()
+            .map_err(|e| Error::Invalid(format!("the window has no display handle: {e}")))?
+            .as_raw();
+        let handle = window
+            .window_handle()
+            .map_err(|e| Error::Invalid(format!("the window has no handle: {e}")))?
+            .as_raw();
+        let exts = ash_window::enumerate_required_extensions(display)
+            .map_err(|e| Error::Invalid(format!("no Vulkan surface for this display: {e}")))?;
+        let present = Presentation {
+            instance_extensions: exts
+                .iter()
+                // SAFETY: ash-window returns pointers to static NUL-terminated extension names.
+                .map(|&p| unsafe { std::ffi::CStr::from_ptr(p) })
+                .collect(),
+            swapchain: true,
+        };
+        let ctx = Context::with_presentation(
+            &ContextDesc {
+                validation: None,
+                device: opts.device.clone(),
+            },
+            &present,
+        )?;
+        let size = window.inner_size();
+        let frames = Frames::new(&ctx, &FramesDesc::interactive("view"))?;
+        // SAFETY: the window (held in `Running` after the swapchain) outlives it.
+        let swapchain = unsafe {
+            Swapchain::new(
+                &ctx,
+                display,
+                handle,
+                [size.width.max(1), size.height.max(1)],
+                frames.len(),
+                opts.vsync,
+            )?
+        };
+        let present = GraphicsPipeline::new(
+            &ctx,
+            &GraphicsDesc {
+                name: "present",
+                vertex_shader: "render/fullscreen.vert",
+                fragment_shader: "viewer/present.frag",
+                bindings: &[BindingKind::SampledImage],
+                push_constant_bytes: 32,
+                vertex_stride: 0,
+                color_formats: &[swapchain.format],
+                blend: &[crate::gpu::graphics::Blend::Replace],
+                depth: None,
+                fragment_constants: &[],
+            },
+        )?;
+        let egui_renderer = egui_ash_renderer::Renderer::with_gpu_allocator(
+            ctx.shared_allocator(),
+            ctx.device.clone(),
+            egui_ash_renderer::RenderMode::DynamicRendering(egui_ash_renderer::DynamicRendering {
+                color_attachment_format: swapchain.format,
+                depth_attachment_format: None,
+                stencil_attachment_format: None,
+            }),
+            egui_ash_renderer::Options {
+                in_flight_frames: frames.len(),
+                ..Default::default()
+            },
+        )
+        .map_err(|e| Error::Invalid(format!("egui's renderer: {e}")))?;
+        let pool_info = vk::CommandPoolCreateInfo::default()
+            .queue_family_index(ctx.queue_family)
+            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
+        let egui_pool = CommandPool {
+            ctx: ctx.clone(),
+            raw: unsafe { ctx.device.create_command_pool(&pool_info, None) }
+                .map_err(|e| Error::Invalid(format!("creating egui's command pool: {e}")))?,
+        };
+        let egui_ctx = egui::Context::default();
+        let egui_state = egui_winit::State::new(
+            egui_ctx.clone(),
+            egui::ViewportId::ROOT,
+            &window,
+            Some(window.scale_factor() as f32),
+            None,
+            Some(ctx.info.max_image_dimension_2d as usize),
+        );
+        let renderer = Renderer::new(&ctx)?;
+        let modulation = loaded.scene.modulation.clone().unwrap_or_default();
+        let gpu = GpuScene::prepare(
+            &ctx,
+            &loaded.volume,
+            &loaded.classification,
+            loaded.scene.focus,
+            &modulation,
+        )?;
+        let mut model = Model::new(loaded.scene.clone(), loaded.tf.clone());
+        model.histogram = loaded.histogram;
+        model.range = loaded.range;
+        model.dims = loaded.volume.dims;
+        model.oriented = loaded.volume.geometry.is_oriented();
+        model.message = format!("{} on {}", loaded.scene.input.path, ctx.info.name);
+        model.scene_path = opts
+            .screenshot_dir
+            .join("vellum.scene.json")
+            .to_string_lossy()
+            .into_owned();
+        let home = loaded.scene.camera.clone();
+        Ok(Running {
+            frames,
+            egui_renderer,
+            egui_pool,
+            swapchain,
+            present,
+            sampler: Sampler::new(&ctx, true)?,
+            targets: FrameTargets::new(&ctx),
+            renderer,
+            gpu,
+            applied: loaded.scene,
+            applied_tf: loaded.tf,
+            home,
+            model,
+            egui_ctx,
+            egui_state,
+            pending_load: None,
+            drag: None,
+            cursor: [0.0; 2],
+            shift: false,
+            ctrl: false,
+            last_click: None,
+            last_change: Instant::now() - REFINE_AFTER,
+            refined: false,
+            resize: false,
+            screenshot: None,
+            screenshot_dir: opts.screenshot_dir.clone(),
+            pending_free: Vec::new(),
+            view_rect: [0; 4],
+            show_panel: opts.bench_frames.is_none(),
+            last_layout: String::new(),
+            last_present: None,
+            frame_ms: Vec::new(),
+            gpu_history: Vec::new(),
+            bench_left: opts.bench_frames,
+            errors_in_a_row: 0,
+            window,
+            ctx,
+        })
+    }
+
+    /// Something changed: render at reduced resolution until [`REFINE_AFTER`] has passed.
+    fn changed(&mut self) {
+        self.last_change = Instant::now();
+        self.refined = false;
+        self.window.request_redraw();
+    }
+
+    /// The volume view's size in pixels.
+    fn view_size(&self) -> [u32; 2] {
+        match self.view_rect {
+            [_, _, 0, _] | [_, _, _, 0] => self.swapchain.extent,
+            [_, _, w, h] => [w, h],
+        }
+    }
+
+    /// The camera as resolved for the current volume and window (the fitted distance filled in).
+    fn resolved_camera(&self) -> Result<crate::render::camera::Camera> {
+        let mut view = self.model.scene.view(self.model.oriented)?;
+        view.size = self.view_size();
+        Ok(frame_camera(&self.gpu.volume, &view))
+    }
+
+    /// Makes the scene's camera explicit (angles and distance) so that a drag can change it.
+    fn explicit_camera(&mut self) -> Option<crate::render::camera::Camera> {
+        let cam = self.resolved_camera().ok()?;
+        let c = &mut self.model.scene.camera;
+        c.view = None;
+        c.azimuth = Some(cam.azimuth_deg);
+        c.elevation = Some(cam.elevation_deg);
+        c.distance = Some(cam.distance);
+        Some(cam)
+    }
+
+    fn camera_drag(&mut self, kind: Drag, d: [f64; 2]) {
+        let Some(cam) = self.explicit_camera() else {
+            return;
+        };
+        let view_h = self.view_size()[1].max(1) as f32;
+        let c = &mut self.model.scene.camera;
+        match kind {
+            Drag::Orbit => {
+                c.azimuth = Some((cam.azimuth_deg - 0.4 * d[0] as f32).rem_euclid(360.0));
+                c.elevation = Some((cam.elevation_deg + 0.4 * d[1] as f32).clamp(-90.0, 90.0));
+            }
+            Drag::Pan => {
+                // The visible height at the target, in bounding-sphere radii.
+                let h = view_h;
+                let span = 2.0 * cam.distance * (0.5 * cam.fov_y_deg.to_radians()).tan();
+                c.pan[0] -= d[0] as f32 * span / h;
+                c.pan[1] += d[1] as f32 * span / h;
+            }
+        }
+        self.changed();
+    }
+
+    fn zoom(&mut self, steps: f64) {
+        let Some(cam) = self.explicit_camera() else {
+            return;
+        };
+        let min = if cam.ortho { 0.05 } else { 1.05 };
+        self.model.scene.camera.distance =
+            Some((cam.distance * 0.9f32.powf(steps as f32)).clamp(min, 100.0));
+        self.changed();
+    }
+
+    fn reset_camera(&mut self) {
+        self.model.scene.camera = self.home.clone();
+        self.changed();
+    }
+
+    /// Starts loading `input` on a worker thread, keeping the rest of the scene.
+    fn start_load_input(&mut self, input: String) {
+        let mut scene = self.model.scene.clone();
+        scene.input = InputSpec {
+            path: input.clone(),
+            raw: None,
+        };
+        // Presets carry over to a new volume; files made for the old one (features, OTFs) do not.
+        if !matches!(scene.classification, ClassificationSpec::Transfer(_)) {
+            scene.classification = ClassificationSpec::default();
+        }
+        scene.focus = crate::classify::Focus::None;
+        scene.style = None;
+        scene.camera = Default::default();
+        self.start_load(input, scene);
+    }
+
+    fn start_load(&mut self, what: String, scene: Scene) {
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            let _ = tx.send(load(scene));
+        });
+        self.model.loading = Some(what);
+        self.pending_load = Some(rx);
+    }
+
+    /// Takes a finished load: the new volume goes to the GPU and replaces the old one. A failed
+    /// load keeps the old volume and says why.
+    fn poll_load(&mut self) {
+        let Some(rx) = &self.pending_load else {
+            return;
+        };
+        let got = match rx.try_recv() {
+            Ok(got) => got,
+            Err(mpsc::TryRecvError::Empty) => return,
+            Err(mpsc::TryRecvError::Disconnected) => Err(Error::Invalid(
+                "the loader stopped without an answer".into(),
+            )),
+        };
+        self.pending_load = None;
+        let what = self.model.loading.take().unwrap_or_default();
+        let result = got.and_then(|l| {
+            let modulation = l.scene.modulation.clone().unwrap_or_default();
+            let gpu = GpuScene::prepare(
+                &self.ctx,
+                &l.volume,
+                &l.classification,
+                l.scene.focus,
+                &modulation,
+            )?;
+            Ok((l, gpu))
+        });
+        match result {
+            Ok((l, gpu)) => {
+                self.gpu = gpu;
+                self.model.scene = l.scene.clone();
+                self.model.tf = l.tf.clone();
+                self.model.tf_base = l.tf.clone();
+                self.model.tf_edited = false;
+                self.model.shift = 0.0;
+                self.model.scale = 1.0;
+                self.model.selected = None;
+                self.model.histogram = l.histogram;
+                self.model.range = l.range;
+                self.model.dims = l.volume.dims;
+                self.model.oriented = l.volume.geometry.is_oriented();
+                self.model.message = format!("opened {what}");
+                self.home = l.scene.camera.clone();
+                self.applied = l.scene;
+                self.applied_tf = l.tf;
+                self.window
+                    .set_title(&format!("vellum: {}", self.model.scene.input.path));
+            }
+            Err(e) => self.model.message = format!("{what}: {e}"),
+        }
+        self.changed();
+    }
+
+    /// Turns the scene's edits into GPU state. Edits that need the volume prepared again (new
+    /// classification kind, importance radius) reload it from the file on the worker thread.
+    fn apply(&mut self) -> Result<()> {
+        let s = &self.model.scene;
+        let a = &self.applied;
+        let radius = |x: &Scene| {
+            x.modulation
+                .as_ref()
+                .filter(|m| m.is_active())
+                .map(|m| m.importance_radius)
+        };
+        let needs_prepare = s.input != a.input
+            || (!matches!(s.classification, ClassificationSpec::Transfer(_))
+                && s.classification != a.classification)
+            || radius(s) != radius(a) && radius(s).is_some();
+        if needs_prepare && self.pending_load.is_none() {
+            let scene = s.clone();
+            self.start_load(scene.input.path.clone(), scene);
+            self.applied = self.model.scene.clone();
+            return Ok(());
+        }
+        if let Err(e) = s
+            .focus
+            .check_in(self.gpu.volume.range)
+            .and(s.focus.validate())
+        {
+            self.model.message = e.to_string();
+            self.model.scene.focus = self.applied.focus;
+        }
+        self.gpu.classify.focus = self.model.scene.focus;
+        if self.model.tf != self.applied_tf {
+            self.gpu.classify.set_transfer(&self.model.tf);
+            self.applied_tf = self.model.tf.clone();
+        }
+        self.gpu.classify.modulation = match &self.model.scene.modulation {
+            Some(m) if self.gpu.volume.importance.is_some() => m.clone(),
+            _ => Default::default(),
+        };
+        self.applied = self.model.scene.clone();
+        Ok(())
+    }
+
+    /// Renders and presents one frame (with a screenshot's readback when one is pending).
+    fn redraw(&mut self) -> Result<()> {
+        let size = self.window.inner_size();
+        if size.width == 0 || size.height == 0 {
+            return Ok(()); // minimised
+        }
+        if self.resize || self.swapchain.extent != [size.width, size.height] {
+            self.swapchain.recreate([size.width, size.height])?;
+            self.resize = false;
+        }
+        // The panels for this frame.
+        let raw = self.egui_state.take_egui_input(&self.window);
+        let model = &mut self.model;
+        let show_panel = self.show_panel;
+        let mut view_rect = egui::Rect::NOTHING;
+        let out = self
+            .egui_ctx
+            .run_ui(raw, |ui| view_rect = ui::draw(ui, model, show_panel));
+        self.egui_state
+            .handle_platform_output(&self.window, out.platform_output);
+        let ppp = out.pixels_per_point;
+        // The volume view: the window less the panel, in whole pixels.
+        let rect = self.view_rect_pixels(view_rect, ppp);
+        if rect != self.view_rect {
+            self.view_rect = rect;
+            self.changed();
+        }
+        let primitives = self.egui_ctx.tessellate(out.shapes, ppp);
+        let mut textures = out.textures_delta;
+        // Freed after the frame that last drew with them has completed.
+        self.pending_free.extend(textures.free.drain());
+        for (id, deltas) in textures.set.drain() {
+            for delta in &deltas {
+                let queue = self.ctx.queue_handle();
+                self.egui_renderer
+                    .set_texture(queue, self.egui_pool.raw, id, delta)
+                    .map_err(|e| Error::Invalid(format!("egui's textures: {e}")))?;
+            }
+        }
+
+        if self.model.requests.screenshot && self.screenshot.is_none() {
+            self.screenshot = Some(next_screenshot_path(&self.screenshot_dir)?);
+        }
+        self.model.requests.screenshot = false;
+        self.handle_requests();
+        if let Some(left) = self.bench_left.as_mut() {
+            let c = &mut self.model.scene.camera;
+            if c.azimuth.is_none() {
+                c.view = None;
+                c.azimuth = Some(0.0);
+                c.elevation = Some(20.0);
+            }
+            c.azimuth = Some((c.azimuth.unwrap_or(0.0) + 3.0).rem_euclid(360.0));
+            *left = left.saturating_sub(1);
+        }
+        self.apply()?;
+        let full = self.screenshot.is_some()
+            || self.bench_left.is_some()
+            || self.last_change.elapsed() >= REFINE_AFTER;
+        let extent = self.swapchain.extent;
+
+        let view_size = [rect[2], rect[3]];
+        let render_size = if full {
+            view_size
+        } else {
+            [view_size[0].div_ceil(2), view_size[1].div_ceil(2)]
+        };
+        self.model.render_size = render_size;
+        self.print_layout(rect, ppp);
+        self.model.interactive = !full;
+        let mut view = self.model.scene.view(self.model.oriented);
+        if let Ok(v) = &mut view {
+            v.size = render_size;
+        }
+        let slot = self.frames.next_slot()?;
+        let Some(image) = self.swapchain.acquire(slot)? else {
+            self.resize = true;
+            self.window.request_redraw();
+            return Ok(());
+        };
+        let readback_wanted = self.screenshot.is_some();
+        let background = self.model.scene.background;
+        let mut readback = None;
+        let mut render_error = None;
+        let (ctx, renderer, gpu, targets, swapchain, present, sampler, egui_renderer) = (
+            &self.ctx,
+            &self.renderer,
+            &mut self.gpu,
+            &mut self.targets,
+            &self.swapchain,
+            &self.present,
+            &self.sampler,
+            &mut self.egui_renderer,
+        );
+        self.frames.frame_sync(|f| {
+            let drawn = match &view {
+                Ok(v) => renderer.record(f, &gpu.volume, &mut gpu.classify, v, targets),
+                Err(e) => Err(Error::Invalid(e.to_string())),
+            };
+            let drawn = match drawn {
+                Ok(_) => true,
+                Err(e) => {
+                    render_error = Some(e);
+                    false
+                }
+            };
+            if drawn && readback_wanted {
+                let rb = TargetsReadback::new(ctx, targets)?;
+                f.profiler
+                    .pass(f.cmd, "readback", |cmd| rb.record(cmd, targets));
+                readback = Some(rb);
+            }
+            let composite = targets.layer("composite").filter(|_| drawn);
+            if let Some(c) = composite {
+                c.transition(f.cmd, Access::FragmentSampled);
+            }
+            swapchain.record_begin(f.cmd, &image);
+            begin_swapchain_rendering(ctx, f.cmd, &image, extent, background);
+            if let Some(c) = composite {
+                let push: [f32; 8] = [
+                    background[0],
+                    background[1],
+                    background[2],
+                    0.0,
+                    rect[0] as f32,
+                    rect[1] as f32,
+                    rect[2] as f32,
+                    rect[3] as f32,
+                ];
+                present.bind(f.cmd, &[Bind::Sampled(c, sampler)], &push, extent)?;
+                let scissor = vk::Rect2D {
+                    offset: vk::Offset2D {
+                        x: rect[0] as i32,
+                        y: rect[1] as i32,
+                    },
+                    extent: vk::Extent2D {
+                        width: rect[2],
+                        height: rect[3],
+                    },
+                };
+                unsafe {
+                    ctx.device.cmd_set_scissor(f.cmd, 0, &[scissor]);
+                    ctx.device.cmd_draw(f.cmd, 3, 1, 0, 0);
+                }
+            }
+            egui_renderer
+                .cmd_draw(
+                    f.cmd,
+                    vk::Extent2D {
+                        width: extent[0],
+                        height: extent[1],
+                    },
+                    ppp,
+                    &primitives,
+                )
+                .map_err(|e| Error::Invalid(format!("drawing egui: {e}")))?;
+            unsafe { ctx.device.cmd_end_rendering(f.cmd) };
+            swapchain.record_end(f.cmd, &image);
+            Ok((
+                (),
+                SubmitSync {
+                    wait: vec![(
+                        image.acquired,
+                        vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT,
+                    )],
+                    signal: vec![image.rendered],
+                },
+            ))
+        })?;
+        if !self.swapchain.present(&image)? {
+            self.resize = true;
+        }
+        let now = Instant::now();
+        if let Some(t) = self.last_present.replace(now) {
+            let ms = (now - t).as_secs_f64() * 1e3;
+            self.model.fps = 0.9 * self.model.fps + 0.1 * (1e3 / ms.max(1e-3));
+            if self.bench_left.is_some() {
+                self.frame_ms.push(ms);
+            }
+        }
+        for r in self.frames.take_finished() {
+            let passes: Vec<(String, f64)> =
+                r.passes.iter().map(|p| (p.name.clone(), p.ms)).collect();
+            if self.bench_left.is_some() {
+                self.gpu_history.push(passes.clone());
+            }
+            self.model.gpu_ms = passes;
+        }
+        if !self.pending_free.is_empty() {
+            self.frames.wait_idle()?;
+            for id in std::mem::take(&mut self.pending_free) {
+                self.egui_renderer
+                    .free_texture(id)
+                    .map_err(|e| Error::Invalid(format!("egui's textures: {e}")))?;
+            }
+        }
+        match render_error {
+            Some(e) => {
+                // A setting the renderer refuses: say why, and go back to what rendered.
+                self.model.message = e.to_string();
+                if self.model.scene != self.applied {
+                    self.model.scene = self.applied.clone();
+                }
+            }
+            None if full => self.refined = true,
+            None => {}
+        }
+        if let (Some(rb), Some(path)) = (readback, self.screenshot.take()) {
+            self.frames.wait_idle()?;
+            let (pixels, _) = rb.read()?;
+            let [w, h] = rb.size();
+            crate::output::write_png_rgb(&path, w, h, &to_rgb8(&pixels, background))?;
+            println!("screenshot: {}", path.display());
+            self.model.message = format!("wrote {}", path.display());
+        }
+        Ok(())
+    }
+
+    /// Open, load and save requests from the panels.
+    fn handle_requests(&mut self) {
+        let req = std::mem::take(&mut self.model.requests);
+        self.model.requests.screenshot = req.screenshot;
+        self.model.requests.quit = req.quit;
+        if req.reset_camera {
+            self.reset_camera();
+        }
+        if let Some(input) = req.open {
+            self.start_load_input(input);
+        }
+        if let Some(path) = req.load_scene {
+            match Scene::load(Path::new(&path)) {
+                Ok(scene) => self.start_load(path, scene),
+                Err(e) => self.model.message = e.to_string(),
+            }
+        }
+        if let Some(path) = req.save_scene {
+            self.model.message = match self.save_scene(Path::new(&path)) {
+                Ok(()) => format!("saved the scene to {path}"),
+                Err(e) => e.to_string(),
+            };
+        }
+    }
+
+    /// Saves the scene at the window's size; an edited transfer function goes beside it as
+    /// `NAME.tf.json`, which the scene names.
+    fn save_scene(&mut self, path: &Path) -> Result<()> {
+        let mut scene = self.model.scene.clone();
+        scene.size = self.view_size();
+        if self.model.tf_edited {
+            let tf_path = path.with_extension("tf.json");
+            let json = self.model.tf.to_json();
+            crate::output::write_atomic(&tf_path, |w| {
+                use std::io::Write;
+                writeln!(w, "{json}")
+            })?;
+            scene.classification =
+                ClassificationSpec::Transfer(tf_path.to_string_lossy().into_owned());
+        }
+        scene.save(path)
+    }
+
+    /// With `VELLUM_VIEW_LAYOUT=1`, prints where the volume view and the transfer-function editor
+    /// are, in window pixels, whenever that changes: a hook for tests that drive the panels with
+    /// real X events.
+    fn print_layout(&mut self, view: [u32; 4], ppp: f32) {
+        if std::env::var_os("VELLUM_VIEW_LAYOUT").is_none() {
+            return;
+        }
+        let tf = self
+            .model
+            .tf_editor_rect
+            .map(|r| [r.min.x, r.min.y, r.width(), r.height()].map(|v| (v * ppp).round() as i64));
+        let line = format!(
+            "layout view {} {} {} {} tf-editor {}",
+            view[0],
+            view[1],
+            view[2],
+            view[3],
+            tf.map_or("none".into(), |t| format!(
+                "{} {} {} {}",
+                t[0], t[1], t[2], t[3]
+            ))
+        );
+        if line != self.last_layout {
+            println!("{line}");
+            self.last_layout = line;
+        }
+    }
+
+    /// The volume view's rectangle (x, y, width, height) in window pixels, at least 1×1 and
+    /// inside the swapchain.
+    fn view_rect_pixels(&self, r: egui::Rect, ppp: f32) -> [u32; 4] {
+        let [w, h] = self.swapchain.extent;
+        if !r.is_positive() || !r.is_finite() {
+            return [0, 0, w, h];
+        }
+        let x0 = ((r.min.x * ppp).round().max(0.0) as u32).min(w - 1);
+        let y0 = ((r.min.y * ppp).round().max(0.0) as u32).min(h - 1);
+        let x1 = ((r.max.x * ppp).round() as u32).clamp(x0 + 1, w);
+        let y1 = ((r.max.y * ppp).round() as u32).clamp(y0 + 1, h);
+        [x0, y0, x1 - x0, y1 - y0]
+    }
+
+    fn bench_report(&self) -> BenchReport {
+        // The first frames compile pipelines and fill caches: leave out the first 5.
+        let mut ms: Vec<f64> = self.frame_ms.iter().skip(5).copied().collect();
+        ms.sort_by(f64::total_cmp);
+        let pct = |p: f64| {
+            if ms.is_empty() {
+                f64::NAN
+            } else {
+                ms[((p * (ms.len() - 1) as f64).round() as usize).min(ms.len() - 1)]
+            }
+        };
+        let mut names: Vec<String> = Vec::new();
+        for h in &self.gpu_history {
+            for (n, _) in h {
+                if !names.contains(n) {
+                    names.push(n.clone());
+                }
+            }
+        }
+        let gpu_ms = names
+            .into_iter()
+            .map(|n| {
+                let mut v: Vec<f64> = self
+                    .gpu_history
+                    .iter()
+                    .skip(5)
+                    .filter_map(|h| h.iter().find(|(k, _)| *k == n).map(|(_, ms)| *ms))
+                    .collect();
+                v.sort_by(f64::total_cmp);
+                let med = v.get(v.len() / 2).copied().unwrap_or(f64::NAN);
+                (n, med)
+            })
+            .collect();
+        let mean = ms.iter().sum::<f64>() / ms.len().max(1) as f64;
+        BenchReport {
+            device: self.ctx.info.name.clone(),
+            input: self.model.scene.input.path.clone(),
+            size: self.view_size(),
+            frames: ms.len(),
+            fps: 1e3 / mean,
+            p50_ms: pct(0.5),
+            p95_ms: pct(0.95),
+            p99_ms: pct(0.99),
+            gpu_ms,
+        }
+    }
+}
+
+/// Opens dynamic rendering on a swapchain image, cleared to the background.
+fn begin_swapchain_rendering(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    image: &Acquired,
+    extent: [u32; 2],
+    background: [f32; 3],
+) {
+    let attachment = [vk::RenderingAttachmentInfo::default()
+        .image_view(image.view)
+        .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::CLEAR)
+        .store_op(vk::AttachmentStoreOp::STORE)
+        .clear_value(vk::ClearValue {
+            color: vk::ClearColorValue {
+                float32: [background[0], background[1], background[2], 1.0],
+            },
+        })];
+    let info = vk::RenderingInfo::default()
+        .render_area(vk::Rect2D {
+            offset: vk::Offset2D::default(),
+            extent: vk::Extent2D {
+                width: extent[0],
+                height: extent[1],
+            },
+        })
+        .layer_count(1)
+        .color_attachments(&attachment);
+    unsafe { ctx.device.cmd_begin_rendering(cmd, &info) };
+}
+
+/// The first free `vellum-NNNN.png` in `dir`.
+fn next_screenshot_path(dir: &Path) -> Result<PathBuf> {
+    for i in 1..10000 {
+        let p = dir.join(format!("vellum-{i:04}.png"));
+        if !p.exists() {
+            return Ok(p);
+        }
+    }
+    Err(Error::Invalid(format!(
+        "{} already holds 9999 screenshots; expected a folder with room for one more",
+        dir.display()
+    )))
+}

@@ -1,0 +1,654 @@
+//! The viewer's panels, drawn with egui over the volume view: files and scenes, camera, focus,
+//! the transfer-function editor over the histogram, styles and their parameters, importance
+//! modulation, renderer and lighting, and the timings. The panels only edit a [`Model`]; the
+//! window loop turns the edits into GPU state.
+
+use crate::classify::modulation::{ColorMode, ColorModulation, Modulation};
+use crate::classify::transfer::{ControlPoint, TransferFunction, PRESETS};
+use crate::classify::Focus;
+use crate::render::raycast::RayOptions;
+use crate::render::scene::{ClassificationSpec, NamedView, Scene, StyleSpec};
+use crate::render::style::STYLES;
+use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
+
+/// What the panels ask the window loop to do.
+#[derive(Default, Debug)]
+pub struct Requests {
+    pub open: Option<String>,
+    pub load_scene: Option<String>,
+    pub save_scene: Option<String>,
+    pub screenshot: bool,
+    pub reset_camera: bool,
+    pub quit: bool,
+}
+
+/// The state the panels edit and show.
+pub struct Model {
+    /// The scene being viewed: the same structure `vellum render --scene` reads.
+    pub scene: Scene,
+    /// The 1D transfer function being edited (the scene's classification when it is one).
+    pub tf: TransferFunction,
+    /// Whether `tf` differs from what the scene's classification names.
+    pub tf_edited: bool,
+    /// Histogram of the volume over its data range, 256 bins.
+    pub histogram: Vec<u64>,
+    /// Data range of the volume (data units).
+    pub range: [f64; 2],
+    pub dims: [usize; 3],
+    pub oriented: bool,
+    /// A line for the user: what happened last, or what went wrong.
+    pub message: String,
+    /// A load in progress, by name.
+    pub loading: Option<String>,
+    pub open_path: String,
+    pub scene_path: String,
+    pub log_histogram: bool,
+    /// Selected control point of the TF editor.
+    pub selected: Option<usize>,
+    /// Shift and scale applied to the whole transfer function (window/level), since the last preset.
+    pub shift: f32,
+    pub scale: f32,
+    /// The TF before shift and scale.
+    pub tf_base: TransferFunction,
+    /// Frame statistics shown in the corner.
+    pub fps: f64,
+    pub gpu_ms: Vec<(String, f64)>,
+    pub render_size: [u32; 2],
+    pub interactive: bool,
+    pub requests: Requests,
+    /// Where the transfer-function editor was last drawn (points), for `VELLUM_VIEW_LAYOUT`.
+    pub tf_editor_rect: Option<Rect>,
+}
+
+impl Model {
+    /// A model for `scene` with its transfer function `tf` and the volume's statistics.
+    pub fn new(scene: Scene, tf: TransferFunction) -> Self {
+        Model {
+            scene,
+            tf_base: tf.clone(),
+            tf,
+            tf_edited: false,
+            histogram: vec![0; 256],
+            range: [0.0, 1.0],
+            dims: [1, 1, 1],
+            oriented: false,
+            message: String::new(),
+            loading: None,
+            open_path: String::new(),
+            scene_path: "vellum.scene.json".into(),
+            log_histogram: true,
+            selected: None,
+            shift: 0.0,
+            scale: 1.0,
+            fps: 0.0,
+            gpu_ms: Vec::new(),
+            render_size: [0, 0],
+            interactive: false,
+            requests: Requests::default(),
+            tf_editor_rect: None,
+        }
+    }
+
+    /// Applies shift and scale to `tf_base` (x' = (x − 0.5)·scale + 0.5 + shift, clamped).
+    fn apply_window(&mut self) {
+        let mut pts: Vec<ControlPoint> = self
+            .tf_base
+            .points
+            .iter()
+            .map(|p| ControlPoint {
+                x: ((p.x - 0.5) * self.scale + 0.5 + self.shift).clamp(0.0, 1.0),
+                rgba: p.rgba,
+            })
+            .collect();
+        pts.sort_by(|a, b| a.x.total_cmp(&b.x));
+        if let Ok(tf) = TransferFunction::new(self.tf_base.name.clone(), pts) {
+            self.tf = tf;
+            self.tf_edited = true;
+        }
+    }
+}
+
+/// Draws every panel for one frame and returns the rectangle left for the volume view, in
+/// points. The panel is hidden (key H) with `show_panel` false: the view is then the window.
+pub fn draw(ui: &mut egui::Ui, m: &mut Model, show_panel: bool) -> Rect {
+    if show_panel {
+        egui::Panel::left("vellum")
+            .default_size(330.0)
+            .resizable(true)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical().show(ui, |ui| panel(ui, m));
+            });
+    }
+    let view = ui.available_rect_before_wrap();
+    let ctx = ui.ctx().clone();
+    egui::Area::new(egui::Id::new("stats"))
+        .anchor(egui::Align2::RIGHT_TOP, [-8.0, 8.0])
+        .interactable(false)
+        .show(&ctx, |ui| stats(ui, m));
+    view
+}
+
+fn stats(ui: &mut egui::Ui, m: &Model) {
+    let text = |s: String| {
+        egui::Label::new(
+            egui::RichText::new(s)
+                .monospace()
+                .color(Color32::LIGHT_GRAY),
+        )
+        .extend()
+    };
+    ui.add(text(format!(
+        "{:5.1} fps  {}x{}{}",
+        m.fps,
+        m.render_size[0],
+        m.render_size[1],
+        if m.interactive { " (interactive)" } else { "" }
+    )));
+    for (name, ms) in &m.gpu_ms {
+        ui.add(text(format!("{name:<14} {ms:8.2} ms")));
+    }
+}
+
+fn panel(ui: &mut egui::Ui, m: &mut Model) {
+    if let Some(what) = &m.loading {
+        ui.horizontal(|ui| {
+            ui.spinner();
+            ui.label(format!("loading {what}…"));
+        });
+    }
+    if !m.message.is_empty() {
+        ui.label(egui::RichText::new(&m.message).color(Color32::from_rgb(255, 200, 120)));
+    }
+    egui::CollapsingHeader::new("File")
+        .default_open(true)
+        .show(ui, |ui| files(ui, m));
+    egui::CollapsingHeader::new("Camera")
+        .default_open(false)
+        .show(ui, |ui| camera(ui, m));
+    egui::CollapsingHeader::new("Focus")
+        .default_open(true)
+        .show(ui, |ui| focus(ui, m));
+    egui::CollapsingHeader::new("Transfer function")
+        .default_open(true)
+        .show(ui, |ui| transfer(ui, m));
+    egui::CollapsingHeader::new("Style")
+        .default_open(false)
+        .show(ui, |ui| style(ui, m));
+    egui::CollapsingHeader::new("Importance")
+        .default_open(false)
+        .show(ui, |ui| importance(ui, m));
+    egui::CollapsingHeader::new("Renderer and lighting")
+        .default_open(false)
+        .show(ui, |ui| renderer(ui, m));
+}
+
+fn files(ui: &mut egui::Ui, m: &mut Model) {
+    ui.label(format!(
+        "{}  ({}×{}×{}, {:.4}..{:.4})",
+        m.scene.input.path, m.dims[0], m.dims[1], m.dims[2], m.range[0], m.range[1]
+    ));
+    ui.horizontal(|ui| {
+        ui.add(
+            egui::TextEdit::singleline(&mut m.open_path)
+                .hint_text("file, DICOM folder or phantom:NAME:N"),
+        );
+        if ui.button("Open").clicked() && !m.open_path.trim().is_empty() {
+            m.requests.open = Some(m.open_path.trim().to_string());
+        }
+    });
+    ui.horizontal(|ui| {
+        ui.add(egui::TextEdit::singleline(&mut m.scene_path).hint_text("scene.json"));
+        if ui.button("Load").clicked() {
+            m.requests.load_scene = Some(m.scene_path.clone());
+        }
+        if ui.button("Save").clicked() {
+            m.requests.save_scene = Some(m.scene_path.clone());
+        }
+    });
+    if ui.button("Screenshot (S)").clicked() {
+        m.requests.screenshot = true;
+    }
+    ui.label("Drop a file on the window to open it. H hides this panel.");
+}
+
+fn camera(ui: &mut egui::Ui, m: &mut Model) {
+    ui.label("Left drag orbits, right or shift drag pans, the wheel zooms, a double click resets; keys 1–6 give the axis views, O toggles orthographic.");
+    ui.checkbox(&mut m.scene.camera.ortho, "orthographic");
+    ui.horizontal_wrapped(|ui| {
+        for (i, (v, name)) in [
+            (NamedView::Anterior, "anterior"),
+            (NamedView::Posterior, "posterior"),
+            (NamedView::Left, "left"),
+            (NamedView::Right, "right"),
+            (NamedView::Superior, "superior"),
+            (NamedView::Inferior, "inferior"),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            if ui.button(format!("{} {name}", i + 1)).clicked() {
+                set_view(&mut m.scene, v);
+            }
+        }
+    });
+    if ui.button("Reset").clicked() {
+        m.requests.reset_camera = true;
+    }
+}
+
+/// Looks along a named axis view at the fitted distance.
+pub fn set_view(scene: &mut Scene, v: NamedView) {
+    scene.camera.view = Some(v);
+    scene.camera.azimuth = None;
+    scene.camera.elevation = None;
+    scene.camera.distance = None;
+    scene.camera.pan = [0.0; 2];
+}
+
+fn focus(ui: &mut egui::Ui, m: &mut Model) {
+    let [lo, hi] = m.range;
+    let mut kind = match m.scene.focus {
+        Focus::None => 0,
+        Focus::Iso(_) => 1,
+        Focus::Range { .. } => 2,
+    };
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut kind, 0, "none");
+        ui.radio_value(&mut kind, 1, "isovalue");
+        ui.radio_value(&mut kind, 2, "range");
+    });
+    let mid = lo + 0.5 * (hi - lo);
+    m.scene.focus = match (kind, m.scene.focus) {
+        (0, _) => Focus::None,
+        (1, Focus::Iso(v)) => Focus::Iso(v),
+        (1, Focus::Range { lo: a, .. }) => Focus::Iso(a),
+        (1, _) => Focus::Iso(mid),
+        (2, Focus::Range { lo, hi }) => Focus::Range { lo, hi },
+        (2, Focus::Iso(v)) => Focus::Range { lo: v, hi },
+        (_, _) => Focus::Range { lo: mid, hi },
+    };
+    match &mut m.scene.focus {
+        Focus::Iso(v) => {
+            ui.add(egui::Slider::new(v, lo..=hi).text("iso"));
+        }
+        Focus::Range { lo: a, hi: b } => {
+            ui.add(egui::Slider::new(a, lo..=hi).text("from"));
+            ui.add(egui::Slider::new(b, lo..=hi).text("to"));
+            if *b < *a {
+                *b = *a;
+            }
+        }
+        Focus::None => {
+            ui.label("Everything is context; styles need a focus.");
+        }
+    }
+}
+
+fn transfer(ui: &mut egui::Ui, m: &mut Model) {
+    let editable = matches!(m.scene.classification, ClassificationSpec::Transfer(_));
+    if !editable {
+        ui.label(match &m.scene.classification {
+            ClassificationSpec::Occlusion(f) => format!("occlusion transfer function {f}: the occlusion editor is not built yet; edit the file and reload the scene"),
+            ClassificationSpec::Features(f) => format!("feature map {f}: the feature-map panel is not built yet"),
+            ClassificationSpec::Transfer(_) => String::new(),
+        });
+        return;
+    }
+    ui.horizontal(|ui| {
+        let current = m.tf.name.clone();
+        egui::ComboBox::from_label("preset")
+            .selected_text(if m.tf_edited {
+                format!("{current} (edited)")
+            } else {
+                current
+            })
+            .show_ui(ui, |ui| {
+                for p in PRESETS {
+                    if ui.selectable_label(false, *p).clicked() {
+                        if let Ok(tf) = TransferFunction::preset(p) {
+                            m.tf = tf.clone();
+                            m.tf_base = tf;
+                            m.tf_edited = false;
+                            m.shift = 0.0;
+                            m.scale = 1.0;
+                            m.selected = None;
+                            m.scene.classification = ClassificationSpec::Transfer(p.to_string());
+                        }
+                    }
+                }
+            });
+        ui.checkbox(&mut m.log_histogram, "log");
+    });
+    tf_editor(ui, m);
+    let (s0, k0) = (m.shift, m.scale);
+    ui.add(egui::Slider::new(&mut m.shift, -1.0..=1.0).text("shift"));
+    ui.add(
+        egui::Slider::new(&mut m.scale, 0.05..=4.0)
+            .logarithmic(true)
+            .text("scale"),
+    );
+    if s0 != m.shift || k0 != m.scale {
+        m.apply_window();
+    }
+    if let Some(i) = m.selected.filter(|&i| i < m.tf.points.len()) {
+        ui.horizontal(|ui| {
+            let mut rgba = m.tf.points[i].rgba;
+            ui.label(format!("point {} at {:.3}", i + 1, m.tf.points[i].x));
+            if ui.color_edit_button_rgba_unmultiplied(&mut rgba).changed() {
+                m.tf.points[i].rgba = rgba;
+                edited(m);
+            }
+            if ui.button("delete").clicked() && m.tf.points.len() > 2 {
+                m.tf.points.remove(i);
+                m.selected = None;
+                edited(m);
+            }
+        });
+    }
+    ui.label("Click to add a point, drag to move it (opacity is the height), right click deletes.");
+}
+
+/// The TF was edited directly: the edit becomes the new base of shift and scale.
+fn edited(m: &mut Model) {
+    m.tf_edited = true;
+    m.tf_base = m.tf.clone();
+    m.shift = 0.0;
+    m.scale = 1.0;
+}
+
+fn tf_editor(ui: &mut egui::Ui, m: &mut Model) {
+    let width = ui.available_width().max(200.0);
+    let (response, painter) = ui.allocate_painter(Vec2::new(width, 140.0), Sense::click_and_drag());
+    let rect = response.rect;
+    m.tf_editor_rect = Some(rect);
+    painter.rect_filled(rect, 2.0, Color32::from_gray(24));
+    // The histogram, linear or log.
+    let max = m.histogram.iter().copied().max().unwrap_or(1).max(1) as f32;
+    let n = m.histogram.len().max(1);
+    for (i, &c) in m.histogram.iter().enumerate() {
+        let h = if m.log_histogram {
+            (1.0 + c as f32).ln() / (1.0 + max).ln()
+        } else {
+            c as f32 / max
+        };
+        let x0 = rect.left() + rect.width() * i as f32 / n as f32;
+        let x1 = rect.left() + rect.width() * (i + 1) as f32 / n as f32;
+        painter.rect_filled(
+            Rect::from_min_max(
+                Pos2::new(x0, rect.bottom() - h * rect.height()),
+                Pos2::new(x1, rect.bottom()),
+            ),
+            0.0,
+            Color32::from_gray(70),
+        );
+    }
+    // The focus interval on the axis.
+    let to_x = |v: f64| {
+        let t = ((v - m.range[0]) / (m.range[1] - m.range[0]).max(f64::MIN_POSITIVE)) as f32;
+        rect.left() + t.clamp(0.0, 1.0) * rect.width()
+    };
+    match m.scene.focus {
+        Focus::Iso(v) => {
+            painter.vline(
+                to_x(v),
+                rect.y_range(),
+                Stroke::new(1.5, Color32::from_rgb(90, 160, 255)),
+            );
+        }
+        Focus::Range { lo, hi } => {
+            painter.rect_filled(
+                Rect::from_min_max(
+                    Pos2::new(to_x(lo), rect.top()),
+                    Pos2::new(to_x(hi), rect.bottom()),
+                ),
+                0.0,
+                Color32::from_rgba_unmultiplied(90, 160, 255, 40),
+            );
+        }
+        Focus::None => {}
+    }
+    let point_pos = |p: &ControlPoint| {
+        Pos2::new(
+            rect.left() + p.x * rect.width(),
+            rect.bottom() - p.rgba[3] * rect.height(),
+        )
+    };
+    // The TF's colour along the bottom and its opacity curve.
+    for i in 0..rect.width() as usize {
+        let x = i as f32 / rect.width();
+        let c = m.tf.sample(x);
+        let col = Color32::from_rgb(
+            (c[0].clamp(0.0, 1.0) * 255.0) as u8,
+            (c[1].clamp(0.0, 1.0) * 255.0) as u8,
+            (c[2].clamp(0.0, 1.0) * 255.0) as u8,
+        );
+        let px = rect.left() + i as f32;
+        painter.line_segment(
+            [
+                Pos2::new(px, rect.bottom() - 6.0),
+                Pos2::new(px, rect.bottom()),
+            ],
+            Stroke::new(1.0, col),
+        );
+    }
+    let pts: Vec<Pos2> = m.tf.points.iter().map(point_pos).collect();
+    painter.add(egui::Shape::line(
+        pts.clone(),
+        Stroke::new(1.5, Color32::WHITE),
+    ));
+    for (i, p) in pts.iter().enumerate() {
+        let c = m.tf.points[i].rgba;
+        let fill = Color32::from_rgb(
+            (c[0] * 255.0) as u8,
+            (c[1] * 255.0) as u8,
+            (c[2] * 255.0) as u8,
+        );
+        let stroke = if m.selected == Some(i) {
+            Stroke::new(2.0, Color32::YELLOW)
+        } else {
+            Stroke::new(1.0, Color32::WHITE)
+        };
+        painter.circle(*p, 5.0, fill, stroke);
+    }
+    // Interaction: the nearest point within 8 px is the one acted on.
+    let hit = |pos: Pos2| {
+        pts.iter()
+            .enumerate()
+            .map(|(i, p)| (i, p.distance(pos)))
+            .filter(|(_, d)| *d < 8.0)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(i, _)| i)
+    };
+    let to_point = |pos: Pos2| {
+        (
+            ((pos.x - rect.left()) / rect.width()).clamp(0.0, 1.0),
+            ((rect.bottom() - pos.y) / rect.height()).clamp(0.0, 1.0),
+        )
+    };
+    if response.drag_started() {
+        if let Some(pos) = response.interact_pointer_pos() {
+            m.selected = hit(pos);
+        }
+    }
+    if response.dragged() {
+        if let (Some(i), Some(pos)) = (m.selected, response.interact_pointer_pos()) {
+            if i < m.tf.points.len() {
+                let (x, a) = to_point(pos);
+                // A point stays between its neighbours, so the order never changes under the drag.
+                let lo = if i > 0 { m.tf.points[i - 1].x } else { 0.0 };
+                let hi = m.tf.points.get(i + 1).map_or(1.0, |p| p.x);
+                m.tf.points[i].x = x.clamp(lo, hi);
+                m.tf.points[i].rgba[3] = a;
+                edited(m);
+            }
+        }
+    }
+    if response.clicked() {
+        if let Some(pos) = response.interact_pointer_pos() {
+            match hit(pos) {
+                Some(i) => m.selected = Some(i),
+                None => {
+                    let (x, a) = to_point(pos);
+                    let mut rgba = m.tf.sample(x);
+                    rgba[3] = a;
+                    let at =
+                        m.tf.points
+                            .iter()
+                            .position(|p| p.x > x)
+                            .unwrap_or(m.tf.points.len());
+                    m.tf.points.insert(at, ControlPoint { x, rgba });
+                    m.selected = Some(at);
+                    edited(m);
+                }
+            }
+        }
+    }
+    if response.secondary_clicked() {
+        if let Some(i) = response.interact_pointer_pos().and_then(hit) {
+            if m.tf.points.len() > 2 {
+                m.tf.points.remove(i);
+                m.selected = None;
+                edited(m);
+            }
+        }
+    }
+}
+
+fn style(ui: &mut egui::Ui, m: &mut Model) {
+    let current = m
+        .scene
+        .style
+        .as_ref()
+        .and_then(|s| s.resolve().ok())
+        .map(|s| s.def.number);
+    let label = current
+        .and_then(|n| STYLES.iter().find(|d| d.number == n))
+        .map_or("none".to_string(), |d| format!("{} {}", d.number, d.name));
+    egui::ComboBox::from_label("style")
+        .selected_text(label)
+        .show_ui(ui, |ui| {
+            if ui.selectable_label(current.is_none(), "none").clicked() {
+                m.scene.style = None;
+            }
+            for d in STYLES.iter() {
+                let reason = d.unavailable_reason().or_else(|| {
+                    (d.needs_focus() && m.scene.focus == Focus::None)
+                        .then(|| "needs a focus (set one under Focus)".to_string())
+                });
+                let r = ui.add_enabled(
+                    reason.is_none(),
+                    egui::Button::selectable(
+                        current == Some(d.number),
+                        format!("{} {}", d.number, d.name),
+                    ),
+                );
+                let r = match &reason {
+                    Some(why) => r.on_disabled_hover_text(why.as_str()),
+                    None => r,
+                };
+                if r.clicked() {
+                    let params = m.scene.style.as_ref().map(|s| s.params).unwrap_or_default();
+                    m.scene.style = Some(StyleSpec {
+                        style: serde_json::json!(d.number),
+                        params,
+                    });
+                    m.scene.one_pass = false;
+                }
+            }
+        });
+    if let Some(spec) = &mut m.scene.style {
+        let p = &mut spec.params;
+        ui.horizontal(|ui| {
+            ui.label("edges");
+            ui.color_edit_button_rgb(&mut p.edge_color);
+        });
+        ui.add(egui::Slider::new(&mut p.edge_width, 1..=4).text("edge width"));
+        ui.add(egui::Slider::new(&mut p.sobel_threshold, 0.0..=1.0).text("Sobel threshold"));
+        ui.add(egui::Slider::new(&mut p.dog_sigma, 0.5..=4.0).text("DoG σ"));
+        ui.add(egui::Slider::new(&mut p.canny_sigma, 0.5..=4.0).text("Canny σ"));
+        ui.add(egui::Slider::new(&mut p.canny_high, 0.01..=1.0).text("Canny high"));
+        ui.add(egui::Slider::new(&mut p.kuwahara_radius, 1..=8).text("Kuwahara radius"));
+        ui.add(egui::Slider::new(&mut p.saturation, 0.0..=3.0).text("saturation"));
+        ui.add(egui::Slider::new(&mut p.line_angle, 0.0..=60.0).text("line angle (°)"));
+        ui.add(
+            egui::Slider::new(&mut p.line_derivative_threshold, 0.0..=1.0).text("line threshold"),
+        );
+    }
+}
+
+fn importance(ui: &mut egui::Ui, m: &mut Model) {
+    let mut on = m.scene.modulation.as_ref().is_some_and(|x| x.is_active());
+    if ui
+        .checkbox(&mut on, "modulate colour by ΔD (eq. 3)")
+        .changed()
+    {
+        m.scene.modulation = on.then(|| Modulation {
+            color: Some(ColorModulation {
+                mode: ColorMode::Raw,
+                gamma: 1.0,
+            }),
+            ..Modulation::default()
+        });
+    }
+    if let Some(md) = &mut m.scene.modulation {
+        ui.add(egui::Slider::new(&mut md.importance_radius, 1..=16).text("R (voxels)"));
+        if let Some(c) = &mut md.color {
+            ui.add(egui::Slider::new(&mut c.gamma, 0.1..=4.0).text("γ"));
+        }
+    }
+}
+
+fn renderer(ui: &mut egui::Ui, m: &mut Model) {
+    let mut ray = m.scene.raycast.is_some();
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut ray, false, "slicer");
+        ui.radio_value(&mut ray, true, "ray caster");
+    });
+    match (ray, m.scene.raycast.is_some()) {
+        (true, false) => {
+            m.scene.raycast = Some(RayOptions {
+                jitter: Some(1),
+                ..RayOptions::default()
+            })
+        }
+        (false, true) => m.scene.raycast = None,
+        _ => {}
+    }
+    if let Some(r) = &mut m.scene.raycast {
+        let mut jitter = r.jitter.is_some();
+        if ui.checkbox(&mut jitter, "jitter ray starts").changed() {
+            r.jitter = jitter.then_some(1);
+        }
+        ui.checkbox(&mut r.refine_iso, "refine the isosurface");
+    }
+    let two_level_possible = m.scene.style.is_none();
+    ui.add_enabled(
+        two_level_possible,
+        egui::Checkbox::new(&mut m.scene.one_pass, "one pass (no levels)"),
+    );
+    let mut auto = m.scene.slices.is_none();
+    ui.checkbox(&mut auto, "slices: two per voxel");
+    if auto {
+        m.scene.slices = None;
+    } else {
+        let mut n = m
+            .scene
+            .slices
+            .unwrap_or(2 * *m.dims.iter().max().unwrap_or(&64) as u32);
+        ui.add(
+            egui::Slider::new(&mut n, 16..=2048)
+                .logarithmic(true)
+                .text("slices"),
+        );
+        m.scene.slices = Some(n);
+    }
+    let l = &mut m.scene.lighting;
+    ui.add(egui::Slider::new(&mut l.ambient, 0.0..=1.0).text("ambient"));
+    ui.add(egui::Slider::new(&mut l.diffuse, 0.0..=1.0).text("diffuse"));
+    ui.add(egui::Slider::new(&mut l.specular, 0.0..=1.0).text("specular"));
+    ui.add(egui::Slider::new(&mut l.shininess, 1.0..=128.0).text("shininess"));
+    ui.horizontal(|ui| {
+        ui.label("background");
+        ui.color_edit_button_rgb(&mut m.scene.background);
+    });
+}

@@ -1,0 +1,398 @@
+//! The windowed viewer driven as a user would: a real window on Xvfb, real X events from xdotool
+//! (drag, keys, clicks, resize), screenshots compared with each other and with `vellum render
+//! --scene`. Validation and synchronization validation are on, and any message fails the test.
+//! Each test runs its own X server and one viewer process.
+//!
+//! Needs Xvfb and xdotool (the README's set-up installs them); without them a test says so and
+//! passes, except under CI=true, where it fails.
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdout, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+const VELLUM: &str = env!("CARGO_BIN_EXE_vellum");
+
+/// An X server on a display of its own, stopped on drop.
+struct Xvfb {
+    child: Child,
+    display: String,
+}
+
+impl Drop for Xvfb {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn have(tool: &str) -> bool {
+    Command::new("sh")
+        .args(["-c", &format!("command -v {tool}")])
+        .output()
+        .is_ok_and(|o| o.status.success())
+}
+
+/// Starts Xvfb, or returns None (after saying why) where it or xdotool is missing outside CI.
+fn xvfb() -> Option<(Xvfb, std::sync::MutexGuard<'static, ()>)> {
+    // One viewer at a time: two would share the two cores and each would wait on the other.
+    static ONE: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let guard = ONE.lock().unwrap_or_else(|p| p.into_inner());
+    if !have("Xvfb") || !have("xdotool") {
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "Xvfb and xdotool are needed for the viewer tests; `make deps` installs them"
+        );
+        eprintln!("skipped: Xvfb or xdotool is missing (make deps installs them)");
+        return None;
+    }
+    // -displayfd: the server picks a free display and writes its number when it is ready.
+    let mut child = Command::new("Xvfb")
+        .args([
+            "-displayfd",
+            "1",
+            "-screen",
+            "0",
+            "1280x1024x24",
+            "-nolisten",
+            "tcp",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("starting Xvfb");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("piped"))
+        .read_line(&mut line)
+        .expect("reading Xvfb's display number");
+    let n: u32 = line
+        .trim()
+        .parse()
+        .expect("Xvfb printed its display number");
+    Some((
+        Xvfb {
+            child,
+            display: format!(":{n}"),
+        },
+        guard,
+    ))
+}
+
+fn xdotool(x: &Xvfb, args: &[&str]) -> String {
+    let out = Command::new("xdotool")
+        .args(args)
+        .env("DISPLAY", &x.display)
+        .output()
+        .expect("running xdotool");
+    assert!(
+        out.status.success(),
+        "xdotool {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A running `vellum view` and its window.
+struct Viewer {
+    child: Child,
+    window: String,
+    lines: mpsc::Receiver<String>,
+    stderr: std::thread::JoinHandle<String>,
+    /// The last "layout ..." line seen.
+    layout: std::cell::RefCell<String>,
+}
+
+fn start(x: &Xvfb, dir: &Path, args: &[&str]) -> Viewer {
+    let mut child = Command::new(VELLUM)
+        .arg("view")
+        .args(args)
+        .arg("--screenshot-dir")
+        .arg(dir)
+        .env("DISPLAY", &x.display)
+        .env("VELLUM_VALIDATION", "1")
+        .env("VELLUM_SYNC_VALIDATION", "1")
+        .env("VELLUM_VIEW_LAYOUT", "1")
+        .env(
+            "XDG_RUNTIME_DIR",
+            std::env::var("XDG_RUNTIME_DIR").unwrap_or_else(|_| dir.display().to_string()),
+        )
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("starting vellum view");
+    let stdout: ChildStdout = child.stdout.take().expect("piped");
+    let (tx, lines) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(|l| l.ok()) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let mut err = child.stderr.take().expect("piped");
+    let stderr = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = err.read_to_string(&mut s);
+        s
+    });
+    let window = xdotool(
+        x,
+        &["search", "--sync", "--onlyvisible", "--class", "vellum"],
+    )
+    .lines()
+    .next()
+    .expect("the viewer's window")
+    .to_string();
+    // Keys go to the focused window (there is no window manager to give it focus).
+    xdotool(x, &["windowfocus", "--sync", &window]);
+    Viewer {
+        child,
+        window,
+        lines,
+        stderr,
+        layout: Default::default(),
+    }
+}
+
+impl Viewer {
+    /// Waits for a line of the viewer's stdout that starts with `prefix`.
+    fn expect(&self, prefix: &str) -> String {
+        let deadline = Instant::now() + Duration::from_secs(120);
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(l) => {
+                    if l.starts_with("layout ") {
+                        *self.layout.borrow_mut() = l.clone();
+                    }
+                    if l.starts_with(prefix) {
+                        return l;
+                    }
+                }
+                Err(e) => panic!("the viewer never printed {prefix:?}: {e}"),
+            }
+        }
+    }
+
+    /// The latest layout the viewer printed (after draining what it has printed so far).
+    fn layout(&self) -> ([i64; 4], Option<[i64; 4]>) {
+        while let Ok(l) = self.lines.try_recv() {
+            if l.starts_with("layout ") {
+                *self.layout.borrow_mut() = l;
+            }
+        }
+        parse_layout(&self.layout.borrow())
+    }
+
+    /// Presses S and returns the screenshot's path once it is written.
+    fn screenshot(&self, x: &Xvfb) -> PathBuf {
+        xdotool(x, &["key", "s"]);
+        let l = self.expect("screenshot: ");
+        PathBuf::from(l.trim_start_matches("screenshot: "))
+    }
+
+    /// Presses Escape and checks the exit: status 0, no validation message, no panic.
+    fn close(mut self, x: &Xvfb) {
+        xdotool(x, &["key", "Escape"]);
+        let deadline = Instant::now() + Duration::from_secs(60);
+        let status = loop {
+            if let Some(s) = self.child.try_wait().expect("waiting for the viewer") {
+                break s;
+            }
+            if Instant::now() > deadline {
+                let _ = self.child.kill();
+                panic!("the viewer did not close on Escape");
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        let stderr = self.stderr.join().unwrap_or_default();
+        assert!(
+            status.success(),
+            "the viewer exited with {status}: {stderr}"
+        );
+        assert!(
+            !stderr.contains("validation layer reported") && !stderr.contains("panicked"),
+            "{stderr}"
+        );
+    }
+}
+
+fn rgb(path: &Path) -> image::RgbImage {
+    image::open(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .to_rgb8()
+}
+
+/// Mean and largest absolute difference per channel, in 8-bit steps.
+fn difference(a: &image::RgbImage, b: &image::RgbImage) -> (f64, u8) {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let mut sum = 0u64;
+    let mut max = 0u8;
+    for (p, q) in a.as_raw().iter().zip(b.as_raw()) {
+        let d = p.abs_diff(*q);
+        sum += d as u64;
+        max = max.max(d);
+    }
+    (sum as f64 / a.as_raw().len() as f64, max)
+}
+
+/// "layout view X Y W H tf-editor X Y W H" → (view, tf editor).
+fn parse_layout(line: &str) -> ([i64; 4], Option<[i64; 4]>) {
+    let v: Vec<&str> = line.split_whitespace().collect();
+    let num = |i: usize| v[i].parse::<i64>().expect("a layout number");
+    let view = [num(2), num(3), num(4), num(5)];
+    let tf = (v.get(7) != Some(&"none")).then(|| [num(7), num(8), num(9), num(10)]);
+    (view, tf)
+}
+
+/// Drag to orbit, edit the transfer function with a click, save the scene (Ctrl+S), resize; each
+/// step changes the screenshot as it should, and the saved scene renders from the command line
+/// to the viewer's screenshot.
+#[test]
+fn orbit_edit_save_and_resize_through_x_events() {
+    let Some((x, _one)) = xvfb() else { return };
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    let v = start(
+        &x,
+        dir.path(),
+        &["phantom:shepp-logan:48", "--size", "720x480"],
+    );
+    v.expect("layout view");
+    let (view, _) = v.layout();
+    let before = rgb(&v.screenshot(&x));
+    assert_eq!(
+        before.dimensions(),
+        (view[2] as u32, view[3] as u32),
+        "a screenshot is the volume view's size"
+    );
+
+    // A left drag across the volume view orbits the camera.
+    let (cx, cy) = (view[0] + view[2] / 2, view[1] + view[3] / 2);
+    let w = &v.window;
+    xdotool(
+        &x,
+        &["mousemove", "--window", w, &cx.to_string(), &cy.to_string()],
+    );
+    xdotool(&x, &["mousedown", "1"]);
+    for _ in 0..4 {
+        xdotool(&x, &["mousemove_relative", "--", "15", "4"]);
+    }
+    xdotool(&x, &["mouseup", "1"]);
+    let orbited = rgb(&v.screenshot(&x));
+    let (mean, _) = difference(&before, &orbited);
+    assert!(
+        mean > 1.0,
+        "the drag did not change the image (mean difference {mean:.3})"
+    );
+
+    // Saving the scene (Ctrl+S) writes the camera the drag made.
+    xdotool(&x, &["key", "ctrl+s"]);
+    let scene = dir.path().join("vellum.scene.json");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !scene.exists() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(scene.exists(), "Ctrl+S wrote no scene");
+
+    // Dragging the transfer function's last control point (the densest values, opacity 1) to the
+    // bottom of the editor makes the skull transparent.
+    let (_, tf) = v.layout();
+    let tf = tf.expect("the transfer-function editor is on screen");
+    let (px, py) = (tf[0] + tf[2] - 2, tf[1] + 2);
+    xdotool(
+        &x,
+        &["mousemove", "--window", w, &px.to_string(), &py.to_string()],
+    );
+    xdotool(&x, &["mousedown", "1"]);
+    for _ in 0..4 {
+        xdotool(
+            &x,
+            &["mousemove_relative", "--", "0", &(tf[3] / 3).to_string()],
+        );
+    }
+    xdotool(&x, &["mouseup", "1"]);
+    let edited = rgb(&v.screenshot(&x));
+    let (mean, _) = difference(&orbited, &edited);
+    assert!(
+        mean > 1.0,
+        "the transfer-function edit did not change the image ({mean:.3})"
+    );
+
+    // Resizing the window resizes the view; validation stays silent (checked at close).
+    xdotool(&x, &["windowsize", w, "800", "560"]);
+    let (view2, _) = parse_layout(&v.expect("layout view"));
+    let resized = rgb(&v.screenshot(&x));
+    assert_eq!(resized.dimensions(), (view2[2] as u32, view2[3] as u32));
+    assert_ne!(view2, view);
+    v.close(&x);
+
+    // The saved scene, rendered by the CLI, equals the screenshot taken when it was saved.
+    let out = dir.path().join("render.png");
+    let status = Command::new(VELLUM)
+        .args(["render", "--scene"])
+        .arg(&scene)
+        .arg("--out")
+        .arg(&out)
+        .env("VELLUM_VALIDATION", "1")
+        .status()
+        .expect("running vellum render");
+    assert!(status.success());
+    let (mean, max) = difference(&orbited, &rgb(&out));
+    assert!(
+        mean <= 0.5 && max <= 2,
+        "viewer and `render --scene` differ: mean {mean:.3}, max {max}"
+    );
+}
+
+/// A scene file opened in the viewer, with the panel hidden (H), shows what `vellum render
+/// --scene` renders at the window's size.
+#[test]
+fn a_loaded_scene_matches_render() {
+    let Some((x, _one)) = xvfb() else { return };
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    let scene = dir.path().join("scene.json");
+    std::fs::write(
+        &scene,
+        r#"{"version": 1, "input": {"path": "phantom:shepp-logan:40"},
+            "classification": {"transfer": "ct-skin-bone"}, "focus": {"iso": 0.9},
+            "camera": {"azimuth": 60, "elevation": 25}, "background": [0.1, 0.2, 0.3],
+            "style": {"style": "sobel"}, "size": [64, 64]}"#,
+    )
+    .expect("writing the scene");
+    let v = start(
+        &x,
+        dir.path(),
+        &[
+            "--scene",
+            scene.to_str().expect("utf-8"),
+            "--size",
+            "400x300",
+        ],
+    );
+    v.expect("layout view");
+    xdotool(&x, &["key", "h"]);
+    let (view, _) = parse_layout(&v.expect("layout view 0 0"));
+    assert_eq!(
+        view,
+        [0, 0, 400, 300],
+        "without the panel the view is the window"
+    );
+    let shot = rgb(&v.screenshot(&x));
+    v.close(&x);
+    let out = dir.path().join("render.png");
+    let status = Command::new(VELLUM)
+        .args(["render", "--scene"])
+        .arg(&scene)
+        .args(["--size", "400x300", "--out"])
+        .arg(&out)
+        .env("VELLUM_VALIDATION", "1")
+        .status()
+        .expect("running vellum render");
+    assert!(status.success());
+    let (mean, max) = difference(&shot, &rgb(&out));
+    assert!(
+        mean <= 0.5 && max <= 2,
+        "viewer and `render --scene` differ: mean {mean:.3}, max {max}"
+    );
+}
