@@ -218,6 +218,27 @@ impl Viewer {
     }
 }
 
+/// Time for the viewer to draw a frame between two X events on a panel: egui tells a drag from a
+/// click across frames, and a frame of the larger test views takes up to a second on lavapipe.
+const PAUSE: Duration = Duration::from_millis(1200);
+
+/// A left-button drag in `window` from `from`, by `step` pixels `steps` times, pausing between
+/// events.
+fn drag(x: &Xvfb, window: &str, from: [i64; 2], step: [i64; 2], steps: usize, pause: Duration) {
+    let [fx, fy] = from.map(|v| v.to_string());
+    xdotool(x, &["mousemove", "--window", window, &fx, &fy]);
+    std::thread::sleep(pause);
+    xdotool(x, &["mousedown", "1"]);
+    std::thread::sleep(pause);
+    for _ in 0..steps {
+        let [dx, dy] = step.map(|v| v.to_string());
+        xdotool(x, &["mousemove_relative", "--", &dx, &dy]);
+        std::thread::sleep(pause);
+    }
+    xdotool(x, &["mouseup", "1"]);
+    std::thread::sleep(pause);
+}
+
 fn rgb(path: &Path) -> image::RgbImage {
     image::open(path)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -237,13 +258,60 @@ fn difference(a: &image::RgbImage, b: &image::RgbImage) -> (f64, u8) {
     (sum as f64 / a.as_raw().len() as f64, max)
 }
 
-/// "layout view X Y W H tf-editor X Y W H" → (view, tf editor).
+/// Renders `scene` with `vellum render` (at `size` when given) and checks it equals `shot` within
+/// the rounding of one 8-bit step.
+fn assert_render_matches(scene: &Path, size: Option<&str>, shot: &image::RgbImage, dir: &Path) {
+    let out = dir.join("render.png");
+    let mut cmd = Command::new(VELLUM);
+    cmd.args(["render", "--scene"])
+        .arg(scene)
+        .arg("--out")
+        .arg(&out);
+    if let Some(s) = size {
+        cmd.args(["--size", s]);
+    }
+    let status = cmd
+        .env("VELLUM_VALIDATION", "1")
+        .status()
+        .expect("running vellum render");
+    assert!(status.success());
+    let (mean, max) = difference(shot, &rgb(&out));
+    assert!(
+        mean <= 0.5 && max <= 2,
+        "viewer and `render --scene` differ: mean {mean:.3}, max {max}"
+    );
+}
+
+/// Opens `scene` in a window of `size`, takes a first screenshot, and returns it with the layout
+/// drawn after it (the screenshot changes the panel's message line).
+fn open_scene(x: &Xvfb, dir: &Path, scene: &Path, size: &str) -> (Viewer, image::RgbImage, String) {
+    let v = start(
+        x,
+        dir,
+        &["--scene", scene.to_str().expect("utf-8"), "--size", size],
+    );
+    v.expect("layout view");
+    let first = rgb(&v.screenshot(x));
+    std::thread::sleep(Duration::from_millis(1000));
+    v.layout();
+    let line = v.layout.borrow().clone();
+    (v, first, line)
+}
+
+/// "layout view X Y W H [NAME X Y W H]..." → (view, the transfer-function editor).
 fn parse_layout(line: &str) -> ([i64; 4], Option<[i64; 4]>) {
+    (
+        mark(line, "view").expect("the view's rectangle"),
+        mark(line, "tf-editor"),
+    )
+}
+
+/// The rectangle named `name` in a layout line.
+fn mark(line: &str, name: &str) -> Option<[i64; 4]> {
     let v: Vec<&str> = line.split_whitespace().collect();
-    let num = |i: usize| v[i].parse::<i64>().expect("a layout number");
-    let view = [num(2), num(3), num(4), num(5)];
-    let tf = (v.get(7) != Some(&"none")).then(|| [num(7), num(8), num(9), num(10)]);
-    (view, tf)
+    let i = v.iter().position(|t| *t == name)?;
+    let num = |k: usize| v[i + k].parse::<i64>().expect("a layout number");
+    Some([num(1), num(2), num(3), num(4)])
 }
 
 /// Drag to orbit, edit the transfer function with a click, save the scene (Ctrl+S), resize; each
@@ -270,15 +338,7 @@ fn orbit_edit_save_and_resize_through_x_events() {
     // A left drag across the volume view orbits the camera.
     let (cx, cy) = (view[0] + view[2] / 2, view[1] + view[3] / 2);
     let w = &v.window;
-    xdotool(
-        &x,
-        &["mousemove", "--window", w, &cx.to_string(), &cy.to_string()],
-    );
-    xdotool(&x, &["mousedown", "1"]);
-    for _ in 0..4 {
-        xdotool(&x, &["mousemove_relative", "--", "15", "4"]);
-    }
-    xdotool(&x, &["mouseup", "1"]);
+    drag(&x, w, [cx, cy], [15, 4], 4, Duration::from_millis(100));
     let orbited = rgb(&v.screenshot(&x));
     let (mean, _) = difference(&before, &orbited);
     assert!(
@@ -297,21 +357,11 @@ fn orbit_edit_save_and_resize_through_x_events() {
 
     // Dragging the transfer function's last control point (the densest values, opacity 1) to the
     // bottom of the editor makes the skull transparent.
+    std::thread::sleep(Duration::from_millis(1000));
     let (_, tf) = v.layout();
     let tf = tf.expect("the transfer-function editor is on screen");
     let (px, py) = (tf[0] + tf[2] - 2, tf[1] + 2);
-    xdotool(
-        &x,
-        &["mousemove", "--window", w, &px.to_string(), &py.to_string()],
-    );
-    xdotool(&x, &["mousedown", "1"]);
-    for _ in 0..4 {
-        xdotool(
-            &x,
-            &["mousemove_relative", "--", "0", &(tf[3] / 3).to_string()],
-        );
-    }
-    xdotool(&x, &["mouseup", "1"]);
+    drag(&x, w, [px, py], [0, tf[3] / 3], 4, PAUSE);
     let edited = rgb(&v.screenshot(&x));
     let (mean, _) = difference(&orbited, &edited);
     assert!(
@@ -328,21 +378,7 @@ fn orbit_edit_save_and_resize_through_x_events() {
     v.close(&x);
 
     // The saved scene, rendered by the CLI, equals the screenshot taken when it was saved.
-    let out = dir.path().join("render.png");
-    let status = Command::new(VELLUM)
-        .args(["render", "--scene"])
-        .arg(&scene)
-        .arg("--out")
-        .arg(&out)
-        .env("VELLUM_VALIDATION", "1")
-        .status()
-        .expect("running vellum render");
-    assert!(status.success());
-    let (mean, max) = difference(&orbited, &rgb(&out));
-    assert!(
-        mean <= 0.5 && max <= 2,
-        "viewer and `render --scene` differ: mean {mean:.3}, max {max}"
-    );
+    assert_render_matches(&scene, None, &orbited, dir.path());
 }
 
 /// A scene file opened in the viewer, with the panel hidden (H), shows what `vellum render
@@ -380,19 +416,72 @@ fn a_loaded_scene_matches_render() {
     );
     let shot = rgb(&v.screenshot(&x));
     v.close(&x);
-    let out = dir.path().join("render.png");
-    let status = Command::new(VELLUM)
-        .args(["render", "--scene"])
-        .arg(&scene)
-        .args(["--size", "400x300", "--out"])
-        .arg(&out)
-        .env("VELLUM_VALIDATION", "1")
-        .status()
-        .expect("running vellum render");
-    assert!(status.success());
-    let (mean, max) = difference(&shot, &rgb(&out));
+    assert_render_matches(&scene, Some("400x300"), &shot, dir.path());
+}
+
+/// The occlusion editor: a rectangle dragged on the spectrum tags a region that changes the
+/// image, and the scene saved with it (its OTF beside it) renders from the command line to the
+/// viewer's screenshot. The feature map: unticking a feature hides it.
+#[test]
+fn occlusion_and_feature_editors_change_the_image() {
+    let Some((x, _one)) = xvfb() else { return };
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
+
+    let scene = examples.join("occlusion_nested.json");
+    let (v, before, line) = open_scene(&x, dir.path(), &scene, "760x900");
+    let sp = mark(&line, "spectrum").expect("the spectrum is on screen");
+    let w = &v.window;
+    let at = |fx: i64, fy: i64| [sp[0] + sp[2] * fx / 100, sp[1] + sp[3] * fy / 100];
+    let [x0, y0] = at(5, 5);
+    drag(&x, w, [x0, y0], [sp[2] / 7, sp[3] / 7], 6, PAUSE);
+    let tagged = rgb(&v.screenshot(&x));
+    let (mean, _) = difference(&before, &tagged);
     assert!(
-        mean <= 0.5 && max <= 2,
-        "viewer and `render --scene` differ: mean {mean:.3}, max {max}"
+        mean > 1.0,
+        "tagging a region did not change the image ({mean:.3})"
     );
+    xdotool(&x, &["key", "ctrl+s"]);
+    let saved = dir.path().join("vellum.scene.json");
+    let otf = dir.path().join("vellum.scene.otf.json");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !(saved.exists() && otf.exists()) && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(otf.exists(), "Ctrl+S wrote no OTF beside the scene");
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&otf).expect("reading the OTF"))
+            .expect("the OTF is JSON");
+    let regions = written["regions"].as_array().map_or(0, Vec::len);
+    assert_eq!(regions, 3, "the example's two regions and the tagged one");
+    v.close(&x);
+    assert_render_matches(&saved, None, &tagged, dir.path());
+
+    let scene = examples.join("features_nested.json");
+    let (v, before, line) = open_scene(&x, dir.path(), &scene, "1200x800");
+    let b = mark(&line, "feature:sphere").expect("the feature's box is on screen");
+    let (bx, by) = ((b[0] + b[2] / 2).to_string(), (b[1] + b[3] / 2).to_string());
+    // egui acts on a click over a widget it already knows the pointer is over: move, let a frame
+    // pass, then click.
+    xdotool(&x, &["mousemove", "--window", &v.window, &bx, &by]);
+    std::thread::sleep(Duration::from_millis(300));
+    xdotool(&x, &["click", "1"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let hidden = rgb(&v.screenshot(&x));
+    // The feature is orange (its colour in the map); the context is grey.
+    let orange = |im: &image::RgbImage| {
+        im.pixels()
+            .filter(|p| p[0] as i32 > p[2] as i32 + 40 && p[0] > 60)
+            .count()
+    };
+    let (shown, left) = (orange(&before), orange(&hidden));
+    assert!(
+        shown > 200,
+        "the feature is not on screen ({shown} orange pixels)"
+    );
+    assert_eq!(
+        left, 0,
+        "the hidden feature still shows ({left} orange pixels)"
+    );
+    v.close(&x);
 }

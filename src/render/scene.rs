@@ -513,6 +513,9 @@ pub struct GpuScene {
     /// GPU ms of `upload`, `sobel_normals`; for occlusion `to_float` and `occlusion`; for
     /// modulation `pack`, `gauss_x`, `gauss_y`, `gauss_z`, `subtract` and `unpack`.
     pub passes: Vec<PassTime>,
+    /// The occlusion spectrum (256 × 256 bins) when an occlusion transfer function needed the
+    /// occlusion volume: the viewer's occlusion editor draws over it.
+    pub spectrum: Option<crate::passes::occlusion::Spectrum>,
 }
 
 impl GpuScene {
@@ -543,7 +546,7 @@ impl GpuScene {
                     visibility,
                     neighbourhood,
                     stride: otf.effective_stride(),
-                    spectrum_bins: None,
+                    spectrum_bins: Some([256, 256]),
                     method: Default::default(),
                     pad: None,
                 };
@@ -559,7 +562,7 @@ impl GpuScene {
             false => None,
         };
         let mut frames = Frames::new(ctx, &FramesDesc::one_shot("prepare scene", 16))?;
-        let ((occlusion_image, importance_volume), _) = frames.frame(|f| {
+        let ((occlusion_image, importance_volume, spectrum_buffer), _) = frames.frame(|f| {
             volume.record_upload(ctx, f.cmd, f.profiler, &staging);
             normals.record(f.cmd, f.profiler, &volume)?;
             let delta_d = match &importance {
@@ -580,17 +583,33 @@ impl GpuScene {
                         &volume,
                         normals.nearest(),
                     )?;
-                    let targets = occ.targets(&input, p)?;
+                    let mut targets = occ.targets(&input, p)?;
                     occ.record(f.cmd, f.profiler, &input, &targets, p)?;
                     // The input and work images drop here, mid-recording: their release is
                     // deferred until this frame completes (gpu/lifetime.rs).
-                    Some(targets.occlusion)
+                    let spectrum = targets.spectrum.take();
+                    Some((targets.occlusion, spectrum))
                 }
                 _ => None,
             };
-            Ok((image, delta_d))
+            let (image, spectrum) = match image {
+                Some((i, s)) => (Some(i), s),
+                None => (None, None),
+            };
+            Ok((image, delta_d, spectrum))
         })?;
         let passes = frames.finish()?;
+        let spectrum =
+            match spectrum_buffer {
+                Some(b) => Some(crate::passes::occlusion::Spectrum {
+                    bins: [256, 256],
+                    counts: bytemuck::pod_collect_to_vec(b.mapped().ok_or_else(|| {
+                        Error::Invalid("spectrum buffer is not host-visible".into())
+                    })?),
+                    intensity_range: volume.range,
+                }),
+                None => None,
+            };
         volume.occlusion = occlusion_image;
         volume.importance = importance_volume;
         let mut classify = GpuClassification::new(ctx, &transfer, focus)?;
@@ -600,6 +619,7 @@ impl GpuScene {
             volume,
             classify,
             passes,
+            spectrum,
         })
     }
 }

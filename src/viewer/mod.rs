@@ -114,6 +114,8 @@ struct Loaded {
     tf: TransferFunction,
     histogram: Vec<u64>,
     range: [f64; 2],
+    features: Option<crate::volume::feature::FeatureMap>,
+    otf: Option<crate::classify::otf::OcclusionTf>,
 }
 
 fn load(scene: Scene) -> Result<Loaded> {
@@ -124,13 +126,26 @@ fn load(scene: Scene) -> Result<Loaded> {
         _ => TransferFunction::preset("grey")?,
     };
     let s = crate::volume::stats::stats(&volume, 256);
+    let (tf, features) = match &classification {
+        Classification::Features(map) => (
+            crate::classify::features::feature_transfer_function(map, [s.min, s.max])?,
+            Some(map.clone()),
+        ),
+        _ => (tf, None),
+    };
+    let otf = match &classification {
+        Classification::Occlusion(o) => Some(o.clone()),
+        _ => None,
+    };
     Ok(Loaded {
+        otf,
         scene,
         classification,
         tf,
         histogram: s.histogram,
         range: [s.min, s.max],
         volume,
+        features,
     })
 }
 
@@ -158,6 +173,9 @@ struct Running {
     /// The scene as last applied to the GPU state, to see what changed.
     applied: Scene,
     applied_tf: TransferFunction,
+    applied_otf: Option<crate::classify::otf::OcclusionTf>,
+    /// The volume on the host, for recomputing what depends on it (the occlusion volume).
+    volume: Volume,
     /// The camera of the loaded scene, for reset.
     home: crate::render::scene::CameraSpec,
     egui_ctx: egui::Context,
@@ -245,32 +263,38 @@ impl ApplicationHandler for App {
                 }
                 r.cursor = p;
             }
-            WindowEvent::MouseInput { state, button, .. } if !response.consumed => match state {
-                ElementState::Pressed => {
-                    let kind = match button {
-                        MouseButton::Left if r.shift => Some(Drag::Pan),
-                        MouseButton::Left => Some(Drag::Orbit),
-                        MouseButton::Right | MouseButton::Middle => Some(Drag::Pan),
-                        _ => None,
-                    };
-                    if button == MouseButton::Left {
-                        let now = Instant::now();
-                        if r.last_click
-                            .is_some_and(|t| now - t < Duration::from_millis(350))
-                        {
-                            r.reset_camera();
+            // egui judges "over a panel" from its last frame, which lags when frames are slow;
+            // the view's rectangle is known here, so a press outside it never moves the camera.
+            WindowEvent::MouseInput { state, button, .. }
+                if !response.consumed && r.in_view(r.cursor) =>
+            {
+                match state {
+                    ElementState::Pressed => {
+                        let kind = match button {
+                            MouseButton::Left if r.shift => Some(Drag::Pan),
+                            MouseButton::Left => Some(Drag::Orbit),
+                            MouseButton::Right | MouseButton::Middle => Some(Drag::Pan),
+                            _ => None,
+                        };
+                        if button == MouseButton::Left {
+                            let now = Instant::now();
+                            if r.last_click
+                                .is_some_and(|t| now - t < Duration::from_millis(350))
+                            {
+                                r.reset_camera();
+                            }
+                            r.last_click = Some(now);
                         }
-                        r.last_click = Some(now);
+                        r.drag = kind.map(|k| (k, r.cursor));
                     }
-                    r.drag = kind.map(|k| (k, r.cursor));
+                    ElementState::Released => r.drag = None,
                 }
-                ElementState::Released => r.drag = None,
-            },
+            }
             WindowEvent::MouseInput {
                 state: ElementState::Released,
                 ..
             } => r.drag = None,
-            WindowEvent::MouseWheel { delta, .. } if !response.consumed => {
+            WindowEvent::MouseWheel { delta, .. } if !response.consumed && r.in_view(r.cursor) => {
                 let steps = match delta {
                     MouseScrollDelta::LineDelta(_, y) => y as f64,
                     MouseScrollDelta::PixelDelta(p) => p.y / 40.0,
@@ -489,6 +513,10 @@ impl Running {
         )?;
         let mut model = Model::new(loaded.scene.clone(), loaded.tf.clone());
         model.histogram = loaded.histogram;
+        model.features = loaded.features;
+        model.otf = loaded.otf.clone();
+        let mut gpu = gpu;
+        model.spectrum = gpu.spectrum.take();
         model.range = loaded.range;
         model.dims = loaded.volume.dims;
         model.oriented = loaded.volume.geometry.is_oriented();
@@ -511,6 +539,8 @@ impl Running {
             gpu,
             applied: loaded.scene,
             applied_tf: loaded.tf,
+            applied_otf: loaded.otf,
+            volume: loaded.volume,
             home,
             model,
             egui_ctx,
@@ -545,6 +575,12 @@ impl Running {
         self.last_change = Instant::now();
         self.refined = false;
         self.window.request_redraw();
+    }
+
+    /// Whether a window position (pixels) lies in the volume view.
+    fn in_view(&self, p: [f64; 2]) -> bool {
+        let [x, y, w, h] = self.view_rect.map(f64::from);
+        w == 0.0 || (p[0] >= x && p[0] < x + w && p[1] >= y && p[1] < y + h)
     }
 
     /// The volume view's size in pixels.
@@ -663,7 +699,13 @@ impl Running {
             Ok((l, gpu))
         });
         match result {
-            Ok((l, gpu)) => {
+            Ok((l, mut gpu)) => {
+                self.model.spectrum = gpu.spectrum.take();
+                self.model.spectrum_texture = None;
+                self.model.otf = l.otf.clone();
+                self.model.otf_edited = false;
+                self.model.occlusion_params_changed = false;
+                self.applied_otf = l.otf.clone();
                 self.gpu = gpu;
                 self.model.scene = l.scene.clone();
                 self.model.tf = l.tf.clone();
@@ -673,6 +715,9 @@ impl Running {
                 self.model.scale = 1.0;
                 self.model.selected = None;
                 self.model.histogram = l.histogram;
+                self.model.features = l.features;
+                self.model.hidden.clear();
+                self.model.features_edited = false;
                 self.model.range = l.range;
                 self.model.dims = l.volume.dims;
                 self.model.oriented = l.volume.geometry.is_oriented();
@@ -682,6 +727,7 @@ impl Running {
                 self.applied_tf = l.tf;
                 self.window
                     .set_title(&format!("vellum: {}", self.model.scene.input.path));
+                self.volume = l.volume;
             }
             Err(e) => self.model.message = format!("{what}: {e}"),
         }
@@ -718,6 +764,7 @@ impl Running {
             self.model.scene.focus = self.applied.focus;
         }
         self.gpu.classify.focus = self.model.scene.focus;
+        self.apply_occlusion()?;
         if self.model.tf != self.applied_tf {
             self.gpu.classify.set_transfer(&self.model.tf);
             self.applied_tf = self.model.tf.clone();
@@ -727,6 +774,44 @@ impl Running {
             _ => Default::default(),
         };
         self.applied = self.model.scene.clone();
+        Ok(())
+    }
+
+    /// Uploads an edited OTF's table; recomputes the occlusion volume (and the spectrum) when asked.
+    /// The recomputation blocks this thread for as long as the AO takes.
+    fn apply_occlusion(&mut self) -> Result<()> {
+        let Some(otf) = self.model.otf.clone() else {
+            return Ok(());
+        };
+        if std::mem::take(&mut self.model.recompute_occlusion) {
+            let modulation = self.model.scene.modulation.clone().unwrap_or_default();
+            let started = Instant::now();
+            let mut gpu = GpuScene::prepare(
+                &self.ctx,
+                &self.volume,
+                &Classification::Occlusion(otf.clone()),
+                self.model.scene.focus,
+                &modulation,
+            )?;
+            self.model.spectrum = gpu.spectrum.take();
+            self.model.spectrum_texture = None;
+            self.gpu = gpu;
+            self.applied_tf = self.model.tf.clone();
+            self.applied_otf = Some(otf);
+            self.model.message = format!(
+                "occlusion at R = {} recomputed in {:.0} ms",
+                self.applied_otf.as_ref().map_or(0, |o| o.radius),
+                started.elapsed().as_secs_f64() * 1e3
+            );
+            return Ok(());
+        }
+        if self.applied_otf.as_ref() != Some(&otf) {
+            match otf.table() {
+                Ok(table) => self.gpu.classify.set_occlusion_table(Some(table))?,
+                Err(e) => self.model.message = e.to_string(),
+            }
+            self.applied_otf = Some(otf);
+        }
         Ok(())
     }
 
@@ -944,6 +1029,8 @@ impl Running {
             crate::output::write_png_rgb(&path, w, h, &to_rgb8(&pixels, background))?;
             println!("screenshot: {}", path.display());
             self.model.message = format!("wrote {}", path.display());
+            // One more frame shows the message.
+            self.window.request_redraw();
         }
         Ok(())
     }
@@ -978,7 +1065,32 @@ impl Running {
     fn save_scene(&mut self, path: &Path) -> Result<()> {
         let mut scene = self.model.scene.clone();
         scene.size = self.view_size();
-        if self.model.tf_edited {
+        if let (Some(map), true) = (&self.model.features, self.model.features_edited) {
+            // Hidden features are saved as shown: left out of the saved map.
+            let map = ui::visible_map(map, &self.model.hidden);
+            let map_path = path.with_extension("features.json");
+            map.save(&map_path)?;
+            scene.classification =
+                ClassificationSpec::Features(map_path.to_string_lossy().into_owned());
+        } else if let (Some(otf), true) = (&self.model.otf, self.model.otf_edited) {
+            let mut otf = otf.clone();
+            if let Some(t) = &otf.transfer {
+                if Path::new(t).is_file() {
+                    otf.transfer = std::path::absolute(t)
+                        .ok()
+                        .map(|p| p.to_string_lossy().into_owned());
+                }
+            }
+            let otf_path = path.with_extension("otf.json");
+            let json = serde_json::to_string_pretty(&otf)
+                .map_err(|e| Error::Invalid(format!("the OTF cannot be written as JSON: {e}")))?;
+            crate::output::write_atomic(&otf_path, |w| {
+                use std::io::Write;
+                writeln!(w, "{json}")
+            })?;
+            scene.classification =
+                ClassificationSpec::Occlusion(otf_path.to_string_lossy().into_owned());
+        } else if self.model.tf_edited {
             let tf_path = path.with_extension("tf.json");
             let json = self.model.tf.to_json();
             crate::output::write_atomic(&tf_path, |w| {
@@ -998,21 +1110,15 @@ impl Running {
         if std::env::var_os("VELLUM_VIEW_LAYOUT").is_none() {
             return;
         }
-        let tf = self
-            .model
-            .tf_editor_rect
-            .map(|r| [r.min.x, r.min.y, r.width(), r.height()].map(|v| (v * ppp).round() as i64));
-        let line = format!(
-            "layout view {} {} {} {} tf-editor {}",
-            view[0],
-            view[1],
-            view[2],
-            view[3],
-            tf.map_or("none".into(), |t| format!(
-                "{} {} {} {}",
-                t[0], t[1], t[2], t[3]
-            ))
+        let mut line = format!(
+            "layout view {} {} {} {}",
+            view[0], view[1], view[2], view[3]
         );
+        for (name, r) in &self.model.marks {
+            let [x, y, w, h] =
+                [r.min.x, r.min.y, r.width(), r.height()].map(|v| (v * ppp).round() as i64);
+            line += &format!(" {name} {x} {y} {w} {h}");
+        }
         if line != self.last_layout {
             println!("{line}");
             self.last_layout = line;

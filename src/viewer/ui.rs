@@ -4,12 +4,16 @@
 //! window loop turns the edits into GPU state.
 
 use crate::classify::modulation::{ColorMode, ColorModulation, Modulation};
+use crate::classify::otf::{Curve, OcclusionTf, Region, Shape};
 use crate::classify::transfer::{ControlPoint, TransferFunction, PRESETS};
 use crate::classify::Focus;
+use crate::passes::occlusion::Spectrum;
 use crate::render::raycast::RayOptions;
 use crate::render::scene::{ClassificationSpec, NamedView, Scene, StyleSpec};
 use crate::render::style::STYLES;
+use crate::volume::feature::map::{FeatureMap, Node};
 use egui::{Color32, Pos2, Rect, Sense, Stroke, Vec2};
+use std::collections::BTreeSet;
 
 /// What the panels ask the window loop to do.
 #[derive(Default, Debug)]
@@ -56,8 +60,30 @@ pub struct Model {
     pub render_size: [u32; 2],
     pub interactive: bool,
     pub requests: Requests,
-    /// Where the transfer-function editor was last drawn (points), for `VELLUM_VIEW_LAYOUT`.
-    pub tf_editor_rect: Option<Rect>,
+    /// Where named widgets were last drawn (points), for `VELLUM_VIEW_LAYOUT`: `tf-editor`,
+    /// `spectrum`, `feature:LABEL` (its visibility box).
+    pub marks: std::collections::BTreeMap<String, Rect>,
+    /// The feature map (FM5) when the scene is classified by one; its colours are edited here.
+    pub features: Option<FeatureMap>,
+    /// Labels of the features the user has hidden (transparent).
+    pub hidden: BTreeSet<String>,
+    /// Whether the feature map was edited since it was loaded (saved beside the scene).
+    pub features_edited: bool,
+    /// The occlusion transfer function (OS4, OS5) when the scene is classified by one.
+    pub otf: Option<OcclusionTf>,
+    /// Whether the OTF's table or its AO parameters changed since it was loaded.
+    pub otf_edited: bool,
+    /// The occlusion spectrum of the current volume, and its texture for egui.
+    pub spectrum: Option<Spectrum>,
+    pub spectrum_texture: Option<egui::TextureHandle>,
+    /// Colour and opacity of the next tagged region.
+    pub brush: [f32; 4],
+    /// A rectangle being dragged on the spectrum: its corners as (intensity, occlusion).
+    pub tagging: Option<[[f32; 2]; 2]>,
+    /// Recompute the occlusion volume (the button).
+    pub recompute_occlusion: bool,
+    /// The AO radius or mapping changed since the occlusion volume was computed.
+    pub occlusion_params_changed: bool,
 }
 
 impl Model {
@@ -85,7 +111,18 @@ impl Model {
             render_size: [0, 0],
             interactive: false,
             requests: Requests::default(),
-            tf_editor_rect: None,
+            marks: Default::default(),
+            features: None,
+            hidden: BTreeSet::new(),
+            features_edited: false,
+            otf: None,
+            otf_edited: false,
+            spectrum: None,
+            spectrum_texture: None,
+            brush: [1.0, 0.6, 0.2, 0.5],
+            tagging: None,
+            recompute_occlusion: false,
+            occlusion_params_changed: false,
         }
     }
 
@@ -171,6 +208,16 @@ fn panel(ui: &mut egui::Ui, m: &mut Model) {
     egui::CollapsingHeader::new("Transfer function")
         .default_open(true)
         .show(ui, |ui| transfer(ui, m));
+    if m.otf.is_some() {
+        egui::CollapsingHeader::new("Occlusion spectrum")
+            .default_open(true)
+            .show(ui, |ui| occlusion(ui, m));
+    }
+    if m.features.is_some() {
+        egui::CollapsingHeader::new("Feature map")
+            .default_open(true)
+            .show(ui, |ui| features(ui, m));
+    }
     egui::CollapsingHeader::new("Style")
         .default_open(false)
         .show(ui, |ui| style(ui, m));
@@ -288,8 +335,8 @@ fn transfer(ui: &mut egui::Ui, m: &mut Model) {
     let editable = matches!(m.scene.classification, ClassificationSpec::Transfer(_));
     if !editable {
         ui.label(match &m.scene.classification {
-            ClassificationSpec::Occlusion(f) => format!("occlusion transfer function {f}: the occlusion editor is not built yet; edit the file and reload the scene"),
-            ClassificationSpec::Features(f) => format!("feature map {f}: the feature-map panel is not built yet"),
+            ClassificationSpec::Occlusion(f) => format!("occlusion transfer function {f}: edit it over the spectrum (see Occlusion spectrum)"),
+            ClassificationSpec::Features(f) => format!("feature map {f}: its features set the transfer function (see Feature map)"),
             ClassificationSpec::Transfer(_) => String::new(),
         });
         return;
@@ -357,31 +404,13 @@ fn edited(m: &mut Model) {
 }
 
 fn tf_editor(ui: &mut egui::Ui, m: &mut Model) {
-    let width = ui.available_width().max(200.0);
+    // Clear of the scroll bar, which appears over the right edge on hover.
+    let width = (ui.available_width() - 14.0).max(200.0);
     let (response, painter) = ui.allocate_painter(Vec2::new(width, 140.0), Sense::click_and_drag());
     let rect = response.rect;
-    m.tf_editor_rect = Some(rect);
+    m.marks.insert("tf-editor".into(), rect);
     painter.rect_filled(rect, 2.0, Color32::from_gray(24));
-    // The histogram, linear or log.
-    let max = m.histogram.iter().copied().max().unwrap_or(1).max(1) as f32;
-    let n = m.histogram.len().max(1);
-    for (i, &c) in m.histogram.iter().enumerate() {
-        let h = if m.log_histogram {
-            (1.0 + c as f32).ln() / (1.0 + max).ln()
-        } else {
-            c as f32 / max
-        };
-        let x0 = rect.left() + rect.width() * i as f32 / n as f32;
-        let x1 = rect.left() + rect.width() * (i + 1) as f32 / n as f32;
-        painter.rect_filled(
-            Rect::from_min_max(
-                Pos2::new(x0, rect.bottom() - h * rect.height()),
-                Pos2::new(x1, rect.bottom()),
-            ),
-            0.0,
-            Color32::from_gray(70),
-        );
-    }
+    histogram(&painter, rect, &m.histogram, m.log_histogram);
     // The focus interval on the axis.
     let to_x = |v: f64| {
         let t = ((v - m.range[0]) / (m.range[1] - m.range[0]).max(f64::MIN_POSITIVE)) as f32;
@@ -465,8 +494,10 @@ fn tf_editor(ui: &mut egui::Ui, m: &mut Model) {
             ((rect.bottom() - pos.y) / rect.height()).clamp(0.0, 1.0),
         )
     };
+    // A drag starts once the pointer has moved a few pixels: pick the point under the press.
+    let origin = ui.input(|i| i.pointer.press_origin());
     if response.drag_started() {
-        if let Some(pos) = response.interact_pointer_pos() {
+        if let Some(pos) = origin.or(response.interact_pointer_pos()) {
             m.selected = hit(pos);
         }
     }
@@ -651,4 +682,385 @@ fn renderer(ui: &mut egui::Ui, m: &mut Model) {
         ui.label("background");
         ui.color_edit_button_rgb(&mut m.scene.background);
     });
+}
+
+/// The transfer function of the feature map with the hidden features left out (they become
+/// transparent), on the volume's normalised range.
+pub fn feature_tf(m: &Model) -> crate::Result<TransferFunction> {
+    let map = m
+        .features
+        .as_ref()
+        .ok_or_else(|| crate::Error::Invalid("no feature map".into()))?;
+    crate::classify::features::feature_transfer_function(&visible_map(map, &m.hidden), m.range)
+}
+
+/// `map` without the features whose labels are in `hidden`.
+pub fn visible_map(map: &FeatureMap, hidden: &BTreeSet<String>) -> FeatureMap {
+    fn keep(nodes: &mut Vec<Node>, hidden: &BTreeSet<String>) {
+        nodes.retain(|n| !matches!(n, Node::Feature(f) if hidden.contains(&f.label)));
+        for n in nodes {
+            if let Node::Group(g) = n {
+                keep(&mut g.children, hidden);
+            }
+        }
+    }
+    let mut map = map.clone();
+    keep(&mut map.nodes, hidden);
+    map
+}
+
+/// The hierarchical feature map (FM5): a tree of groups and features, each feature with its
+/// visibility, colour and private interval, and the intervals marked on the histogram axis.
+fn features(ui: &mut egui::Ui, m: &mut Model) {
+    let Some(mut map) = m.features.take() else {
+        return;
+    };
+    let before = (map.clone(), m.hidden.clone());
+    feature_axis(ui, m, &map);
+    fn tree(
+        ui: &mut egui::Ui,
+        nodes: &mut [Node],
+        hidden: &mut BTreeSet<String>,
+        marks: &mut std::collections::BTreeMap<String, Rect>,
+    ) {
+        for n in nodes {
+            match n {
+                Node::Group(g) => {
+                    egui::CollapsingHeader::new(&g.label)
+                        .default_open(true)
+                        .show(ui, |ui| tree(ui, &mut g.children, hidden, marks))
+                        .header_response
+                        .on_hover_text(&g.description);
+                }
+                Node::Feature(f) => {
+                    ui.horizontal(|ui| {
+                        let mut visible = !hidden.contains(&f.label);
+                        let r = ui.checkbox(&mut visible, "");
+                        marks.insert(format!("feature:{}", f.label), r.rect);
+                        if r.changed() {
+                            if visible {
+                                hidden.remove(&f.label);
+                            } else {
+                                hidden.insert(f.label.clone());
+                            }
+                        }
+                        ui.color_edit_button_rgb(&mut f.color);
+                        ui.label(format!(
+                            "{}  [{:.4}, {:.4}]",
+                            f.label, f.interval[0], f.interval[1]
+                        ))
+                        .on_hover_text(&f.description);
+                    });
+                }
+            }
+        }
+    }
+    tree(ui, &mut map.nodes, &mut m.hidden, &mut m.marks);
+    let changed = before != (map.clone(), m.hidden.clone());
+    m.features = Some(map);
+    if changed {
+        m.features_edited = true;
+        match feature_tf(m) {
+            Ok(tf) => m.tf = tf,
+            Err(e) => m.message = e.to_string(),
+        }
+    }
+}
+
+/// The histogram with each feature's private interval as a band of its colour.
+fn feature_axis(ui: &mut egui::Ui, m: &Model, map: &FeatureMap) {
+    // Clear of the scroll bar, which appears over the right edge on hover.
+    let width = (ui.available_width() - 14.0).max(200.0);
+    let (response, painter) = ui.allocate_painter(Vec2::new(width, 60.0), Sense::hover());
+    let rect = response.rect;
+    painter.rect_filled(rect, 2.0, Color32::from_gray(24));
+    histogram(&painter, rect, &m.histogram, true);
+    let to_x = |v: f64| {
+        let t = ((v - m.range[0]) / (m.range[1] - m.range[0]).max(f64::MIN_POSITIVE)) as f32;
+        rect.left() + t.clamp(0.0, 1.0) * rect.width()
+    };
+    for (_, f) in map.features() {
+        let c = f.color.map(|v| (v.clamp(0.0, 1.0) * 255.0) as u8);
+        let alpha = if m.hidden.contains(&f.label) { 40 } else { 150 };
+        let (x0, x1) = (
+            to_x(f.interval[0]),
+            to_x(f.interval[1]).max(to_x(f.interval[0]) + 2.0),
+        );
+        painter.rect_filled(
+            Rect::from_min_max(Pos2::new(x0, rect.top()), Pos2::new(x1, rect.bottom())),
+            0.0,
+            Color32::from_rgba_unmultiplied(c[0], c[1], c[2], alpha),
+        );
+    }
+}
+
+/// The occlusion editor (OS4, OS5): the spectrum (intensity across, occlusion up, log counts)
+/// with the OTF's regions and curves over it. Dragging on it tags a rectangle in the brush's
+/// colour; the lists edit or delete regions and the decoupled model's Gaussian curves; the AO
+/// radius and mapping recompute the occlusion volume.
+fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
+    let Some(mut otf) = m.otf.take() else {
+        return;
+    };
+    let before = otf.clone();
+    if m.spectrum_texture.is_none() {
+        if let Some(sp) = &m.spectrum {
+            m.spectrum_texture = Some(ui.ctx().load_texture(
+                "occlusion spectrum",
+                spectrum_image(sp),
+                egui::TextureOptions::NEAREST,
+            ));
+        }
+    }
+    // Clear of the scroll bar, which appears over the right edge on hover.
+    let width = (ui.available_width() - 14.0).max(200.0);
+    let (response, painter) = ui.allocate_painter(Vec2::new(width, width), Sense::click_and_drag());
+    let rect = response.rect;
+    m.marks.insert("spectrum".into(), rect);
+    match &m.spectrum_texture {
+        Some(t) => {
+            painter.image(
+                t.id(),
+                rect,
+                Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0)),
+                Color32::WHITE,
+            );
+        }
+        None => {
+            painter.rect_filled(rect, 0.0, Color32::from_gray(24));
+        }
+    }
+    let to_screen = |s: f32, o: f32| {
+        Pos2::new(
+            rect.left() + s * rect.width(),
+            rect.bottom() - o * rect.height(),
+        )
+    };
+    let to_spectrum = |p: Pos2| {
+        [
+            ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0),
+            ((rect.bottom() - p.y) / rect.height()).clamp(0.0, 1.0),
+        ]
+    };
+    let color = |c: [f32; 4]| {
+        Color32::from_rgb(
+            (c[0].clamp(0.0, 1.0) * 255.0) as u8,
+            (c[1].clamp(0.0, 1.0) * 255.0) as u8,
+            (c[2].clamp(0.0, 1.0) * 255.0) as u8,
+        )
+    };
+    for r in &otf.regions {
+        let stroke = Stroke::new(1.5, color(r.rgba));
+        match &r.shape {
+            Shape::Rect {
+                intensity,
+                occlusion,
+            } => {
+                let a = to_screen(intensity[0], occlusion[1]);
+                let b = to_screen(intensity[1], occlusion[0]);
+                painter.rect_stroke(
+                    Rect::from_two_pos(a, b),
+                    0.0,
+                    stroke,
+                    egui::StrokeKind::Middle,
+                );
+            }
+            Shape::Blob { centre, sigma } => {
+                let c = to_screen(centre[0], centre[1]);
+                let radius = Vec2::new(sigma[0] * rect.width(), sigma[1] * rect.height());
+                painter.add(egui::Shape::ellipse_stroke(c, radius, stroke));
+            }
+        }
+    }
+    for c in &otf.curves {
+        let stroke = Stroke::new(1.5, Color32::from_rgb(120, 220, 255));
+        let y = |o: f32| to_screen(0.0, o).y;
+        painter.line_segment(
+            [
+                Pos2::new(to_screen(c.intensity[0], 0.0).x, y(c.mean)),
+                Pos2::new(to_screen(c.intensity[1], 0.0).x, y(c.mean)),
+            ],
+            stroke,
+        );
+        let band = Rect::from_min_max(
+            Pos2::new(
+                to_screen(c.intensity[0], 0.0).x,
+                y((c.mean + c.width).min(1.0)),
+            ),
+            Pos2::new(
+                to_screen(c.intensity[1], 0.0).x,
+                y((c.mean - c.width).max(0.0)),
+            ),
+        );
+        painter.rect_filled(
+            band,
+            0.0,
+            Color32::from_rgba_unmultiplied(120, 220, 255, 30),
+        );
+    }
+    // Tagging: drag a rectangle (corners in spectrum units; the pointer position is not known on
+    // the frame the button is released, so the last one is kept).
+    if response.drag_started() {
+        m.tagging = response
+            .interact_pointer_pos()
+            .map(|p| [to_spectrum(p), to_spectrum(p)]);
+    }
+    if let (Some(t), Some(p)) = (m.tagging.as_mut(), response.interact_pointer_pos()) {
+        t[1] = to_spectrum(p);
+    }
+    if let Some([a, b]) = m.tagging {
+        let (p0, p1) = (to_screen(a[0], a[1]), to_screen(b[0], b[1]));
+        painter.rect_stroke(
+            Rect::from_two_pos(p0, p1),
+            0.0,
+            Stroke::new(1.0, Color32::WHITE),
+            egui::StrokeKind::Middle,
+        );
+        if response.drag_stopped() || !response.dragged() {
+            let (s0, s1) = (a[0].min(b[0]), a[0].max(b[0]));
+            let (o0, o1) = (a[1].min(b[1]), a[1].max(b[1]));
+            if s1 - s0 > 1e-3 && o1 - o0 > 1e-3 {
+                otf.regions.push(Region {
+                    shape: Shape::Rect {
+                        intensity: [s0, s1],
+                        occlusion: [o0, o1],
+                    },
+                    rgba: m.brush,
+                });
+            }
+            m.tagging = None;
+        }
+    }
+    ui.horizontal(|ui| {
+        ui.label("brush");
+        ui.color_edit_button_rgba_unmultiplied(&mut m.brush);
+        ui.label("drag on the spectrum to tag a region");
+    });
+    let mut delete = None;
+    for (i, r) in otf.regions.iter_mut().enumerate() {
+        ui.horizontal(|ui| {
+            ui.color_edit_button_rgba_unmultiplied(&mut r.rgba);
+            ui.label(match &r.shape {
+                Shape::Rect {
+                    intensity,
+                    occlusion,
+                } => format!(
+                    "rect s {:.2}..{:.2}, o {:.2}..{:.2}",
+                    intensity[0], intensity[1], occlusion[0], occlusion[1]
+                ),
+                Shape::Blob { centre, sigma } => format!(
+                    "blob at ({:.2}, {:.2}), σ ({:.2}, {:.2})",
+                    centre[0], centre[1], sigma[0], sigma[1]
+                ),
+            });
+            if ui.small_button("delete").clicked() {
+                delete = Some(i);
+            }
+        });
+    }
+    if let Some(i) = delete {
+        otf.regions.remove(i);
+    }
+    ui.separator();
+    ui.label("Decoupled model: the 1D TF's opacity times Gaussian occlusion curves.");
+    let mut delete = None;
+    for (i, c) in otf.curves.iter_mut().enumerate() {
+        ui.add(egui::Slider::new(&mut c.mean, 0.0..=1.0).text(format!("curve {} mean", i + 1)));
+        ui.add(egui::Slider::new(&mut c.width, 0.005..=0.5).text("width"));
+        ui.horizontal(|ui| {
+            ui.add(
+                egui::DragValue::new(&mut c.intensity[0])
+                    .range(0.0..=1.0)
+                    .speed(0.005)
+                    .prefix("s from "),
+            );
+            ui.add(
+                egui::DragValue::new(&mut c.intensity[1])
+                    .range(0.0..=1.0)
+                    .speed(0.005)
+                    .prefix("to "),
+            );
+            if ui.small_button("delete").clicked() {
+                delete = Some(i);
+            }
+        });
+        if c.intensity[1] < c.intensity[0] {
+            c.intensity[1] = c.intensity[0];
+        }
+    }
+    if let Some(i) = delete {
+        otf.curves.remove(i);
+    }
+    if ui.button("add a curve").clicked() {
+        otf.curves.push(Curve {
+            intensity: [0.3, 1.0],
+            mean: 0.5,
+            width: 0.1,
+        });
+    }
+    ui.separator();
+    let (radius, mapping) = (otf.radius, otf.mapping.clone());
+    ui.add(egui::Slider::new(&mut otf.radius, 1..=64).text("AO radius (voxels)"));
+    egui::ComboBox::from_label("mapping")
+        .selected_text(otf.mapping.clone())
+        .show_ui(ui, |ui| {
+            for name in ["ramp", "gaussian"] {
+                ui.selectable_value(&mut otf.mapping, name.to_string(), name);
+            }
+        });
+    if (radius, &mapping) != (otf.radius, &otf.mapping) {
+        m.occlusion_params_changed = true;
+    }
+    let label = if m.occlusion_params_changed {
+        "recompute the occlusion (radius or mapping changed)"
+    } else {
+        "recompute the occlusion"
+    };
+    if ui.button(label).clicked() {
+        m.recompute_occlusion = true;
+        m.occlusion_params_changed = false;
+    }
+    if otf != before {
+        m.otf_edited = true;
+    }
+    m.otf = Some(otf);
+}
+
+/// The spectrum as an image: log counts in grey, occlusion 0 at the bottom.
+fn spectrum_image(sp: &Spectrum) -> egui::ColorImage {
+    let [bx, by] = [sp.bins[0] as usize, sp.bins[1] as usize];
+    let max = sp.counts.iter().copied().max().unwrap_or(1).max(1) as f32;
+    let mut pixels = Vec::with_capacity(bx * by);
+    for row in 0..by {
+        let o = by - 1 - row;
+        for s in 0..bx {
+            let c = sp.counts[o * bx + s] as f32;
+            let v = ((1.0 + c).ln() / (1.0 + max).ln() * 255.0) as u8;
+            pixels.push(Color32::from_gray(v));
+        }
+    }
+    egui::ColorImage::new([bx, by], pixels)
+}
+
+/// Bars of a histogram filling `rect`, linear or log.
+fn histogram(painter: &egui::Painter, rect: Rect, counts: &[u64], log: bool) {
+    let max = counts.iter().copied().max().unwrap_or(1).max(1) as f32;
+    let n = counts.len().max(1) as f32;
+    for (i, &c) in counts.iter().enumerate() {
+        let h = if log {
+            (1.0 + c as f32).ln() / (1.0 + max).ln()
+        } else {
+            c as f32 / max
+        };
+        let x0 = rect.left() + rect.width() * i as f32 / n;
+        let x1 = rect.left() + rect.width() * (i + 1) as f32 / n;
+        painter.rect_filled(
+            Rect::from_min_max(
+                Pos2::new(x0, rect.bottom() - h * rect.height()),
+                Pos2::new(x1, rect.bottom()),
+            ),
+            0.0,
+            Color32::from_gray(70),
+        );
+    }
 }
