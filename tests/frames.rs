@@ -181,8 +181,28 @@ fn occlusion_transfer_function_render_reads_no_volume_back() {
     )
     .unwrap();
     let names: Vec<&str> = scene.passes.iter().map(|p| p.name.as_str()).collect();
-    assert_eq!(names, ["upload", "sobel_normals", "to_float", "occlusion"]);
+    assert_eq!(
+        names,
+        [
+            "upload",
+            "sobel_normals",
+            "to_float",
+            "occlusion",
+            "spectrum"
+        ]
+    );
     assert!(scene.volume.occlusion.is_some());
+    // The spectrum (for the viewer's occlusion editor) counts every occlusion voxel once.
+    let spectrum = scene
+        .spectrum
+        .as_ref()
+        .expect("the spectrum of the occlusion volume");
+    let occ = scene.volume.occlusion.as_ref().unwrap().desc.extent;
+    assert_eq!(spectrum.bins, [256, 256]);
+    assert_eq!(
+        spectrum.counts.iter().map(|&c| c as u64).sum::<u64>(),
+        occ.iter().map(|&d| d as u64).product::<u64>()
+    );
     let renderer = Renderer::new(ctx).unwrap();
     let frame = renderer
         .render_frame(

@@ -485,3 +485,54 @@ fn occlusion_and_feature_editors_change_the_image() {
     );
     v.close(&x);
 }
+
+/// A file that is not a volume, opened through the panel's path field, gets the reader's one
+/// sentence in the window, and the volume on screen stays.
+#[test]
+fn a_bad_file_is_one_sentence_and_the_volume_stays() {
+    let Some((x, _one)) = xvfb() else { return };
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    let bad = dir.path().join("broken.nrrd");
+    std::fs::write(&bad, "NRRD0004\ntype: float\ndimension: 3\nsizes: 4 4\n\n")
+        .expect("writing the bad file");
+    let v = start(
+        &x,
+        dir.path(),
+        &[
+            "phantom:shepp-logan:32",
+            "--iso",
+            "0.9",
+            "--size",
+            "720x480",
+        ],
+    );
+    v.expect("layout view");
+    let before = rgb(&v.screenshot(&x));
+    std::thread::sleep(Duration::from_millis(1000));
+    v.layout();
+    let line = v.layout.borrow().clone();
+    let click = |name: &str| {
+        let r = mark(&line, name).unwrap_or_else(|| panic!("{name} is on screen"));
+        let (cx, cy) = ((r[0] + r[2] / 2).to_string(), (r[1] + r[3] / 2).to_string());
+        xdotool(&x, &["mousemove", "--window", &v.window, &cx, &cy]);
+        std::thread::sleep(Duration::from_millis(300));
+        xdotool(&x, &["click", "1"]);
+        std::thread::sleep(Duration::from_millis(300));
+    };
+    click("open-path");
+    xdotool(&x, &["type", "--delay", "20", bad.to_str().expect("utf-8")]);
+    std::thread::sleep(Duration::from_millis(300));
+    click("open-button");
+    let message = v.expect(&format!("message: {}", bad.display()));
+    assert!(
+        message.contains("broken.nrrd") && !message.contains('\n') && message.len() < 400,
+        "{message}"
+    );
+    let after = rgb(&v.screenshot(&x));
+    let (mean, max) = difference(&before, &after);
+    assert!(
+        mean == 0.0 && max == 0,
+        "the volume on screen changed after a failed load"
+    );
+    v.close(&x);
+}

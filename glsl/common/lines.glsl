@@ -12,7 +12,15 @@ struct LinesPush {
     float cos_c;                 // cos θ_c
     float derivative_threshold;  // t_d
     uint capacity;               // segments the buffer holds
+    uint cell_capacity;          // cells the straddling-cell list holds
+    uint pad0;
+    uint pad1;
+    uint pad2;
 };
+
+// Most workgroups an indirect dispatch of the line passes asks for (the smallest
+// maxComputeWorkGroupCount[0] Vulkan allows); the shaders stride over the rest.
+#define LINES_MAX_GROUPS 65535u
 
 // Push constants of the line rasteriser (twin: `RasterPush` in src/passes/lines.rs).
 struct RasterPush {

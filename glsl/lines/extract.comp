@@ -4,7 +4,8 @@
 // src/volume/lines.rs, which documents the method; the arithmetic follows it step by step.
 #include "lines.glsl"
 
-layout(local_size_x = 4, local_size_y = 4, local_size_z = 4) in;
+// One straddling cell per invocation, from the list cells.comp made.
+layout(local_size_x = 64) in;
 
 // The normalised volume: the renderer's R16 texture or an R32F upload, read texel by texel.
 layout(set = 0, binding = 0) uniform sampler3D volume;
@@ -23,6 +24,14 @@ layout(set = 0, binding = 1) buffer Lines {
     uint one_z;
     uint count;
     Segment segs[];
+};
+
+layout(set = 0, binding = 2) readonly buffer Cells {
+    uint cell_groups;
+    uint cell_one_y;
+    uint cell_one_z;
+    uint cell_count;
+    uint cells[];
 };
 
 layout(push_constant) uniform Push { LinesPush pc; };
@@ -124,11 +133,7 @@ void triangle(Point t[3]) {
 const ivec4 TETS[6] = ivec4[6](ivec4(0, 1, 3, 7), ivec4(0, 1, 5, 7), ivec4(0, 2, 3, 7),
                                ivec4(0, 2, 6, 7), ivec4(0, 4, 5, 7), ivec4(0, 4, 6, 7));
 
-void main() {
-    ivec3 c = ivec3(gl_GlobalInvocationID) * pc.stride;
-    if (any(greaterThanEqual(c, pc.dims - 1))) {
-        return;
-    }
+void extract_cell(ivec3 c) {
     float f[8];
     int inside = 0;
     for (int i = 0; i < 8; ++i) {
@@ -217,5 +222,14 @@ void main() {
             triangle(t0);
             triangle(t1);
         }
+    }
+}
+
+void main() {
+    uint n = min(cell_count, pc.cell_capacity);
+    for (uint id = gl_GlobalInvocationID.x; id < n; id += LINES_MAX_GROUPS * 64u) {
+        uint k = cells[id];
+        uint dx = uint(pc.dims.x), dy = uint(pc.dims.y);
+        extract_cell(ivec3(int(k % dx), int((k / dx) % dy), int(k / (dx * dy))));
     }
 }

@@ -1,7 +1,15 @@
 //! Object-space lines on compute (SPEC TL5, issue 11): silhouettes and suggestive contours of
-//! f = τ, one cell per invocation, appended to a bounded buffer through an atomic counter. The
-//! method and its CPU twin are in `volume::lines`; `glsl/lines/extract.comp` follows it step by
-//! step, so the two segment sets agree to float round-off.
+//! f = τ, appended to a bounded buffer through an atomic counter. The method and its CPU twin are
+//! in `volume::lines`; `glsl/lines/extract.comp` follows it step by step, so the two segment sets
+//! agree to float round-off.
+//!
+//! Two passes, so that the cost follows the cells near τ rather than the volume:
+//! `glsl/lines/cells.comp` visits every cell with 8 texel fetches and compacts those whose
+//! corners straddle τ into a list, whose header is the indirect dispatch of `extract.comp`; that
+//! one then runs the per-vertex derivatives and the marching tetrahedra on dense workgroups of
+//! surface cells only. The list holds every visited cell up to one storage binding's reach
+//! (`maxStorageBufferRange`, 33 M cells on lavapipe); it is grown with the volume, never per
+//! frame.
 //!
 //! The buffer holds at most `capacity` segments. The counter keeps counting past it, so an
 //! overflow is reported with the number of segments lost, and memory is never overrun.
@@ -33,6 +41,9 @@ pub struct LinesPush {
     pub cos_c: f32,
     pub derivative_threshold: f32,
     pub capacity: u32,
+    /// Cells the straddling-cell list holds.
+    pub cell_capacity: u32,
+    pub _pad: [u32; 3],
 }
 
 /// Push constants of `raster` (GLSL twin: `RasterPush` in lines.glsl).
@@ -121,6 +132,11 @@ impl LineBuffer {
 /// The extraction and drawing pipelines.
 pub struct LineExtractor {
     ctx: Arc<Context>,
+    /// Pass 1: the cells that straddle τ, compacted into `cells`.
+    cells_pass: ComputePipeline,
+    /// The straddling-cell list (16-byte header = the indirect dispatch of `extract`), grown to
+    /// the largest volume seen, never per frame.
+    cells: std::sync::Mutex<Option<Buffer>>,
     extract: ComputePipeline,
     raster: ComputePipeline,
     nearest: Sampler,
@@ -220,10 +236,21 @@ impl LineExtractor {
     pub fn new(ctx: &Arc<Context>) -> Result<Self> {
         Ok(LineExtractor {
             ctx: ctx.clone(),
+            cells_pass: ComputePipeline::new(
+                ctx,
+                "lines/cells.comp",
+                &[BindingKind::SampledImage, BindingKind::StorageBuffer],
+                std::mem::size_of::<LinesPush>() as u32,
+            )?,
+            cells: std::sync::Mutex::new(None),
             extract: ComputePipeline::new(
                 ctx,
                 "lines/extract.comp",
-                &[BindingKind::SampledImage, BindingKind::StorageBuffer],
+                &[
+                    BindingKind::SampledImage,
+                    BindingKind::StorageBuffer,
+                    BindingKind::StorageBuffer,
+                ],
                 std::mem::size_of::<LinesPush>() as u32,
             )?,
             raster: ComputePipeline::new(
@@ -311,24 +338,72 @@ impl LineExtractor {
         };
         let s = params.stride.max(1);
         let cells = dims.map(|d| (d.saturating_sub(1) as u32).div_ceil(s));
-        self.extract.dispatch(
+        let visited: u64 = cells.iter().map(|&c| c as u64).product();
+        if dims.iter().map(|&d| d as u64).product::<u64>() > u32::MAX as u64 {
+            return Err(Error::Invalid(format!(
+                "a {}x{}x{} volume has more voxels than line extraction can index (2^32)",
+                dims[0], dims[1], dims[2]
+            )));
+        }
+        // The list holds every visited cell up to what one storage binding may address; a
+        // surface crossing more cells than that (hundreds of millions) loses the rest, counted.
+        let max_cells = (ctx.info.max_storage_buffer_range as u64 - HEADER) / 4;
+        let cell_capacity = visited.clamp(1, max_cells) as u32;
+        let mut guard = self.cells.lock().unwrap_or_else(|p| p.into_inner());
+        let needed = HEADER + 4 * cell_capacity as u64;
+        if guard.as_ref().is_none_or(|b| b.size < needed) {
+            *guard = Some(Buffer::new(
+                ctx,
+                "line cells",
+                &BufferDesc {
+                    size: needed,
+                    usage: vk::BufferUsageFlags::STORAGE_BUFFER
+                        | vk::BufferUsageFlags::INDIRECT_BUFFER
+                        | vk::BufferUsageFlags::TRANSFER_DST
+                        | vk::BufferUsageFlags::TRANSFER_SRC,
+                    location: BufferLocation::Gpu,
+                },
+            )?);
+        }
+        let cell_list = guard.as_ref().expect("allocated above");
+        unsafe {
+            ctx.device
+                .cmd_update_buffer(cmd, cell_list.raw, 0, bytemuck::cast_slice(&HEADER_INIT))
+        };
+        memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
+        let push = LinesPush {
+            dims: dims.map(|d| d as i32),
+            stride: s as i32,
+            spacing,
+            iso: params.iso,
+            eye,
+            kinds: params.silhouettes as i32 | (params.suggestive as i32) << 1,
+            cos_c: params.min_angle_deg.to_radians().cos(),
+            derivative_threshold: params.derivative_threshold,
+            capacity: out.capacity,
+            cell_capacity,
+            _pad: [0; 3],
+        };
+        self.cells_pass.dispatch(
+            cmd,
+            &[
+                Bind::Sampled(values, &self.nearest),
+                Bind::StorageBuffer(cell_list),
+            ],
+            &push,
+            group_count(cells, [4, 4, 4]),
+        )?;
+        memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
+        self.extract.dispatch_indirect(
             cmd,
             &[
                 Bind::Sampled(values, &self.nearest),
                 Bind::StorageBuffer(&out.buffer),
+                Bind::StorageBuffer(cell_list),
             ],
-            &LinesPush {
-                dims: dims.map(|d| d as i32),
-                stride: s as i32,
-                spacing,
-                iso: params.iso,
-                eye,
-                kinds: params.silhouettes as i32 | (params.suggestive as i32) << 1,
-                cos_c: params.min_angle_deg.to_radians().cos(),
-                derivative_threshold: params.derivative_threshold,
-                capacity: out.capacity,
-            },
-            group_count(cells, [4, 4, 4]),
+            &push,
+            cell_list,
+            0,
         )?;
         profiler.end(cmd);
         Ok(())

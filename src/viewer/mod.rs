@@ -196,6 +196,7 @@ struct Running {
     view_rect: [u32; 4],
     show_panel: bool,
     last_layout: String,
+    last_message: String,
     last_present: Option<Instant>,
     frame_ms: Vec<f64>,
     gpu_history: Vec<Vec<(String, f64)>>,
@@ -526,6 +527,11 @@ impl Running {
             .join("vellum.scene.json")
             .to_string_lossy()
             .into_owned();
+        model.tf_path = opts
+            .screenshot_dir
+            .join("vellum.tf.json")
+            .to_string_lossy()
+            .into_owned();
         let home = loaded.scene.camera.clone();
         Ok(Running {
             frames,
@@ -560,6 +566,7 @@ impl Running {
             view_rect: [0; 4],
             show_panel: opts.bench_frames.is_none(),
             last_layout: String::new(),
+            last_message: String::new(),
             last_present: None,
             frame_ms: Vec::new(),
             gpu_history: Vec::new(),
@@ -1103,9 +1110,9 @@ impl Running {
         scene.save(path)
     }
 
-    /// With `VELLUM_VIEW_LAYOUT=1`, prints where the volume view and the transfer-function editor
-    /// are, in window pixels, whenever that changes: a hook for tests that drive the panels with
-    /// real X events.
+    /// With `VELLUM_VIEW_LAYOUT=1`, prints where the volume view and the named widgets
+    /// ([`Model::marks`]) are, in window pixels, and the panel's message line, whenever they
+    /// change: a hook for tests that drive the panels with real X events.
     fn print_layout(&mut self, view: [u32; 4], ppp: f32) {
         if std::env::var_os("VELLUM_VIEW_LAYOUT").is_none() {
             return;
@@ -1122,6 +1129,10 @@ impl Running {
         if line != self.last_layout {
             println!("{line}");
             self.last_layout = line;
+        }
+        if self.model.message != self.last_message {
+            println!("message: {}", self.model.message);
+            self.last_message = self.model.message.clone();
         }
     }
 

@@ -46,6 +46,8 @@ pub struct Model {
     pub loading: Option<String>,
     pub open_path: String,
     pub scene_path: String,
+    /// Where the transfer function is loaded from and saved to (the project's TF JSON).
+    pub tf_path: String,
     pub log_histogram: bool,
     /// Selected control point of the TF editor.
     pub selected: Option<usize>,
@@ -102,6 +104,7 @@ impl Model {
             loading: None,
             open_path: String::new(),
             scene_path: "vellum.scene.json".into(),
+            tf_path: "vellum.tf.json".into(),
             log_histogram: true,
             selected: None,
             shift: 0.0,
@@ -124,6 +127,17 @@ impl Model {
             recompute_occlusion: false,
             occlusion_params_changed: false,
         }
+    }
+
+    /// Replaces the transfer function with `tf`, named in the scene as `name` (a preset or a file).
+    fn set_tf(&mut self, tf: TransferFunction, name: &str) {
+        self.tf = tf.clone();
+        self.tf_base = tf;
+        self.tf_edited = false;
+        self.shift = 0.0;
+        self.scale = 1.0;
+        self.selected = None;
+        self.scene.classification = ClassificationSpec::Transfer(name.to_string());
     }
 
     /// Applies shift and scale to `tf_base` (x' = (x − 0.5)·scale + 0.5 + shift, clamped).
@@ -235,11 +249,14 @@ fn files(ui: &mut egui::Ui, m: &mut Model) {
         m.scene.input.path, m.dims[0], m.dims[1], m.dims[2], m.range[0], m.range[1]
     ));
     ui.horizontal(|ui| {
-        ui.add(
+        let field = ui.add(
             egui::TextEdit::singleline(&mut m.open_path)
                 .hint_text("file, DICOM folder or phantom:NAME:N"),
         );
-        if ui.button("Open").clicked() && !m.open_path.trim().is_empty() {
+        let button = ui.button("Open");
+        m.marks.insert("open-path".into(), field.rect);
+        m.marks.insert("open-button".into(), button.rect);
+        if button.clicked() && !m.open_path.trim().is_empty() {
             m.requests.open = Some(m.open_path.trim().to_string());
         }
     });
@@ -353,13 +370,7 @@ fn transfer(ui: &mut egui::Ui, m: &mut Model) {
                 for p in PRESETS {
                     if ui.selectable_label(false, *p).clicked() {
                         if let Ok(tf) = TransferFunction::preset(p) {
-                            m.tf = tf.clone();
-                            m.tf_base = tf;
-                            m.tf_edited = false;
-                            m.shift = 0.0;
-                            m.scale = 1.0;
-                            m.selected = None;
-                            m.scene.classification = ClassificationSpec::Transfer(p.to_string());
+                            m.set_tf(tf, p);
                         }
                     }
                 }
@@ -393,6 +404,34 @@ fn transfer(ui: &mut egui::Ui, m: &mut Model) {
         });
     }
     ui.label("Click to add a point, drag to move it (opacity is the height), right click deletes.");
+    ui.horizontal(|ui| {
+        ui.add(egui::TextEdit::singleline(&mut m.tf_path).hint_text("tf.json"));
+        if ui.button("Load").clicked() {
+            match TransferFunction::load(std::path::Path::new(&m.tf_path)) {
+                Ok(tf) => {
+                    let path = m.tf_path.clone();
+                    m.set_tf(tf, &path);
+                    m.message = format!("loaded the transfer function {}", m.tf_path);
+                }
+                Err(e) => m.message = e.to_string(),
+            }
+        }
+        if ui.button("Save").clicked() {
+            let json = m.tf.to_json();
+            let path = std::path::PathBuf::from(&m.tf_path);
+            m.message = match crate::output::write_atomic(&path, |w| {
+                use std::io::Write;
+                writeln!(w, "{json}")
+            }) {
+                Ok(()) => {
+                    m.scene.classification = ClassificationSpec::Transfer(m.tf_path.clone());
+                    m.tf_edited = false;
+                    format!("saved the transfer function to {}", m.tf_path)
+                }
+                Err(e) => e.to_string(),
+            };
+        }
+    });
 }
 
 /// The TF was edited directly: the edit becomes the new base of shift and scale.
