@@ -43,7 +43,9 @@ pub struct LinesPush {
     pub capacity: u32,
     /// Cells the straddling-cell list holds.
     pub cell_capacity: u32,
-    pub _pad: [u32; 3],
+    pub pad0: u32,
+    pub pad1: u32,
+    pub pad2: u32,
 }
 
 /// Push constants of `raster` (GLSL twin: `RasterPush` in lines.glsl).
@@ -382,7 +384,9 @@ impl LineExtractor {
             derivative_threshold: params.derivative_threshold,
             capacity: out.capacity,
             cell_capacity,
-            _pad: [0; 3],
+            pad0: 0,
+            pad1: 0,
+            pad2: 0,
         };
         self.cells_pass.dispatch(
             cmd,
@@ -484,7 +488,11 @@ mod tests {
                 kinds,
                 cos_c,
                 derivative_threshold,
-                capacity
+                capacity,
+                cell_capacity,
+                pad0,
+                pad1,
+                pad2
             ]
         );
     }
