@@ -396,6 +396,9 @@ struct StylesArgs {
     /// Background colour as R,G,B in 0..1.
     #[arg(long, default_value = "0,0,0", allow_hyphen_values = true)]
     background: String,
+    /// Colour of the edges and lines of every style, as R,G,B in 0..1 [default: 0,0,0].
+    #[arg(long, value_name = "R,G,B", allow_hyphen_values = true)]
+    edge_color: Option<String>,
     /// The contact sheet (PNG).
     #[arg(long)]
     out: PathBuf,
@@ -1928,7 +1931,13 @@ fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
         &ctx,
         &mut scene,
         &view,
-        vellum::render::style::StyleParams::default(),
+        {
+            let mut p = vellum::render::style::StyleParams::default();
+            if let Some(c) = &a.edge_color {
+                p.edge_color = parse_rgb("--edge-color", c)?;
+            }
+            p
+        },
         background,
         a.saliency,
     )?;
