@@ -306,6 +306,43 @@ pub fn begin_rendering(
         .map(|(img, load)| attachment(img, *load, Access::ColorAttachment))
         .collect();
     let depth_info = depth.map(|(img, load)| attachment(img, load, Access::DepthAttachment));
+    open_scope(
+        ctx,
+        cmd,
+        [extent[0], extent[1]],
+        &color_infos,
+        depth_info.as_ref(),
+    );
+}
+
+/// Opens a dynamic-rendering scope over one colour view that is not an [`Image`] (a swapchain's),
+/// already in COLOR_ATTACHMENT_OPTIMAL, cleared to `clear`. Close it with [`end_rendering`].
+pub fn begin_rendering_view(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    view: vk::ImageView,
+    extent: [u32; 2],
+    clear: [f32; 4],
+) {
+    let color = [vk::RenderingAttachmentInfo::default()
+        .image_view(view)
+        .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::CLEAR)
+        .store_op(vk::AttachmentStoreOp::STORE)
+        .clear_value(vk::ClearValue {
+            color: vk::ClearColorValue { float32: clear },
+        })];
+    open_scope(ctx, cmd, extent, &color, None);
+}
+
+/// `cmd_begin_rendering` over `extent` with these attachments.
+fn open_scope(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    extent: [u32; 2],
+    color_infos: &[vk::RenderingAttachmentInfo],
+    depth_info: Option<&vk::RenderingAttachmentInfo>,
+) {
     let mut info = vk::RenderingInfo::default()
         .render_area(vk::Rect2D {
             offset: vk::Offset2D::default(),
@@ -315,8 +352,8 @@ pub fn begin_rendering(
             },
         })
         .layer_count(1)
-        .color_attachments(&color_infos);
-    if let Some(d) = depth_info.as_ref() {
+        .color_attachments(color_infos);
+    if let Some(d) = depth_info {
         info = info.depth_attachment(d);
     }
     unsafe { ctx.device.cmd_begin_rendering(cmd, &info) };

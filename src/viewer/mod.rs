@@ -16,8 +16,8 @@ mod ui;
 use crate::classify::transfer::TransferFunction;
 use crate::classify::Classification;
 use crate::error::{Error, Result};
-use crate::gpu::graphics::{GraphicsDesc, GraphicsPipeline};
-use crate::gpu::swapchain::{Acquired, Swapchain};
+use crate::gpu::graphics::{begin_rendering_view, end_rendering, GraphicsDesc, GraphicsPipeline};
+use crate::gpu::swapchain::Swapchain;
 use crate::gpu::{
     Access, Bind, BindingKind, Context, ContextDesc, Frames, FramesDesc, Presentation, Sampler,
     SubmitSync,
@@ -939,7 +939,8 @@ impl Running {
                 c.transition(f.cmd, Access::FragmentSampled);
             }
             swapchain.record_begin(f.cmd, &image);
-            begin_swapchain_rendering(ctx, f.cmd, &image, extent, background);
+            let [r, g, b] = background;
+            begin_rendering_view(ctx, f.cmd, image.view, extent, [r, g, b, 1.0]);
             if let Some(c) = composite {
                 let push: [f32; 8] = [
                     background[0],
@@ -978,7 +979,7 @@ impl Running {
                     &primitives,
                 )
                 .map_err(|e| Error::Invalid(format!("drawing egui: {e}")))?;
-            unsafe { ctx.device.cmd_end_rendering(f.cmd) };
+            end_rendering(ctx, f.cmd);
             swapchain.record_end(f.cmd, &image);
             Ok((
                 (),
@@ -1196,37 +1197,6 @@ impl Running {
             gpu_ms,
         }
     }
-}
-
-/// Opens dynamic rendering on a swapchain image, cleared to the background.
-fn begin_swapchain_rendering(
-    ctx: &Context,
-    cmd: vk::CommandBuffer,
-    image: &Acquired,
-    extent: [u32; 2],
-    background: [f32; 3],
-) {
-    let attachment = [vk::RenderingAttachmentInfo::default()
-        .image_view(image.view)
-        .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
-        .load_op(vk::AttachmentLoadOp::CLEAR)
-        .store_op(vk::AttachmentStoreOp::STORE)
-        .clear_value(vk::ClearValue {
-            color: vk::ClearColorValue {
-                float32: [background[0], background[1], background[2], 1.0],
-            },
-        })];
-    let info = vk::RenderingInfo::default()
-        .render_area(vk::Rect2D {
-            offset: vk::Offset2D::default(),
-            extent: vk::Extent2D {
-                width: extent[0],
-                height: extent[1],
-            },
-        })
-        .layer_count(1)
-        .color_attachments(&attachment);
-    unsafe { ctx.device.cmd_begin_rendering(cmd, &info) };
 }
 
 /// The first free `vellum-NNNN.png` in `dir`.
