@@ -20,7 +20,23 @@ layout(set = 0, binding = 7) readonly buffer ImportanceMax { uint max_abs_bits; 
 // The ray caster sets the sample's position before each call.
 vec3 tex;
 vec3 world;
+// The ray caster is specialised per frame set-up (render/raycast.rs, `Variant`): a CPU rasteriser
+// runs both sides of every branch its lanes diverge on, and cannot skip one whose condition is a
+// uniform, so features a frame does not use are compiled out instead of branched around. Each bit
+// enables code that still checks its uniform, so a set bit is never wrong, only slower.
+layout(constant_id = 0) const uint VARIANT = 0xffffffffu;
+const bool V_TWO_LEVEL = (VARIANT & 1u) != 0u;
+const bool V_SKIP_EMPTY = (VARIANT & 2u) != 0u;
+const bool V_JITTER = (VARIANT & 4u) != 0u;
+const bool V_REFINE_ISO = (VARIANT & 8u) != 0u;
+const bool V_WORLD_STEPS = (VARIANT & 16u) != 0u;
+const bool V_OTF = (VARIANT & 32u) != 0u;
+const bool V_MOD_OPACITY = (VARIANT & 64u) != 0u;
+const bool V_MOD_SHADE = (VARIANT & 128u) != 0u;
 #else
+const bool V_OTF = true;
+const bool V_MOD_OPACITY = true;
+const bool V_MOD_SHADE = true;
 layout(location = 0) in vec3 tex;
 layout(location = 1) in vec3 world;
 #endif
@@ -50,10 +66,13 @@ float importance_n(float delta_d) {
 // for the slice spacing (material.w = spacing / voxel). focus.w = 1: the occlusion transfer
 // function replaces the 1D one.
 vec4 classify(float s, bool focus) {
-    vec4 rgba = u.focus.w > 0.5
-        ? textureLod(occlusion_tf, occlusion_tf_coord(s, textureLod(occlusion, tex, 0.0).r), 0.0)
-        : textureLod(transfer, vec2(s, 0.5), 0.0);
-    if (u.mod_flags.y != 0 && modulated(focus)) {
+    vec4 rgba;
+    if (V_OTF && u.focus.w > 0.5) {
+        rgba = textureLod(occlusion_tf, occlusion_tf_coord(s, textureLod(occlusion, tex, 0.0).r), 0.0);
+    } else {
+        rgba = textureLod(transfer, vec2(s, 0.5), 0.0);
+    }
+    if (V_MOD_OPACITY && u.mod_flags.y != 0 && modulated(focus)) {
         rgba.a = modulate_opacity(rgba.a, importance_n(textureLod(importance, tex, 0.0).r), u.mod_opacity);
     }
     return classify_sample(rgba, u.material.w, focus, u.focus);
@@ -65,7 +84,7 @@ vec4 classify(float s, bool focus) {
 void shade(vec3 rgb, bool focus, out vec3 phong, out vec3 diffuse) {
     vec3 to_eye = u.view_dir.w > 0.5 ? -u.view_dir.xyz : normalize(u.eye.xyz - world);
     shade_phong(rgb, textureLod(gradient, tex, 0.0), u.light.xyz, to_eye, u.material, u.light.w, phong, diffuse);
-    if (!modulated(focus)) {
+    if (!V_MOD_SHADE || !modulated(focus)) {
         return;
     }
     float delta_d = textureLod(importance, tex, 0.0).r;

@@ -36,6 +36,7 @@
 
 use crate::error::{Error, Result};
 use crate::gpu::{BindingKind, ComputePipeline, Context};
+use crate::render::slicer::SliceUniforms;
 use std::sync::Arc;
 
 /// The ray caster's options.
@@ -148,14 +149,84 @@ pub const RAY_BINDINGS: [BindingKind; 14] = {
 /// Workgroup size of `raycast.comp`.
 pub const LOCAL: [u32; 3] = [8, 8, 1];
 
-/// Builds the ray caster's pipeline.
-pub fn pipeline(ctx: &Arc<Context>) -> Result<ComputePipeline> {
-    ComputePipeline::new(
-        ctx,
-        "render/raycast.comp",
-        &RAY_BINDINGS,
-        std::mem::size_of::<RayPush>() as u32,
-    )
+/// Per texel i of a 256-texel transfer function, the larger opacity of texels i and i + 1: a
+/// bound on every opacity linear filtering returns for intensities between their centres (and
+/// below the first centre or above the last, where it clamps). The ray caster's walk tests samples
+/// against it before classifying them.
+pub fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
+    let mut out = [0.0f32; 256];
+    let n = table.len();
+    for (i, o) in out.iter_mut().enumerate() {
+        let a = |j: usize| table.get(j.min(n.saturating_sub(1))).map_or(0.0, |t| t[3]);
+        *o = a(i).max(a(i + 1));
+    }
+    out
+}
+
+/// The bits of `raycast.comp`'s specialisation constant `VARIANT` (`shade.glsl`).
+///
+/// A CPU rasteriser such as lavapipe runs both sides of every branch its SIMD lanes could diverge
+/// on, and does not skip a block whose condition is a uniform that happens to be false: a frame
+/// without occlusion TFs still paid for their two texture fetches at every sample. So the ray
+/// caster is compiled per set-up, with what a frame does not use left out. Modes (two levels,
+/// world steps) select code; the other bits enable code that still tests its uniform, so setting
+/// one is never wrong, only slower.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct Variant(pub u32);
+
+impl Variant {
+    pub const TWO_LEVEL: u32 = 1;
+    pub const SKIP_EMPTY: u32 = 2;
+    pub const JITTER: u32 = 4;
+    pub const REFINE_ISO: u32 = 8;
+    pub const WORLD_STEPS: u32 = 16;
+    pub const OTF: u32 = 32;
+    pub const MOD_OPACITY: u32 = 64;
+    pub const MOD_SHADE: u32 = 128;
+
+    /// The variant for a frame with these options, level mode and uniforms.
+    pub fn of(options: &RayOptions, two_level: bool, uniforms: &SliceUniforms) -> Self {
+        let bits = [
+            (two_level, Self::TWO_LEVEL),
+            (options.skip_empty, Self::SKIP_EMPTY),
+            (options.jitter.is_some(), Self::JITTER),
+            (options.refine_iso && two_level, Self::REFINE_ISO),
+            (options.sampling == Sampling::WorldSteps, Self::WORLD_STEPS),
+            (uniforms.focus[3] > 0.5, Self::OTF),
+            (uniforms.mod_flags[1] != 0, Self::MOD_OPACITY),
+            (uniforms.mod_flags[3] != 0, Self::MOD_SHADE),
+        ];
+        Variant(bits.iter().filter(|(on, _)| *on).map(|(_, b)| b).sum())
+    }
+}
+
+/// The ray caster's pipelines, one per variant, built when a frame first needs one and kept.
+/// At most 256 exist; a session uses a handful.
+#[derive(Default)]
+pub struct RayPipelines {
+    built: std::sync::Mutex<std::collections::HashMap<Variant, Arc<ComputePipeline>>>,
+}
+
+impl RayPipelines {
+    /// The pipeline of `variant`, built on first use.
+    pub fn get(&self, ctx: &Arc<Context>, variant: Variant) -> Result<Arc<ComputePipeline>> {
+        let mut built = self
+            .built
+            .lock()
+            .map_err(|_| Error::Invalid("the ray caster's pipeline cache was poisoned".into()))?;
+        if let Some(p) = built.get(&variant) {
+            return Ok(p.clone());
+        }
+        let p = Arc::new(ComputePipeline::with_constants(
+            ctx,
+            "render/raycast.comp",
+            &RAY_BINDINGS,
+            std::mem::size_of::<RayPush>() as u32,
+            &[variant.0],
+        )?);
+        built.insert(variant, p.clone());
+        Ok(p)
+    }
 }
 
 #[cfg(test)]
@@ -165,6 +236,56 @@ mod tests {
     #[test]
     fn push_constants_fit_the_guaranteed_minimum() {
         assert!(std::mem::size_of::<RayPush>() <= 128);
+    }
+
+    #[test]
+    fn opacity_bounds_cover_linear_filtering() {
+        // A ramp from texel 100 to 110 and one spike at 200.
+        let table: Vec<[f32; 4]> = (0..256)
+            .map(|i| {
+                let a = match i {
+                    100..=110 => (i - 99) as f32 / 11.0,
+                    111..=199 => 1.0,
+                    200 => 0.5,
+                    _ => 0.0,
+                };
+                [1.0, 1.0, 1.0, a]
+            })
+            .collect();
+        let b = opacity_bounds(&table);
+        // Every value filtering can return between texel centres i and i + 1 is at most b[i].
+        for i in 0..256usize {
+            for k in 0..=8 {
+                let w = k as f32 / 8.0;
+                let j = (i + 1).min(255);
+                let filtered = table[i][3] * (1.0 - w) + table[j][3] * w;
+                assert!(filtered <= b[i], "texel {i}, weight {w}");
+            }
+        }
+        assert_eq!(b[98], 0.0);
+        assert_eq!(b[99], table[100][3]);
+        assert_eq!(b[199], 1.0);
+        assert_eq!(b[201], 0.0);
+        assert_eq!(b[255], 0.0);
+    }
+
+    #[test]
+    fn variants_follow_the_frame() {
+        let mut u: SliceUniforms = bytemuck::Zeroable::zeroed();
+        let o = RayOptions::default();
+        assert_eq!(Variant::of(&o, false, &u).0, Variant::SKIP_EMPTY);
+        u.focus[3] = 1.0;
+        u.mod_flags = [1, 1, 0, 3];
+        let o = RayOptions {
+            jitter: Some(3),
+            refine_iso: true,
+            sampling: Sampling::WorldSteps,
+            skip_empty: false,
+            ..Default::default()
+        };
+        assert_eq!(Variant::of(&o, true, &u).0, 0xff & !Variant::SKIP_EMPTY);
+        // Refinement only exists in two levels.
+        assert_eq!(Variant::of(&o, false, &u).0 & Variant::REFINE_ISO, 0);
     }
 
     #[test]

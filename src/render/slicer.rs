@@ -224,7 +224,7 @@ pub struct Renderer {
     /// The style passes, built on the first styled frame.
     post: std::sync::OnceLock<Post>,
     /// The ray caster, built on the first ray-cast frame.
-    raycaster: std::sync::OnceLock<crate::gpu::ComputePipeline>,
+    raycaster: crate::render::raycast::RayPipelines,
     /// Object-space line extraction and its segment buffer, built on the first frame of a style
     /// with lines.
     lines: std::sync::OnceLock<(
@@ -342,7 +342,7 @@ impl Renderer {
                 &[0u8; 4],
             )?,
             post: std::sync::OnceLock::new(),
-            raycaster: std::sync::OnceLock::new(),
+            raycaster: Default::default(),
             lines: std::sync::OnceLock::new(),
             last_lines: std::sync::Mutex::new(None),
         })
@@ -485,9 +485,6 @@ impl Renderer {
         let raycast = view.raycast;
         if let Some(r) = &raycast {
             r.validate()?;
-            if self.raycaster.get().is_none() {
-                let _ = self.raycaster.set(crate::render::raycast::pipeline(ctx)?);
-            }
         }
         let (near, far) = depth_span(half, view_dir.normalize());
         let (proxy, focus_proxy) = match raycast {
@@ -543,11 +540,14 @@ impl Renderer {
             )),
             None => None,
         };
-        // Per-brick flags for the ray caster's empty-space skipping.
+        // The ray caster's tables: opacity bounds per TF texel pair, then per-brick flags for
+        // empty-space skipping (`raycast.comp`, `RayTables`).
         let brick_flags = match raycast {
             Some(_) => {
-                let flags: Vec<u32> = (0..bricks.range.len())
-                    .map(|b| {
+                let flags: Vec<u32> = crate::render::raycast::opacity_bounds(table)
+                    .into_iter()
+                    .map(f32::to_bits)
+                    .chain((0..bricks.range.len()).map(|b| {
                         let v = if visible[b] { BRICK_VISIBLE } else { 0 };
                         let f = if may_focus(&bricks.range[b], focus_n) {
                             BRICK_FOCUS
@@ -555,7 +555,7 @@ impl Renderer {
                             0
                         };
                         v | f
-                    })
+                    }))
                     .collect();
                 Some(frame.staging.push(bytemuck::cast_slice(&flags), 256)?)
             }
@@ -643,7 +643,8 @@ impl Renderer {
                                 << 1,
                     ],
                 };
-                let pipeline = self.raycaster.get().expect("built above");
+                let variant = crate::render::raycast::Variant::of(&r, !one_pass, &uniforms);
+                let pipeline = self.raycaster.get(ctx, variant)?;
                 let groups =
                     crate::gpu::pipeline::group_count([w, h, 1], crate::render::raycast::LOCAL);
                 profiler.begin(cmd, "raycast");

@@ -56,8 +56,10 @@ pub struct ViewOptions {
     pub screenshot_on_exit: Option<PathBuf>,
     /// Present with vsync (FIFO); off picks MAILBOX or IMMEDIATE where offered.
     pub vsync: bool,
-    /// Orbit this many frames at full quality, report the frame times, and close.
+    /// Orbit this many frames, report the frame times, and close.
     pub bench_frames: Option<u32>,
+    /// Orbit at full resolution; otherwise at the interactive resolution of a drag.
+    pub bench_full: bool,
 }
 
 /// Frame times of a `--bench` orbit.
@@ -66,6 +68,10 @@ pub struct BenchReport {
     pub device: String,
     pub input: String,
     pub size: [u32; 2],
+    /// "interactive" (adaptive quality while the camera moves) or "full".
+    pub quality: &'static str,
+    /// The size the volume was rendered at (the view's, or half of it while interacting).
+    pub render_size: [u32; 2],
     pub frames: usize,
     pub fps: f64,
     pub p50_ms: f64,
@@ -201,6 +207,7 @@ struct Running {
     frame_ms: Vec<f64>,
     gpu_history: Vec<Vec<(String, f64)>>,
     bench_left: Option<u32>,
+    bench_full: bool,
     errors_in_a_row: u32,
     window: Arc<Window>,
     ctx: Arc<Context>,
@@ -571,6 +578,7 @@ impl Running {
             frame_ms: Vec::new(),
             gpu_history: Vec::new(),
             bench_left: opts.bench_frames,
+            bench_full: opts.bench_full,
             errors_in_a_row: 0,
             window,
             ctx,
@@ -879,8 +887,10 @@ impl Running {
         }
         self.apply()?;
         let full = self.screenshot.is_some()
-            || self.bench_left.is_some()
-            || self.last_change.elapsed() >= REFINE_AFTER;
+            || match self.bench_left {
+                Some(_) => self.bench_full,
+                None => self.last_change.elapsed() >= REFINE_AFTER,
+            };
         let extent = self.swapchain.extent;
 
         let view_size = [rect[2], rect[3]];
@@ -1189,6 +1199,12 @@ impl Running {
             device: self.ctx.info.name.clone(),
             input: self.model.scene.input.path.clone(),
             size: self.view_size(),
+            quality: if self.bench_full {
+                "full"
+            } else {
+                "interactive"
+            },
+            render_size: self.model.render_size,
             frames: ms.len(),
             fps: 1e3 / mean,
             p50_ms: pct(0.5),

@@ -355,9 +355,16 @@ struct ViewArgs {
     /// Present without waiting for vertical blank (MAILBOX or IMMEDIATE where offered).
     #[arg(long)]
     no_vsync: bool,
-    /// Orbit N frames at full quality, print the frame rate and frame-time percentiles, and close.
+    /// Renderer: slicer or raycast [default: the scene file's; without one, raycast with jitter].
+    #[arg(long, value_name = "slicer|raycast")]
+    renderer: Option<String>,
+    /// Orbit N frames as a user's drag does (adaptive quality: half resolution while the camera
+    /// moves), print the frame rate and frame-time percentiles, and close.
     #[arg(long, value_name = "N")]
     bench: Option<u32>,
+    /// With --bench: orbit at full resolution instead.
+    #[arg(long)]
+    bench_full: bool,
     /// With --bench: print the report as JSON.
     #[arg(long)]
     json: bool,
@@ -1818,11 +1825,34 @@ fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
 fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
     let mut scene = match &a.scene {
         Some(path) => Scene::load(path)?,
-        None => Scene::new(InputSpec {
-            path: "phantom:shepp-logan:128".into(),
-            raw: None,
-        }),
+        None => {
+            let mut s = Scene::new(InputSpec {
+                path: "phantom:shepp-logan:128".into(),
+                raw: None,
+            });
+            // The window's default: the ray caster, the faster renderer (BENCHMARKS.md), with
+            // jitter against slicing rings.
+            s.raycast = Some(vellum::render::raycast::RayOptions {
+                jitter: Some(1),
+                ..Default::default()
+            });
+            s
+        }
     };
+    match a.renderer.as_deref() {
+        None => {}
+        Some("slicer") => scene.raycast = None,
+        Some("raycast") if scene.raycast.is_none() => {
+            scene.raycast = Some(vellum::render::raycast::RayOptions {
+                jitter: Some(1),
+                ..Default::default()
+            });
+        }
+        Some("raycast") => {}
+        Some(other) => {
+            anyhow::bail!("--renderer {other:?} is unknown; expected slicer or raycast")
+        }
+    }
     if let Some(input) = &a.input {
         scene.input = InputSpec {
             path: input.clone(),
@@ -1845,6 +1875,10 @@ fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
     anyhow::ensure!(
         a.json <= a.bench.is_some(),
         "--json prints the report of --bench N; add --bench"
+    );
+    anyhow::ensure!(
+        a.bench_full <= a.bench.is_some(),
+        "--bench-full changes the orbit of --bench N; add --bench"
     );
     if let Some(p) = &a.screenshot_on_exit {
         vellum::output::check_extension(p, &["png"], "a PNG image")?;
@@ -1869,14 +1903,15 @@ fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
         screenshot_on_exit: a.screenshot_on_exit.clone(),
         vsync: !a.no_vsync,
         bench_frames: a.bench.map(|n| n + 5),
+        bench_full: a.bench_full,
     })?;
     if let Some(r) = report {
         if a.json {
             println!("{}", serde_json::to_string_pretty(&r)?);
         } else {
             println!(
-                "{} at {}x{} on {}: {:.1} fps over {} frames; frame time p50 {:.2} ms, p95 {:.2} ms, p99 {:.2} ms",
-                r.input, r.size[0], r.size[1], r.device, r.fps, r.frames, r.p50_ms, r.p95_ms, r.p99_ms
+                "{} at {}x{} ({} quality, rendered at {}x{}) on {}: {:.1} fps over {} frames; frame time p50 {:.2} ms, p95 {:.2} ms, p99 {:.2} ms",
+                r.input, r.size[0], r.size[1], r.quality, r.render_size[0], r.render_size[1], r.device, r.fps, r.frames, r.p50_ms, r.p95_ms, r.p99_ms
             );
             for (name, ms) in &r.gpu_ms {
                 println!("  {name:<14} {ms:>9.3} ms (median GPU)");
