@@ -113,6 +113,7 @@ fn start(x: &Xvfb, dir: &Path, args: &[&str]) -> Viewer {
         .env("VELLUM_VALIDATION", "1")
         .env("VELLUM_SYNC_VALIDATION", "1")
         .env("VELLUM_VIEW_LAYOUT", "1")
+        .env("VELLUM_VIEW_OCCLUSION_DELAY_MS", "3000")
         .env(
             "XDG_RUNTIME_DIR",
             std::env::var("XDG_RUNTIME_DIR").unwrap_or_else(|_| dir.display().to_string()),
@@ -454,6 +455,48 @@ fn occlusion_and_feature_editors_change_the_image() {
             .expect("the OTF is JSON");
     let regions = written["regions"].as_array().map_or(0, Vec::len);
     assert_eq!(regions, 3, "the example's two regions and the tagged one");
+
+    // Recomputing the occlusion runs on a worker (held back 3 s by the test hook): the window
+    // keeps drawing meanwhile, and the same radius gives the same picture afterwards.
+    v.layout();
+    let line = v.layout.borrow().clone();
+    let r = mark(&line, "recompute-occlusion").expect("the recompute button is on screen");
+    let (rx_, ry_) = ((r[0] + r[2] / 2).to_string(), (r[1] + r[3] / 2).to_string());
+    xdotool(&x, &["mousemove", "--window", w, &rx_, &ry_]);
+    std::thread::sleep(Duration::from_millis(300));
+    xdotool(&x, &["click", "1"]);
+    xdotool(&x, &["key", "s"]);
+    let during = loop {
+        let l = v.expect("");
+        assert!(
+            !l.starts_with("message: occlusion at R"),
+            "the occlusion finished before a frame was drawn while it ran: {l}"
+        );
+        if let Some(p) = l.strip_prefix("screenshot: ") {
+            break rgb(Path::new(p));
+        }
+    };
+    let done = loop {
+        let l = v.expect("message: ");
+        if l.contains("occlusion") {
+            break l;
+        }
+    };
+    assert!(
+        done.contains("recomputed") && done.contains("second device"),
+        "{done}"
+    );
+    let after = rgb(&v.screenshot(&x));
+    let (mean, max) = difference(&tagged, &during);
+    assert!(
+        mean < 0.5 && max <= 2,
+        "the frame during the recomputation changed ({mean:.3}, {max})"
+    );
+    let (mean, max) = difference(&tagged, &after);
+    assert!(
+        mean < 0.5 && max <= 8,
+        "the recomputed occlusion changed the image ({mean:.3}, {max})"
+    );
     v.close(&x);
     assert_render_matches(&saved, None, &tagged, dir.path());
 

@@ -518,6 +518,21 @@ pub struct GpuScene {
     pub spectrum: Option<crate::passes::occlusion::Spectrum>,
 }
 
+/// What an occlusion transfer function asks of the occlusion pass: its radius, mapping and
+/// stride, with the 256 × 256 spectrum the viewer's editor draws over.
+pub fn occlusion_params(otf: &crate::classify::otf::OcclusionTf) -> Result<OcclusionParams> {
+    let (visibility, neighbourhood) = parse_mapping(&otf.mapping)?;
+    Ok(OcclusionParams {
+        radius: otf.radius,
+        visibility,
+        neighbourhood,
+        stride: otf.effective_stride(),
+        spectrum_bins: Some([256, 256]),
+        method: Default::default(),
+        pad: None,
+    })
+}
+
 impl GpuScene {
     /// Uploads `v`, computes its normals (occlusion when the classification needs it, ΔD when
     /// `modulation` is active) in one submission, and creates the classification textures.
@@ -539,19 +554,10 @@ impl GpuScene {
                 let s = crate::volume::stats::stats(v, 0);
                 (feature_transfer_function(map, [s.min, s.max])?, None)
             }
-            Classification::Occlusion(otf) => {
-                let (visibility, neighbourhood) = parse_mapping(&otf.mapping)?;
-                let p = OcclusionParams {
-                    radius: otf.radius,
-                    visibility,
-                    neighbourhood,
-                    stride: otf.effective_stride(),
-                    spectrum_bins: Some([256, 256]),
-                    method: Default::default(),
-                    pad: None,
-                };
-                (TransferFunction::preset("grey")?, Some((otf.table()?, p)))
-            }
+            Classification::Occlusion(otf) => (
+                TransferFunction::preset("grey")?,
+                Some((otf.table()?, occlusion_params(otf)?)),
+            ),
         };
         let occlusion = match &otf {
             Some(_) => Some(Occlusion::new(ctx)?),

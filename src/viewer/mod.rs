@@ -112,6 +112,31 @@ struct App {
     report: Option<BenchReport>,
 }
 
+/// What a rendered frame depended on (see `Running::last_drawn`).
+#[derive(Clone, PartialEq)]
+struct DrawnKey {
+    view: crate::render::slicer::View,
+    scene: Scene,
+    tf: TransferFunction,
+    otf: Option<crate::classify::otf::OcclusionTf>,
+    epoch: u64,
+}
+
+/// An occlusion volume being recomputed on a worker thread. The worker opens its own Vulkan
+/// device (a second queue on the same GPU) and hands back the volume and spectrum on the host;
+/// this thread uploads them in one short submission. The window keeps rendering meanwhile, and
+/// no submission of the window's context ever happens off its thread, which the deferred release
+/// of gpu/lifetime.rs relies on.
+struct PendingOcclusion {
+    rx: mpsc::Receiver<Result<crate::passes::occlusion::OcclusionOutput>>,
+    radius: u32,
+    started: Instant,
+    generation: u64,
+    /// Frames presented while it ran, and the longest time between two of them.
+    frames: u32,
+    longest_ms: f64,
+}
+
 /// A volume loaded on a worker thread.
 struct Loaded {
     scene: Scene,
@@ -187,6 +212,13 @@ struct Running {
     egui_ctx: egui::Context,
     egui_state: egui_winit::State,
     pending_load: Option<mpsc::Receiver<Result<Loaded>>>,
+    /// The occlusion volume being recomputed on a worker thread.
+    pending_occlusion: Option<PendingOcclusion>,
+    /// Counts the volumes loaded, so that an occlusion volume computed for an earlier one is
+    /// dropped.
+    generation: u64,
+    /// The device the window renders on, for the worker's own context.
+    device: Option<String>,
     drag: Option<(Drag, [f64; 2])>,
     cursor: [f64; 2],
     shift: bool,
@@ -194,6 +226,12 @@ struct Running {
     last_click: Option<Instant>,
     last_change: Instant,
     refined: bool,
+    /// What the targets hold: the view and the applied state of the last frame rendered, and the
+    /// volume generation. A frame that would render the same again only presents them (idle
+    /// redraws for a spinner, hover or a screenshot cost no volume rendering).
+    last_drawn: Option<DrawnKey>,
+    /// Counts replacements of GPU volume state (loads, occlusion volumes).
+    epoch: u64,
     resize: bool,
     screenshot: Option<PathBuf>,
     screenshot_dir: PathBuf,
@@ -380,10 +418,12 @@ impl ApplicationHandler for App {
             return;
         };
         r.poll_load();
+        r.poll_occlusion();
         if r.model.scene != r.applied || r.model.tf != r.applied_tf {
             r.changed();
         }
-        let busy = r.bench_left.is_some() || r.pending_load.is_some();
+        let busy =
+            r.bench_left.is_some() || r.pending_load.is_some() || r.pending_occlusion.is_some();
         let refine_at = r.last_change + REFINE_AFTER;
         if busy || r.model.requests.screenshot || Instant::now() < refine_at || !r.refined {
             r.window.request_redraw();
@@ -559,6 +599,9 @@ impl Running {
             egui_ctx,
             egui_state,
             pending_load: None,
+            pending_occlusion: None,
+            generation: 0,
+            device: opts.device.clone(),
             drag: None,
             cursor: [0.0; 2],
             shift: false,
@@ -566,6 +609,8 @@ impl Running {
             last_click: None,
             last_change: Instant::now() - REFINE_AFTER,
             refined: false,
+            last_drawn: None,
+            epoch: 0,
             resize: false,
             screenshot: None,
             screenshot_dir: opts.screenshot_dir.clone(),
@@ -715,6 +760,8 @@ impl Running {
         });
         match result {
             Ok((l, mut gpu)) => {
+                self.generation += 1;
+                self.epoch += 1;
                 self.model.spectrum = gpu.spectrum.take();
                 self.model.spectrum_texture = None;
                 self.model.otf = l.otf.clone();
@@ -745,6 +792,98 @@ impl Running {
                 self.volume = l.volume;
             }
             Err(e) => self.model.message = format!("{what}: {e}"),
+        }
+        self.changed();
+    }
+
+    /// Starts computing the occlusion volume of the host volume on a worker thread, on a context
+    /// of its own.
+    fn start_occlusion(&mut self, params: crate::passes::occlusion::OcclusionParams) {
+        let (tx, rx) = mpsc::channel();
+        let volume = self.volume.clone();
+        let device = self.device.clone();
+        let radius = params.radius;
+        // A test hook: hold the worker back this long, so that a test can show frames arriving
+        // while it is busy whatever the machine's speed.
+        let hold = std::env::var("VELLUM_VIEW_OCCLUSION_DELAY_MS")
+            .ok()
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .map(Duration::from_millis);
+        std::thread::spawn(move || {
+            if let Some(d) = hold {
+                std::thread::sleep(d);
+            }
+            let result = (|| {
+                let ctx = Context::new(&ContextDesc {
+                    validation: None,
+                    device,
+                })?;
+                let out = crate::passes::occlusion::Occlusion::new(&ctx)?.compute(&volume, &params);
+                ctx.report_validation();
+                out
+            })();
+            let _ = tx.send(result);
+        });
+        self.model.occlusion_busy = Some(radius);
+        self.pending_occlusion = Some(PendingOcclusion {
+            rx,
+            radius,
+            started: Instant::now(),
+            generation: self.generation,
+            frames: 0,
+            longest_ms: 0.0,
+        });
+    }
+
+    /// Takes a finished occlusion volume: it replaces the one the renderer samples, and its
+    /// spectrum the editor's. A result for a volume since replaced is dropped.
+    fn poll_occlusion(&mut self) {
+        let Some(p) = &self.pending_occlusion else {
+            return;
+        };
+        let got = match p.rx.try_recv() {
+            Ok(got) => got,
+            Err(mpsc::TryRecvError::Empty) => return,
+            Err(mpsc::TryRecvError::Disconnected) => Err(Error::Invalid(
+                "the occlusion worker stopped without an answer".into(),
+            )),
+        };
+        let Some(p) = self.pending_occlusion.take() else {
+            return;
+        };
+        self.model.occlusion_busy = None;
+        if p.generation != self.generation {
+            return;
+        }
+        let attached = got.and_then(|out| {
+            let image =
+                crate::passes::volume_image::create(&self.ctx, "occlusion", &out.occlusion)?;
+            crate::gpu::transfer::upload(
+                &self.ctx,
+                &image,
+                out.occlusion.data.as_bytes(),
+                Access::FragmentSampled,
+            )?;
+            Ok((image, out.spectrum))
+        });
+        match attached {
+            Ok((image, spectrum)) => {
+                // The old image may be in use by frames in flight: its release is deferred.
+                self.gpu.volume.occlusion = Some(image);
+                self.epoch += 1;
+                self.model.spectrum = spectrum;
+                self.model.spectrum_texture = None;
+                // Upload the OTF as it is now (it may have been edited meanwhile).
+                self.applied_otf = None;
+                self.model.message = format!(
+                    "occlusion at R = {} recomputed in {:.0} ms on a second device; {} frames drawn meanwhile, at most {:.0} ms apart",
+                    p.radius,
+                    p.started.elapsed().as_secs_f64() * 1e3,
+                    p.frames,
+                    p.longest_ms
+                );
+            }
+            Err(e) => self.model.message = format!("recomputing the occlusion: {e}"),
         }
         self.changed();
     }
@@ -792,33 +931,17 @@ impl Running {
         Ok(())
     }
 
-    /// Uploads an edited OTF's table; recomputes the occlusion volume (and the spectrum) when asked.
-    /// The recomputation blocks this thread for as long as the AO takes.
+    /// Uploads an edited OTF's table; starts recomputing the occlusion volume (and the spectrum)
+    /// on a worker thread when asked.
     fn apply_occlusion(&mut self) -> Result<()> {
         let Some(otf) = self.model.otf.clone() else {
             return Ok(());
         };
-        if std::mem::take(&mut self.model.recompute_occlusion) {
-            let modulation = self.model.scene.modulation.clone().unwrap_or_default();
-            let started = Instant::now();
-            let mut gpu = GpuScene::prepare(
-                &self.ctx,
-                &self.volume,
-                &Classification::Occlusion(otf.clone()),
-                self.model.scene.focus,
-                &modulation,
-            )?;
-            self.model.spectrum = gpu.spectrum.take();
-            self.model.spectrum_texture = None;
-            self.gpu = gpu;
-            self.applied_tf = self.model.tf.clone();
-            self.applied_otf = Some(otf);
-            self.model.message = format!(
-                "occlusion at R = {} recomputed in {:.0} ms",
-                self.applied_otf.as_ref().map_or(0, |o| o.radius),
-                started.elapsed().as_secs_f64() * 1e3
-            );
-            return Ok(());
+        if std::mem::take(&mut self.model.recompute_occlusion) && self.pending_occlusion.is_none() {
+            match crate::render::scene::occlusion_params(&otf) {
+                Ok(params) => self.start_occlusion(params),
+                Err(e) => self.model.message = e.to_string(),
+            }
         }
         if self.applied_otf.as_ref() != Some(&otf) {
             match otf.table() {
@@ -926,9 +1049,20 @@ impl Running {
             &self.sampler,
             &mut self.egui_renderer,
         );
+        let key = view.as_ref().ok().map(|v| DrawnKey {
+            view: v.clone(),
+            scene: self.applied.clone(),
+            tf: self.applied_tf.clone(),
+            otf: self.applied_otf.clone(),
+            epoch: self.epoch,
+        });
+        let reuse = key.is_some() && key == self.last_drawn;
         self.frames.frame_sync(|f| {
             let drawn = match &view {
-                Ok(v) => renderer.record(f, &gpu.volume, &mut gpu.classify, v, targets),
+                Ok(_) if reuse => Ok(()),
+                Ok(v) => renderer
+                    .record(f, &gpu.volume, &mut gpu.classify, v, targets)
+                    .map(|_| ()),
                 Err(e) => Err(Error::Invalid(e.to_string())),
             };
             let drawn = match drawn {
@@ -1012,6 +1146,10 @@ impl Running {
             if self.bench_left.is_some() {
                 self.frame_ms.push(ms);
             }
+            if let Some(p) = &mut self.pending_occlusion {
+                p.frames += 1;
+                p.longest_ms = p.longest_ms.max(ms);
+            }
         }
         for r in self.frames.take_finished() {
             let passes: Vec<(String, f64)> =
@@ -1019,7 +1157,10 @@ impl Running {
             if self.bench_left.is_some() {
                 self.gpu_history.push(passes.clone());
             }
-            self.model.gpu_ms = passes;
+            // A frame that only presented the last render keeps that render's figures.
+            if !passes.is_empty() {
+                self.model.gpu_ms = passes;
+            }
         }
         if !self.pending_free.is_empty() {
             self.frames.wait_idle()?;
@@ -1029,6 +1170,10 @@ impl Running {
                     .map_err(|e| Error::Invalid(format!("egui's textures: {e}")))?;
             }
         }
+        self.last_drawn = match render_error {
+            None => key,
+            Some(_) => None,
+        };
         match render_error {
             Some(e) => {
                 // A setting the renderer refuses: say why, and go back to what rendered.

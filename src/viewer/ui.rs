@@ -84,6 +84,8 @@ pub struct Model {
     pub tagging: Option<[[f32; 2]; 2]>,
     /// Recompute the occlusion volume (the button).
     pub recompute_occlusion: bool,
+    /// The radius of an occlusion volume being recomputed, while it is.
+    pub occlusion_busy: Option<u32>,
     /// The AO radius or mapping changed since the occlusion volume was computed.
     pub occlusion_params_changed: bool,
 }
@@ -125,6 +127,7 @@ impl Model {
             brush: [1.0, 0.6, 0.2, 0.5],
             tagging: None,
             recompute_occlusion: false,
+            occlusion_busy: None,
             occlusion_params_changed: false,
         }
     }
@@ -1055,9 +1058,23 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
     } else {
         "recompute the occlusion"
     };
-    if ui.button(label).clicked() {
-        m.recompute_occlusion = true;
-        m.occlusion_params_changed = false;
+    match m.occlusion_busy {
+        Some(r) => {
+            ui.horizontal(|ui| {
+                ui.spinner();
+                ui.label(format!(
+                    "computing the occlusion at R = {r} on a second device…"
+                ));
+            });
+        }
+        None => {
+            let button = ui.button(label);
+            m.marks.insert("recompute-occlusion".into(), button.rect);
+            if button.clicked() {
+                m.recompute_occlusion = true;
+                m.occlusion_params_changed = false;
+            }
+        }
     }
     if otf != before {
         m.otf_edited = true;
