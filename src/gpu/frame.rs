@@ -346,6 +346,11 @@ impl Frames {
             .unwrap_or_default())
     }
 
+    /// Whether completed frames wait in [`Frames::take_finished`] (after [`Frames::poll`]).
+    pub fn has_finished(&self) -> bool {
+        !self.finished.is_empty()
+    }
+
     /// Timings of completed frames, oldest first; each frame's timings are returned once.
     pub fn take_finished(&mut self) -> Vec<FrameResult> {
         self.finished.drain(..).collect()

@@ -242,6 +242,12 @@ struct Running {
     last_layout: String,
     last_message: String,
     last_present: Option<Instant>,
+    last_rendered: Option<Instant>,
+    /// The index of the last rendered frame while its GPU timings are still to be shown: the
+    /// loop draws once more when they arrive, so the corner never shows a stale figure.
+    timings_of: Option<u64>,
+    /// When egui asked to draw again (its animations).
+    egui_repaint_at: Option<Instant>,
     frame_ms: Vec<f64>,
     gpu_history: Vec<Vec<(String, f64)>>,
     bench_left: Option<u32>,
@@ -285,7 +291,9 @@ impl ApplicationHandler for App {
             return;
         };
         let response = r.egui_state.on_window_event(&r.window, &event);
-        if response.repaint {
+        // egui asks for a repaint after every event, a redraw included: honouring that one would
+        // redraw for ever.
+        if response.repaint && !matches!(event, WindowEvent::RedrawRequested) {
             r.window.request_redraw();
         }
         match event {
@@ -419,6 +427,15 @@ impl ApplicationHandler for App {
         };
         r.poll_load();
         r.poll_occlusion();
+        let timings_pending = r.timings_of.is_some();
+        if timings_pending && r.frames.poll().is_ok() && r.frames.has_finished() {
+            r.window.request_redraw();
+        }
+        let egui_at = r.egui_repaint_at;
+        if egui_at.is_some_and(|t| t <= Instant::now()) {
+            r.egui_repaint_at = None;
+            r.window.request_redraw();
+        }
         if r.model.scene != r.applied || r.model.tf != r.applied_tf {
             r.changed();
         }
@@ -433,7 +450,12 @@ impl ApplicationHandler for App {
         } else if busy {
             event_loop.set_control_flow(ControlFlow::Poll);
         } else {
-            event_loop.set_control_flow(ControlFlow::Wait);
+            // Wake for the last rendered frame's timings (still on the GPU), or for egui.
+            let timings_at = timings_pending.then(|| Instant::now() + Duration::from_millis(20));
+            match [timings_at, r.egui_repaint_at].into_iter().flatten().min() {
+                Some(at) => event_loop.set_control_flow(ControlFlow::WaitUntil(at)),
+                None => event_loop.set_control_flow(ControlFlow::Wait),
+            }
         }
     }
 }
@@ -620,6 +642,9 @@ impl Running {
             last_layout: String::new(),
             last_message: String::new(),
             last_present: None,
+            last_rendered: None,
+            timings_of: None,
+            egui_repaint_at: None,
             frame_ms: Vec::new(),
             gpu_history: Vec::new(),
             bench_left: opts.bench_frames,
@@ -973,6 +998,13 @@ impl Running {
             .run_ui(raw, |ui| view_rect = ui::draw(ui, model, show_panel));
         self.egui_state
             .handle_platform_output(&self.window, out.platform_output);
+        // egui's own animations (a spinner, a header opening) ask for the next frame.
+        if let Some(v) = out.viewport_output.get(&egui::ViewportId::ROOT) {
+            if v.repaint_delay < Duration::from_secs(1) {
+                let at = Instant::now() + v.repaint_delay;
+                self.egui_repaint_at = Some(self.egui_repaint_at.map_or(at, |t| t.min(at)));
+            }
+        }
         let ppp = out.pixels_per_point;
         // The volume view: the window less the panel, in whole pixels.
         let rect = self.view_rect_pixels(view_rect, ppp);
@@ -1057,7 +1089,7 @@ impl Running {
             epoch: self.epoch,
         });
         let reuse = key.is_some() && key == self.last_drawn;
-        self.frames.frame_sync(|f| {
+        let (_, index) = self.frames.frame_sync(|f| {
             let drawn = match &view {
                 Ok(_) if reuse => Ok(()),
                 Ok(v) => renderer
@@ -1140,9 +1172,20 @@ impl Running {
             self.resize = true;
         }
         let now = Instant::now();
+        // The rate of rendered frames: frames that only presented the last render (idle redraws)
+        // would make the renderer look faster than it is.
+        if !reuse {
+            if let Some(t) = self.last_rendered.replace(now) {
+                let ms = (now - t).as_secs_f64() * 1e3;
+                self.model.fps = 0.9 * self.model.fps + 0.1 * (1e3 / ms.max(1e-3));
+            }
+        }
+        if !reuse {
+            self.timings_of = Some(index);
+        }
         if let Some(t) = self.last_present.replace(now) {
             let ms = (now - t).as_secs_f64() * 1e3;
-            self.model.fps = 0.9 * self.model.fps + 0.1 * (1e3 / ms.max(1e-3));
+
             if self.bench_left.is_some() {
                 self.frame_ms.push(ms);
             }
@@ -1152,6 +1195,9 @@ impl Running {
             }
         }
         for r in self.frames.take_finished() {
+            if self.timings_of.is_some_and(|i| r.index >= i) {
+                self.timings_of = None;
+            }
             let passes: Vec<(String, f64)> =
                 r.passes.iter().map(|p| (p.name.clone(), p.ms)).collect();
             if self.bench_left.is_some() {
