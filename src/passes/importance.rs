@@ -209,6 +209,18 @@ impl ImportanceMap {
         images: &ImportanceImages,
         radius_voxels: u32,
     ) -> Result<()> {
+        self.record_passes(cmd, profiler, images, radius_voxels, true)
+    }
+
+    /// The three filter passes (G∗V into `images.a`), then `subtract` when asked.
+    fn record_passes(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        images: &ImportanceImages,
+        radius_voxels: u32,
+        subtract: bool,
+    ) -> Result<()> {
         let gauss = self.gauss(radius_voxels)?;
         let (src, a, b) = (&images.src, &images.a, &images.b);
         let extent = src.desc.extent;
@@ -238,6 +250,9 @@ impl ImportanceMap {
             )?;
             profiler.end(cmd);
         }
+        if !subtract {
+            return Ok(());
+        }
         profiler.begin(cmd, "subtract");
         // Subtract writes over the blurred image in place: a holds G∗V, and ΔD goes to a.
         src.transition(cmd, Access::ComputeRead);
@@ -264,30 +279,80 @@ impl ImportanceMap {
         sampler: &crate::gpu::Sampler,
         radius_voxels: u32,
     ) -> Result<ImportanceVolume> {
+        let (delta_d, max_abs) = self.record_filter(
+            cmd,
+            profiler,
+            &tex.intensity,
+            tex.dims,
+            sampler,
+            radius_voxels,
+            true,
+        )?;
+        Ok(ImportanceVolume {
+            delta_d,
+            max_abs,
+            radius_voxels,
+        })
+    }
+
+    /// Records G∗V of a normalised volume texture (R16 or R32F, read texel by texel through the
+    /// nearest-texel `sampler`) as an R32F volume on the same scale: `pack`, the three filter
+    /// passes and `unpack`. Line extraction smooths noisy data with it.
+    pub fn record_blur_of_texture(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        source: &Image,
+        dims: [usize; 3],
+        sampler: &crate::gpu::Sampler,
+        radius_voxels: u32,
+    ) -> Result<Image> {
+        let (blurred, _) =
+            self.record_filter(cmd, profiler, source, dims, sampler, radius_voxels, false)?;
+        Ok(blurred)
+    }
+
+    /// `pack` of `source`, the filter passes (with `subtract`: ΔD, else G∗V) and `unpack` into a
+    /// new R32F volume, with the max |value| reduction.
+    #[allow(clippy::too_many_arguments)]
+    fn record_filter(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        source: &Image,
+        dims_in: [usize; 3],
+        sampler: &crate::gpu::Sampler,
+        radius_voxels: u32,
+        subtract: bool,
+    ) -> Result<(Image, Buffer)> {
         let ctx = &self.ctx;
         self.gauss(radius_voxels)?;
-        let images = ImportanceImages::new(ctx, tex.dims)?;
+        let images = ImportanceImages::new(ctx, dims_in)?;
         let extent = images.src.desc.extent;
-        let dims = tex.dims.map(|d| d as i32);
+        let dims = dims_in.map(|d| d as i32);
         profiler.begin(cmd, "pack");
-        tex.intensity.transition(cmd, Access::ComputeSampled);
+        source.transition(cmd, Access::ComputeSampled);
         images.src.discard();
         images.src.transition(cmd, Access::ComputeWrite);
         self.pack.dispatch(
             cmd,
             &[
-                Bind::Sampled(&tex.intensity, sampler),
+                Bind::Sampled(source, sampler),
                 Bind::StorageImage(&images.src),
             ],
             &SubtractPush { dims, pad: 0 },
             group_count(extent, LOCAL_SIZE),
         )?;
         profiler.end(cmd);
-        self.record(cmd, profiler, &images, radius_voxels)?;
+        self.record_passes(cmd, profiler, &images, radius_voxels, subtract)?;
         let delta_d = Image::new(
             ctx,
-            "importance delta_d",
-            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent_of(ctx, tex.dims, 4, 1)?),
+            if subtract {
+                "importance delta_d"
+            } else {
+                "smoothed volume"
+            },
+            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent_of(ctx, dims_in, 4, 1)?),
         )?;
         let max_abs = Buffer::new(ctx, "importance max", &crate::gpu::BufferDesc::storage(4))?;
         profiler.begin(cmd, "unpack");
@@ -315,11 +380,7 @@ impl ImportanceMap {
             group_count(delta_d.desc.extent, LOCAL_SIZE),
         )?;
         profiler.end(cmd);
-        Ok(ImportanceVolume {
-            delta_d,
-            max_abs,
-            radius_voxels,
-        })
+        Ok((delta_d, max_abs))
     }
 
     /// Computes ΔD of `v` with radius `radius_voxels`: allocation, upload, the passes and

@@ -142,6 +142,8 @@ pub struct LineExtractor {
     extract: ComputePipeline,
     raster: ComputePipeline,
     nearest: Sampler,
+    /// The Gaussian passes that smooth a volume for [`LineParams::smooth`], built on first use.
+    smoother: std::sync::OnceLock<crate::passes::importance::ImportanceMap>,
 }
 
 /// Where the lines are drawn: the frame's geometry, in the renderer's box frame.
@@ -266,7 +268,29 @@ impl LineExtractor {
                 std::mem::size_of::<RasterPush>() as u32,
             )?,
             nearest: Sampler::new(ctx, false)?,
+            smoother: std::sync::OnceLock::new(),
         })
+    }
+
+    /// Records G∗`values` for [`LineParams::smooth`] = `radius` (> 0): an R32F volume on the same
+    /// scale, which [`LineExtractor::record`] then extracts from. Callers that draw every frame
+    /// keep it (the volume's `smoothed` slot) and record this once.
+    pub fn record_smoothing(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        values: &Image,
+        dims: [usize; 3],
+        radius: u32,
+    ) -> Result<Image> {
+        let smoother = match self.smoother.get() {
+            Some(s) => s,
+            None => {
+                let s = crate::passes::importance::ImportanceMap::new(&self.ctx)?;
+                self.smoother.get_or_init(|| s)
+            }
+        };
+        smoother.record_blur_of_texture(cmd, profiler, values, dims, &self.nearest, radius)
     }
 
     /// Records pass `lines_draw`: the segments of `lines` (extracted earlier in this command
@@ -434,13 +458,19 @@ impl LineExtractor {
         let p = LineParams { iso, ..*params };
         let out = LineBuffer::new(ctx, capacity)?;
         let spacing = v.spacing.map(|s| s as f32);
-        let mut profiler = Profiler::new(ctx, 1)?;
+        let mut profiler = Profiler::new(ctx, 8)?;
         submit_once(ctx, "lines", |cmd| {
             profiler.reset(cmd);
+            let smoothed = match p.smooth {
+                0 => None,
+                r => {
+                    Some(self.record_smoothing(cmd, &mut profiler, &input.intensity, v.dims, r)?)
+                }
+            };
             self.record(
                 cmd,
                 &mut profiler,
-                &input.intensity,
+                smoothed.as_ref().unwrap_or(&input.intensity),
                 v.dims,
                 spacing,
                 eye,

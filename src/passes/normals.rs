@@ -42,6 +42,9 @@ pub struct VolumeTextures {
     pub bricks: Bricks,
     /// ΔD of the normalised volume, for importance modulation.
     pub importance: Option<crate::passes::importance::ImportanceVolume>,
+    /// The normalised volume after a Gaussian of the radius kept beside it (R32F), made when line
+    /// extraction first asks for that radius and kept with the volume.
+    pub smoothed: std::sync::Mutex<Option<(u32, Image)>>,
 }
 
 /// Edge of a brick in voxels.
@@ -134,6 +137,7 @@ impl VolumeTextures {
                 occlusion: None,
                 bricks,
                 importance: None,
+                smoothed: Default::default(),
             },
             staging,
         ))

@@ -706,6 +706,28 @@ impl Renderer {
         }
         if let (Some(style), Some(post), false) = (&view.style, &t.post, view.one_pass) {
             let pipelines = self.post.get().expect("built above");
+            // Lines of a smoothed volume: made once per volume and radius, kept with the volume
+            // (the slot stays locked while this frame records its lines).
+            let mut slot = vol.smoothed.lock().unwrap_or_else(|p| p.into_inner());
+            let radius = style.params.line_smooth;
+            if let (Some(_), Some((extractor, _)), true) =
+                (style.def.lines, self.lines.get(), radius > 0)
+            {
+                if slot.as_ref().is_none_or(|(kept, _)| *kept != radius) {
+                    let image = extractor.record_smoothing(
+                        cmd,
+                        profiler,
+                        &vol.intensity,
+                        vol.dims,
+                        radius,
+                    )?;
+                    *slot = Some((radius, image));
+                }
+            }
+            let smoothed = slot
+                .as_ref()
+                .filter(|(kept, _)| radius > 0 && *kept == radius)
+                .map(|(_, image)| image);
             let lines = match (style.def.lines, self.lines.get()) {
                 (Some(kind), Some((extractor, buffer))) => {
                     let p = &style.params;
@@ -740,7 +762,7 @@ impl Renderer {
                     Some(crate::render::post::LinesDraw {
                         extractor,
                         buffer,
-                        volume: &vol.intensity,
+                        volume: smoothed.unwrap_or(&vol.intensity),
                         dims: vol.dims,
                         spacing,
                         eye: eye_line,
@@ -754,6 +776,7 @@ impl Renderer {
                             min_angle_deg: p.line_angle,
                             derivative_threshold: p.line_derivative_threshold,
                             stride: p.line_stride,
+                            smooth: p.line_smooth,
                         },
                         view: raster,
                     })

@@ -194,6 +194,9 @@ pub struct StyleParams {
     pub line_stride: u32,
     /// Draw both kinds of lines whatever the style's kind (`vellum lines --kind both`).
     pub line_both: bool,
+    /// Object-space lines: the radius in voxels of the Gaussian (σ = R/3) the volume is smoothed
+    /// with before extraction; 0 = none. Suggestive contours need it on measured data.
+    pub line_smooth: u32,
 }
 
 impl Default for StyleParams {
@@ -218,6 +221,7 @@ impl Default for StyleParams {
             line_depth_bias: 1.5,
             line_stride: 1,
             line_both: false,
+            line_smooth: 0,
         }
     }
 }
@@ -284,6 +288,12 @@ impl StyleParams {
             ));
         }
         positive("the line depth bias", self.line_depth_bias, 64.0)?;
+        if self.line_smooth > 16 {
+            return Err(Error::Invalid(format!(
+                "line smoothing radius {} is invalid; expected 0..=16 voxels",
+                self.line_smooth
+            )));
+        }
         if !(1..=8).contains(&self.line_stride) {
             return Err(Error::Invalid(format!(
                 "line stride {} is invalid; expected 1..=8 cells",

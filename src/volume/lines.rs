@@ -43,6 +43,30 @@ pub struct LineParams {
     pub derivative_threshold: f32,
     /// Visit every `stride`-th cell along each axis (1 = all; 2 = the interactive mode).
     pub stride: u32,
+    /// Smooth the values first with the importance map's Gaussian of this radius in voxels
+    /// (σ = R/3; 0 = none). Curvature is a second derivative: on raw CT or MRI, noise alone
+    /// makes κ_r cross zero everywhere, and suggestive contours become speckle. [`extract`] takes
+    /// values already smoothed ([`smoothed`]); the GPU passes smooth for themselves.
+    pub smooth: u32,
+}
+
+/// The values of `v` normalised to [0, 1] over its range (as [`extract`] and the GPU passes see
+/// them), after the Gaussian of radius `radius` voxels when it is not 0: the CPU twin of the
+/// smoothing the GPU passes do (`ImportanceMap::record_blur_of_texture`).
+pub fn smoothed(v: &crate::volume::Volume, radius: u32) -> crate::error::Result<Vec<f32>> {
+    let st = crate::volume::stats::stats(v, 0);
+    let lo = st.min;
+    let scale = if st.max > st.min {
+        1.0 / (st.max - st.min)
+    } else {
+        0.0
+    };
+    let norm = |b: f64| ((b - lo) * scale) as f32;
+    if radius == 0 {
+        return Ok((0..v.len()).map(|i| norm(v.data.get_f64(i))).collect());
+    }
+    let blurred = crate::volume::reference::gaussian::gaussian_blur(v, radius)?;
+    Ok(blurred.into_iter().map(norm).collect())
 }
 
 impl Default for LineParams {
@@ -54,6 +78,7 @@ impl Default for LineParams {
             min_angle_deg: 20.0,
             derivative_threshold: 1e-4,
             stride: 1,
+            smooth: 0,
         }
     }
 }
