@@ -529,6 +529,60 @@ fn occlusion_and_feature_editors_change_the_image() {
     v.close(&x);
 }
 
+/// The decoupled model's Gaussian occlusion curve has handles on the spectrum: dragging its mean
+/// handle down moves the mean, changes the image, and the saved OTF holds the new mean.
+#[test]
+fn an_occlusion_curve_is_dragged_by_its_handle() {
+    let Some((x, _one)) = xvfb() else { return };
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    std::fs::write(
+        dir.path().join("curve.otf.json"),
+        r#"{"radius": 6, "transfer": "grey",
+            "curves": [{"intensity": [0.05, 1.0], "mean": 0.7, "width": 0.08}]}"#,
+    )
+    .expect("writing the OTF");
+    let scene = dir.path().join("curve.json");
+    std::fs::write(
+        &scene,
+        r#"{"version": 1, "input": {"path": "phantom:nested:48"},
+            "classification": {"occlusion": "curve.otf.json"},
+            "camera": {"azimuth": 0, "elevation": 20, "distance": 2.2}, "one_pass": true}"#,
+    )
+    .expect("writing the scene");
+    let (v, before, line) = open_scene(&x, dir.path(), &scene, "760x900");
+    let h = mark(&line, "curve1-mean").expect("the curve's mean handle is on screen");
+    let sp = mark(&line, "spectrum").expect("the spectrum is on screen");
+    // Down by a quarter of the spectrum: the mean falls by about 0.25.
+    drag(
+        &x,
+        &v.window,
+        [h[0] + h[2] / 2, h[1] + h[3] / 2],
+        [0, sp[3] / 20],
+        5,
+        PAUSE,
+    );
+    let moved = rgb(&v.screenshot(&x));
+    let (mean, _) = difference(&before, &moved);
+    assert!(
+        mean > 0.5,
+        "moving the curve did not change the image ({mean:.3})"
+    );
+    xdotool(&x, &["key", "ctrl+s"]);
+    let otf = dir.path().join("vellum.scene.otf.json");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !otf.exists() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&otf).expect("reading the OTF"))
+            .expect("the OTF is JSON");
+    let m = written["curves"][0]["mean"]
+        .as_f64()
+        .expect("a curve with a mean");
+    assert!((0.35..0.6).contains(&m), "the mean went from 0.7 to {m}");
+    v.close(&x);
+}
+
 /// A file that is not a volume, opened through the panel's path field, gets the reader's one
 /// sentence in the window, and the volume on screen stays.
 #[test]

@@ -82,6 +82,8 @@ pub struct Model {
     pub brush: [f32; 4],
     /// A rectangle being dragged on the spectrum: its corners as (intensity, occlusion).
     pub tagging: Option<[[f32; 2]; 2]>,
+    /// A curve handle being dragged on the spectrum: the curve and which handle.
+    pub curve_drag: Option<(usize, CurveHandle)>,
     /// Recompute the occlusion volume (the button).
     pub recompute_occlusion: bool,
     /// The radius of an occlusion volume being recomputed, while it is.
@@ -126,6 +128,7 @@ impl Model {
             spectrum_texture: None,
             brush: [1.0, 0.6, 0.2, 0.5],
             tagging: None,
+            curve_drag: None,
             recompute_occlusion: false,
             occlusion_busy: None,
             occlusion_params_changed: false,
@@ -652,24 +655,80 @@ fn style(ui: &mut egui::Ui, m: &mut Model) {
 }
 
 fn importance(ui: &mut egui::Ui, m: &mut Model) {
-    let mut on = m.scene.modulation.as_ref().is_some_and(|x| x.is_active());
-    if ui
-        .checkbox(&mut on, "modulate colour by ΔD (eq. 3)")
-        .changed()
-    {
-        m.scene.modulation = on.then(|| Modulation {
-            color: Some(ColorModulation {
-                mode: ColorMode::Raw,
-                gamma: 1.0,
-            }),
-            ..Modulation::default()
+    use crate::classify::modulation::{ApplyTo, ModulateLighting, OpacityModulation, Stipple};
+    let md = m.scene.modulation.get_or_insert_with(Modulation::default);
+    // Colour (eq. 3, 4).
+    let mut on = md.color.is_some();
+    if ui.checkbox(&mut on, "colour by ΔD (eq. 3, 4)").changed() {
+        md.color = on.then_some(ColorModulation {
+            mode: ColorMode::Raw,
+            gamma: 1.0,
         });
     }
-    if let Some(md) = &mut m.scene.modulation {
-        ui.add(egui::Slider::new(&mut md.importance_radius, 1..=16).text("R (voxels)"));
-        if let Some(c) = &mut md.color {
-            ui.add(egui::Slider::new(&mut c.gamma, 0.1..=4.0).text("γ"));
+    if let Some(c) = &mut md.color {
+        ui.horizontal(|ui| {
+            ui.radio_value(&mut c.mode, ColorMode::Raw, "ΔD (eq. 3)");
+            ui.radio_value(&mut c.mode, ColorMode::Abs, "|ΔD| (eq. 4)");
+        });
+        ui.add(egui::Slider::new(&mut c.gamma, -4.0..=4.0).text("γ"));
+        ui.horizontal(|ui| {
+            ui.label("adds to");
+            ui.radio_value(&mut md.lighting, ModulateLighting::Ambient, "unlit");
+            ui.radio_value(&mut md.lighting, ModulateLighting::Phong, "lit");
+        });
+    }
+    // Opacity (eq. 5).
+    let mut on = md.opacity.is_some();
+    if ui.checkbox(&mut on, "opacity by |ΔD| (eq. 5)").changed() {
+        md.opacity = on.then_some(OpacityModulation {
+            t_low: 0.1,
+            t_high: 1.0,
+            k_low: 1.0,
+            k_high: 1.0,
+        });
+    }
+    if let Some(o) = &mut md.opacity {
+        ui.add(egui::Slider::new(&mut o.t_low, 0.0..=1.0).text("t_l"));
+        ui.add(egui::Slider::new(&mut o.t_high, 0.0..=1.0).text("t_h"));
+        ui.add(egui::Slider::new(&mut o.k_low, 0.0..=10.0).text("k_l"));
+        ui.add(egui::Slider::new(&mut o.k_high, 0.0..=10.0).text("k_h"));
+        if o.t_high < o.t_low {
+            o.t_high = o.t_low;
         }
+    }
+    // Stippling (eq. 6).
+    let mut on = md.stipple.is_some();
+    if ui.checkbox(&mut on, "stipple by |ΔD| (eq. 6)").changed() {
+        md.stipple = on.then_some(Stipple {
+            t: 0.5,
+            f: 1.0,
+            seed: 0,
+            white: [1.0; 3],
+            black: [0.0; 3],
+        });
+    }
+    if let Some(st) = &mut md.stipple {
+        ui.add(egui::Slider::new(&mut st.t, 0.0..=1.0).text("t"));
+        ui.add(egui::Slider::new(&mut st.f, 0.0..=8.0).text("f"));
+        ui.add(egui::Slider::new(&mut st.seed, 0..=99).text("seed"));
+        ui.horizontal(|ui| {
+            ui.label("colours");
+            ui.color_edit_button_rgb(&mut st.white);
+            ui.color_edit_button_rgb(&mut st.black);
+        });
+    }
+    if md.is_active() {
+        ui.add(egui::Slider::new(&mut md.importance_radius, 1..=16).text("R (voxels)"))
+            .on_hover_text("the Gaussian of ΔD = G∗V − V (σ = R/3); a change recomputes ΔD");
+        ui.horizontal(|ui| {
+            ui.label("levels");
+            ui.radio_value(&mut md.apply_to, ApplyTo::Focus, "focus");
+            ui.radio_value(&mut md.apply_to, ApplyTo::Context, "context");
+            ui.radio_value(&mut md.apply_to, ApplyTo::Both, "both");
+        });
+    } else {
+        // No effect: no modulation in the scene (and no ΔD to compute).
+        m.scene.modulation = None;
     }
 }
 
@@ -838,6 +897,62 @@ fn feature_axis(ui: &mut egui::Ui, m: &Model, map: &FeatureMap) {
     }
 }
 
+/// The handles of a Gaussian occlusion curve on the spectrum.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum CurveHandle {
+    /// The centre, at the mean: up and down move the mean, sideways the whole interval.
+    Mean,
+    /// Above the centre at mean + width: up and down set the width.
+    Width,
+    /// The ends of the intensity interval, at the mean.
+    Low,
+    High,
+}
+
+impl CurveHandle {
+    const ALL: [CurveHandle; 4] = [
+        CurveHandle::Mean,
+        CurveHandle::Width,
+        CurveHandle::Low,
+        CurveHandle::High,
+    ];
+
+    /// Where the handle sits, as (intensity, occlusion).
+    fn at(self, c: &Curve) -> [f32; 2] {
+        let mid = 0.5 * (c.intensity[0] + c.intensity[1]);
+        match self {
+            CurveHandle::Mean => [mid, c.mean],
+            CurveHandle::Width => [mid, (c.mean + c.width).min(1.0)],
+            CurveHandle::Low => [c.intensity[0], c.mean],
+            CurveHandle::High => [c.intensity[1], c.mean],
+        }
+    }
+
+    /// Moves the handle of `c` to `p` (intensity, occlusion), keeping the curve valid.
+    fn drag(self, c: &mut Curve, p: [f32; 2]) {
+        match self {
+            CurveHandle::Mean => {
+                let half = 0.5 * (c.intensity[1] - c.intensity[0]);
+                let mid = p[0].clamp(half, 1.0 - half);
+                c.intensity = [mid - half, mid + half];
+                c.mean = p[1];
+            }
+            CurveHandle::Width => c.width = (p[1] - c.mean).clamp(0.005, 1.0),
+            CurveHandle::Low => c.intensity[0] = p[0].min(c.intensity[1] - 0.005),
+            CurveHandle::High => c.intensity[1] = p[0].max(c.intensity[0] + 0.005),
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            CurveHandle::Mean => "mean",
+            CurveHandle::Width => "width",
+            CurveHandle::Low => "low",
+            CurveHandle::High => "high",
+        }
+    }
+}
+
 /// The occlusion editor (OS4, OS5): the spectrum (intensity across, occlusion up, log counts)
 /// with the OTF's regions and curves over it. Dragging on it tags a rectangle in the brush's
 /// colour; the lists edit or delete regions and the decoupled model's Gaussian curves; the AO
@@ -942,9 +1057,55 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
             Color32::from_rgba_unmultiplied(120, 220, 255, 30),
         );
     }
+    // The curves' handles: drawn over everything, and a drag that starts on one moves it.
+    for (i, c) in otf.curves.iter().enumerate() {
+        for h in CurveHandle::ALL {
+            let [s_, o] = h.at(c);
+            let p = to_screen(s_, o);
+            let active = m.curve_drag == Some((i, h));
+            painter.circle(
+                p,
+                if active { 6.0 } else { 4.5 },
+                Color32::from_rgb(120, 220, 255),
+                Stroke::new(1.0, Color32::BLACK),
+            );
+            m.marks.insert(
+                format!("curve{}-{}", i + 1, h.name()),
+                Rect::from_center_size(p, Vec2::splat(9.0)),
+            );
+        }
+    }
+    if response.drag_started() {
+        // Where the button went down: egui starts a drag only once the pointer has moved on.
+        let origin = ui
+            .input(|i| i.pointer.press_origin())
+            .or(response.interact_pointer_pos());
+        let grab = origin.and_then(|p| {
+            let mut best: Option<(f32, (usize, CurveHandle))> = None;
+            for (i, c) in otf.curves.iter().enumerate() {
+                for h in CurveHandle::ALL {
+                    let [s_, o] = h.at(c);
+                    let d = to_screen(s_, o).distance(p);
+                    if d <= 8.0 && best.is_none_or(|(bd, _)| d < bd) {
+                        best = Some((d, (i, h)));
+                    }
+                }
+            }
+            best.map(|(_, g)| g)
+        });
+        m.curve_drag = grab;
+    }
+    if let Some((i, h)) = m.curve_drag {
+        if let (Some(c), Some(p)) = (otf.curves.get_mut(i), response.interact_pointer_pos()) {
+            h.drag(c, to_spectrum(p));
+        }
+        if response.drag_stopped() || !response.dragged() {
+            m.curve_drag = None;
+        }
+    }
     // Tagging: drag a rectangle (corners in spectrum units; the pointer position is not known on
     // the frame the button is released, so the last one is kept).
-    if response.drag_started() {
+    if response.drag_started() && m.curve_drag.is_none() {
         m.tagging = response
             .interact_pointer_pos()
             .map(|p| [to_spectrum(p), to_spectrum(p)]);
