@@ -496,9 +496,9 @@ fn the_lines_command_writes_a_png_and_an_svg_of_the_visible_lines() {
     assert!(!dir.path().join("x.png").exists() && !dir.path().join("y.png").exists());
 }
 
-/// Reference images of styles 4, 5 and 11 (silhouettes, suggestive contours, Canny + suggestive
-/// contours) on the torus; regenerate with `VELLUM_UPDATE_REFERENCES=1 cargo test --test lines`
-/// and look at each one.
+/// Reference images of the line styles 4-12 (silhouettes or suggestive contours, alone or with
+/// Sobel, DoG or Canny edges, and DoG with Kuwahara) on the torus; regenerate with
+/// `VELLUM_UPDATE_REFERENCES=1 cargo test --test lines` and look at each one.
 #[test]
 fn line_styles_match_reference_images() {
     let gpu = common::Gpu::new();
@@ -506,7 +506,13 @@ fn line_styles_match_reference_images() {
     for (style, file) in [
         ("4", "lines/torus_style04_silhouettes.png"),
         ("5", "lines/torus_style05_suggestive.png"),
+        ("6", "lines/torus_style06_sobel_silhouettes.png"),
+        ("7", "lines/torus_style07_dog_silhouettes.png"),
+        ("8", "lines/torus_style08_canny_silhouettes.png"),
+        ("9", "lines/torus_style09_sobel_suggestive.png"),
+        ("10", "lines/torus_style10_dog_suggestive.png"),
         ("11", "lines/torus_style11_canny_suggestive.png"),
+        ("12", "lines/torus_style12_dog_suggestive_kuwahara.png"),
     ] {
         let (c, _) = styled_frame(&gpu, &v, style, "20,35,2.2", 160);
         // Over a white background, as the gallery shows them.
