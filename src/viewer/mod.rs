@@ -1060,6 +1060,11 @@ impl Running {
         let mut view = self.model.scene.view(self.model.oriented);
         if let Ok(v) = &mut view {
             v.size = render_size;
+            // While something moves, lines come from every other cell (Burns et al.'s cheaper
+            // interactive mode); the refined frame visits them all.
+            if let (false, Some(st)) = (full, &mut v.style) {
+                st.params.line_stride = st.params.line_stride.max(2);
+            }
         }
         let slot = self.frames.next_slot()?;
         let Some(image) = self.swapchain.acquire(slot)? else {
@@ -1371,9 +1376,10 @@ impl Running {
                 }
             }
         }
+        // Passes of the warm-up frames only (a one-off smoothing) have no figure to report.
         let gpu_ms = names
             .into_iter()
-            .map(|n| {
+            .filter_map(|n| {
                 let mut v: Vec<f64> = self
                     .gpu_history
                     .iter()
@@ -1381,8 +1387,7 @@ impl Running {
                     .filter_map(|h| h.iter().find(|(k, _)| *k == n).map(|(_, ms)| *ms))
                     .collect();
                 v.sort_by(f64::total_cmp);
-                let med = v.get(v.len() / 2).copied().unwrap_or(f64::NAN);
-                (n, med)
+                v.get(v.len() / 2).map(|&med| (n, med))
             })
             .collect();
         let mean = ms.iter().sum::<f64>() / ms.len().max(1) as f64;
