@@ -4,10 +4,11 @@
 
 SHELL := /bin/bash
 # The second line is the viewer's: the X libraries winit opens at run time, and Xvfb, xauth,
-# xdotool and xwd, with which the viewer's tests drive a real window.
+# xdotool, xwd and twm (a window manager to minimise with), with which the viewer's tests drive a
+# real window.
 APT_PACKAGES := mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan-validationlayers \
 	libshaderc-dev glslc \
-	libx11-6 libx11-xcb1 libxcursor1 libxi6 libxrandr2 libxkbcommon-x11-0 xvfb xauth xdotool x11-apps
+	libx11-6 libx11-xcb1 libxcursor1 libxi6 libxrandr2 libxkbcommon-x11-0 xvfb xauth xdotool x11-apps twm
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 INPUT ?= phantom:shepp-logan:128
 # Focus isovalue of the two-level render, in the input's data units (the phantom's skull is 1.0).
