@@ -589,6 +589,18 @@ fn an_occlusion_curve_is_dragged_by_its_handle() {
     v.close(&x);
 }
 
+/// The viewer on a small Shepp-Logan phantom with an opaque isosurface, and its first screenshot.
+fn start_phantom(x: &Xvfb, dir: &Path, size: &str) -> (Viewer, image::RgbImage) {
+    let v = start(
+        x,
+        dir,
+        &["phantom:shepp-logan:32", "--iso", "0.9", "--size", size],
+    );
+    v.expect("layout view");
+    let first = rgb(&v.screenshot(x));
+    (v, first)
+}
+
 /// Minimised and restored through a window manager (twm, which `make deps` installs: Xvfb has
 /// none), the viewer keeps running with validation silent and shows the same picture.
 #[test]
@@ -615,19 +627,7 @@ fn minimise_and_restore() {
         .spawn()
         .expect("starting twm");
     std::thread::sleep(Duration::from_millis(500));
-    let v = start(
-        &x,
-        dir.path(),
-        &[
-            "phantom:shepp-logan:32",
-            "--iso",
-            "0.9",
-            "--size",
-            "480x360",
-        ],
-    );
-    v.expect("layout view");
-    let before = rgb(&v.screenshot(&x));
+    let (v, before) = start_phantom(&x, dir.path(), "480x360");
     xdotool(&x, &["windowminimize", "--sync", &v.window]);
     std::thread::sleep(Duration::from_millis(1500));
     xdotool(&x, &["windowmap", "--sync", &v.window]);
@@ -653,19 +653,7 @@ fn a_bad_file_is_one_sentence_and_the_volume_stays() {
     let bad = dir.path().join("broken.nrrd");
     std::fs::write(&bad, "NRRD0004\ntype: float\ndimension: 3\nsizes: 4 4\n\n")
         .expect("writing the bad file");
-    let v = start(
-        &x,
-        dir.path(),
-        &[
-            "phantom:shepp-logan:32",
-            "--iso",
-            "0.9",
-            "--size",
-            "720x480",
-        ],
-    );
-    v.expect("layout view");
-    let before = rgb(&v.screenshot(&x));
+    let (v, before) = start_phantom(&x, dir.path(), "720x480");
     std::thread::sleep(Duration::from_millis(1000));
     v.layout();
     let line = v.layout.borrow().clone();
