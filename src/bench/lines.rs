@@ -15,6 +15,8 @@ pub struct Options {
     /// A volume path or phantom spec with its isovalue; default the CT head (iso 1300) and a
     /// 128³ torus.
     pub input: Option<(String, f64)>,
+    /// Resample every volume trilinearly to this many voxels per side first.
+    pub resample: Option<usize>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -63,6 +65,13 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     let eye = Eye::Direction([a.sin() * e.cos(), -a.cos() * e.cos(), e.sin()]);
     let mut rows = Vec::new();
     for (v, data, iso) in cases(&opts.input)? {
+        let (v, data) = match opts.resample {
+            Some(n) => (
+                crate::volume::resample::trilinear(&v, [n; 3])?,
+                format!("{data}, resampled to {n}³"),
+            ),
+            None => (v, data),
+        };
         let (values, [lo, hi]) = crate::passes::occlusion::normalised_f32(&v);
         let iso_n = if hi > lo {
             ((iso - lo) / (hi - lo)) as f32

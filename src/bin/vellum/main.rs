@@ -801,6 +801,9 @@ enum BenchCommand {
         /// The isovalue for INPUT, in data units.
         #[arg(long, allow_negative_numbers = true)]
         iso: Option<f64>,
+        /// Resample every volume trilinearly to N³ first (the paper's scale is 512).
+        #[arg(long, value_name = "N")]
+        resample: Option<usize>,
     },
     /// Ambient occlusion against the radius for each method (ms, the cost model's estimate, memory),
     /// the crossover radius, and scipy's FFT convolution as a peer.
@@ -1216,15 +1219,33 @@ fn run(cli: &Cli) -> Result<()> {
         Command::Migrate(args) => features::migrate(args),
         Command::Features(args) => features::print_tree(args),
         Command::Bench {
-            which: BenchCommand::Lines { json, input, iso },
+            which:
+                BenchCommand::Lines {
+                    json,
+                    input,
+                    iso,
+                    resample,
+                },
         } => {
             let input = match (input, iso) {
                 (Some(i), Some(v)) => Some((i.clone(), *v)),
                 (None, None) => None,
                 _ => anyhow::bail!("bench lines takes an input and --iso V together"),
             };
+            if let Some(n) = resample {
+                anyhow::ensure!(
+                    (2..=1024).contains(n),
+                    "--resample {n} is invalid; expected 2..=1024 voxels per side"
+                );
+            }
             let ctx = context(cli)?;
-            let table = vellum::bench::lines::run(&ctx, &vellum::bench::lines::Options { input })?;
+            let table = vellum::bench::lines::run(
+                &ctx,
+                &vellum::bench::lines::Options {
+                    input,
+                    resample: *resample,
+                },
+            )?;
             report_validation(&ctx);
             print_report(*json, &table, || table.to_text())
         }
