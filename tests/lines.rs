@@ -681,3 +681,28 @@ fn smoothing_removes_noise_contours_and_the_gpu_smooths_as_the_cpu() {
         assert_same_segments(name, &got.segments, &want, hausdorff);
     }
 }
+
+#[test]
+fn bench_lines_resamples_and_refuses_a_bad_size() {
+    let j = common::ok_json(&common::vellum(&[
+        "bench",
+        "lines",
+        "phantom:torus:16",
+        "--iso",
+        "0.5",
+        "--resample",
+        "24",
+        "--json",
+    ]));
+    let rows = j["rows"].as_array().unwrap();
+    assert!(
+        rows.iter()
+            .all(|r| r["dims"] == serde_json::json!([24, 24, 24])),
+        "{j}"
+    );
+    assert!(rows.iter().any(|r| r["gpu_segments"].as_u64().unwrap() > 0));
+    common::fails_with(
+        &common::vellum(&["bench", "lines", "--resample", "1"]),
+        "--resample 1 is invalid",
+    );
+}
