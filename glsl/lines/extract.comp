@@ -36,6 +36,10 @@ layout(set = 0, binding = 2) readonly buffer Cells {
 
 layout(push_constant) uniform Push { LinesPush pc; };
 
+// Which kinds this pipeline extracts (bit 0 silhouettes, bit 1 suggestive contours): a
+// specialisation constant, so the other kind's code is not compiled in (passes/lines.rs).
+layout(constant_id = 0) const int KINDS = 3;
+
 struct Point {
     vec3 p;
     vec3 g;
@@ -104,10 +108,10 @@ bool zero_segment(Point t[3], int which, out Point e0, out Point e1) {
 
 void triangle(Point t[3]) {
     Point a, b;
-    if ((pc.kinds & 1) != 0 && zero_segment(t, 0, a, b)) {
+    if ((KINDS & 1) != 0 && (pc.kinds & 1) != 0 && zero_segment(t, 0, a, b)) {
         emit(a, b, 0.0);
     }
-    if ((pc.kinds & 2) != 0 && zero_segment(t, 1, a, b)) {
+    if ((KINDS & 2) != 0 && (pc.kinds & 2) != 0 && zero_segment(t, 1, a, b)) {
         Point m = lerp_point(a, b, 0.5);
         vec3 x = m.p * pc.spacing;
         vec3 n = normalize(-m.g);
@@ -197,6 +201,10 @@ void extract_cell(ivec3 c) {
             int ca_ = (A), cb_ = (B); \
             if (tet[ca_] > tet[cb_]) { int t_ = ca_; ca_ = cb_; cb_ = t_; } \
             OUT = lerp_point(pts[tet[ca_]], pts[tet[cb_]], sv[ca_] / (sv[ca_] - sv[cb_])); }
+        // One triangle (a lone corner) or two (two in, two out), from four crossings chosen by
+        // index first: a CPU rasteriser runs both sides of a branch in every lane, so the
+        // crossings and triangles are not split between the two cases.
+        int pa[4], pb[4];
         if (ni == 1 || ni == 3) {
             int lone = ni == 1 ? ins[0] : outs[0];
             int o[3];
@@ -206,20 +214,21 @@ void extract_cell(ivec3 c) {
                     o[m++] = j;
                 }
             }
-            Point t[3];
-            CROSS(lone, o[0], t[0]);
-            CROSS(lone, o[1], t[1]);
-            CROSS(lone, o[2], t[2]);
-            triangle(t);
+            pa = int[4](lone, lone, lone, lone);
+            pb = int[4](o[0], o[1], o[2], o[2]);
         } else {
-            Point ac, ad, bd, bc;
-            CROSS(ins[0], outs[0], ac);
-            CROSS(ins[0], outs[1], ad);
-            CROSS(ins[1], outs[1], bd);
-            CROSS(ins[1], outs[0], bc);
-            Point t0[3] = Point[3](ac, ad, bd);
-            Point t1[3] = Point[3](ac, bd, bc);
-            triangle(t0);
+            // ac, ad, bd, bc: the triangles are (ac, ad, bd) and (ac, bd, bc).
+            pa = int[4](ins[0], ins[0], ins[1], ins[1]);
+            pb = int[4](outs[0], outs[1], outs[1], outs[0]);
+        }
+        Point q[4];
+        for (int j = 0; j < 4; ++j) {
+            CROSS(pa[j], pb[j], q[j]);
+        }
+        Point t0[3] = Point[3](q[0], q[1], q[2]);
+        triangle(t0);
+        if (ni == 2) {
+            Point t1[3] = Point[3](q[0], q[2], q[3]);
             triangle(t1);
         }
     }

@@ -139,7 +139,10 @@ pub struct LineExtractor {
     /// The straddling-cell list (16-byte header = the indirect dispatch of `extract`), grown to
     /// the largest volume seen, never per frame.
     cells: std::sync::Mutex<Option<Buffer>>,
-    extract: ComputePipeline,
+    /// Per kinds (1 silhouettes, 2 suggestive contours, 3 both), built on first use: the kind is
+    /// a specialisation constant, so a frame that draws one kind does not run the other's code
+    /// (a CPU rasteriser would run it masked in every lane).
+    extract: [std::sync::OnceLock<ComputePipeline>; 3],
     raster: ComputePipeline,
     nearest: Sampler,
     /// The Gaussian passes that smooth a volume for [`LineParams::smooth`], built on first use.
@@ -247,16 +250,7 @@ impl LineExtractor {
                 std::mem::size_of::<LinesPush>() as u32,
             )?,
             cells: std::sync::Mutex::new(None),
-            extract: ComputePipeline::new(
-                ctx,
-                "lines/extract.comp",
-                &[
-                    BindingKind::SampledImage,
-                    BindingKind::StorageBuffer,
-                    BindingKind::StorageBuffer,
-                ],
-                std::mem::size_of::<LinesPush>() as u32,
-            )?,
+            extract: Default::default(),
             raster: ComputePipeline::new(
                 ctx,
                 "lines/raster.comp",
@@ -422,7 +416,26 @@ impl LineExtractor {
             group_count(cells, [4, 4, 4]),
         )?;
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
-        self.extract.dispatch_indirect(
+        let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
+        let slot = &self.extract[(kinds.max(1) - 1) as usize];
+        let extract = match slot.get() {
+            Some(p) => p,
+            None => {
+                let p = ComputePipeline::with_constants(
+                    ctx,
+                    "lines/extract.comp",
+                    &[
+                        BindingKind::SampledImage,
+                        BindingKind::StorageBuffer,
+                        BindingKind::StorageBuffer,
+                    ],
+                    std::mem::size_of::<LinesPush>() as u32,
+                    &[kinds.max(1)],
+                )?;
+                slot.get_or_init(|| p)
+            }
+        };
+        extract.dispatch_indirect(
             cmd,
             &[
                 Bind::Sampled(values, &self.nearest),
