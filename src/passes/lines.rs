@@ -239,6 +239,16 @@ impl RasterView {
     }
 }
 
+/// What `cell` holds, built by `build` on first use (pipelines that compile slowly on lavapipe
+/// and that many runs never need).
+fn built<T>(cell: &std::sync::OnceLock<T>, build: impl FnOnce() -> Result<T>) -> Result<&T> {
+    if let Some(t) = cell.get() {
+        return Ok(t);
+    }
+    let t = build()?;
+    Ok(cell.get_or_init(|| t))
+}
+
 impl LineExtractor {
     pub fn new(ctx: &Arc<Context>) -> Result<Self> {
         Ok(LineExtractor {
@@ -277,14 +287,10 @@ impl LineExtractor {
         dims: [usize; 3],
         radius: u32,
     ) -> Result<Image> {
-        let smoother = match self.smoother.get() {
-            Some(s) => s,
-            None => {
-                let s = crate::passes::importance::ImportanceMap::new(&self.ctx)?;
-                self.smoother.get_or_init(|| s)
-            }
-        };
-        smoother.record_blur_of_texture(cmd, profiler, values, dims, &self.nearest, radius)
+        built(&self.smoother, || {
+            crate::passes::importance::ImportanceMap::new(&self.ctx)
+        })?
+        .record_blur_of_texture(cmd, profiler, values, dims, &self.nearest, radius)
     }
 
     /// Records pass `lines_draw`: the segments of `lines` (extracted earlier in this command
@@ -417,24 +423,19 @@ impl LineExtractor {
         )?;
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
         let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
-        let slot = &self.extract[(kinds.max(1) - 1) as usize];
-        let extract = match slot.get() {
-            Some(p) => p,
-            None => {
-                let p = ComputePipeline::with_constants(
-                    ctx,
-                    "lines/extract.comp",
-                    &[
-                        BindingKind::SampledImage,
-                        BindingKind::StorageBuffer,
-                        BindingKind::StorageBuffer,
-                    ],
-                    std::mem::size_of::<LinesPush>() as u32,
-                    &[kinds.max(1)],
-                )?;
-                slot.get_or_init(|| p)
-            }
-        };
+        let extract = built(&self.extract[(kinds.max(1) - 1) as usize], || {
+            ComputePipeline::with_constants(
+                ctx,
+                "lines/extract.comp",
+                &[
+                    BindingKind::SampledImage,
+                    BindingKind::StorageBuffer,
+                    BindingKind::StorageBuffer,
+                ],
+                std::mem::size_of::<LinesPush>() as u32,
+                &[kinds.max(1)],
+            )
+        })?;
         extract.dispatch_indirect(
             cmd,
             &[
