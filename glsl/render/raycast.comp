@@ -30,8 +30,9 @@ layout(push_constant) uniform Push {
     mat4 inv_view_proj;   // clip -> box frame
     vec4 planes;          // x: depth of plane 0 along view_dir (farthest), y: spacing, z: planes, w: ert
     ivec4 bricks;         // brick counts xyz, w: brick size in voxels
-    ivec4 flags;          // x: two levels, y: skip empty bricks, z: jitter seed (0 off),
-                          // w: bit 0 refine iso hits, bit 1 equal steps along each ray
+    ivec4 flags;          // x: two levels (unread: VARIANT selects the mode), y: skip empty
+                          // bricks, z: jitter seed (0 off), w: bit 0 refine iso hits, bit 1
+                          // equal steps along each ray (the last also selected by VARIANT)
 } p;
 
 const float INF = 1.0 / 0.0;

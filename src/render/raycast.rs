@@ -123,7 +123,8 @@ pub struct RayPush {
     /// Brick counts along x, y, z, and the brick size in voxels.
     pub bricks: [i32; 4],
     /// Two levels, skip empty bricks, jitter seed (0 off), bit 0 refine isosurface hits | bit 1
-    /// equal world steps.
+    /// equal world steps. The modes (two levels, world steps) are selected by the pipeline's
+    /// [`Variant`]; the shader reads only y, z and bit 0 of w, each behind its variant bit.
     pub flags: [i32; 4],
 }
 
