@@ -7,7 +7,8 @@
 //! - A torus seen along its axis: silhouettes on the outer rim (R + r) and the inner hole (R − r);
 //!   seen obliquely, suggestive contours where it is saddle-shaped (the inner half).
 //! - A view change moves the silhouette of an ellipsoid.
-//! - GPU == CPU: segment counts within 0.5 %, total length within 1 %, Hausdorff < 0.05 voxel.
+//! - GPU == CPU: segment counts within 0.5 %, total length within 1 %, Hausdorff < 0.05 voxel,
+//!   with the Hessian taken on the fly and read from its precomputed volume.
 //! - In a styled frame, a far sphere's silhouette behind a near sphere is culled by the focus
 //!   depth, and its silhouette in the open is drawn.
 
@@ -235,7 +236,7 @@ fn cpu_reference(v: &Volume, iso: f32, eye: Eye, p: &LineParams) -> Vec<Segment>
 
 #[test]
 fn gpu_segments_equal_the_cpu_reference() {
-    use vellum::passes::lines::LineExtractor;
+    use vellum::passes::lines::{HessianSource, LineExtractor};
     let gpu = common::Gpu::new();
     let lines = LineExtractor::new(&gpu.ctx).unwrap();
     let cases: Vec<(Volume, f32, Eye, &str)> = vec![
@@ -275,6 +276,20 @@ fn gpu_segments_equal_the_cpu_reference() {
                 0.05,
             );
         }
+        let p = LineParams {
+            iso: *iso,
+            ..LineParams::default()
+        };
+        let pre = lines
+            .extract_with(v, *eye, &p, 1 << 20, HessianSource::Precomputed)
+            .unwrap();
+        assert!(pre.hessian_ms > 0.0, "{name}: the precomputation is timed");
+        assert_same_segments(
+            &format!("{name}, precomputed Hessian"),
+            &pre.segments,
+            &cpu_reference(v, *iso, *eye, &p),
+            0.05,
+        );
     }
 }
 
@@ -544,6 +559,9 @@ fn bench_lines_reports_every_kind_and_both_modes() {
             r["cpu_segments"].as_u64().unwrap(),
         );
         assert!(g.abs_diff(c) <= (c / 100).max(2), "{r}");
+        // The precomputed Hessian holds the same differences: the same segments.
+        assert_eq!(r["precomputed_segments"].as_u64(), Some(g), "{r}");
+        assert!(r["hessian_ms"].as_f64().unwrap() > 0.0, "{r}");
     }
     let full = rows[0]["gpu_segments"].as_u64().unwrap();
     let interactive = rows[1]["gpu_segments"].as_u64().unwrap();

@@ -1,11 +1,13 @@
 //! `vellum bench lines`: object-space line extraction (issue 11) per kind, full against the
 //! interactive mode (every other cell), on the GPU pass and on the CPU reference, with segment
-//! counts. The GPU figure is the `lines` pass's timestamp; the upload is not counted.
+//! counts. The GPU figure is the `lines` pass's timestamp; the upload is not counted. Beside it,
+//! the same extraction with the Hessian precomputed (issue 11: measure both), whose one-off
+//! `lines_hessian` pass is reported apart.
 
 use crate::bench::shared_data;
 use crate::error::Result;
 use crate::gpu::Context;
-use crate::passes::lines::{LineExtractor, DEFAULT_CAPACITY};
+use crate::passes::lines::{HessianSource, LineExtractor, DEFAULT_CAPACITY};
 use crate::volume::lines::{extract, Eye, LineParams};
 use crate::volume::{io, phantom, Volume};
 use serde::Serialize;
@@ -28,6 +30,11 @@ pub struct Row {
     pub stride: u32,
     pub gpu_ms: f64,
     pub gpu_segments: u64,
+    /// The extraction with the Hessian read from a precomputed volume, its segments, and the
+    /// precomputation; None where the 32 bytes a voxel do not fit the device.
+    pub precomputed_ms: Option<f64>,
+    pub precomputed_segments: Option<u64>,
+    pub hessian_ms: Option<f64>,
     pub cpu_ms: f64,
     pub cpu_segments: usize,
 }
@@ -79,6 +86,8 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
             0.5
         };
         let spacing = v.spacing.map(|s| s as f32);
+        // The R32F volume and the Hessian's two RGBA32F images.
+        let precompute = ctx.check_image_3d(v.dims, 36, 1).is_ok();
         for (kind, sil, sc) in [
             ("silhouettes", true, false),
             ("suggestive", false, true),
@@ -93,6 +102,16 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                     ..LineParams::default()
                 };
                 let gpu = lines.extract(&v, eye, &p, DEFAULT_CAPACITY)?;
+                let pre = match precompute {
+                    true => Some(lines.extract_with(
+                        &v,
+                        eye,
+                        &p,
+                        DEFAULT_CAPACITY,
+                        HessianSource::Precomputed,
+                    )?),
+                    false => None,
+                };
                 let start = std::time::Instant::now();
                 let cpu = extract(
                     &values,
@@ -108,6 +127,9 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                     stride,
                     gpu_ms: gpu.ms,
                     gpu_segments: gpu.found,
+                    precomputed_ms: pre.as_ref().map(|l| l.ms),
+                    precomputed_segments: pre.as_ref().map(|l| l.found),
+                    hessian_ms: pre.as_ref().map(|l| l.hessian_ms),
                     cpu_ms: start.elapsed().as_secs_f64() * 1e3,
                     cpu_segments: cpu.len(),
                 });
@@ -132,14 +154,40 @@ impl Table {
         );
         let _ = writeln!(
             s,
-            "{:<22} {:<12} {:>6} {:>10} {:>10} {:>10} {:>10}",
-            "data", "kind", "stride", "GPU ms", "segments", "CPU ms", "segments"
+            "{:<22} {:<12} {:>6} {:>10} {:>10} {:>14} {:>10} {:>10} {:>10} {:>10}",
+            "data",
+            "kind",
+            "stride",
+            "GPU ms",
+            "segments",
+            "precomp. H ms",
+            "segments",
+            "H once ms",
+            "CPU ms",
+            "segments"
         );
+        let or_dash = |x: Option<String>| x.unwrap_or_else(|| "-".into());
         for r in &self.rows {
             let _ = writeln!(
                 s,
-                "{:<22} {:<12} {:>6} {:>10.1} {:>10} {:>10.1} {:>10}",
-                r.data, r.kind, r.stride, r.gpu_ms, r.gpu_segments, r.cpu_ms, r.cpu_segments
+                "{:<22} {:<12} {:>6} {:>10.1} {:>10} {:>14} {:>10} {:>10} {:>10.1} {:>10}",
+                r.data,
+                r.kind,
+                r.stride,
+                r.gpu_ms,
+                r.gpu_segments,
+                or_dash(r.precomputed_ms.map(|m| format!("{m:.1}"))),
+                or_dash(r.precomputed_segments.map(|n| n.to_string())),
+                or_dash(r.hessian_ms.map(|m| format!("{m:.1}"))),
+                r.cpu_ms,
+                r.cpu_segments
+            );
+        }
+        if self.rows.iter().any(|r| r.precomputed_ms.is_none()) {
+            let _ = writeln!(
+                s,
+                "-: the precomputed Hessian (32 bytes a voxel) does not fit {}",
+                self.device
             );
         }
         s

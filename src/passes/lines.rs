@@ -20,7 +20,7 @@ use crate::gpu::pipeline::group_count;
 use crate::gpu::resources::BufferLocation;
 use crate::gpu::{
     submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    Profiler, Sampler,
+    ImageDesc, Profiler, Sampler,
 };
 use crate::passes::occlusion::OcclusionInput;
 use crate::volume::lines::{Eye, LineParams, Segment};
@@ -73,6 +73,8 @@ pub struct LineSet {
     /// Segments found, including those the buffer could not hold.
     pub found: u64,
     pub ms: f64,
+    /// The Hessian's precomputation (0 when taken on the fly).
+    pub hessian_ms: f64,
 }
 
 impl LineSet {
@@ -143,10 +145,53 @@ pub struct LineExtractor {
     /// a specialisation constant, so a frame that draws one kind does not run the other's code
     /// (a CPU rasteriser would run it masked in every lane).
     extract: [std::sync::OnceLock<ComputePipeline>; 3],
+    /// The same with the Hessian read from a [`HessianVolume`] (`extract_hessian.comp`).
+    extract_hessian: [std::sync::OnceLock<ComputePipeline>; 3],
+    /// Pass `lines_hessian`, which makes a [`HessianVolume`], built on first use.
+    hessian: std::sync::OnceLock<ComputePipeline>,
     raster: ComputePipeline,
     nearest: Sampler,
     /// The Gaussian passes that smooth a volume for [`LineParams::smooth`], built on first use.
     smoother: std::sync::OnceLock<crate::passes::importance::ImportanceMap>,
+}
+
+/// Where the extraction takes the Hessian of f from (issue 11 asks for both, measured).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default)]
+pub enum HessianSource {
+    /// Central differences of the volume at every cell corner: 19 texel fetches a corner, no
+    /// memory beside the volume. What the renderers use (BENCHMARKS.md says why).
+    #[default]
+    OnTheFly,
+    /// Read from a [`HessianVolume`] made once per volume: 6 fetches of the volume (the
+    /// gradient) and 2 of the Hessian a corner, for 32 bytes a voxel.
+    Precomputed,
+}
+
+impl HessianSource {
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "on-the-fly" => Ok(HessianSource::OnTheFly),
+            "precomputed" => Ok(HessianSource::Precomputed),
+            _ => Err(Error::Invalid(format!(
+                "unknown Hessian source '{s}'; expected on-the-fly or precomputed"
+            ))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            HessianSource::OnTheFly => "on-the-fly",
+            HessianSource::Precomputed => "precomputed",
+        }
+    }
+}
+
+/// The Hessian of a line extraction's volume, per voxel and in physical units: (hxx, hyy, hzz,
+/// hxy) in `a` and (hxz, hyz, 0, 0) in `b`, both RGBA32F (RG32F storage would need an optional
+/// device feature).
+pub struct HessianVolume {
+    pub a: Image,
+    pub b: Image,
 }
 
 /// Where the lines are drawn: the frame's geometry, in the renderer's box frame.
@@ -261,6 +306,8 @@ impl LineExtractor {
             )?,
             cells: std::sync::Mutex::new(None),
             extract: Default::default(),
+            extract_hessian: Default::default(),
+            hessian: std::sync::OnceLock::new(),
             raster: ComputePipeline::new(
                 ctx,
                 "lines/raster.comp",
@@ -291,6 +338,59 @@ impl LineExtractor {
             crate::passes::importance::ImportanceMap::new(&self.ctx)
         })?
         .record_blur_of_texture(cmd, profiler, values, dims, &self.nearest, radius)
+    }
+
+    /// Records pass `lines_hessian`: the Hessian of `values` (as [`LineExtractor::record`] reads
+    /// them) into a new [`HessianVolume`], for [`HessianSource::Precomputed`].
+    pub fn record_hessian(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        values: &Image,
+        dims: [usize; 3],
+        spacing: [f32; 3],
+    ) -> Result<HessianVolume> {
+        let ctx = &self.ctx;
+        let pass = built(&self.hessian, || {
+            ComputePipeline::new(
+                ctx,
+                "lines/hessian.comp",
+                &[
+                    BindingKind::SampledImage,
+                    BindingKind::StorageImage,
+                    BindingKind::StorageImage,
+                ],
+                std::mem::size_of::<LinesPush>() as u32,
+            )
+        })?;
+        let extent = dims.map(|d| d as u32);
+        let desc = ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent);
+        let h = HessianVolume {
+            a: Image::new(ctx, "line hessian a", &desc)?,
+            b: Image::new(ctx, "line hessian b", &desc)?,
+        };
+        profiler.begin(cmd, "lines_hessian");
+        values.transition(cmd, Access::ComputeSampled);
+        for image in [&h.a, &h.b] {
+            image.discard();
+            image.transition(cmd, Access::ComputeWrite);
+        }
+        pass.dispatch(
+            cmd,
+            &[
+                Bind::Sampled(values, &self.nearest),
+                Bind::StorageImage(&h.a),
+                Bind::StorageImage(&h.b),
+            ],
+            &LinesPush {
+                dims: dims.map(|d| d as i32),
+                spacing,
+                ..Default::default()
+            },
+            group_count(extent, [4, 4, 4]),
+        )?;
+        profiler.end(cmd);
+        Ok(h)
     }
 
     /// Records pass `lines_draw`: the segments of `lines` (extracted earlier in this command
@@ -335,7 +435,8 @@ impl LineExtractor {
 
     /// Records pass `lines` into `cmd`: resets the header and extracts from `values` (a
     /// normalised volume texture, R16 or R32F, read texel by texel; `params.iso` on the same
-    /// scale).
+    /// scale). With `hessian`, the Hessian is read from it (made from the same `values` by
+    /// [`LineExtractor::record_hessian`]) instead of taken by differences.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
@@ -346,6 +447,7 @@ impl LineExtractor {
         spacing: [f32; 3],
         eye: Eye,
         params: &LineParams,
+        hessian: Option<&HessianVolume>,
         out: &LineBuffer,
     ) -> Result<()> {
         let ctx = &self.ctx;
@@ -423,42 +525,65 @@ impl LineExtractor {
         )?;
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
         let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
-        let extract = built(&self.extract[(kinds.max(1) - 1) as usize], || {
+        let slot = (kinds.max(1) - 1) as usize;
+        let (cells, shader) = match hessian {
+            None => (&self.extract[slot], "lines/extract.comp"),
+            Some(_) => (&self.extract_hessian[slot], "lines/extract_hessian.comp"),
+        };
+        let extract = built(cells, || {
+            let mut bindings = vec![
+                BindingKind::SampledImage,
+                BindingKind::StorageBuffer,
+                BindingKind::StorageBuffer,
+            ];
+            if hessian.is_some() {
+                bindings.extend([BindingKind::SampledImage, BindingKind::SampledImage]);
+            }
             ComputePipeline::with_constants(
                 ctx,
-                "lines/extract.comp",
-                &[
-                    BindingKind::SampledImage,
-                    BindingKind::StorageBuffer,
-                    BindingKind::StorageBuffer,
-                ],
+                shader,
+                &bindings,
                 std::mem::size_of::<LinesPush>() as u32,
                 &[kinds.max(1)],
             )
         })?;
-        extract.dispatch_indirect(
-            cmd,
-            &[
-                Bind::Sampled(values, &self.nearest),
-                Bind::StorageBuffer(&out.buffer),
-                Bind::StorageBuffer(cell_list),
-            ],
-            &push,
-            cell_list,
-            0,
-        )?;
+        let mut binds = vec![
+            Bind::Sampled(values, &self.nearest),
+            Bind::StorageBuffer(&out.buffer),
+            Bind::StorageBuffer(cell_list),
+        ];
+        if let Some(h) = hessian {
+            for image in [&h.a, &h.b] {
+                image.transition(cmd, Access::ComputeSampled);
+                binds.push(Bind::Sampled(image, &self.nearest));
+            }
+        }
+        extract.dispatch_indirect(cmd, &binds, &push, cell_list, 0)?;
         profiler.end(cmd);
         Ok(())
     }
 
     /// Uploads `v`, extracts its lines (`params.iso` in data units) and reads them back.
-    /// `spacing` defaults to the volume's.
     pub fn extract(
         &self,
         v: &Volume,
         eye: Eye,
         params: &LineParams,
         capacity: u32,
+    ) -> Result<LineSet> {
+        self.extract_with(v, eye, params, capacity, HessianSource::OnTheFly)
+    }
+
+    /// [`LineExtractor::extract`] with the Hessian from `source`. [`LineSet::ms`] times the
+    /// smoothing and the extraction; [`LineSet::hessian_ms`] the precomputation, apart, since
+    /// it is made once per volume.
+    pub fn extract_with(
+        &self,
+        v: &Volume,
+        eye: Eye,
+        params: &LineParams,
+        capacity: u32,
+        source: HessianSource,
     ) -> Result<LineSet> {
         let ctx = &self.ctx;
         let mut profiler = Profiler::new(ctx, 2)?;
@@ -481,23 +606,44 @@ impl LineExtractor {
                     Some(self.record_smoothing(cmd, &mut profiler, &input.intensity, v.dims, r)?)
                 }
             };
+            let values = smoothed.as_ref().unwrap_or(&input.intensity);
+            let hessian = match source {
+                HessianSource::OnTheFly => None,
+                HessianSource::Precomputed => {
+                    Some(self.record_hessian(cmd, &mut profiler, values, v.dims, spacing)?)
+                }
+            };
             self.record(
                 cmd,
                 &mut profiler,
-                smoothed.as_ref().unwrap_or(&input.intensity),
+                values,
                 v.dims,
                 spacing,
                 eye,
                 &p,
+                hessian.as_ref(),
                 &out,
-            )
+            )?;
+            // The images (and `smoothed`) are released once the submission completes.
+            Ok(())
         })?;
-        let ms = profiler.results()?.iter().map(|t| t.ms).sum();
+        let timings = profiler.results()?;
+        let hessian_ms = timings
+            .iter()
+            .filter(|t| t.name == "lines_hessian")
+            .map(|t| t.ms)
+            .sum();
+        let ms = timings
+            .iter()
+            .filter(|t| t.name != "lines_hessian")
+            .map(|t| t.ms)
+            .sum();
         let (segments, found) = out.read()?;
         Ok(LineSet {
             segments,
             found,
             ms,
+            hessian_ms,
         })
     }
 }

@@ -274,7 +274,7 @@ impl Post {
                 };
             }
             d.extractor.record(
-                cmd, profiler, d.volume, d.dims, d.spacing, d.eye, &d.params, d.buffer,
+                cmd, profiler, d.volume, d.dims, d.spacing, d.eye, &d.params, None, d.buffer,
             )?;
             let view = RasterView {
                 // Canny's edge image holds classes: 2 is an edge.
