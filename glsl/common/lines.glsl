@@ -47,7 +47,8 @@ void hessian_at(sampler3D vol, ivec3 dims, vec3 s, ivec3 q, out vec4 h0, out vec
 struct RasterPush {
     mat4 index_to_clip;   // voxel index -> clip, the renderer's box -> clip after index -> box
     vec4 depth;           // linear depth of index p: dot(p, depth.xyz) + depth.w (box units)
-    vec4 params;          // x: depth bias (box units), y: the value written to edges
+    vec4 params;          // x: depth bias (box units), y: the value a fully covered pixel gets,
+                          // z: the value of zero coverage
     uvec4 capacity_size;  // x: capacity; y, z: image size
 };
 

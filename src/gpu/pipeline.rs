@@ -33,6 +33,8 @@ impl BindingKind {
 /// A resource bound at dispatch time; its position in the slice is its binding number.
 pub enum Bind<'a> {
     StorageImage(&'a Image),
+    /// The image's second view (`ImageDesc::alias`), as a storage image.
+    StorageImageAlias(&'a Image),
     Sampled(&'a Image, &'a Sampler),
     StorageBuffer(&'a Buffer),
     Uniform(&'a Buffer),
@@ -45,7 +47,7 @@ pub enum Bind<'a> {
 impl Bind<'_> {
     fn kind(&self) -> BindingKind {
         match self {
-            Bind::StorageImage(_) => BindingKind::StorageImage,
+            Bind::StorageImage(_) | Bind::StorageImageAlias(_) => BindingKind::StorageImage,
             Bind::Sampled(..) => BindingKind::SampledImage,
             Bind::StorageBuffer(_) | Bind::StorageSlice(_) => BindingKind::StorageBuffer,
             Bind::Uniform(_) | Bind::UniformSlice(_) => BindingKind::UniformBuffer,
@@ -156,6 +158,19 @@ impl PipelineLayout {
                         .image_view(img.view)
                         .image_layout(access_info(img.access()).layout),
                 ),
+                Bind::StorageImageAlias(img) => {
+                    if img.alias_view == vk::ImageView::null() {
+                        return Err(Error::Invalid(format!(
+                            "image {} has no second view to bind",
+                            img.name
+                        )));
+                    }
+                    image_infos.push(
+                        vk::DescriptorImageInfo::default()
+                            .image_view(img.alias_view)
+                            .image_layout(access_info(img.access()).layout),
+                    )
+                }
                 Bind::Sampled(img, s) => image_infos.push(
                     vk::DescriptorImageInfo::default()
                         .image_view(img.view)
@@ -185,7 +200,7 @@ impl PipelineLayout {
                     .dst_binding(i as u32)
                     .descriptor_type(b.kind().descriptor_type());
                 match b {
-                    Bind::StorageImage(_) | Bind::Sampled(..) => {
+                    Bind::StorageImage(_) | Bind::StorageImageAlias(_) | Bind::Sampled(..) => {
                         ii += 1;
                         w.image_info(std::slice::from_ref(&image_infos[ii - 1]))
                     }

@@ -229,6 +229,10 @@ pub struct ImageDesc {
     pub extent: [u32; 3],
     pub image_type: vk::ImageType,
     pub usage: vk::ImageUsageFlags,
+    /// A second view in this format of the same texels (`Image::alias_view`, bound with
+    /// `Bind::StorageImageAlias`), e.g. R32_UINT over R32_SFLOAT for atomics; the image is then
+    /// created with a mutable format.
+    pub alias: Option<vk::Format>,
 }
 
 impl ImageDesc {
@@ -242,6 +246,7 @@ impl ImageDesc {
                 | vk::ImageUsageFlags::SAMPLED
                 | vk::ImageUsageFlags::TRANSFER_SRC
                 | vk::ImageUsageFlags::TRANSFER_DST,
+            alias: None,
         }
     }
 
@@ -254,12 +259,19 @@ impl ImageDesc {
             usage: vk::ImageUsageFlags::SAMPLED
                 | vk::ImageUsageFlags::TRANSFER_SRC
                 | vk::ImageUsageFlags::TRANSFER_DST,
+            alias: None,
         }
     }
 
     /// Replaces the usage flags.
     pub fn usage(mut self, usage: vk::ImageUsageFlags) -> Self {
         self.usage = usage;
+        self
+    }
+
+    /// Adds a second view in `format` (same texel size) beside the image's own.
+    pub fn alias(mut self, format: vk::Format) -> Self {
+        self.alias = Some(format);
         self
     }
 
@@ -302,6 +314,8 @@ pub struct Image {
     ctx: Arc<Context>,
     pub raw: vk::Image,
     pub view: vk::ImageView,
+    /// The view in `desc.alias`'s format; null without one.
+    pub alias_view: vk::ImageView,
     allocation: Option<Allocation>,
     pub desc: ImageDesc,
     pub name: String,
@@ -329,7 +343,11 @@ impl Image {
             .tiling(vk::ImageTiling::OPTIMAL)
             .usage(desc.usage)
             .sharing_mode(vk::SharingMode::EXCLUSIVE)
-            .initial_layout(vk::ImageLayout::UNDEFINED);
+            .initial_layout(vk::ImageLayout::UNDEFINED)
+            .flags(match desc.alias {
+                Some(_) => vk::ImageCreateFlags::MUTABLE_FORMAT,
+                None => vk::ImageCreateFlags::empty(),
+            });
         let raw = unsafe { ctx.device.create_image(&info, None) }.vk(format!(
             "creating image {name} ({w}x{h}x{d} {:?})",
             desc.format
@@ -346,6 +364,7 @@ impl Image {
             ctx: ctx.clone(),
             raw,
             view: vk::ImageView::null(),
+            alias_view: vk::ImageView::null(),
             allocation: Some(allocation),
             desc: desc.clone(),
             name: name.to_string(),
@@ -373,6 +392,14 @@ impl Image {
             });
         image.view = unsafe { ctx.device.create_image_view(&view_info, None) }
             .vk(format!("creating the view of image {name}"))?;
+        if let Some(format) = desc.alias {
+            image.alias_view = unsafe {
+                ctx.device
+                    .create_image_view(&view_info.format(format), None)
+            }
+            .vk(format!("creating the {format:?} view of image {name}"))?;
+            ctx.set_name(image.alias_view, name);
+        }
         ctx.set_name(raw, name);
         ctx.set_name(image.view, name);
         Ok(image)
@@ -428,11 +455,17 @@ impl Image {
 impl Drop for Image {
     fn drop(&mut self) {
         // Deferred while a submission that may use the image is in flight (gpu/lifetime.rs).
-        let (raw, view, allocation) = (self.raw, self.view, self.allocation.take());
+        let (raw, views, allocation) = (
+            self.raw,
+            [self.view, self.alias_view],
+            self.allocation.take(),
+        );
         self.ctx.retire(Box::new(move |ctx| {
             unsafe {
-                if view != vk::ImageView::null() {
-                    ctx.device.destroy_image_view(view, None);
+                for view in views {
+                    if view != vk::ImageView::null() {
+                        ctx.device.destroy_image_view(view, None);
+                    }
                 }
                 ctx.device.destroy_image(raw, None);
             }

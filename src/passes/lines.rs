@@ -206,8 +206,11 @@ pub struct RasterView {
     pub view_dir: [f32; 3],
     /// Depth bias in box units: a line pixel is drawn up to this far behind the focus.
     pub bias: f32,
-    /// The value written to the edge image.
+    /// The value written to the edge image where a line covers a pixel fully, and what zero
+    /// coverage is worth there: a pixel of coverage c gets floor + c · (value − floor), unless
+    /// it already holds more.
     pub value: f32,
+    pub floor: f32,
 }
 
 impl RasterView {
@@ -233,8 +236,10 @@ impl RasterView {
     }
 
     /// The pieces of `s` that pass the rasteriser's depth test against `focus_depth` (`size`
-    /// pixels, rows top to bottom), as polylines in pixel coordinates: the same sampling and rule
-    /// as raster.comp, for vector output.
+    /// pixels, rows top to bottom), as polylines in pixel coordinates, for vector output: the
+    /// segment's centre line sampled once a pixel along its major axis, each sample tested by
+    /// raster.comp's rule in the pixel it falls in. (raster.comp tests every pixel its
+    /// antialiased footprint covers, so a raster line may reach a pixel further at a piece's end.)
     pub fn visible_pieces(
         &self,
         s: &Segment,
@@ -394,8 +399,9 @@ impl LineExtractor {
     }
 
     /// Records pass `lines_draw`: the segments of `lines` (extracted earlier in this command
-    /// buffer) into `edges`, depth-tested against `focus_depth`. One invocation per stored
-    /// segment, by an indirect dispatch the extraction wrote.
+    /// buffer) into `edges`, antialiased and depth-tested against `focus_depth`. One invocation
+    /// per stored segment, by an indirect dispatch the extraction wrote. `edges` is R32F with an
+    /// R32_UINT second view (`ImageDesc::alias`), which the pass takes the atomic max in.
     pub fn record_raster(
         &self,
         cmd: vk::CommandBuffer,
@@ -418,12 +424,12 @@ impl LineExtractor {
             &[
                 Bind::StorageBuffer(&lines.buffer),
                 Bind::StorageImage(focus_depth),
-                Bind::StorageImage(edges),
+                Bind::StorageImageAlias(edges),
             ],
             &RasterPush {
                 index_to_clip: index_to_clip.to_cols_array_2d(),
                 depth: [coef[0], coef[1], coef[2], constant],
-                params: [view.bias, view.value, 0.0, 0.0],
+                params: [view.bias, view.value, view.floor, 0.0],
                 capacity_size: [lines.capacity, e[0], e[1], 0],
             },
             &lines.buffer,

@@ -80,18 +80,15 @@ pub struct PostTargets {
 impl PostTargets {
     /// Allocates the images for `size`.
     pub fn new(ctx: &Arc<Context>, size: [u32; 2]) -> Result<Self> {
-        let image = |name: &str, format| {
-            Image::new(
-                ctx,
-                name,
-                &ImageDesc::new_2d(format, size).usage(
-                    vk::ImageUsageFlags::STORAGE
-                        | vk::ImageUsageFlags::SAMPLED
-                        | vk::ImageUsageFlags::TRANSFER_SRC
-                        | vk::ImageUsageFlags::TRANSFER_DST,
-                ),
+        let desc = |format| {
+            ImageDesc::new_2d(format, size).usage(
+                vk::ImageUsageFlags::STORAGE
+                    | vk::ImageUsageFlags::SAMPLED
+                    | vk::ImageUsageFlags::TRANSFER_SRC
+                    | vk::ImageUsageFlags::TRANSFER_DST,
             )
         };
+        let image = |name: &str, format| Image::new(ctx, name, &desc(format));
         let r32 = vk::Format::R32_SFLOAT;
         let rgba = vk::Format::R32G32B32A32_SFLOAT;
         Ok(PostTargets {
@@ -101,7 +98,9 @@ impl PostTargets {
             blur_a: image("post.blur_a", r32)?,
             blur_b: image("post.blur_b", r32)?,
             gradient: image("post.gradient", rgba)?,
-            edges: image("post.edges", r32)?,
+            // Lines are drawn into the edges with atomic max on the R32_UINT view: coverage is a
+            // non-negative float, whose bits order as unsigned integers do.
+            edges: Image::new(ctx, "post.edges", &desc(r32).alias(vk::Format::R32_UINT))?,
             context: image("post.context", rgba)?,
             changed: Buffer::new(
                 ctx,
@@ -277,8 +276,10 @@ impl Post {
                 cmd, profiler, d.volume, d.dims, d.spacing, d.eye, &d.params, None, d.buffer,
             )?;
             let view = RasterView {
-                // Canny's edge image holds classes: 2 is an edge.
+                // Canny's edge image holds classes: 2 is an edge, 1 a candidate the composite
+                // draws as none; a line pixel of coverage c is 1 + c there.
                 value: 1.0 + edge_offset as f32,
+                floor: edge_offset as f32,
                 ..d.view
             };
             d.extractor.record_raster(

@@ -755,6 +755,7 @@ impl Renderer {
                         view_dir: view_dir.to_array(),
                         bias: p.line_depth_bias * min_spacing / longest,
                         value: 1.0,
+                        floor: 0.0,
                     };
                     if let Ok(mut last) = self.last_lines.lock() {
                         *last = Some(raster);
