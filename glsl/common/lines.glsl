@@ -12,8 +12,8 @@ struct LinesPush {
     float cos_c;                 // cos θ_c
     float derivative_threshold;  // t_d
     uint capacity;               // segments the buffer holds
-    uint cell_capacity;          // cells the straddling-cell list holds
-    uint pad0;
+    uint cell_capacity;          // cells the straddling-cell list (or a frontier) holds
+    uint seed_mode;              // seed.comp: 0 the previous segments, 1 the strided scan
     uint pad1;
     uint pad2;
 };

@@ -2,7 +2,8 @@
 // invocation, appended to a buffer through an atomic counter. The GPU twin of
 // src/volume/lines.rs, which documents the method; the arithmetic follows it step by step.
 // Included by extract.comp (the Hessian by differences of the volume at every cell corner) and
-// extract_hessian.comp (PRECOMPUTED_HESSIAN: read from the two images hessian.comp made).
+// extract_hessian.comp (PRECOMPUTED_HESSIAN: read from the two images hessian.comp made), and
+// extract_seeded.comp (SEEDED: one round of the seeded traversal over a frontier of cells).
 #include "lines.glsl"
 
 // One straddling cell per invocation, from the list cells.comp made.
@@ -43,6 +44,32 @@ layout(set = 0, binding = 4) uniform sampler3D hessian_b;
 
 layout(push_constant) uniform Push { LinesPush pc; };
 
+#ifdef SEEDED
+// The next round's frontier and the visited bits; `cells` above is this round's frontier.
+#define FRONTIER_BINDING 3
+#define VISITED_BINDING 4
+#include "frontier.glsl"
+// The cell this invocation extracts, the search it came as (0 when it came following a line),
+// and whether it drew a line.
+ivec3 g_cell;
+uint g_search;
+bool g_emitted;
+
+// The line leaves the cell where an end of its segment lies on the cell's boundary: there the
+// end's coordinate equals the face's exactly (crossings interpolate between corners of that
+// face). Follow it into the neighbour across that face, or across the edge or corner it is on.
+void follow(vec3 p) {
+    vec3 c = vec3(g_cell);
+    ivec3 o = ivec3(equal(p, c + 1.0)) - ivec3(equal(p, c));
+    for (int m = 1; m < 8; ++m) {
+        ivec3 sel = ivec3(m & 1, (m >> 1) & 1, (m >> 2) & 1);
+        if (!any(greaterThan(sel, abs(o)))) {
+            push_cell(g_cell + o * sel, 0u);
+        }
+    }
+}
+#endif
+
 // Which kinds this pipeline extracts (bit 0 silhouettes, bit 1 suggestive contours): a
 // specialisation constant, so the other kind's code is not compiled in (passes/lines.rs).
 layout(constant_id = 0) const int KINDS = 3;
@@ -72,6 +99,11 @@ vec3 view_at(vec3 x) {
 }
 
 void emit(Point a, Point b, float kind) {
+#ifdef SEEDED
+    g_emitted = true;
+    follow(a.p);
+    follow(b.p);
+#endif
     uint i = atomicAdd(count, 1u);
     if (i < pc.capacity) {
         if (i % 64u == 0u) {
@@ -140,6 +172,46 @@ void triangle(Point t[3]) {
         }
     }
 }
+
+#ifdef SEEDED
+// A search that found no line here steps to the neighbour across the face the surface crosses
+// with the smallest mean |h| at its corners (h = n·v for a silhouette search, κ_r for a
+// suggestive one): a descent towards h = 0 over the surface, as Burns et al. walk from a seed to
+// a contour. Faces are tried best first until a neighbour not yet visited is found.
+void walk(float f[8], Point pts[8]) {
+    bool silhouettes = g_search == SEARCH_SILHOUETTE;
+    float score[6];
+    for (int face = 0; face < 6; ++face) {
+        int axis = face >> 1, side = face & 1;
+        int inside = 0;
+        float sum = 0.0;
+        for (int i = 0; i < 8; ++i) {
+            if (((i >> axis) & 1) == side) {
+                inside += f[i] >= pc.iso ? 1 : 0;
+                sum += abs(silhouettes ? pts[i].ndotv : pts[i].kappa);
+            }
+        }
+        score[face] = inside != 0 && inside != 4 ? sum : 1e30;
+    }
+    for (int t = 0; t < 6; ++t) {
+        int best = -1;
+        for (int face = 0; face < 6; ++face) {
+            if (score[face] < 1e30 && (best < 0 || score[face] < score[best])) {
+                best = face;
+            }
+        }
+        if (best < 0) {
+            return;
+        }
+        score[best] = 1e30;
+        ivec3 d = ivec3(0);
+        d[best >> 1] = 2 * (best & 1) - 1;
+        if (push_cell(g_cell + d, g_search)) {
+            return;
+        }
+    }
+}
+#endif
 
 const ivec4 TETS[6] = ivec4[6](ivec4(0, 1, 3, 7), ivec4(0, 1, 5, 7), ivec4(0, 2, 3, 7),
                                ivec4(0, 2, 6, 7), ivec4(0, 4, 5, 7), ivec4(0, 4, 6, 7));
@@ -238,13 +310,27 @@ void extract_cell(ivec3 c) {
             triangle(t1);
         }
     }
+#ifdef SEEDED
+    if (g_search != 0u && !g_emitted) {
+        walk(f, pts);
+    }
+#endif
 }
 
 void main() {
     uint n = min(cell_count, pc.cell_capacity);
     for (uint id = gl_GlobalInvocationID.x; id < n; id += LINES_MAX_GROUPS * 64u) {
         uint k = cells[id];
+#ifdef SEEDED
+        g_search = k & ~CELL_BITS;
+        g_emitted = false;
+        k &= CELL_BITS;
+#endif
         uint dx = uint(pc.dims.x), dy = uint(pc.dims.y);
-        extract_cell(ivec3(int(k % dx), int((k / dx) % dy), int(k / (dx * dy))));
+        ivec3 c = ivec3(int(k % dx), int((k / dx) % dy), int(k / (dx * dy)));
+#ifdef SEEDED
+        g_cell = c;
+#endif
+        extract_cell(c);
     }
 }

@@ -2,7 +2,8 @@
 //! interactive mode (every other cell), on the GPU pass and on the CPU reference, with segment
 //! counts. The GPU figure is the `lines` pass's timestamp; the upload is not counted. Beside it,
 //! the same extraction with the Hessian precomputed (issue 11: measure both), whose one-off
-//! `lines_hessian` pass is reported apart.
+//! `lines_hessian` pass is reported apart. And the seeded traversal, the interactive mode: one
+//! frame after a full one, the camera turned 3°.
 
 use crate::bench::shared_data;
 use crate::error::Result;
@@ -26,7 +27,10 @@ pub struct Row {
     pub data: String,
     pub dims: [usize; 3],
     pub kind: &'static str,
-    /// 1 = every cell, 2 = the interactive mode.
+    /// "all" (every cell), "stride 2" (every other cell) or "seeded" (the seeded traversal, one
+    /// frame after a full frame 3° of azimuth before, against the full set at its own view).
+    pub mode: &'static str,
+    /// 1 = every cell, 2 = every other; 1 for the seeded traversal.
     pub stride: u32,
     pub gpu_ms: f64,
     pub gpu_segments: u64,
@@ -35,6 +39,8 @@ pub struct Row {
     pub precomputed_ms: Option<f64>,
     pub precomputed_segments: Option<u64>,
     pub hessian_ms: Option<f64>,
+    /// The seeded frame's total segment length as a fraction of the full set's at its view.
+    pub length_fraction: Option<f64>,
     pub cpu_ms: f64,
     pub cpu_segments: usize,
 }
@@ -68,8 +74,11 @@ fn cases(input: &Option<(String, f64)>) -> Result<Vec<(Volume, String, f64)>> {
 pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     let lines = LineExtractor::new(ctx)?;
     // Azimuth 30°, elevation 20°: the renderer's default view of an unoriented volume.
-    let (a, e) = (30f32.to_radians(), 20f32.to_radians());
-    let eye = Eye::Direction([a.sin() * e.cos(), -a.cos() * e.cos(), e.sin()]);
+    let eye_at = |azimuth: f32| {
+        let (a, e) = (azimuth.to_radians(), 20f32.to_radians());
+        Eye::Direction([a.sin() * e.cos(), -a.cos() * e.cos(), e.sin()])
+    };
+    let eye = eye_at(30.0);
     let mut rows = Vec::new();
     for (v, data, iso) in cases(&opts.input)? {
         let (v, data) = match opts.resample {
@@ -101,7 +110,19 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                     stride,
                     ..LineParams::default()
                 };
+                // Each measured extraction runs once before, untimed: llvmpipe compiles a
+                // shader variant on its first dispatch with a given texture format, for seconds.
+                lines.extract(&v, eye, &p, DEFAULT_CAPACITY)?;
                 let gpu = lines.extract(&v, eye, &p, DEFAULT_CAPACITY)?;
+                if precompute {
+                    lines.extract_with(
+                        &v,
+                        eye,
+                        &p,
+                        DEFAULT_CAPACITY,
+                        HessianSource::Precomputed,
+                    )?;
+                }
                 let pre = match precompute {
                     true => Some(lines.extract_with(
                         &v,
@@ -124,6 +145,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                     data: data.clone(),
                     dims: v.dims,
                     kind,
+                    mode: if stride == 1 { "all" } else { "stride 2" },
                     stride,
                     gpu_ms: gpu.ms,
                     gpu_segments: gpu.found,
@@ -132,8 +154,49 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                     hessian_ms: pre.as_ref().map(|l| l.hessian_ms),
                     cpu_ms: start.elapsed().as_secs_f64() * 1e3,
                     cpu_segments: cpu.len(),
+                    length_fraction: None,
                 });
             }
+            // The interactive mode of the viewer: a full frame, then the camera turns 3°.
+            let p = LineParams {
+                iso: iso as f32,
+                silhouettes: sil,
+                suggestive: sc,
+                ..LineParams::default()
+            };
+            let turned = eye_at(33.0);
+            let sequence = [(eye, p), (turned, LineParams { seeded: true, ..p })];
+            lines.extract_frames(&v, &sequence, DEFAULT_CAPACITY)?;
+            let frames = lines.extract_frames(&v, &sequence, DEFAULT_CAPACITY)?;
+            let full = lines.extract(&v, turned, &p, DEFAULT_CAPACITY)?;
+            let length = |s: &[crate::volume::lines::Segment]| -> f64 {
+                s.iter().map(|s| s.length() as f64).sum()
+            };
+            let start = std::time::Instant::now();
+            let cpu = extract(
+                &values,
+                v.dims,
+                spacing,
+                turned,
+                &LineParams { iso: iso_n, ..p },
+            );
+            rows.push(Row {
+                data: data.clone(),
+                dims: v.dims,
+                kind,
+                mode: "seeded",
+                stride: 1,
+                gpu_ms: frames[1].ms,
+                gpu_segments: frames[1].found,
+                precomputed_ms: None,
+                precomputed_segments: None,
+                hessian_ms: None,
+                cpu_ms: start.elapsed().as_secs_f64() * 1e3,
+                cpu_segments: cpu.len(),
+                length_fraction: Some(
+                    length(&frames[1].segments) / length(&full.segments).max(1e-9),
+                ),
+            });
         }
     }
     Ok(Table {
@@ -154,10 +217,10 @@ impl Table {
         );
         let _ = writeln!(
             s,
-            "{:<22} {:<12} {:>6} {:>10} {:>10} {:>14} {:>10} {:>10} {:>10} {:>10}",
+            "{:<22} {:<12} {:>8} {:>10} {:>10} {:>14} {:>10} {:>10} {:>10} {:>10}",
             "data",
             "kind",
-            "stride",
+            "mode",
             "GPU ms",
             "segments",
             "precomp. H ms",
@@ -170,19 +233,27 @@ impl Table {
         for r in &self.rows {
             let _ = writeln!(
                 s,
-                "{:<22} {:<12} {:>6} {:>10.1} {:>10} {:>14} {:>10} {:>10} {:>10.1} {:>10}",
+                "{:<22} {:<12} {:>8} {:>10.1} {:>10} {:>14} {:>10} {:>10} {:>10.1} {:>10}{}",
                 r.data,
                 r.kind,
-                r.stride,
+                r.mode,
                 r.gpu_ms,
                 r.gpu_segments,
                 or_dash(r.precomputed_ms.map(|m| format!("{m:.1}"))),
                 or_dash(r.precomputed_segments.map(|n| n.to_string())),
                 or_dash(r.hessian_ms.map(|m| format!("{m:.1}"))),
                 r.cpu_ms,
-                r.cpu_segments
+                r.cpu_segments,
+                r.length_fraction
+                    .map(|f| format!("  ({:.1} % of the full length)", 100.0 * f))
+                    .unwrap_or_default()
             );
         }
+        let _ = writeln!(
+            s,
+            "seeded: one frame of the seeded traversal after a full frame 3° of azimuth before; \
+             CPU: the full set at its view"
+        );
         if self.rows.iter().any(|r| r.precomputed_ms.is_none()) {
             let _ = writeln!(
                 s,

@@ -43,9 +43,43 @@ pub struct LinesPush {
     pub capacity: u32,
     /// Cells the straddling-cell list holds.
     pub cell_capacity: u32,
-    pub pad0: u32,
+    /// seed.comp: 0 the previous segments, 1 the strided scan.
+    pub seed_mode: u32,
     pub pad1: u32,
     pub pad2: u32,
+}
+
+impl LinesPush {
+    /// The push constants of an extraction from a `dims` volume into `out`, visiting every
+    /// `stride`-th cell, from lists of `cell_capacity` cells.
+    fn new(
+        dims: [usize; 3],
+        spacing: [f32; 3],
+        eye: Eye,
+        params: &LineParams,
+        stride: u32,
+        capacity: u32,
+        cell_capacity: u32,
+    ) -> Self {
+        LinesPush {
+            dims: dims.map(|d| d as i32),
+            stride: stride as i32,
+            spacing,
+            iso: params.iso,
+            eye: match eye {
+                Eye::Direction(d) => [d[0], d[1], d[2], 0.0],
+                Eye::Point(p) => [p[0], p[1], p[2], 1.0],
+            },
+            kinds: params.silhouettes as i32 | (params.suggestive as i32) << 1,
+            cos_c: params.min_angle_deg.to_radians().cos(),
+            derivative_threshold: params.derivative_threshold,
+            capacity,
+            cell_capacity,
+            seed_mode: 0,
+            pad1: 0,
+            pad2: 0,
+        }
+    }
 }
 
 /// Push constants of `raster` (GLSL twin: `RasterPush` in lines.glsl).
@@ -65,6 +99,40 @@ const HEADER: u64 = 16;
 const HEADER_INIT: [u32; 4] = [0, 1, 1, 0];
 /// Default capacity: 1 M segments (32 MiB).
 pub const DEFAULT_CAPACITY: u32 = 1 << 20;
+/// Most workgroups an indirect dispatch of the line passes asks for (`LINES_MAX_GROUPS` in
+/// lines.glsl).
+const LINES_MAX_GROUPS: u64 = 65535;
+/// Rounds of the seeded traversal per frame: how many cells a line is followed, or a search
+/// walks, from where the frame's seeds are. A line found in one frame seeds the next, so longer
+/// lines complete over frames.
+pub const SEED_ROUNDS: u32 = 16;
+/// The seeded traversal also seeds every `SEED_STRIDE`-th cell along each axis that straddles τ,
+/// so that lines appear where the previous frame had none.
+pub const SEED_STRIDE: u32 = 8;
+/// Most cells one round's frontier holds (16 MiB); more are counted and lost.
+const FRONTIER_CELLS: u64 = 1 << 22;
+
+/// What the seeded traversal keeps between frames.
+struct SeedState {
+    /// One bit per voxel: the cell entered a frontier in this frame.
+    visited: Buffer,
+    /// The frontiers of even and odd rounds (16-byte header = the round's indirect dispatch).
+    frontier: [Buffer; 2],
+    /// Cells a frontier holds.
+    capacity: u32,
+    voxels: u64,
+}
+
+/// What the segments in a line buffer were extracted from: the seeded traversal seeds from them
+/// only when its own extraction matches.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct SeedKey {
+    values: vk::Image,
+    dims: [usize; 3],
+    iso: u32,
+    kinds: u32,
+    buffer: vk::Buffer,
+}
 
 /// The extracted lines.
 #[derive(Clone, Debug)]
@@ -153,6 +221,13 @@ pub struct LineExtractor {
     nearest: Sampler,
     /// The Gaussian passes that smooth a volume for [`LineParams::smooth`], built on first use.
     smoother: std::sync::OnceLock<crate::passes::importance::ImportanceMap>,
+    /// The seeded traversal ([`LineParams::seeded`]): seeds, one round per kinds, and their
+    /// buffers, built on first use.
+    seed: std::sync::OnceLock<ComputePipeline>,
+    extract_seeded: [std::sync::OnceLock<ComputePipeline>; 3],
+    seed_state: std::sync::Mutex<Option<SeedState>>,
+    /// What the last extraction into a line buffer was from.
+    last: std::sync::Mutex<Option<SeedKey>>,
 }
 
 /// Where the extraction takes the Hessian of f from (issue 11 asks for both, measured).
@@ -325,6 +400,10 @@ impl LineExtractor {
             )?,
             nearest: Sampler::new(ctx, false)?,
             smoother: std::sync::OnceLock::new(),
+            seed: std::sync::OnceLock::new(),
+            extract_seeded: Default::default(),
+            seed_state: std::sync::Mutex::new(None),
+            last: std::sync::Mutex::new(None),
         })
     }
 
@@ -457,6 +536,30 @@ impl LineExtractor {
         out: &LineBuffer,
     ) -> Result<()> {
         let ctx = &self.ctx;
+        let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
+        let key = SeedKey {
+            values: values.raw,
+            dims,
+            iso: params.iso.to_bits(),
+            kinds,
+            buffer: out.buffer.raw,
+        };
+        let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
+        let previous = *last == Some(key);
+        // Set before recording: a failed recording is never submitted, and the next frame's
+        // seeds are then merely stale cells, which the traversal tolerates.
+        *last = Some(key);
+        drop(last);
+        if params.seeded {
+            if hessian.is_some() {
+                return Err(Error::Invalid(
+                    "the seeded traversal takes the Hessian on the fly only".into(),
+                ));
+            }
+            return self.record_seeded(
+                cmd, profiler, values, dims, spacing, eye, params, out, previous,
+            );
+        }
         profiler.begin(cmd, "lines");
         // The previous frame's readers (the rasteriser's indirect read) are done before this write.
         memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
@@ -466,10 +569,6 @@ impl LineExtractor {
         };
         memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
         values.transition(cmd, Access::ComputeSampled);
-        let eye = match eye {
-            Eye::Direction(d) => [d[0], d[1], d[2], 0.0],
-            Eye::Point(p) => [p[0], p[1], p[2], 1.0],
-        };
         let s = params.stride.max(1);
         let cells = dims.map(|d| (d.saturating_sub(1) as u32).div_ceil(s));
         let visited: u64 = cells.iter().map(|&c| c as u64).product();
@@ -505,21 +604,7 @@ impl LineExtractor {
                 .cmd_update_buffer(cmd, cell_list.raw, 0, bytemuck::cast_slice(&HEADER_INIT))
         };
         memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
-        let push = LinesPush {
-            dims: dims.map(|d| d as i32),
-            stride: s as i32,
-            spacing,
-            iso: params.iso,
-            eye,
-            kinds: params.silhouettes as i32 | (params.suggestive as i32) << 1,
-            cos_c: params.min_angle_deg.to_radians().cos(),
-            derivative_threshold: params.derivative_threshold,
-            capacity: out.capacity,
-            cell_capacity,
-            pad0: 0,
-            pad1: 0,
-            pad2: 0,
-        };
+        let push = LinesPush::new(dims, spacing, eye, params, s, out.capacity, cell_capacity);
         self.cells_pass.dispatch(
             cmd,
             &[
@@ -530,7 +615,6 @@ impl LineExtractor {
             group_count(cells, [4, 4, 4]),
         )?;
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
-        let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
         let slot = (kinds.max(1) - 1) as usize;
         let (cells, shader) = match hessian {
             None => (&self.extract[slot], "lines/extract.comp"),
@@ -569,6 +653,177 @@ impl LineExtractor {
         Ok(())
     }
 
+    /// The seeded traversal (Burns et al.'s seed-and-traverse, rounds of indirect dispatches with
+    /// no CPU round trip): the first frontier holds the cells of the segments `out` holds from
+    /// the previous extraction (when `previous`: same volume, τ and kinds) and every
+    /// [`SEED_STRIDE`]-th cell that straddles τ, all as searches. Each of [`SEED_ROUNDS`] rounds
+    /// extracts its frontier into `out`; a line found is followed into the cells across the
+    /// faces its ends lie on, and a search that finds none steps towards h = 0. Every cell is
+    /// extracted at most once a frame (one visited bit per voxel).
+    #[allow(clippy::too_many_arguments)]
+    fn record_seeded(
+        &self,
+        cmd: vk::CommandBuffer,
+        profiler: &mut Profiler,
+        values: &Image,
+        dims: [usize; 3],
+        spacing: [f32; 3],
+        eye: Eye,
+        params: &LineParams,
+        out: &LineBuffer,
+        previous: bool,
+    ) -> Result<()> {
+        let ctx = &self.ctx;
+        let voxels: u64 = dims.iter().map(|&d| d as u64).product();
+        if voxels > 1 << 30 {
+            return Err(Error::Invalid(format!(
+                "a {}x{}x{} volume has more voxels than the seeded traversal can index (2^30)",
+                dims[0], dims[1], dims[2]
+            )));
+        }
+        let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
+        let seed = built(&self.seed, || {
+            ComputePipeline::new(
+                ctx,
+                "lines/seed.comp",
+                &[
+                    BindingKind::SampledImage,
+                    BindingKind::StorageBuffer,
+                    BindingKind::StorageBuffer,
+                    BindingKind::StorageBuffer,
+                ],
+                std::mem::size_of::<LinesPush>() as u32,
+            )
+        })?;
+        let round = built(&self.extract_seeded[(kinds.max(1) - 1) as usize], || {
+            ComputePipeline::with_constants(
+                ctx,
+                "lines/extract_seeded.comp",
+                &[
+                    BindingKind::SampledImage,
+                    BindingKind::StorageBuffer,
+                    BindingKind::StorageBuffer,
+                    BindingKind::StorageBuffer,
+                    BindingKind::StorageBuffer,
+                ],
+                std::mem::size_of::<LinesPush>() as u32,
+                &[kinds.max(1)],
+            )
+        })?;
+        let mut guard = self.seed_state.lock().unwrap_or_else(|p| p.into_inner());
+        if guard.as_ref().is_none_or(|s| s.voxels < voxels) {
+            let cells = voxels
+                .min(FRONTIER_CELLS)
+                .min((ctx.info.max_storage_buffer_range as u64 - HEADER) / 4)
+                .max(1);
+            let list = |name: &str| {
+                Buffer::new(
+                    ctx,
+                    name,
+                    &BufferDesc {
+                        size: HEADER + 4 * cells,
+                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
+                            | vk::BufferUsageFlags::INDIRECT_BUFFER
+                            | vk::BufferUsageFlags::TRANSFER_DST,
+                        location: BufferLocation::Gpu,
+                    },
+                )
+            };
+            *guard = Some(SeedState {
+                visited: Buffer::new(
+                    ctx,
+                    "line seeds visited",
+                    &BufferDesc {
+                        size: 4 * voxels.div_ceil(32),
+                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
+                            | vk::BufferUsageFlags::TRANSFER_DST,
+                        location: BufferLocation::Gpu,
+                    },
+                )?,
+                frontier: [list("line frontier even")?, list("line frontier odd")?],
+                capacity: cells as u32,
+                voxels,
+            });
+        }
+        let state = guard.as_ref().expect("allocated above");
+        let mut push = LinesPush::new(
+            dims,
+            spacing,
+            eye,
+            params,
+            SEED_STRIDE,
+            out.capacity,
+            state.capacity,
+        );
+        let header = bytemuck::cast_slice(&HEADER_INIT);
+        profiler.begin(cmd, "lines");
+        // The previous frame's extraction wrote `out` and the frontiers; its rasteriser and
+        // rounds read them, also as indirect arguments.
+        memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferWrite);
+        memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
+        memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::ComputeReadWrite);
+        unsafe {
+            ctx.device
+                .cmd_fill_buffer(cmd, state.visited.raw, 0, vk::WHOLE_SIZE, 0);
+            ctx.device
+                .cmd_update_buffer(cmd, state.frontier[0].raw, 0, header);
+        }
+        memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
+        values.transition(cmd, Access::ComputeSampled);
+        let seed_binds = [
+            Bind::Sampled(values, &self.nearest),
+            Bind::StorageBuffer(&out.buffer),
+            Bind::StorageBuffer(&state.frontier[0]),
+            Bind::StorageBuffer(&state.visited),
+        ];
+        if previous {
+            // The previous segments' header is their indirect dispatch (64 a workgroup).
+            memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
+            seed.dispatch_indirect(cmd, &seed_binds, &push, &out.buffer, 0)?;
+        }
+        let grid: u64 = dims
+            .iter()
+            .map(|&d| (d.saturating_sub(2) as u64) / SEED_STRIDE as u64 + 1)
+            .product();
+        push.seed_mode = 1;
+        seed.dispatch(
+            cmd,
+            &seed_binds,
+            &push,
+            [grid.div_ceil(64).clamp(1, LINES_MAX_GROUPS) as u32, 1, 1],
+        )?;
+        // The seeds are read; the buffer starts over for this frame's segments.
+        memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferWrite);
+        unsafe { ctx.device.cmd_update_buffer(cmd, out.buffer.raw, 0, header) };
+        memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
+        push.stride = 1;
+        push.seed_mode = 0;
+        for r in 0..SEED_ROUNDS as usize {
+            let (now, next) = (&state.frontier[r % 2], &state.frontier[1 - r % 2]);
+            // The round before last read `next` (as its frontier and indirect arguments).
+            memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferWrite);
+            memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
+            unsafe { ctx.device.cmd_update_buffer(cmd, next.raw, 0, header) };
+            memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
+            memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
+            round.dispatch_indirect(
+                cmd,
+                &[
+                    Bind::Sampled(values, &self.nearest),
+                    Bind::StorageBuffer(&out.buffer),
+                    Bind::StorageBuffer(now),
+                    Bind::StorageBuffer(next),
+                    Bind::StorageBuffer(&state.visited),
+                ],
+                &push,
+                now,
+                0,
+            )?;
+        }
+        profiler.end(cmd);
+        Ok(())
+    }
+
     /// Uploads `v`, extracts its lines (`params.iso` in data units) and reads them back.
     pub fn extract(
         &self,
@@ -578,6 +833,72 @@ impl LineExtractor {
         capacity: u32,
     ) -> Result<LineSet> {
         self.extract_with(v, eye, params, capacity, HessianSource::OnTheFly)
+    }
+
+    /// Uploads `v` once and extracts one frame per entry of `frames` (`iso` in data units, the
+    /// same smoothing in all) into one line buffer, one submission each, reading each back: a
+    /// seeded frame seeds from the frame before it, as in a window.
+    pub fn extract_frames(
+        &self,
+        v: &Volume,
+        frames: &[(Eye, LineParams)],
+        capacity: u32,
+    ) -> Result<Vec<LineSet>> {
+        let ctx = &self.ctx;
+        let Some((_, first)) = frames.first() else {
+            return Ok(Vec::new());
+        };
+        if frames.iter().any(|(_, p)| p.smooth != first.smooth) {
+            return Err(Error::Invalid(
+                "the frames of one extraction share one smoothing radius".into(),
+            ));
+        }
+        let mut profiler = Profiler::new(ctx, 8)?;
+        let input = OcclusionInput::upload(ctx, v, &mut profiler)?;
+        let [lo, hi] = input.range;
+        let out = LineBuffer::new(ctx, capacity)?;
+        let spacing = v.spacing.map(|s| s as f32);
+        let smoothed = match first.smooth {
+            0 => None,
+            r => Some(submit_once(ctx, "line smoothing", |cmd| {
+                profiler.reset(cmd);
+                self.record_smoothing(cmd, &mut profiler, &input.intensity, v.dims, r)
+            })?),
+        };
+        let values = smoothed.as_ref().unwrap_or(&input.intensity);
+        let mut sets = Vec::with_capacity(frames.len());
+        let mut profiler = Profiler::new(ctx, 2)?;
+        for (eye, params) in frames {
+            let iso = if hi > lo {
+                ((params.iso as f64 - lo) / (hi - lo)) as f32
+            } else {
+                0.5
+            };
+            let p = LineParams { iso, ..*params };
+            submit_once(ctx, "lines", |cmd| {
+                profiler.reset(cmd);
+                self.record(
+                    cmd,
+                    &mut profiler,
+                    values,
+                    v.dims,
+                    spacing,
+                    *eye,
+                    &p,
+                    None,
+                    &out,
+                )
+            })?;
+            let ms = profiler.results()?.iter().map(|t| t.ms).sum();
+            let (segments, found) = out.read()?;
+            sets.push(LineSet {
+                segments,
+                found,
+                ms,
+                hessian_ms: 0.0,
+            });
+        }
+        Ok(sets)
     }
 
     /// [`LineExtractor::extract`] with the Hessian from `source`. [`LineSet::ms`] times the
@@ -686,7 +1007,7 @@ mod tests {
                 derivative_threshold,
                 capacity,
                 cell_capacity,
-                pad0,
+                seed_mode,
                 pad1,
                 pad2
             ]

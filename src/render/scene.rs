@@ -28,8 +28,8 @@
 //!   (`focus`, `context`, `both`) and `lighting` (`ambient`, `phong`).
 //! - `style`: a perceptual style of the two-level paper, `{"style": 2 | "dog", "params": {..}}`
 //!   (`render::style`). Styles 4–12 draw object-space lines; their `params` include
-//!   `line_angle`, `line_derivative_threshold`, `line_depth_bias`, `line_stride`, `line_smooth`
-//!   and `line_both`.
+//!   `line_angle`, `line_derivative_threshold`, `line_depth_bias`, `line_stride`, `line_smooth`,
+//!   `line_seeded` and `line_both`.
 //!
 //! Every key is checked: an unknown key is an error that names it.
 //!

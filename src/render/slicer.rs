@@ -778,6 +778,7 @@ impl Renderer {
                             derivative_threshold: p.line_derivative_threshold,
                             stride: p.line_stride,
                             smooth: p.line_smooth,
+                            seeded: p.line_seeded,
                         },
                         view: raster,
                     })

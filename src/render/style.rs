@@ -197,6 +197,9 @@ pub struct StyleParams {
     /// Object-space lines: the radius in voxels of the Gaussian (σ = R/3) the volume is smoothed
     /// with before extraction; 0 = none. Suggestive contours need it on measured data.
     pub line_smooth: u32,
+    /// Object-space lines by the seeded traversal (`LineParams::seeded`), the viewer's
+    /// interactive mode: lines followed from the previous frame's and a sparse grid of seeds.
+    pub line_seeded: bool,
 }
 
 impl Default for StyleParams {
@@ -222,6 +225,7 @@ impl Default for StyleParams {
             line_stride: 1,
             line_both: false,
             line_smooth: 0,
+            line_seeded: false,
         }
     }
 }

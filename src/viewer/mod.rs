@@ -1060,10 +1060,11 @@ impl Running {
         let mut view = self.model.scene.view(self.model.oriented);
         if let Ok(v) = &mut view {
             v.size = render_size;
-            // While something moves, lines come from every other cell (Burns et al.'s cheaper
-            // interactive mode); the refined frame visits them all.
+            // While something moves, lines come from the seeded traversal (Burns et al.'s
+            // interactive mode: followed from the previous frame's lines); the refined frame
+            // visits every cell.
             if let (false, Some(st)) = (full, &mut v.style) {
-                st.params.line_stride = st.params.line_stride.max(2);
+                st.params.line_seeded = true;
             }
         }
         let slot = self.frames.next_slot()?;

@@ -48,6 +48,12 @@ pub struct LineParams {
     /// makes κ_r cross zero everywhere, and suggestive contours become speckle. [`extract`] takes
     /// values already smoothed ([`smoothed`]); the GPU passes smooth for themselves.
     pub smooth: u32,
+    /// GPU only: the seeded traversal (Burns et al.) instead of a visit of the cells, for the
+    /// interactive mode. It starts from the previous extraction's segments and a sparse grid of
+    /// seeds and follows the lines cell to cell for a bounded number of rounds: cheaper than
+    /// every cell, with whole curves near where they were, but lines far from any seed may be
+    /// missing or shorter. The CPU reference ignores it (it has no previous frame).
+    pub seeded: bool,
 }
 
 /// The values of `v` normalised to [0, 1] over its range (as [`extract`] and the GPU passes see
@@ -79,6 +85,7 @@ impl Default for LineParams {
             derivative_threshold: 1e-4,
             stride: 1,
             smooth: 0,
+            seeded: false,
         }
     }
 }

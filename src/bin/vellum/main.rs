@@ -477,6 +477,10 @@ struct StyleArgs {
     /// (σ = R/3; 0 none), against speckle of suggestive contours on measured data [default: 0].
     #[arg(long)]
     line_smooth: Option<u32>,
+    /// Object-space lines by the seeded traversal (Burns et al.): followed from a sparse grid of
+    /// seeds for a bounded number of rounds, the viewer's interactive mode.
+    #[arg(long)]
+    line_seeded: bool,
 }
 
 impl StyleArgs {
@@ -498,6 +502,7 @@ impl StyleArgs {
             || self.line_threshold.is_some()
             || self.line_bias.is_some()
             || self.line_stride.is_some()
+            || self.line_seeded
             || self.line_smooth.is_some();
         let mut spec = match (&self.style, spec) {
             (Some(s), old) => vellum::render::scene::StyleSpec {
@@ -571,6 +576,9 @@ impl StyleArgs {
         }
         if let Some(v) = self.line_smooth {
             p.line_smooth = v;
+        }
+        if self.line_seeded {
+            p.line_seeded = true;
         }
         spec.resolve()?;
         Ok(Some(spec))
