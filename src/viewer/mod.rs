@@ -413,7 +413,8 @@ impl ApplicationHandler for App {
                 if let Some(r) = self.running.as_mut() {
                     if let Some(0) = r.bench_left {
                         self.report = Some(r.bench_report());
-                        event_loop.exit();
+                        // With --screenshot-on-exit, the last view is written too.
+                        self.close(event_loop);
                     }
                 }
             }
