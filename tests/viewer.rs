@@ -708,3 +708,71 @@ fn a_bad_file_is_one_sentence_and_the_volume_stays() {
     }
     v.close(&x);
 }
+
+/// `--bench` orbits a scene in style 4 as a drag does: the interactive frames extract lines by
+/// the seeded traversal, seeded frame after frame with two frames in flight, with validation and
+/// synchronization validation silent. The report names the passes, and `--screenshot-on-exit`
+/// writes the last view, with the lines on it.
+#[test]
+fn the_bench_orbits_with_seeded_lines_and_writes_the_exit_screenshot() {
+    let Some((x, _guard)) = xvfb() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("torus.json");
+    let tf = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/tf_surface_only.json");
+    std::fs::write(
+        &scene,
+        serde_json::json!({
+            "version": 1,
+            "input": {"path": "phantom:torus:48"},
+            "classification": {"transfer": tf},
+            "focus": {"iso": 0.5},
+            "style": {"style": 4, "params": {"edge_color": [1.0, 0.0, 0.0], "edge_width": 2}},
+        })
+        .to_string(),
+    )
+    .unwrap();
+    let shot = dir.path().join("last.png");
+    let out = Command::new(VELLUM)
+        .arg("view")
+        .arg("--scene")
+        .arg(&scene)
+        .args(["--size", "320x240", "--bench", "4", "--json", "--no-vsync"])
+        .arg("--screenshot-on-exit")
+        .arg(&shot)
+        .env("DISPLAY", &x.display)
+        .env("VELLUM_VALIDATION", "1")
+        .env("VELLUM_SYNC_VALIDATION", "1")
+        .env(
+            "XDG_RUNTIME_DIR",
+            std::env::var("XDG_RUNTIME_DIR").unwrap_or_else(|_| dir.path().display().to_string()),
+        )
+        .output()
+        .expect("running vellum view --bench");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        !stderr.contains("validation layer reported") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("a JSON report");
+    assert_eq!(report["quality"], "interactive", "{report}");
+    assert!(report["fps"].as_f64().unwrap() > 0.0, "{report}");
+    let passes: Vec<&str> = report["gpu_ms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|p| p[0].as_str())
+        .collect();
+    assert!(
+        passes.contains(&"lines") && passes.contains(&"lines_draw"),
+        "{report}"
+    );
+    // The silhouettes are drawn in red: strongly red pixels are on the last view.
+    let red = rgb(&shot)
+        .pixels()
+        .filter(|p| p[0] > 150 && p[1] < 80 && p[2] < 80)
+        .count();
+    assert!(red > 50, "{red} red pixels on the last view");
+}

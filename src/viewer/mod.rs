@@ -1243,7 +1243,11 @@ impl Running {
             let (pixels, _) = rb.read()?;
             let [w, h] = rb.size();
             crate::output::write_png_rgb(&path, w, h, &to_rgb8(&pixels, background))?;
-            println!("screenshot: {}", path.display());
+            // A bench's report owns standard output (it may be JSON).
+            match self.bench_left {
+                Some(_) => eprintln!("screenshot: {}", path.display()),
+                None => println!("screenshot: {}", path.display()),
+            }
             self.model.message = format!("wrote {}", path.display());
             // One more frame shows the message.
             self.window.request_redraw();
