@@ -521,7 +521,10 @@ impl LineExtractor {
     /// Records pass `lines` into `cmd`: resets the header and extracts from `values` (a
     /// normalised volume texture, R16 or R32F, read texel by texel; `params.iso` on the same
     /// scale). With `hessian`, the Hessian is read from it (made from the same `values` by
-    /// [`LineExtractor::record_hessian`]) instead of taken by differences.
+    /// [`LineExtractor::record_hessian`]) instead of taken by differences. With
+    /// [`LineParams::seeded`], the seeded traversal runs instead of the visit of the cells
+    /// (`record_seeded`), seeded from what `out` holds when the last extraction into it had the
+    /// same volume, τ and kinds.
     #[allow(clippy::too_many_arguments)]
     pub fn record(
         &self,
