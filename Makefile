@@ -16,7 +16,7 @@ ISO ?= 0.9
 OUT ?= out
 VELLUM := ./target/release/vellum
 
-.PHONY: deps build run view test bench fuzz fmt
+.PHONY: deps build run view test bench bench-device bench-device-tables fuzz fmt
 
 deps:
 	@command -v cargo >/dev/null || { echo "cargo is missing: install Rust 1.95+ (https://rustup.rs)"; exit 1; }
@@ -84,6 +84,19 @@ bench: build
 	$(VELLUM) bench table1
 	$(VELLUM) bench render --peer vtk
 	$(VELLUM) bench styles
+
+# The GPU benches (issue 30), in two halves around one call of the device tool, which is a session
+# tool and not a shell command: `make bench-device` builds the release binary here and packs it,
+# the Vulkan loader and the volumes into .device/; the device tool then runs
+# `bash benches/device/run.sh` there with `carry: [".device"]` and brings $$OUT back; and
+# `make bench-device-tables JSON=<its results.tar>` writes BENCHMARKS.md's GPU tables from the JSON.
+bench-device: build
+	bash benches/device/pack.sh
+	@echo "now, through the device tool: bash benches/device/run.sh   (carry .device)"
+
+bench-device-tables:
+	@[ -n "$(JSON)" ] || { echo "give JSON=<the results.tar or folder the device run brought back>"; exit 2; }
+	python3 benches/device/tables.py $(JSON) BENCHMARKS.md
 
 fmt:
 	cargo fmt --all

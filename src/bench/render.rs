@@ -40,6 +40,9 @@ pub struct Options {
     pub sizes: Vec<u32>,
     /// Frames of the orbit (36 turns the camera once around).
     pub orbit_frames: usize,
+    /// `bench styles`: draw the levels with the ray caster (the viewer's default) instead of the
+    /// slicer.
+    pub raycast: bool,
 }
 
 /// One row: a volume at one size.
@@ -483,6 +486,8 @@ pub struct StyleRow {
 #[derive(Clone, Debug, Serialize)]
 pub struct StylesTable {
     pub device: String,
+    /// "slicer" or "raycast": what drew the levels.
+    pub renderer: String,
     pub repeat: usize,
     pub rows: Vec<StyleRow>,
 }
@@ -527,11 +532,18 @@ pub fn run_styles(ctx: &Arc<Context>, opts: &Options) -> Result<StylesTable> {
             };
             // Round: the one pass, then each style; frame k of a round is variant k.
             let variants = styles.len() + 1;
+            let raycast = opts
+                .raycast
+                .then(crate::render::raycast::RayOptions::default);
             let round = |s: &mut Session| -> Result<()> {
-                s.frame(&view(size, 30.0, true))?;
+                s.frame(&View {
+                    raycast,
+                    ..view(size, 30.0, true)
+                })?;
                 for st in &styles {
                     s.frame(&View {
                         style: Some(*st),
+                        raycast,
                         ..view(size, 30.0, false)
                     })?;
                 }
@@ -592,6 +604,7 @@ pub fn run_styles(ctx: &Arc<Context>, opts: &Options) -> Result<StylesTable> {
     }
     Ok(StylesTable {
         device: ctx.info.name.clone(),
+        renderer: if opts.raycast { "raycast" } else { "slicer" }.into(),
         repeat: opts.repeat,
         rows,
     })
@@ -601,8 +614,8 @@ impl StylesTable {
     /// The table as text.
     pub fn to_text(&self) -> String {
         let mut s = format!(
-            "Style frame rates on {}, median of {} frame(s); overhead against the one pass\n",
-            self.device, self.repeat
+            "Style frame rates on {} ({}), median of {} frame(s); overhead against the one pass\n",
+            self.device, self.renderer, self.repeat
         );
         s += "data                 size  style                 | frame ms     fps | style passes ms | vs one pass | passes\n";
         for r in &self.rows {

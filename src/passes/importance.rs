@@ -55,6 +55,50 @@ pub fn segment(radius_voxels: u32) -> u32 {
     (23u32.saturating_sub(2 * radius_voxels)).clamp(1, 4)
 }
 
+/// Texels per Gaussian invocation: `yz` along y and z (SEGMENT), `x` along x (SEGMENT_X).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct Segments {
+    pub yz: u32,
+    pub x: u32,
+}
+
+impl Segments {
+    /// The lengths for a device of `device_type` at `radius_voxels`: lavapipe's ([`segment`],
+    /// [`SEGMENT_X`]) on a CPU; on a GPU, where the private array stays in registers, longer
+    /// segments re-read less halo (BENCHMARKS.md, "On a GPU"). `VELLUM_GAUSS_SEGMENTS=YZ,X`
+    /// overrides both, for measuring.
+    pub fn choose(device_type: &str, radius_voxels: u32) -> Segments {
+        if let Some(s) = std::env::var("VELLUM_GAUSS_SEGMENTS")
+            .ok()
+            .and_then(|v| Segments::parse(&v))
+        {
+            return s;
+        }
+        match device_type {
+            "CPU" => Segments {
+                yz: segment(radius_voxels),
+                x: SEGMENT_X,
+            },
+            _ => Segments {
+                yz: GPU_SEGMENT_YZ,
+                x: GPU_SEGMENT_X,
+            },
+        }
+    }
+
+    fn parse(v: &str) -> Option<Segments> {
+        let (yz, x) = v.split_once(',')?;
+        let (yz, x) = (yz.trim().parse().ok()?, x.trim().parse().ok()?);
+        ((1..=64).contains(&yz) && (1..=64).contains(&x)).then_some(Segments { yz, x })
+    }
+}
+
+/// Segment lengths on a GPU (see [`Segments::choose`]): 8 and 8 were the best or within noise of
+/// it on every Table 1 case swept on an H100 (4..32 along y/z, 2..8 along x; BENCHMARKS.md),
+/// 10–40 % faster than lavapipe's 4 and 4 at R = 10, where the halo is the larger share.
+const GPU_SEGMENT_YZ: u32 = 8;
+const GPU_SEGMENT_X: u32 = 8;
+
 /// Lines per Gaussian workgroup (GAUSS_LOCAL_X in importance.glsl).
 pub const GAUSS_LOCAL_X: u32 = 64;
 
@@ -84,6 +128,7 @@ pub struct ImportanceVolume {
 struct Gauss {
     pipeline: Arc<ComputePipeline>,
     weights: Arc<Buffer>,
+    segments: Segments,
 }
 
 /// The images of the importance map for one volume size, kept on the GPU: `src` holds the volume
@@ -177,7 +222,9 @@ impl ImportanceMap {
             .iter()
             .map(|&w| w as f32)
             .collect();
+        let segments = Segments::choose(&self.ctx.info.device_type, radius_voxels);
         let g = Gauss {
+            segments,
             pipeline: Arc::new(ComputePipeline::with_constants(
                 &self.ctx,
                 "importance/gauss1d.comp",
@@ -187,7 +234,7 @@ impl ImportanceMap {
                     BindingKind::StorageBuffer,
                 ],
                 std::mem::size_of::<GaussPush>() as u32,
-                &[radius_voxels, segment(radius_voxels), SEGMENT_X],
+                &[radius_voxels, segments.yz, segments.x],
             )?),
             weights: Arc::new(Buffer::from_bytes(
                 &self.ctx,
@@ -246,7 +293,7 @@ impl ImportanceMap {
                     Bind::StorageBuffer(&gauss.weights),
                 ],
                 &push,
-                gauss_groups(extent, axis, radius_voxels),
+                gauss_groups(extent, axis, gauss.segments),
             )?;
             profiler.end(cmd);
         }
@@ -500,21 +547,21 @@ pub fn unpack_rows(packed: &[f32], dims: [usize; 3]) -> Vec<f32> {
 /// Workgroups of the Gaussian pass along `axis` (as in gauss1d.comp). `extent` is in texels (x
 /// holds four voxels per texel). x: lanes over (segment, y), groups over z. y and z: lanes over
 /// (texel x, the other axis), groups over segments.
-pub fn gauss_groups(extent: [u32; 3], axis: usize, radius_voxels: u32) -> [u32; 3] {
+pub fn gauss_groups(extent: [u32; 3], axis: usize, segments: Segments) -> [u32; 3] {
     match axis {
         0 => [
-            (extent[0].div_ceil(SEGMENT_X) * extent[1]).div_ceil(GAUSS_LOCAL_X),
+            (extent[0].div_ceil(segments.x) * extent[1]).div_ceil(GAUSS_LOCAL_X),
             extent[2],
             1,
         ],
         1 => [
             (extent[0] * extent[2]).div_ceil(GAUSS_LOCAL_X),
-            extent[1].div_ceil(segment(radius_voxels)),
+            extent[1].div_ceil(segments.yz),
             1,
         ],
         _ => [
             (extent[0] * extent[1]).div_ceil(GAUSS_LOCAL_X),
-            extent[2].div_ceil(segment(radius_voxels)),
+            extent[2].div_ceil(segments.yz),
             1,
         ],
     }

@@ -119,21 +119,31 @@ struct Costs {
     taps: f64,
     /// ns per padded point per log2(padded points), one transform (GPU FFT).
     fft_gpu: f64,
+    /// ns per output voxel for what follows the passes on the host: mapping and copying the
+    /// readback (on an H100's host: 50–60 ms for 256³ outputs, 670 ms for 512³, against 19 and
+    /// 120 ms of FFT passes).
+    readback: f64,
 }
 
-/// Costs on this device kind: the CPU kinds (lavapipe) were measured on the 2-core development
-/// machine, the GPU kinds are scaled from the runs pass measured on an H100.
+/// Costs on this device kind. The CPU kinds (lavapipe) were measured on the 2-core development
+/// machine, their constants including the readback. The GPU kinds were measured on an H100
+/// (`bench occlusion --methods runs,fft-gpu` on the bonsai and a 512³ phantom, BENCHMARKS.md "On
+/// a GPU"): the runs pass took 0.0013–0.0018 ns per output voxel per disk row (R = 16..100), the
+/// FFT passes 0.0065–0.010 ns per point per log2 per transform; the Gaussian neighbourhood's taps
+/// were not measured there and stay scaled from the runs.
 fn costs(device_type: &str) -> Costs {
     match device_type {
         "CPU" => Costs {
             runs: 1.9,
             taps: 3.0,
             fft_gpu: 4.3,
+            readback: 0.0,
         },
         _ => Costs {
-            runs: 0.0025,
-            taps: 0.002,
-            fft_gpu: 0.004,
+            runs: 0.0017,
+            taps: 0.0014,
+            fft_gpu: 0.0075,
+            readback: 3.3,
         },
     }
 }
@@ -168,11 +178,11 @@ pub fn estimate_ms(
             // The disk of runs, clipped by the volume's extent in y and z.
             Neighbourhood::Ball => {
                 let (ry, rz) = (r.min(dims[1] as f64), r.min(dims[2] as f64));
-                out * std::f64::consts::PI * ry * rz.max(1.0) * c.runs
+                out * std::f64::consts::PI * ry * rz.max(1.0) * c.runs + out * c.readback
             }
-            Neighbourhood::Gaussian => voxels * 3.0 * (2.0 * r + 1.0) * c.taps,
+            Neighbourhood::Gaussian => voxels * 3.0 * (2.0 * r + 1.0) * c.taps + out * c.readback,
         },
-        Method::FftGpu => transforms * c.fft_gpu,
+        Method::FftGpu => transforms * c.fft_gpu + out * c.readback,
         Method::FftCpu => transforms * FFT_CPU_NS / rayon::current_num_threads() as f64,
         Method::Auto => 0.0,
     };

@@ -775,6 +775,9 @@ enum BenchCommand {
             allow_hyphen_values = true
         )]
         sizes: Vec<u32>,
+        /// What draws the levels under the styles: slicer (default) or raycast (the viewer's).
+        #[arg(long, default_value = "slicer", value_parser = ["slicer", "raycast"])]
+        renderer: String,
     },
     /// Frames per second of the slice renderer, one pass against two levels (paper Fig. 9).
     Render {
@@ -1120,6 +1123,7 @@ fn run(cli: &Cli) -> Result<()> {
                 repeat: (*repeat).max(1),
                 sizes: sizes.clone(),
                 orbit_frames: (*orbit_frames).max(1),
+                raycast: false,
             };
             if let Some(other) = peer.as_deref().filter(|p| *p != "vtk") {
                 anyhow::bail!("--peer {other:?} is unknown; expected vtk");
@@ -1195,6 +1199,7 @@ fn run(cli: &Cli) -> Result<()> {
                     json,
                     repeat,
                     sizes,
+                    renderer,
                 },
         } => {
             let ctx = context(cli)?;
@@ -1202,6 +1207,7 @@ fn run(cli: &Cli) -> Result<()> {
                 repeat: (*repeat).max(1),
                 sizes: sizes.clone(),
                 orbit_frames: 0,
+                raycast: renderer == "raycast",
             };
             let table = vellum::bench::render::run_styles(&ctx, &opts)?;
             report_validation(&ctx);
