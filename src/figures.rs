@@ -22,8 +22,10 @@ use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::plot::Canvas;
 use crate::render::camera::Camera;
+use crate::render::frame::Renderer;
 use crate::render::scene::GpuScene;
-use crate::render::slicer::{to_rgb8, Lighting, Renderer, View};
+use crate::render::targets::to_rgb8;
+use crate::render::view::{Lighting, View};
 use crate::volume::Volume;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -332,7 +334,7 @@ fn sheet(title: &str, tiles: &[(String, Vec<u8>)], size: usize) -> Canvas {
 pub struct GalleryTile {
     pub def: &'static crate::render::style::StyleDef,
     /// The rendered frame (with its layers), or `None` for a style this build cannot render.
-    pub frame: Option<crate::render::slicer::Frame>,
+    pub frame: Option<crate::render::targets::FrameImage>,
     /// Mean saliency inside the focus (where the focus depth is finite) and outside it.
     pub saliency: Option<(f64, f64)>,
 }
@@ -440,7 +442,7 @@ pub fn style_gallery(
 
 /// Mean saliency of a frame's picture (over `background`) inside and outside its focus.
 pub fn focus_saliency(
-    frame: &crate::render::slicer::Frame,
+    frame: &crate::render::targets::FrameImage,
     background: [f32; 3],
 ) -> Result<(f64, f64)> {
     let layers = frame.layers.as_ref().ok_or_else(|| {

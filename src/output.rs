@@ -264,6 +264,57 @@ pub fn write_exr_layers(path: &Path, width: u32, height: u32, layers: &[ExrLayer
     })
 }
 
+/// One group of polylines in an SVG file: an id, a stroke colour (RGB in 0..1) and width in
+/// pixels, and the polylines in pixel coordinates.
+pub struct SvgGroup<'a> {
+    pub id: &'a str,
+    pub colour: [f32; 3],
+    pub width: u32,
+    pub paths: &'a [Vec<[f32; 2]>],
+}
+
+/// Writes `groups` as an SVG of `size` pixels, atomically, with `comment` at the top: each group
+/// a `<g>` of round-capped, unfilled paths.
+pub fn write_svg_lines(
+    path: &Path,
+    size: [u32; 2],
+    comment: &str,
+    groups: &[SvgGroup],
+) -> Result<()> {
+    use std::io::Write;
+    let [w, h] = size;
+    let hex = |c: [f32; 3]| {
+        let b = c.map(|v| (v * 255.0) as u8);
+        format!("#{:02x}{:02x}{:02x}", b[0], b[1], b[2])
+    };
+    write_atomic(path, |f| {
+        writeln!(
+            f,
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}">"#
+        )?;
+        writeln!(f, "<!-- {comment} -->")?;
+        for g in groups {
+            writeln!(
+                f,
+                r#"<g id="{}" fill="none" stroke="{}" stroke-width="{}" stroke-linecap="round" stroke-linejoin="round">"#,
+                g.id,
+                hex(g.colour),
+                g.width
+            )?;
+            for piece in g.paths {
+                let mut d = String::new();
+                for (i, q) in piece.iter().enumerate() {
+                    let op = if i == 0 { "M" } else { " L" };
+                    d.push_str(&format!("{op}{:.2} {:.2}", q[0], q[1]));
+                }
+                writeln!(f, r#"<path d="{d}"/>"#)?;
+            }
+            writeln!(f, "</g>")?;
+        }
+        writeln!(f, "</svg>")
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

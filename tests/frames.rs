@@ -19,9 +19,10 @@ use vellum::classify::transfer::TransferFunction;
 use vellum::classify::{Classification, Focus};
 use vellum::gpu::{Frames, FramesDesc, Image, ImageDesc, TransferCount};
 use vellum::render::camera::Camera;
+use vellum::render::frame::Renderer;
 use vellum::render::scene::{GpuScene, InputSpec, Scene};
-use vellum::render::slicer::{Lighting, Renderer, View};
 use vellum::render::targets::{FrameTargets, TargetsReadback};
+use vellum::render::view::{Lighting, View};
 use vellum::volume::phantom;
 
 fn view(azimuth: f32, size: u32, one_pass: bool) -> View {
@@ -337,7 +338,7 @@ fn a_scene_file_round_trips_to_the_same_render() {
             .unwrap()
     };
     let (a, b) = (render(&scene), render(&loaded));
-    let bits = |f: &vellum::render::slicer::Frame| -> Vec<u32> {
+    let bits = |f: &vellum::render::targets::FrameImage| -> Vec<u32> {
         f.composite.iter().flatten().map(|x| x.to_bits()).collect()
     };
     assert_eq!(bits(&a), bits(&b));
@@ -398,4 +399,24 @@ fn no_pass_imports_the_renderer() {
             path.display()
         );
     }
+}
+
+#[test]
+fn a_submission_inside_a_recording_is_refused() {
+    let gpu = Gpu::new();
+    let ctx = &gpu.ctx;
+    let mut outer = Frames::new(ctx, &FramesDesc::one_shot("outer", 1)).unwrap();
+    let err = outer
+        .frame(|_| vellum::gpu::submit_once(ctx, "inner", |_| Ok(())))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("inner") && err.contains("while another frame is being recorded"),
+        "{err}"
+    );
+    outer.wait_idle().unwrap();
+    // The refusal leaves the context as it was: the next recordings go through.
+    vellum::gpu::submit_once(ctx, "after", |_| Ok(())).unwrap();
+    outer.frame(|_| Ok(())).unwrap();
+    outer.wait_idle().unwrap();
 }

@@ -354,8 +354,9 @@ fn the_superior_end_is_up_by_default() {
     use vellum::classify::modulation::Modulation;
     use vellum::classify::transfer::TransferFunction;
     use vellum::classify::{Classification, Focus};
+    use vellum::render::frame::Renderer;
     use vellum::render::scene::{CameraSpec, GpuScene};
-    use vellum::render::slicer::{Lighting, Renderer, View};
+    use vellum::render::view::{Lighting, View};
     use vellum::volume::geometry::Geometry;
     use vellum::volume::{Volume, VoxelData};
     let gpu = common::Gpu::new();

@@ -21,8 +21,10 @@ use vellum::classify::transfer::{ControlPoint, TransferFunction};
 use vellum::classify::{Classification, Focus};
 use vellum::gpu::{Bind, BindingKind, Buffer, BufferDesc, ComputePipeline};
 use vellum::render::camera::Camera;
+use vellum::render::frame::Renderer;
 use vellum::render::scene::GpuScene;
-use vellum::render::slicer::{Frame, Lighting, Renderer, View};
+use vellum::render::targets::FrameImage;
+use vellum::render::view::{Lighting, View};
 use vellum::volume::{phantom, Volume, VoxelData};
 
 fn normalised(v: &Volume) -> Volume {
@@ -35,7 +37,7 @@ fn scene(gpu: &Gpu, v: &Volume, tf: &TransferFunction, focus: Focus, m: &Modulat
     GpuScene::prepare(&gpu.ctx, v, &Classification::Transfer(tf.clone()), focus, m).unwrap()
 }
 
-fn render(gpu: &Gpu, s: &mut GpuScene, camera: &str, size: u32) -> Frame {
+fn render(gpu: &Gpu, s: &mut GpuScene, camera: &str, size: u32) -> FrameImage {
     let view = View {
         camera: Camera::parse(camera).unwrap(),
         size: [size, size],
@@ -52,7 +54,7 @@ fn render(gpu: &Gpu, s: &mut GpuScene, camera: &str, size: u32) -> Frame {
         .unwrap()
 }
 
-fn bits(f: &Frame) -> Vec<u32> {
+fn bits(f: &FrameImage) -> Vec<u32> {
     f.composite.iter().flatten().map(|x| x.to_bits()).collect()
 }
 
@@ -320,7 +322,7 @@ fn stippled(t: f32, f: f32, seed: u32) -> Modulation {
 }
 
 /// The share of red (the "white" colour) in the image, and the largest green value.
-fn red_share(f: &Frame) -> (f64, f32) {
+fn red_share(f: &FrameImage) -> (f64, f32) {
     let (mut r, mut b, mut g) = (0.0f64, 0.0f64, 0.0f32);
     for p in &f.composite {
         r += p[0] as f64;

@@ -292,9 +292,10 @@ fn bad_parameters_are_errors() {
 #[test]
 fn occlusion_tf_render_tells_equal_intensities_apart() {
     use vellum::classify::otf::OcclusionTf;
+    use vellum::classify::Focus;
     use vellum::passes::normals::Normals;
     use vellum::render::camera::Camera;
-    use vellum::render::slicer::{Focus, RenderParams, Renderer};
+    use vellum::render::frame::{RenderParams, Renderer};
     let gpu = Gpu::new();
     let v = phantom::nested(64);
     let otf = OcclusionTf::load(std::path::Path::new(concat!(

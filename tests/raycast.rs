@@ -23,9 +23,11 @@ use vellum::classify::modulation::Modulation;
 use vellum::classify::transfer::TransferFunction;
 use vellum::classify::{Classification, Focus};
 use vellum::render::camera::Camera;
+use vellum::render::frame::Renderer;
 use vellum::render::raycast::{RayOptions, Sampling};
 use vellum::render::scene::GpuScene;
-use vellum::render::slicer::{to_rgb8, Frame, Lighting, Renderer, View};
+use vellum::render::targets::{to_rgb8, FrameImage};
+use vellum::render::view::{Lighting, View};
 use vellum::volume::{phantom, Volume};
 
 fn view(camera: &str, size: u32, one_pass: bool, raycast: Option<RayOptions>) -> View {
@@ -42,7 +44,7 @@ fn view(camera: &str, size: u32, one_pass: bool, raycast: Option<RayOptions>) ->
 }
 
 /// Mean and max absolute difference of the 8-bit composites over black, in 1/255 units.
-fn diff8(a: &Frame, b: &Frame) -> (f64, u8) {
+fn diff8(a: &FrameImage, b: &FrameImage) -> (f64, u8) {
     let (x, y) = (
         to_rgb8(&a.composite, [0.0; 3]),
         to_rgb8(&b.composite, [0.0; 3]),

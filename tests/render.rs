@@ -10,11 +10,13 @@ mod common;
 
 use common::Gpu;
 use vellum::classify::transfer::TransferFunction;
+use vellum::classify::Focus;
 use vellum::gpu::transfer::{f16_to_f32, readback};
 use vellum::gpu::Profiler;
 use vellum::passes::normals::{Normals, VolumeTextures};
 use vellum::render::camera::Camera;
-use vellum::render::slicer::{to_rgb8, Focus, Frame, RenderParams, Renderer};
+use vellum::render::frame::{RenderParams, Renderer};
+use vellum::render::targets::{to_rgb8, FrameImage};
 use vellum::volume::reference::sobel::sobel_gradient;
 use vellum::volume::{phantom, Volume};
 
@@ -72,7 +74,7 @@ fn params(camera: &str, size: u32, focus: Focus, one_pass: bool, tf: &str) -> Re
     }
 }
 
-fn diff(a: &Frame, b: &Frame) -> (f64, f64) {
+fn diff(a: &FrameImage, b: &FrameImage) -> (f64, f64) {
     let mut sum = 0.0;
     let mut max = 0.0f64;
     for (p, q) in a.composite.iter().zip(&b.composite) {

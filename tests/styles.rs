@@ -264,7 +264,7 @@ fn style_references() {
             &style.to_string(),
         );
         let pixels = rgba(&gpu, &t.images().unwrap().composite);
-        let rgb = vellum::render::slicer::to_rgb8(&pixels, [0.0; 3]);
+        let rgb = vellum::render::targets::to_rgb8(&pixels, [0.0; 3]);
         common::check_reference(
             &format!("styles/cthead_style{style:02}.png"),
             128,

@@ -112,6 +112,17 @@ fn scipy_peer(mapped: &[f32], dims: [usize; 3], r: u32) -> Option<(f64, Vec<f32>
     result
 }
 
+/// The working memory of `method` on `dims` at `radius`, by its own accounting.
+fn memory(method: Method, dims: [usize; 3], radius: u32) -> u64 {
+    let (pad, entries) = (padded_dims(dims, radius), denominator_entries(dims, radius));
+    let volume = dims.iter().map(|&d| d as u64).product::<u64>() * 4;
+    match method {
+        Method::Runs => 3 * volume,
+        Method::FftGpu => gpu_bytes(dims, pad, 1, entries) + 2 * volume,
+        _ => cpu_bytes(dims, pad, 1, entries),
+    }
+}
+
 /// What the bench computes: the ball at full resolution, ramp mapping, no spectrum.
 fn ball(radius: u32, method: Method) -> OcclusionParams {
     OcclusionParams {
@@ -160,19 +171,13 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     warm_up(ctx, &input, opts)?;
     for &radius in &opts.radii {
         let pad = padded_dims(dims, radius);
-        let entries = denominator_entries(dims, radius);
         let p = ball(radius, Method::Auto);
         let mut cells = Vec::new();
         let mut cpu_result: Option<Vec<f32>> = None;
         for &method in &opts.methods {
             progress.inc(1);
             let estimate = estimate_ms(method, &ty, dims, &p);
-            let volume = dims.iter().map(|&d| d as u64).product::<u64>() * 4;
-            let memory_bytes = match method {
-                Method::Runs => 3 * volume,
-                Method::FftGpu => gpu_bytes(dims, pad, 1, entries) + 2 * volume,
-                _ => cpu_bytes(dims, pad, 1, entries),
-            };
+            let memory_bytes = memory(method, dims, radius);
             if estimate > opts.max_seconds * 1e3 {
                 cells.push(Cell {
                     method,

@@ -1,6 +1,9 @@
 //! Barriers as transitions between named accesses. [`Access`] says how a resource is used;
 //! [`access_info`] is the one table that turns it into synchronization2 stage, access mask and
-//! image layout. Nothing else in the code base writes stage or access flags for barriers.
+//! image layout. The one other place that writes barrier flags is `swapchain.rs`: the two
+//! transitions of a swapchain image around a frame's drawing (to a colour attachment after
+//! acquire, to presentation after), whose images are the presentation engine's and not
+//! [`crate::gpu::Image`]s. Semaphore waits and timestamps name stages too, but no barrier.
 
 use ash::vk;
 

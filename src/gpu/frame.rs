@@ -383,16 +383,22 @@ impl Frames {
         let ctx = self.ctx.clone();
         let index = self.frame_index;
         let slot = &mut self.slots[i];
-        unsafe {
+        ctx.begin_recording(&format!("frame {index} of {}", self.name))?;
+        let begun = unsafe {
             ctx.device
                 .reset_command_pool(slot.pool, vk::CommandPoolResetFlags::empty())
         }
-        .vk("resetting a frame's command pool")?;
-        let begin = vk::CommandBufferBeginInfo::default()
-            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
-        unsafe { ctx.device.begin_command_buffer(slot.cmd, &begin) }
-            .vk(format!("beginning frame {index} of {}", self.name))?;
-        ctx.begin_recording();
+        .vk("resetting a frame's command pool")
+        .and_then(|()| {
+            let begin = vk::CommandBufferBeginInfo::default()
+                .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+            unsafe { ctx.device.begin_command_buffer(slot.cmd, &begin) }
+                .vk(format!("beginning frame {index} of {}", self.name))
+        });
+        if let Err(e) = begun {
+            ctx.end_recording();
+            return Err(e);
+        }
         let recorded = (|| {
             slot.profiler.reset(slot.cmd);
             let mut frame = Frame {

@@ -12,7 +12,9 @@
 //!
 //! The rule this relies on: recording into a command buffer is bracketed by
 //! [`Context::begin_recording`] / [`Context::end_recording`] (the frame types do this), so an object
-//! dropped mid-recording waits for the submission that is about to be made.
+//! dropped mid-recording waits for the submission that is about to be made. One recording is open
+//! at a time per context; a second is refused with an error rather than allowed to take the
+//! first one's serial.
 //!
 //! ## Accounting
 //! GPU memory allocations and host transfers (uploads and readbacks, by image or buffer name) are
@@ -94,14 +96,28 @@ impl Context {
         }
     }
 
-    /// Marks the start of recording a command buffer that will be submitted.
-    pub(crate) fn begin_recording(&self) {
-        self.lifetimes.recording.fetch_add(1, Ordering::AcqRel);
+    /// Marks the start of recording a command buffer that will be submitted; `what` names it.
+    ///
+    /// One recording at a time per context: an object dropped while a frame records is tagged
+    /// with the serial that frame's submission will take, so a second recording submitted first
+    /// would take that serial and free the object while the first frame still uses it. A
+    /// recording begun while another is open (a one-shot submission from inside a frame's
+    /// recording, say) is refused.
+    pub(crate) fn begin_recording(&self, what: &str) -> crate::error::Result<()> {
+        self.lifetimes
+            .recording
+            .compare_exchange(0, 1, Ordering::AcqRel, Ordering::Acquire)
+            .map(|_| ())
+            .map_err(|_| {
+                crate::error::Error::Invalid(format!(
+                    "{what} was started while another frame is being recorded on this device; submit that frame first"
+                ))
+            })
     }
 
     /// Marks the end of recording (after the submission, or after abandoning the commands).
     pub(crate) fn end_recording(&self) {
-        self.lifetimes.recording.fetch_sub(1, Ordering::AcqRel);
+        self.lifetimes.recording.store(0, Ordering::Release);
     }
 
     /// The serial of a submission about to be made.

@@ -31,6 +31,7 @@ impl BindingKind {
 }
 
 /// A resource bound at dispatch time; its position in the slice is its binding number.
+#[derive(Copy, Clone)]
 pub enum Bind<'a> {
     StorageImage(&'a Image),
     /// The image's second view (`ImageDesc::alias`), as a storage image.

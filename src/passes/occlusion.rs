@@ -362,7 +362,7 @@ impl Occlusion {
         if p.method != Method::Auto {
             if gpu_only && p.method == Method::FftCpu {
                 return Err(Error::Invalid(
-                    "occlusion recorded into a frame runs on the GPU; --method fft-cpu is for the occlusion commands".into(),
+                    "occlusion recorded into a frame runs on the GPU; `method` fft-cpu is for the occlusion commands".into(),
                 ));
             }
             return Ok(p.method);

@@ -1,13 +1,17 @@
-//! The frame: camera, transfer functions, proxy geometry, render passes.
-//!
-//! Everything here is plain CPU math and data; the GPU passes that consume it live beside it and
-//! are the only modules of `render/` that touch Vulkan.
+//! Frame assembly and the renderers: the view and its camera (`view`), the uniforms the shaders
+//! share (`shading`), the persistent layers (`targets`), one frame from setup to recorded passes
+//! (`frame`), the slicer and the ray caster that draw the levels, the style passes (`post`,
+//! `style`), proxy geometry and the scene file. `view`, `camera`, `proxy`, `style` and `scene`'s
+//! data are plain CPU; the rest record Vulkan passes through `gpu/`.
 
 pub mod camera;
+pub mod frame;
 pub mod post;
 pub mod proxy;
 pub mod raycast;
 pub mod scene;
+pub mod shading;
 pub mod slicer;
 pub mod style;
 pub mod targets;
+pub mod view;

@@ -13,16 +13,13 @@
 //! through 16 tile borders, at least 256 pixels of edge, which covers every chain we have met in
 //! renders up to 1024²; the tests assert convergence, so a longer chain fails loudly.
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::commands::memory_transition;
 use crate::gpu::pipeline::group_count;
-use crate::gpu::{
-    Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image, ImageDesc,
-    Profiler,
-};
+use crate::gpu::{Access, Bind, BindingKind, ComputePipeline, Context, Image, Profiler};
 use crate::passes::lines::{LineBuffer, LineExtractor, RasterView};
-use crate::render::style::{Abstraction, EdgeKind, Style};
-use crate::render::targets::TargetImages;
+use crate::render::style::{Abstraction, EdgeKind, Style, StyleParams};
+use crate::render::targets::{PostTargets, TargetImages, TargetLayers};
 use crate::volume::lines::{Eye, LineParams};
 use ash::vk;
 use std::sync::Arc;
@@ -42,6 +39,16 @@ pub struct LinesDraw<'a> {
     pub view: RasterView,
 }
 
+/// What every step of one frame's style passes shares.
+struct Step<'a> {
+    cmd: vk::CommandBuffer,
+    groups: [u32; 3],
+    /// The push constants with the image size set.
+    base: PostPush,
+    layers: &'a TargetLayers,
+    post: &'a PostTargets,
+}
+
 /// Push constants of the post passes (GLSL twin: `PostPush` in post.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
@@ -55,69 +62,7 @@ pub struct PostPush {
 /// Workgroup edge of the post passes (POST_LOCAL in post.glsl).
 pub const LOCAL: u32 = 16;
 
-/// Passes of Canny's hysteresis (see the module's doc).
-pub const HYSTERESIS_PASSES: u32 = 16;
-
-/// The images the post passes work in, for one size.
-pub struct PostTargets {
-    pub size: [u32; 2],
-    /// Luminance of focus.diffuse.
-    pub luminance: Image,
-    /// Blur scratch and results.
-    pub tmp: Image,
-    pub blur_a: Image,
-    pub blur_b: Image,
-    /// Sobel gradient (gx, gy, normalised magnitude).
-    pub gradient: Image,
-    /// Edge strength in [0, 1], or Canny's classes (2 edge, 1 weak, 0 none).
-    pub edges: Image,
-    /// The abstracted context.
-    pub context: Image,
-    /// Hysteresis change counters, one per pass plus one.
-    pub changed: Buffer,
-}
-
-impl PostTargets {
-    /// Allocates the images for `size`.
-    pub fn new(ctx: &Arc<Context>, size: [u32; 2]) -> Result<Self> {
-        let desc = |format| {
-            ImageDesc::new_2d(format, size).usage(
-                vk::ImageUsageFlags::STORAGE
-                    | vk::ImageUsageFlags::SAMPLED
-                    | vk::ImageUsageFlags::TRANSFER_SRC
-                    | vk::ImageUsageFlags::TRANSFER_DST,
-            )
-        };
-        let image = |name: &str, format| Image::new(ctx, name, &desc(format));
-        let r32 = vk::Format::R32_SFLOAT;
-        let rgba = vk::Format::R32G32B32A32_SFLOAT;
-        Ok(PostTargets {
-            size,
-            luminance: image("post.luminance", r32)?,
-            tmp: image("post.tmp", r32)?,
-            blur_a: image("post.blur_a", r32)?,
-            blur_b: image("post.blur_b", r32)?,
-            gradient: image("post.gradient", rgba)?,
-            // Lines are drawn into the edges with atomic max on the R32_UINT view: coverage is a
-            // non-negative float, whose bits order as unsigned integers do.
-            edges: Image::new(ctx, "post.edges", &desc(r32).alias(vk::Format::R32_UINT))?,
-            context: image("post.context", rgba)?,
-            changed: Buffer::new(
-                ctx,
-                "post.changed",
-                &BufferDesc::storage(4 * (HYSTERESIS_PASSES as u64 + 1)),
-            )?,
-        })
-    }
-
-    /// Whether the last recorded hysteresis converged: reads the last change counter back (tests
-    /// and diagnostics; a frame never waits for it).
-    pub fn hysteresis_converged(&self, ctx: &Arc<Context>) -> Result<bool> {
-        let bytes = crate::gpu::transfer::readback_buffer(ctx, &self.changed)?;
-        let counters: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes);
-        Ok(counters.last() == Some(&0))
-    }
-}
+pub use crate::render::targets::HYSTERESIS_PASSES;
 
 /// The post pipelines.
 pub struct Post {
@@ -159,12 +104,11 @@ impl Post {
         })
     }
 
-    /// Records the style's passes over `layers` (a two-level frame's targets) into `cmd`, ending
-    /// with the styled image in `layers.composite`.
+    /// Records the style's passes over `layers` (a two-level frame's targets) into `frame`,
+    /// ending with the styled image in `layers.composite`: edges, lines, abstraction, composite.
     pub fn record(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut crate::gpu::Frame,
         style: &Style,
         layers: &TargetImages,
         post: &PostTargets,
@@ -177,162 +121,253 @@ impl Post {
         let l = layers
             .layers
             .as_ref()
-            .expect("styles are recorded on two-level frames");
+            .ok_or_else(|| Error::Invalid("styles are recorded on two-level frames".into()))?;
         let size = layers.size;
-        let groups = group_count([size[0], size[1], 1], [LOCAL, LOCAL, 1]);
-        let base = PostPush {
-            size_mode: [size[0] as i32, size[1] as i32, 0, 0],
-            ..Default::default()
+        let s = Step {
+            cmd: frame.cmd,
+            groups: group_count([size[0], size[1], 1], [LOCAL, LOCAL, 1]),
+            base: PostPush {
+                size_mode: [size[0] as i32, size[1] as i32, 0, 0],
+                ..Default::default()
+            },
+            layers: l,
+            post,
         };
-        let p = &style.params;
-        // One dispatch from `inputs` (read) to `output` (written).
-        let run = |pipeline: &ComputePipeline,
-                   inputs: &[&Image],
-                   output: &Image,
-                   push: PostPush|
-         -> Result<()> {
-            for i in inputs {
-                i.transition(cmd, Access::ComputeRead);
-            }
-            output.discard();
-            output.transition(cmd, Access::ComputeWrite);
-            let mut binds: Vec<Bind> = inputs.iter().map(|i| Bind::StorageImage(i)).collect();
-            binds.push(Bind::StorageImage(output));
-            pipeline.dispatch(cmd, &binds, &push, groups)
+        let profiler = &mut *frame.profiler;
+        let edge_offset = match style.def.edges {
+            Some(kind) => self.record_edges(&s, profiler, kind, &style.params)?,
+            None => 0,
         };
-        let blur = |profiler: &mut Profiler, src: &Image, dst: &Image, sigma: f32| {
-            profiler.pass(cmd, "blur", |_| -> Result<()> {
-                let mut push = base;
-                push.params[0] = sigma;
-                run(&self.blur, &[src], &post.tmp, push)?;
-                push.size_mode[2] = 1;
-                run(&self.blur, &[&post.tmp], dst, push)
-            })
-        };
-        let mut edge_offset = 0;
-        if let Some(kind) = style.def.edges {
-            profiler.pass(cmd, "luminance", |_| {
-                run(&self.luminance, &[&l.focus_diffuse], &post.luminance, base)
-            })?;
-            match kind {
-                EdgeKind::Sobel => profiler.pass(cmd, "sobel", |_| -> Result<()> {
-                    run(&self.gradient, &[&post.luminance], &post.gradient, base)?;
-                    let mut push = base;
-                    push.params[0] = p.sobel_threshold;
-                    run(&self.sobel, &[&post.gradient], &post.edges, push)
-                })?,
-                EdgeKind::Dog => {
-                    blur(profiler, &post.luminance, &post.blur_a, p.dog_sigma)?;
-                    blur(
-                        profiler,
-                        &post.luminance,
-                        &post.blur_b,
-                        p.dog_k * p.dog_sigma,
-                    )?;
-                    profiler.pass(cmd, "dog", |_| {
-                        let mut push = base;
-                        push.params = [p.dog_tau, p.dog_threshold, p.dog_phi, 0.0];
-                        run(&self.dog, &[&post.blur_a, &post.blur_b], &post.edges, push)
-                    })?;
-                }
-                EdgeKind::Canny => {
-                    blur(profiler, &post.luminance, &post.blur_a, p.canny_sigma)?;
-                    profiler.pass(cmd, "canny", |_| -> Result<()> {
-                        run(&self.gradient, &[&post.blur_a], &post.gradient, base)?;
-                        let mut push = base;
-                        push.params = [p.canny_high, p.canny_high * p.canny_low_ratio, 0.0, 0.0];
-                        run(&self.canny, &[&post.gradient], &post.edges, push)
-                    })?;
-                    profiler.pass(cmd, "hysteresis", |_| {
-                        self.record_hysteresis(cmd, post, base)
-                    })?;
-                    edge_offset = 1;
-                }
-            }
-        }
         let has_lines = lines.is_some();
         if let Some(d) = lines {
-            if style.def.edges.is_none() {
-                // Lines alone: start from an empty edge image.
-                post.edges.discard();
-                post.edges.transition(cmd, Access::TransferWrite);
-                unsafe {
-                    self.ctx.device.cmd_clear_color_image(
-                        cmd,
-                        post.edges.raw,
-                        vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                        &vk::ClearColorValue::default(),
-                        &[vk::ImageSubresourceRange {
-                            aspect_mask: vk::ImageAspectFlags::COLOR,
-                            base_mip_level: 0,
-                            level_count: 1,
-                            base_array_layer: 0,
-                            layer_count: 1,
-                        }],
-                    )
-                };
-            }
-            d.extractor.record(
-                cmd, profiler, d.volume, d.dims, d.spacing, d.eye, &d.params, None, d.buffer,
-            )?;
-            let view = RasterView {
-                // Canny's edge image holds classes: 2 is an edge, 1 a candidate the composite
-                // draws as none; a line pixel of coverage c is 1 + c there.
-                value: 1.0 + edge_offset as f32,
-                floor: edge_offset as f32,
-                ..d.view
-            };
-            d.extractor.record_raster(
-                cmd,
-                profiler,
-                d.buffer,
-                &view,
-                &l.focus_depth,
-                &post.edges,
-            )?;
+            self.record_lines(&s, profiler, d, style.def.edges.is_none(), edge_offset)?;
         }
         let context = match style.def.abstraction {
             None => &l.context,
-            Some(a) => {
-                let (name, pipeline, mut push) = match a {
-                    Abstraction::Kuwahara => ("kuwahara", &self.kuwahara, base),
-                    Abstraction::Saturation => ("saturation", &self.saturation, base),
-                };
-                push.size_mode[3] = p.kuwahara_radius as i32;
-                push.params[0] = p.saturation;
-                profiler.pass(cmd, name, |_| {
-                    run(pipeline, &[&l.context], &post.context, push)
-                })?;
-                &post.context
-            }
+            Some(a) => self.record_abstraction(&s, profiler, a, &style.params)?,
         };
-        profiler.pass(cmd, "style_composite", |_| {
-            let push = PostPush {
-                edge: [
-                    p.edge_color[0],
-                    p.edge_color[1],
-                    p.edge_color[2],
-                    p.edge_opacity,
-                ],
-                flags: [
-                    (p.edge_width.max(1) as i32 - 1) / 2,
-                    (style.def.edges.is_some() || has_lines) as i32,
-                    edge_offset,
-                    0,
-                ],
-                ..base
-            };
-            if style.def.edges.is_none() && !has_lines {
-                // The binding still needs an image: a defined one.
-                post.edges.transition(cmd, Access::ComputeRead);
-            }
-            run(
-                &self.composite,
-                &[&l.focus_phong, context, &post.edges],
+        let with_edges = style.def.edges.is_some() || has_lines;
+        profiler.pass(s.cmd, "style_composite", |_| {
+            self.record_composite(
+                &s,
+                style,
+                context,
                 &layers.composite,
-                push,
+                with_edges,
+                edge_offset,
             )
         })
+    }
+
+    /// One dispatch of `pipeline` from `inputs` (read) to `output` (written).
+    fn run(
+        &self,
+        s: &Step,
+        pipeline: &ComputePipeline,
+        inputs: &[&Image],
+        output: &Image,
+        push: PostPush,
+    ) -> Result<()> {
+        for i in inputs {
+            i.transition(s.cmd, Access::ComputeRead);
+        }
+        output.discard();
+        output.transition(s.cmd, Access::ComputeWrite);
+        let mut binds: Vec<Bind> = inputs.iter().map(|i| Bind::StorageImage(i)).collect();
+        binds.push(Bind::StorageImage(output));
+        pipeline.dispatch(s.cmd, &binds, &push, s.groups)
+    }
+
+    /// Pass `blur`: the separable Gaussian of `sigma` from `src` into `dst`.
+    fn blur(
+        &self,
+        s: &Step,
+        profiler: &mut Profiler,
+        src: &Image,
+        dst: &Image,
+        sigma: f32,
+    ) -> Result<()> {
+        profiler.pass(s.cmd, "blur", |_| -> Result<()> {
+            let mut push = s.base;
+            push.params[0] = sigma;
+            self.run(s, &self.blur, &[src], &s.post.tmp, push)?;
+            push.size_mode[2] = 1;
+            self.run(s, &self.blur, &[&s.post.tmp], dst, push)
+        })
+    }
+
+    /// The edge passes on the luminance of `focus.diffuse` into `post.edges`. Returns the edge
+    /// image's offset: 1 for Canny, whose image holds classes (2 edge, 1 weak), else 0.
+    fn record_edges(
+        &self,
+        s: &Step,
+        profiler: &mut Profiler,
+        kind: EdgeKind,
+        p: &StyleParams,
+    ) -> Result<i32> {
+        let (cmd, post, base) = (s.cmd, s.post, s.base);
+        profiler.pass(cmd, "luminance", |_| {
+            self.run(
+                s,
+                &self.luminance,
+                &[&s.layers.focus_diffuse],
+                &post.luminance,
+                base,
+            )
+        })?;
+        match kind {
+            EdgeKind::Sobel => profiler.pass(cmd, "sobel", |_| -> Result<()> {
+                self.run(s, &self.gradient, &[&post.luminance], &post.gradient, base)?;
+                let mut push = base;
+                push.params[0] = p.sobel_threshold;
+                self.run(s, &self.sobel, &[&post.gradient], &post.edges, push)
+            })?,
+            EdgeKind::Dog => {
+                self.blur(s, profiler, &post.luminance, &post.blur_a, p.dog_sigma)?;
+                self.blur(
+                    s,
+                    profiler,
+                    &post.luminance,
+                    &post.blur_b,
+                    p.dog_k * p.dog_sigma,
+                )?;
+                profiler.pass(cmd, "dog", |_| {
+                    let mut push = base;
+                    push.params = [p.dog_tau, p.dog_threshold, p.dog_phi, 0.0];
+                    self.run(
+                        s,
+                        &self.dog,
+                        &[&post.blur_a, &post.blur_b],
+                        &post.edges,
+                        push,
+                    )
+                })?;
+            }
+            EdgeKind::Canny => {
+                self.blur(s, profiler, &post.luminance, &post.blur_a, p.canny_sigma)?;
+                profiler.pass(cmd, "canny", |_| -> Result<()> {
+                    self.run(s, &self.gradient, &[&post.blur_a], &post.gradient, base)?;
+                    let mut push = base;
+                    push.params = [p.canny_high, p.canny_high * p.canny_low_ratio, 0.0, 0.0];
+                    self.run(s, &self.canny, &[&post.gradient], &post.edges, push)
+                })?;
+                profiler.pass(cmd, "hysteresis", |_| {
+                    self.record_hysteresis(cmd, post, base)
+                })?;
+                return Ok(1);
+            }
+        }
+        Ok(0)
+    }
+
+    /// Extracts the object-space lines and draws them into `post.edges` (cleared first when
+    /// the style has no image-space edges), depth-tested against `focus.depth`.
+    fn record_lines(
+        &self,
+        s: &Step,
+        profiler: &mut Profiler,
+        d: LinesDraw,
+        alone: bool,
+        edge_offset: i32,
+    ) -> Result<()> {
+        let (cmd, post) = (s.cmd, s.post);
+        if alone {
+            // Lines alone: start from an empty edge image.
+            post.edges.discard();
+            post.edges.transition(cmd, Access::TransferWrite);
+            unsafe {
+                self.ctx.device.cmd_clear_color_image(
+                    cmd,
+                    post.edges.raw,
+                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                    &vk::ClearColorValue::default(),
+                    &[vk::ImageSubresourceRange {
+                        aspect_mask: vk::ImageAspectFlags::COLOR,
+                        base_mip_level: 0,
+                        level_count: 1,
+                        base_array_layer: 0,
+                        layer_count: 1,
+                    }],
+                )
+            };
+        }
+        d.extractor.record(
+            cmd, profiler, d.volume, d.dims, d.spacing, d.eye, &d.params, None, d.buffer,
+        )?;
+        let view = RasterView {
+            // Canny's edge image holds classes: 2 is an edge, 1 a candidate the composite
+            // draws as none; a line pixel of coverage c is 1 + c there.
+            value: 1.0 + edge_offset as f32,
+            floor: edge_offset as f32,
+            ..d.view
+        };
+        d.extractor.record_raster(
+            cmd,
+            profiler,
+            d.buffer,
+            &view,
+            &s.layers.focus_depth,
+            &post.edges,
+        )
+    }
+
+    /// Pass `kuwahara` or `saturation` on `context` into `post.context`, which it returns.
+    fn record_abstraction<'a>(
+        &self,
+        s: &Step<'a>,
+        profiler: &mut Profiler,
+        a: Abstraction,
+        p: &StyleParams,
+    ) -> Result<&'a Image> {
+        let (name, pipeline, mut push) = match a {
+            Abstraction::Kuwahara => ("kuwahara", &self.kuwahara, s.base),
+            Abstraction::Saturation => ("saturation", &self.saturation, s.base),
+        };
+        push.size_mode[3] = p.kuwahara_radius as i32;
+        push.params[0] = p.saturation;
+        profiler.pass(s.cmd, name, |_| {
+            self.run(s, pipeline, &[&s.layers.context], &s.post.context, push)
+        })?;
+        Ok(&s.post.context)
+    }
+
+    /// The style composite: edges over `focus.phong`, `context` over that, into `composite`.
+    fn record_composite(
+        &self,
+        s: &Step,
+        style: &Style,
+        context: &Image,
+        composite: &Image,
+        with_edges: bool,
+        edge_offset: i32,
+    ) -> Result<()> {
+        let p = &style.params;
+        let push = PostPush {
+            edge: [
+                p.edge_color[0],
+                p.edge_color[1],
+                p.edge_color[2],
+                p.edge_opacity,
+            ],
+            flags: [
+                (p.edge_width.max(1) as i32 - 1) / 2,
+                with_edges as i32,
+                edge_offset,
+                0,
+            ],
+            ..s.base
+        };
+        if !with_edges {
+            // The binding still needs an image: a defined one.
+            s.post.edges.transition(s.cmd, Access::ComputeRead);
+        }
+        self.run(
+            s,
+            &self.composite,
+            &[&s.layers.focus_phong, context, &s.post.edges],
+            composite,
+            push,
+        )
     }
 
     /// The hysteresis series on `post.edges`, in place.

@@ -35,82 +35,11 @@
 //! default, so that images match the slicer.
 
 use crate::error::{Error, Result};
-use crate::gpu::{BindingKind, ComputePipeline, Context};
-use crate::render::slicer::SliceUniforms;
+use crate::gpu::{self, Access, Bind, BindingKind, BufferSlice, ComputePipeline, Context, Image};
+use crate::render::shading::{SliceUniforms, SHADE_BINDINGS};
+use crate::render::targets::TargetLayers;
+pub use crate::render::view::{RayOptions, Sampling};
 use std::sync::Arc;
-
-/// The ray caster's options.
-#[derive(Copy, Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct RayOptions {
-    /// Seed of the per-pixel plane jitter; `None` for none.
-    pub jitter: Option<u32>,
-    /// Early ray termination: a ray stops once its opacity reaches this, in (0, 1].
-    pub ert: f32,
-    /// Step over bricks that hold nothing visible.
-    pub skip_empty: bool,
-    /// With an isosurface focus (`--iso`), refine the first hit between the plane in front of
-    /// the surface and the one behind it (four steps of regula falsi on the trilinear intensity),
-    /// for an exact depth and a surface without slicing rings. Off by default: it moves samples,
-    /// so images no longer match the slicer's.
-    pub refine_iso: bool,
-    /// Where samples lie: on the slicer's planes (the default, images comparable with the
-    /// slicer's), or at equal steps of the plane spacing along each ray.
-    pub sampling: Sampling,
-}
-
-/// Where the ray caster samples.
-#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Sampling {
-    /// Where the slicer's view-aligned planes cross each ray: steps of the plane spacing in depth,
-    /// so spacing / cos θ along an off-axis ray, with the slicer's opacity correction.
-    #[default]
-    Planes,
-    /// Equal steps of the plane spacing along each ray, from the box entry: the opacity correction
-    /// (spacing / voxel) then holds exactly on every ray, at the cost of sample positions that
-    /// differ from the slicer's off the axis.
-    WorldSteps,
-}
-
-impl Sampling {
-    /// Parses `planes` or `world-steps`.
-    pub fn parse(s: &str) -> Result<Self> {
-        match s {
-            "planes" => Ok(Sampling::Planes),
-            "world-steps" => Ok(Sampling::WorldSteps),
-            other => Err(Error::Invalid(format!(
-                "sampling {other:?} is unknown; expected planes or world-steps"
-            ))),
-        }
-    }
-}
-
-impl Default for RayOptions {
-    fn default() -> Self {
-        RayOptions {
-            jitter: None,
-            ert: 0.99,
-            skip_empty: true,
-            refine_iso: false,
-            sampling: Sampling::Planes,
-        }
-    }
-}
-
-impl RayOptions {
-    /// Checks the termination threshold.
-    pub fn validate(&self) -> Result<()> {
-        if self.ert > 0.0 && self.ert <= 1.0 {
-            Ok(())
-        } else {
-            Err(Error::Invalid(format!(
-                "early ray termination at opacity {} is invalid; expected a value in (0, 1] (1 keeps every sample that can still show)",
-                self.ert
-            )))
-        }
-    }
-}
 
 /// Push constants of `raycast.comp`.
 #[repr(C)]
@@ -136,7 +65,7 @@ pub const BRICK_FOCUS: u32 = 2;
 /// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images and the
 /// brick flags.
 pub const RAY_BINDINGS: [BindingKind; 14] = {
-    let slicer = crate::render::slicer::SLICE_BINDINGS;
+    let slicer = SHADE_BINDINGS;
     let mut all = [BindingKind::StorageImage; 14];
     let mut i = 0;
     while i < slicer.len() {
@@ -201,16 +130,40 @@ impl Variant {
     }
 }
 
-/// The ray caster's pipelines, one per variant, built when a frame first needs one and kept.
+/// What the ray caster draws in one frame.
+pub struct RayRequest<'a> {
+    /// The eight bindings of `shade.glsl` (`render::shading::SHADE_BINDINGS`).
+    pub shading: &'a [Bind<'a>; 8],
+    /// The frame's uniforms, from which the pipeline variant is chosen.
+    pub uniforms: &'a SliceUniforms,
+    pub options: RayOptions,
+    /// The two-level layers; `None` draws one pass into `composite`.
+    pub layers: Option<&'a TargetLayers>,
+    pub composite: &'a Image,
+    /// The opacity bounds and brick flags staged for this frame (`RayTables`).
+    pub tables: BufferSlice,
+    pub push: RayPush,
+    pub size: [u32; 2],
+}
+
+/// The ray caster: its pipelines, one per variant, built when a frame first needs one and kept.
 /// At most 256 exist; a session uses a handful.
-#[derive(Default)]
-pub struct RayPipelines {
+pub struct RayCaster {
+    ctx: Arc<Context>,
     built: std::sync::Mutex<std::collections::HashMap<Variant, Arc<ComputePipeline>>>,
 }
 
-impl RayPipelines {
+impl RayCaster {
+    /// A ray caster with no pipeline built yet.
+    pub fn new(ctx: &Arc<Context>) -> Self {
+        RayCaster {
+            ctx: ctx.clone(),
+            built: Default::default(),
+        }
+    }
+
     /// The pipeline of `variant`, built on first use.
-    pub fn get(&self, ctx: &Arc<Context>, variant: Variant) -> Result<Arc<ComputePipeline>> {
+    pub fn get(&self, variant: Variant) -> Result<Arc<ComputePipeline>> {
         let mut built = self
             .built
             .lock()
@@ -219,7 +172,7 @@ impl RayPipelines {
             return Ok(p.clone());
         }
         let p = Arc::new(ComputePipeline::with_constants(
-            ctx,
+            &self.ctx,
             "render/raycast.comp",
             &RAY_BINDINGS,
             std::mem::size_of::<RayPush>() as u32,
@@ -227,6 +180,33 @@ impl RayPipelines {
         )?);
         built.insert(variant, p.clone());
         Ok(p)
+    }
+
+    /// Pass `raycast`: one dispatch writing every layer (or the one-pass composite) as storage
+    /// images.
+    pub fn record(&self, frame: &mut gpu::Frame, r: &RayRequest) -> Result<()> {
+        let cmd = frame.cmd;
+        let out = |pick: fn(&TargetLayers) -> &Image| r.layers.map_or(r.composite, pick);
+        let images = [
+            out(|l| &l.focus_phong),
+            out(|l| &l.focus_diffuse),
+            out(|l| &l.focus_depth),
+            out(|l| &l.context),
+            r.composite,
+        ];
+        for image in images {
+            image.transition(cmd, Access::ComputeWrite);
+        }
+        let mut binds: Vec<Bind> = r.shading.to_vec();
+        binds.extend(images.map(Bind::StorageImage));
+        binds.push(Bind::StorageSlice(r.tables));
+        let variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms);
+        let pipeline = self.get(variant)?;
+        let groups = crate::gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
+        frame.profiler.begin(cmd, "raycast");
+        pipeline.dispatch(cmd, &binds, &r.push, groups)?;
+        frame.profiler.end(cmd);
+        Ok(())
     }
 }
 
@@ -287,17 +267,5 @@ mod tests {
         assert_eq!(Variant::of(&o, true, &u).0, 0xff & !Variant::SKIP_EMPTY);
         // Refinement only exists in two levels.
         assert_eq!(Variant::of(&o, false, &u).0 & Variant::REFINE_ISO, 0);
-    }
-
-    #[test]
-    fn termination_threshold_is_checked() {
-        assert!(RayOptions::default().validate().is_ok());
-        for bad in [0.0, -0.5, 1.5, f32::NAN] {
-            let o = RayOptions {
-                ert: bad,
-                ..Default::default()
-            };
-            assert!(o.validate().is_err(), "{bad}");
-        }
     }
 }

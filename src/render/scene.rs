@@ -51,8 +51,8 @@ use crate::passes::importance::ImportanceMap;
 use crate::passes::normals::{Normals, VolumeTextures};
 use crate::passes::occlusion::{Occlusion, OcclusionParams};
 use crate::render::camera::Camera;
-use crate::render::slicer::{Lighting, View};
 use crate::render::style::{Style, StyleParams};
+use crate::render::view::{Lighting, View};
 use crate::volume::io::RawSpec;
 use crate::volume::{Volume, VoxelType};
 use serde::{Deserialize, Serialize};
@@ -404,10 +404,10 @@ impl Scene {
             )));
         }
         if let Some(n) = self.slices {
-            if n == 0 || n > crate::render::slicer::MAX_SLICES {
+            if n == 0 || n > crate::render::view::MAX_SLICES {
                 return Err(Error::Invalid(format!(
                     "slices {n} is invalid; expected 1..={}",
-                    crate::render::slicer::MAX_SLICES
+                    crate::render::view::MAX_SLICES
                 )));
             }
         }

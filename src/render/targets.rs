@@ -5,8 +5,9 @@
 //! be sampled by passes recorded after the renderer's (edges, abstraction, lines).
 
 use crate::error::{Error, Result};
+use crate::gpu::profiler::PassTime;
 use crate::gpu::transfer::{record_readback, staging_buffer};
-use crate::gpu::{Buffer, Context, Image, ImageDesc};
+use crate::gpu::{Buffer, BufferDesc, Context, Image, ImageDesc};
 use ash::vk;
 use std::sync::Arc;
 
@@ -43,7 +44,7 @@ pub struct TargetImages {
     pub composite: Image,
     pub layers: Option<TargetLayers>,
     /// The style passes' images, from the first styled frame on.
-    pub post: Option<crate::render::post::PostTargets>,
+    pub post: Option<PostTargets>,
 }
 
 /// Persistent targets, resized on demand.
@@ -104,7 +105,7 @@ impl FrameTargets {
             });
         }
         if styled && images.post.is_none() {
-            images.post = Some(crate::render::post::PostTargets::new(ctx, size)?);
+            images.post = Some(PostTargets::new(ctx, size)?);
         }
         self.two_level = two_level;
         Ok(images)
@@ -193,7 +194,7 @@ impl TargetsReadback {
     }
 
     /// The composite and the layers, once the frame that recorded the copies has completed.
-    pub fn read(&self) -> Result<(Vec<[f32; 4]>, Option<crate::render::slicer::Layers>)> {
+    pub fn read(&self) -> Result<(Vec<[f32; 4]>, Option<Layers>)> {
         let bytes = |b: &Buffer| -> Result<Vec<u8>> {
             b.mapped()
                 .map(<[u8]>::to_vec)
@@ -202,7 +203,7 @@ impl TargetsReadback {
         let rgba =
             |b: &Buffer| -> Result<Vec<[f32; 4]>> { Ok(bytemuck::pod_collect_to_vec(&bytes(b)?)) };
         let layers = match &self.layers {
-            Some([phong, diffuse, depth, context]) => Some(crate::render::slicer::Layers {
+            Some([phong, diffuse, depth, context]) => Some(Layers {
                 focus_phong: rgba(phong)?,
                 focus_diffuse: rgba(diffuse)?,
                 focus_depth: bytemuck::pod_collect_to_vec(&bytes(depth)?),
@@ -217,4 +218,138 @@ impl TargetsReadback {
     pub fn size(&self) -> [u32; 2] {
         self.size
     }
+}
+
+/// Passes of Canny's hysteresis (see `render::post`'s doc), whose change counters
+/// [`PostTargets`] holds.
+pub const HYSTERESIS_PASSES: u32 = 16;
+
+/// The images the post passes work in, for one size.
+pub struct PostTargets {
+    pub size: [u32; 2],
+    /// Luminance of focus.diffuse.
+    pub luminance: Image,
+    /// Blur scratch and results.
+    pub tmp: Image,
+    pub blur_a: Image,
+    pub blur_b: Image,
+    /// Sobel gradient (gx, gy, normalised magnitude).
+    pub gradient: Image,
+    /// Edge strength in [0, 1], or Canny's classes (2 edge, 1 weak, 0 none).
+    pub edges: Image,
+    /// The abstracted context.
+    pub context: Image,
+    /// Hysteresis change counters, one per pass plus one.
+    pub changed: Buffer,
+}
+
+impl PostTargets {
+    /// Allocates the images for `size`.
+    pub fn new(ctx: &Arc<Context>, size: [u32; 2]) -> Result<Self> {
+        let desc = |format| {
+            ImageDesc::new_2d(format, size).usage(
+                vk::ImageUsageFlags::STORAGE
+                    | vk::ImageUsageFlags::SAMPLED
+                    | vk::ImageUsageFlags::TRANSFER_SRC
+                    | vk::ImageUsageFlags::TRANSFER_DST,
+            )
+        };
+        let image = |name: &str, format| Image::new(ctx, name, &desc(format));
+        let r32 = vk::Format::R32_SFLOAT;
+        let rgba = vk::Format::R32G32B32A32_SFLOAT;
+        Ok(PostTargets {
+            size,
+            luminance: image("post.luminance", r32)?,
+            tmp: image("post.tmp", r32)?,
+            blur_a: image("post.blur_a", r32)?,
+            blur_b: image("post.blur_b", r32)?,
+            gradient: image("post.gradient", rgba)?,
+            // Lines are drawn into the edges with atomic max on the R32_UINT view: coverage is a
+            // non-negative float, whose bits order as unsigned integers do.
+            edges: Image::new(ctx, "post.edges", &desc(r32).alias(vk::Format::R32_UINT))?,
+            context: image("post.context", rgba)?,
+            changed: Buffer::new(
+                ctx,
+                "post.changed",
+                &BufferDesc::storage(4 * (HYSTERESIS_PASSES as u64 + 1)),
+            )?,
+        })
+    }
+
+    /// Whether the last recorded hysteresis converged: reads the last change counter back (tests
+    /// and diagnostics; a frame never waits for it).
+    pub fn hysteresis_converged(&self, ctx: &Arc<Context>) -> Result<bool> {
+        let bytes = crate::gpu::transfer::readback_buffer(ctx, &self.changed)?;
+        let counters: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes);
+        Ok(counters.last() == Some(&0))
+    }
+}
+
+/// The layers of a two-level frame, premultiplied RGBA rows top to bottom.
+#[derive(Clone, Debug)]
+pub struct Layers {
+    pub focus_phong: Vec<[f32; 4]>,
+    pub focus_diffuse: Vec<[f32; 4]>,
+    /// Distance along the view direction of the nearest focus sample; +inf where there is none.
+    pub focus_depth: Vec<f32>,
+    pub context: Vec<[f32; 4]>,
+}
+
+/// A rendered frame on the host: what a readback brings back.
+#[derive(Clone, Debug)]
+pub struct FrameImage {
+    pub size: [u32; 2],
+    /// Premultiplied RGBA over transparent black (empty when not read back).
+    pub composite: Vec<[f32; 4]>,
+    /// The two-level layers (two-level frames read back only).
+    pub layers: Option<Layers>,
+    /// GPU ms of `focus`, `context`, `composite` or `one_pass`, and `readback` when read back.
+    pub passes: Vec<PassTime>,
+    pub slices: u32,
+    /// The geometry the frame's object-space lines were drawn with (styles with lines).
+    pub lines: Option<crate::passes::lines::RasterView>,
+}
+
+impl FrameImage {
+    /// Writes the frame's layers as named float channels to one OpenEXR file: focus.phong,
+    /// focus.diffuse (RGBA), focus.depth (Z) and context for two-level frames, and composite.
+    pub fn write_exr(&self, path: &std::path::Path) -> Result<()> {
+        use crate::output::{write_exr_layers, ExrChannels, ExrLayer};
+        let mut layers = Vec::new();
+        if let Some(l) = &self.layers {
+            layers.push(ExrLayer {
+                name: "focus.phong",
+                channels: ExrChannels::Rgba(&l.focus_phong),
+            });
+            layers.push(ExrLayer {
+                name: "focus.diffuse",
+                channels: ExrChannels::Rgba(&l.focus_diffuse),
+            });
+            layers.push(ExrLayer {
+                name: "focus.depth",
+                channels: ExrChannels::Depth(&l.focus_depth),
+            });
+            layers.push(ExrLayer {
+                name: "context",
+                channels: ExrChannels::Rgba(&l.context),
+            });
+        }
+        layers.push(ExrLayer {
+            name: "composite",
+            channels: ExrChannels::Rgba(&self.composite),
+        });
+        write_exr_layers(path, self.size[0], self.size[1], &layers)
+    }
+}
+
+/// Premultiplied RGBA over an opaque `background`, as 8-bit RGB for PNG.
+pub fn to_rgb8(pixels: &[[f32; 4]], background: [f32; 3]) -> Vec<u8> {
+    pixels
+        .iter()
+        .flat_map(|p| {
+            let a = p[3].clamp(0.0, 1.0);
+            [0, 1, 2]
+                .map(|c| ((p[c] + (1.0 - a) * background[c]).clamp(0.0, 1.0) * 255.0).round() as u8)
+        })
+        .collect()
 }

@@ -22,9 +22,11 @@ use crate::gpu::{
     Access, Bind, BindingKind, Context, ContextDesc, Frames, FramesDesc, Presentation, Sampler,
     SubmitSync,
 };
+use crate::render::frame::Renderer;
 use crate::render::scene::{ClassificationSpec, GpuScene, InputSpec, NamedView, Scene};
-use crate::render::slicer::{frame_camera, to_rgb8, Renderer};
+use crate::render::targets::to_rgb8;
 use crate::render::targets::{FrameTargets, TargetsReadback};
+use crate::render::view::{frame_camera, WorldBox};
 use crate::volume::Volume;
 use ash::vk;
 use std::path::{Path, PathBuf};
@@ -115,7 +117,7 @@ struct App {
 /// What a rendered frame depended on (see `Running::last_drawn`).
 #[derive(Clone, PartialEq)]
 struct DrawnKey {
-    view: crate::render::slicer::View,
+    view: crate::render::view::View,
     scene: Scene,
     tf: TransferFunction,
     otf: Option<crate::classify::otf::OcclusionTf>,
@@ -681,7 +683,7 @@ impl Running {
     fn resolved_camera(&self) -> Result<crate::render::camera::Camera> {
         let mut view = self.model.scene.view(self.model.oriented)?;
         view.size = self.view_size();
-        Ok(frame_camera(&self.gpu.volume, &view))
+        Ok(frame_camera(&WorldBox::of(&self.gpu.volume), &view))
     }
 
     /// Makes the scene's camera explicit (angles and distance) so that a drag can change it.

@@ -153,7 +153,8 @@ pub fn styled_frame(
     vellum::render::targets::FrameTargets,
     Vec<vellum::gpu::profiler::PassTime>,
 ) {
-    use vellum::render::slicer::{Lighting, Renderer, View};
+    use vellum::render::frame::Renderer;
+    use vellum::render::view::{Lighting, View};
     let mut scene = vellum::render::scene::GpuScene::prepare(
         ctx,
         v,

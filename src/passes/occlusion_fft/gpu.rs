@@ -108,13 +108,13 @@ pub struct FftGpu {
 pub fn unavailable(ctx: &Context) -> Option<String> {
     if !ctx.info.storage_image_extended_formats {
         return Some(format!(
-            "{} cannot store two-channel float images (shaderStorageImageExtendedFormats), which --method fft-gpu needs; use --method fft-cpu",
+            "{} cannot store two-channel float images (shaderStorageImageExtendedFormats), which `method` fft-gpu needs; use `method` fft-cpu",
             ctx.info.name
         ));
     }
     if ctx.info.max_compute_shared_memory < SHARED_BYTES {
         return Some(format!(
-            "{} offers {} bytes of compute shared memory but --method fft-gpu needs {SHARED_BYTES}; use --method fft-cpu",
+            "{} offers {} bytes of compute shared memory but `method` fft-gpu needs {SHARED_BYTES}; use `method` fft-cpu",
             ctx.info.name, ctx.info.max_compute_shared_memory
         ));
     }
@@ -162,7 +162,7 @@ impl FftGpu {
         let max_dim = ctx.info.max_image_dimension_3d as usize;
         if longest > MAX_LENGTH.min(max_dim) {
             return Err(Error::Invalid(format!(
-                "--method fft-gpu would need transforms of {longest} points (the volume plus the radius, padded to {pad:?}) but handles at most {}; use a smaller radius or --method fft-cpu",
+                "`method` fft-gpu would need transforms of {longest} points (the volume plus the radius, padded to {pad:?}) but handles at most {}; use a smaller `radius` or `method` fft-cpu",
                 MAX_LENGTH.min(max_dim)
             )));
         }
@@ -171,7 +171,7 @@ impl FftGpu {
         let heap = ctx.info.device_local_heap_bytes;
         if need > heap {
             return Err(Error::Invalid(format!(
-                "--method fft-gpu would need {:.0} MiB of device memory for {dims:?} padded to {pad:?} but {} has {:.0} MiB; use a smaller radius or --method fft-cpu",
+                "`method` fft-gpu would need {:.0} MiB of device memory for {dims:?} padded to {pad:?} but {} has {:.0} MiB; use a smaller `radius` or `method` fft-cpu",
                 need as f64 / 1048576.0,
                 ctx.info.name,
                 heap as f64 / 1048576.0
@@ -180,7 +180,7 @@ impl FftGpu {
         let entries = den_entries + dims.iter().sum::<usize>();
         if entries as u64 * 4 > ctx.info.max_storage_buffer_range as u64 {
             return Err(Error::Invalid(format!(
-                "--method fft-gpu would need a {:.0} MiB denominator table but {} binds at most {:.0} MiB; use a smaller radius or --method fft-cpu",
+                "`method` fft-gpu would need a {:.0} MiB denominator table but {} binds at most {:.0} MiB; use a smaller `radius` or `method` fft-cpu",
                 entries as f64 * 4.0 / 1048576.0,
                 ctx.info.name,
                 ctx.info.max_storage_buffer_range as f64 / 1048576.0

@@ -289,7 +289,7 @@ pub fn check_cpu_memory(
     let need = cpu_bytes(dims, pad, stride, denominator_entries_for_pad(dims, pad));
     match available {
         Some(have) if need > have => Err(Error::Invalid(format!(
-            "--method fft-cpu would need {:.0} MiB of memory for {dims:?} padded to {pad:?} but {:.0} MiB are available; use a smaller radius",
+            "`method` fft-cpu would need {:.0} MiB of memory for {dims:?} padded to {pad:?} but {:.0} MiB are available; use a smaller `radius`",
             need as f64 / 1048576.0,
             have as f64 / 1048576.0
         ))),

@@ -1,0 +1,192 @@
+//! One module per group of subcommands; [`run`] dispatches the parsed command line.
+
+mod bench;
+mod importance;
+mod info;
+mod occlusion;
+mod render;
+mod styles;
+mod view;
+
+use importance::importance;
+use info::{devices, info, roundtrip};
+use occlusion::{occlusion, occlusion_select, occlusion_sensitivity};
+use render::{lines, render};
+use styles::{saliency, styles};
+use view::view;
+
+use crate::args::*;
+use anyhow::Result;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use vellum::gpu::{Context, ContextDesc};
+
+pub(crate) fn context(cli: &Cli) -> Result<Arc<Context>> {
+    Ok(Context::new(&ContextDesc {
+        validation: None,
+        device: cli.device.clone(),
+    })?)
+}
+
+/// Says on stderr if the validation layer complained (the messages themselves are at -vv).
+pub(crate) fn report_validation(ctx: &Context) {
+    ctx.report_validation();
+}
+
+/// The output files a command will write, as given.
+pub(crate) fn output_paths(command: &Command) -> Vec<&Path> {
+    pub(crate) fn all<'a>(v: &[&'a Option<PathBuf>]) -> Vec<&'a Path> {
+        v.iter().filter_map(|p| p.as_deref()).collect()
+    }
+    match command {
+        Command::Convert { output, .. } => vec![output.as_path()],
+        Command::Importance { out, slices, .. } => all(&[out, slices]),
+        Command::Render(a) => all(&[&a.out, &a.exr, &a.save_scene]),
+        Command::Lines(a) => all(&[&a.render.out, &a.render.exr, &a.svg]),
+        Command::Occlusion {
+            out,
+            spectrum,
+            spectrum_data,
+            ..
+        } => all(&[out, spectrum, spectrum_data]),
+        Command::OcclusionSensitivity { out, csv, .. } => {
+            let mut v = all(&[csv]);
+            v.push(out.as_path());
+            v
+        }
+        Command::Migrate(a) => a.outputs(),
+        Command::Saliency { out, .. } => all(&[out]),
+        Command::Styles(a) => vec![a.out.as_path()],
+        _ => vec![],
+    }
+}
+
+/// Refuses two outputs of one command at the same path, before any work is done.
+pub(crate) fn check_distinct_outputs(command: &Command) -> Result<()> {
+    let paths = output_paths(command);
+    for (i, a) in paths.iter().enumerate() {
+        let key = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+        if paths[..i].iter().any(|b| key(b) == key(a)) {
+            anyhow::bail!(
+                "{} is given for two outputs of one command; expected a separate path for each",
+                a.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+pub(crate) fn run(cli: &Cli) -> Result<()> {
+    ContextDesc::check_environment()?;
+    check_distinct_outputs(&cli.command)?;
+    match &cli.command {
+        Command::Devices { json } => devices(cli, *json),
+        Command::Info { input, json } => info(input, *json),
+        Command::Convert { input, output } => {
+            let v = input.load()?;
+            vellum::volume::io::write(output, &v)?;
+            println!(
+                "wrote {} ({}x{}x{} {})",
+                output.display(),
+                v.dims[0],
+                v.dims[1],
+                v.dims[2],
+                v.voxel_type().name()
+            );
+            Ok(())
+        }
+        Command::Roundtrip { input, json } => roundtrip(cli, input, *json),
+        Command::Importance {
+            input,
+            radius,
+            out,
+            slices,
+            json,
+        } => importance(
+            cli,
+            input,
+            *radius,
+            out.as_deref(),
+            slices.as_deref(),
+            *json,
+        ),
+        Command::Render(args) => render(cli, args),
+        Command::Lines(args) => lines(cli, args),
+        Command::Occlusion {
+            input,
+            radius,
+            mapping,
+            stride,
+            out,
+            spectrum,
+            spectrum_data,
+            bins,
+            method,
+            json,
+        } => occlusion(
+            cli,
+            input,
+            *radius,
+            mapping,
+            *stride,
+            out.as_deref(),
+            spectrum.as_deref(),
+            spectrum_data.as_deref(),
+            *bins,
+            method,
+            *json,
+        ),
+        Command::OcclusionSelect {
+            input,
+            interval,
+            radius,
+            stride,
+            method,
+            json,
+        } => occlusion_select(cli, input, interval, *radius, *stride, method, *json),
+        Command::OcclusionSensitivity {
+            input,
+            radii,
+            bands,
+            stride,
+            method,
+            out,
+            csv,
+        } => occlusion_sensitivity(
+            cli,
+            input,
+            radii,
+            *bands,
+            *stride,
+            method,
+            out,
+            csv.as_deref(),
+        ),
+        Command::Styles(args) => styles(cli, args),
+        Command::View(args) => view(cli, args),
+        Command::Saliency {
+            image,
+            mask,
+            out,
+            json,
+        } => saliency(image, mask.as_deref(), out.as_deref(), *json),
+        Command::Migrate(args) => crate::features::migrate(args),
+        Command::Features(args) => crate::features::print_tree(args),
+        Command::Bench { which } => bench::bench(cli, which),
+        Command::Figures { which } => bench::figures(cli, which),
+    }
+}
+
+/// Prints `value` as pretty JSON, or the text `text` makes.
+pub(crate) fn print_report<T: serde::Serialize>(
+    json: bool,
+    value: &T,
+    text: impl FnOnce() -> String,
+) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(value)?);
+    } else {
+        print!("{}", text());
+    }
+    Ok(())
+}

@@ -1,0 +1,175 @@
+//! `vellum render`.
+
+use crate::args::*;
+use crate::commands::{context, report_validation};
+use anyhow::Result;
+use serde_json::json;
+use vellum::render::scene::GpuScene;
+
+pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
+    use vellum::render::frame::Renderer;
+    use vellum::render::targets::to_rgb8;
+    let (style, both) = match a.kind.as_str() {
+        "silhouettes" => ("silhouettes", false),
+        "suggestive" => ("suggestive", false),
+        "both" => ("silhouettes", true),
+        k => anyhow::bail!("--kind {k:?} is unknown; expected silhouettes, suggestive or both"),
+    };
+    anyhow::ensure!(
+        a.render.scene.style.style.is_none(),
+        "lines takes --kind, not --style; the style is the lines"
+    );
+    let out = a
+        .render
+        .out
+        .as_deref()
+        .ok_or_else(|| anyhow::anyhow!("lines needs --out image.png"))?;
+    // The style flags (edge colour, width, line parameters) apply to the lines' style.
+    let mut args = a.render.scene.clone();
+    args.style.style = Some(style.into());
+    let mut scene = args.scene("lines")?;
+    let mut params = scene.style.take().map(|s| s.params).unwrap_or_default();
+    params.line_both = both;
+    scene.style = Some(vellum::render::scene::StyleSpec {
+        style: serde_json::Value::String(style.into()),
+        params,
+    });
+    let classification = scene.classification()?;
+    let v = scene.load_volume()?;
+    let view = scene.view(v.geometry.is_oriented())?;
+    let ctx = context(cli)?;
+    let modulation = scene.modulation.clone().unwrap_or_default();
+    let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
+    let renderer = Renderer::new(&ctx)?;
+    let frame = renderer.render_frame(&gpu.volume, &mut gpu.classify, &view, true)?;
+    report_validation(&ctx);
+    let (segments, found) = match renderer.line_buffer() {
+        Some(b) => b.read()?,
+        None => (Vec::new(), 0),
+    };
+    let raster = frame
+        .lines
+        .ok_or_else(|| anyhow::anyhow!("the frame drew no lines; give a focus with --iso V"))?;
+    let depth = frame
+        .layers
+        .as_ref()
+        .map(|l| l.focus_depth.clone())
+        .ok_or_else(|| anyhow::anyhow!("lines need a two-level frame; drop --one-pass"))?;
+    let [w, h] = frame.size;
+    // Visible pieces per kind, in the PNG's pixel coordinates.
+    let mut pieces: [Vec<Vec<[f32; 2]>>; 2] = [Vec::new(), Vec::new()];
+    for seg in &segments {
+        let k = (seg.kind() > 0.5) as usize;
+        pieces[k].extend(raster.visible_pieces(seg, &depth, [w, h]));
+    }
+    vellum::output::write_png_rgb(out, w, h, &to_rgb8(&frame.composite, scene.background))?;
+    if let Some(path) = &a.render.exr {
+        frame.write_exr(path)?;
+    }
+    if let Some(path) = &a.svg {
+        let p = &scene.style.as_ref().map(|s| s.params).unwrap_or_default();
+        let group = |id, paths| vellum::output::SvgGroup {
+            id,
+            colour: p.edge_color,
+            width: p.edge_width,
+            paths,
+        };
+        vellum::output::write_svg_lines(
+            path,
+            [w, h],
+            &format!("vellum lines of {}: visible parts only", scene.input.path),
+            &[
+                group("silhouettes", &pieces[0]),
+                group("suggestive-contours", &pieces[1]),
+            ],
+        )?;
+    }
+    let stored = segments.len() as u64;
+    let report = json!({
+        "device": ctx.info.name,
+        "kind": a.kind,
+        "segments_found": found,
+        "segments_stored": stored,
+        "overflowed": found > stored,
+        "silhouette_segments": segments.iter().filter(|s| s.kind() < 0.5).count(),
+        "suggestive_segments": segments.iter().filter(|s| s.kind() > 0.5).count(),
+        "visible_paths": [pieces[0].len(), pieces[1].len()],
+        "passes": frame.passes.iter().map(|p| (p.name.clone(), json!(p.ms))).collect::<serde_json::Map<_, _>>(),
+    });
+    if a.render.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "lines of {} ({w}x{h}) on {}: {found} segments ({} silhouette, {} suggestive), {} visible paths",
+            scene.input.path,
+            ctx.info.name,
+            report["silhouette_segments"],
+            report["suggestive_segments"],
+            pieces[0].len() + pieces[1].len()
+        );
+        if found > stored {
+            println!("  the buffer held {stored} of them; the rest were dropped");
+        }
+    }
+    Ok(())
+}
+
+pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
+    use vellum::render::frame::Renderer;
+    use vellum::render::targets::to_rgb8;
+    let scene = a.scene.scene("render")?;
+    if let Some(path) = &a.save_scene {
+        scene.save(path)?;
+        if a.out.is_none() {
+            println!("wrote the scene to {}", path.display());
+            return Ok(());
+        }
+    }
+    let out = a.out.as_deref().ok_or_else(|| {
+        anyhow::anyhow!("render needs --out image.png (or only --save-scene FILE)")
+    })?;
+    // Errors from what a scene file names say which file and which key they came from.
+    let from = |key: &str, e: vellum::Error| match &a.scene.file {
+        Some(p) => anyhow::anyhow!("scene file {}: {key}: {e}", p.display()),
+        None => e.into(),
+    };
+    let classification = scene
+        .classification()
+        .map_err(|e| from("classification", e))?;
+    let v = scene.load_volume().map_err(|e| from("input", e))?;
+    let view = scene
+        .view(v.geometry.is_oriented())
+        .map_err(|e| from("style", e))?;
+    let ctx = context(cli)?;
+    let modulation = scene.modulation.clone().unwrap_or_default();
+    let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
+    let frame = Renderer::new(&ctx)?.render_frame(&gpu.volume, &mut gpu.classify, &view, true)?;
+    report_validation(&ctx);
+    let [w, h] = frame.size;
+    vellum::output::write_png_rgb(out, w, h, &to_rgb8(&frame.composite, scene.background))?;
+    if let Some(path) = &a.exr {
+        frame.write_exr(path)?;
+    }
+    let passes: Vec<_> = gpu.passes.iter().chain(&frame.passes).collect();
+    if a.json {
+        let map: serde_json::Map<String, serde_json::Value> = passes
+            .iter()
+            .map(|p| (p.name.clone(), json!(p.ms)))
+            .collect();
+        println!(
+            "{}",
+            serde_json::to_string_pretty(
+                &json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map })
+            )?
+        );
+    } else {
+        println!(
+            "rendered {} ({w}x{h}, {} slices) on {}",
+            scene.input.path, frame.slices, ctx.info.name
+        );
+        for p in passes {
+            println!("  {:<14} {:>9.3} ms", p.name, p.ms);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,63 @@
+//! `vellum view`.
+
+use crate::args::*;
+use anyhow::Result;
+use std::path::PathBuf;
+
+pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
+    let scene = a.scene.view_scene()?;
+    let window_size = match &a.scene.size {
+        Some(s) => parse_size(s)?,
+        None => [1100, 700],
+    };
+    if let Some(0) = a.bench {
+        anyhow::bail!("--bench 0 is invalid; expected a number of frames of 1 or more");
+    }
+    anyhow::ensure!(
+        a.json <= a.bench.is_some(),
+        "--json prints the report of --bench N; add --bench"
+    );
+    anyhow::ensure!(
+        a.bench_full <= a.bench.is_some(),
+        "--bench-full changes the orbit of --bench N; add --bench"
+    );
+    if let Some(p) = &a.screenshot_on_exit {
+        vellum::output::check_extension(p, &["png"], "a PNG image")?;
+    }
+    let screenshot_dir = a
+        .screenshot_dir
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("."));
+    anyhow::ensure!(
+        screenshot_dir.is_dir(),
+        "--screenshot-dir {} is not a folder; expected an existing folder",
+        screenshot_dir.display()
+    );
+    // The viewer's files (screenshots, scenes) land when they are made, each atomically, not at
+    // the end of the command: close the command's all-or-nothing transaction.
+    vellum::output::commit()?;
+    let report = vellum::viewer::run(vellum::viewer::ViewOptions {
+        scene,
+        device: cli.device.clone(),
+        window_size,
+        screenshot_dir,
+        screenshot_on_exit: a.screenshot_on_exit.clone(),
+        vsync: !a.no_vsync,
+        bench_frames: a.bench.map(|n| n + 5),
+        bench_full: a.bench_full,
+    })?;
+    if let Some(r) = report {
+        if a.json {
+            println!("{}", serde_json::to_string_pretty(&r)?);
+        } else {
+            println!(
+                "{} at {}x{} ({} quality, rendered at {}x{}) on {}: {:.1} fps over {} frames; frame time p50 {:.2} ms, p95 {:.2} ms, p99 {:.2} ms",
+                r.input, r.size[0], r.size[1], r.quality, r.render_size[0], r.render_size[1], r.device, r.fps, r.frames, r.p50_ms, r.p95_ms, r.p99_ms
+            );
+            for (name, ms) in &r.gpu_ms {
+                println!("  {name:<14} {ms:>9.3} ms (median GPU)");
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,339 @@
+//! The flags that describe a scene, turned into a [`Scene`] over a base one.
+
+use crate::args::*;
+use anyhow::Result;
+use clap::Args;
+use std::path::PathBuf;
+use vellum::classify::Focus;
+use vellum::render::scene::{ClassificationSpec, InputSpec, RawInput, Scene};
+
+/// The scene a `render` command line describes: the scene file (or defaults) with every given
+/// flag applied over it.
+/// The flags that describe a scene: input, classification, focus, camera, size, planes,
+/// renderer, background, modulation and style. `render`, `lines` and `view` take them alike, and
+/// [`SceneArgs::apply`] is the one place that turns them into a [`Scene`].
+#[derive(Args, Clone, Default)]
+pub(crate) struct SceneArgs {
+    /// File, DICOM folder, or phantom spec; overrides the scene file's input.
+    pub(crate) input: Option<String>,
+    #[command(flatten)]
+    pub(crate) raw: RawArgs,
+    /// A scene file (JSON); every flag given on the command line overrides its value.
+    #[arg(long = "scene", value_name = "FILE")]
+    pub(crate) file: Option<PathBuf>,
+    /// Transfer function: a preset (grey, ct-bone, ct-skin-bone, mri-brain) or a JSON file [default: grey].
+    #[arg(long)]
+    pub(crate) tf: Option<String>,
+    /// Focus: an interval of data values LO:HI.
+    #[arg(long, value_name = "LO:HI", allow_hyphen_values = true)]
+    pub(crate) focus: Option<String>,
+    /// Focus: an isovalue in data units (an opaque surface).
+    #[arg(long, value_name = "V", allow_negative_numbers = true)]
+    pub(crate) iso: Option<f64>,
+    /// Camera: azimuth and elevation in degrees (in LPS for an oriented volume: 0,0 is the anterior
+    /// view), distance in bounding-sphere radii. Default: anterior for an oriented volume, else
+    /// 30,20; without DIST the volume's projected bounding box fills the image.
+    #[arg(long, value_name = "AZ,EL[,DIST]", allow_hyphen_values = true)]
+    pub(crate) camera: Option<String>,
+    /// A named view of an oriented volume: anterior, posterior, left, right, superior, inferior.
+    #[arg(long, value_name = "NAME")]
+    pub(crate) view: Option<String>,
+    /// Orthographic instead of perspective projection.
+    #[arg(long)]
+    pub(crate) ortho: bool,
+    /// Pan the view: X,Y in bounding-sphere radii (x right, y up).
+    #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
+    pub(crate) pan: Option<String>,
+    /// Image size [default: 512x512].
+    #[arg(long, value_name = "WxH", allow_hyphen_values = true)]
+    pub(crate) size: Option<String>,
+    /// Number of slice planes (default: two per voxel along the longest axis).
+    #[arg(long)]
+    pub(crate) slices: Option<u32>,
+    /// The classic single pass instead of two levels.
+    #[arg(long)]
+    pub(crate) one_pass: bool,
+    /// Renderer: view-aligned slicing, or ray casting at the same planes (same layers and styles).
+    #[arg(long, value_name = "slicer|raycast")]
+    pub(crate) renderer: Option<String>,
+    /// Ray caster: jitter the sample planes per pixel with this seed (default: no jitter).
+    #[arg(long, value_name = "SEED")]
+    pub(crate) jitter: Option<u32>,
+    /// Ray caster: stop a ray once its opacity reaches this, in (0, 1] [default: 0.99].
+    #[arg(long, value_name = "A")]
+    pub(crate) ert: Option<f32>,
+    /// Ray caster: do not skip empty bricks.
+    #[arg(long)]
+    pub(crate) no_skip_empty: bool,
+    /// Ray caster with --iso: refine the surface hit between planes (exact depth, no rings).
+    #[arg(long)]
+    pub(crate) refine_iso: bool,
+    /// Ray caster: samples on the slicer's planes (default) or equal steps along each ray.
+    #[arg(long, value_name = "planes|world-steps")]
+    pub(crate) sampling: Option<String>,
+    /// Background colour behind the volume in the PNG, as R,G,B in 0..1 [default: 0,0,0].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(crate) background: Option<String>,
+    /// Occlusion transfer function (JSON): colour and opacity over (intensity, occlusion).
+    #[arg(long, conflicts_with = "tf")]
+    pub(crate) otf: Option<PathBuf>,
+    /// A feature map (features.json from `vellum migrate`): each feature gets its colour (FM6).
+    #[arg(long, conflicts_with_all = ["otf", "tf"])]
+    pub(crate) features: Option<PathBuf>,
+    #[command(flatten)]
+    pub(crate) modulation: ModulationArgs,
+    #[command(flatten)]
+    pub(crate) style: StyleArgs,
+}
+
+/// What `vellum view` opens without an input or a scene file.
+const DEFAULT_VIEW_INPUT: &str = "phantom:shepp-logan:128";
+
+impl SceneArgs {
+    /// The scene the flags start from: the scene file (`--scene`), else a new scene of the
+    /// input, else of `default_input`; `command` names the subcommand in the error.
+    pub(crate) fn base(&self, default_input: Option<&str>, command: &str) -> Result<Scene> {
+        let input = self.input.as_deref().or(default_input);
+        match (&self.file, input) {
+            (Some(path), _) => Ok(Scene::load(path)?),
+            (None, Some(input)) => Ok(Scene::new(InputSpec {
+                path: input.to_string(),
+                raw: None,
+            })),
+            (None, None) => anyhow::bail!(
+                "{command} needs an input (a file, DICOM folder or phantom spec) or --scene FILE"
+            ),
+        }
+    }
+
+    /// The scene these flags describe for `command`, which needs an input or a scene file.
+    pub(crate) fn scene(&self, command: &str) -> Result<Scene> {
+        self.apply(self.base(None, command)?)
+    }
+
+    /// The viewer's scene: the flags over the scene file, or over a new scene of the input (the
+    /// Shepp–Logan phantom without one). Without a scene file or `--renderer`, the window's
+    /// default renderer: the ray caster (3–4× the slicer's speed, BENCHMARKS.md) with jitter
+    /// against slicing rings. With the same flags `render` builds the same scene.
+    pub(crate) fn view_scene(&self) -> Result<Scene> {
+        let mut scene = self.apply(self.base(Some(DEFAULT_VIEW_INPUT), "view")?)?;
+        if self.file.is_none() && self.renderer.is_none() {
+            scene.raycast = Some(vellum::render::view::RayOptions {
+                jitter: Some(1),
+                ..Default::default()
+            });
+        }
+        Ok(scene)
+    }
+
+    /// `scene` with every flag given applied over it, checked.
+    pub(crate) fn apply(&self, mut scene: Scene) -> Result<Scene> {
+        let a = self;
+        if let Some(input) = &a.input {
+            scene.input = InputSpec {
+                path: input.clone(),
+                raw: None,
+            };
+        }
+        if let Some(raw) = a.raw.spec()? {
+            scene.input.raw = Some(RawInput {
+                dims: raw.dims,
+                voxel_type: raw.voxel_type.name().to_string(),
+                big_endian: raw.big_endian,
+                offset: raw.offset,
+                spacing: raw.spacing,
+                origin: a.raw.origin()?,
+            });
+        }
+        let path_arg = |p: &std::path::Path| p.to_string_lossy().into_owned();
+        if let Some(tf) = &a.tf {
+            scene.classification = ClassificationSpec::Transfer(tf.clone());
+        }
+        if let Some(otf) = &a.otf {
+            scene.classification = ClassificationSpec::Occlusion(path_arg(otf));
+        }
+        if let Some(f) = &a.features {
+            scene.classification = ClassificationSpec::Features(path_arg(f));
+        }
+        if a.focus.is_some() || a.iso.is_some() {
+            scene.focus = parse_focus(a.focus.as_deref(), a.iso)?;
+        }
+        a.apply_camera(&mut scene)?;
+        if let Some(size) = &a.size {
+            scene.size = parse_size(size)?;
+        }
+        if let Some(n) = a.slices {
+            scene.slices = Some(n);
+        }
+        if a.one_pass {
+            scene.one_pass = true;
+        }
+        a.apply_renderer(&mut scene)?;
+        if let Some(b) = &a.background {
+            scene.background = parse_rgb("--background", b)?;
+        }
+        if scene.one_pass && matches!(scene.focus, Focus::Range { .. }) {
+            anyhow::bail!(
+            "--one-pass draws a single level, which a --focus LO:HI interval would not change; drop one of them (--iso V does work in one pass: it makes the surface opaque)"
+        );
+        }
+        scene.modulation = a.modulation.apply(scene.modulation.take())?;
+        scene.style = a.style.apply(scene.style.take())?;
+        scene.validate()?;
+        Ok(scene)
+    }
+
+    /// The camera flags: `--camera`, `--view`, `--ortho`, `--pan`.
+    fn apply_camera(&self, scene: &mut Scene) -> Result<()> {
+        let a = self;
+        if a.camera.is_some() && a.view.is_some() {
+            anyhow::bail!("give either --camera AZ,EL[,DIST] or --view NAME, not both");
+        }
+        if let Some(c) = &a.camera {
+            let parsed = vellum::render::camera::Camera::parse(c)?;
+            scene.camera.view = None;
+            scene.camera.azimuth = Some(parsed.azimuth_deg);
+            scene.camera.elevation = Some(parsed.elevation_deg);
+            // Without DIST the volume is framed.
+            scene.camera.distance = (c.split(',').count() == 3).then_some(parsed.distance);
+        }
+        if let Some(v) = &a.view {
+            scene.camera.view = Some(vellum::render::scene::NamedView::parse(v)?);
+            scene.camera.azimuth = None;
+            scene.camera.elevation = None;
+        }
+        if a.ortho {
+            scene.camera.ortho = true;
+        }
+        if let Some(p) = &a.pan {
+            let v: Vec<f32> = p.split(',').filter_map(|c| c.trim().parse().ok()).collect();
+            anyhow::ensure!(
+                v.len() == 2 && v.iter().all(|c| c.is_finite()),
+                "--pan '{p}' is not X,Y in bounding-sphere radii"
+            );
+            scene.camera.pan = [v[0], v[1]];
+        }
+        Ok(())
+    }
+
+    /// The renderer flags: `--renderer` and the ray caster's options.
+    fn apply_renderer(&self, scene: &mut Scene) -> Result<()> {
+        let a = self;
+        match a.renderer.as_deref() {
+            None => {}
+            Some("slicer") => scene.raycast = None,
+            Some("raycast") => scene.raycast = Some(scene.raycast.unwrap_or_default()),
+            Some(other) => {
+                anyhow::bail!("--renderer {other:?} is unknown; expected slicer or raycast")
+            }
+        }
+        let ray_flags = a.jitter.is_some()
+            || a.ert.is_some()
+            || a.no_skip_empty
+            || a.refine_iso
+            || a.sampling.is_some();
+        match (&mut scene.raycast, ray_flags) {
+        (Some(r), _) => {
+            if let Some(seed) = a.jitter {
+                r.jitter = Some(seed);
+            }
+            if let Some(ert) = a.ert {
+                r.ert = ert;
+            }
+            if a.no_skip_empty {
+                r.skip_empty = false;
+            }
+            if a.refine_iso {
+                r.refine_iso = true;
+            }
+            if let Some(s) = &a.sampling {
+                r.sampling = vellum::render::raycast::Sampling::parse(s)?;
+            }
+            r.validate()?;
+        }
+        (None, true) => anyhow::bail!(
+            "--jitter, --ert, --no-skip-empty, --refine-iso and --sampling set the ray caster; add --renderer raycast"
+        ),
+        (None, false) => {}
+    }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    /// The scenes `render` and `view` build from the same flags.
+    fn both(flags: &[&str]) -> (Scene, Scene) {
+        let parse = |command: &str| {
+            let words: Vec<&str> = ["vellum", command]
+                .into_iter()
+                .chain(flags.iter().copied())
+                .collect();
+            Cli::try_parse_from(words).unwrap().command
+        };
+        match (parse("render"), parse("view")) {
+            (Command::Render(r), Command::View(v)) => (
+                r.scene.scene("render").unwrap(),
+                v.scene.view_scene().unwrap(),
+            ),
+            _ => unreachable!("render and view parse to their commands"),
+        }
+    }
+
+    #[test]
+    fn render_and_view_build_the_same_scene_from_the_same_flags() {
+        let cases: [&[&str]; 4] = [
+            &["phantom:sphere:32", "--iso", "0.5", "--renderer", "raycast"],
+            &[
+                "phantom:sphere:32",
+                "--tf",
+                "ct-bone",
+                "--camera",
+                "10,20",
+                "--size",
+                "300x200",
+                "--renderer",
+                "raycast",
+                "--jitter",
+                "3",
+                "--refine-iso",
+                "--iso",
+                "0.4",
+            ],
+            &[
+                "phantom:sphere:32",
+                "--renderer",
+                "slicer",
+                "--focus",
+                "0.2:0.6",
+                "--style",
+                "3",
+                "--background",
+                "1,1,1",
+            ],
+            &[
+                "phantom:torus:32",
+                "--renderer",
+                "slicer",
+                "--ortho",
+                "--one-pass",
+            ],
+        ];
+        for flags in cases {
+            let (render, view) = both(flags);
+            assert_eq!(render, view, "{flags:?}");
+        }
+        // `--renderer raycast` means the same ray caster in both: the default options.
+        let (render, _) = both(cases[0]);
+        assert_eq!(
+            render.raycast,
+            Some(vellum::render::view::RayOptions::default())
+        );
+        // Without the flag, the viewer's default differs from render's, as documented.
+        let (render, view) = both(&["phantom:sphere:32"]);
+        assert!(render.raycast.is_none() && view.raycast.is_some_and(|r| r.jitter.is_some()));
+    }
+}
