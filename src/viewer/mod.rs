@@ -26,7 +26,7 @@ use crate::render::frame::Renderer;
 use crate::render::scene::{ClassificationSpec, GpuScene, InputSpec, NamedView, Scene};
 use crate::render::targets::to_rgb8;
 use crate::render::targets::{FrameTargets, TargetsReadback};
-use crate::render::view::{frame_camera, WorldBox};
+use crate::render::view::{frame_camera, View, WorldBox};
 use crate::volume::Volume;
 use ash::vk;
 use std::path::{Path, PathBuf};
@@ -112,6 +112,92 @@ struct App {
     /// An error that ended the viewer (before the window could show it).
     error: Option<Error>,
     report: Option<BenchReport>,
+}
+
+/// What egui made of one frame: the volume view's rectangle in pixels (x, y, w, h), the
+/// scale, and the triangles to draw.
+struct UiFrame {
+    rect: [u32; 4],
+    ppp: f32,
+    primitives: Vec<egui::ClippedPrimitive>,
+}
+
+/// What one recorded and presented frame leaves for the steps after it.
+struct Drawn {
+    /// The frame's number in the ring.
+    index: u64,
+    /// Whether it only presented the last render again.
+    reuse: bool,
+    key: Option<DrawnKey>,
+    render_error: Option<Error>,
+    readback: Option<TargetsReadback>,
+    background: [f32; 3],
+}
+
+/// The present pass: the composite over the background in the view's rectangle of the
+/// swapchain image, then egui's panels over everything.
+struct PresentPass<'a> {
+    swapchain: &'a Swapchain,
+    present: &'a GraphicsPipeline,
+    sampler: &'a Sampler,
+    ui: &'a UiFrame,
+    background: [f32; 3],
+}
+
+impl PresentPass<'_> {
+    fn record(
+        &self,
+        ctx: &Context,
+        cmd: vk::CommandBuffer,
+        image: &crate::gpu::swapchain::Acquired,
+        composite: Option<&crate::gpu::Image>,
+        egui_renderer: &mut egui_ash_renderer::Renderer<egui_ash_renderer::allocator::GpuAllocator>,
+    ) -> Result<()> {
+        let (extent, rect, [r, g, b]) = (self.swapchain.extent, self.ui.rect, self.background);
+        if let Some(c) = composite {
+            c.transition(cmd, Access::FragmentSampled);
+        }
+        self.swapchain.record_begin(cmd, image);
+        begin_rendering_view(ctx, cmd, image.view, extent, [r, g, b, 1.0]);
+        if let Some(c) = composite {
+            let push: [f32; 8] = [
+                r,
+                g,
+                b,
+                0.0,
+                rect[0] as f32,
+                rect[1] as f32,
+                rect[2] as f32,
+                rect[3] as f32,
+            ];
+            self.present
+                .bind(cmd, &[Bind::Sampled(c, self.sampler)], &push, extent)?;
+            let scissor = vk::Rect2D {
+                offset: vk::Offset2D {
+                    x: rect[0] as i32,
+                    y: rect[1] as i32,
+                },
+                extent: vk::Extent2D {
+                    width: rect[2],
+                    height: rect[3],
+                },
+            };
+            unsafe {
+                ctx.device.cmd_set_scissor(cmd, 0, &[scissor]);
+                ctx.device.cmd_draw(cmd, 3, 1, 0, 0);
+            }
+        }
+        let size = vk::Extent2D {
+            width: extent[0],
+            height: extent[1],
+        };
+        egui_renderer
+            .cmd_draw(cmd, size, self.ui.ppp, &self.ui.primitives)
+            .map_err(|e| Error::Invalid(format!("drawing egui: {e}")))?;
+        end_rendering(ctx, cmd);
+        self.swapchain.record_end(cmd, image);
+        Ok(())
+    }
 }
 
 /// What a rendered frame depended on (see `Running::last_drawn`).
@@ -325,24 +411,7 @@ impl ApplicationHandler for App {
                 if !response.consumed && r.in_view(r.cursor) =>
             {
                 match state {
-                    ElementState::Pressed => {
-                        let kind = match button {
-                            MouseButton::Left if r.shift => Some(Drag::Pan),
-                            MouseButton::Left => Some(Drag::Orbit),
-                            MouseButton::Right | MouseButton::Middle => Some(Drag::Pan),
-                            _ => None,
-                        };
-                        if button == MouseButton::Left {
-                            let now = Instant::now();
-                            if r.last_click
-                                .is_some_and(|t| now - t < Duration::from_millis(350))
-                            {
-                                r.reset_camera();
-                            }
-                            r.last_click = Some(now);
-                        }
-                        r.drag = kind.map(|k| (k, r.cursor));
-                    }
+                    ElementState::Pressed => r.press(button),
                     ElementState::Released => r.drag = None,
                 }
             }
@@ -360,37 +429,7 @@ impl ApplicationHandler for App {
             WindowEvent::KeyboardInput { event, .. }
                 if !response.consumed && event.state == ElementState::Pressed =>
             {
-                match &event.logical_key {
-                    Key::Named(NamedKey::Escape) => r.model.requests.quit = true,
-                    Key::Character(c) => match c.as_str() {
-                        "q" | "Q" => r.model.requests.quit = true,
-                        "s" | "S" if r.ctrl => {
-                            r.model.requests.save_scene = Some(r.model.scene_path.clone());
-                        }
-                        "s" | "S" => r.model.requests.screenshot = true,
-                        "o" | "O" => {
-                            r.model.scene.camera.ortho = !r.model.scene.camera.ortho;
-                        }
-                        "r" | "R" => r.reset_camera(),
-                        "h" | "H" => {
-                            r.show_panel = !r.show_panel;
-                            r.changed();
-                        }
-                        d @ ("1" | "2" | "3" | "4" | "5" | "6") => {
-                            let v = [
-                                NamedView::Anterior,
-                                NamedView::Posterior,
-                                NamedView::Left,
-                                NamedView::Right,
-                                NamedView::Superior,
-                                NamedView::Inferior,
-                            ][d.parse::<usize>().unwrap_or(1) - 1];
-                            ui::set_view(&mut r.model.scene, v);
-                        }
-                        _ => {}
-                    },
-                    _ => {}
-                }
+                r.key(&event.logical_key);
                 r.window.request_redraw();
             }
             WindowEvent::RedrawRequested => {
@@ -477,38 +516,113 @@ impl App {
     }
 }
 
+/// The window and what Vulkan needs of it: its display and window handles, and the instance
+/// extensions presenting to it takes.
+fn open_window(
+    event_loop: &ActiveEventLoop,
+    opts: &ViewOptions,
+) -> Result<(
+    Arc<Window>,
+    winit::raw_window_handle::RawDisplayHandle,
+    winit::raw_window_handle::RawWindowHandle,
+    Presentation,
+)> {
+    let attrs = Window::default_attributes()
+        .with_title(format!("vellum: {}", opts.scene.input.path))
+        .with_inner_size(winit::dpi::PhysicalSize::new(
+            opts.window_size[0],
+            opts.window_size[1],
+        ));
+    let window = Arc::new(
+        event_loop
+            .create_window(attrs)
+            .map_err(|e| Error::Invalid(format!("cannot create a window: {e}")))?,
+    );
+    let display = window
+        .display_handle()
+        .map_err(|e| Error::Invalid(format!("the window has no display handle: {e}")))?
+        .as_raw();
+    let handle = window
+        .window_handle()
+        .map_err(|e| Error::Invalid(format!("the window has no handle: {e}")))?
+        .as_raw();
+    let exts = ash_window::enumerate_required_extensions(display)
+        .map_err(|e| Error::Invalid(format!("no Vulkan surface for this display: {e}")))?;
+    let present = Presentation {
+        instance_extensions: exts
+            .iter()
+            // SAFETY: ash-window returns pointers to static NUL-terminated extension names.
+            .map(|&p| unsafe { std::ffi::CStr::from_ptr(p) })
+            .collect(),
+        swapchain: true,
+    };
+    Ok((window, display, handle, present))
+}
+
+/// egui's renderer, drawing into the swapchain's format with our device and allocator, and the
+/// command pool it uploads its textures through.
+fn egui_renderer(
+    ctx: &Arc<Context>,
+    format: vk::Format,
+    in_flight: usize,
+) -> Result<(
+    egui_ash_renderer::Renderer<egui_ash_renderer::allocator::GpuAllocator>,
+    CommandPool,
+)> {
+    let egui_renderer = egui_ash_renderer::Renderer::with_gpu_allocator(
+        ctx.shared_allocator(),
+        ctx.device.clone(),
+        egui_ash_renderer::RenderMode::DynamicRendering(egui_ash_renderer::DynamicRendering {
+            color_attachment_format: format,
+            depth_attachment_format: None,
+            stencil_attachment_format: None,
+        }),
+        egui_ash_renderer::Options {
+            in_flight_frames: in_flight,
+            ..Default::default()
+        },
+    )
+    .map_err(|e| Error::Invalid(format!("egui's renderer: {e}")))?;
+    let pool_info = vk::CommandPoolCreateInfo::default()
+        .queue_family_index(ctx.queue_family)
+        .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
+    let egui_pool = CommandPool {
+        ctx: ctx.clone(),
+        raw: unsafe { ctx.device.create_command_pool(&pool_info, None) }
+            .map_err(|e| Error::Invalid(format!("creating egui's command pool: {e}")))?,
+    };
+    Ok((egui_renderer, egui_pool))
+}
+
+/// The panels' model for the first volume: its histogram, features, occlusion TF, spectrum and
+/// geometry, and the scene and TF files beside the screenshots.
+fn initial_model(loaded: &Loaded, gpu: &mut GpuScene, ctx: &Context, opts: &ViewOptions) -> Model {
+    let mut model = Model::new(loaded.scene.clone(), loaded.tf.clone());
+    model.histogram = loaded.histogram.clone();
+    model.features = loaded.features.clone();
+    model.otf = loaded.otf.clone();
+    model.spectrum = gpu.spectrum.take();
+    model.range = loaded.range;
+    model.dims = loaded.volume.dims;
+    model.oriented = loaded.volume.geometry.is_oriented();
+    model.message = format!("{} on {}", loaded.scene.input.path, ctx.info.name);
+    model.scene_path = opts
+        .screenshot_dir
+        .join("vellum.scene.json")
+        .to_string_lossy()
+        .into_owned();
+    model.tf_path = opts
+        .screenshot_dir
+        .join("vellum.tf.json")
+        .to_string_lossy()
+        .into_owned();
+    model
+}
+
 impl Running {
     fn new(event_loop: &ActiveEventLoop, opts: &ViewOptions) -> Result<Self> {
         let loaded = load(opts.scene.clone())?;
-        let attrs = Window::default_attributes()
-            .with_title(format!("vellum: {}", opts.scene.input.path))
-            .with_inner_size(winit::dpi::PhysicalSize::new(
-                opts.window_size[0],
-                opts.window_size[1],
-            ));
-        let window = Arc::new(
-            event_loop
-                .create_window(attrs)
-                .map_err(|e| Error::Invalid(format!("cannot create a window: {e}")))?,
-        );
-        let display = window
-            .display_handle()
-            .map_err(|e| Error::Invalid(format!("the window has no display handle: {e}")))?
-            .as_raw();
-        let handle = window
-            .window_handle()
-            .map_err(|e| Error::Invalid(format!("the window has no handle: {e}")))?
-            .as_raw();
-        let exts = ash_window::enumerate_required_extensions(display)
-            .map_err(|e| Error::Invalid(format!("no Vulkan surface for this display: {e}")))?;
-        let present = Presentation {
-            instance_extensions: exts
-                .iter()
-                // SAFETY: ash-window returns pointers to static NUL-terminated extension names.
-                .map(|&p| unsafe { std::ffi::CStr::from_ptr(p) })
-                .collect(),
-            swapchain: true,
-        };
+        let (window, display, handle, present) = open_window(event_loop, opts)?;
         let ctx = Context::with_presentation(
             &ContextDesc {
                 validation: None,
@@ -544,28 +658,7 @@ impl Running {
                 fragment_constants: &[],
             },
         )?;
-        let egui_renderer = egui_ash_renderer::Renderer::with_gpu_allocator(
-            ctx.shared_allocator(),
-            ctx.device.clone(),
-            egui_ash_renderer::RenderMode::DynamicRendering(egui_ash_renderer::DynamicRendering {
-                color_attachment_format: swapchain.format,
-                depth_attachment_format: None,
-                stencil_attachment_format: None,
-            }),
-            egui_ash_renderer::Options {
-                in_flight_frames: frames.len(),
-                ..Default::default()
-            },
-        )
-        .map_err(|e| Error::Invalid(format!("egui's renderer: {e}")))?;
-        let pool_info = vk::CommandPoolCreateInfo::default()
-            .queue_family_index(ctx.queue_family)
-            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
-        let egui_pool = CommandPool {
-            ctx: ctx.clone(),
-            raw: unsafe { ctx.device.create_command_pool(&pool_info, None) }
-                .map_err(|e| Error::Invalid(format!("creating egui's command pool: {e}")))?,
-        };
+        let (egui_renderer, egui_pool) = egui_renderer(&ctx, swapchain.format, frames.len())?;
         let egui_ctx = egui::Context::default();
         let egui_state = egui_winit::State::new(
             egui_ctx.clone(),
@@ -584,26 +677,8 @@ impl Running {
             loaded.scene.focus,
             &modulation,
         )?;
-        let mut model = Model::new(loaded.scene.clone(), loaded.tf.clone());
-        model.histogram = loaded.histogram;
-        model.features = loaded.features;
-        model.otf = loaded.otf.clone();
         let mut gpu = gpu;
-        model.spectrum = gpu.spectrum.take();
-        model.range = loaded.range;
-        model.dims = loaded.volume.dims;
-        model.oriented = loaded.volume.geometry.is_oriented();
-        model.message = format!("{} on {}", loaded.scene.input.path, ctx.info.name);
-        model.scene_path = opts
-            .screenshot_dir
-            .join("vellum.scene.json")
-            .to_string_lossy()
-            .into_owned();
-        model.tf_path = opts
-            .screenshot_dir
-            .join("vellum.tf.json")
-            .to_string_lossy()
-            .into_owned();
+        let model = initial_model(&loaded, &mut gpu, &ctx, opts);
         let home = loaded.scene.camera.clone();
         Ok(Running {
             frames,
@@ -656,6 +731,64 @@ impl Running {
             window,
             ctx,
         })
+    }
+
+    /// A mouse button pressed over the view: left orbits (with shift, pans), right and middle
+    /// pan; a second left click within 350 ms resets the camera.
+    fn press(&mut self, button: MouseButton) {
+        let kind = match button {
+            MouseButton::Left if self.shift => Some(Drag::Pan),
+            MouseButton::Left => Some(Drag::Orbit),
+            MouseButton::Right | MouseButton::Middle => Some(Drag::Pan),
+            _ => None,
+        };
+        if button == MouseButton::Left {
+            let now = Instant::now();
+            if self
+                .last_click
+                .is_some_and(|t| now - t < Duration::from_millis(350))
+            {
+                self.reset_camera();
+            }
+            self.last_click = Some(now);
+        }
+        self.drag = kind.map(|k| (k, self.cursor));
+    }
+
+    /// A key pressed outside egui: quit, screenshot, save the scene, orthographic, reset, the
+    /// panel, and the six named views.
+    fn key(&mut self, key: &Key) {
+        match key {
+            Key::Named(NamedKey::Escape) => self.model.requests.quit = true,
+            Key::Character(c) => match c.as_str() {
+                "q" | "Q" => self.model.requests.quit = true,
+                "s" | "S" if self.ctrl => {
+                    self.model.requests.save_scene = Some(self.model.scene_path.clone());
+                }
+                "s" | "S" => self.model.requests.screenshot = true,
+                "o" | "O" => {
+                    self.model.scene.camera.ortho = !self.model.scene.camera.ortho;
+                }
+                "r" | "R" => self.reset_camera(),
+                "h" | "H" => {
+                    self.show_panel = !self.show_panel;
+                    self.changed();
+                }
+                d @ ("1" | "2" | "3" | "4" | "5" | "6") => {
+                    let v = [
+                        NamedView::Anterior,
+                        NamedView::Posterior,
+                        NamedView::Left,
+                        NamedView::Right,
+                        NamedView::Superior,
+                        NamedView::Inferior,
+                    ][d.parse::<usize>().unwrap_or(1) - 1];
+                    ui::set_view(&mut self.model.scene, v);
+                }
+                _ => {}
+            },
+            _ => {}
+        }
     }
 
     /// Something changed: render at reduced resolution until [`REFINE_AFTER`] has passed.
@@ -790,24 +923,13 @@ impl Running {
             Ok((l, mut gpu)) => {
                 self.generation += 1;
                 self.epoch += 1;
+                self.model.reopen(l.scene.clone(), l.tf.clone());
                 self.model.spectrum = gpu.spectrum.take();
-                self.model.spectrum_texture = None;
                 self.model.otf = l.otf.clone();
-                self.model.otf_edited = false;
-                self.model.occlusion_params_changed = false;
                 self.applied_otf = l.otf.clone();
                 self.gpu = gpu;
-                self.model.scene = l.scene.clone();
-                self.model.tf = l.tf.clone();
-                self.model.tf_base = l.tf.clone();
-                self.model.tf_edited = false;
-                self.model.shift = 0.0;
-                self.model.scale = 1.0;
-                self.model.selected = None;
                 self.model.histogram = l.histogram;
                 self.model.features = l.features;
-                self.model.hidden.clear();
-                self.model.features_edited = false;
                 self.model.range = l.range;
                 self.model.dims = l.volume.dims;
                 self.model.oriented = l.volume.geometry.is_oriented();
@@ -982,16 +1104,30 @@ impl Running {
     }
 
     /// Renders and presents one frame (with a screenshot's readback when one is pending).
+    /// One window frame: ui → apply → record → present → timings.
     fn redraw(&mut self) -> Result<()> {
+        let Some(ui) = self.run_ui()? else {
+            return Ok(()); // minimised
+        };
+        let (view, full) = self.apply_frame(&ui)?;
+        let Some(drawn) = self.record_and_present(&ui, view)? else {
+            return Ok(()); // the swapchain is out of date: recreated on the next redraw
+        };
+        self.timings(&drawn)?;
+        self.finish_frame(drawn, full)
+    }
+
+    /// Runs egui for this frame: the panels edit the model; returns the volume view's rectangle
+    /// and egui's triangles, with its textures uploaded.
+    fn run_ui(&mut self) -> Result<Option<UiFrame>> {
         let size = self.window.inner_size();
         if size.width == 0 || size.height == 0 {
-            return Ok(()); // minimised
+            return Ok(None);
         }
         if self.resize || self.swapchain.extent != [size.width, size.height] {
             self.swapchain.recreate([size.width, size.height])?;
             self.resize = false;
         }
-        // The panels for this frame.
         let raw = self.egui_state.take_egui_input(&self.window);
         let model = &mut self.model;
         let show_panel = self.show_panel;
@@ -1027,7 +1163,17 @@ impl Running {
                     .map_err(|e| Error::Invalid(format!("egui's textures: {e}")))?;
             }
         }
+        Ok(Some(UiFrame {
+            rect,
+            ppp,
+            primitives,
+        }))
+    }
 
+    /// Takes the panels' requests and the bench's orbit step, applies the scene's edits to the
+    /// GPU state, and decides the frame's quality: the view to render and whether it is the full
+    /// (refined) one.
+    fn apply_frame(&mut self, ui: &UiFrame) -> Result<(Result<View>, bool)> {
         if self.model.requests.screenshot && self.screenshot.is_none() {
             self.screenshot = Some(next_screenshot_path(&self.screenshot_dir)?);
         }
@@ -1049,47 +1195,40 @@ impl Running {
                 Some(_) => self.bench_full,
                 None => self.last_change.elapsed() >= REFINE_AFTER,
             };
-        let extent = self.swapchain.extent;
-
-        let view_size = [rect[2], rect[3]];
+        let view_size = [ui.rect[2], ui.rect[3]];
         let render_size = if full {
             view_size
         } else {
             [view_size[0].div_ceil(2), view_size[1].div_ceil(2)]
         };
         self.model.render_size = render_size;
-        self.print_layout(rect, ppp);
+        self.print_layout(ui.rect, ui.ppp);
         self.model.interactive = !full;
         let mut view = self.model.scene.view(self.model.oriented);
         if let Ok(v) = &mut view {
             v.size = render_size;
-            // While something moves, lines come from the seeded traversal (Burns et al.'s
-            // interactive mode: followed from the previous frame's lines); the refined frame
-            // visits every cell.
-            if let (false, Some(st)) = (full, &mut v.style) {
+            // While something moves on a CPU device, lines come from the seeded traversal
+            // (Burns et al.'s interactive mode: followed from the previous frame's lines); the
+            // refined frame visits every cell. On a GPU every cell is the faster of the two
+            // (CT head, both kinds: 0.75 ms against 4.7 ms seeded on an H100, BENCHMARKS.md).
+            let seeded_pays = self.ctx.info.device_type == "CPU";
+            if let (false, Some(st), true) = (full, &mut v.style, seeded_pays) {
                 st.params.line_seeded = true;
             }
         }
+        Ok((view.map_err(|e| Error::Invalid(e.to_string())), full))
+    }
+
+    /// Acquires a swapchain image and records one frame into it: the renderer's passes (unless
+    /// the view and state equal the last rendered frame's, which only presents the persistent
+    /// layers again), a readback for a screenshot, the present pass and egui; then presents.
+    fn record_and_present(&mut self, ui: &UiFrame, view: Result<View>) -> Result<Option<Drawn>> {
         let slot = self.frames.next_slot()?;
         let Some(image) = self.swapchain.acquire(slot)? else {
             self.resize = true;
             self.window.request_redraw();
-            return Ok(());
+            return Ok(None);
         };
-        let readback_wanted = self.screenshot.is_some();
-        let background = self.model.scene.background;
-        let mut readback = None;
-        let mut render_error = None;
-        let (ctx, renderer, gpu, targets, swapchain, present, sampler, egui_renderer) = (
-            &self.ctx,
-            &self.renderer,
-            &mut self.gpu,
-            &mut self.targets,
-            &self.swapchain,
-            &self.present,
-            &self.sampler,
-            &mut self.egui_renderer,
-        );
         let key = view.as_ref().ok().map(|v| DrawnKey {
             view: v.clone(),
             scene: self.applied.clone(),
@@ -1098,6 +1237,19 @@ impl Running {
             epoch: self.epoch,
         });
         let reuse = key.is_some() && key == self.last_drawn;
+        let readback_wanted = self.screenshot.is_some();
+        let background = self.model.scene.background;
+        let (mut readback, mut render_error) = (None, None);
+        let (ctx, renderer, gpu, targets) =
+            (&self.ctx, &self.renderer, &mut self.gpu, &mut self.targets);
+        let pass = PresentPass {
+            swapchain: &self.swapchain,
+            present: &self.present,
+            sampler: &self.sampler,
+            ui,
+            background,
+        };
+        let egui_renderer = &mut self.egui_renderer;
         let (_, index) = self.frames.frame_sync(|f| {
             let drawn = match &view {
                 Ok(_) if reuse => Ok(()),
@@ -1106,13 +1258,7 @@ impl Running {
                     .map(|_| ()),
                 Err(e) => Err(Error::Invalid(e.to_string())),
             };
-            let drawn = match drawn {
-                Ok(_) => true,
-                Err(e) => {
-                    render_error = Some(e);
-                    false
-                }
-            };
+            let drawn = drawn.map_err(|e| render_error = Some(e)).is_ok();
             if drawn && readback_wanted {
                 let rb = TargetsReadback::new(ctx, targets)?;
                 f.profiler
@@ -1120,52 +1266,7 @@ impl Running {
                 readback = Some(rb);
             }
             let composite = targets.layer("composite").filter(|_| drawn);
-            if let Some(c) = composite {
-                c.transition(f.cmd, Access::FragmentSampled);
-            }
-            swapchain.record_begin(f.cmd, &image);
-            let [r, g, b] = background;
-            begin_rendering_view(ctx, f.cmd, image.view, extent, [r, g, b, 1.0]);
-            if let Some(c) = composite {
-                let push: [f32; 8] = [
-                    background[0],
-                    background[1],
-                    background[2],
-                    0.0,
-                    rect[0] as f32,
-                    rect[1] as f32,
-                    rect[2] as f32,
-                    rect[3] as f32,
-                ];
-                present.bind(f.cmd, &[Bind::Sampled(c, sampler)], &push, extent)?;
-                let scissor = vk::Rect2D {
-                    offset: vk::Offset2D {
-                        x: rect[0] as i32,
-                        y: rect[1] as i32,
-                    },
-                    extent: vk::Extent2D {
-                        width: rect[2],
-                        height: rect[3],
-                    },
-                };
-                unsafe {
-                    ctx.device.cmd_set_scissor(f.cmd, 0, &[scissor]);
-                    ctx.device.cmd_draw(f.cmd, 3, 1, 0, 0);
-                }
-            }
-            egui_renderer
-                .cmd_draw(
-                    f.cmd,
-                    vk::Extent2D {
-                        width: extent[0],
-                        height: extent[1],
-                    },
-                    ppp,
-                    &primitives,
-                )
-                .map_err(|e| Error::Invalid(format!("drawing egui: {e}")))?;
-            end_rendering(ctx, f.cmd);
-            swapchain.record_end(f.cmd, &image);
+            pass.record(ctx, f.cmd, &image, composite, egui_renderer)?;
             Ok((
                 (),
                 SubmitSync {
@@ -1180,21 +1281,31 @@ impl Running {
         if !self.swapchain.present(&image)? {
             self.resize = true;
         }
+        Ok(Some(Drawn {
+            index,
+            reuse,
+            key,
+            render_error,
+            readback,
+            background,
+        }))
+    }
+
+    /// The frame-rate and GPU figures the corner shows and a bench reports, and egui's textures
+    /// freed once no frame draws with them.
+    fn timings(&mut self, drawn: &Drawn) -> Result<()> {
         let now = Instant::now();
         // The rate of rendered frames: frames that only presented the last render (idle redraws)
         // would make the renderer look faster than it is.
-        if !reuse {
+        if !drawn.reuse {
             if let Some(t) = self.last_rendered.replace(now) {
                 let ms = (now - t).as_secs_f64() * 1e3;
                 self.model.fps = 0.9 * self.model.fps + 0.1 * (1e3 / ms.max(1e-3));
             }
-        }
-        if !reuse {
-            self.timings_of = Some(index);
+            self.timings_of = Some(drawn.index);
         }
         if let Some(t) = self.last_present.replace(now) {
             let ms = (now - t).as_secs_f64() * 1e3;
-
             if self.bench_left.is_some() {
                 self.frame_ms.push(ms);
             }
@@ -1225,11 +1336,17 @@ impl Running {
                     .map_err(|e| Error::Invalid(format!("egui's textures: {e}")))?;
             }
         }
-        self.last_drawn = match render_error {
-            None => key,
+        Ok(())
+    }
+
+    /// What the frame leaves behind: the key of what it rendered, a refused setting rolled back
+    /// with its message, and the screenshot written.
+    fn finish_frame(&mut self, drawn: Drawn, full: bool) -> Result<()> {
+        self.last_drawn = match drawn.render_error {
+            None => drawn.key,
             Some(_) => None,
         };
-        match render_error {
+        match drawn.render_error {
             Some(e) => {
                 // A setting the renderer refuses: say why, and go back to what rendered.
                 self.model.message = e.to_string();
@@ -1240,11 +1357,11 @@ impl Running {
             None if full => self.refined = true,
             None => {}
         }
-        if let (Some(rb), Some(path)) = (readback, self.screenshot.take()) {
+        if let (Some(rb), Some(path)) = (drawn.readback, self.screenshot.take()) {
             self.frames.wait_idle()?;
             let (pixels, _) = rb.read()?;
             let [w, h] = rb.size();
-            crate::output::write_png_rgb(&path, w, h, &to_rgb8(&pixels, background))?;
+            crate::output::write_png_rgb(&path, w, h, &to_rgb8(&pixels, drawn.background))?;
             // A bench's report owns standard output (it may be JSON).
             match self.bench_left {
                 Some(_) => eprintln!("screenshot: {}", path.display()),

@@ -135,6 +135,31 @@ impl Model {
         }
     }
 
+    /// Starts over for a newly opened volume: [`Model::new`]'s state for `scene` and `tf`,
+    /// keeping what belongs to the session rather than to the volume: the file paths, the
+    /// histogram's scale, the brush, the frame figures, pending requests, the spectrum's marks and
+    /// the occlusion worker's state. What the volume brings (histogram, range, spectrum, ...) the
+    /// caller sets.
+    pub fn reopen(&mut self, scene: Scene, tf: TransferFunction) {
+        let old = std::mem::replace(self, Model::new(scene, tf));
+        self.loading = old.loading;
+        self.open_path = old.open_path;
+        self.scene_path = old.scene_path;
+        self.tf_path = old.tf_path;
+        self.log_histogram = old.log_histogram;
+        self.fps = old.fps;
+        self.gpu_ms = old.gpu_ms;
+        self.render_size = old.render_size;
+        self.interactive = old.interactive;
+        self.requests = old.requests;
+        self.marks = old.marks;
+        self.brush = old.brush;
+        self.tagging = old.tagging;
+        self.curve_drag = old.curve_drag;
+        self.recompute_occlusion = old.recompute_occlusion;
+        self.occlusion_busy = old.occlusion_busy;
+    }
+
     /// Replaces the transfer function with `tf`, named in the scene as `name` (a preset or a file).
     fn set_tf(&mut self, tf: TransferFunction, name: &str) {
         self.tf = tf.clone();
@@ -456,6 +481,13 @@ fn tf_editor(ui: &mut egui::Ui, m: &mut Model) {
     m.marks.insert("tf-editor".into(), rect);
     painter.rect_filled(rect, 2.0, Color32::from_gray(24));
     histogram(&painter, rect, &m.histogram, m.log_histogram);
+    let pts = draw_tf(&painter, rect, m);
+    edit_tf(ui, m, &response, rect, &pts);
+}
+
+/// The focus on the axis, the TF's colour along the bottom, its opacity curve and its points;
+/// returns the points' positions.
+fn draw_tf(painter: &egui::Painter, rect: Rect, m: &Model) -> Vec<Pos2> {
     // The focus interval on the axis.
     let to_x = |v: f64| {
         let t = ((v - m.range[0]) / (m.range[1] - m.range[0]).max(f64::MIN_POSITIVE)) as f32;
@@ -524,6 +556,11 @@ fn tf_editor(ui: &mut egui::Ui, m: &mut Model) {
         };
         painter.circle(*p, 5.0, fill, stroke);
     }
+    pts
+}
+
+/// Dragging, adding (click) and removing (right click) the TF's points.
+fn edit_tf(ui: &egui::Ui, m: &mut Model, response: &egui::Response, rect: Rect, pts: &[Pos2]) {
     // Interaction: the nearest point within 8 px is the one acted on.
     let hit = |pos: Pos2| {
         pts.iter()
@@ -957,11 +994,54 @@ impl CurveHandle {
 /// with the OTF's regions and curves over it. Dragging on it tags a rectangle in the brush's
 /// colour; the lists edit or delete regions and the decoupled model's Gaussian curves; the AO
 /// radius and mapping recompute the occlusion volume.
+/// The occlusion editor: the spectrum with the OTF's regions and curves over it (drag a handle
+/// to move a curve, drag elsewhere to tag a region), then the regions, the curves, and the AO
+/// radius and mapping.
 fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
     let Some(mut otf) = m.otf.take() else {
         return;
     };
     let before = otf.clone();
+    spectrum_editor(ui, m, &mut otf);
+    otf_regions(ui, m, &mut otf);
+    ui.separator();
+    otf_curves(ui, &mut otf);
+    ui.separator();
+    occlusion_params(ui, m, &mut otf);
+    if otf != before {
+        m.otf_edited = true;
+    }
+    m.otf = Some(otf);
+}
+
+/// The spectrum's square on screen: (intensity, occlusion) in [0, 1]² to pixels and back.
+struct SpectrumView {
+    rect: Rect,
+}
+
+impl SpectrumView {
+    fn to_screen(&self, s: f32, o: f32) -> Pos2 {
+        let r = self.rect;
+        Pos2::new(r.left() + s * r.width(), r.bottom() - o * r.height())
+    }
+
+    fn to_spectrum(&self, p: Pos2) -> [f32; 2] {
+        let r = self.rect;
+        [
+            ((p.x - r.left()) / r.width()).clamp(0.0, 1.0),
+            ((r.bottom() - p.y) / r.height()).clamp(0.0, 1.0),
+        ]
+    }
+}
+
+/// An RGBA colour in [0, 1] as an opaque egui colour.
+fn rgb(c: [f32; 4]) -> Color32 {
+    let b = |v: f32| (v.clamp(0.0, 1.0) * 255.0) as u8;
+    Color32::from_rgb(b(c[0]), b(c[1]), b(c[2]))
+}
+
+/// The spectrum image with the OTF drawn over it, and the drags on it.
+fn spectrum_editor(ui: &mut egui::Ui, m: &mut Model, otf: &mut OcclusionTf) {
     if m.spectrum_texture.is_none() {
         if let Some(sp) = &m.spectrum {
             m.spectrum_texture = Some(ui.ctx().load_texture(
@@ -989,34 +1069,23 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
             painter.rect_filled(rect, 0.0, Color32::from_gray(24));
         }
     }
-    let to_screen = |s: f32, o: f32| {
-        Pos2::new(
-            rect.left() + s * rect.width(),
-            rect.bottom() - o * rect.height(),
-        )
-    };
-    let to_spectrum = |p: Pos2| {
-        [
-            ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0),
-            ((rect.bottom() - p.y) / rect.height()).clamp(0.0, 1.0),
-        ]
-    };
-    let color = |c: [f32; 4]| {
-        Color32::from_rgb(
-            (c[0].clamp(0.0, 1.0) * 255.0) as u8,
-            (c[1].clamp(0.0, 1.0) * 255.0) as u8,
-            (c[2].clamp(0.0, 1.0) * 255.0) as u8,
-        )
-    };
+    let v = SpectrumView { rect };
+    draw_otf(&painter, &v, otf);
+    curve_handles(ui, m, &painter, &v, &response, otf);
+    tag_region(m, &painter, &v, &response, otf);
+}
+
+/// The regions' outlines and the curves' bands.
+fn draw_otf(painter: &egui::Painter, v: &SpectrumView, otf: &OcclusionTf) {
     for r in &otf.regions {
-        let stroke = Stroke::new(1.5, color(r.rgba));
+        let stroke = Stroke::new(1.5, rgb(r.rgba));
         match &r.shape {
             Shape::Rect {
                 intensity,
                 occlusion,
             } => {
-                let a = to_screen(intensity[0], occlusion[1]);
-                let b = to_screen(intensity[1], occlusion[0]);
+                let a = v.to_screen(intensity[0], occlusion[1]);
+                let b = v.to_screen(intensity[1], occlusion[0]);
                 painter.rect_stroke(
                     Rect::from_two_pos(a, b),
                     0.0,
@@ -1025,29 +1094,29 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
                 );
             }
             Shape::Blob { centre, sigma } => {
-                let c = to_screen(centre[0], centre[1]);
-                let radius = Vec2::new(sigma[0] * rect.width(), sigma[1] * rect.height());
+                let c = v.to_screen(centre[0], centre[1]);
+                let radius = Vec2::new(sigma[0] * v.rect.width(), sigma[1] * v.rect.height());
                 painter.add(egui::Shape::ellipse_stroke(c, radius, stroke));
             }
         }
     }
     for c in &otf.curves {
         let stroke = Stroke::new(1.5, Color32::from_rgb(120, 220, 255));
-        let y = |o: f32| to_screen(0.0, o).y;
+        let y = |o: f32| v.to_screen(0.0, o).y;
         painter.line_segment(
             [
-                Pos2::new(to_screen(c.intensity[0], 0.0).x, y(c.mean)),
-                Pos2::new(to_screen(c.intensity[1], 0.0).x, y(c.mean)),
+                Pos2::new(v.to_screen(c.intensity[0], 0.0).x, y(c.mean)),
+                Pos2::new(v.to_screen(c.intensity[1], 0.0).x, y(c.mean)),
             ],
             stroke,
         );
         let band = Rect::from_min_max(
             Pos2::new(
-                to_screen(c.intensity[0], 0.0).x,
+                v.to_screen(c.intensity[0], 0.0).x,
                 y((c.mean + c.width).min(1.0)),
             ),
             Pos2::new(
-                to_screen(c.intensity[1], 0.0).x,
+                v.to_screen(c.intensity[1], 0.0).x,
                 y((c.mean - c.width).max(0.0)),
             ),
         );
@@ -1057,11 +1126,21 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
             Color32::from_rgba_unmultiplied(120, 220, 255, 30),
         );
     }
-    // The curves' handles: drawn over everything, and a drag that starts on one moves it.
+}
+
+/// The curves' handles: drawn over everything, and a drag that starts on one moves it.
+fn curve_handles(
+    ui: &egui::Ui,
+    m: &mut Model,
+    painter: &egui::Painter,
+    v: &SpectrumView,
+    response: &egui::Response,
+    otf: &mut OcclusionTf,
+) {
     for (i, c) in otf.curves.iter().enumerate() {
         for h in CurveHandle::ALL {
             let [s_, o] = h.at(c);
-            let p = to_screen(s_, o);
+            let p = v.to_screen(s_, o);
             let active = m.curve_drag == Some((i, h));
             painter.circle(
                 p,
@@ -1085,7 +1164,7 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
             for (i, c) in otf.curves.iter().enumerate() {
                 for h in CurveHandle::ALL {
                     let [s_, o] = h.at(c);
-                    let d = to_screen(s_, o).distance(p);
+                    let d = v.to_screen(s_, o).distance(p);
                     if d <= 8.0 && best.is_none_or(|(bd, _)| d < bd) {
                         best = Some((d, (i, h)));
                     }
@@ -1097,24 +1176,34 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
     }
     if let Some((i, h)) = m.curve_drag {
         if let (Some(c), Some(p)) = (otf.curves.get_mut(i), response.interact_pointer_pos()) {
-            h.drag(c, to_spectrum(p));
+            h.drag(c, v.to_spectrum(p));
         }
         if response.drag_stopped() || !response.dragged() {
             m.curve_drag = None;
         }
     }
-    // Tagging: drag a rectangle (corners in spectrum units; the pointer position is not known on
-    // the frame the button is released, so the last one is kept).
+}
+
+/// Tagging: a drag that grabs no handle draws a rectangle, added as a region in the brush's
+/// colour (corners in spectrum units; the pointer position is not known on the frame the button
+/// is released, so the last one is kept).
+fn tag_region(
+    m: &mut Model,
+    painter: &egui::Painter,
+    v: &SpectrumView,
+    response: &egui::Response,
+    otf: &mut OcclusionTf,
+) {
     if response.drag_started() && m.curve_drag.is_none() {
         m.tagging = response
             .interact_pointer_pos()
-            .map(|p| [to_spectrum(p), to_spectrum(p)]);
+            .map(|p| [v.to_spectrum(p), v.to_spectrum(p)]);
     }
     if let (Some(t), Some(p)) = (m.tagging.as_mut(), response.interact_pointer_pos()) {
-        t[1] = to_spectrum(p);
+        t[1] = v.to_spectrum(p);
     }
     if let Some([a, b]) = m.tagging {
-        let (p0, p1) = (to_screen(a[0], a[1]), to_screen(b[0], b[1]));
+        let (p0, p1) = (v.to_screen(a[0], a[1]), v.to_screen(b[0], b[1]));
         painter.rect_stroke(
             Rect::from_two_pos(p0, p1),
             0.0,
@@ -1136,6 +1225,10 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
             m.tagging = None;
         }
     }
+}
+
+/// The brush and the list of regions, each with its colour and a delete button.
+fn otf_regions(ui: &mut egui::Ui, m: &mut Model, otf: &mut OcclusionTf) {
     ui.horizontal(|ui| {
         ui.label("brush");
         ui.color_edit_button_rgba_unmultiplied(&mut m.brush);
@@ -1166,7 +1259,10 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
     if let Some(i) = delete {
         otf.regions.remove(i);
     }
-    ui.separator();
+}
+
+/// The decoupled model's curves: mean, width and intensity interval each, and a new one.
+fn otf_curves(ui: &mut egui::Ui, otf: &mut OcclusionTf) {
     ui.label("Decoupled model: the 1D TF's opacity times Gaussian occlusion curves.");
     let mut delete = None;
     for (i, c) in otf.curves.iter_mut().enumerate() {
@@ -1203,7 +1299,11 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
             width: 0.1,
         });
     }
-    ui.separator();
+}
+
+/// The AO radius and mapping, and the button that recomputes the occlusion volume (a spinner
+/// while a worker computes it).
+fn occlusion_params(ui: &mut egui::Ui, m: &mut Model, otf: &mut OcclusionTf) {
     let (radius, mapping) = (otf.radius, otf.mapping.clone());
     ui.add(egui::Slider::new(&mut otf.radius, 1..=64).text("AO radius (voxels)"));
     egui::ComboBox::from_label("mapping")
@@ -1239,10 +1339,6 @@ fn occlusion(ui: &mut egui::Ui, m: &mut Model) {
             }
         }
     }
-    if otf != before {
-        m.otf_edited = true;
-    }
-    m.otf = Some(otf);
 }
 
 /// The spectrum as an image: log counts in grey, occlusion 0 at the bottom.
