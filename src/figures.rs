@@ -245,7 +245,7 @@ pub fn importance_sheets(ctx: &Arc<Context>, size: u32) -> Result<Vec<(&'static 
                 .into(),
         )
     })?;
-    let renderer = Renderer::new(ctx)?;
+    let mut renderer = Renderer::new(ctx)?;
     let mut sheets = Vec::new();
     let mut prepared: Option<((&str, &str), GpuScene)> = None;
     for fig in figures() {
@@ -353,7 +353,7 @@ pub fn style_gallery(
 ) -> Result<(Canvas, Vec<GalleryTile>)> {
     use crate::render::style::{Style, STYLES};
     params.validate()?;
-    let renderer = Renderer::new(ctx)?;
+    let mut renderer = Renderer::new(ctx)?;
     let [w, h] = view.size.map(|s| s as usize);
     let mut tiles = Vec::new();
     for def in STYLES.iter() {

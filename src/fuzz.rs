@@ -286,25 +286,17 @@ fn small_dicom(path: &Path, scratch: &Path) -> Result<Vec<u8>> {
     read(&out)
 }
 
-/// Every target with seeds made from `data` (../shared/data) and `project` (the crate root).
-pub fn targets(data: &Path, project: &Path, scratch: &Path) -> Result<Vec<Target>> {
-    std::fs::create_dir_all(scratch).map_err(|e| Error::io(scratch, e))?;
-    let formats = data.join("formats");
-    let volumes = data.join("volumes");
-    let tooth = real_block(&formats.join("nrrd/tooth.nrrd"))?;
-    let mask = real_block(&formats.join("nrrd/seg3d_skull_mask.nrrd"))?;
-    let stroke = real_block(&formats.join("nifti/stroke_t1.nii.gz"))?;
-    let avm = real_block(&formats.join("nifti/ct_avm.nii.gz"))?;
-    let head = real_block(&formats.join("metaimage/HeadMRVolume.mhd"))?;
-    let engine = real_block(&volumes.join("engine/engine.nhdr"))?;
-
+/// Detached-header seeds: the engine's NRRD header and the MR head's MetaImage header retargeted
+/// to the small blocks (`data.raw` beside them), and the MetaImage as one .mha with the block.
+fn header_seeds(data: &Path, engine: &Volume, head: &Volume) -> Result<[Vec<u8>; 3]> {
+    let (formats, volumes) = (data.join("formats"), data.join("volumes"));
     let sizes = |v: &Volume| format!("{} {} {}", v.dims[0], v.dims[1], v.dims[2]);
     let nhdr_text = std::fs::read_to_string(volumes.join("engine/engine.nhdr"))
         .map_err(|e| Error::io(volumes.join("engine/engine.nhdr"), e))?;
     let nhdr = retarget(
         &nhdr_text,
         "sizes: ",
-        &sizes(&engine),
+        &sizes(engine),
         "data file: ",
         "data.raw",
     )
@@ -314,31 +306,28 @@ pub fn targets(data: &Path, project: &Path, scratch: &Path) -> Result<Vec<Target
     let mhd = retarget(
         &mhd_text,
         "DimSize = ",
-        &sizes(&head),
+        &sizes(head),
         "ElementDataFile = ",
         "data.raw",
     );
     let mut mha = retarget(
         &mhd_text,
         "DimSize = ",
-        &sizes(&head),
+        &sizes(head),
         "ElementDataFile = ",
         "LOCAL",
     )
     .into_bytes();
     mha.extend_from_slice(head.data.as_bytes());
 
-    let mut dicom_files: Vec<PathBuf> = ["dicom/seg3d_mr_640", "dicom/vs_seg001_t1"]
-        .iter()
-        .filter_map(|d| std::fs::read_dir(formats.join(d)).ok())
-        .filter_map(|mut entries| entries.next()?.ok().map(|e| e.path()))
-        .collect();
-    dicom_files.sort();
-    let dicom = dicom_files
-        .iter()
-        .map(|p| small_dicom(p, scratch))
-        .collect::<Result<Vec<_>>>()?;
+    Ok([nhdr.into_bytes(), mhd.into_bytes(), mha])
+}
 
+/// The seed files of one target.
+type Seeds = Vec<Vec<u8>>;
+
+/// JSON seeds: every transfer-function preset, and the example scenes.
+fn json_seeds(project: &Path) -> Result<[Seeds; 2]> {
     let json = |p: &str| read(&project.join(p));
     let tfs = crate::classify::transfer::PRESETS
         .iter()
@@ -359,6 +348,37 @@ pub fn targets(data: &Path, project: &Path, scratch: &Path) -> Result<Vec<Target
     .map(|p| json(p))
     .collect::<Result<Vec<_>>>()?;
 
+    Ok([tfs, scenes])
+}
+
+/// Every target with seeds made from `data` (../shared/data) and `project` (the crate root).
+pub fn targets(data: &Path, project: &Path, scratch: &Path) -> Result<Vec<Target>> {
+    std::fs::create_dir_all(scratch).map_err(|e| Error::io(scratch, e))?;
+    let formats = data.join("formats");
+    let volumes = data.join("volumes");
+    let tooth = real_block(&formats.join("nrrd/tooth.nrrd"))?;
+    let mask = real_block(&formats.join("nrrd/seg3d_skull_mask.nrrd"))?;
+    let stroke = real_block(&formats.join("nifti/stroke_t1.nii.gz"))?;
+    let avm = real_block(&formats.join("nifti/ct_avm.nii.gz"))?;
+    let head = real_block(&formats.join("metaimage/HeadMRVolume.mhd"))?;
+    let engine = real_block(&volumes.join("engine/engine.nhdr"))?;
+
+    let [nhdr, mhd, mha] = header_seeds(data, &engine, &head)?;
+
+    let mut dicom_files: Vec<PathBuf> = ["dicom/seg3d_mr_640", "dicom/vs_seg001_t1"]
+        .iter()
+        .filter_map(|d| std::fs::read_dir(formats.join(d)).ok())
+        .filter_map(|mut entries| entries.next()?.ok().map(|e| e.path()))
+        .collect();
+    dicom_files.sort();
+    let dicom = dicom_files
+        .iter()
+        .map(|p| small_dicom(p, scratch))
+        .collect::<Result<Vec<_>>>()?;
+
+    let json = |p: &str| read(&project.join(p));
+    let [tfs, scenes] = json_seeds(project)?;
+
     Ok(vec![
         Target {
             name: "nrrd",
@@ -376,7 +396,7 @@ pub fn targets(data: &Path, project: &Path, scratch: &Path) -> Result<Vec<Target
             file: "input.nhdr",
             reader: Reader::Volume,
             companions: vec![("data.raw".into(), engine.data.as_bytes().to_vec())],
-            seeds: vec![nhdr.into_bytes()],
+            seeds: vec![nhdr],
         },
         Target {
             name: "nifti",
@@ -407,7 +427,7 @@ pub fn targets(data: &Path, project: &Path, scratch: &Path) -> Result<Vec<Target
             file: "input.mhd",
             reader: Reader::Volume,
             companions: vec![("data.raw".into(), head.data.as_bytes().to_vec())],
-            seeds: vec![mhd.into_bytes()],
+            seeds: vec![mhd],
         },
         Target {
             name: "dicom",

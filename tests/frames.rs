@@ -67,7 +67,7 @@ impl Rig {
 
     /// Records one frame (no readback).
     fn frame(&mut self, v: &View) {
-        let (renderer, scene, targets) = (&self.renderer, &mut self.scene, &mut self.targets);
+        let (renderer, scene, targets) = (&mut self.renderer, &mut self.scene, &mut self.targets);
         self.frames
             .frame(|f| renderer.record(f, &scene.volume, &mut scene.classify, v, targets))
             .unwrap();
@@ -204,7 +204,7 @@ fn occlusion_transfer_function_render_reads_no_volume_back() {
         spectrum.counts.iter().map(|&c| c as u64).sum::<u64>(),
         occ.iter().map(|&d| d as u64).product::<u64>()
     );
-    let renderer = Renderer::new(ctx).unwrap();
+    let mut renderer = Renderer::new(ctx).unwrap();
     let frame = renderer
         .render_frame(
             &scene.volume,
@@ -317,8 +317,8 @@ fn a_scene_file_round_trips_to_the_same_render() {
     scene.save(&path).unwrap();
     let loaded = Scene::load(&path).unwrap();
     assert_eq!(loaded, scene);
-    let renderer = Renderer::new(ctx).unwrap();
-    let render = |s: &Scene| {
+    let mut renderer = Renderer::new(ctx).unwrap();
+    let mut render = |s: &Scene| {
         let v = s.load_volume().unwrap();
         let mut g = GpuScene::prepare(
             ctx,
@@ -358,7 +358,7 @@ fn persistent_targets_are_read_back_by_name() {
     let targets = &rig.targets;
     rig.frames
         .frame(|f| {
-            rb.record(f.cmd, targets);
+            rb.record(f, targets);
             Ok(())
         })
         .unwrap();
@@ -419,4 +419,40 @@ fn a_submission_inside_a_recording_is_refused() {
     vellum::gpu::submit_once(ctx, "after", |_| Ok(())).unwrap();
     outer.frame(|_| Ok(())).unwrap();
     outer.wait_idle().unwrap();
+}
+
+/// The pipeline cache builds each (shader, constants) pair once, keeps specialisations apart,
+/// and refuses a cached shader asked for with another interface.
+#[test]
+fn the_pipeline_cache_builds_each_variant_once() {
+    use vellum::gpu::{BindingKind, PipelineCache, PipelineDesc};
+    let gpu = Gpu::new();
+    let mut cache = PipelineCache::new(&gpu.ctx);
+    let bindings = [
+        BindingKind::StorageImage,
+        BindingKind::StorageImage,
+        BindingKind::StorageBuffer,
+    ];
+    let push = std::mem::size_of::<vellum::passes::importance::GaussPush>() as u32;
+    let gauss = PipelineDesc::new("importance/gauss1d.comp", &bindings, push);
+    let r2 = cache.get(&gauss.constants(&[2, 8, 8])).unwrap();
+    let again = cache.get(&gauss.constants(&[2, 8, 8])).unwrap();
+    assert!(
+        std::sync::Arc::ptr_eq(&r2, &again),
+        "a hit returns the same pipeline"
+    );
+    let r3 = cache.get(&gauss.constants(&[3, 8, 8])).unwrap();
+    assert!(
+        !std::sync::Arc::ptr_eq(&r2, &r3),
+        "another radius is another pipeline"
+    );
+    assert_ne!(r2.raw, r3.raw);
+    assert_eq!(cache.len(), 2);
+    let wrong = PipelineDesc::new("importance/gauss1d.comp", &bindings[..2], push);
+    let e = cache
+        .get(&wrong.constants(&[2, 8, 8]))
+        .err()
+        .expect("refused");
+    assert!(e.to_string().contains("importance/gauss1d.comp"), "{e}");
+    assert_eq!(cache.len(), 2);
 }

@@ -393,8 +393,8 @@ fn the_superior_end_is_up_by_default() {
         r#"{"name": "marker", "points": [{"x": 0.0, "rgba": [1, 1, 1, 0]}, {"x": 0.8, "rgba": [1, 1, 1, 0]}, {"x": 0.9, "rgba": [1, 1, 1, 1]}]}"#,
     )
     .unwrap();
-    let renderer = Renderer::new(&gpu.ctx).unwrap();
-    let marker_row = |v: &Volume| {
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let mut marker_row = |v: &Volume| {
         let mut scene = GpuScene::prepare(
             &gpu.ctx,
             v,

@@ -239,6 +239,7 @@ fn gpu_segments_equal_the_cpu_reference() {
     use vellum::passes::lines::{HessianSource, LineExtractor};
     let gpu = common::Gpu::new();
     let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let mut pipelines = vellum::gpu::PipelineCache::new(&gpu.ctx);
     let cases: Vec<(Volume, f32, Eye, &str)> = vec![
         (
             phantom::smooth_torus(64),
@@ -266,7 +267,7 @@ fn gpu_segments_equal_the_cpu_reference() {
                 stride,
                 ..LineParams::default()
             };
-            let got = lines.extract(v, *eye, &p, 1 << 20).unwrap();
+            let got = lines.extract(&mut pipelines, v, *eye, &p, 1 << 20).unwrap();
             assert!(!got.overflowed());
             let want = cpu_reference(v, *iso, *eye, &p);
             assert_same_segments(
@@ -281,7 +282,14 @@ fn gpu_segments_equal_the_cpu_reference() {
             ..LineParams::default()
         };
         let pre = lines
-            .extract_with(v, *eye, &p, 1 << 20, HessianSource::Precomputed)
+            .extract_with(
+                &mut pipelines,
+                v,
+                *eye,
+                &p,
+                1 << 20,
+                HessianSource::Precomputed,
+            )
             .unwrap();
         assert!(pre.hessian_ms > 0.0, "{name}: the precomputation is timed");
         assert_same_segments(
@@ -298,12 +306,15 @@ fn an_overflow_is_reported_and_bounded() {
     use vellum::passes::lines::LineExtractor;
     let gpu = common::Gpu::new();
     let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let mut pipelines = vellum::gpu::PipelineCache::new(&gpu.ctx);
     let v = phantom::smooth_torus(64);
     let eye = Eye::Direction([0.0, 0.0, 1.0]);
     let full = lines
-        .extract(&v, eye, &LineParams::default(), 1 << 20)
+        .extract(&mut pipelines, &v, eye, &LineParams::default(), 1 << 20)
         .unwrap();
-    let small = lines.extract(&v, eye, &LineParams::default(), 50).unwrap();
+    let small = lines
+        .extract(&mut pipelines, &v, eye, &LineParams::default(), 50)
+        .unwrap();
     assert!(small.overflowed() && small.segments.len() == 50);
     assert_eq!(
         small.found, full.found,
@@ -649,6 +660,7 @@ fn smoothing_removes_noise_contours_and_the_gpu_smooths_as_the_cpu() {
     use vellum::volume::lines::smoothed;
     let gpu = common::Gpu::new();
     let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let mut pipelines = vellum::gpu::PipelineCache::new(&gpu.ctx);
     let eye = Eye::Direction([0.0, -0.8f32.sin(), 0.8f32.cos()]);
     let clean = phantom::smooth_torus(64);
     let noisy = with_noise(&clean, 0.03);
@@ -699,7 +711,7 @@ fn smoothing_removes_noise_contours_and_the_gpu_smooths_as_the_cpu() {
             smooth: 3,
             ..LineParams::default()
         };
-        let got = lines.extract(&v, eye, &p, 1 << 20).unwrap();
+        let got = lines.extract(&mut pipelines, &v, eye, &p, 1 << 20).unwrap();
         assert!(!got.overflowed());
         let want = cpu(&v, iso, 3);
         eprintln!(
@@ -745,7 +757,7 @@ fn bench_lines_resamples_and_refuses_a_bad_size() {
 fn lines_are_antialiased_by_distance_whatever_their_order() {
     use ash::vk;
     use vellum::gpu::transfer::{readback, upload};
-    use vellum::gpu::{Access, Image, Profiler};
+    use vellum::gpu::{Access, Image};
     use vellum::passes::lines::{LineBuffer, LineExtractor, RasterView};
     let gpu = common::Gpu::new();
     let ctx = &gpu.ctx;
@@ -817,10 +829,8 @@ fn lines_are_antialiased_by_distance_whatever_their_order() {
             Access::ComputeReadWrite,
         )
         .unwrap();
-        let mut profiler = Profiler::new(ctx, 2).unwrap();
-        vellum::gpu::submit_once(ctx, "raster", |cmd| {
-            profiler.reset(cmd);
-            lines.record_raster(cmd, &mut profiler, &buffer, &view, &depth, &edges)
+        vellum::gpu::submit_once(ctx, "raster", |f| {
+            lines.record_raster(f, &buffer, &view, &depth, &edges)
         })
         .unwrap();
         bytemuck::pod_collect_to_vec(&readback(ctx, &edges).unwrap())
@@ -912,6 +922,7 @@ fn the_seeded_traversal_follows_the_lines_from_frame_to_frame() {
     use vellum::passes::lines::LineExtractor;
     let gpu = common::Gpu::new();
     let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let mut pipelines = vellum::gpu::PipelineCache::new(&gpu.ctx);
     let eye_at = |deg: f32| {
         let (a, e) = (deg.to_radians(), 0.6f32);
         Eye::Direction([a.sin() * e.cos(), -a.cos() * e.cos(), e.sin()])
@@ -937,9 +948,11 @@ fn the_seeded_traversal_follows_the_lines_from_frame_to_frame() {
         };
         // Cold start, fixed view.
         let cold: Vec<(Eye, LineParams)> = (0..6).map(|_| (eye_at(10.0), seeded)).collect();
-        let got = lines.extract_frames(&v, &cold, 1 << 20).unwrap();
+        let got = lines
+            .extract_frames(&mut pipelines, &v, &cold, 1 << 20)
+            .unwrap();
         let full = lines
-            .extract_frames(&v, &[(eye_at(10.0), base)], 1 << 20)
+            .extract_frames(&mut pipelines, &v, &[(eye_at(10.0), base)], 1 << 20)
             .unwrap();
         let mut previous = 0.0;
         for (i, f) in got.iter().enumerate() {
@@ -977,9 +990,13 @@ fn the_seeded_traversal_follows_the_lines_from_frame_to_frame() {
                 )
             })
             .collect();
-        let got = lines.extract_frames(&v, &frames, 1 << 20).unwrap();
+        let got = lines
+            .extract_frames(&mut pipelines, &v, &frames, 1 << 20)
+            .unwrap();
         for (i, f) in got.iter().enumerate().skip(1) {
-            let full = lines.extract(&v, frames[i].0, &base, 1 << 20).unwrap();
+            let full = lines
+                .extract(&mut pipelines, &v, frames[i].0, &base, 1 << 20)
+                .unwrap();
             let (l, lf) = subset_length(name, &f.segments, &full.segments);
             eprintln!(
                 "{name} turning frame {i}: {:.1} % of the full length, {:.1} ms against {:.1} ms",

@@ -183,7 +183,8 @@ fn glsl_modulation_equals_the_cpu_reference_on_a_phantom() {
         std::mem::size_of::<ProbePush>() as u32,
     )
     .unwrap();
-    vellum::gpu::submit_once(ctx, "probe", |cmd| {
+    vellum::gpu::submit_once(ctx, "probe", |frame| {
+        let cmd = frame.cmd;
         pipeline.dispatch(
             cmd,
             &[Bind::StorageBuffer(&input), Bind::StorageBuffer(&output)],

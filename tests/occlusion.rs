@@ -318,11 +318,7 @@ fn occlusion_tf_render_tells_equal_intensities_apart() {
             },
         )
         .unwrap();
-    let mut profiler = vellum::gpu::Profiler::new(&gpu.ctx, 2).unwrap();
-    let mut tex = Normals::new(&gpu.ctx)
-        .unwrap()
-        .prepare(&v, &mut profiler)
-        .unwrap();
+    let (mut tex, _) = Normals::new(&gpu.ctx).unwrap().prepare(&v).unwrap();
     tex.attach_occlusion(&gpu.ctx, &occ.occlusion).unwrap();
     let params = RenderParams {
         camera: Camera::parse("0,0,2.2").unwrap(),

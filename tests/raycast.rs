@@ -94,7 +94,7 @@ fn scene(gpu: &Gpu, v: &Volume, tf: &str, focus: Focus) -> GpuScene {
 #[test]
 fn ray_casting_matches_slicing_at_the_same_planes() {
     let gpu = Gpu::new();
-    let renderer = Renderer::new(&gpu.ctx).unwrap();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     let size = 128;
     for (name, v, tf, focus, camera) in cases() {
         let mut s = scene(&gpu, &v, tf, focus);
@@ -164,7 +164,7 @@ fn ray_casting_matches_slicing_at_the_same_planes() {
 #[test]
 fn two_levels_equal_one_pass_and_speed_ups_keep_the_image() {
     let gpu = Gpu::new();
-    let renderer = Renderer::new(&gpu.ctx).unwrap();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     for (name, v, tf, focus, camera) in cases() {
         let mut s = scene(&gpu, &v, tf, focus);
         let mut render = |one_pass: bool, ray: RayOptions| {
@@ -224,7 +224,7 @@ fn two_levels_equal_one_pass_and_speed_ups_keep_the_image() {
 #[test]
 fn ray_casts_match_reference_images() {
     let gpu = Gpu::new();
-    let renderer = Renderer::new(&gpu.ctx).unwrap();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     for (name, v, tf, focus, camera) in cases() {
         let mut s = scene(&gpu, &v, tf, focus);
         let jittered = RayOptions {
@@ -256,7 +256,7 @@ fn ray_casts_match_reference_images() {
 #[test]
 fn refined_isosurface_hits_the_sphere() {
     let gpu = Gpu::new();
-    let renderer = Renderer::new(&gpu.ctx).unwrap();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     let n = 64usize;
     let r = 0.6f64; // in [-1, 1] coordinates; the box is 1 world unit wide, so 0.3 world units
     let c = |i: usize| (i as f64 + 0.5) / n as f64 * 2.0 - 1.0;
@@ -270,7 +270,7 @@ fn refined_isosurface_hits_the_sphere() {
     let mut s = scene(&gpu, &v, "grey", Focus::Iso(0.0));
     let voxel = 1.0 / n as f32;
     for camera in ["0,0,2.5", "30,20,2.5", "-120,60,3"] {
-        let depth_at_centre = |refine_iso: bool, s: &mut GpuScene| {
+        let mut depth_at_centre = |refine_iso: bool, s: &mut GpuScene| {
             let ray = RayOptions {
                 refine_iso,
                 ..RayOptions::default()

@@ -12,7 +12,6 @@ use common::Gpu;
 use vellum::classify::transfer::TransferFunction;
 use vellum::classify::Focus;
 use vellum::gpu::transfer::{f16_to_f32, readback};
-use vellum::gpu::Profiler;
 use vellum::passes::normals::{Normals, VolumeTextures};
 use vellum::render::camera::Camera;
 use vellum::render::frame::{RenderParams, Renderer};
@@ -21,11 +20,7 @@ use vellum::volume::reference::sobel::sobel_gradient;
 use vellum::volume::{phantom, Volume};
 
 fn textures(gpu: &Gpu, v: &Volume) -> VolumeTextures {
-    let mut profiler = Profiler::new(&gpu.ctx, 2).unwrap();
-    Normals::new(&gpu.ctx)
-        .unwrap()
-        .prepare(v, &mut profiler)
-        .unwrap()
+    Normals::new(&gpu.ctx).unwrap().prepare(v).unwrap().0
 }
 
 fn check_normals(gpu: &Gpu, name: &str, v: &Volume) {
@@ -90,7 +85,7 @@ fn diff(a: &FrameImage, b: &FrameImage) -> (f64, f64) {
 #[test]
 fn two_levels_equal_one_pass_with_an_opaque_focus() {
     let gpu = Gpu::new();
-    let renderer = Renderer::new(&gpu.ctx).unwrap();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     let mut cases = vec![(
         "shepp-logan",
         phantom::shepp_logan(48),
@@ -166,7 +161,7 @@ fn reference_cases() -> Vec<(&'static str, Volume, RenderParams)> {
 #[test]
 fn renders_match_reference_images() {
     let gpu = Gpu::new();
-    let renderer = Renderer::new(&gpu.ctx).unwrap();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     for (file, v, p) in reference_cases() {
         let tex = textures(&gpu, &v);
         let frame = renderer.render(&tex, &p, true).unwrap();
@@ -178,7 +173,7 @@ fn renders_match_reference_images() {
 #[test]
 fn exr_holds_the_five_named_layers() {
     let gpu = Gpu::new();
-    let renderer = Renderer::new(&gpu.ctx).unwrap();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     let v = phantom::nested(32);
     let tex = textures(&gpu, &v);
     let frame = renderer

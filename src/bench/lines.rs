@@ -73,6 +73,7 @@ fn cases(input: &Option<(String, f64)>) -> Result<Vec<(Volume, String, f64)>> {
 
 pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     let lines = LineExtractor::new(ctx)?;
+    let mut pipelines = crate::gpu::PipelineCache::new(ctx);
     // Azimuth 30°, elevation 20°: the renderer's default view of an unoriented volume.
     let eye_at = |azimuth: f32| {
         let (a, e) = (azimuth.to_radians(), 20f32.to_radians());
@@ -112,10 +113,11 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                 };
                 // Each measured extraction runs once before, untimed: llvmpipe compiles a
                 // shader variant on its first dispatch with a given texture format, for seconds.
-                lines.extract(&v, eye, &p, DEFAULT_CAPACITY)?;
-                let gpu = lines.extract(&v, eye, &p, DEFAULT_CAPACITY)?;
+                lines.extract(&mut pipelines, &v, eye, &p, DEFAULT_CAPACITY)?;
+                let gpu = lines.extract(&mut pipelines, &v, eye, &p, DEFAULT_CAPACITY)?;
                 if precompute {
                     lines.extract_with(
+                        &mut pipelines,
                         &v,
                         eye,
                         &p,
@@ -125,6 +127,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                 }
                 let pre = match precompute {
                     true => Some(lines.extract_with(
+                        &mut pipelines,
                         &v,
                         eye,
                         &p,
@@ -166,9 +169,9 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
             };
             let turned = eye_at(33.0);
             let sequence = [(eye, p), (turned, LineParams { seeded: true, ..p })];
-            lines.extract_frames(&v, &sequence, DEFAULT_CAPACITY)?;
-            let frames = lines.extract_frames(&v, &sequence, DEFAULT_CAPACITY)?;
-            let full = lines.extract(&v, turned, &p, DEFAULT_CAPACITY)?;
+            lines.extract_frames(&mut pipelines, &v, &sequence, DEFAULT_CAPACITY)?;
+            let frames = lines.extract_frames(&mut pipelines, &v, &sequence, DEFAULT_CAPACITY)?;
+            let full = lines.extract(&mut pipelines, &v, turned, &p, DEFAULT_CAPACITY)?;
             let length = |s: &[crate::volume::lines::Segment]| -> f64 {
                 s.iter().map(|s| s.length() as f64).sum()
             };

@@ -4,7 +4,7 @@
 
 use crate::bench::{median, shared_data};
 use crate::error::{Error, Result};
-use crate::gpu::{Context, Profiler};
+use crate::gpu::Context;
 use crate::passes::occlusion::{
     estimate_ms, Method, Neighbourhood, Occlusion, OcclusionInput, OcclusionParams,
 };
@@ -157,7 +157,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     let (v, data) = source(&opts.input)?;
     let dims = v.dims;
     let ty = ctx.info.device_type.clone();
-    let input = OcclusionInput::upload(ctx, &v, &mut Profiler::new(ctx, 1)?)?;
+    let input = OcclusionInput::upload(ctx, &v)?;
     let mapped: Vec<f32> = input
         .host
         .as_ref()

@@ -168,7 +168,7 @@ fn frame_ms(passes: &[PassTime]) -> f64 {
 
 /// A renderer with persistent state: frames in flight and targets.
 struct Session<'a> {
-    renderer: &'a Renderer,
+    renderer: &'a mut Renderer,
     frames: Frames,
     targets: FrameTargets,
     scene: &'a mut GpuScene,
@@ -177,7 +177,7 @@ struct Session<'a> {
 impl Session<'_> {
     /// Records and submits one frame; returns the slices drawn.
     fn frame(&mut self, view: &View) -> Result<u32> {
-        let (renderer, scene, targets) = (self.renderer, &mut *self.scene, &mut self.targets);
+        let (renderer, scene, targets) = (&mut *self.renderer, &mut *self.scene, &mut self.targets);
         let (r, _) = self
             .frames
             .frame(|f| renderer.record(f, &scene.volume, &mut scene.classify, view, targets))?;
@@ -216,7 +216,7 @@ fn view(size: u32, azimuth: f32, one_pass: bool) -> View {
 
 /// Runs the benchmark.
 pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
-    let renderer = Renderer::new(ctx)?;
+    let mut renderer = Renderer::new(ctx)?;
     let mut rows = Vec::new();
     let mut orbit = Vec::new();
     let mut normals_ms = Vec::new();
@@ -232,7 +232,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
         ));
         for &size in &opts.sizes {
             let mut s = Session {
-                renderer: &renderer,
+                renderer: &mut renderer,
                 frames: Frames::new(ctx, &FramesDesc::interactive("bench render"))?,
                 targets: FrameTargets::new(ctx),
                 scene: &mut scene,
@@ -240,7 +240,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
             rows.push(levels(&mut s, &label, size, opts.repeat)?);
             let mut o = orbit_row(&mut s, &label, size, opts.orbit_frames, &transfer)?;
             drop(s);
-            o.reprepare_frame_ms = reprepare(ctx, &renderer, &v, &classification, focus, size)?;
+            o.reprepare_frame_ms = reprepare(ctx, &mut renderer, &v, &classification, focus, size)?;
             log::info!(
                 "bench render: {label} {size}² orbit {:.1} fps, GPU {:.1} ms",
                 o.fps,
@@ -410,7 +410,7 @@ fn uploaded_bytes(ctx: &Context) -> u64 {
 /// Wall ms per frame when every frame re-prepares the scene: volume upload, normals, then render.
 fn reprepare(
     ctx: &Arc<Context>,
-    renderer: &Renderer,
+    renderer: &mut Renderer,
     v: &Volume,
     classification: &Classification,
     focus: Focus,
@@ -421,7 +421,7 @@ fn reprepare(
     for _ in 0..FRAMES {
         let mut scene = GpuScene::prepare(ctx, v, classification, focus, &Modulation::default())?;
         let mut s = Session {
-            renderer,
+            renderer: &mut *renderer,
             frames: Frames::new(ctx, &FramesDesc::interactive("bench re-prepare"))?,
             targets: FrameTargets::new(ctx),
             scene: &mut scene,
@@ -510,7 +510,7 @@ const POST_PASSES: [&str; 9] = [
 /// round by round, on the CT head and the engine.
 pub fn run_styles(ctx: &Arc<Context>, opts: &Options) -> Result<StylesTable> {
     use crate::render::style::{Style, StyleParams, STYLES};
-    let renderer = Renderer::new(ctx)?;
+    let mut renderer = Renderer::new(ctx)?;
     let styles: Vec<Style> = STYLES
         .iter()
         .filter(|d| d.available())
@@ -526,7 +526,7 @@ pub fn run_styles(ctx: &Arc<Context>, opts: &Options) -> Result<StylesTable> {
         let mut scene = GpuScene::prepare(ctx, &v, &classification, focus, &Modulation::default())?;
         for &size in &opts.sizes {
             let mut s = Session {
-                renderer: &renderer,
+                renderer: &mut renderer,
                 frames: Frames::new(ctx, &FramesDesc::interactive("bench styles"))?,
                 targets: FrameTargets::new(ctx),
                 scene: &mut scene,
@@ -716,7 +716,7 @@ pub fn vtk_peer(ctx: &Arc<Context>, sizes: &[u32], frames: usize) -> Result<Peer
     let peer: serde_json::Value = serde_json::from_slice(&out.stdout)
         .map_err(|e| Error::Invalid(format!("the VTK peer printed no JSON ({e})")))?;
 
-    let renderer = Renderer::new(ctx)?;
+    let mut renderer = Renderer::new(ctx)?;
     let classification = Classification::Transfer(tf);
     let mut scene = GpuScene::prepare(
         ctx,
@@ -728,7 +728,7 @@ pub fn vtk_peer(ctx: &Arc<Context>, sizes: &[u32], frames: usize) -> Result<Peer
     let mut rows = Vec::new();
     for (i, &size) in sizes.iter().enumerate() {
         let mut s = Session {
-            renderer: &renderer,
+            renderer: &mut renderer,
             frames: Frames::new(ctx, &FramesDesc::interactive("bench peer"))?,
             targets: FrameTargets::new(ctx),
             scene: &mut scene,

@@ -579,138 +579,25 @@ impl Context {
         } else {
             (None, vk::DebugUtilsMessengerEXT::null())
         };
-        let destroy_messenger = |di: &Option<ash::ext::debug_utils::Instance>| {
-            if let Some(di) = di {
-                unsafe { di.destroy_debug_utils_messenger(messenger, None) };
-            }
-        };
-
-        let pds = match unsafe { instance.enumerate_physical_devices() }
-            .vk("listing physical devices")
-            .map_err(explain_loader_failure)
-        {
-            Ok(p) => p,
+        let opened = match open_device(&instance, desc, presentation) {
+            Ok(o) => o,
             Err(e) => {
-                destroy_messenger(&debug_instance);
-                return Err(e);
-            }
-        };
-        let mut candidates = Vec::new();
-        let mut families = Vec::new();
-        for (i, &pd) in pds.iter().enumerate() {
-            match examine(&instance, pd, i, presentation) {
-                Ok((c, f)) => {
-                    if let Some(r) = &c.rejected {
-                        log::info!("device [{i}] {} rejected: {r}", c.name);
-                    }
-                    candidates.push(c);
-                    families.push(f);
+                if let Some(di) = &debug_instance {
+                    unsafe { di.destroy_debug_utils_messenger(messenger, None) };
                 }
-                Err(e) => {
-                    destroy_messenger(&debug_instance);
-                    return Err(e);
-                }
-            }
-        }
-        let chosen = match choose(&candidates, desc.device_selector().as_deref()) {
-            Ok(c) => c,
-            Err(e) => {
-                destroy_messenger(&debug_instance);
                 return Err(e);
             }
         };
-        let physical = pds[chosen];
-        let queue_family = families[chosen].expect("a usable device has a queue family");
-
-        let priorities = [1.0f32];
-        let queue_info = [vk::DeviceQueueCreateInfo::default()
-            .queue_family_index(queue_family)
-            .queue_priorities(&priorities)];
-        let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
-            .dynamic_rendering(true)
-            .synchronization2(true)
-            .maintenance4(true);
-        let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
-        // independentBlend: the focus pass blends two targets and replaces the third.
-        // shaderStorageImageExtendedFormats where offered: the FFT occlusion's complex fields are
-        // RG32F storage images (passes/occlusion_fft/gpu.rs says so when it is missing).
-        let extended_formats = unsafe { instance.get_physical_device_features(physical) }
-            .shader_storage_image_extended_formats;
-        let mut f2 = vk::PhysicalDeviceFeatures2::default().features(
-            vk::PhysicalDeviceFeatures::default()
-                .independent_blend(true)
-                .shader_storage_image_extended_formats(extended_formats == vk::TRUE),
-        );
-        let mut ext_ptrs = vec![ash::khr::push_descriptor::NAME.as_ptr()];
-        if presentation {
-            ext_ptrs.push(ash::khr::swapchain::NAME.as_ptr());
-        }
-        let info = vk::DeviceCreateInfo::default()
-            .queue_create_infos(&queue_info)
-            .enabled_extension_names(&ext_ptrs)
-            .push_next(&mut f2)
-            .push_next(&mut f12)
-            .push_next(&mut f13);
-        let device = match unsafe { instance.create_device(physical, &info, None) }
-            .vk("creating the logical device")
-        {
-            Ok(d) => d,
-            Err(e) => {
-                destroy_messenger(&debug_instance);
-                return Err(e);
-            }
-        };
+        let OpenedDevice {
+            candidates,
+            chosen,
+            physical,
+            queue_family,
+            device,
+            allocator,
+            info,
+        } = opened;
         let queue = unsafe { device.get_device_queue(queue_family, 0) };
-        let allocator = Allocator::new(&AllocatorCreateDesc {
-            instance: instance.clone(),
-            device: device.clone(),
-            physical_device: physical,
-            debug_settings: Default::default(),
-            buffer_device_address: false,
-            allocation_sizes: Default::default(),
-        });
-        let allocator = match allocator {
-            Ok(a) => a,
-            Err(cause) => {
-                unsafe { device.destroy_device(None) };
-                destroy_messenger(&debug_instance);
-                return Err(Error::Alloc {
-                    what: "the allocator".into(),
-                    cause,
-                });
-            }
-        };
-
-        let props = unsafe { instance.get_physical_device_properties(physical) };
-        let mem = unsafe { instance.get_physical_device_memory_properties(physical) };
-        let device_local_heap_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
-            .iter()
-            .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
-            .map(|h| h.size)
-            .max()
-            .unwrap_or(0);
-        let c = &candidates[chosen];
-        let info = DeviceInfo {
-            name: c.name.clone(),
-            device_type: c.device_type.clone(),
-            api_version: c.api_version.clone(),
-            driver: c.driver.clone(),
-            max_image_dimension_3d: props.limits.max_image_dimension3_d,
-            max_image_dimension_2d: props.limits.max_image_dimension2_d,
-            max_storage_buffer_range: props.limits.max_storage_buffer_range,
-            max_compute_work_group_count: props.limits.max_compute_work_group_count,
-            timestamp_period_ns: props.limits.timestamp_period,
-            device_local_heap_bytes,
-            min_uniform_buffer_offset_alignment: props.limits.min_uniform_buffer_offset_alignment,
-            max_compute_shared_memory: props.limits.max_compute_shared_memory_size,
-            storage_image_extended_formats: extended_formats == vk::TRUE,
-        };
-        log::info!(
-            "using device [{chosen}] {} ({}, {})",
-            info.name,
-            info.device_type,
-            info.driver
-        );
         let debug_utils =
             has_debug_utils.then(|| ash::ext::debug_utils::Device::new(&instance, &device));
         let push_descriptor = ash::khr::push_descriptor::Device::new(&instance, &device);
@@ -843,6 +730,155 @@ impl Context {
             });
         }
         Ok(())
+    }
+}
+
+/// The chosen device, opened: the candidates it was chosen from, its queue family, the logical
+/// device, its allocator and what the passes need to know of it.
+struct OpenedDevice {
+    candidates: Vec<DeviceCandidate>,
+    chosen: usize,
+    physical: vk::PhysicalDevice,
+    queue_family: u32,
+    device: ash::Device,
+    allocator: Allocator,
+    info: DeviceInfo,
+}
+
+/// Examines every physical device, chooses one (`desc`'s selector, else the best) and opens it.
+/// On an error nothing it made is left behind.
+fn open_device(
+    instance: &ash::Instance,
+    desc: &ContextDesc,
+    presentation: bool,
+) -> Result<OpenedDevice> {
+    let pds = unsafe { instance.enumerate_physical_devices() }
+        .vk("listing physical devices")
+        .map_err(explain_loader_failure)?;
+    let mut candidates = Vec::new();
+    let mut families = Vec::new();
+    for (i, &pd) in pds.iter().enumerate() {
+        let (c, f) = examine(instance, pd, i, presentation)?;
+        if let Some(r) = &c.rejected {
+            log::info!("device [{i}] {} rejected: {r}", c.name);
+        }
+        candidates.push(c);
+        families.push(f);
+    }
+    let chosen = choose(&candidates, desc.device_selector().as_deref())?;
+    let physical = pds[chosen];
+    let queue_family = families[chosen].expect("a usable device has a queue family");
+    let (device, extended_formats) =
+        create_logical_device(instance, physical, queue_family, presentation)?;
+    let allocator = Allocator::new(&AllocatorCreateDesc {
+        instance: instance.clone(),
+        device: device.clone(),
+        physical_device: physical,
+        debug_settings: Default::default(),
+        buffer_device_address: false,
+        allocation_sizes: Default::default(),
+    });
+    let allocator = match allocator {
+        Ok(a) => a,
+        Err(cause) => {
+            unsafe { device.destroy_device(None) };
+            return Err(Error::Alloc {
+                what: "the allocator".into(),
+                cause,
+            });
+        }
+    };
+    let info = device_info(instance, physical, &candidates[chosen], extended_formats);
+    log::info!(
+        "using device [{chosen}] {} ({}, {})",
+        info.name,
+        info.device_type,
+        info.driver
+    );
+    Ok(OpenedDevice {
+        candidates,
+        chosen,
+        physical,
+        queue_family,
+        device,
+        allocator,
+        info,
+    })
+}
+
+/// The logical device with one queue of `queue_family`, the features the passes use, push
+/// descriptors and (with `presentation`) the swapchain. Returns it and whether storage images
+/// of the extended formats are enabled.
+fn create_logical_device(
+    instance: &ash::Instance,
+    physical: vk::PhysicalDevice,
+    queue_family: u32,
+    presentation: bool,
+) -> Result<(ash::Device, bool)> {
+    let priorities = [1.0f32];
+    let queue_info = [vk::DeviceQueueCreateInfo::default()
+        .queue_family_index(queue_family)
+        .queue_priorities(&priorities)];
+    let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
+        .dynamic_rendering(true)
+        .synchronization2(true)
+        .maintenance4(true);
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+    // independentBlend: the focus pass blends two targets and replaces the third.
+    // shaderStorageImageExtendedFormats where offered: the FFT occlusion's complex fields are
+    // RG32F storage images (passes/occlusion_fft/gpu.rs says so when it is missing).
+    let extended_formats = unsafe { instance.get_physical_device_features(physical) }
+        .shader_storage_image_extended_formats
+        == vk::TRUE;
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().features(
+        vk::PhysicalDeviceFeatures::default()
+            .independent_blend(true)
+            .shader_storage_image_extended_formats(extended_formats),
+    );
+    let mut ext_ptrs = vec![ash::khr::push_descriptor::NAME.as_ptr()];
+    if presentation {
+        ext_ptrs.push(ash::khr::swapchain::NAME.as_ptr());
+    }
+    let info = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&queue_info)
+        .enabled_extension_names(&ext_ptrs)
+        .push_next(&mut f2)
+        .push_next(&mut f12)
+        .push_next(&mut f13);
+    let device = unsafe { instance.create_device(physical, &info, None) }
+        .vk("creating the logical device")?;
+    Ok((device, extended_formats))
+}
+
+/// What the passes need to know of the chosen device `c`.
+fn device_info(
+    instance: &ash::Instance,
+    physical: vk::PhysicalDevice,
+    c: &DeviceCandidate,
+    extended_formats: bool,
+) -> DeviceInfo {
+    let props = unsafe { instance.get_physical_device_properties(physical) };
+    let mem = unsafe { instance.get_physical_device_memory_properties(physical) };
+    let device_local_heap_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
+        .iter()
+        .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+        .map(|h| h.size)
+        .max()
+        .unwrap_or(0);
+    DeviceInfo {
+        name: c.name.clone(),
+        device_type: c.device_type.clone(),
+        api_version: c.api_version.clone(),
+        driver: c.driver.clone(),
+        max_image_dimension_3d: props.limits.max_image_dimension3_d,
+        max_image_dimension_2d: props.limits.max_image_dimension2_d,
+        max_storage_buffer_range: props.limits.max_storage_buffer_range,
+        max_compute_work_group_count: props.limits.max_compute_work_group_count,
+        timestamp_period_ns: props.limits.timestamp_period,
+        device_local_heap_bytes,
+        min_uniform_buffer_offset_alignment: props.limits.min_uniform_buffer_offset_alignment,
+        max_compute_shared_memory: props.limits.max_compute_shared_memory_size,
+        storage_image_extended_formats: extended_formats,
     }
 }
 

@@ -491,15 +491,27 @@ impl Drop for Frames {
     }
 }
 
+/// Timed passes a one-shot frame has room for.
+const ONE_SHOT_PASSES: u32 = 64;
+
 /// Records `record` into a one-slot frame, submits it and waits (the one-shot path for tools).
 /// `what` names the work in error messages.
 pub fn submit_once<R>(
     ctx: &Arc<Context>,
     what: &str,
-    record: impl FnOnce(vk::CommandBuffer) -> Result<R>,
+    record: impl FnOnce(&mut Frame) -> Result<R>,
 ) -> Result<R> {
-    let mut frames = Frames::new(ctx, &FramesDesc::one_shot(what, 1))?;
-    let (out, _) = frames.frame(|f| record(f.cmd))?;
-    frames.wait_idle()?;
-    Ok(out)
+    Ok(submit_timed(ctx, what, record)?.0)
+}
+
+/// [`submit_once`] that also returns the times of the passes `record` opened on the frame's
+/// profiler, in recording order.
+pub fn submit_timed<R>(
+    ctx: &Arc<Context>,
+    what: &str,
+    record: impl FnOnce(&mut Frame) -> Result<R>,
+) -> Result<(R, Vec<PassTime>)> {
+    let mut frames = Frames::new(ctx, &FramesDesc::one_shot(what, ONE_SHOT_PASSES))?;
+    let (out, _) = frames.frame(record)?;
+    Ok((out, frames.finish()?))
 }

@@ -114,8 +114,8 @@ pub fn upload(ctx: &Arc<Context>, image: &Image, bytes: &[u8], next: Access) -> 
     check_len(image, bytes.len())?;
     let mut staging = staging_buffer(ctx, &format!("{} staging", image.name), bytes.len())?;
     staging.write(bytes)?;
-    submit_once(ctx, &format!("upload of {}", image.name), |cmd| {
-        record_upload(ctx, cmd, &staging, image, next);
+    submit_once(ctx, &format!("upload of {}", image.name), |f| {
+        record_upload(ctx, f.cmd, &staging, image, next);
         Ok(())
     })
 }
@@ -123,8 +123,8 @@ pub fn upload(ctx: &Arc<Context>, image: &Image, bytes: &[u8], next: Access) -> 
 /// Reads the texels of `image` back to the host.
 pub fn readback(ctx: &Arc<Context>, image: &Image) -> Result<Vec<u8>> {
     let staging = staging_buffer(ctx, &format!("{} readback", image.name), image.byte_size())?;
-    submit_once(ctx, &format!("readback of {}", image.name), |cmd| {
-        record_readback(ctx, cmd, image, &staging);
+    submit_once(ctx, &format!("readback of {}", image.name), |f| {
+        record_readback(ctx, f.cmd, image, &staging);
         Ok(())
     })?;
     let bytes = staging
@@ -141,7 +141,8 @@ pub fn readback_buffer(ctx: &Arc<Context>, buffer: &Buffer) -> Result<Vec<u8>> {
         buffer.size as usize,
     )?;
     ctx.count_transfer(&buffer.name, false, buffer.size);
-    submit_once(ctx, &format!("readback of {}", buffer.name), |cmd| {
+    submit_once(ctx, &format!("readback of {}", buffer.name), |f| {
+        let cmd = f.cmd;
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferRead);
         let region = vk::BufferCopy::default().size(buffer.size);
         unsafe {

@@ -10,8 +10,8 @@ use crate::gpu::pipeline::group_count;
 use crate::gpu::profiler::PassTime;
 use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
 use crate::gpu::{
-    submit_once, Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Image, ImageDesc,
-    Profiler,
+    submit_timed, Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Frame, Image,
+    ImageDesc,
 };
 use crate::passes::volume_image::extent_of;
 use crate::volume::reference::gaussian::gaussian_kernel;
@@ -101,6 +101,15 @@ const GPU_SEGMENT_X: u32 = 8;
 
 /// Lines per Gaussian workgroup (GAUSS_LOCAL_X in importance.glsl).
 pub const GAUSS_LOCAL_X: u32 = 64;
+
+/// A normalised volume texture as the filters read it: the image, its size in voxels, and the
+/// nearest-texel sampler it is read through.
+#[derive(Copy, Clone)]
+struct TextureSource<'a> {
+    image: &'a Image,
+    dims: [usize; 3],
+    sampler: &'a crate::gpu::Sampler,
+}
 
 /// Names of the three filter passes, by axis.
 pub const GAUSS_PASSES: [&str; 3] = ["gauss_x", "gauss_y", "gauss_z"];
@@ -251,24 +260,23 @@ impl ImportanceMap {
     /// `images.a`, on images that stay on the GPU.
     pub fn record(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         images: &ImportanceImages,
         radius_voxels: u32,
     ) -> Result<()> {
-        self.record_passes(cmd, profiler, images, radius_voxels, true)
+        self.record_passes(frame, images, radius_voxels, true)
     }
 
     /// The three filter passes (G∗V into `images.a`), then `subtract` when asked.
     fn record_passes(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         images: &ImportanceImages,
         radius_voxels: u32,
         subtract: bool,
     ) -> Result<()> {
         let gauss = self.gauss(radius_voxels)?;
+        let (cmd, profiler) = (frame.cmd, &mut *frame.profiler);
         let (src, a, b) = (&images.src, &images.a, &images.b);
         let extent = src.desc.extent;
         let dims = images.dims.map(|d| d as i32);
@@ -320,21 +328,17 @@ impl ImportanceMap {
     /// images are released once the frame completes.
     pub fn record_from_texture(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         tex: &crate::passes::normals::VolumeTextures,
         sampler: &crate::gpu::Sampler,
         radius_voxels: u32,
     ) -> Result<ImportanceVolume> {
-        let (delta_d, max_abs) = self.record_filter(
-            cmd,
-            profiler,
-            &tex.intensity,
-            tex.dims,
+        let source = TextureSource {
+            image: &tex.intensity,
+            dims: tex.dims,
             sampler,
-            radius_voxels,
-            true,
-        )?;
+        };
+        let (delta_d, max_abs) = self.record_filter(frame, &source, radius_voxels, true)?;
         Ok(ImportanceVolume {
             delta_d,
             max_abs,
@@ -347,37 +351,42 @@ impl ImportanceMap {
     /// passes and `unpack`. Line extraction smooths noisy data with it.
     pub fn record_blur_of_texture(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         source: &Image,
         dims: [usize; 3],
         sampler: &crate::gpu::Sampler,
         radius_voxels: u32,
     ) -> Result<Image> {
-        let (blurred, _) =
-            self.record_filter(cmd, profiler, source, dims, sampler, radius_voxels, false)?;
+        let source = TextureSource {
+            image: source,
+            dims,
+            sampler,
+        };
+        let (blurred, _) = self.record_filter(frame, &source, radius_voxels, false)?;
         Ok(blurred)
     }
 
     /// `pack` of `source`, the filter passes (with `subtract`: ΔD, else G∗V) and `unpack` into a
     /// new R32F volume, with the max |value| reduction.
-    #[allow(clippy::too_many_arguments)]
     fn record_filter(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
-        source: &Image,
-        dims_in: [usize; 3],
-        sampler: &crate::gpu::Sampler,
+        frame: &mut Frame,
+        texture: &TextureSource,
         radius_voxels: u32,
         subtract: bool,
     ) -> Result<(Image, Buffer)> {
+        let TextureSource {
+            image: source,
+            dims: dims_in,
+            sampler,
+        } = *texture;
         let ctx = &self.ctx;
         self.gauss(radius_voxels)?;
         let images = ImportanceImages::new(ctx, dims_in)?;
         let extent = images.src.desc.extent;
         let dims = dims_in.map(|d| d as i32);
-        profiler.begin(cmd, "pack");
+        let cmd = frame.cmd;
+        frame.profiler.begin(cmd, "pack");
         source.transition(cmd, Access::ComputeSampled);
         images.src.discard();
         images.src.transition(cmd, Access::ComputeWrite);
@@ -390,8 +399,8 @@ impl ImportanceMap {
             &SubtractPush { dims, pad: 0 },
             group_count(extent, LOCAL_SIZE),
         )?;
-        profiler.end(cmd);
-        self.record_passes(cmd, profiler, &images, radius_voxels, subtract)?;
+        frame.profiler.end(cmd);
+        self.record_passes(frame, &images, radius_voxels, subtract)?;
         let delta_d = Image::new(
             ctx,
             if subtract {
@@ -402,7 +411,7 @@ impl ImportanceMap {
             &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent_of(ctx, dims_in, 4, 1)?),
         )?;
         let max_abs = Buffer::new(ctx, "importance max", &crate::gpu::BufferDesc::storage(4))?;
-        profiler.begin(cmd, "unpack");
+        frame.profiler.begin(cmd, "unpack");
         unsafe {
             ctx.device
                 .cmd_fill_buffer(cmd, max_abs.raw, 0, vk::WHOLE_SIZE, 0)
@@ -426,7 +435,7 @@ impl ImportanceMap {
             &SubtractPush { dims, pad: 0 },
             group_count(delta_d.desc.extent, LOCAL_SIZE),
         )?;
-        profiler.end(cmd);
+        frame.profiler.end(cmd);
         Ok((delta_d, max_abs))
     }
 
@@ -454,31 +463,29 @@ impl ImportanceMap {
         let floats: &mut [f32] = bytemuck::try_cast_slice_mut(mapped)
             .map_err(|e| Error::Invalid(format!("staging memory cannot hold floats: {e}")))?;
         pack_rows_into(v, floats);
-        let mut profiler = Profiler::new(ctx, 9)?;
-        submit_once(ctx, "importance map", |cmd| {
-            profiler.reset(cmd);
-            profiler.pass(cmd, "upload", |cmd| {
+        let ((), passes) = submit_timed(ctx, "importance map", |f| {
+            let cmd = f.cmd;
+            f.profiler.pass(cmd, "upload", |cmd| {
                 record_upload(ctx, cmd, &staging, &images.src, Access::ComputeRead)
             });
             // First writes to fresh memory pay page faults on CPU devices; take them here, in
             // their own pass, so that neither the filters nor the copy reference carry them.
-            profiler.pass(cmd, "prepare", |cmd| {
+            f.profiler.pass(cmd, "prepare", |cmd| {
                 for image in [&images.a, &images.b] {
                     clear_image(ctx, cmd, image);
                 }
             });
             if copy_reference {
-                profiler.pass(cmd, "copy", |cmd| {
+                f.profiler.pass(cmd, "copy", |cmd| {
                     copy_image(ctx, cmd, &images.src, &images.b)
                 });
             }
-            self.record(cmd, &mut profiler, &images, radius_voxels)?;
-            profiler.pass(cmd, "readback", |cmd| {
+            self.record(f, &images, radius_voxels)?;
+            f.profiler.pass(cmd, "readback", |cmd| {
                 record_readback(ctx, cmd, images.delta_d(), &staging)
             });
             Ok(())
         })?;
-        let passes = profiler.results()?;
         let out = staging
             .mapped()
             .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;

@@ -19,8 +19,8 @@ use crate::gpu::commands::memory_transition;
 use crate::gpu::pipeline::group_count;
 use crate::gpu::resources::BufferLocation;
 use crate::gpu::{
-    submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    ImageDesc, Profiler, Sampler,
+    submit_once, submit_timed, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline,
+    Context, Frame, Image, ImageDesc, PipelineCache, PipelineDesc, Sampler,
 };
 use crate::passes::occlusion::OcclusionInput;
 use crate::volume::lines::{Eye, LineParams, Segment};
@@ -123,6 +123,51 @@ struct SeedState {
     voxels: u64,
 }
 
+impl SeedState {
+    /// The traversal's buffers, in `slot`, grown when a volume of `voxels` needs more.
+    fn ensure<'a>(
+        ctx: &Arc<Context>,
+        slot: &'a mut Option<SeedState>,
+        voxels: u64,
+    ) -> Result<&'a SeedState> {
+        if slot.as_ref().is_none_or(|s| s.voxels < voxels) {
+            let cells = voxels
+                .min(FRONTIER_CELLS)
+                .min((ctx.info.max_storage_buffer_range as u64 - HEADER) / 4)
+                .max(1);
+            let list = |name: &str| {
+                Buffer::new(
+                    ctx,
+                    name,
+                    &BufferDesc {
+                        size: HEADER + 4 * cells,
+                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
+                            | vk::BufferUsageFlags::INDIRECT_BUFFER
+                            | vk::BufferUsageFlags::TRANSFER_DST,
+                        location: BufferLocation::Gpu,
+                    },
+                )
+            };
+            *slot = Some(SeedState {
+                visited: Buffer::new(
+                    ctx,
+                    "line seeds visited",
+                    &BufferDesc {
+                        size: 4 * voxels.div_ceil(32),
+                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
+                            | vk::BufferUsageFlags::TRANSFER_DST,
+                        location: BufferLocation::Gpu,
+                    },
+                )?,
+                frontier: [list("line frontier even")?, list("line frontier odd")?],
+                capacity: cells as u32,
+                voxels,
+            });
+        }
+        Ok(slot.as_ref().expect("allocated above"))
+    }
+}
+
 /// What the segments in a line buffer were extracted from: the seeded traversal seeds from them
 /// only when its own extraction matches.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -131,7 +176,53 @@ struct SeedKey {
     dims: [usize; 3],
     iso: u32,
     kinds: u32,
-    buffer: vk::Buffer,
+}
+
+/// What line extraction keeps from frame to frame for one view (a window, a tool's run): the
+/// segment buffer, the straddling-cell list (grown to the largest volume seen, never per frame),
+/// the seeded traversal's buffers, and what the last extraction was from, so that the next one
+/// seeds from its segments only when they match. Its owner lends it by `&mut` to each frame.
+pub struct LineState {
+    /// The segments of the last extraction, read after its frame completes.
+    pub buffer: LineBuffer,
+    cells: Option<Buffer>,
+    seed: Option<SeedState>,
+    last: Option<SeedKey>,
+}
+
+impl LineState {
+    /// A state whose buffer holds up to `capacity` segments.
+    pub fn new(ctx: &Arc<Context>, capacity: u32) -> Result<Self> {
+        Ok(LineState {
+            buffer: LineBuffer::new(ctx, capacity)?,
+            cells: None,
+            seed: None,
+            last: None,
+        })
+    }
+
+    /// The straddling-cell list in `slot`, grown to hold `needed` bytes.
+    fn cells<'a>(
+        ctx: &Arc<Context>,
+        slot: &'a mut Option<Buffer>,
+        needed: u64,
+    ) -> Result<&'a Buffer> {
+        if slot.as_ref().is_none_or(|b| b.size < needed) {
+            *slot = Some(Buffer::new(
+                ctx,
+                "line cells",
+                &BufferDesc {
+                    size: needed,
+                    usage: vk::BufferUsageFlags::STORAGE_BUFFER
+                        | vk::BufferUsageFlags::INDIRECT_BUFFER
+                        | vk::BufferUsageFlags::TRANSFER_DST
+                        | vk::BufferUsageFlags::TRANSFER_SRC,
+                    location: BufferLocation::Gpu,
+                },
+            )?);
+        }
+        Ok(slot.as_ref().expect("allocated above"))
+    }
 }
 
 /// The extracted lines.
@@ -201,34 +292,55 @@ impl LineBuffer {
     }
 }
 
-/// The extraction and drawing pipelines.
+/// The extraction and drawing passes. The pipelines of the extraction proper come from the
+/// caller's [`PipelineCache`], built on first use (they compile slowly on lavapipe and many runs
+/// never need them): per kinds (1 silhouettes, 2 suggestive contours, 3 both), since the kind is
+/// a specialisation constant and a frame that draws one kind does not run the other's code (a
+/// CPU rasteriser would run it masked in every lane); `extract_hessian.comp` for a
+/// [`HessianVolume`]; `hessian.comp`; and the seeded traversal's `seed.comp` and
+/// `extract_seeded.comp`. What a view keeps between frames is in its [`LineState`].
 pub struct LineExtractor {
     ctx: Arc<Context>,
-    /// Pass 1: the cells that straddle τ, compacted into `cells`.
+    /// Pass 1: the cells that straddle τ, compacted into the state's cell list (16-byte header =
+    /// the indirect dispatch of `extract`).
     cells_pass: ComputePipeline,
-    /// The straddling-cell list (16-byte header = the indirect dispatch of `extract`), grown to
-    /// the largest volume seen, never per frame.
-    cells: std::sync::Mutex<Option<Buffer>>,
-    /// Per kinds (1 silhouettes, 2 suggestive contours, 3 both), built on first use: the kind is
-    /// a specialisation constant, so a frame that draws one kind does not run the other's code
-    /// (a CPU rasteriser would run it masked in every lane).
-    extract: [std::sync::OnceLock<ComputePipeline>; 3],
-    /// The same with the Hessian read from a [`HessianVolume`] (`extract_hessian.comp`).
-    extract_hessian: [std::sync::OnceLock<ComputePipeline>; 3],
-    /// Pass `lines_hessian`, which makes a [`HessianVolume`], built on first use.
-    hessian: std::sync::OnceLock<ComputePipeline>,
     raster: ComputePipeline,
     nearest: Sampler,
-    /// The Gaussian passes that smooth a volume for [`LineParams::smooth`], built on first use.
-    smoother: std::sync::OnceLock<crate::passes::importance::ImportanceMap>,
-    /// The seeded traversal ([`LineParams::seeded`]): seeds, one round per kinds, and their
-    /// buffers, built on first use.
-    seed: std::sync::OnceLock<ComputePipeline>,
-    extract_seeded: [std::sync::OnceLock<ComputePipeline>; 3],
-    seed_state: std::sync::Mutex<Option<SeedState>>,
-    /// What the last extraction into a line buffer was from.
-    last: std::sync::Mutex<Option<SeedKey>>,
+    /// The Gaussian passes that smooth a volume for [`LineParams::smooth`].
+    smoother: crate::passes::importance::ImportanceMap,
 }
+
+const LINES_PUSH: u32 = std::mem::size_of::<LinesPush>() as u32;
+const EXTRACT_BINDINGS: [BindingKind; 3] = [
+    BindingKind::SampledImage,
+    BindingKind::StorageBuffer,
+    BindingKind::StorageBuffer,
+];
+const EXTRACT_HESSIAN_BINDINGS: [BindingKind; 5] = [
+    BindingKind::SampledImage,
+    BindingKind::StorageBuffer,
+    BindingKind::StorageBuffer,
+    BindingKind::SampledImage,
+    BindingKind::SampledImage,
+];
+const HESSIAN_BINDINGS: [BindingKind; 3] = [
+    BindingKind::SampledImage,
+    BindingKind::StorageImage,
+    BindingKind::StorageImage,
+];
+const SEED_BINDINGS: [BindingKind; 4] = [
+    BindingKind::SampledImage,
+    BindingKind::StorageBuffer,
+    BindingKind::StorageBuffer,
+    BindingKind::StorageBuffer,
+];
+const ROUND_BINDINGS: [BindingKind; 5] = [
+    BindingKind::SampledImage,
+    BindingKind::StorageBuffer,
+    BindingKind::StorageBuffer,
+    BindingKind::StorageBuffer,
+    BindingKind::StorageBuffer,
+];
 
 /// Where the extraction takes the Hessian of f from (issue 11 asks for both, measured).
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Default)]
@@ -364,14 +476,16 @@ impl RasterView {
     }
 }
 
-/// What `cell` holds, built by `build` on first use (pipelines that compile slowly on lavapipe
-/// and that many runs never need).
-fn built<T>(cell: &std::sync::OnceLock<T>, build: impl FnOnce() -> Result<T>) -> Result<&T> {
-    if let Some(t) = cell.get() {
-        return Ok(t);
-    }
-    let t = build()?;
-    Ok(cell.get_or_init(|| t))
+/// One extraction: the normalised volume (or its smoothed copy) of `dims` voxels spaced
+/// `spacing` apart, the eye, what to extract, and the precomputed Hessian when measured that way.
+#[derive(Copy, Clone)]
+pub struct LineRequest<'a> {
+    pub values: &'a Image,
+    pub dims: [usize; 3],
+    pub spacing: [f32; 3],
+    pub eye: Eye,
+    pub params: LineParams,
+    pub hessian: Option<&'a HessianVolume>,
 }
 
 impl LineExtractor {
@@ -384,10 +498,6 @@ impl LineExtractor {
                 &[BindingKind::SampledImage, BindingKind::StorageBuffer],
                 std::mem::size_of::<LinesPush>() as u32,
             )?,
-            cells: std::sync::Mutex::new(None),
-            extract: Default::default(),
-            extract_hessian: Default::default(),
-            hessian: std::sync::OnceLock::new(),
             raster: ComputePipeline::new(
                 ctx,
                 "lines/raster.comp",
@@ -399,61 +509,47 @@ impl LineExtractor {
                 std::mem::size_of::<RasterPush>() as u32,
             )?,
             nearest: Sampler::new(ctx, false)?,
-            smoother: std::sync::OnceLock::new(),
-            seed: std::sync::OnceLock::new(),
-            extract_seeded: Default::default(),
-            seed_state: std::sync::Mutex::new(None),
-            last: std::sync::Mutex::new(None),
+            smoother: crate::passes::importance::ImportanceMap::new(ctx)?,
         })
     }
 
     /// Records G∗`values` for [`LineParams::smooth`] = `radius` (> 0): an R32F volume on the same
     /// scale, which [`LineExtractor::record`] then extracts from. Callers that draw every frame
-    /// keep it (the volume's `smoothed` slot) and record this once.
+    /// keep it (the renderer's view state) and record this once.
     pub fn record_smoothing(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         values: &Image,
         dims: [usize; 3],
         radius: u32,
     ) -> Result<Image> {
-        built(&self.smoother, || {
-            crate::passes::importance::ImportanceMap::new(&self.ctx)
-        })?
-        .record_blur_of_texture(cmd, profiler, values, dims, &self.nearest, radius)
+        self.smoother
+            .record_blur_of_texture(frame, values, dims, &self.nearest, radius)
     }
 
     /// Records pass `lines_hessian`: the Hessian of `values` (as [`LineExtractor::record`] reads
     /// them) into a new [`HessianVolume`], for [`HessianSource::Precomputed`].
     pub fn record_hessian(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
+        pipelines: &mut PipelineCache,
         values: &Image,
         dims: [usize; 3],
         spacing: [f32; 3],
     ) -> Result<HessianVolume> {
-        let ctx = &self.ctx;
-        let pass = built(&self.hessian, || {
-            ComputePipeline::new(
-                ctx,
-                "lines/hessian.comp",
-                &[
-                    BindingKind::SampledImage,
-                    BindingKind::StorageImage,
-                    BindingKind::StorageImage,
-                ],
-                std::mem::size_of::<LinesPush>() as u32,
-            )
-        })?;
+        let (ctx, cmd) = (&self.ctx, frame.cmd);
+        let pass = pipelines.get(&PipelineDesc::new(
+            "lines/hessian.comp",
+            &HESSIAN_BINDINGS,
+            LINES_PUSH,
+        ))?;
         let extent = dims.map(|d| d as u32);
         let desc = ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent);
         let h = HessianVolume {
             a: Image::new(ctx, "line hessian a", &desc)?,
             b: Image::new(ctx, "line hessian b", &desc)?,
         };
-        profiler.begin(cmd, "lines_hessian");
+        frame.profiler.begin(cmd, "lines_hessian");
         values.transition(cmd, Access::ComputeSampled);
         for image in [&h.a, &h.b] {
             image.discard();
@@ -473,7 +569,7 @@ impl LineExtractor {
             },
             group_count(extent, [4, 4, 4]),
         )?;
-        profiler.end(cmd);
+        frame.profiler.end(cmd);
         Ok(h)
     }
 
@@ -483,15 +579,14 @@ impl LineExtractor {
     /// R32_UINT second view (`ImageDesc::alias`), which the pass takes the atomic max in.
     pub fn record_raster(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         lines: &LineBuffer,
         view: &RasterView,
         focus_depth: &Image,
         edges: &Image,
     ) -> Result<()> {
-        let ctx = &self.ctx;
-        profiler.begin(cmd, "lines_draw");
+        let (ctx, cmd) = (&self.ctx, frame.cmd);
+        frame.profiler.begin(cmd, "lines_draw");
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
         focus_depth.transition(cmd, Access::ComputeRead);
         edges.transition(cmd, Access::ComputeReadWrite);
@@ -514,56 +609,59 @@ impl LineExtractor {
             &lines.buffer,
             0,
         )?;
-        profiler.end(cmd);
+        frame.profiler.end(cmd);
         Ok(())
     }
 
     /// Records pass `lines` into `cmd`: resets the header and extracts from `values` (a
     /// normalised volume texture, R16 or R32F, read texel by texel; `params.iso` on the same
     /// scale). With `hessian`, the Hessian is read from it (made from the same `values` by
-    /// [`LineExtractor::record_hessian`]) instead of taken by differences. With
-    /// [`LineParams::seeded`], the seeded traversal runs instead of the visit of the cells
-    /// (`record_seeded`), seeded from what `out` holds when the last extraction into it had the
-    /// same volume, τ and kinds.
-    #[allow(clippy::too_many_arguments)]
+    /// [`LineExtractor::record_hessian`]) instead of taken by differences. The segments go to
+    /// `state.buffer`. With [`LineParams::seeded`], the seeded traversal runs instead of the
+    /// visit of the cells (`record_seeded`), seeded from what the buffer holds when the last
+    /// extraction into it had the same volume, τ and kinds.
     pub fn record(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
-        values: &Image,
-        dims: [usize; 3],
-        spacing: [f32; 3],
-        eye: Eye,
-        params: &LineParams,
-        hessian: Option<&HessianVolume>,
-        out: &LineBuffer,
+        frame: &mut Frame,
+        pipelines: &mut PipelineCache,
+        state: &mut LineState,
+        r: &LineRequest,
     ) -> Result<()> {
-        let ctx = &self.ctx;
+        let LineRequest {
+            values,
+            dims,
+            spacing,
+            eye,
+            params,
+            hessian,
+        } = *r;
+        let params = &params;
+        let (ctx, cmd) = (&self.ctx, frame.cmd);
         let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
         let key = SeedKey {
             values: values.raw,
             dims,
             iso: params.iso.to_bits(),
             kinds,
-            buffer: out.buffer.raw,
         };
-        let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
-        let previous = *last == Some(key);
+        let previous = state.last == Some(key);
         // Set before recording: a failed recording is never submitted, and the next frame's
         // seeds are then merely stale cells, which the traversal tolerates.
-        *last = Some(key);
-        drop(last);
+        state.last = Some(key);
         if params.seeded {
             if hessian.is_some() {
                 return Err(Error::Invalid(
                     "the seeded traversal takes the Hessian on the fly only".into(),
                 ));
             }
-            return self.record_seeded(
-                cmd, profiler, values, dims, spacing, eye, params, out, previous,
-            );
+            return self.record_seeded(frame, pipelines, state, r, previous);
         }
-        profiler.begin(cmd, "lines");
+        let LineState {
+            buffer: out,
+            cells: cell_slot,
+            ..
+        } = state;
+        frame.profiler.begin(cmd, "lines");
         // The previous frame's readers (the rasteriser's indirect read) are done before this write.
         memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
         unsafe {
@@ -585,23 +683,7 @@ impl LineExtractor {
         // surface crossing more cells than that (hundreds of millions) loses the rest, counted.
         let max_cells = (ctx.info.max_storage_buffer_range as u64 - HEADER) / 4;
         let cell_capacity = visited.clamp(1, max_cells) as u32;
-        let mut guard = self.cells.lock().unwrap_or_else(|p| p.into_inner());
-        let needed = HEADER + 4 * cell_capacity as u64;
-        if guard.as_ref().is_none_or(|b| b.size < needed) {
-            *guard = Some(Buffer::new(
-                ctx,
-                "line cells",
-                &BufferDesc {
-                    size: needed,
-                    usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                        | vk::BufferUsageFlags::INDIRECT_BUFFER
-                        | vk::BufferUsageFlags::TRANSFER_DST
-                        | vk::BufferUsageFlags::TRANSFER_SRC,
-                    location: BufferLocation::Gpu,
-                },
-            )?);
-        }
-        let cell_list = guard.as_ref().expect("allocated above");
+        let cell_list = LineState::cells(ctx, cell_slot, HEADER + 4 * cell_capacity as u64)?;
         unsafe {
             ctx.device
                 .cmd_update_buffer(cmd, cell_list.raw, 0, bytemuck::cast_slice(&HEADER_INIT))
@@ -618,28 +700,15 @@ impl LineExtractor {
             group_count(cells, [4, 4, 4]),
         )?;
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
-        let slot = (kinds.max(1) - 1) as usize;
-        let (cells, shader) = match hessian {
-            None => (&self.extract[slot], "lines/extract.comp"),
-            Some(_) => (&self.extract_hessian[slot], "lines/extract_hessian.comp"),
+        let desc = match hessian {
+            None => PipelineDesc::new("lines/extract.comp", &EXTRACT_BINDINGS, LINES_PUSH),
+            Some(_) => PipelineDesc::new(
+                "lines/extract_hessian.comp",
+                &EXTRACT_HESSIAN_BINDINGS,
+                LINES_PUSH,
+            ),
         };
-        let extract = built(cells, || {
-            let mut bindings = vec![
-                BindingKind::SampledImage,
-                BindingKind::StorageBuffer,
-                BindingKind::StorageBuffer,
-            ];
-            if hessian.is_some() {
-                bindings.extend([BindingKind::SampledImage, BindingKind::SampledImage]);
-            }
-            ComputePipeline::with_constants(
-                ctx,
-                shader,
-                &bindings,
-                std::mem::size_of::<LinesPush>() as u32,
-                &[kinds.max(1)],
-            )
-        })?;
+        let extract = pipelines.get(&desc.constants(&[kinds.max(1)]))?;
         let mut binds = vec![
             Bind::Sampled(values, &self.nearest),
             Bind::StorageBuffer(&out.buffer),
@@ -652,7 +721,7 @@ impl LineExtractor {
             }
         }
         extract.dispatch_indirect(cmd, &binds, &push, cell_list, 0)?;
-        profiler.end(cmd);
+        frame.profiler.end(cmd);
         Ok(())
     }
 
@@ -663,20 +732,24 @@ impl LineExtractor {
     /// extracts its frontier into `out`; a line found is followed into the cells across the
     /// faces its ends lie on, and a search that finds none steps towards h = 0. Every cell is
     /// extracted at most once a frame (one visited bit per voxel).
-    #[allow(clippy::too_many_arguments)]
     fn record_seeded(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
-        values: &Image,
-        dims: [usize; 3],
-        spacing: [f32; 3],
-        eye: Eye,
-        params: &LineParams,
-        out: &LineBuffer,
+        frame: &mut Frame,
+        pipelines: &mut PipelineCache,
+        line_state: &mut LineState,
+        r: &LineRequest,
         previous: bool,
     ) -> Result<()> {
-        let ctx = &self.ctx;
+        let LineRequest {
+            values,
+            dims,
+            spacing,
+            eye,
+            params,
+            ..
+        } = *r;
+        let params = &params;
+        let (ctx, cmd) = (&self.ctx, frame.cmd);
         let voxels: u64 = dims.iter().map(|&d| d as u64).product();
         if voxels > 1 << 30 {
             return Err(Error::Invalid(format!(
@@ -685,70 +758,21 @@ impl LineExtractor {
             )));
         }
         let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
-        let seed = built(&self.seed, || {
-            ComputePipeline::new(
-                ctx,
-                "lines/seed.comp",
-                &[
-                    BindingKind::SampledImage,
-                    BindingKind::StorageBuffer,
-                    BindingKind::StorageBuffer,
-                    BindingKind::StorageBuffer,
-                ],
-                std::mem::size_of::<LinesPush>() as u32,
-            )
-        })?;
-        let round = built(&self.extract_seeded[(kinds.max(1) - 1) as usize], || {
-            ComputePipeline::with_constants(
-                ctx,
-                "lines/extract_seeded.comp",
-                &[
-                    BindingKind::SampledImage,
-                    BindingKind::StorageBuffer,
-                    BindingKind::StorageBuffer,
-                    BindingKind::StorageBuffer,
-                    BindingKind::StorageBuffer,
-                ],
-                std::mem::size_of::<LinesPush>() as u32,
-                &[kinds.max(1)],
-            )
-        })?;
-        let mut guard = self.seed_state.lock().unwrap_or_else(|p| p.into_inner());
-        if guard.as_ref().is_none_or(|s| s.voxels < voxels) {
-            let cells = voxels
-                .min(FRONTIER_CELLS)
-                .min((ctx.info.max_storage_buffer_range as u64 - HEADER) / 4)
-                .max(1);
-            let list = |name: &str| {
-                Buffer::new(
-                    ctx,
-                    name,
-                    &BufferDesc {
-                        size: HEADER + 4 * cells,
-                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                            | vk::BufferUsageFlags::INDIRECT_BUFFER
-                            | vk::BufferUsageFlags::TRANSFER_DST,
-                        location: BufferLocation::Gpu,
-                    },
-                )
-            };
-            *guard = Some(SeedState {
-                visited: Buffer::new(
-                    ctx,
-                    "line seeds visited",
-                    &BufferDesc {
-                        size: 4 * voxels.div_ceil(32),
-                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                            | vk::BufferUsageFlags::TRANSFER_DST,
-                        location: BufferLocation::Gpu,
-                    },
-                )?,
-                frontier: [list("line frontier even")?, list("line frontier odd")?],
-                capacity: cells as u32,
-                voxels,
-            });
-        }
-        let state = guard.as_ref().expect("allocated above");
+        let seed = pipelines.get(&PipelineDesc::new(
+            "lines/seed.comp",
+            &SEED_BINDINGS,
+            LINES_PUSH,
+        ))?;
+        let round = pipelines.get(
+            &PipelineDesc::new("lines/extract_seeded.comp", &ROUND_BINDINGS, LINES_PUSH)
+                .constants(&[kinds.max(1)]),
+        )?;
+        let LineState {
+            buffer: out,
+            seed: slot,
+            ..
+        } = line_state;
+        let state = SeedState::ensure(ctx, slot, voxels)?;
         let mut push = LinesPush::new(
             dims,
             spacing,
@@ -759,7 +783,7 @@ impl LineExtractor {
             state.capacity,
         );
         let header = bytemuck::cast_slice(&HEADER_INIT);
-        profiler.begin(cmd, "lines");
+        frame.profiler.begin(cmd, "lines");
         // The previous frame's extraction wrote `out` and the frontiers; its rasteriser and
         // rounds read them, also as indirect arguments.
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferWrite);
@@ -823,26 +847,29 @@ impl LineExtractor {
                 0,
             )?;
         }
-        profiler.end(cmd);
+        frame.profiler.end(cmd);
         Ok(())
     }
 
-    /// Uploads `v`, extracts its lines (`params.iso` in data units) and reads them back.
+    /// Uploads `v`, extracts its lines (`params.iso` in data units) and reads them back. The
+    /// pipelines are taken from `pipelines` (built there on first use).
     pub fn extract(
         &self,
+        pipelines: &mut PipelineCache,
         v: &Volume,
         eye: Eye,
         params: &LineParams,
         capacity: u32,
     ) -> Result<LineSet> {
-        self.extract_with(v, eye, params, capacity, HessianSource::OnTheFly)
+        self.extract_with(pipelines, v, eye, params, capacity, HessianSource::OnTheFly)
     }
 
     /// Uploads `v` once and extracts one frame per entry of `frames` (`iso` in data units, the
-    /// same smoothing in all) into one line buffer, one submission each, reading each back: a
+    /// same smoothing in all) into one line state, one submission each, reading each back: a
     /// seeded frame seeds from the frame before it, as in a window.
     pub fn extract_frames(
         &self,
+        pipelines: &mut PipelineCache,
         v: &Volume,
         frames: &[(Eye, LineParams)],
         capacity: u32,
@@ -856,48 +883,37 @@ impl LineExtractor {
                 "the frames of one extraction share one smoothing radius".into(),
             ));
         }
-        let mut profiler = Profiler::new(ctx, 8)?;
-        let input = OcclusionInput::upload(ctx, v, &mut profiler)?;
-        let [lo, hi] = input.range;
-        let out = LineBuffer::new(ctx, capacity)?;
+        let input = OcclusionInput::upload(ctx, v)?;
+        let mut state = LineState::new(ctx, capacity)?;
         let spacing = v.spacing.map(|s| s as f32);
         let smoothed = match first.smooth {
             0 => None,
-            r => Some(submit_once(ctx, "line smoothing", |cmd| {
-                profiler.reset(cmd);
-                self.record_smoothing(cmd, &mut profiler, &input.intensity, v.dims, r)
+            r => Some(submit_once(ctx, "line smoothing", |f| {
+                self.record_smoothing(f, &input.intensity, v.dims, r)
             })?),
         };
         let values = smoothed.as_ref().unwrap_or(&input.intensity);
         let mut sets = Vec::with_capacity(frames.len());
-        let mut profiler = Profiler::new(ctx, 2)?;
         for (eye, params) in frames {
-            let iso = if hi > lo {
-                ((params.iso as f64 - lo) / (hi - lo)) as f32
-            } else {
-                0.5
+            let request = LineRequest {
+                values,
+                dims: v.dims,
+                spacing,
+                eye: *eye,
+                params: LineParams {
+                    iso: normalised_iso(input.range, params.iso),
+                    ..*params
+                },
+                hessian: None,
             };
-            let p = LineParams { iso, ..*params };
-            submit_once(ctx, "lines", |cmd| {
-                profiler.reset(cmd);
-                self.record(
-                    cmd,
-                    &mut profiler,
-                    values,
-                    v.dims,
-                    spacing,
-                    *eye,
-                    &p,
-                    None,
-                    &out,
-                )
+            let ((), times) = submit_timed(ctx, "lines", |f| {
+                self.record(f, pipelines, &mut state, &request)
             })?;
-            let ms = profiler.results()?.iter().map(|t| t.ms).sum();
-            let (segments, found) = out.read()?;
+            let (segments, found) = state.buffer.read()?;
             sets.push(LineSet {
                 segments,
                 found,
-                ms,
+                ms: times.iter().map(|t| t.ms).sum(),
                 hessian_ms: 0.0,
             });
         }
@@ -909,6 +925,7 @@ impl LineExtractor {
     /// it is made once per volume.
     pub fn extract_with(
         &self,
+        pipelines: &mut PipelineCache,
         v: &Volume,
         eye: Eye,
         params: &LineParams,
@@ -916,65 +933,60 @@ impl LineExtractor {
         source: HessianSource,
     ) -> Result<LineSet> {
         let ctx = &self.ctx;
-        let mut profiler = Profiler::new(ctx, 2)?;
-        let input = OcclusionInput::upload(ctx, v, &mut profiler)?;
-        let [lo, hi] = input.range;
-        let iso = if hi > lo {
-            ((params.iso as f64 - lo) / (hi - lo)) as f32
-        } else {
-            0.5
+        let input = OcclusionInput::upload(ctx, v)?;
+        let p = LineParams {
+            iso: normalised_iso(input.range, params.iso),
+            ..*params
         };
-        let p = LineParams { iso, ..*params };
-        let out = LineBuffer::new(ctx, capacity)?;
+        let mut state = LineState::new(ctx, capacity)?;
         let spacing = v.spacing.map(|s| s as f32);
-        let mut profiler = Profiler::new(ctx, 8)?;
-        submit_once(ctx, "lines", |cmd| {
-            profiler.reset(cmd);
+        let ((), timings) = submit_timed(ctx, "lines", |f| {
             let smoothed = match p.smooth {
                 0 => None,
-                r => {
-                    Some(self.record_smoothing(cmd, &mut profiler, &input.intensity, v.dims, r)?)
-                }
+                r => Some(self.record_smoothing(f, &input.intensity, v.dims, r)?),
             };
             let values = smoothed.as_ref().unwrap_or(&input.intensity);
             let hessian = match source {
                 HessianSource::OnTheFly => None,
                 HessianSource::Precomputed => {
-                    Some(self.record_hessian(cmd, &mut profiler, values, v.dims, spacing)?)
+                    Some(self.record_hessian(f, pipelines, values, v.dims, spacing)?)
                 }
             };
-            self.record(
-                cmd,
-                &mut profiler,
+            let request = LineRequest {
                 values,
-                v.dims,
+                dims: v.dims,
                 spacing,
                 eye,
-                &p,
-                hessian.as_ref(),
-                &out,
-            )?;
+                params: p,
+                hessian: hessian.as_ref(),
+            };
+            self.record(f, pipelines, &mut state, &request)?;
             // The images (and `smoothed`) are released once the submission completes.
             Ok(())
         })?;
-        let timings = profiler.results()?;
-        let hessian_ms = timings
-            .iter()
-            .filter(|t| t.name == "lines_hessian")
-            .map(|t| t.ms)
-            .sum();
+        let hessian_ms = crate::gpu::profiler::total_ms(&timings, "lines_hessian");
         let ms = timings
             .iter()
             .filter(|t| t.name != "lines_hessian")
             .map(|t| t.ms)
             .sum();
-        let (segments, found) = out.read()?;
+        let (segments, found) = state.buffer.read()?;
         Ok(LineSet {
             segments,
             found,
             ms,
             hessian_ms,
         })
+    }
+}
+
+/// `iso` in data units on the [0, 1] scale of a volume normalised from `[lo, hi]` (0.5 for a
+/// constant volume).
+fn normalised_iso([lo, hi]: [f64; 2], iso: f32) -> f32 {
+    if hi > lo {
+        ((iso as f64 - lo) / (hi - lo)) as f32
+    } else {
+        0.5
     }
 }
 

@@ -5,7 +5,7 @@
 use crate::error::Result;
 use crate::gpu::pipeline::group_count;
 use crate::gpu::{
-    Access, Bind, BindingKind, ComputePipeline, Context, Image, ImageDesc, Profiler, Sampler,
+    Access, Bind, BindingKind, ComputePipeline, Context, Frame, Image, ImageDesc, PassTime, Sampler,
 };
 use crate::passes::volume_image::extent_of;
 use crate::volume::Volume;
@@ -42,9 +42,9 @@ pub struct VolumeTextures {
     pub bricks: Bricks,
     /// ΔD of the normalised volume, for importance modulation.
     pub importance: Option<crate::passes::importance::ImportanceVolume>,
-    /// The normalised volume after a Gaussian of the radius kept beside it (R32F), made when line
-    /// extraction first asks for that radius and kept with the volume.
-    pub smoothed: std::sync::Mutex<Option<(u32, Image)>>,
+    /// A number no other `VolumeTextures` of this process has: what a view keeps for a volume
+    /// (its smoothed copy) is keyed by it, so a new volume is never mistaken for the old one.
+    pub id: u64,
 }
 
 /// Edge of a brick in voxels.
@@ -137,21 +137,19 @@ impl VolumeTextures {
                 occlusion: None,
                 bricks,
                 importance: None,
-                smoothed: Default::default(),
+                id: {
+                    static NEXT: std::sync::atomic::AtomicU64 =
+                        std::sync::atomic::AtomicU64::new(0);
+                    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+                },
             },
             staging,
         ))
     }
 
     /// Records pass `upload`: `staging` (from [`VolumeTextures::new`]) into the intensity texture.
-    pub fn record_upload(
-        &self,
-        ctx: &Context,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
-        staging: &crate::gpu::Buffer,
-    ) {
-        profiler.pass(cmd, "upload", |cmd| {
+    pub fn record_upload(&self, ctx: &Context, frame: &mut Frame, staging: &crate::gpu::Buffer) {
+        frame.profiler.pass(frame.cmd, "upload", |cmd| {
             crate::gpu::transfer::record_upload(
                 ctx,
                 cmd,
@@ -210,29 +208,26 @@ impl Normals {
     }
 
     /// Uploads `v` normalised (pass `upload`) and computes its gradients (pass `sobel_normals`) in
-    /// one submission. Both images end sampled by fragment shaders.
-    pub fn prepare(&self, v: &Volume, profiler: &mut Profiler) -> Result<VolumeTextures> {
+    /// one submission. Both images end sampled by fragment shaders. Returns the passes' times too.
+    pub fn prepare(&self, v: &Volume) -> Result<(VolumeTextures, Vec<PassTime>)> {
         let ctx = &self.ctx;
         let (textures, staging) = VolumeTextures::new(ctx, v)?;
-        crate::gpu::submit_once(ctx, "volume textures", |cmd| {
-            profiler.reset(cmd);
-            textures.record_upload(ctx, cmd, profiler, &staging);
-            self.record(cmd, profiler, &textures)?;
-            textures.intensity.transition(cmd, Access::FragmentSampled);
-            textures.gradient.transition(cmd, Access::FragmentSampled);
+        let ((), times) = crate::gpu::submit_timed(ctx, "volume textures", |f| {
+            textures.record_upload(ctx, f, &staging);
+            self.record(f, &textures)?;
+            textures
+                .intensity
+                .transition(f.cmd, Access::FragmentSampled);
+            textures.gradient.transition(f.cmd, Access::FragmentSampled);
             Ok(())
         })?;
-        Ok(textures)
+        Ok((textures, times))
     }
 
     /// Records pass `sobel_normals`: the gradients of `tex.intensity` into `tex.gradient`, which is
     /// left writable-then-readable by later passes (they transition it to their own access).
-    pub fn record(
-        &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
-        tex: &VolumeTextures,
-    ) -> Result<()> {
+    pub fn record(&self, frame: &mut Frame, tex: &VolumeTextures) -> Result<()> {
+        let (cmd, profiler) = (frame.cmd, &mut *frame.profiler);
         let push = NormalsPush {
             dims: tex.dims.map(|d| d as i32),
             pad: 0,

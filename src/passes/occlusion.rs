@@ -23,8 +23,8 @@ use crate::gpu::profiler::PassTime;
 use crate::gpu::resources::BufferLocation;
 use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
 use crate::gpu::{
-    submit_once, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    ImageDesc, Profiler,
+    submit_timed, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Frame,
+    Image, ImageDesc,
 };
 use crate::passes::occlusion_fft::{
     cpu::{CpuFft, HalfSpectrum},
@@ -346,10 +346,8 @@ impl Occlusion {
 
     /// Computes O for `v` (and the spectrum when asked): upload, the passes, readback.
     pub fn compute(&self, v: &Volume, p: &OcclusionParams) -> Result<OcclusionOutput> {
-        let mut profiler = Profiler::new(&self.ctx, 1)?;
-        let input = OcclusionInput::upload(&self.ctx, v, &mut profiler)?;
+        let (input, mut passes) = OcclusionInput::upload_timed(&self.ctx, v)?;
         let mut out = self.compute_on(&input, p)?;
-        let mut passes = profiler.results()?;
         passes.append(&mut out.passes);
         out.passes = passes;
         Ok(out)
@@ -404,16 +402,13 @@ impl Occlusion {
         let ctx = &self.ctx;
         let targets = self.targets_for(input, p, method)?;
         let readback = staging_buffer(ctx, "occlusion readback", targets.occlusion.byte_size())?;
-        let mut profiler = Profiler::new(ctx, 3)?;
-        submit_once(ctx, "occlusion", |cmd| {
-            profiler.reset(cmd);
-            self.record(cmd, &mut profiler, input, &targets, p)?;
-            profiler.pass(cmd, "readback", |cmd| {
+        let ((), passes) = submit_timed(ctx, "occlusion", |f| {
+            self.record(f, input, &targets, p)?;
+            f.profiler.pass(f.cmd, "readback", |cmd| {
                 record_readback(ctx, cmd, &targets.occlusion, &readback)
             });
             Ok(())
         })?;
-        let passes = profiler.results()?;
         let o: Vec<f32> = bytemuck::pod_collect_to_vec(
             readback
                 .mapped()
@@ -670,8 +665,7 @@ impl Occlusion {
     /// compute write (or the spectrum's read) to its own access.
     pub fn record(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         input: &OcclusionInput,
         targets: &OcclusionTargets,
         p: &OcclusionParams,
@@ -681,6 +675,7 @@ impl Occlusion {
             Visibility::Truncated { t0, t1 } => (1, *t0, *t1),
             Visibility::Table(_) => (2, 0.0, 1.0),
         };
+        let cmd = frame.cmd;
         let dims = input.dims.map(|d| d as i32);
         let extent = input.intensity.desc.extent;
         let out_extent = targets.occlusion.desc.extent;
@@ -695,19 +690,19 @@ impl Occlusion {
             t1,
         };
         let occlusion = &targets.occlusion;
-        profiler.begin(cmd, "occlusion");
+        frame.profiler.begin(cmd, "occlusion");
         input.intensity.transition(cmd, Access::ComputeRead);
         if let Some(work) = &targets.fft {
             self.fft_gpu()?.record(
-                cmd,
+                frame,
                 work,
                 &input.intensity,
                 &targets.visibility,
                 &Mapping { mapping, t0, t1 },
                 occlusion,
             )?;
-            profiler.end(cmd);
-            return self.record_spectrum(cmd, profiler, input, targets, p);
+            frame.profiler.end(cmd);
+            return self.record_spectrum(frame, input, targets, p);
         }
         let (Some(prefix), Some(mapped)) = (&targets.prefix, &targets.mapped) else {
             return Err(Error::Invalid(
@@ -772,25 +767,24 @@ impl Occlusion {
                 )?;
             }
         }
-        profiler.end(cmd);
-        self.record_spectrum(cmd, profiler, input, targets, p)
+        frame.profiler.end(cmd);
+        self.record_spectrum(frame, input, targets, p)
     }
 
     /// Records pass `spectrum` when `targets` has a histogram.
     fn record_spectrum(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         input: &OcclusionInput,
         targets: &OcclusionTargets,
         p: &OcclusionParams,
     ) -> Result<()> {
-        let ctx = &self.ctx;
+        let (ctx, cmd) = (&self.ctx, frame.cmd);
         let dims = input.dims.map(|d| d as i32);
         let extent = input.intensity.desc.extent;
         let occlusion = &targets.occlusion;
         if let (Some(hist), Some([bx, by])) = (&targets.spectrum, p.spectrum_bins) {
-            profiler.begin(cmd, "spectrum");
+            frame.profiler.begin(cmd, "spectrum");
             occlusion.transition(cmd, Access::ComputeRead);
             unsafe {
                 ctx.device
@@ -816,7 +810,7 @@ impl Occlusion {
                 group_count(extent, LOCAL_SIZE),
             )?;
             memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::HostRead);
-            profiler.end(cmd);
+            frame.profiler.end(cmd);
         }
         Ok(())
     }
@@ -825,19 +819,19 @@ impl Occlusion {
     /// nearest-texel `sampler`) into a new R32F [`OcclusionInput`], without a host round trip.
     pub fn record_input_from_texture(
         &self,
-        cmd: vk::CommandBuffer,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         tex: &crate::passes::normals::VolumeTextures,
         sampler: &crate::gpu::Sampler,
     ) -> Result<OcclusionInput> {
         let (normalised, dims, spacing, range) = (&tex.intensity, tex.dims, tex.spacing, tex.range);
+        let cmd = frame.cmd;
         let extent = extent_of(&self.ctx, dims, 4, 4)?;
         let intensity = Image::new(
             &self.ctx,
             "occlusion intensity",
             &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent),
         )?;
-        profiler.begin(cmd, "to_float");
+        frame.profiler.begin(cmd, "to_float");
         normalised.transition(cmd, Access::ComputeSampled);
         intensity.discard();
         intensity.transition(cmd, Access::ComputeWrite);
@@ -854,7 +848,7 @@ impl Occlusion {
             group_count(extent, LOCAL_SIZE),
         )?;
         intensity.transition(cmd, Access::ComputeRead);
-        profiler.end(cmd);
+        frame.profiler.end(cmd);
         Ok(OcclusionInput {
             intensity,
             dims,
@@ -880,8 +874,13 @@ pub struct OcclusionInput {
 }
 
 impl OcclusionInput {
-    /// Uploads `v` normalised to [0, 1] in float (pass `upload`, one submission).
-    pub fn upload(ctx: &Arc<Context>, v: &Volume, profiler: &mut Profiler) -> Result<Self> {
+    /// Uploads `v` normalised to [0, 1] in float (one submission).
+    pub fn upload(ctx: &Arc<Context>, v: &Volume) -> Result<Self> {
+        Ok(Self::upload_timed(ctx, v)?.0)
+    }
+
+    /// [`OcclusionInput::upload`] that also returns the time of its pass, `upload`.
+    pub fn upload_timed(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, Vec<PassTime>)> {
         let (intensity, range) = normalised_f32(v);
         let extent = extent_of(ctx, v.dims, 4, 4)?;
         let image = Image::new(
@@ -891,21 +890,21 @@ impl OcclusionInput {
         )?;
         let mut staging = staging_buffer(ctx, "occlusion staging", intensity.len() * 4)?;
         staging.write(bytemuck::cast_slice(&intensity))?;
-        submit_once(ctx, "occlusion upload", |cmd| {
-            profiler.reset(cmd);
-            profiler.pass(cmd, "upload", |cmd| {
+        let ((), passes) = submit_timed(ctx, "occlusion upload", |f| {
+            f.profiler.pass(f.cmd, "upload", |cmd| {
                 record_upload(ctx, cmd, &staging, &image, Access::ComputeRead)
             });
             Ok(())
         })?;
-        Ok(OcclusionInput {
+        let input = OcclusionInput {
             intensity: image,
             dims: v.dims,
             spacing: v.spacing,
             geometry: v.geometry,
             range,
             host: Some(Arc::new(intensity)),
-        })
+        };
+        Ok((input, passes))
     }
 }
 

@@ -13,7 +13,6 @@
 //! - The candidate with the largest score wins.
 
 use crate::error::{Error, Result};
-use crate::gpu::Profiler;
 use crate::passes::occlusion::{
     normalised_f32, Method, Neighbourhood, Occlusion, OcclusionInput, OcclusionParams,
 };
@@ -197,7 +196,7 @@ pub fn select(
     // Local histograms: h[k][voxel] for the picked voxels.
     let mut hist = vec![vec![0f32; picks.len()]; BINS];
     // One upload serves all the passes.
-    let input = OcclusionInput::upload(occ.context(), v, &mut Profiler::new(occ.context(), 1)?)?;
+    let input = OcclusionInput::upload(occ.context(), v)?;
     let progress = crate::progress::bar(BINS as u64, "local histograms");
     for (k, h) in hist.iter_mut().enumerate() {
         progress.inc(1);
@@ -310,7 +309,7 @@ pub fn sensitivity(
     let s = stride as usize;
     let out_dims: [usize; 3] = v.dims.map(|d| d.div_ceil(s));
     let mut rows = Vec::new();
-    let input = OcclusionInput::upload(occ.context(), v, &mut Profiler::new(occ.context(), 1)?)?;
+    let input = OcclusionInput::upload(occ.context(), v)?;
     // One padded size for the whole sweep (the largest radius's), so the FFT methods transform the
     // data once and only the kernel changes.
     let largest = radii.iter().copied().max().unwrap_or(1);

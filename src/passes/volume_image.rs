@@ -4,7 +4,7 @@
 use crate::error::{Error, Result};
 use crate::gpu::profiler::PassTime;
 use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
-use crate::gpu::{submit_once, Access, Context, Image, ImageDesc, Profiler};
+use crate::gpu::{submit_timed, Access, Context, Image, ImageDesc};
 use crate::volume::{Volume, VoxelData, VoxelType};
 use ash::vk;
 use std::sync::Arc;
@@ -77,18 +77,15 @@ pub fn round_trip(ctx: &Arc<Context>, v: &Volume) -> Result<RoundTrip> {
     staging.write(bytes)?;
     // A separate readback buffer, so the comparison cannot see the uploaded bytes.
     let back = staging_buffer(ctx, "round-trip readback", bytes.len())?;
-    let mut profiler = Profiler::new(ctx, 2)?;
-    submit_once(ctx, "volume round trip", |cmd| {
-        profiler.reset(cmd);
-        profiler.pass(cmd, "upload", |cmd| {
+    let ((), passes) = submit_timed(ctx, "volume round trip", |f| {
+        f.profiler.pass(f.cmd, "upload", |cmd| {
             record_upload(ctx, cmd, &staging, &image, Access::TransferRead)
         });
-        profiler.pass(cmd, "readback", |cmd| {
+        f.profiler.pass(f.cmd, "readback", |cmd| {
             record_readback(ctx, cmd, &image, &back)
         });
         Ok(())
     })?;
-    let passes = profiler.results()?;
     let got = back
         .mapped()
         .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;

@@ -18,9 +18,10 @@ use crate::classify::textures::GpuClassification;
 use crate::classify::Focus;
 use crate::error::{Error, Result};
 use crate::gpu::{
-    self, Access, Bind, BufferSlice, Context, Frames, FramesDesc, Image, ImageDesc, Sampler,
+    self, Access, Bind, BufferSlice, Context, Frames, FramesDesc, Image, ImageDesc, PipelineCache,
+    Sampler,
 };
-use crate::passes::lines::{LineBuffer, LineExtractor, RasterView, DEFAULT_CAPACITY};
+use crate::passes::lines::{LineExtractor, RasterView, DEFAULT_CAPACITY};
 use crate::passes::normals::{Bricks, VolumeTextures};
 use crate::render::post::{LinesDraw, Post};
 use crate::render::proxy::{depth_span, view_aligned_slices_in, ProxySlices};
@@ -31,13 +32,13 @@ use crate::render::shading::SliceUniforms;
 use crate::render::slicer::{SliceDraw, Slicer};
 use crate::render::style::{LineKind, Style};
 use crate::render::targets::{
-    FrameImage, FrameTargets, PostTargets, TargetImages, TargetsReadback,
+    FrameImage, FrameTargets, PostTargets, TargetImages, TargetsReadback, ViewState,
 };
 use crate::render::view::{FrameCamera, RayOptions, View, WorldBox, MAX_SLICES};
 use crate::volume::geometry::Geometry;
 use ash::vk;
 use glam::Vec3;
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 
 /// What [`FrameSetup`] needs of the volume and its classification: host data only.
 pub struct SetupInput<'a> {
@@ -428,21 +429,80 @@ impl Staged {
 }
 
 /// The renderer: the slicer, the ray caster and the style passes, with the samplers and stand-in
-/// images their shared bindings need.
+/// images their shared bindings need, and the one pipeline cache they build their lazily made
+/// pipelines in. What a view keeps between frames is in its [`FrameTargets`], not here.
 pub struct Renderer {
     ctx: Arc<Context>,
     slicer: Slicer,
     raycaster: RayCaster,
     linear: Sampler,
-    /// 1×1 stand-in bound when no occlusion or importance volume is used.
-    dummy_3d: Image,
-    /// Stand-in for the max |ΔD| buffer.
-    dummy_max: crate::gpu::Buffer,
+    stand_ins: StandIns,
+    /// The ray caster's variants, line extraction's per-kind pipelines and the style passes'.
+    pipelines: PipelineCache,
     /// The style passes, built on the first styled frame.
-    post: OnceLock<Post>,
-    /// Object-space line extraction and its segment buffer, built on the first frame of a style
-    /// with lines.
-    lines: OnceLock<(LineExtractor, LineBuffer)>,
+    post: Option<Post>,
+    /// Object-space line extraction, built on the first frame of a style with lines.
+    lines: Option<LineExtractor>,
+}
+
+/// 1×1 stand-ins bound when a frame uses no occlusion or importance volume.
+struct StandIns {
+    /// For the occlusion volume and ΔD.
+    volume: Image,
+    /// For the max |ΔD| buffer.
+    max: crate::gpu::Buffer,
+}
+
+impl StandIns {
+    fn new(ctx: &Arc<Context>) -> Result<Self> {
+        let volume = Image::new(
+            ctx,
+            "dummy occlusion",
+            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, [1, 1, 1]),
+        )?;
+        crate::gpu::transfer::upload(ctx, &volume, &[0u8; 4], Access::FragmentSampled)?;
+        let max = crate::gpu::Buffer::from_bytes(
+            ctx,
+            "dummy importance max",
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+            &[0u8; 4],
+        )?;
+        Ok(StandIns { volume, max })
+    }
+
+    /// The occlusion volume, ΔD and max |ΔD| the shaders bind (or 1×1 stand-ins when the frame
+    /// uses none), moved with the volume's textures to `sampled`.
+    fn shading_inputs<'a>(
+        &'a self,
+        ctx: &Context,
+        cmd: vk::CommandBuffer,
+        vol: &'a VolumeTextures,
+        classify: &GpuClassification,
+        sampled: Access,
+    ) -> (&'a Image, &'a Image, &'a crate::gpu::Buffer) {
+        let occlusion = match (classify.uses_occlusion(), &vol.occlusion) {
+            (true, Some(o)) => o,
+            _ => &self.volume,
+        };
+        vol.intensity.transition(cmd, sampled);
+        vol.gradient.transition(cmd, sampled);
+        occlusion.transition(cmd, sampled);
+        let importance = vol
+            .importance
+            .as_ref()
+            .filter(|_| classify.modulation.is_active());
+        let Some(i) = importance else {
+            return (occlusion, &self.volume, &self.max);
+        };
+        i.delta_d.transition(cmd, sampled);
+        // The reduction's atomics must be visible to the shaders' reads.
+        let read = match sampled {
+            Access::ComputeSampled => Access::ComputeRead,
+            _ => Access::FragmentStorageRead,
+        };
+        crate::gpu::commands::memory_transition(ctx, cmd, Access::ComputeReadWrite, read);
+        (occlusion, &i.delta_d, &i.max_abs)
+    }
 }
 
 /// Parameters of one frame for the one-shot [`Renderer::render`].
@@ -463,27 +523,15 @@ pub struct RenderParams {
 impl Renderer {
     /// Builds the slicer's pipelines; the ray caster's and the styles' are built on first use.
     pub fn new(ctx: &Arc<Context>) -> Result<Self> {
-        let slicer = Slicer::new(ctx)?;
-        let dummy_3d = Image::new(
-            ctx,
-            "dummy occlusion",
-            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, [1, 1, 1]),
-        )?;
-        crate::gpu::transfer::upload(ctx, &dummy_3d, &[0u8; 4], Access::FragmentSampled)?;
         Ok(Renderer {
             ctx: ctx.clone(),
-            slicer,
-            raycaster: RayCaster::new(ctx),
+            slicer: Slicer::new(ctx)?,
+            raycaster: RayCaster,
             linear: Sampler::new(ctx, true)?,
-            dummy_3d,
-            dummy_max: crate::gpu::Buffer::from_bytes(
-                ctx,
-                "dummy importance max",
-                vk::BufferUsageFlags::STORAGE_BUFFER,
-                &[0u8; 4],
-            )?,
-            post: OnceLock::new(),
-            lines: OnceLock::new(),
+            stand_ins: StandIns::new(ctx)?,
+            pipelines: PipelineCache::new(ctx),
+            post: None,
+            lines: None,
         })
     }
 
@@ -497,7 +545,7 @@ impl Renderer {
     /// needed). Passes: `focus`, `context`, `composite`; or `one_pass`; or `raycast`; then the
     /// style's.
     pub fn record(
-        &self,
+        &mut self,
         frame: &mut gpu::Frame,
         vol: &VolumeTextures,
         classify: &mut GpuClassification,
@@ -513,9 +561,10 @@ impl Renderer {
             None => Access::FragmentSampled,
         };
         classify.record(frame, sampled)?;
-        let t = targets.ensure(view.size, !view.one_pass, view.style.is_some())?;
-        let (occlusion, delta_d, delta_max) =
-            self.shading_inputs(frame.cmd, vol, classify, sampled);
+        let (t, state) = targets.ensure(view.size, !view.one_pass, view.style.is_some())?;
+        let (occlusion, delta_d, delta_max) = self
+            .stand_ins
+            .shading_inputs(&self.ctx, frame.cmd, vol, classify, sampled);
         let binds = [
             Bind::UniformSlice(staged.ubo),
             Bind::Sampled(&vol.intensity, &self.linear),
@@ -537,6 +586,7 @@ impl Renderer {
                 let two_level = !one_pass;
                 self.raycaster.record(
                     frame,
+                    &mut self.pipelines,
                     &RayRequest {
                         shading: &binds,
                         uniforms: &setup.uniforms,
@@ -557,7 +607,13 @@ impl Renderer {
         }
         let lines = match (&view.style, &t.post, view.one_pass) {
             (Some(style), Some(post), false) => {
-                self.record_style(frame, vol, &setup, style, t, post)?
+                let style_frame = StyleFrame {
+                    setup: &setup,
+                    style,
+                    images: t,
+                    post,
+                };
+                self.record_style(frame, vol, &style_frame, state)?
             }
             _ => None,
         };
@@ -569,109 +625,68 @@ impl Renderer {
 
     /// Builds the style passes, and the line extractor for a style with lines, on the first
     /// frame that needs them.
-    fn build_style_passes(&self, view: &View) -> Result<()> {
+    fn build_style_passes(&mut self, view: &View) -> Result<()> {
         let Some(style) = &view.style else {
             return Ok(());
         };
-        if style.def.lines.is_some() && self.lines.get().is_none() {
-            let extractor = LineExtractor::new(&self.ctx)?;
-            let buffer = LineBuffer::new(&self.ctx, DEFAULT_CAPACITY)?;
-            let _ = self.lines.set((extractor, buffer));
+        if style.def.lines.is_some() && self.lines.is_none() {
+            self.lines = Some(LineExtractor::new(&self.ctx)?);
         }
-        if self.post.get().is_none() {
-            let _ = self.post.set(Post::new(&self.ctx)?);
+        if self.post.is_none() {
+            self.post = Some(Post::new(&mut self.pipelines)?);
         }
         Ok(())
     }
 
-    /// The occlusion volume, ΔD and max |ΔD| the shaders bind (or 1×1 stand-ins when the frame
-    /// uses none), moved with the volume's textures to `sampled`.
-    fn shading_inputs<'a>(
-        &'a self,
-        cmd: vk::CommandBuffer,
-        vol: &'a VolumeTextures,
-        classify: &GpuClassification,
-        sampled: Access,
-    ) -> (&'a Image, &'a Image, &'a crate::gpu::Buffer) {
-        let occlusion = match (classify.uses_occlusion(), &vol.occlusion) {
-            (true, Some(o)) => o,
-            _ => &self.dummy_3d,
-        };
-        vol.intensity.transition(cmd, sampled);
-        vol.gradient.transition(cmd, sampled);
-        occlusion.transition(cmd, sampled);
-        let importance = vol
-            .importance
-            .as_ref()
-            .filter(|_| classify.modulation.is_active());
-        let Some(i) = importance else {
-            return (occlusion, &self.dummy_3d, &self.dummy_max);
-        };
-        i.delta_d.transition(cmd, sampled);
-        // The reduction's atomics must be visible to the shaders' reads.
-        let read = match sampled {
-            Access::ComputeSampled => Access::ComputeRead,
-            _ => Access::FragmentStorageRead,
-        };
-        crate::gpu::commands::memory_transition(&self.ctx, cmd, Access::ComputeReadWrite, read);
-        (occlusion, &i.delta_d, &i.max_abs)
-    }
-
     /// The lines-draw step and the style passes: extracts the object-space lines the style asks
     /// for (from the volume, or from its smoothed copy, made once per volume and radius and kept
-    /// with it) and records [`Post::record`]. Returns the lines' raster view.
+    /// in the view's `state`) and records [`Post::record`]. Returns the lines' raster view.
     fn record_style(
-        &self,
+        &mut self,
         frame: &mut gpu::Frame,
         vol: &VolumeTextures,
-        setup: &FrameSetup,
-        style: &Style,
-        t: &TargetImages,
-        post: &PostTargets,
+        f: &StyleFrame,
+        state: &mut ViewState,
     ) -> Result<Option<RasterView>> {
         let passes = self
             .post
-            .get()
+            .as_ref()
             .ok_or_else(|| Error::Invalid("the style passes were not built".into()))?;
-        // The slot stays locked while this frame records its lines.
-        let mut slot = vol.smoothed.lock().unwrap_or_else(|p| p.into_inner());
-        let draw = match (style.def.lines, self.lines.get()) {
-            (Some(kind), Some(lines)) => {
-                let radius = style.params.line_smooth;
-                if radius > 0 && slot.as_ref().is_none_or(|(kept, _)| *kept != radius) {
-                    let image = lines.0.record_smoothing(
-                        frame.cmd,
-                        frame.profiler,
-                        &vol.intensity,
-                        vol.dims,
-                        radius,
-                    )?;
-                    *slot = Some((radius, image));
+        let draw = match (f.style.def.lines, &self.lines) {
+            (Some(kind), Some(extractor)) => {
+                let radius = f.style.params.line_smooth;
+                if radius > 0 && !state.has_smoothed(vol.id, radius) {
+                    let image =
+                        extractor.record_smoothing(frame, &vol.intensity, vol.dims, radius)?;
+                    state.keep_smoothed(vol.id, radius, image);
                 }
-                let smoothed = slot
-                    .as_ref()
-                    .filter(|(kept, _)| radius > 0 && *kept == radius)
-                    .map(|(_, image)| image);
-                Some(lines_draw(vol, setup, style, kind, lines, smoothed))
+                let (line_state, smoothed) =
+                    state.lines_and_smoothed(&self.ctx, DEFAULT_CAPACITY, (vol.id, radius))?;
+                let g = line_geometry(vol, f, kind);
+                Some(LinesDraw {
+                    extractor,
+                    pipelines: &mut self.pipelines,
+                    state: line_state,
+                    volume: smoothed.unwrap_or(&vol.intensity),
+                    dims: vol.dims,
+                    spacing: g.spacing,
+                    eye: g.eye,
+                    params: g.params,
+                    view: g.view,
+                })
             }
             _ => None,
         };
         let raster = draw.as_ref().map(|d| d.view);
-        passes.record(frame, style, t, post, draw)?;
+        passes.record(frame, f.style, f.images, f.post, draw)?;
         Ok(raster)
-    }
-
-    /// The object-space lines of the last styled frame (read after it completes), if a style with
-    /// lines has been recorded.
-    pub fn line_buffer(&self) -> Option<&LineBuffer> {
-        self.lines.get().map(|(_, b)| b)
     }
 
     /// Renders one frame in one submission (the tools' path): the persistent-state types, used
     /// once. With `readback`, the composite (and the layers of a two-level frame) come back to
     /// the host.
     pub fn render(
-        &self,
+        &mut self,
         vol: &VolumeTextures,
         params: &RenderParams,
         readback: bool,
@@ -691,15 +706,16 @@ impl Renderer {
         self.render_frame(vol, &mut classify, &view, readback)
     }
 
-    /// [`Renderer::render`] for a volume and classification that are already on the GPU.
+    /// [`Renderer::render`] for a volume and classification that are already on the GPU. A
+    /// frame read back brings its object-space lines' segments too.
     pub fn render_frame(
-        &self,
+        &mut self,
         vol: &VolumeTextures,
         classify: &mut GpuClassification,
         view: &View,
         readback: bool,
     ) -> Result<FrameImage> {
-        let ctx = &self.ctx;
+        let ctx = &self.ctx.clone();
         let mut targets = FrameTargets::new(ctx);
         let mut frames = Frames::new(ctx, &FramesDesc::one_shot("render frame", 32))?;
         let mut host = None;
@@ -707,8 +723,7 @@ impl Renderer {
             let r = self.record(f, vol, classify, view, &mut targets)?;
             if readback {
                 let rb = TargetsReadback::new(ctx, &targets)?;
-                f.profiler
-                    .pass(f.cmd, "readback", |cmd| rb.record(cmd, &targets));
+                rb.record(f, &targets);
                 host = Some(rb);
             }
             Ok(r)
@@ -718,6 +733,10 @@ impl Renderer {
             Some(rb) => rb.read()?,
             None => (Vec::new(), None),
         };
+        let segments = match (&targets.state().lines, readback && recorded.lines.is_some()) {
+            (Some(lines), true) => Some(lines.buffer.read()?),
+            _ => None,
+        };
         Ok(FrameImage {
             size: view.size,
             composite,
@@ -725,22 +744,33 @@ impl Renderer {
             passes,
             slices: recorded.slices,
             lines: recorded.lines,
+            segments,
         })
     }
 }
 
-/// The lines of `style` (of `kind`) for this frame: what to extract, from which volume, and the
-/// raster view that draws them into the edge layer.
-fn lines_draw<'a>(
-    vol: &'a VolumeTextures,
-    setup: &FrameSetup,
-    style: &Style,
-    kind: LineKind,
-    (extractor, buffer): &'a (LineExtractor, LineBuffer),
-    smoothed: Option<&'a Image>,
-) -> LinesDraw<'a> {
+/// What the style passes of one frame work on: the frame's setup, the style, the layers and the
+/// style passes' images.
+struct StyleFrame<'a> {
+    setup: &'a FrameSetup,
+    style: &'a Style,
+    images: &'a TargetImages,
+    post: &'a PostTargets,
+}
+
+/// The geometry of one frame's object-space lines: the extraction's frame and parameters, and
+/// the raster view that draws them into the edge layer.
+struct LineGeometry {
+    spacing: [f32; 3],
+    eye: crate::volume::lines::Eye,
+    params: crate::volume::lines::LineParams,
+    view: RasterView,
+}
+
+/// The lines of the frame's style (of `kind`): what to extract and how to draw it.
+fn line_geometry(vol: &VolumeTextures, f: &StyleFrame, kind: LineKind) -> LineGeometry {
     use crate::volume::lines::{Eye, LineParams};
-    let p = &style.params;
+    let (setup, p) = (f.setup, &f.style.params);
     let (eye, view_dir) = (setup.camera.eye, setup.camera.view_dir);
     let spacing = vol.spacing.map(|s| s as f32);
     let longest = setup.world.longest as f32;
@@ -756,11 +786,7 @@ fn lines_draw<'a>(
         })),
     };
     let min_spacing = spacing.iter().copied().fold(f32::INFINITY, f32::min);
-    LinesDraw {
-        extractor,
-        buffer,
-        volume: smoothed.unwrap_or(&vol.intensity),
-        dims: vol.dims,
+    LineGeometry {
         spacing,
         eye: eye_line,
         params: LineParams {

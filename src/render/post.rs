@@ -16,8 +16,10 @@
 use crate::error::{Error, Result};
 use crate::gpu::commands::memory_transition;
 use crate::gpu::pipeline::group_count;
-use crate::gpu::{Access, Bind, BindingKind, ComputePipeline, Context, Image, Profiler};
-use crate::passes::lines::{LineBuffer, LineExtractor, RasterView};
+use crate::gpu::{
+    Access, Bind, BindingKind, ComputePipeline, Context, Frame, Image, PipelineCache, PipelineDesc,
+};
+use crate::passes::lines::{LineExtractor, LineRequest, LineState, RasterView};
 use crate::render::style::{Abstraction, EdgeKind, Style, StyleParams};
 use crate::render::targets::{PostTargets, TargetImages, TargetLayers};
 use crate::volume::lines::{Eye, LineParams};
@@ -29,7 +31,10 @@ use std::sync::Arc;
 /// edge image before the style composite.
 pub struct LinesDraw<'a> {
     pub extractor: &'a LineExtractor,
-    pub buffer: &'a LineBuffer,
+    /// Where the extraction's per-kind pipelines are built and kept.
+    pub pipelines: &'a mut PipelineCache,
+    /// The view's segment buffer and traversal state.
+    pub state: &'a mut LineState,
     /// The normalised volume texture.
     pub volume: &'a Image,
     pub dims: [usize; 3],
@@ -67,27 +72,29 @@ pub use crate::render::targets::HYSTERESIS_PASSES;
 /// The post pipelines.
 pub struct Post {
     ctx: Arc<Context>,
-    luminance: ComputePipeline,
-    blur: ComputePipeline,
-    gradient: ComputePipeline,
-    sobel: ComputePipeline,
-    dog: ComputePipeline,
-    canny: ComputePipeline,
-    hysteresis: ComputePipeline,
-    kuwahara: ComputePipeline,
-    saturation: ComputePipeline,
-    composite: ComputePipeline,
+    luminance: Arc<ComputePipeline>,
+    blur: Arc<ComputePipeline>,
+    gradient: Arc<ComputePipeline>,
+    sobel: Arc<ComputePipeline>,
+    dog: Arc<ComputePipeline>,
+    canny: Arc<ComputePipeline>,
+    hysteresis: Arc<ComputePipeline>,
+    kuwahara: Arc<ComputePipeline>,
+    saturation: Arc<ComputePipeline>,
+    composite: Arc<ComputePipeline>,
 }
 
 impl Post {
-    /// Builds the pipelines.
-    pub fn new(ctx: &Arc<Context>) -> Result<Self> {
+    /// Takes the pipelines from `pipelines`, building those it does not hold.
+    pub fn new(pipelines: &mut PipelineCache) -> Result<Self> {
         use BindingKind::*;
         let push = std::mem::size_of::<PostPush>() as u32;
-        let p = |shader: &str, b: &[BindingKind]| ComputePipeline::new(ctx, shader, b, push);
+        let ctx = pipelines.context().clone();
+        let mut p =
+            |shader: &str, b: &[BindingKind]| pipelines.get(&PipelineDesc::new(shader, b, push));
         let two = [StorageImage, StorageImage];
         Ok(Post {
-            ctx: ctx.clone(),
+            ctx,
             luminance: p("post/luminance.comp", &two)?,
             blur: p("post/blur.comp", &two)?,
             gradient: p("post/gradient.comp", &two)?,
@@ -108,7 +115,7 @@ impl Post {
     /// ending with the styled image in `layers.composite`: edges, lines, abstraction, composite.
     pub fn record(
         &self,
-        frame: &mut crate::gpu::Frame,
+        frame: &mut Frame,
         style: &Style,
         layers: &TargetImages,
         post: &PostTargets,
@@ -133,21 +140,20 @@ impl Post {
             layers: l,
             post,
         };
-        let profiler = &mut *frame.profiler;
         let edge_offset = match style.def.edges {
-            Some(kind) => self.record_edges(&s, profiler, kind, &style.params)?,
+            Some(kind) => self.record_edges(&s, frame, kind, &style.params)?,
             None => 0,
         };
         let has_lines = lines.is_some();
         if let Some(d) = lines {
-            self.record_lines(&s, profiler, d, style.def.edges.is_none(), edge_offset)?;
+            self.record_lines(&s, frame, d, style.def.edges.is_none(), edge_offset)?;
         }
         let context = match style.def.abstraction {
             None => &l.context,
-            Some(a) => self.record_abstraction(&s, profiler, a, &style.params)?,
+            Some(a) => self.record_abstraction(&s, frame, a, &style.params)?,
         };
         let with_edges = style.def.edges.is_some() || has_lines;
-        profiler.pass(s.cmd, "style_composite", |_| {
+        frame.profiler.pass(s.cmd, "style_composite", |_| {
             self.record_composite(
                 &s,
                 style,
@@ -182,12 +188,12 @@ impl Post {
     fn blur(
         &self,
         s: &Step,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         src: &Image,
         dst: &Image,
         sigma: f32,
     ) -> Result<()> {
-        profiler.pass(s.cmd, "blur", |_| -> Result<()> {
+        frame.profiler.pass(s.cmd, "blur", |_| -> Result<()> {
             let mut push = s.base;
             push.params[0] = sigma;
             self.run(s, &self.blur, &[src], &s.post.tmp, push)?;
@@ -201,12 +207,12 @@ impl Post {
     fn record_edges(
         &self,
         s: &Step,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         kind: EdgeKind,
         p: &StyleParams,
     ) -> Result<i32> {
         let (cmd, post, base) = (s.cmd, s.post, s.base);
-        profiler.pass(cmd, "luminance", |_| {
+        frame.profiler.pass(cmd, "luminance", |_| {
             self.run(
                 s,
                 &self.luminance,
@@ -216,22 +222,22 @@ impl Post {
             )
         })?;
         match kind {
-            EdgeKind::Sobel => profiler.pass(cmd, "sobel", |_| -> Result<()> {
+            EdgeKind::Sobel => frame.profiler.pass(cmd, "sobel", |_| -> Result<()> {
                 self.run(s, &self.gradient, &[&post.luminance], &post.gradient, base)?;
                 let mut push = base;
                 push.params[0] = p.sobel_threshold;
                 self.run(s, &self.sobel, &[&post.gradient], &post.edges, push)
             })?,
             EdgeKind::Dog => {
-                self.blur(s, profiler, &post.luminance, &post.blur_a, p.dog_sigma)?;
+                self.blur(s, frame, &post.luminance, &post.blur_a, p.dog_sigma)?;
                 self.blur(
                     s,
-                    profiler,
+                    frame,
                     &post.luminance,
                     &post.blur_b,
                     p.dog_k * p.dog_sigma,
                 )?;
-                profiler.pass(cmd, "dog", |_| {
+                frame.profiler.pass(cmd, "dog", |_| {
                     let mut push = base;
                     push.params = [p.dog_tau, p.dog_threshold, p.dog_phi, 0.0];
                     self.run(
@@ -244,14 +250,14 @@ impl Post {
                 })?;
             }
             EdgeKind::Canny => {
-                self.blur(s, profiler, &post.luminance, &post.blur_a, p.canny_sigma)?;
-                profiler.pass(cmd, "canny", |_| -> Result<()> {
+                self.blur(s, frame, &post.luminance, &post.blur_a, p.canny_sigma)?;
+                frame.profiler.pass(cmd, "canny", |_| -> Result<()> {
                     self.run(s, &self.gradient, &[&post.blur_a], &post.gradient, base)?;
                     let mut push = base;
                     push.params = [p.canny_high, p.canny_high * p.canny_low_ratio, 0.0, 0.0];
                     self.run(s, &self.canny, &[&post.gradient], &post.edges, push)
                 })?;
-                profiler.pass(cmd, "hysteresis", |_| {
+                frame.profiler.pass(cmd, "hysteresis", |_| {
                     self.record_hysteresis(cmd, post, base)
                 })?;
                 return Ok(1);
@@ -265,7 +271,7 @@ impl Post {
     fn record_lines(
         &self,
         s: &Step,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         d: LinesDraw,
         alone: bool,
         edge_offset: i32,
@@ -291,9 +297,15 @@ impl Post {
                 )
             };
         }
-        d.extractor.record(
-            cmd, profiler, d.volume, d.dims, d.spacing, d.eye, &d.params, None, d.buffer,
-        )?;
+        let request = LineRequest {
+            values: d.volume,
+            dims: d.dims,
+            spacing: d.spacing,
+            eye: d.eye,
+            params: d.params,
+            hessian: None,
+        };
+        d.extractor.record(frame, d.pipelines, d.state, &request)?;
         let view = RasterView {
             // Canny's edge image holds classes: 2 is an edge, 1 a candidate the composite
             // draws as none; a line pixel of coverage c is 1 + c there.
@@ -302,9 +314,8 @@ impl Post {
             ..d.view
         };
         d.extractor.record_raster(
-            cmd,
-            profiler,
-            d.buffer,
+            frame,
+            &d.state.buffer,
             &view,
             &s.layers.focus_depth,
             &post.edges,
@@ -315,7 +326,7 @@ impl Post {
     fn record_abstraction<'a>(
         &self,
         s: &Step<'a>,
-        profiler: &mut Profiler,
+        frame: &mut Frame,
         a: Abstraction,
         p: &StyleParams,
     ) -> Result<&'a Image> {
@@ -325,7 +336,7 @@ impl Post {
         };
         push.size_mode[3] = p.kuwahara_radius as i32;
         push.params[0] = p.saturation;
-        profiler.pass(s.cmd, name, |_| {
+        frame.profiler.pass(s.cmd, name, |_| {
             self.run(s, pipeline, &[&s.layers.context], &s.post.context, push)
         })?;
         Ok(&s.post.context)

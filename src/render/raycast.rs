@@ -34,8 +34,11 @@
 //! the wood-grain rings that regular slicing leaves on opaque surfaces into fine noise. Off by
 //! default, so that images match the slicer.
 
-use crate::error::{Error, Result};
-use crate::gpu::{self, Access, Bind, BindingKind, BufferSlice, ComputePipeline, Context, Image};
+use crate::error::Result;
+use crate::gpu::{
+    self, Access, Bind, BindingKind, BufferSlice, ComputePipeline, Image, PipelineCache,
+    PipelineDesc,
+};
 use crate::render::shading::{SliceUniforms, SHADE_BINDINGS};
 use crate::render::targets::TargetLayers;
 pub use crate::render::view::{RayOptions, Sampling};
@@ -146,45 +149,35 @@ pub struct RayRequest<'a> {
     pub size: [u32; 2],
 }
 
-/// The ray caster: its pipelines, one per variant, built when a frame first needs one and kept.
-/// At most 256 exist; a session uses a handful.
-pub struct RayCaster {
-    ctx: Arc<Context>,
-    built: std::sync::Mutex<std::collections::HashMap<Variant, Arc<ComputePipeline>>>,
-}
+/// The ray caster. Its pipelines, one per variant, live in the caller's [`PipelineCache`]: built
+/// when a frame first needs one and kept. At most 256 exist; a session uses a handful.
+#[derive(Copy, Clone, Debug, Default)]
+pub struct RayCaster;
 
 impl RayCaster {
-    /// A ray caster with no pipeline built yet.
-    pub fn new(ctx: &Arc<Context>) -> Self {
-        RayCaster {
-            ctx: ctx.clone(),
-            built: Default::default(),
-        }
-    }
-
     /// The pipeline of `variant`, built on first use.
-    pub fn get(&self, variant: Variant) -> Result<Arc<ComputePipeline>> {
-        let mut built = self
-            .built
-            .lock()
-            .map_err(|_| Error::Invalid("the ray caster's pipeline cache was poisoned".into()))?;
-        if let Some(p) = built.get(&variant) {
-            return Ok(p.clone());
-        }
-        let p = Arc::new(ComputePipeline::with_constants(
-            &self.ctx,
-            "render/raycast.comp",
-            &RAY_BINDINGS,
-            std::mem::size_of::<RayPush>() as u32,
-            &[variant.0],
-        )?);
-        built.insert(variant, p.clone());
-        Ok(p)
+    pub fn pipeline(
+        pipelines: &mut PipelineCache,
+        variant: Variant,
+    ) -> Result<Arc<ComputePipeline>> {
+        pipelines.get(
+            &PipelineDesc::new(
+                "render/raycast.comp",
+                &RAY_BINDINGS,
+                std::mem::size_of::<RayPush>() as u32,
+            )
+            .constants(&[variant.0]),
+        )
     }
 
     /// Pass `raycast`: one dispatch writing every layer (or the one-pass composite) as storage
     /// images.
-    pub fn record(&self, frame: &mut gpu::Frame, r: &RayRequest) -> Result<()> {
+    pub fn record(
+        &self,
+        frame: &mut gpu::Frame,
+        pipelines: &mut PipelineCache,
+        r: &RayRequest,
+    ) -> Result<()> {
         let cmd = frame.cmd;
         let out = |pick: fn(&TargetLayers) -> &Image| r.layers.map_or(r.composite, pick);
         let images = [
@@ -201,7 +194,7 @@ impl RayCaster {
         binds.extend(images.map(Bind::StorageImage));
         binds.push(Bind::StorageSlice(r.tables));
         let variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms);
-        let pipeline = self.get(variant)?;
+        let pipeline = Self::pipeline(pipelines, variant)?;
         let groups = crate::gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
         frame.profiler.begin(cmd, "raycast");
         pipeline.dispatch(cmd, &binds, &r.push, groups)?;

@@ -570,12 +570,11 @@ impl GpuScene {
         };
         let mut frames = Frames::new(ctx, &FramesDesc::one_shot("prepare scene", 16))?;
         let ((occlusion_image, importance_volume, spectrum_buffer), _) = frames.frame(|f| {
-            volume.record_upload(ctx, f.cmd, f.profiler, &staging);
-            normals.record(f.cmd, f.profiler, &volume)?;
+            volume.record_upload(ctx, f, &staging);
+            normals.record(f, &volume)?;
             let delta_d = match &importance {
                 Some(map) => Some(map.record_from_texture(
-                    f.cmd,
-                    f.profiler,
+                    f,
                     &volume,
                     normals.nearest(),
                     modulation.importance_radius,
@@ -584,14 +583,9 @@ impl GpuScene {
             };
             let image = match (&occlusion, &otf) {
                 (Some(occ), Some((_, p))) => {
-                    let input = occ.record_input_from_texture(
-                        f.cmd,
-                        f.profiler,
-                        &volume,
-                        normals.nearest(),
-                    )?;
+                    let input = occ.record_input_from_texture(f, &volume, normals.nearest())?;
                     let mut targets = occ.targets(&input, p)?;
-                    occ.record(f.cmd, f.profiler, &input, &targets, p)?;
+                    occ.record(f, &input, &targets, p)?;
                     // The input and work images drop here, mid-recording: their release is
                     // deferred until this frame completes (gpu/lifetime.rs).
                     let spectrum = targets.spectrum.take();

@@ -7,7 +7,8 @@
 use crate::error::{Error, Result};
 use crate::gpu::profiler::PassTime;
 use crate::gpu::transfer::{record_readback, staging_buffer};
-use crate::gpu::{Buffer, BufferDesc, Context, Image, ImageDesc};
+use crate::gpu::{Buffer, BufferDesc, Context, Frame, Image, ImageDesc};
+use crate::passes::lines::LineState;
 use ash::vk;
 use std::sync::Arc;
 
@@ -47,11 +48,68 @@ pub struct TargetImages {
     pub post: Option<PostTargets>,
 }
 
-/// Persistent targets, resized on demand.
+/// Persistent targets, resized on demand, and the view's state beside them.
 pub struct FrameTargets {
     ctx: Arc<Context>,
     images: Option<TargetImages>,
     two_level: bool,
+    state: ViewState,
+}
+
+/// What a view keeps between frames besides its images, as kajiya keeps temporal resources: the
+/// object-space lines' state (segment buffer, cell list, the seeded traversal's buffers and
+/// seed key) and the volume smoothed for them. Each part is made by the first frame that needs
+/// it; the renderer borrows it by `&mut` for one frame at a time.
+#[derive(Default)]
+pub struct ViewState {
+    /// From the first frame of a style with lines on.
+    pub lines: Option<LineState>,
+    smoothed: Option<Smoothed>,
+}
+
+/// A volume smoothed for line extraction: `VolumeTextures::id` of the source and the radius.
+struct Smoothed {
+    volume: u64,
+    radius: u32,
+    image: Image,
+}
+
+impl ViewState {
+    /// The lines' state, made with a buffer of `capacity` segments when this view has none yet,
+    /// and the copy of volume `volume` smoothed by `radius` when kept (never for radius 0).
+    pub fn lines_and_smoothed(
+        &mut self,
+        ctx: &Arc<Context>,
+        capacity: u32,
+        (volume, radius): (u64, u32),
+    ) -> Result<(&mut LineState, Option<&Image>)> {
+        if self.lines.is_none() {
+            self.lines = Some(LineState::new(ctx, capacity)?);
+        }
+        let smoothed = self
+            .smoothed
+            .as_ref()
+            .filter(|s| radius > 0 && s.volume == volume && s.radius == radius)
+            .map(|s| &s.image);
+        Ok((self.lines.as_mut().expect("made above"), smoothed))
+    }
+
+    /// Whether the copy of volume `volume` smoothed by `radius` is kept.
+    pub fn has_smoothed(&self, volume: u64, radius: u32) -> bool {
+        self.smoothed
+            .as_ref()
+            .is_some_and(|s| s.volume == volume && s.radius == radius)
+    }
+
+    /// Keeps `image`, the copy of volume `volume` smoothed by `radius`, in place of the last one
+    /// (which is released once the frames using it complete).
+    pub fn keep_smoothed(&mut self, volume: u64, radius: u32, image: Image) {
+        self.smoothed = Some(Smoothed {
+            volume,
+            radius,
+            image,
+        });
+    }
 }
 
 fn target(ctx: &Arc<Context>, name: &str, format: vk::Format, [w, h]: [u32; 2]) -> Result<Image> {
@@ -73,18 +131,19 @@ impl FrameTargets {
             ctx: ctx.clone(),
             images: None,
             two_level: false,
+            state: ViewState::default(),
         }
     }
 
     /// Makes sure the targets have `size`, with the two-level layers when `two_level` and the
     /// style passes' images when `styled`. Allocates only on a change of size or the first frame
-    /// that needs more.
+    /// that needs more. Returns the images and the view's state.
     pub fn ensure(
         &mut self,
         size: [u32; 2],
         two_level: bool,
         styled: bool,
-    ) -> Result<&TargetImages> {
+    ) -> Result<(&TargetImages, &mut ViewState)> {
         let ctx = &self.ctx;
         if self.images.as_ref().is_none_or(|i| i.size != size) {
             self.images = Some(TargetImages {
@@ -108,7 +167,12 @@ impl FrameTargets {
             images.post = Some(PostTargets::new(ctx, size)?);
         }
         self.two_level = two_level;
-        Ok(images)
+        Ok((images, &mut self.state))
+    }
+
+    /// The view's state: after a styled frame with lines, `lines.buffer` holds its segments.
+    pub fn state(&self) -> &ViewState {
+        &self.state
     }
 
     /// The images, once a frame has been recorded.
@@ -176,12 +240,13 @@ impl TargetsReadback {
         })
     }
 
-    /// Records the copies of the layers into the buffers.
-    pub fn record(&self, cmd: vk::CommandBuffer, targets: &FrameTargets) {
+    /// Records pass `readback`: the copies of the layers into the buffers.
+    pub fn record(&self, frame: &mut Frame, targets: &FrameTargets) {
         let Some(images) = targets.images() else {
             return;
         };
-        let ctx = &targets.ctx;
+        let (ctx, cmd) = (&targets.ctx, frame.cmd);
+        frame.profiler.begin(cmd, "readback");
         record_readback(ctx, cmd, &images.composite, &self.composite);
         if let (Some(b), Some(l)) = (&self.layers, &images.layers) {
             for (image, buffer) in [&l.focus_phong, &l.focus_diffuse, &l.focus_depth, &l.context]
@@ -191,6 +256,7 @@ impl TargetsReadback {
                 record_readback(ctx, cmd, image, buffer);
             }
         }
+        frame.profiler.end(cmd);
     }
 
     /// The composite and the layers, once the frame that recorded the copies has completed.
@@ -308,6 +374,9 @@ pub struct FrameImage {
     pub slices: u32,
     /// The geometry the frame's object-space lines were drawn with (styles with lines).
     pub lines: Option<crate::passes::lines::RasterView>,
+    /// Those lines' segments and how many were found (more than kept when the buffer
+    /// overflowed), when the frame was read back.
+    pub segments: Option<(Vec<crate::volume::lines::Segment>, u64)>,
 }
 
 impl FrameImage {

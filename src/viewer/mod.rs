@@ -11,6 +11,7 @@
 //! window's resolution and the present pass scales them up; [`REFINE_AFTER`] after the last
 //! change, one frame at full resolution follows and the loop goes idle until the next event.
 
+mod bench;
 mod ui;
 
 use crate::classify::transfer::TransferFunction;
@@ -29,6 +30,8 @@ use crate::render::targets::{FrameTargets, TargetsReadback};
 use crate::render::view::{frame_camera, View, WorldBox};
 use crate::volume::Volume;
 use ash::vk;
+use bench::BenchLog;
+pub use bench::BenchReport;
 use std::path::{Path, PathBuf};
 use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
@@ -62,25 +65,6 @@ pub struct ViewOptions {
     pub bench_frames: Option<u32>,
     /// Orbit at full resolution; otherwise at the interactive resolution of a drag.
     pub bench_full: bool,
-}
-
-/// Frame times of a `--bench` orbit.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct BenchReport {
-    pub device: String,
-    pub input: String,
-    pub size: [u32; 2],
-    /// "interactive" (adaptive quality while the camera moves) or "full".
-    pub quality: &'static str,
-    /// The size the volume was rendered at (the view's, or half of it while interacting).
-    pub render_size: [u32; 2],
-    pub frames: usize,
-    pub fps: f64,
-    pub p50_ms: f64,
-    pub p95_ms: f64,
-    pub p99_ms: f64,
-    /// Median GPU ms per pass over the orbit.
-    pub gpu_ms: Vec<(String, f64)>,
 }
 
 /// Opens the window and runs until it is closed. Returns the bench report in bench mode.
@@ -336,10 +320,8 @@ struct Running {
     timings_of: Option<u64>,
     /// When egui asked to draw again (its animations).
     egui_repaint_at: Option<Instant>,
-    frame_ms: Vec<f64>,
-    gpu_history: Vec<Vec<(String, f64)>>,
-    bench_left: Option<u32>,
-    bench_full: bool,
+    /// The `--bench` orbit's bookkeeping, in bench mode.
+    bench: Option<BenchLog>,
     errors_in_a_row: u32,
     window: Arc<Window>,
     ctx: Arc<Context>,
@@ -452,7 +434,7 @@ impl ApplicationHandler for App {
                     return;
                 }
                 if let Some(r) = self.running.as_mut() {
-                    if let Some(0) = r.bench_left {
+                    if r.bench.as_ref().is_some_and(|b| b.left == 0) {
                         self.report = Some(r.bench_report());
                         // With --screenshot-on-exit, the last view is written too.
                         self.close(event_loop);
@@ -481,8 +463,7 @@ impl ApplicationHandler for App {
         if r.model.scene != r.applied || r.model.tf != r.applied_tf {
             r.changed();
         }
-        let busy =
-            r.bench_left.is_some() || r.pending_load.is_some() || r.pending_occlusion.is_some();
+        let busy = r.bench.is_some() || r.pending_load.is_some() || r.pending_occlusion.is_some();
         let refine_at = r.last_change + REFINE_AFTER;
         if busy || r.model.requests.screenshot || Instant::now() < refine_at || !r.refined {
             r.window.request_redraw();
@@ -723,10 +704,7 @@ impl Running {
             last_rendered: None,
             timings_of: None,
             egui_repaint_at: None,
-            frame_ms: Vec::new(),
-            gpu_history: Vec::new(),
-            bench_left: opts.bench_frames,
-            bench_full: opts.bench_full,
+            bench: opts.bench_frames.map(|n| BenchLog::new(n, opts.bench_full)),
             errors_in_a_row: 0,
             window,
             ctx,
@@ -1179,7 +1157,7 @@ impl Running {
         }
         self.model.requests.screenshot = false;
         self.handle_requests();
-        if let Some(left) = self.bench_left.as_mut() {
+        if let Some(left) = self.bench.as_mut().map(|b| &mut b.left) {
             let c = &mut self.model.scene.camera;
             if c.azimuth.is_none() {
                 c.view = None;
@@ -1191,8 +1169,8 @@ impl Running {
         }
         self.apply()?;
         let full = self.screenshot.is_some()
-            || match self.bench_left {
-                Some(_) => self.bench_full,
+            || match &self.bench {
+                Some(b) => b.full,
                 None => self.last_change.elapsed() >= REFINE_AFTER,
             };
         let view_size = [ui.rect[2], ui.rect[3]];
@@ -1240,8 +1218,12 @@ impl Running {
         let readback_wanted = self.screenshot.is_some();
         let background = self.model.scene.background;
         let (mut readback, mut render_error) = (None, None);
-        let (ctx, renderer, gpu, targets) =
-            (&self.ctx, &self.renderer, &mut self.gpu, &mut self.targets);
+        let (ctx, renderer, gpu, targets) = (
+            &self.ctx,
+            &mut self.renderer,
+            &mut self.gpu,
+            &mut self.targets,
+        );
         let pass = PresentPass {
             swapchain: &self.swapchain,
             present: &self.present,
@@ -1261,8 +1243,7 @@ impl Running {
             let drawn = drawn.map_err(|e| render_error = Some(e)).is_ok();
             if drawn && readback_wanted {
                 let rb = TargetsReadback::new(ctx, targets)?;
-                f.profiler
-                    .pass(f.cmd, "readback", |cmd| rb.record(cmd, targets));
+                rb.record(f, targets);
                 readback = Some(rb);
             }
             let composite = targets.layer("composite").filter(|_| drawn);
@@ -1306,8 +1287,8 @@ impl Running {
         }
         if let Some(t) = self.last_present.replace(now) {
             let ms = (now - t).as_secs_f64() * 1e3;
-            if self.bench_left.is_some() {
-                self.frame_ms.push(ms);
+            if let Some(b) = &mut self.bench {
+                b.presented(ms);
             }
             if let Some(p) = &mut self.pending_occlusion {
                 p.frames += 1;
@@ -1318,14 +1299,12 @@ impl Running {
             if self.timings_of.is_some_and(|i| r.index >= i) {
                 self.timings_of = None;
             }
-            let passes: Vec<(String, f64)> =
-                r.passes.iter().map(|p| (p.name.clone(), p.ms)).collect();
-            if self.bench_left.is_some() {
-                self.gpu_history.push(passes.clone());
+            if let Some(b) = &mut self.bench {
+                b.completed(&r.passes);
             }
             // A frame that only presented the last render keeps that render's figures.
-            if !passes.is_empty() {
-                self.model.gpu_ms = passes;
+            if !r.passes.is_empty() {
+                self.model.gpu_ms = r.passes.iter().map(|p| (p.name.clone(), p.ms)).collect();
             }
         }
         if !self.pending_free.is_empty() {
@@ -1363,7 +1342,7 @@ impl Running {
             let [w, h] = rb.size();
             crate::output::write_png_rgb(&path, w, h, &to_rgb8(&pixels, drawn.background))?;
             // A bench's report owns standard output (it may be JSON).
-            match self.bench_left {
+            match self.bench {
                 Some(_) => eprintln!("screenshot: {}", path.display()),
                 None => println!("screenshot: {}", path.display()),
             }
@@ -1483,55 +1462,27 @@ impl Running {
     }
 
     fn bench_report(&self) -> BenchReport {
-        // The first frames compile pipelines and fill caches: leave out the first 5.
-        let mut ms: Vec<f64> = self.frame_ms.iter().skip(5).copied().collect();
-        ms.sort_by(f64::total_cmp);
-        let pct = |p: f64| {
-            if ms.is_empty() {
-                f64::NAN
-            } else {
-                ms[((p * (ms.len() - 1) as f64).round() as usize).min(ms.len() - 1)]
-            }
-        };
-        let mut names: Vec<String> = Vec::new();
-        for h in &self.gpu_history {
-            for (n, _) in h {
-                if !names.contains(n) {
-                    names.push(n.clone());
-                }
-            }
-        }
-        // Passes of the warm-up frames only (a one-off smoothing) have no figure to report.
-        let gpu_ms = names
-            .into_iter()
-            .filter_map(|n| {
-                let mut v: Vec<f64> = self
-                    .gpu_history
-                    .iter()
-                    .skip(5)
-                    .filter_map(|h| h.iter().find(|(k, _)| *k == n).map(|(_, ms)| *ms))
-                    .collect();
-                v.sort_by(f64::total_cmp);
-                v.get(v.len() / 2).map(|&med| (n, med))
-            })
-            .collect();
-        let mean = ms.iter().sum::<f64>() / ms.len().max(1) as f64;
-        BenchReport {
+        let base = BenchReport {
             device: self.ctx.info.name.clone(),
             input: self.model.scene.input.path.clone(),
             size: self.view_size(),
-            quality: if self.bench_full {
-                "full"
-            } else {
-                "interactive"
+            quality: match self.bench.as_ref().is_some_and(|b| b.full) {
+                true => "full",
+                false => "interactive",
             },
             render_size: self.model.render_size,
-            frames: ms.len(),
-            fps: 1e3 / mean,
-            p50_ms: pct(0.5),
-            p95_ms: pct(0.95),
-            p99_ms: pct(0.99),
-            gpu_ms,
+            frames: 0,
+            frames_presented: 0,
+            fps: f64::NAN,
+            p50_ms: f64::NAN,
+            p95_ms: f64::NAN,
+            p99_ms: f64::NAN,
+            gpu_ms: Vec::new(),
+            rss_kib: Vec::new(),
+        };
+        match &self.bench {
+            Some(b) => b.report(base),
+            None => base,
         }
     }
 }

@@ -221,7 +221,6 @@ pub fn extract(
         .collect()
 }
 
-#[allow(clippy::too_many_arguments)]
 fn cell(
     at: &dyn Fn(i64, i64, i64) -> f32,
     c: [i64; 3],

@@ -173,7 +173,7 @@ pub fn styled_frame(
         fit: false,
         raycast: None,
     };
-    let renderer = Renderer::new(ctx).unwrap();
+    let mut renderer = Renderer::new(ctx).unwrap();
     let mut targets = vellum::render::targets::FrameTargets::new(ctx);
     let mut frames =
         vellum::gpu::Frames::new(ctx, &vellum::gpu::FramesDesc::one_shot("styled", 32)).unwrap();

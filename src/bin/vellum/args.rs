@@ -111,36 +111,7 @@ pub(crate) enum Command {
     /// two-level frame (PNG) and written as vector paths of their visible parts (SVG).
     Lines(Box<LinesArgs>),
     /// Ambient-occlusion volume and occlusion spectrum (SPEC OS1-OS3).
-    Occlusion {
-        #[command(flatten)]
-        input: InputArgs,
-        /// Neighbourhood radius R in voxels.
-        #[arg(long, default_value_t = 16)]
-        radius: u32,
-        /// Visibility mapping: ramp, truncated:T0,T1 (fractions of the data range), gaussian, tf:FILE.json.
-        #[arg(long, default_value = "ramp")]
-        mapping: String,
-        /// Output resolution: one occlusion voxel per STRIDE³ input voxels (exact at the voxel it samples).
-        #[arg(long, default_value_t = 1)]
-        stride: u32,
-        /// Write the occlusion volume as a float volume (.nrrd, .nii or .nii.gz).
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Write the spectrum as a log-scaled PNG with axes.
-        #[arg(long)]
-        spectrum: Option<PathBuf>,
-        /// Write the spectrum as CSV.
-        #[arg(long)]
-        spectrum_data: Option<PathBuf>,
-        /// Spectrum bins along intensity and occlusion.
-        #[arg(long, default_value_t = 256)]
-        bins: u32,
-        /// How the neighbourhood sum is computed: auto (a measured cost model), runs (direct sums on the GPU), fft-gpu or fft-cpu (FFT convolution, a cost that does not grow with the radius).
-        #[arg(long, default_value = "auto")]
-        method: String,
-        #[arg(long)]
-        json: bool,
-    },
+    Occlusion(OcclusionArgs),
     /// Adaptive mapping selection (SPEC OS6): the truncated ramp that best separates an interval.
     OcclusionSelect {
         #[command(flatten)]
@@ -159,34 +130,7 @@ pub(crate) enum Command {
         json: bool,
     },
     /// Variance of occlusion per intensity band against the radius (SPEC OS7).
-    OcclusionSensitivity {
-        #[command(flatten)]
-        input: InputArgs,
-        /// Radii in voxels.
-        #[arg(
-            long,
-            value_delimiter = ',',
-            default_value = "4,8,16,32,64",
-            allow_hyphen_values = true
-        )]
-        radii: Vec<u32>,
-        /// Intensity bands.
-        #[arg(long, default_value_t = 8)]
-        bands: usize,
-        /// Output stride; 0 picks 1 when an FFT method serves the largest radius, else the largest radius / 16 (at least 1).
-        #[arg(long, default_value_t = 0)]
-        stride: u32,
-        /// How the neighbourhood sum is computed: auto (a measured cost model), runs (direct sums on the GPU), fft-gpu or fft-cpu (FFT convolution, a cost that does not grow with the radius).
-        #[arg(long, default_value = "auto")]
-        method: String,
-
-        /// The plot (PNG).
-        #[arg(long)]
-        out: PathBuf,
-        /// The data (CSV).
-        #[arg(long)]
-        csv: Option<PathBuf>,
-    },
+    OcclusionSensitivity(SensitivityArgs),
     /// Migrate a segmented feature into a private density interval (feature maps, SPEC FM1-FM5).
     Migrate(crate::features::MigrateArgs),
     /// Print the tree of a feature map (features.json).
@@ -237,6 +181,70 @@ pub(crate) struct RenderArgs {
     pub(crate) exr: Option<PathBuf>,
     #[arg(long)]
     pub(crate) json: bool,
+}
+
+/// `vellum occlusion`: the flags.
+#[derive(Args)]
+pub(crate) struct OcclusionArgs {
+    #[command(flatten)]
+    pub(crate) input: InputArgs,
+    /// Neighbourhood radius R in voxels.
+    #[arg(long, default_value_t = 16)]
+    pub(crate) radius: u32,
+    /// Visibility mapping: ramp, truncated:T0,T1 (fractions of the data range), gaussian, tf:FILE.json.
+    #[arg(long, default_value = "ramp")]
+    pub(crate) mapping: String,
+    /// Output resolution: one occlusion voxel per STRIDE³ input voxels (exact at the voxel it samples).
+    #[arg(long, default_value_t = 1)]
+    pub(crate) stride: u32,
+    /// Write the occlusion volume as a float volume (.nrrd, .nii or .nii.gz).
+    #[arg(long)]
+    pub(crate) out: Option<PathBuf>,
+    /// Write the spectrum as a log-scaled PNG with axes.
+    #[arg(long)]
+    pub(crate) spectrum: Option<PathBuf>,
+    /// Write the spectrum as CSV.
+    #[arg(long)]
+    pub(crate) spectrum_data: Option<PathBuf>,
+    /// Spectrum bins along intensity and occlusion.
+    #[arg(long, default_value_t = 256)]
+    pub(crate) bins: u32,
+    /// How the neighbourhood sum is computed: auto (a measured cost model), runs (direct sums on the GPU), fft-gpu or fft-cpu (FFT convolution, a cost that does not grow with the radius).
+    #[arg(long, default_value = "auto")]
+    pub(crate) method: String,
+    #[arg(long)]
+    pub(crate) json: bool,
+}
+
+/// `vellum occlusion-sensitivity`: the flags.
+#[derive(Args)]
+pub(crate) struct SensitivityArgs {
+    #[command(flatten)]
+    pub(crate) input: InputArgs,
+    /// Radii in voxels.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "4,8,16,32,64",
+        allow_hyphen_values = true
+    )]
+    pub(crate) radii: Vec<u32>,
+    /// Intensity bands.
+    #[arg(long, default_value_t = 8)]
+    pub(crate) bands: usize,
+    /// Output stride; 0 picks 1 when an FFT method serves the largest radius, else the largest radius / 16 (at least 1).
+    #[arg(long, default_value_t = 0)]
+    pub(crate) stride: u32,
+    /// How the neighbourhood sum is computed: auto (a measured cost model), runs (direct sums on the GPU), fft-gpu or fft-cpu (FFT convolution, a cost that does not grow with the radius).
+    #[arg(long, default_value = "auto")]
+    pub(crate) method: String,
+
+    /// The plot (PNG).
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+    /// The data (CSV).
+    #[arg(long)]
+    pub(crate) csv: Option<PathBuf>,
 }
 
 /// `vellum lines`: the render flags, a kind of line, and the SVG.

@@ -18,7 +18,9 @@
 
 use super::{check_pad, reach, Denominator, Kernel};
 use crate::error::{Error, Result};
-use crate::gpu::{Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Image, ImageDesc};
+use crate::gpu::{
+    Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Frame, Image, ImageDesc,
+};
 use ash::vk;
 use std::cell::Cell;
 use std::sync::Arc;
@@ -328,17 +330,19 @@ impl FftGpu {
 
     /// Records `fft_x` and the forward `fft_y` into the half spectrum: of the kernel (`mode` 1 or
     /// 2, every row live) or of M (`mode` 0, rows and planes beyond the volume left unwritten).
-    #[allow(clippy::too_many_arguments)]
     fn forward_xy(
         &self,
         cmd: vk::CommandBuffer,
         w: &FftWork,
-        intensity: &Image,
-        visibility: &Buffer,
-        mapping: &Mapping,
+        input: &MappedInput,
         mode: i32,
         live: [usize; 3],
     ) -> Result<()> {
+        let MappedInput {
+            intensity,
+            visibility,
+            mapping,
+        } = *input;
         let s = &w.spectrum;
         let live = live.map(|d| d as i32);
         let half = (w.pad[0] / 2 + 1) as u32;
@@ -405,17 +409,22 @@ impl FftGpu {
     /// 256-entry opacity table of the tf mapping (bound for every mapping).
     pub fn record(
         &self,
-        cmd: vk::CommandBuffer,
+        frame: &mut Frame,
         work: &FftWork,
         intensity: &Image,
         visibility: &Buffer,
         mapping: &Mapping,
         occlusion: &Image,
     ) -> Result<()> {
-        let w = work;
+        let (cmd, w) = (frame.cmd, work);
         let half = (w.pad[0] / 2 + 1) as u32;
         let out = w.dims.map(|d| d.div_ceil(w.stride) as u32);
         let (k, res) = (&w.kernel_hat, &w.result);
+        let input = MappedInput {
+            intensity,
+            visibility,
+            mapping,
+        };
         intensity.transition(cmd, Access::ComputeRead);
         if !w.kernel_ready.get() {
             // Kernel: every row may hold weight, so nothing is pruned.
@@ -423,7 +432,7 @@ impl FftGpu {
                 Kernel::Ball(_) => 1,
                 Kernel::Gaussian(_) => 2,
             };
-            self.forward_xy(cmd, w, intensity, visibility, mapping, mode, w.pad)?;
+            self.forward_xy(cmd, w, &input, mode, w.pad)?;
             k.discard();
             k.transition(cmd, Access::ComputeWrite);
             res.transition(cmd, Access::ComputeWrite);
@@ -431,7 +440,7 @@ impl FftGpu {
             w.kernel_ready.set(true);
         }
         // Data: rows and planes beyond the volume are zero and never touched.
-        self.forward_xy(cmd, w, intensity, visibility, mapping, 0, w.dims)?;
+        self.forward_xy(cmd, w, &input, 0, w.dims)?;
         k.transition(cmd, Access::ComputeRead);
         res.discard();
         res.transition(cmd, Access::ComputeWrite);
@@ -462,6 +471,15 @@ impl FftGpu {
             [out[1].div_ceil(2), out[2], 1],
         )
     }
+}
+
+/// The input of the forward transforms: the normalised intensity, the tf mapping's visibility
+/// table and the mapping that turns one into M.
+#[derive(Copy, Clone)]
+struct MappedInput<'a> {
+    intensity: &'a Image,
+    visibility: &'a Buffer,
+    mapping: &'a Mapping,
 }
 
 #[cfg(test)]

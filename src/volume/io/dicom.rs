@@ -264,8 +264,8 @@ fn check_lengths(bytes: &[u8]) -> std::result::Result<(), String> {
     Ok(())
 }
 
-/// Parses one file; `None` when it is not DICOM (and not named `.dcm`) or holds no image.
-fn read_slice(path: &Path) -> Result<Option<Slice>> {
+/// Parses one file as a DICOM object; `None` when it is not DICOM and not named `.dcm`.
+fn parse(path: &Path) -> Result<Option<DefaultDicomObject>> {
     let is_dcm = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("dcm"));
@@ -283,16 +283,110 @@ fn read_slice(path: &Path) -> Result<Option<Slice>> {
         Some(at) => dicom_object::from_reader(&bytes[at..]),
         None => dicom_object::open_file(path),
     };
-    drop(bytes);
-    let obj = match parsed {
-        Ok(obj) => obj,
-        Err(e) if is_dcm => {
+    match parsed {
+        Ok(obj) => Ok(Some(obj)),
+        Err(e) if is_dcm => Err(Error::format(
+            path,
+            format!("file could not be parsed as DICOM ({e}); expected a DICOM slice"),
+        )),
+        Err(_) => Ok(None),
+    }
+}
+
+/// The elements of one parsed file, read with messages that name the file and the element.
+struct Fields<'a> {
+    obj: &'a DefaultDicomObject,
+    path: &'a Path,
+}
+
+impl Fields<'_> {
+    fn int(&self, tag: Tag, name: &str) -> Result<Option<i64>> {
+        element(self.obj, tag)
+            .map(|e| e.to_int::<i64>())
+            .transpose()
+            .map_err(|_| {
+                Error::format(
+                    self.path,
+                    format!("{name} is not a whole number; expected one"),
+                )
+            })
+    }
+
+    fn floats(&self, tag: Tag, name: &str, n: usize) -> Result<Option<Vec<f64>>> {
+        match element(self.obj, tag).map(|e| e.to_multi_float64()) {
+            None => Ok(None),
+            Some(Ok(v)) if v.len() == n => Ok(Some(v)),
+            Some(_) => Err(Error::format(
+                self.path,
+                format!("{name} is malformed; expected {n} numbers"),
+            )),
+        }
+    }
+
+    fn required(&self, tag: Tag, name: &str) -> Result<i64> {
+        self.int(tag, name)?.ok_or_else(|| {
+            Error::format(
+                self.path,
+                format!("{name} is missing; expected it in every image slice"),
+            )
+        })
+    }
+
+    /// Rows, columns, bits allocated and stored, and whether pixels are signed: a single-frame
+    /// grey image of 8 or 16 bits.
+    fn pixel_layout(&self) -> Result<(usize, usize, u16, u16, bool)> {
+        let path = self.path;
+        let rows = self.required(tags::ROWS, "Rows")?;
+        let cols = self.required(tags::COLUMNS, "Columns")?;
+        let bits_allocated = self.required(tags::BITS_ALLOCATED, "BitsAllocated")?;
+        let bits_stored = self
+            .int(tags::BITS_STORED, "BitsStored")?
+            .unwrap_or(bits_allocated);
+        let signed = self.int(tags::PIXEL_REPRESENTATION, "PixelRepresentation")? == Some(1);
+        let samples = self
+            .int(tags::SAMPLES_PER_PIXEL, "SamplesPerPixel")?
+            .unwrap_or(1);
+        let frames = self
+            .int(tags::NUMBER_OF_FRAMES, "NumberOfFrames")?
+            .unwrap_or(1);
+        if bits_allocated != 8 && bits_allocated != 16 {
             return Err(Error::format(
                 path,
-                format!("file could not be parsed as DICOM ({e}); expected a DICOM slice"),
-            ))
+                format!("BitsAllocated is {bits_allocated}; expected 8 or 16"),
+            ));
         }
-        Err(_) => return Ok(None),
+        if !(1..=bits_allocated).contains(&bits_stored) {
+            return Err(Error::format(
+                path,
+                format!("BitsStored is {bits_stored}; expected 1 to {bits_allocated}"),
+            ));
+        }
+        if samples != 1 || frames != 1 {
+            return Err(Error::format(
+                path,
+                format!("slice has {samples} samples per pixel and {frames} frames; expected a single-frame grey image"),
+            ));
+        }
+        if rows <= 0 || cols <= 0 {
+            return Err(Error::format(
+                path,
+                format!("image is {cols}x{rows}; expected positive Rows and Columns"),
+            ));
+        }
+        Ok((
+            rows as usize,
+            cols as usize,
+            bits_allocated as u16,
+            bits_stored as u16,
+            signed,
+        ))
+    }
+}
+
+/// Parses one file; `None` when it is not DICOM (and not named `.dcm`) or holds no image.
+fn read_slice(path: &Path) -> Result<Option<Slice>> {
+    let Some(obj) = parse(path)? else {
+        return Ok(None);
     };
     let ts = obj.meta().transfer_syntax();
     let Some(&(_, _, big_endian)) = SUPPORTED.iter().find(|(uid, _, _)| *uid == ts) else {
@@ -307,65 +401,8 @@ fn read_slice(path: &Path) -> Result<Option<Slice>> {
     let Some(pixel_data) = element(&obj, tags::PIXEL_DATA) else {
         return Ok(None);
     };
-    let int = |tag, name: &str| -> Result<Option<i64>> {
-        element(&obj, tag)
-            .map(|e| e.to_int::<i64>())
-            .transpose()
-            .map_err(|_| Error::format(path, format!("{name} is not a whole number; expected one")))
-    };
-    let floats = |tag, name: &str, n: usize| -> Result<Option<Vec<f64>>> {
-        match element(&obj, tag).map(|e| e.to_multi_float64()) {
-            None => Ok(None),
-            Some(Ok(v)) if v.len() == n => Ok(Some(v)),
-            Some(_) => Err(Error::format(
-                path,
-                format!("{name} is malformed; expected {n} numbers"),
-            )),
-        }
-    };
-    let required = |tag, name: &str| {
-        int(tag, name)?.ok_or_else(|| {
-            Error::format(
-                path,
-                format!("{name} is missing; expected it in every image slice"),
-            )
-        })
-    };
-
-    let rows = required(tags::ROWS, "Rows")?;
-    let cols = required(tags::COLUMNS, "Columns")?;
-    let bits_allocated = required(tags::BITS_ALLOCATED, "BitsAllocated")?;
-    let bits_stored = int(tags::BITS_STORED, "BitsStored")?.unwrap_or(bits_allocated);
-    let signed = int(tags::PIXEL_REPRESENTATION, "PixelRepresentation")? == Some(1);
-    let samples = int(tags::SAMPLES_PER_PIXEL, "SamplesPerPixel")?.unwrap_or(1);
-    let frames = int(tags::NUMBER_OF_FRAMES, "NumberOfFrames")?.unwrap_or(1);
-    if bits_allocated != 8 && bits_allocated != 16 {
-        return Err(Error::format(
-            path,
-            format!("BitsAllocated is {bits_allocated}; expected 8 or 16"),
-        ));
-    }
-    if !(1..=bits_allocated).contains(&bits_stored) {
-        return Err(Error::format(
-            path,
-            format!("BitsStored is {bits_stored}; expected 1 to {bits_allocated}"),
-        ));
-    }
-    if samples != 1 || frames != 1 {
-        return Err(Error::format(
-            path,
-            format!("slice has {samples} samples per pixel and {frames} frames; expected a single-frame grey image"),
-        ));
-    }
-    if rows <= 0 || cols <= 0 {
-        return Err(Error::format(
-            path,
-            format!("image is {cols}x{rows}; expected positive Rows and Columns"),
-        ));
-    }
-    let (rows, cols) = (rows as usize, cols as usize);
-    let bits_allocated = bits_allocated as u16;
-
+    let f = Fields { obj: &obj, path };
+    let (rows, cols, bits_allocated, bits_stored, signed) = f.pixel_layout()?;
     let expected = rows * cols * bits_allocated as usize / 8;
     // OW data was decoded to native (little-endian) words; OB data keeps the file's byte order.
     let mut pixels = pixel_data
@@ -388,15 +425,18 @@ fn read_slice(path: &Path) -> Result<Option<Slice>> {
     }
     pixels.truncate(expected);
 
-    let position = floats(tags::IMAGE_POSITION_PATIENT, "ImagePositionPatient", 3)?
+    let position = f
+        .floats(tags::IMAGE_POSITION_PATIENT, "ImagePositionPatient", 3)?
         .map(|v| [v[0], v[1], v[2]]);
-    let orientation = floats(
-        tags::IMAGE_ORIENTATION_PATIENT,
-        "ImageOrientationPatient",
-        6,
-    )?
-    .map(|v| [v[0], v[1], v[2], v[3], v[4], v[5]]);
-    let pixel_spacing = floats(tags::PIXEL_SPACING, "PixelSpacing", 2)?
+    let orientation = f
+        .floats(
+            tags::IMAGE_ORIENTATION_PATIENT,
+            "ImageOrientationPatient",
+            6,
+        )?
+        .map(|v| [v[0], v[1], v[2], v[3], v[4], v[5]]);
+    let pixel_spacing = f
+        .floats(tags::PIXEL_SPACING, "PixelSpacing", 2)?
         .map(|v| [v[0].abs(), v[1].abs()])
         .filter(|s| s.iter().all(|x| x.is_finite() && *x > 0.0));
     let slice_spacing = [tags::SPACING_BETWEEN_SLICES, tags::SLICE_THICKNESS]
@@ -404,8 +444,12 @@ fn read_slice(path: &Path) -> Result<Option<Slice>> {
         .filter_map(|t| element(&obj, t)?.to_float64().ok())
         .map(f64::abs)
         .find(|s| s.is_finite() && *s > 0.0);
-    let slope = floats(tags::RESCALE_SLOPE, "RescaleSlope", 1)?.map_or(1.0, |v| v[0]);
-    let intercept = floats(tags::RESCALE_INTERCEPT, "RescaleIntercept", 1)?.map_or(0.0, |v| v[0]);
+    let slope = f
+        .floats(tags::RESCALE_SLOPE, "RescaleSlope", 1)?
+        .map_or(1.0, |v| v[0]);
+    let intercept = f
+        .floats(tags::RESCALE_INTERCEPT, "RescaleIntercept", 1)?
+        .map_or(0.0, |v| v[0]);
     if !(slope.is_finite() && intercept.is_finite()) {
         return Err(Error::format(
             path,
@@ -422,11 +466,11 @@ fn read_slice(path: &Path) -> Result<Option<Slice>> {
         rows,
         cols,
         bits_allocated,
-        bits_stored: bits_stored as u16,
+        bits_stored,
         signed,
         position,
         orientation,
-        instance: int(tags::INSTANCE_NUMBER, "InstanceNumber")?,
+        instance: f.int(tags::INSTANCE_NUMBER, "InstanceNumber")?,
         pixel_spacing,
         slice_spacing,
         slope,

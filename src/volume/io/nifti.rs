@@ -33,12 +33,59 @@ pub(super) fn read(path: &Path) -> Result<Volume> {
         .take(HEADER_BYTES as u64)
         .read_to_end(&mut head)
         .map_err(|e| read_error(path, compression, e))?;
-    let Ok(h) = <[u8; HEADER_BYTES]>::try_from(head) else {
+    let Ok(bytes) = <[u8; HEADER_BYTES]>::try_from(head) else {
         return Err(Error::format(
             path,
             "file ends inside the 348-byte NIfTI-1 header; expected a complete header",
         ));
     };
+    let h = Header {
+        big_endian: byte_order(path, &bytes)?,
+        bytes,
+    };
+    let dims = h.dims(path)?;
+    let n = voxel_count(path, dims)?;
+    let ty = file_type(path, h.i16_at(70))?;
+    let pixdim: [f32; 4] = std::array::from_fn(|i| h.f32_at(76 + 4 * i));
+    let spacing = [1, 2, 3].map(|i| match pixdim[i].abs() as f64 {
+        s if s.is_finite() && s > 0.0 => s,
+        _ => 1.0,
+    });
+    let geometry = h.geometry(path, &pixdim)?;
+    let vox_offset = h.f32_at(108);
+    if !(vox_offset >= HEADER_BYTES as f32 && vox_offset.fract() == 0.0) {
+        return Err(Error::format(
+            path,
+            format!("vox_offset is {vox_offset}; expected a whole number of at least 348"),
+        ));
+    }
+    let (slope, inter) = (h.f32_at(112), h.f32_at(116));
+
+    let skip = vox_offset as u64 - HEADER_BYTES as u64;
+    let bytes = read_payload(path, &mut src, compression, skip, n * ty.size())?;
+    let mut data = decode(path, ty, h.big_endian, &bytes)?;
+    if slope != 0.0 && slope.is_finite() && !(slope == 1.0 && inter == 0.0) {
+        let inter = if inter.is_finite() { inter as f64 } else { 0.0 };
+        let len = data.len();
+        data = VoxelData::F32(
+            (0..len)
+                .into_par_iter()
+                .map(|i| (data.get_f64(i) * slope as f64 + inter) as f32)
+                .collect(),
+        );
+    }
+    let v = build(path, dims, spacing, data)?;
+    match geometry {
+        Some(g) => v
+            .with_geometry(g)
+            .map_err(|e| Error::format(path, e.to_string())),
+        None => Ok(v),
+    }
+}
+
+/// The byte order of a NIfTI-1 header (true: big-endian), from `sizeof_hdr`, once the magic
+/// says it is a single-file NIfTI-1.
+fn byte_order(path: &Path, h: &[u8; HEADER_BYTES]) -> Result<bool> {
     let le = i32::from_le_bytes([h[0], h[1], h[2], h[3]]);
     let be = i32::from_be_bytes([h[0], h[1], h[2], h[3]]);
     let big_endian = match (le, be) {
@@ -58,130 +105,108 @@ pub(super) fn read(path: &Path) -> Result<Volume> {
         }
     };
     match &h[344..348] {
-        b"n+1\0" => {}
-        b"ni1\0" => {
-            return Err(Error::format(
-                path,
-                "file is half of a NIfTI-1 .hdr/.img pair, which is not supported; expected a single .nii or .nii.gz file",
-            ))
-        }
-        m => {
-            return Err(Error::format(
-                path,
-                format!("magic is {:?}; expected \"n+1\" (a single-file NIfTI-1)", String::from_utf8_lossy(m)),
-            ))
-        }
+        b"n+1\0" => Ok(big_endian),
+        b"ni1\0" => Err(Error::format(
+            path,
+            "file is half of a NIfTI-1 .hdr/.img pair, which is not supported; expected a single .nii or .nii.gz file",
+        )),
+        m => Err(Error::format(
+            path,
+            format!("magic is {:?}; expected \"n+1\" (a single-file NIfTI-1)", String::from_utf8_lossy(m)),
+        )),
     }
-    let i16_at = |o: usize| {
-        let b = [h[o], h[o + 1]];
-        if big_endian {
-            i16::from_be_bytes(b)
-        } else {
-            i16::from_le_bytes(b)
-        }
-    };
-    let f32_at = |o: usize| {
-        let b = [h[o], h[o + 1], h[o + 2], h[o + 3]];
-        if big_endian {
-            f32::from_be_bytes(b)
-        } else {
-            f32::from_le_bytes(b)
-        }
-    };
+}
 
-    let dim: Vec<i16> = (0..8).map(|i| i16_at(40 + 2 * i)).collect();
-    if !(3..=7).contains(&dim[0]) {
-        return Err(Error::format(
-            path,
-            format!(
-                "dim[0] is {}; expected a 3D volume (3 to 7 with extra sizes of 1)",
-                dim[0]
-            ),
-        ));
-    }
-    if let Some(i) = (4..=dim[0] as usize).find(|&i| dim[i] != 1) {
-        return Err(Error::format(
-            path,
-            format!("dim[{i}] is {}; expected a single 3D volume (every size past the third equal to 1)", dim[i]),
-        ));
-    }
-    if dim[1..4].iter().any(|&d| d < 0) {
-        return Err(Error::format(
-            path,
-            format!(
-                "dims {:?} are negative; expected positive sizes",
-                &dim[1..4]
-            ),
-        ));
-    }
-    let dims = [dim[1] as usize, dim[2] as usize, dim[3] as usize];
-    let n = voxel_count(path, dims)?;
+/// A NIfTI-1 header and its byte order.
+struct Header {
+    bytes: [u8; HEADER_BYTES],
+    big_endian: bool,
+}
 
-    let datatype = i16_at(70);
-    let ty = file_type(path, datatype)?;
-    let pixdim: Vec<f32> = (0..4).map(|i| f32_at(76 + 4 * i)).collect();
-    let spacing = [1, 2, 3].map(|i| match pixdim[i].abs() as f64 {
-        s if s.is_finite() && s > 0.0 => s,
-        _ => 1.0,
-    });
-    let (qform_code, sform_code) = (i16_at(252), i16_at(254));
-    let geometry = if sform_code > 0 {
-        let row = |o: usize| -> [f64; 4] { std::array::from_fn(|k| f32_at(o + 4 * k) as f64) };
-        let (x, y, z) = (row(280), row(296), row(312));
-        let axes = [0, 1, 2].map(|c| ras_to_lps([x[c], y[c], z[c]]));
-        Some(Geometry::lps(ras_to_lps([x[3], y[3], z[3]]), axes))
-    } else if qform_code > 0 {
-        let r = quaternion_matrix([f32_at(256) as f64, f32_at(260) as f64, f32_at(264) as f64]);
-        let qfac = if pixdim[0] < 0.0 { -1.0 } else { 1.0 };
-        let axes = [0, 1, 2].map(|k| {
-            let s = if k == 2 { qfac } else { 1.0 };
-            ras_to_lps([s * r[0][k], s * r[1][k], s * r[2][k]])
-        });
-        let origin = [f32_at(268) as f64, f32_at(272) as f64, f32_at(276) as f64];
-        Some(Geometry::lps(ras_to_lps(origin), axes))
-    } else {
-        if pixdim[1..4].iter().any(|&p| p < 0.0) {
+impl Header {
+    fn i16_at(&self, o: usize) -> i16 {
+        let b = [self.bytes[o], self.bytes[o + 1]];
+        match self.big_endian {
+            true => i16::from_be_bytes(b),
+            false => i16::from_le_bytes(b),
+        }
+    }
+
+    fn f32_at(&self, o: usize) -> f32 {
+        let b = [
+            self.bytes[o],
+            self.bytes[o + 1],
+            self.bytes[o + 2],
+            self.bytes[o + 3],
+        ];
+        match self.big_endian {
+            true => f32::from_be_bytes(b),
+            false => f32::from_le_bytes(b),
+        }
+    }
+
+    /// The volume's size: `dim[1..4]` of a 3D volume (any further sizes 1).
+    fn dims(&self, path: &Path) -> Result<[usize; 3]> {
+        let dim: Vec<i16> = (0..8).map(|i| self.i16_at(40 + 2 * i)).collect();
+        if !(3..=7).contains(&dim[0]) {
             return Err(Error::format(
                 path,
                 format!(
-                    "pixdims {:?} are negative while both qform_code and sform_code are 0; expected positive voxel sizes when no orientation is given",
-                    &pixdim[1..4]
+                    "dim[0] is {}; expected a 3D volume (3 to 7 with extra sizes of 1)",
+                    dim[0]
                 ),
             ));
         }
-        None
-    };
-    let geometry = geometry
-        .transpose()
-        .map_err(|e| Error::format(path, format!("the orientation is unusable: {e}")))?;
-    let vox_offset = f32_at(108);
-    if !(vox_offset >= HEADER_BYTES as f32 && vox_offset.fract() == 0.0) {
-        return Err(Error::format(
-            path,
-            format!("vox_offset is {vox_offset}; expected a whole number of at least 348"),
-        ));
+        if let Some(i) = (4..=dim[0] as usize).find(|&i| dim[i] != 1) {
+            return Err(Error::format(
+                path,
+                format!("dim[{i}] is {}; expected a single 3D volume (every size past the third equal to 1)", dim[i]),
+            ));
+        }
+        if dim[1..4].iter().any(|&d| d < 0) {
+            return Err(Error::format(
+                path,
+                format!(
+                    "dims {:?} are negative; expected positive sizes",
+                    &dim[1..4]
+                ),
+            ));
+        }
+        Ok([dim[1] as usize, dim[2] as usize, dim[3] as usize])
     }
-    let (slope, inter) = (f32_at(112), f32_at(116));
 
-    let skip = vox_offset as u64 - HEADER_BYTES as u64;
-    let bytes = read_payload(path, &mut src, compression, skip, n * ty.size())?;
-    let mut data = decode(path, ty, big_endian, &bytes)?;
-    if slope != 0.0 && slope.is_finite() && !(slope == 1.0 && inter == 0.0) {
-        let inter = if inter.is_finite() { inter as f64 } else { 0.0 };
-        let len = data.len();
-        data = VoxelData::F32(
-            (0..len)
-                .into_par_iter()
-                .map(|i| (data.get_f64(i) * slope as f64 + inter) as f32)
-                .collect(),
-        );
-    }
-    let v = build(path, dims, spacing, data)?;
-    match geometry {
-        Some(g) => v
-            .with_geometry(g)
-            .map_err(|e| Error::format(path, e.to_string())),
-        None => Ok(v),
+    /// The orientation in LPS: the sform when its code is set, else the qform, else none.
+    fn geometry(&self, path: &Path, pixdim: &[f32; 4]) -> Result<Option<Geometry>> {
+        let f = |o: usize| self.f32_at(o) as f64;
+        let (qform_code, sform_code) = (self.i16_at(252), self.i16_at(254));
+        let geometry = if sform_code > 0 {
+            let row = |o: usize| -> [f64; 4] { std::array::from_fn(|k| f(o + 4 * k)) };
+            let (x, y, z) = (row(280), row(296), row(312));
+            let axes = [0, 1, 2].map(|c| ras_to_lps([x[c], y[c], z[c]]));
+            Some(Geometry::lps(ras_to_lps([x[3], y[3], z[3]]), axes))
+        } else if qform_code > 0 {
+            let r = quaternion_matrix([f(256), f(260), f(264)]);
+            let qfac = if pixdim[0] < 0.0 { -1.0 } else { 1.0 };
+            let axes = [0, 1, 2].map(|k| {
+                let s = if k == 2 { qfac } else { 1.0 };
+                ras_to_lps([s * r[0][k], s * r[1][k], s * r[2][k]])
+            });
+            Some(Geometry::lps(ras_to_lps([f(268), f(272), f(276)]), axes))
+        } else {
+            if pixdim[1..4].iter().any(|&p| p < 0.0) {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "pixdims {:?} are negative while both qform_code and sform_code are 0; expected positive voxel sizes when no orientation is given",
+                        &pixdim[1..4]
+                    ),
+                ));
+            }
+            None
+        };
+        geometry
+            .transpose()
+            .map_err(|e| Error::format(path, format!("the orientation is unusable: {e}")))
     }
 }
 

@@ -43,15 +43,10 @@ pub(crate) fn output_paths(command: &Command) -> Vec<&Path> {
         Command::Importance { out, slices, .. } => all(&[out, slices]),
         Command::Render(a) => all(&[&a.out, &a.exr, &a.save_scene]),
         Command::Lines(a) => all(&[&a.render.out, &a.render.exr, &a.svg]),
-        Command::Occlusion {
-            out,
-            spectrum,
-            spectrum_data,
-            ..
-        } => all(&[out, spectrum, spectrum_data]),
-        Command::OcclusionSensitivity { out, csv, .. } => {
-            let mut v = all(&[csv]);
-            v.push(out.as_path());
+        Command::Occlusion(a) => all(&[&a.out, &a.spectrum, &a.spectrum_data]),
+        Command::OcclusionSensitivity(a) => {
+            let mut v = all(&[&a.csv]);
+            v.push(a.out.as_path());
             v
         }
         Command::Migrate(a) => a.outputs(),
@@ -112,30 +107,7 @@ pub(crate) fn run(cli: &Cli) -> Result<()> {
         ),
         Command::Render(args) => render(cli, args),
         Command::Lines(args) => lines(cli, args),
-        Command::Occlusion {
-            input,
-            radius,
-            mapping,
-            stride,
-            out,
-            spectrum,
-            spectrum_data,
-            bins,
-            method,
-            json,
-        } => occlusion(
-            cli,
-            input,
-            *radius,
-            mapping,
-            *stride,
-            out.as_deref(),
-            spectrum.as_deref(),
-            spectrum_data.as_deref(),
-            *bins,
-            method,
-            *json,
-        ),
+        Command::Occlusion(a) => occlusion(cli, a),
         Command::OcclusionSelect {
             input,
             interval,
@@ -144,24 +116,7 @@ pub(crate) fn run(cli: &Cli) -> Result<()> {
             method,
             json,
         } => occlusion_select(cli, input, interval, *radius, *stride, method, *json),
-        Command::OcclusionSensitivity {
-            input,
-            radii,
-            bands,
-            stride,
-            method,
-            out,
-            csv,
-        } => occlusion_sensitivity(
-            cli,
-            input,
-            radii,
-            *bands,
-            *stride,
-            method,
-            out,
-            csv.as_deref(),
-        ),
+        Command::OcclusionSensitivity(a) => occlusion_sensitivity(cli, a),
         Command::Styles(args) => styles(cli, args),
         Command::View(args) => view(cli, args),
         Command::Saliency {

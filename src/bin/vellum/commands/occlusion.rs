@@ -5,20 +5,14 @@ use crate::commands::{context, report_validation};
 use anyhow::{Context as _, Result};
 use serde_json::json;
 
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn occlusion(
-    cli: &Cli,
-    input: &InputArgs,
-    radius: u32,
-    mapping: &str,
-    stride: u32,
-    out: Option<&std::path::Path>,
-    spectrum_png: Option<&std::path::Path>,
-    spectrum_csv: Option<&std::path::Path>,
-    bins: u32,
-    method: &str,
-    json: bool,
-) -> Result<()> {
+pub(crate) fn occlusion(cli: &Cli, a: &OcclusionArgs) -> Result<()> {
+    let (input, radius, mapping, stride) = (&a.input, a.radius, a.mapping.as_str(), a.stride);
+    let (out, spectrum_png, spectrum_csv) = (
+        a.out.as_deref(),
+        a.spectrum.as_deref(),
+        a.spectrum_data.as_deref(),
+    );
+    let (bins, method, json) = (a.bins, a.method.as_str(), a.json);
     use vellum::passes::occlusion::{parse_mapping, Method, Occlusion, OcclusionParams};
     let (visibility, neighbourhood) = parse_mapping(mapping)?;
     let method = Method::parse(method)?;
@@ -147,17 +141,9 @@ pub(crate) fn occlusion_select(
     Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn occlusion_sensitivity(
-    cli: &Cli,
-    input: &InputArgs,
-    radii: &[u32],
-    bands: usize,
-    stride: u32,
-    method: &str,
-    out: &std::path::Path,
-    csv: Option<&std::path::Path>,
-) -> Result<()> {
+pub(crate) fn occlusion_sensitivity(cli: &Cli, a: &SensitivityArgs) -> Result<()> {
+    let (input, radii, bands, stride) = (&a.input, a.radii.as_slice(), a.bands, a.stride);
+    let (method, out, csv) = (a.method.as_str(), a.out.as_path(), a.csv.as_deref());
     use vellum::passes::occlusion::{Method, Neighbourhood, OcclusionParams};
     use vellum::volume::reference::occlusion::Visibility;
     anyhow::ensure!(

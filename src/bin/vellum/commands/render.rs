@@ -40,13 +40,10 @@ pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
     let ctx = context(cli)?;
     let modulation = scene.modulation.clone().unwrap_or_default();
     let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
-    let renderer = Renderer::new(&ctx)?;
+    let mut renderer = Renderer::new(&ctx)?;
     let frame = renderer.render_frame(&gpu.volume, &mut gpu.classify, &view, true)?;
     report_validation(&ctx);
-    let (segments, found) = match renderer.line_buffer() {
-        Some(b) => b.read()?,
-        None => (Vec::new(), 0),
-    };
+    let (segments, found) = frame.segments.clone().unwrap_or_default();
     let raster = frame
         .lines
         .ok_or_else(|| anyhow::anyhow!("the frame drew no lines; give a focus with --iso V"))?;

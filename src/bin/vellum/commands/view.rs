@@ -57,6 +57,15 @@ pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
             for (name, ms) in &r.gpu_ms {
                 println!("  {name:<14} {ms:>9.3} ms (median GPU)");
             }
+            if let (Some(a), Some(b)) = (r.rss_kib.first(), r.rss_kib.last()) {
+                println!(
+                    "  resident set {:.1} MiB after frame {}, {:.1} MiB after frame {}",
+                    a.1 as f64 / 1024.0,
+                    a.0,
+                    b.1 as f64 / 1024.0,
+                    b.0
+                );
+            }
         }
     }
     Ok(())
