@@ -392,7 +392,7 @@ pub struct Recorded {
     /// Planes drawn (or sampled by the rays).
     pub slices: u32,
     /// The geometry the frame's object-space lines were drawn with, when its style has lines:
-    /// with [`Renderer::line_buffer`], what vector output needs.
+    /// with the segments in the targets' `ViewState`, what vector output needs.
     pub lines: Option<RasterView>,
 }
 

@@ -22,7 +22,7 @@ pub struct BenchReport {
     pub quality: &'static str,
     /// The size the volume was rendered at (the view's, or half of it while interacting).
     pub render_size: [u32; 2],
-    /// Frames the figures below are taken over: the last [`WINDOW`] after the warm-up.
+    /// Frames the figures below are taken over: the last 4,096 (`WINDOW`) after the warm-up.
     pub frames: usize,
     /// Frames presented in all.
     pub frames_presented: u64,
@@ -32,7 +32,7 @@ pub struct BenchReport {
     pub p99_ms: f64,
     /// Median GPU ms per pass over the same frames.
     pub gpu_ms: Vec<(String, f64)>,
-    /// (frames presented, resident set in KiB), every [`RSS_EVERY`] frames (Linux only).
+    /// (frames presented, resident set in KiB), every 1,000 frames (Linux only).
     pub rss_kib: Vec<(u64, u64)>,
 }
 

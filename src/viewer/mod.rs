@@ -259,54 +259,16 @@ enum Drag {
     Pan,
 }
 
-/// Everything that exists while the window is open. Field order is drop order: the frame ring
-/// first (it waits for the GPU), egui's renderer before the context whose allocator it shares,
-/// the swapchain before the window.
+/// Everything that exists while the window is open: the GPU state, the session and the input,
+/// then egui's and the window's. Field order is drop order: the GPU state first, the window and
+/// the context last.
 struct Running {
-    frames: Frames,
-    egui_renderer: egui_ash_renderer::Renderer<egui_ash_renderer::allocator::GpuAllocator>,
-    egui_pool: CommandPool,
-    swapchain: Swapchain,
-    present: GraphicsPipeline,
-    sampler: Sampler,
-    targets: FrameTargets,
-    renderer: Renderer,
-    gpu: GpuScene,
-    model: Model,
-    /// The scene as last applied to the GPU state, to see what changed.
-    applied: Scene,
-    applied_tf: TransferFunction,
-    applied_otf: Option<crate::classify::otf::OcclusionTf>,
-    /// The volume on the host, for recomputing what depends on it (the occlusion volume).
-    volume: Volume,
-    /// The camera of the loaded scene, for reset.
-    home: crate::render::scene::CameraSpec,
+    gpu: GpuState,
+    session: Session,
+    input: Input,
     egui_ctx: egui::Context,
     egui_state: egui_winit::State,
-    pending_load: Option<mpsc::Receiver<Result<Loaded>>>,
-    /// The occlusion volume being recomputed on a worker thread.
-    pending_occlusion: Option<PendingOcclusion>,
-    /// Counts the volumes loaded, so that an occlusion volume computed for an earlier one is
-    /// dropped.
-    generation: u64,
-    /// The device the window renders on, for the worker's own context.
-    device: Option<String>,
-    drag: Option<(Drag, [f64; 2])>,
-    cursor: [f64; 2],
-    shift: bool,
-    ctrl: bool,
-    last_click: Option<Instant>,
-    last_change: Instant,
-    refined: bool,
-    /// What the targets hold: the view and the applied state of the last frame rendered, and the
-    /// volume generation. A frame that would render the same again only presents them (idle
-    /// redraws for a spinner, hover or a screenshot cost no volume rendering).
-    last_drawn: Option<DrawnKey>,
-    /// Counts replacements of GPU volume state (loads, occlusion volumes).
-    epoch: u64,
     resize: bool,
-    screenshot: Option<PathBuf>,
-    screenshot_dir: PathBuf,
     pending_free: Vec<egui::TextureId>,
     /// The volume view in window pixels (x, y, width, height): the window less the panel.
     view_rect: [u32; 4],
@@ -320,11 +282,69 @@ struct Running {
     timings_of: Option<u64>,
     /// When egui asked to draw again (its animations).
     egui_repaint_at: Option<Instant>,
-    /// The `--bench` orbit's bookkeeping, in bench mode.
-    bench: Option<BenchLog>,
     errors_in_a_row: u32,
     window: Arc<Window>,
     ctx: Arc<Context>,
+}
+
+/// The window's GPU state, in drop order: the frame ring first (it waits for the GPU), egui's
+/// renderer before the context whose allocator it shares, the swapchain before the window.
+struct GpuState {
+    frames: Frames,
+    egui_renderer: egui_ash_renderer::Renderer<egui_ash_renderer::allocator::GpuAllocator>,
+    egui_pool: CommandPool,
+    swapchain: Swapchain,
+    present: GraphicsPipeline,
+    sampler: Sampler,
+    targets: FrameTargets,
+    renderer: Renderer,
+    /// The volume and its classification on the GPU.
+    scene: GpuScene,
+}
+
+/// The session: the model the panels edit (with the scene), what of it is applied to the GPU,
+/// the volume on the host, the work in flight on worker threads, and the files it writes.
+struct Session {
+    model: Model,
+    /// The scene as last applied to the GPU state, to see what changed.
+    applied: Scene,
+    applied_tf: TransferFunction,
+    applied_otf: Option<crate::classify::otf::OcclusionTf>,
+    /// The volume on the host, for recomputing what depends on it (the occlusion volume).
+    volume: Volume,
+    /// The camera of the loaded scene, for reset.
+    home: crate::render::scene::CameraSpec,
+    pending_load: Option<mpsc::Receiver<Result<Loaded>>>,
+    /// The occlusion volume being recomputed on a worker thread.
+    pending_occlusion: Option<PendingOcclusion>,
+    /// Counts the volumes loaded, so that an occlusion volume computed for an earlier one is
+    /// dropped.
+    generation: u64,
+    /// The device the window renders on, for the worker's own context.
+    device: Option<String>,
+    /// What the targets hold: the view and the applied state of the last frame rendered, and the
+    /// volume generation. A frame that would render the same again only presents them (idle
+    /// redraws for a spinner, hover or a screenshot cost no volume rendering).
+    last_drawn: Option<DrawnKey>,
+    /// Counts replacements of GPU volume state (loads, occlusion volumes).
+    epoch: u64,
+    screenshot: Option<PathBuf>,
+    screenshot_dir: PathBuf,
+    /// The `--bench` orbit's bookkeeping, in bench mode.
+    bench: Option<BenchLog>,
+}
+
+/// The pointer and keyboard: a drag in progress, modifiers, the last click (for the double
+/// click that resets the camera), and when the view last changed (for adaptive quality).
+struct Input {
+    drag: Option<(Drag, [f64; 2])>,
+    cursor: [f64; 2],
+    shift: bool,
+    ctrl: bool,
+    last_click: Option<Instant>,
+    last_change: Instant,
+    /// Whether the full-resolution frame has been drawn since the last change.
+    refined: bool,
 }
 
 /// egui uploads its textures through a command pool of its own.
@@ -376,32 +396,34 @@ impl ApplicationHandler for App {
                 r.start_load_input(path.to_string_lossy().into_owned());
             }
             WindowEvent::ModifiersChanged(m) => {
-                r.shift = m.state().shift_key();
-                r.ctrl = m.state().control_key();
+                r.input.shift = m.state().shift_key();
+                r.input.ctrl = m.state().control_key();
             }
             WindowEvent::CursorMoved { position, .. } => {
                 let p = [position.x, position.y];
-                if let Some((kind, last)) = r.drag {
+                if let Some((kind, last)) = r.input.drag {
                     r.camera_drag(kind, [p[0] - last[0], p[1] - last[1]]);
-                    r.drag = Some((kind, p));
+                    r.input.drag = Some((kind, p));
                 }
-                r.cursor = p;
+                r.input.cursor = p;
             }
             // egui judges "over a panel" from its last frame, which lags when frames are slow;
             // the view's rectangle is known here, so a press outside it never moves the camera.
             WindowEvent::MouseInput { state, button, .. }
-                if !response.consumed && r.in_view(r.cursor) =>
+                if !response.consumed && r.in_view(r.input.cursor) =>
             {
                 match state {
                     ElementState::Pressed => r.press(button),
-                    ElementState::Released => r.drag = None,
+                    ElementState::Released => r.input.drag = None,
                 }
             }
             WindowEvent::MouseInput {
                 state: ElementState::Released,
                 ..
-            } => r.drag = None,
-            WindowEvent::MouseWheel { delta, .. } if !response.consumed && r.in_view(r.cursor) => {
+            } => r.input.drag = None,
+            WindowEvent::MouseWheel { delta, .. }
+                if !response.consumed && r.in_view(r.input.cursor) =>
+            {
                 let steps = match delta {
                     MouseScrollDelta::LineDelta(_, y) => y as f64,
                     MouseScrollDelta::PixelDelta(p) => p.y / 40.0,
@@ -418,7 +440,7 @@ impl ApplicationHandler for App {
                 if let Err(e) = r.redraw() {
                     r.errors_in_a_row += 1;
                     log::error!("{e}");
-                    r.model.message = e.to_string();
+                    r.session.model.message = e.to_string();
                     // The device is gone or keeps failing: say so and stop, with the sentence.
                     if r.errors_in_a_row >= 3 {
                         self.error = Some(e);
@@ -429,12 +451,12 @@ impl ApplicationHandler for App {
                 } else {
                     r.errors_in_a_row = 0;
                 }
-                if r.model.requests.quit {
+                if r.session.model.requests.quit {
                     self.close(event_loop);
                     return;
                 }
                 if let Some(r) = self.running.as_mut() {
-                    if r.bench.as_ref().is_some_and(|b| b.left == 0) {
+                    if r.session.bench.as_ref().is_some_and(|b| b.left == 0) {
                         self.report = Some(r.bench_report());
                         // With --screenshot-on-exit, the last view is written too.
                         self.close(event_loop);
@@ -452,7 +474,7 @@ impl ApplicationHandler for App {
         r.poll_load();
         r.poll_occlusion();
         let timings_pending = r.timings_of.is_some();
-        if timings_pending && r.frames.poll().is_ok() && r.frames.has_finished() {
+        if timings_pending && r.gpu.frames.poll().is_ok() && r.gpu.frames.has_finished() {
             r.window.request_redraw();
         }
         let egui_at = r.egui_repaint_at;
@@ -460,12 +482,19 @@ impl ApplicationHandler for App {
             r.egui_repaint_at = None;
             r.window.request_redraw();
         }
-        if r.model.scene != r.applied || r.model.tf != r.applied_tf {
+        if r.session.model.scene != r.session.applied || r.session.model.tf != r.session.applied_tf
+        {
             r.changed();
         }
-        let busy = r.bench.is_some() || r.pending_load.is_some() || r.pending_occlusion.is_some();
-        let refine_at = r.last_change + REFINE_AFTER;
-        if busy || r.model.requests.screenshot || Instant::now() < refine_at || !r.refined {
+        let busy = r.session.bench.is_some()
+            || r.session.pending_load.is_some()
+            || r.session.pending_occlusion.is_some();
+        let refine_at = r.input.last_change + REFINE_AFTER;
+        if busy
+            || r.session.model.requests.screenshot
+            || Instant::now() < refine_at
+            || !r.input.refined
+        {
             r.window.request_redraw();
         }
         if Instant::now() < refine_at {
@@ -488,7 +517,7 @@ impl App {
     fn close(&mut self, event_loop: &ActiveEventLoop) {
         if let (Some(r), Some(path)) = (self.running.as_mut(), self.opts.screenshot_on_exit.clone())
         {
-            r.screenshot = Some(path);
+            r.session.screenshot = Some(path);
             if let Err(e) = r.redraw() {
                 self.error = Some(e);
             }
@@ -662,39 +691,46 @@ impl Running {
         let model = initial_model(&loaded, &mut gpu, &ctx, opts);
         let home = loaded.scene.camera.clone();
         Ok(Running {
-            frames,
-            egui_renderer,
-            egui_pool,
-            swapchain,
-            present,
-            sampler: Sampler::new(&ctx, true)?,
-            targets: FrameTargets::new(&ctx),
-            renderer,
-            gpu,
-            applied: loaded.scene,
-            applied_tf: loaded.tf,
-            applied_otf: loaded.otf,
-            volume: loaded.volume,
-            home,
-            model,
+            gpu: GpuState {
+                frames,
+                egui_renderer,
+                egui_pool,
+                swapchain,
+                present,
+                sampler: Sampler::new(&ctx, true)?,
+                targets: FrameTargets::new(&ctx),
+                renderer,
+                scene: gpu,
+            },
+            session: Session {
+                applied: loaded.scene,
+                applied_tf: loaded.tf,
+                applied_otf: loaded.otf,
+                volume: loaded.volume,
+                home,
+                model,
+                pending_load: None,
+                pending_occlusion: None,
+                generation: 0,
+                device: opts.device.clone(),
+                last_drawn: None,
+                epoch: 0,
+                screenshot: None,
+                screenshot_dir: opts.screenshot_dir.clone(),
+                bench: opts.bench_frames.map(|n| BenchLog::new(n, opts.bench_full)),
+            },
+            input: Input {
+                drag: None,
+                cursor: [0.0; 2],
+                shift: false,
+                ctrl: false,
+                last_click: None,
+                last_change: Instant::now() - REFINE_AFTER,
+                refined: false,
+            },
             egui_ctx,
             egui_state,
-            pending_load: None,
-            pending_occlusion: None,
-            generation: 0,
-            device: opts.device.clone(),
-            drag: None,
-            cursor: [0.0; 2],
-            shift: false,
-            ctrl: false,
-            last_click: None,
-            last_change: Instant::now() - REFINE_AFTER,
-            refined: false,
-            last_drawn: None,
-            epoch: 0,
             resize: false,
-            screenshot: None,
-            screenshot_dir: opts.screenshot_dir.clone(),
             pending_free: Vec::new(),
             view_rect: [0; 4],
             show_panel: opts.bench_frames.is_none(),
@@ -704,7 +740,6 @@ impl Running {
             last_rendered: None,
             timings_of: None,
             egui_repaint_at: None,
-            bench: opts.bench_frames.map(|n| BenchLog::new(n, opts.bench_full)),
             errors_in_a_row: 0,
             window,
             ctx,
@@ -715,7 +750,7 @@ impl Running {
     /// pan; a second left click within 350 ms resets the camera.
     fn press(&mut self, button: MouseButton) {
         let kind = match button {
-            MouseButton::Left if self.shift => Some(Drag::Pan),
+            MouseButton::Left if self.input.shift => Some(Drag::Pan),
             MouseButton::Left => Some(Drag::Orbit),
             MouseButton::Right | MouseButton::Middle => Some(Drag::Pan),
             _ => None,
@@ -723,29 +758,31 @@ impl Running {
         if button == MouseButton::Left {
             let now = Instant::now();
             if self
+                .input
                 .last_click
                 .is_some_and(|t| now - t < Duration::from_millis(350))
             {
                 self.reset_camera();
             }
-            self.last_click = Some(now);
+            self.input.last_click = Some(now);
         }
-        self.drag = kind.map(|k| (k, self.cursor));
+        self.input.drag = kind.map(|k| (k, self.input.cursor));
     }
 
     /// A key pressed outside egui: quit, screenshot, save the scene, orthographic, reset, the
     /// panel, and the six named views.
     fn key(&mut self, key: &Key) {
         match key {
-            Key::Named(NamedKey::Escape) => self.model.requests.quit = true,
+            Key::Named(NamedKey::Escape) => self.session.model.requests.quit = true,
             Key::Character(c) => match c.as_str() {
-                "q" | "Q" => self.model.requests.quit = true,
-                "s" | "S" if self.ctrl => {
-                    self.model.requests.save_scene = Some(self.model.scene_path.clone());
+                "q" | "Q" => self.session.model.requests.quit = true,
+                "s" | "S" if self.input.ctrl => {
+                    self.session.model.requests.save_scene =
+                        Some(self.session.model.scene_path.clone());
                 }
-                "s" | "S" => self.model.requests.screenshot = true,
+                "s" | "S" => self.session.model.requests.screenshot = true,
                 "o" | "O" => {
-                    self.model.scene.camera.ortho = !self.model.scene.camera.ortho;
+                    self.session.model.scene.camera.ortho = !self.session.model.scene.camera.ortho;
                 }
                 "r" | "R" => self.reset_camera(),
                 "h" | "H" => {
@@ -761,7 +798,7 @@ impl Running {
                         NamedView::Superior,
                         NamedView::Inferior,
                     ][d.parse::<usize>().unwrap_or(1) - 1];
-                    ui::set_view(&mut self.model.scene, v);
+                    ui::set_view(&mut self.session.model.scene, v);
                 }
                 _ => {}
             },
@@ -771,8 +808,8 @@ impl Running {
 
     /// Something changed: render at reduced resolution until [`REFINE_AFTER`] has passed.
     fn changed(&mut self) {
-        self.last_change = Instant::now();
-        self.refined = false;
+        self.input.last_change = Instant::now();
+        self.input.refined = false;
         self.window.request_redraw();
     }
 
@@ -785,22 +822,22 @@ impl Running {
     /// The volume view's size in pixels.
     fn view_size(&self) -> [u32; 2] {
         match self.view_rect {
-            [_, _, 0, _] | [_, _, _, 0] => self.swapchain.extent,
+            [_, _, 0, _] | [_, _, _, 0] => self.gpu.swapchain.extent,
             [_, _, w, h] => [w, h],
         }
     }
 
     /// The camera as resolved for the current volume and window (the fitted distance filled in).
     fn resolved_camera(&self) -> Result<crate::render::camera::Camera> {
-        let mut view = self.model.scene.view(self.model.oriented)?;
+        let mut view = self.session.model.scene.view(self.session.model.oriented)?;
         view.size = self.view_size();
-        Ok(frame_camera(&WorldBox::of(&self.gpu.volume), &view))
+        Ok(frame_camera(&WorldBox::of(&self.gpu.scene.volume), &view))
     }
 
     /// Makes the scene's camera explicit (angles and distance) so that a drag can change it.
     fn explicit_camera(&mut self) -> Option<crate::render::camera::Camera> {
         let cam = self.resolved_camera().ok()?;
-        let c = &mut self.model.scene.camera;
+        let c = &mut self.session.model.scene.camera;
         c.view = None;
         c.azimuth = Some(cam.azimuth_deg);
         c.elevation = Some(cam.elevation_deg);
@@ -813,7 +850,7 @@ impl Running {
             return;
         };
         let view_h = self.view_size()[1].max(1) as f32;
-        let c = &mut self.model.scene.camera;
+        let c = &mut self.session.model.scene.camera;
         match kind {
             Drag::Orbit => {
                 c.azimuth = Some((cam.azimuth_deg - 0.4 * d[0] as f32).rem_euclid(360.0));
@@ -835,19 +872,19 @@ impl Running {
             return;
         };
         let min = if cam.ortho { 0.05 } else { 1.05 };
-        self.model.scene.camera.distance =
+        self.session.model.scene.camera.distance =
             Some((cam.distance * 0.9f32.powf(steps as f32)).clamp(min, 100.0));
         self.changed();
     }
 
     fn reset_camera(&mut self) {
-        self.model.scene.camera = self.home.clone();
+        self.session.model.scene.camera = self.session.home.clone();
         self.changed();
     }
 
     /// Starts loading `input` on a worker thread, keeping the rest of the scene.
     fn start_load_input(&mut self, input: String) {
-        let mut scene = self.model.scene.clone();
+        let mut scene = self.session.model.scene.clone();
         scene.input = InputSpec {
             path: input.clone(),
             raw: None,
@@ -867,14 +904,14 @@ impl Running {
         std::thread::spawn(move || {
             let _ = tx.send(load(scene));
         });
-        self.model.loading = Some(what);
-        self.pending_load = Some(rx);
+        self.session.model.loading = Some(what);
+        self.session.pending_load = Some(rx);
     }
 
     /// Takes a finished load: the new volume goes to the GPU and replaces the old one. A failed
     /// load keeps the old volume and says why.
     fn poll_load(&mut self) {
-        let Some(rx) = &self.pending_load else {
+        let Some(rx) = &self.session.pending_load else {
             return;
         };
         let got = match rx.try_recv() {
@@ -884,8 +921,8 @@ impl Running {
                 "the loader stopped without an answer".into(),
             )),
         };
-        self.pending_load = None;
-        let what = self.model.loading.take().unwrap_or_default();
+        self.session.pending_load = None;
+        let what = self.session.model.loading.take().unwrap_or_default();
         let result = got.and_then(|l| {
             let modulation = l.scene.modulation.clone().unwrap_or_default();
             let gpu = GpuScene::prepare(
@@ -899,27 +936,27 @@ impl Running {
         });
         match result {
             Ok((l, mut gpu)) => {
-                self.generation += 1;
-                self.epoch += 1;
-                self.model.reopen(l.scene.clone(), l.tf.clone());
-                self.model.spectrum = gpu.spectrum.take();
-                self.model.otf = l.otf.clone();
-                self.applied_otf = l.otf.clone();
-                self.gpu = gpu;
-                self.model.histogram = l.histogram;
-                self.model.features = l.features;
-                self.model.range = l.range;
-                self.model.dims = l.volume.dims;
-                self.model.oriented = l.volume.geometry.is_oriented();
-                self.model.message = format!("opened {what}");
-                self.home = l.scene.camera.clone();
-                self.applied = l.scene;
-                self.applied_tf = l.tf;
+                self.session.generation += 1;
+                self.session.epoch += 1;
+                self.session.model.reopen(l.scene.clone(), l.tf.clone());
+                self.session.model.spectrum = gpu.spectrum.take();
+                self.session.model.otf = l.otf.clone();
+                self.session.applied_otf = l.otf.clone();
+                self.gpu.scene = gpu;
+                self.session.model.histogram = l.histogram;
+                self.session.model.features = l.features;
+                self.session.model.range = l.range;
+                self.session.model.dims = l.volume.dims;
+                self.session.model.oriented = l.volume.geometry.is_oriented();
+                self.session.model.message = format!("opened {what}");
+                self.session.home = l.scene.camera.clone();
+                self.session.applied = l.scene;
+                self.session.applied_tf = l.tf;
                 self.window
-                    .set_title(&format!("vellum: {}", self.model.scene.input.path));
-                self.volume = l.volume;
+                    .set_title(&format!("vellum: {}", self.session.model.scene.input.path));
+                self.session.volume = l.volume;
             }
-            Err(e) => self.model.message = format!("{what}: {e}"),
+            Err(e) => self.session.model.message = format!("{what}: {e}"),
         }
         self.changed();
     }
@@ -928,8 +965,8 @@ impl Running {
     /// of its own.
     fn start_occlusion(&mut self, params: crate::passes::occlusion::OcclusionParams) {
         let (tx, rx) = mpsc::channel();
-        let volume = self.volume.clone();
-        let device = self.device.clone();
+        let volume = self.session.volume.clone();
+        let device = self.session.device.clone();
         let radius = params.radius;
         // A test hook: hold the worker back this long, so that a test can show frames arriving
         // while it is busy whatever the machine's speed.
@@ -952,12 +989,12 @@ impl Running {
             })();
             let _ = tx.send(result);
         });
-        self.model.occlusion_busy = Some(radius);
-        self.pending_occlusion = Some(PendingOcclusion {
+        self.session.model.occlusion_busy = Some(radius);
+        self.session.pending_occlusion = Some(PendingOcclusion {
             rx,
             radius,
             started: Instant::now(),
-            generation: self.generation,
+            generation: self.session.generation,
             frames: 0,
             longest_ms: 0.0,
         });
@@ -966,7 +1003,7 @@ impl Running {
     /// Takes a finished occlusion volume: it replaces the one the renderer samples, and its
     /// spectrum the editor's. A result for a volume since replaced is dropped.
     fn poll_occlusion(&mut self) {
-        let Some(p) = &self.pending_occlusion else {
+        let Some(p) = &self.session.pending_occlusion else {
             return;
         };
         let got = match p.rx.try_recv() {
@@ -976,11 +1013,11 @@ impl Running {
                 "the occlusion worker stopped without an answer".into(),
             )),
         };
-        let Some(p) = self.pending_occlusion.take() else {
+        let Some(p) = self.session.pending_occlusion.take() else {
             return;
         };
-        self.model.occlusion_busy = None;
-        if p.generation != self.generation {
+        self.session.model.occlusion_busy = None;
+        if p.generation != self.session.generation {
             return;
         }
         let attached = got.and_then(|out| {
@@ -997,13 +1034,13 @@ impl Running {
         match attached {
             Ok((image, spectrum)) => {
                 // The old image may be in use by frames in flight: its release is deferred.
-                self.gpu.volume.occlusion = Some(image);
-                self.epoch += 1;
-                self.model.spectrum = spectrum;
-                self.model.spectrum_texture = None;
+                self.gpu.scene.volume.occlusion = Some(image);
+                self.session.epoch += 1;
+                self.session.model.spectrum = spectrum;
+                self.session.model.spectrum_texture = None;
                 // Upload the OTF as it is now (it may have been edited meanwhile).
-                self.applied_otf = None;
-                self.model.message = format!(
+                self.session.applied_otf = None;
+                self.session.model.message = format!(
                     "occlusion at R = {} recomputed in {:.0} ms on a second device; {} frames drawn meanwhile, at most {:.0} ms apart",
                     p.radius,
                     p.started.elapsed().as_secs_f64() * 1e3,
@@ -1011,7 +1048,7 @@ impl Running {
                     p.longest_ms
                 );
             }
-            Err(e) => self.model.message = format!("recomputing the occlusion: {e}"),
+            Err(e) => self.session.model.message = format!("recomputing the occlusion: {e}"),
         }
         self.changed();
     }
@@ -1019,8 +1056,8 @@ impl Running {
     /// Turns the scene's edits into GPU state. Edits that need the volume prepared again (new
     /// classification kind, importance radius) reload it from the file on the worker thread.
     fn apply(&mut self) -> Result<()> {
-        let s = &self.model.scene;
-        let a = &self.applied;
+        let s = &self.session.model.scene;
+        let a = &self.session.applied;
         let radius = |x: &Scene| {
             x.modulation
                 .as_ref()
@@ -1031,52 +1068,54 @@ impl Running {
             || (!matches!(s.classification, ClassificationSpec::Transfer(_))
                 && s.classification != a.classification)
             || radius(s) != radius(a) && radius(s).is_some();
-        if needs_prepare && self.pending_load.is_none() {
+        if needs_prepare && self.session.pending_load.is_none() {
             let scene = s.clone();
             self.start_load(scene.input.path.clone(), scene);
-            self.applied = self.model.scene.clone();
+            self.session.applied = self.session.model.scene.clone();
             return Ok(());
         }
         if let Err(e) = s
             .focus
-            .check_in(self.gpu.volume.range)
+            .check_in(self.gpu.scene.volume.range)
             .and(s.focus.validate())
         {
-            self.model.message = e.to_string();
-            self.model.scene.focus = self.applied.focus;
+            self.session.model.message = e.to_string();
+            self.session.model.scene.focus = self.session.applied.focus;
         }
-        self.gpu.classify.focus = self.model.scene.focus;
+        self.gpu.scene.classify.focus = self.session.model.scene.focus;
         self.apply_occlusion()?;
-        if self.model.tf != self.applied_tf {
-            self.gpu.classify.set_transfer(&self.model.tf);
-            self.applied_tf = self.model.tf.clone();
+        if self.session.model.tf != self.session.applied_tf {
+            self.gpu.scene.classify.set_transfer(&self.session.model.tf);
+            self.session.applied_tf = self.session.model.tf.clone();
         }
-        self.gpu.classify.modulation = match &self.model.scene.modulation {
-            Some(m) if self.gpu.volume.importance.is_some() => m.clone(),
+        self.gpu.scene.classify.modulation = match &self.session.model.scene.modulation {
+            Some(m) if self.gpu.scene.volume.importance.is_some() => m.clone(),
             _ => Default::default(),
         };
-        self.applied = self.model.scene.clone();
+        self.session.applied = self.session.model.scene.clone();
         Ok(())
     }
 
     /// Uploads an edited OTF's table; starts recomputing the occlusion volume (and the spectrum)
     /// on a worker thread when asked.
     fn apply_occlusion(&mut self) -> Result<()> {
-        let Some(otf) = self.model.otf.clone() else {
+        let Some(otf) = self.session.model.otf.clone() else {
             return Ok(());
         };
-        if std::mem::take(&mut self.model.recompute_occlusion) && self.pending_occlusion.is_none() {
+        if std::mem::take(&mut self.session.model.recompute_occlusion)
+            && self.session.pending_occlusion.is_none()
+        {
             match crate::render::scene::occlusion_params(&otf) {
                 Ok(params) => self.start_occlusion(params),
-                Err(e) => self.model.message = e.to_string(),
+                Err(e) => self.session.model.message = e.to_string(),
             }
         }
-        if self.applied_otf.as_ref() != Some(&otf) {
+        if self.session.applied_otf.as_ref() != Some(&otf) {
             match otf.table() {
-                Ok(table) => self.gpu.classify.set_occlusion_table(Some(table))?,
-                Err(e) => self.model.message = e.to_string(),
+                Ok(table) => self.gpu.scene.classify.set_occlusion_table(Some(table))?,
+                Err(e) => self.session.model.message = e.to_string(),
             }
-            self.applied_otf = Some(otf);
+            self.session.applied_otf = Some(otf);
         }
         Ok(())
     }
@@ -1102,12 +1141,12 @@ impl Running {
         if size.width == 0 || size.height == 0 {
             return Ok(None);
         }
-        if self.resize || self.swapchain.extent != [size.width, size.height] {
-            self.swapchain.recreate([size.width, size.height])?;
+        if self.resize || self.gpu.swapchain.extent != [size.width, size.height] {
+            self.gpu.swapchain.recreate([size.width, size.height])?;
             self.resize = false;
         }
         let raw = self.egui_state.take_egui_input(&self.window);
-        let model = &mut self.model;
+        let model = &mut self.session.model;
         let show_panel = self.show_panel;
         let mut view_rect = egui::Rect::NOTHING;
         let out = self
@@ -1136,8 +1175,9 @@ impl Running {
         for (id, deltas) in textures.set.drain() {
             for delta in &deltas {
                 let queue = self.ctx.queue_handle();
-                self.egui_renderer
-                    .set_texture(queue, self.egui_pool.raw, id, delta)
+                self.gpu
+                    .egui_renderer
+                    .set_texture(queue, self.gpu.egui_pool.raw, id, delta)
                     .map_err(|e| Error::Invalid(format!("egui's textures: {e}")))?;
             }
         }
@@ -1152,13 +1192,13 @@ impl Running {
     /// GPU state, and decides the frame's quality: the view to render and whether it is the full
     /// (refined) one.
     fn apply_frame(&mut self, ui: &UiFrame) -> Result<(Result<View>, bool)> {
-        if self.model.requests.screenshot && self.screenshot.is_none() {
-            self.screenshot = Some(next_screenshot_path(&self.screenshot_dir)?);
+        if self.session.model.requests.screenshot && self.session.screenshot.is_none() {
+            self.session.screenshot = Some(next_screenshot_path(&self.session.screenshot_dir)?);
         }
-        self.model.requests.screenshot = false;
+        self.session.model.requests.screenshot = false;
         self.handle_requests();
-        if let Some(left) = self.bench.as_mut().map(|b| &mut b.left) {
-            let c = &mut self.model.scene.camera;
+        if let Some(left) = self.session.bench.as_mut().map(|b| &mut b.left) {
+            let c = &mut self.session.model.scene.camera;
             if c.azimuth.is_none() {
                 c.view = None;
                 c.azimuth = Some(0.0);
@@ -1168,10 +1208,10 @@ impl Running {
             *left = left.saturating_sub(1);
         }
         self.apply()?;
-        let full = self.screenshot.is_some()
-            || match &self.bench {
+        let full = self.session.screenshot.is_some()
+            || match &self.session.bench {
                 Some(b) => b.full,
-                None => self.last_change.elapsed() >= REFINE_AFTER,
+                None => self.input.last_change.elapsed() >= REFINE_AFTER,
             };
         let view_size = [ui.rect[2], ui.rect[3]];
         let render_size = if full {
@@ -1179,10 +1219,10 @@ impl Running {
         } else {
             [view_size[0].div_ceil(2), view_size[1].div_ceil(2)]
         };
-        self.model.render_size = render_size;
+        self.session.model.render_size = render_size;
         self.print_layout(ui.rect, ui.ppp);
-        self.model.interactive = !full;
-        let mut view = self.model.scene.view(self.model.oriented);
+        self.session.model.interactive = !full;
+        let mut view = self.session.model.scene.view(self.session.model.oriented);
         if let Ok(v) = &mut view {
             v.size = render_size;
             // While something moves on a CPU device, lines come from the seeded traversal
@@ -1201,38 +1241,38 @@ impl Running {
     /// the view and state equal the last rendered frame's, which only presents the persistent
     /// layers again), a readback for a screenshot, the present pass and egui; then presents.
     fn record_and_present(&mut self, ui: &UiFrame, view: Result<View>) -> Result<Option<Drawn>> {
-        let slot = self.frames.next_slot()?;
-        let Some(image) = self.swapchain.acquire(slot)? else {
+        let slot = self.gpu.frames.next_slot()?;
+        let Some(image) = self.gpu.swapchain.acquire(slot)? else {
             self.resize = true;
             self.window.request_redraw();
             return Ok(None);
         };
         let key = view.as_ref().ok().map(|v| DrawnKey {
             view: v.clone(),
-            scene: self.applied.clone(),
-            tf: self.applied_tf.clone(),
-            otf: self.applied_otf.clone(),
-            epoch: self.epoch,
+            scene: self.session.applied.clone(),
+            tf: self.session.applied_tf.clone(),
+            otf: self.session.applied_otf.clone(),
+            epoch: self.session.epoch,
         });
-        let reuse = key.is_some() && key == self.last_drawn;
-        let readback_wanted = self.screenshot.is_some();
-        let background = self.model.scene.background;
+        let reuse = key.is_some() && key == self.session.last_drawn;
+        let readback_wanted = self.session.screenshot.is_some();
+        let background = self.session.model.scene.background;
         let (mut readback, mut render_error) = (None, None);
         let (ctx, renderer, gpu, targets) = (
             &self.ctx,
-            &mut self.renderer,
-            &mut self.gpu,
-            &mut self.targets,
+            &mut self.gpu.renderer,
+            &mut self.gpu.scene,
+            &mut self.gpu.targets,
         );
         let pass = PresentPass {
-            swapchain: &self.swapchain,
-            present: &self.present,
-            sampler: &self.sampler,
+            swapchain: &self.gpu.swapchain,
+            present: &self.gpu.present,
+            sampler: &self.gpu.sampler,
             ui,
             background,
         };
-        let egui_renderer = &mut self.egui_renderer;
-        let (_, index) = self.frames.frame_sync(|f| {
+        let egui_renderer = &mut self.gpu.egui_renderer;
+        let (_, index) = self.gpu.frames.frame_sync(|f| {
             let drawn = match &view {
                 Ok(_) if reuse => Ok(()),
                 Ok(v) => renderer
@@ -1259,7 +1299,7 @@ impl Running {
                 },
             ))
         })?;
-        if !self.swapchain.present(&image)? {
+        if !self.gpu.swapchain.present(&image)? {
             self.resize = true;
         }
         Ok(Some(Drawn {
@@ -1281,36 +1321,38 @@ impl Running {
         if !drawn.reuse {
             if let Some(t) = self.last_rendered.replace(now) {
                 let ms = (now - t).as_secs_f64() * 1e3;
-                self.model.fps = 0.9 * self.model.fps + 0.1 * (1e3 / ms.max(1e-3));
+                self.session.model.fps = 0.9 * self.session.model.fps + 0.1 * (1e3 / ms.max(1e-3));
             }
             self.timings_of = Some(drawn.index);
         }
         if let Some(t) = self.last_present.replace(now) {
             let ms = (now - t).as_secs_f64() * 1e3;
-            if let Some(b) = &mut self.bench {
+            if let Some(b) = &mut self.session.bench {
                 b.presented(ms);
             }
-            if let Some(p) = &mut self.pending_occlusion {
+            if let Some(p) = &mut self.session.pending_occlusion {
                 p.frames += 1;
                 p.longest_ms = p.longest_ms.max(ms);
             }
         }
-        for r in self.frames.take_finished() {
+        for r in self.gpu.frames.take_finished() {
             if self.timings_of.is_some_and(|i| r.index >= i) {
                 self.timings_of = None;
             }
-            if let Some(b) = &mut self.bench {
+            if let Some(b) = &mut self.session.bench {
                 b.completed(&r.passes);
             }
             // A frame that only presented the last render keeps that render's figures.
             if !r.passes.is_empty() {
-                self.model.gpu_ms = r.passes.iter().map(|p| (p.name.clone(), p.ms)).collect();
+                self.session.model.gpu_ms =
+                    r.passes.iter().map(|p| (p.name.clone(), p.ms)).collect();
             }
         }
         if !self.pending_free.is_empty() {
-            self.frames.wait_idle()?;
+            self.gpu.frames.wait_idle()?;
             for id in std::mem::take(&mut self.pending_free) {
-                self.egui_renderer
+                self.gpu
+                    .egui_renderer
                     .free_texture(id)
                     .map_err(|e| Error::Invalid(format!("egui's textures: {e}")))?;
             }
@@ -1321,32 +1363,32 @@ impl Running {
     /// What the frame leaves behind: the key of what it rendered, a refused setting rolled back
     /// with its message, and the screenshot written.
     fn finish_frame(&mut self, drawn: Drawn, full: bool) -> Result<()> {
-        self.last_drawn = match drawn.render_error {
+        self.session.last_drawn = match drawn.render_error {
             None => drawn.key,
             Some(_) => None,
         };
         match drawn.render_error {
             Some(e) => {
                 // A setting the renderer refuses: say why, and go back to what rendered.
-                self.model.message = e.to_string();
-                if self.model.scene != self.applied {
-                    self.model.scene = self.applied.clone();
+                self.session.model.message = e.to_string();
+                if self.session.model.scene != self.session.applied {
+                    self.session.model.scene = self.session.applied.clone();
                 }
             }
-            None if full => self.refined = true,
+            None if full => self.input.refined = true,
             None => {}
         }
-        if let (Some(rb), Some(path)) = (drawn.readback, self.screenshot.take()) {
-            self.frames.wait_idle()?;
+        if let (Some(rb), Some(path)) = (drawn.readback, self.session.screenshot.take()) {
+            self.gpu.frames.wait_idle()?;
             let (pixels, _) = rb.read()?;
             let [w, h] = rb.size();
             crate::output::write_png_rgb(&path, w, h, &to_rgb8(&pixels, drawn.background))?;
             // A bench's report owns standard output (it may be JSON).
-            match self.bench {
+            match self.session.bench {
                 Some(_) => eprintln!("screenshot: {}", path.display()),
                 None => println!("screenshot: {}", path.display()),
             }
-            self.model.message = format!("wrote {}", path.display());
+            self.session.model.message = format!("wrote {}", path.display());
             // One more frame shows the message.
             self.window.request_redraw();
         }
@@ -1355,9 +1397,9 @@ impl Running {
 
     /// Open, load and save requests from the panels.
     fn handle_requests(&mut self) {
-        let req = std::mem::take(&mut self.model.requests);
-        self.model.requests.screenshot = req.screenshot;
-        self.model.requests.quit = req.quit;
+        let req = std::mem::take(&mut self.session.model.requests);
+        self.session.model.requests.screenshot = req.screenshot;
+        self.session.model.requests.quit = req.quit;
         if req.reset_camera {
             self.reset_camera();
         }
@@ -1367,11 +1409,11 @@ impl Running {
         if let Some(path) = req.load_scene {
             match Scene::load(Path::new(&path)) {
                 Ok(scene) => self.start_load(path, scene),
-                Err(e) => self.model.message = e.to_string(),
+                Err(e) => self.session.model.message = e.to_string(),
             }
         }
         if let Some(path) = req.save_scene {
-            self.model.message = match self.save_scene(Path::new(&path)) {
+            self.session.model.message = match self.save_scene(Path::new(&path)) {
                 Ok(()) => format!("saved the scene to {path}"),
                 Err(e) => e.to_string(),
             };
@@ -1381,16 +1423,19 @@ impl Running {
     /// Saves the scene at the window's size; an edited transfer function goes beside it as
     /// `NAME.tf.json`, which the scene names.
     fn save_scene(&mut self, path: &Path) -> Result<()> {
-        let mut scene = self.model.scene.clone();
+        let mut scene = self.session.model.scene.clone();
         scene.size = self.view_size();
-        if let (Some(map), true) = (&self.model.features, self.model.features_edited) {
+        if let (Some(map), true) = (
+            &self.session.model.features,
+            self.session.model.features_edited,
+        ) {
             // Hidden features are saved as shown: left out of the saved map.
-            let map = ui::visible_map(map, &self.model.hidden);
+            let map = ui::visible_map(map, &self.session.model.hidden);
             let map_path = path.with_extension("features.json");
             map.save(&map_path)?;
             scene.classification =
                 ClassificationSpec::Features(map_path.to_string_lossy().into_owned());
-        } else if let (Some(otf), true) = (&self.model.otf, self.model.otf_edited) {
+        } else if let (Some(otf), true) = (&self.session.model.otf, self.session.model.otf_edited) {
             let mut otf = otf.clone();
             if let Some(t) = &otf.transfer {
                 if Path::new(t).is_file() {
@@ -1408,9 +1453,9 @@ impl Running {
             })?;
             scene.classification =
                 ClassificationSpec::Occlusion(otf_path.to_string_lossy().into_owned());
-        } else if self.model.tf_edited {
+        } else if self.session.model.tf_edited {
             let tf_path = path.with_extension("tf.json");
-            let json = self.model.tf.to_json();
+            let json = self.session.model.tf.to_json();
             crate::output::write_atomic(&tf_path, |w| {
                 use std::io::Write;
                 writeln!(w, "{json}")
@@ -1432,7 +1477,7 @@ impl Running {
             "layout view {} {} {} {}",
             view[0], view[1], view[2], view[3]
         );
-        for (name, r) in &self.model.marks {
+        for (name, r) in &self.session.model.marks {
             let [x, y, w, h] =
                 [r.min.x, r.min.y, r.width(), r.height()].map(|v| (v * ppp).round() as i64);
             line += &format!(" {name} {x} {y} {w} {h}");
@@ -1441,16 +1486,16 @@ impl Running {
             println!("{line}");
             self.last_layout = line;
         }
-        if self.model.message != self.last_message {
-            println!("message: {}", self.model.message);
-            self.last_message = self.model.message.clone();
+        if self.session.model.message != self.last_message {
+            println!("message: {}", self.session.model.message);
+            self.last_message = self.session.model.message.clone();
         }
     }
 
     /// The volume view's rectangle (x, y, width, height) in window pixels, at least 1×1 and
     /// inside the swapchain.
     fn view_rect_pixels(&self, r: egui::Rect, ppp: f32) -> [u32; 4] {
-        let [w, h] = self.swapchain.extent;
+        let [w, h] = self.gpu.swapchain.extent;
         if !r.is_positive() || !r.is_finite() {
             return [0, 0, w, h];
         }
@@ -1464,13 +1509,13 @@ impl Running {
     fn bench_report(&self) -> BenchReport {
         let base = BenchReport {
             device: self.ctx.info.name.clone(),
-            input: self.model.scene.input.path.clone(),
+            input: self.session.model.scene.input.path.clone(),
             size: self.view_size(),
-            quality: match self.bench.as_ref().is_some_and(|b| b.full) {
+            quality: match self.session.bench.as_ref().is_some_and(|b| b.full) {
                 true => "full",
                 false => "interactive",
             },
-            render_size: self.model.render_size,
+            render_size: self.session.model.render_size,
             frames: 0,
             frames_presented: 0,
             fps: f64::NAN,
@@ -1480,7 +1525,7 @@ impl Running {
             gpu_ms: Vec::new(),
             rss_kib: Vec::new(),
         };
-        match &self.bench {
+        match &self.session.bench {
             Some(b) => b.report(base),
             None => base,
         }
