@@ -15,7 +15,7 @@ fn importance(c: &mut Criterion) {
         device: None,
     })
     .expect("Vulkan device");
-    let map = ImportanceMap::new(&ctx).expect("pipelines");
+    let mut map = ImportanceMap::new(&ctx).expect("pipelines");
     let v = phantom::shepp_logan(128);
     let mut group = c.benchmark_group(format!("importance 128³ on {}", ctx.info.name));
     group

@@ -14,13 +14,20 @@ use vellum::volume::{phantom, Volume, VoxelData};
 
 const TOLERANCE: f64 = 1e-5;
 
-fn check(gpu: &Gpu, map: &ImportanceMap, name: &str, v: &Volume, radii: &[u32]) {
+fn check(gpu: &Gpu, map: &mut ImportanceMap, name: &str, v: &Volume, radii: &[u32]) {
     let s = stats(v, 0);
     check_scaled(gpu, map, name, v, radii, s.max - s.min);
 }
 
 /// As `check`, with the tolerance taken relative to `range`.
-fn check_scaled(gpu: &Gpu, map: &ImportanceMap, name: &str, v: &Volume, radii: &[u32], range: f64) {
+fn check_scaled(
+    gpu: &Gpu,
+    map: &mut ImportanceMap,
+    name: &str,
+    v: &Volume,
+    radii: &[u32],
+    range: f64,
+) {
     for &r in radii {
         let out = map.compute(v, r, false).expect("importance map");
         let reference = importance_map(v, r).expect("reference");
@@ -54,27 +61,33 @@ fn check_scaled(gpu: &Gpu, map: &ImportanceMap, name: &str, v: &Volume, radii: &
 #[test]
 fn phantom_matches_reference() {
     let gpu = Gpu::new();
-    let map = ImportanceMap::new(&gpu.ctx).unwrap();
+    let mut map = ImportanceMap::new(&gpu.ctx).unwrap();
     check(
         &gpu,
-        &map,
+        &mut map,
         "shepp-logan 37",
         &phantom::shepp_logan(37),
         &[1, 5, 10],
     );
-    check(&gpu, &map, "nested 30", &phantom::nested(30), &[1, 5, 10]);
+    check(
+        &gpu,
+        &mut map,
+        "nested 30",
+        &phantom::nested(30),
+        &[1, 5, 10],
+    );
 }
 
 #[test]
 fn real_volumes_match_reference() {
     let gpu = Gpu::new();
-    let map = ImportanceMap::new(&gpu.ctx).unwrap();
+    let mut map = ImportanceMap::new(&gpu.ctx).unwrap();
     // nucleon 41³ (u8), silicium 98×34×34 (u8), tooth16 103×94×161 (u16), lobster 301×324×56 (u8).
     for name in ["nucleon", "silicium", "tooth16", "lobster"] {
         let Some(v) = common::real_volume(name) else {
             return;
         };
-        check(&gpu, &map, name, &v, &[1, 5, 10]);
+        check(&gpu, &mut map, name, &v, &[1, 5, 10]);
     }
 }
 
@@ -82,7 +95,7 @@ fn real_volumes_match_reference() {
 fn thin_volumes_and_tiny_rows() {
     // Lines shorter than the radius and rows of 1..3 voxels exercise every clamped border.
     let gpu = Gpu::new();
-    let map = ImportanceMap::new(&gpu.ctx).unwrap();
+    let mut map = ImportanceMap::new(&gpu.ctx).unwrap();
     for dims in [[1, 1, 1], [3, 5, 2], [2, 17, 1], [70, 1, 3]] {
         let n = dims[0] * dims[1] * dims[2];
         let data: Vec<i16> = (0..n).map(|i| ((i * 7919) % 2001) as i16 - 1000).collect();
@@ -91,14 +104,14 @@ fn thin_volumes_and_tiny_rows() {
         // here is max(range, max |V|): the float32 resolution of the values themselves.
         let s = stats(&v, 0);
         let scale = (s.max - s.min).max(s.max.abs()).max(s.min.abs());
-        check_scaled(&gpu, &map, &format!("{dims:?}"), &v, &[1, 5, 10], scale);
+        check_scaled(&gpu, &mut map, &format!("{dims:?}"), &v, &[1, 5, 10], scale);
     }
 }
 
 #[test]
 fn radius_out_of_range_is_an_error() {
     let gpu = Gpu::new();
-    let map = ImportanceMap::new(&gpu.ctx).unwrap();
+    let mut map = ImportanceMap::new(&gpu.ctx).unwrap();
     let v = phantom::shepp_logan(8);
     assert!(map
         .compute(&v, 0, false)

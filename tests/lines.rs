@@ -238,7 +238,7 @@ fn cpu_reference(v: &Volume, iso: f32, eye: Eye, p: &LineParams) -> Vec<Segment>
 fn gpu_segments_equal_the_cpu_reference() {
     use vellum::passes::lines::{HessianSource, LineExtractor};
     let gpu = common::Gpu::new();
-    let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let mut lines = LineExtractor::new(&gpu.ctx).unwrap();
     let mut pipelines = vellum::gpu::PipelineCache::new(&gpu.ctx);
     let cases: Vec<(Volume, f32, Eye, &str)> = vec![
         (
@@ -305,7 +305,7 @@ fn gpu_segments_equal_the_cpu_reference() {
 fn an_overflow_is_reported_and_bounded() {
     use vellum::passes::lines::LineExtractor;
     let gpu = common::Gpu::new();
-    let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let mut lines = LineExtractor::new(&gpu.ctx).unwrap();
     let mut pipelines = vellum::gpu::PipelineCache::new(&gpu.ctx);
     let v = phantom::smooth_torus(64);
     let eye = Eye::Direction([0.0, 0.0, 1.0]);
@@ -659,7 +659,7 @@ fn smoothing_removes_noise_contours_and_the_gpu_smooths_as_the_cpu() {
     use vellum::passes::lines::LineExtractor;
     use vellum::volume::lines::smoothed;
     let gpu = common::Gpu::new();
-    let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let mut lines = LineExtractor::new(&gpu.ctx).unwrap();
     let mut pipelines = vellum::gpu::PipelineCache::new(&gpu.ctx);
     let eye = Eye::Direction([0.0, -0.8f32.sin(), 0.8f32.cos()]);
     let clean = phantom::smooth_torus(64);
@@ -921,7 +921,7 @@ fn subset_length(name: &str, segs: &[Segment], full: &[Segment]) -> (f32, f32) {
 fn the_seeded_traversal_follows_the_lines_from_frame_to_frame() {
     use vellum::passes::lines::LineExtractor;
     let gpu = common::Gpu::new();
-    let lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let mut lines = LineExtractor::new(&gpu.ctx).unwrap();
     let mut pipelines = vellum::gpu::PipelineCache::new(&gpu.ctx);
     let eye_at = |deg: f32| {
         let (a, e) = (deg.to_radians(), 0.6f32);

@@ -72,7 +72,7 @@ fn cases(input: &Option<(String, f64)>) -> Result<Vec<(Volume, String, f64)>> {
 }
 
 pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
-    let lines = LineExtractor::new(ctx)?;
+    let mut lines = LineExtractor::new(ctx)?;
     let mut pipelines = crate::gpu::PipelineCache::new(ctx);
     // Azimuth 30°, elevation 20°: the renderer's default view of an unoriented volume.
     let eye_at = |azimuth: f32| {

@@ -166,7 +166,7 @@ fn scipy_ms(v: &Volume, r: u32, repeat: usize) -> Option<f64> {
 
 /// Runs the table.
 pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
-    let map = ImportanceMap::new(ctx)?;
+    let mut map = ImportanceMap::new(ctx)?;
     let mut rows = Vec::new();
     let total = CASES
         .iter()

@@ -19,7 +19,7 @@ use crate::volume::{Volume, VoxelData};
 use ash::vk;
 use rayon::prelude::*;
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Push constants of `importance/gauss1d.comp` (GLSL twin: `GaussPush` in glsl/common/importance.glsl).
@@ -117,8 +117,9 @@ pub const GAUSS_PASSES: [&str; 3] = ["gauss_x", "gauss_y", "gauss_z"];
 /// The compiled pipelines; build once, run on many volumes.
 pub struct ImportanceMap {
     ctx: Arc<Context>,
-    /// Gaussian pipelines and their weights by radius: R is a specialisation constant.
-    gauss: Mutex<HashMap<u32, Gauss>>,
+    /// Gaussian pipelines and their weights by radius, built on first use: R is a
+    /// specialisation constant.
+    gauss: HashMap<u32, Gauss>,
     subtract: ComputePipeline,
     pack: ComputePipeline,
     unpack: ComputePipeline,
@@ -199,7 +200,7 @@ impl ImportanceMap {
         let push = std::mem::size_of::<SubtractPush>() as u32;
         Ok(ImportanceMap {
             ctx: ctx.clone(),
-            gauss: Mutex::new(HashMap::new()),
+            gauss: HashMap::new(),
             subtract,
             pack: ComputePipeline::new(
                 ctx,
@@ -217,14 +218,13 @@ impl ImportanceMap {
     }
 
     /// The Gaussian pipeline and weights for `radius_voxels` (built on first use).
-    fn gauss(&self, radius_voxels: u32) -> Result<Gauss> {
+    fn gauss(&mut self, radius_voxels: u32) -> Result<Gauss> {
         if radius_voxels > MAX_RADIUS {
             return Err(Error::Invalid(format!(
                 "radius {radius_voxels} is too large; the importance map supports R up to {MAX_RADIUS} voxels"
             )));
         }
-        let mut cache = self.gauss.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(g) = cache.get(&radius_voxels) {
+        if let Some(g) = self.gauss.get(&radius_voxels) {
             return Ok(g.clone());
         }
         let kernel: Vec<f32> = gaussian_kernel(radius_voxels)?
@@ -252,14 +252,14 @@ impl ImportanceMap {
                 bytemuck::cast_slice(&kernel),
             )?),
         };
-        cache.insert(radius_voxels, g.clone());
+        self.gauss.insert(radius_voxels, g.clone());
         Ok(g)
     }
 
     /// Records passes `gauss_x`, `gauss_y`, `gauss_z` and `subtract`: ΔD of `images.src` into
     /// `images.a`, on images that stay on the GPU.
     pub fn record(
-        &self,
+        &mut self,
         frame: &mut Frame,
         images: &ImportanceImages,
         radius_voxels: u32,
@@ -269,7 +269,7 @@ impl ImportanceMap {
 
     /// The three filter passes (G∗V into `images.a`), then `subtract` when asked.
     fn record_passes(
-        &self,
+        &mut self,
         frame: &mut Frame,
         images: &ImportanceImages,
         radius_voxels: u32,
@@ -327,7 +327,7 @@ impl ImportanceMap {
     /// filter passes, and `unpack` (packed → R32F volume, with the max |ΔD| reduction). The work
     /// images are released once the frame completes.
     pub fn record_from_texture(
-        &self,
+        &mut self,
         frame: &mut Frame,
         tex: &crate::passes::normals::VolumeTextures,
         sampler: &crate::gpu::Sampler,
@@ -350,7 +350,7 @@ impl ImportanceMap {
     /// nearest-texel `sampler`) as an R32F volume on the same scale: `pack`, the three filter
     /// passes and `unpack`. Line extraction smooths noisy data with it.
     pub fn record_blur_of_texture(
-        &self,
+        &mut self,
         frame: &mut Frame,
         source: &Image,
         dims: [usize; 3],
@@ -369,7 +369,7 @@ impl ImportanceMap {
     /// `pack` of `source`, the filter passes (with `subtract`: ΔD, else G∗V) and `unpack` into a
     /// new R32F volume, with the max |value| reduction.
     fn record_filter(
-        &self,
+        &mut self,
         frame: &mut Frame,
         texture: &TextureSource,
         radius_voxels: u32,
@@ -380,7 +380,7 @@ impl ImportanceMap {
             dims: dims_in,
             sampler,
         } = *texture;
-        let ctx = &self.ctx;
+        let ctx = &self.ctx.clone();
         self.gauss(radius_voxels)?;
         let images = ImportanceImages::new(ctx, dims_in)?;
         let extent = images.src.desc.extent;
@@ -443,13 +443,13 @@ impl ImportanceMap {
     /// readback, timed as the paper's "Total". With `copy_reference`, the submission also times a
     /// plain image copy of one float volume (pass `copy`), the bandwidth bound of a 1D pass.
     pub fn compute(
-        &self,
+        &mut self,
         v: &Volume,
         radius_voxels: u32,
         copy_reference: bool,
     ) -> Result<ImportanceOutput> {
         let start = Instant::now();
-        let ctx = &self.ctx;
+        let ctx = &self.ctx.clone();
         // Fails early on a bad radius, before any allocation.
         self.gauss(radius_voxels)?;
         v.check_finite("the input volume")?;

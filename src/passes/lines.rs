@@ -517,7 +517,7 @@ impl LineExtractor {
     /// scale, which [`LineExtractor::record`] then extracts from. Callers that draw every frame
     /// keep it (the renderer's view state) and record this once.
     pub fn record_smoothing(
-        &self,
+        &mut self,
         frame: &mut Frame,
         values: &Image,
         dims: [usize; 3],
@@ -854,7 +854,7 @@ impl LineExtractor {
     /// Uploads `v`, extracts its lines (`params.iso` in data units) and reads them back. The
     /// pipelines are taken from `pipelines` (built there on first use).
     pub fn extract(
-        &self,
+        &mut self,
         pipelines: &mut PipelineCache,
         v: &Volume,
         eye: Eye,
@@ -868,13 +868,13 @@ impl LineExtractor {
     /// same smoothing in all) into one line state, one submission each, reading each back: a
     /// seeded frame seeds from the frame before it, as in a window.
     pub fn extract_frames(
-        &self,
+        &mut self,
         pipelines: &mut PipelineCache,
         v: &Volume,
         frames: &[(Eye, LineParams)],
         capacity: u32,
     ) -> Result<Vec<LineSet>> {
-        let ctx = &self.ctx;
+        let ctx = &self.ctx.clone();
         let Some((_, first)) = frames.first() else {
             return Ok(Vec::new());
         };
@@ -924,7 +924,7 @@ impl LineExtractor {
     /// smoothing and the extraction; [`LineSet::hessian_ms`] the precomputation, apart, since
     /// it is made once per volume.
     pub fn extract_with(
-        &self,
+        &mut self,
         pipelines: &mut PipelineCache,
         v: &Volume,
         eye: Eye,
@@ -932,7 +932,7 @@ impl LineExtractor {
         capacity: u32,
         source: HessianSource,
     ) -> Result<LineSet> {
-        let ctx = &self.ctx;
+        let ctx = &self.ctx.clone();
         let input = OcclusionInput::upload(ctx, v)?;
         let p = LineParams {
             iso: normalised_iso(input.range, params.iso),

@@ -652,14 +652,15 @@ impl Renderer {
             .post
             .as_ref()
             .ok_or_else(|| Error::Invalid("the style passes were not built".into()))?;
+        let radius = f.style.params.line_smooth;
+        if let (Some(_), Some(extractor)) = (f.style.def.lines, self.lines.as_mut()) {
+            if radius > 0 && !state.has_smoothed(vol.id, radius) {
+                let image = extractor.record_smoothing(frame, &vol.intensity, vol.dims, radius)?;
+                state.keep_smoothed(vol.id, radius, image);
+            }
+        }
         let draw = match (f.style.def.lines, &self.lines) {
             (Some(kind), Some(extractor)) => {
-                let radius = f.style.params.line_smooth;
-                if radius > 0 && !state.has_smoothed(vol.id, radius) {
-                    let image =
-                        extractor.record_smoothing(frame, &vol.intensity, vol.dims, radius)?;
-                    state.keep_smoothed(vol.id, radius, image);
-                }
                 let (line_state, smoothed) =
                     state.lines_and_smoothed(&self.ctx, DEFAULT_CAPACITY, (vol.id, radius))?;
                 let g = line_geometry(vol, f, kind);

@@ -564,7 +564,7 @@ impl GpuScene {
             Some(_) => Some(Occlusion::new(ctx)?),
             None => None,
         };
-        let importance = match modulation.is_active() {
+        let mut importance = match modulation.is_active() {
             true => Some(ImportanceMap::new(ctx)?),
             false => None,
         };
@@ -572,7 +572,7 @@ impl GpuScene {
         let ((occlusion_image, importance_volume, spectrum_buffer), _) = frames.frame(|f| {
             volume.record_upload(ctx, f, &staging);
             normals.record(f, &volume)?;
-            let delta_d = match &importance {
+            let delta_d = match &mut importance {
                 Some(map) => Some(map.record_from_texture(
                     f,
                     &volume,

@@ -15,7 +15,7 @@ pub(crate) fn importance(
 ) -> Result<()> {
     let v = input.load()?;
     let ctx = context(cli)?;
-    let map = vellum::passes::importance::ImportanceMap::new(&ctx)?;
+    let mut map = vellum::passes::importance::ImportanceMap::new(&ctx)?;
     let r = map.compute(&v, radius, false)?;
     report_validation(&ctx);
     if let Some(path) = out {
