@@ -53,7 +53,7 @@ fn sample_points(dims: [usize; 3], stride: usize, max: usize) -> Vec<[usize; 3]>
 
 fn check(
     gpu: &Gpu,
-    occ: &Occlusion,
+    occ: &mut Occlusion,
     name: &str,
     v: &Volume,
     p: &OcclusionParams,
@@ -112,12 +112,12 @@ fn check(
 #[test]
 fn ball_matches_brute_force_at_small_radii() {
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     let v = phantom::shepp_logan(30);
     for r in [1, 3, 6] {
         check(
             &gpu,
-            &occ,
+            &mut occ,
             "shepp-logan 30",
             &v,
             &params(r, Visibility::Ramp, Neighbourhood::Ball, 1),
@@ -126,7 +126,7 @@ fn ball_matches_brute_force_at_small_radii() {
     }
     check(
         &gpu,
-        &occ,
+        &mut occ,
         "shepp-logan 30",
         &v,
         &params(
@@ -142,7 +142,7 @@ fn ball_matches_brute_force_at_small_radii() {
         .collect();
     check(
         &gpu,
-        &occ,
+        &mut occ,
         "shepp-logan 30",
         &v,
         &params(5, Visibility::Table(table), Neighbourhood::Ball, 1),
@@ -154,7 +154,7 @@ fn ball_matches_brute_force_at_small_radii() {
         };
         check(
             &gpu,
-            &occ,
+            &mut occ,
             name,
             &v,
             &params(6, Visibility::Ramp, Neighbourhood::Ball, 1),
@@ -166,7 +166,7 @@ fn ball_matches_brute_force_at_small_radii() {
 #[test]
 fn fast_method_matches_brute_force_at_radius_16_on_64_cubed() {
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     let v = match common::real_volume("fuel") {
         Some(v) => v,
         None => phantom::shepp_logan(64),
@@ -174,7 +174,7 @@ fn fast_method_matches_brute_force_at_radius_16_on_64_cubed() {
     assert_eq!(v.dims, [64, 64, 64]);
     check(
         &gpu,
-        &occ,
+        &mut occ,
         "64³",
         &v,
         &params(16, Visibility::Ramp, Neighbourhood::Ball, 1),
@@ -182,7 +182,7 @@ fn fast_method_matches_brute_force_at_radius_16_on_64_cubed() {
     );
     check(
         &gpu,
-        &occ,
+        &mut occ,
         "64³ stride 2",
         &v,
         &params(16, Visibility::Ramp, Neighbourhood::Ball, 2),
@@ -193,11 +193,11 @@ fn fast_method_matches_brute_force_at_radius_16_on_64_cubed() {
 #[test]
 fn gaussian_neighbourhood_matches_reference() {
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     let v = phantom::nested(28);
     check(
         &gpu,
-        &occ,
+        &mut occ,
         "nested 28",
         &v,
         &params(6, Visibility::Ramp, Neighbourhood::Gaussian, 1),
@@ -205,7 +205,7 @@ fn gaussian_neighbourhood_matches_reference() {
     );
     check(
         &gpu,
-        &occ,
+        &mut occ,
         "nested 28 stride 3",
         &v,
         &params(4, Visibility::Ramp, Neighbourhood::Gaussian, 3),
@@ -216,7 +216,7 @@ fn gaussian_neighbourhood_matches_reference() {
 #[test]
 fn nested_spheres_separate_in_the_spectrum() {
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     let n = 64;
     let v = phantom::nested(n);
     let bins = 64usize;
@@ -272,7 +272,7 @@ fn nested_spheres_separate_in_the_spectrum() {
 #[test]
 fn bad_parameters_are_errors() {
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     let v = phantom::nested(8);
     assert!(occ
         .compute(&v, &params(0, Visibility::Ramp, Neighbourhood::Ball, 1))
@@ -358,10 +358,10 @@ fn occlusion_tf_render_tells_equal_intensities_apart() {
 fn adaptive_selection_separates_the_spheres() {
     use vellum::passes::occlusion_analysis::{select, sensitivity};
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     let v = phantom::nested(40);
     use vellum::passes::occlusion::Method;
-    let sel = select(&occ, &v, [0.7, 0.8], 8, 1, Method::Runs).unwrap();
+    let sel = select(&mut occ, &v, [0.7, 0.8], 8, 1, Method::Runs).unwrap();
     assert_eq!(sel.candidates.len(), 36);
     assert!(sel.candidates.windows(2).all(|w| w[0].score >= w[1].score));
     let b = &sel.best;
@@ -375,7 +375,7 @@ fn adaptive_selection_separates_the_spheres() {
     );
     // The fast path (FFT on the CPU and on the GPU) scores every candidate the same, to round-off.
     for method in [Method::FftCpu, Method::FftGpu] {
-        let fast = select(&occ, &v, [0.7, 0.8], 8, 1, method).unwrap();
+        let fast = select(&mut occ, &v, [0.7, 0.8], 8, 1, method).unwrap();
         assert_eq!((fast.best.t0, fast.best.t1), (b.t0, b.t1), "{method:?}");
         for (a, c) in sel.candidates.iter().zip(&fast.candidates) {
             assert!(
@@ -385,10 +385,10 @@ fn adaptive_selection_separates_the_spheres() {
         }
     }
     // OS7: one row per (radius, band), variances non-negative; the same with the FFT.
-    let rows = sensitivity(&occ, &v, &[2, 4, 8], 4, 1, Method::Runs).unwrap();
+    let rows = sensitivity(&mut occ, &v, &[2, 4, 8], 4, 1, Method::Runs).unwrap();
     assert_eq!(rows.len(), 12);
     assert!(rows.iter().all(|r| r.variance >= 0.0) && rows.iter().any(|r| r.variance > 0.0));
-    let fast = sensitivity(&occ, &v, &[2, 4, 8], 4, 1, Method::FftCpu).unwrap();
+    let fast = sensitivity(&mut occ, &v, &[2, 4, 8], 4, 1, Method::FftCpu).unwrap();
     for (a, c) in rows.iter().zip(&fast) {
         assert!((a.variance - c.variance).abs() <= 1e-6, "{a:?} {c:?}");
     }

@@ -39,7 +39,7 @@ fn params(
     }
 }
 
-fn occlusion(occ: &Occlusion, v: &Volume, p: &OcclusionParams) -> (Vec<f32>, [usize; 3]) {
+fn occlusion(occ: &mut Occlusion, v: &Volume, p: &OcclusionParams) -> (Vec<f32>, [usize; 3]) {
     let out = occ.compute(v, p).expect("occlusion");
     assert_eq!(out.method, p.method, "the asked method ran");
     let VoxelData::F32(o) = out.occlusion.data else {
@@ -127,7 +127,7 @@ fn all_points(out: [usize; 3]) -> Vec<[usize; 3]> {
 #[test]
 fn fft_equals_brute_force_at_small_radii_every_voxel() {
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     let cases: Vec<(Volume, &str)> = vec![
         (phantom::nested(32), "nested 32³"),
         (noise([23, 17, 9]), "noise 23×17×9"),
@@ -138,7 +138,7 @@ fn fft_equals_brute_force_at_small_radii_every_voxel() {
             for nb in [Neighbourhood::Ball, Neighbourhood::Gaussian] {
                 for method in [Method::FftCpu, Method::FftGpu] {
                     let p = params(r, method, nb, 1);
-                    let (o, out) = occlusion(&occ, v, &p);
+                    let (o, out) = occlusion(&mut occ, v, &p);
                     let worst = against_brute_force(v, &o, out, &p, &all_points(out));
                     assert!(
                         worst <= TOLERANCE,
@@ -153,7 +153,7 @@ fn fft_equals_brute_force_at_small_radii_every_voxel() {
 #[test]
 fn fft_keeps_mappings_and_strides_exact_at_sampled_voxels() {
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     let v = noise([30, 22, 17]);
     let table: Vec<f32> = (0..256).map(|i| ((i * 37) % 256) as f32 / 255.0).collect();
     for visibility in [
@@ -166,7 +166,7 @@ fn fft_keeps_mappings_and_strides_exact_at_sampled_voxels() {
                     visibility: visibility.clone(),
                     ..params(5, method, Neighbourhood::Ball, stride)
                 };
-                let (o, out) = occlusion(&occ, &v, &p);
+                let (o, out) = occlusion(&mut occ, &v, &p);
                 assert_eq!(out, v.dims.map(|d| d.div_ceil(stride as usize)));
                 let worst = against_brute_force(&v, &o, out, &p, &all_points(out));
                 assert!(
@@ -181,7 +181,7 @@ fn fft_keeps_mappings_and_strides_exact_at_sampled_voxels() {
 #[test]
 fn gpu_fft_equals_cpu_fft_on_odd_sizes_and_radii_beyond_the_volume() {
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     // (dims, radius): odd sizes, prime sizes, a radius beyond two of the three dimensions.
     let cases = [
         ([41, 41, 41], 9u32),
@@ -193,8 +193,8 @@ fn gpu_fft_equals_cpu_fft_on_odd_sizes_and_radii_beyond_the_volume() {
     for (dims, r) in cases {
         let v = noise(dims);
         for nb in [Neighbourhood::Ball, Neighbourhood::Gaussian] {
-            let (a, out) = occlusion(&occ, &v, &params(r, Method::FftCpu, nb, 1));
-            let (b, _) = occlusion(&occ, &v, &params(r, Method::FftGpu, nb, 1));
+            let (a, out) = occlusion(&mut occ, &v, &params(r, Method::FftCpu, nb, 1));
+            let (b, _) = occlusion(&mut occ, &v, &params(r, Method::FftGpu, nb, 1));
             let d = max_diff(&a, &b);
             assert!(
                 d <= TOLERANCE,
@@ -237,7 +237,7 @@ fn fft_equals_runs_on_real_volumes_at_large_radii() {
         return;
     };
     let gpu = Gpu::new();
-    let occ = Occlusion::new(&gpu.ctx).unwrap();
+    let mut occ = Occlusion::new(&gpu.ctx).unwrap();
     let cases = [
         (fuel, "fuel"),
         (neghip, "neghip"),
@@ -245,9 +245,13 @@ fn fft_equals_runs_on_real_volumes_at_large_radii() {
     ];
     for (v, name) in &cases {
         for r in [16, 32] {
-            let (runs, out) = occlusion(&occ, v, &params(r, Method::Runs, Neighbourhood::Ball, 1));
+            let (runs, out) = occlusion(
+                &mut occ,
+                v,
+                &params(r, Method::Runs, Neighbourhood::Ball, 1),
+            );
             for method in [Method::FftCpu, Method::FftGpu] {
-                let (fft, _) = occlusion(&occ, v, &params(r, method, Neighbourhood::Ball, 1));
+                let (fft, _) = occlusion(&mut occ, v, &params(r, method, Neighbourhood::Ball, 1));
                 let d = max_diff(&runs, &fft);
                 assert!(
                     d <= TOLERANCE,

@@ -189,7 +189,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                 continue;
             }
             // A fresh pass object: no kernel or data spectrum carried over from another radius.
-            let occ = Occlusion::new(ctx)?;
+            let mut occ = Occlusion::new(ctx)?;
             let start = std::time::Instant::now();
             let out = occ.compute_on(
                 &input,

@@ -35,7 +35,6 @@ use crate::passes::volume_image::extent_of;
 use crate::volume::reference::occlusion::Visibility;
 use crate::volume::{Volume, VoxelData};
 use ash::vk;
-use std::cell::{OnceCell, RefCell};
 use std::sync::Arc;
 
 /// Push constants of the occlusion passes (GLSL twin: `OcclusionPush` in occlusion.glsl).
@@ -276,11 +275,11 @@ struct CpuData {
 pub struct Occlusion {
     ctx: Arc<Context>,
     /// Built on first use (compiling them costs time on lavapipe).
-    fft: OnceCell<FftGpu>,
+    fft: Option<FftGpu>,
     /// The GPU FFT's images and kernel spectrum of the last computation.
-    fft_work: RefCell<Option<FftWork>>,
-    cpu_kernel: RefCell<Option<CpuKernel>>,
-    cpu_data: RefCell<Option<CpuData>>,
+    fft_work: Option<FftWork>,
+    cpu_kernel: Option<CpuKernel>,
+    cpu_data: Option<CpuData>,
     prefix: ComputePipeline,
     ball: ComputePipeline,
     gauss_axis: ComputePipeline,
@@ -296,10 +295,10 @@ impl Occlusion {
         let push = std::mem::size_of::<OcclusionPush>() as u32;
         Ok(Occlusion {
             ctx: ctx.clone(),
-            fft: OnceCell::new(),
-            fft_work: RefCell::new(None),
-            cpu_kernel: RefCell::new(None),
-            cpu_data: RefCell::new(None),
+            fft: None,
+            fft_work: None,
+            cpu_kernel: None,
+            cpu_data: None,
             prefix: ComputePipeline::new(
                 ctx,
                 "occlusion/prefix_x.comp",
@@ -345,7 +344,7 @@ impl Occlusion {
     }
 
     /// Computes O for `v` (and the spectrum when asked): upload, the passes, readback.
-    pub fn compute(&self, v: &Volume, p: &OcclusionParams) -> Result<OcclusionOutput> {
+    pub fn compute(&mut self, v: &Volume, p: &OcclusionParams) -> Result<OcclusionOutput> {
         let (input, mut passes) = OcclusionInput::upload_timed(&self.ctx, v)?;
         let mut out = self.compute_on(&input, p)?;
         passes.append(&mut out.passes);
@@ -390,7 +389,7 @@ impl Occlusion {
     /// Computes O (and the spectrum when asked) for a volume already on the GPU and reads the
     /// results back. Occlusion selection and sensitivity call this many times on one upload.
     pub fn compute_on(
-        &self,
+        &mut self,
         input: &OcclusionInput,
         p: &OcclusionParams,
     ) -> Result<OcclusionOutput> {
@@ -399,11 +398,11 @@ impl Occlusion {
         if method == Method::FftCpu {
             return self.compute_cpu(input, p);
         }
-        let ctx = &self.ctx;
-        let targets = self.targets_for(input, p, method)?;
+        let ctx = &self.ctx.clone();
+        let mut targets = self.targets_for(input, p, method)?;
         let readback = staging_buffer(ctx, "occlusion readback", targets.occlusion.byte_size())?;
         let ((), passes) = submit_timed(ctx, "occlusion", |f| {
-            self.record(f, input, &targets, p)?;
+            self.record(f, input, &mut targets, p)?;
             f.profiler.pass(f.cmd, "readback", |cmd| {
                 record_readback(ctx, cmd, &targets.occlusion, &readback)
             });
@@ -429,7 +428,7 @@ impl Occlusion {
         let out_dims = targets.out_dims;
         // The FFT work (with its kernel spectrum) serves the next call with the same shape.
         if let Some(work) = targets.fft {
-            *self.fft_work.borrow_mut() = Some(work);
+            self.fft_work = Some(work);
         }
         Ok(OcclusionOutput {
             // Output voxel o samples input voxel o·stride: the same origin and directions, the
@@ -444,7 +443,11 @@ impl Occlusion {
     }
 
     /// The FFT method on the CPU for an uploaded input (which keeps its host copy).
-    fn compute_cpu(&self, input: &OcclusionInput, p: &OcclusionParams) -> Result<OcclusionOutput> {
+    fn compute_cpu(
+        &mut self,
+        input: &OcclusionInput,
+        p: &OcclusionParams,
+    ) -> Result<OcclusionOutput> {
         use crate::passes::occlusion_fft::{
             available_memory, check_cpu_memory, check_pad, padded_dims,
         };
@@ -469,7 +472,7 @@ impl Occlusion {
         };
         let fft = CpuFft::new(pad);
         let t = std::time::Instant::now();
-        let cached = self.cpu_data.borrow().as_ref().and_then(|c| {
+        let cached = self.cpu_data.as_ref().and_then(|c| {
             (Arc::ptr_eq(&c.host, &host) && c.visibility == p.visibility && c.pad == pad)
                 .then(|| c.spectrum.clone())
         });
@@ -478,7 +481,7 @@ impl Occlusion {
             None => {
                 let mapped: Vec<f32> = host.par_iter().map(|&s| p.visibility.apply(s)).collect();
                 let d = Arc::new(fft.data_spectrum(&mapped, dims));
-                *self.cpu_data.borrow_mut() = Some(CpuData {
+                self.cpu_data = Some(CpuData {
                     host: host.clone(),
                     visibility: p.visibility.clone(),
                     pad,
@@ -489,14 +492,14 @@ impl Occlusion {
         };
         timed("fft forward (cpu)", t);
         let t = std::time::Instant::now();
-        let cached = self.cpu_kernel.borrow().as_ref().and_then(|c| {
+        let cached = self.cpu_kernel.as_ref().and_then(|c| {
             (c.kernel == kernel && c.dims == dims && c.pad == pad).then(|| c.spectrum.clone())
         });
         let k = match cached {
             Some(k) => k,
             None => {
                 let k = Arc::new(fft.kernel_spectrum(kernel, dims));
-                *self.cpu_kernel.borrow_mut() = Some(CpuKernel {
+                self.cpu_kernel = Some(CpuKernel {
                     kernel,
                     dims,
                     pad,
@@ -548,41 +551,43 @@ impl Occlusion {
 
     /// Checks `p` and allocates the work images and buffers for `input`, for a method that runs
     /// on the GPU.
-    pub fn targets(&self, input: &OcclusionInput, p: &OcclusionParams) -> Result<OcclusionTargets> {
+    pub fn targets(
+        &mut self,
+        input: &OcclusionInput,
+        p: &OcclusionParams,
+    ) -> Result<OcclusionTargets> {
         check_radius_stride(p.radius, p.stride)?;
         let method = self.choose(input.dims, p, true)?;
         self.targets_for(input, p, method)
     }
 
-    fn fft_gpu(&self) -> Result<&FftGpu> {
-        if self.fft.get().is_none() {
-            let f = FftGpu::new(&self.ctx)?;
-            let _ = self.fft.set(f);
+    /// Builds the FFT pipelines if no earlier computation did.
+    fn build_fft(&mut self) -> Result<()> {
+        if self.fft.is_none() {
+            self.fft = Some(FftGpu::new(&self.ctx)?);
         }
-        self.fft
-            .get()
-            .ok_or_else(|| Error::Invalid("the FFT pipelines could not be kept".into()))
+        Ok(())
     }
 
     fn targets_for(
-        &self,
+        &mut self,
         input: &OcclusionInput,
         p: &OcclusionParams,
         method: Method,
     ) -> Result<OcclusionTargets> {
-        let ctx = &self.ctx;
+        let ctx = &self.ctx.clone();
         check_radius_stride(p.radius, p.stride)?;
         let extent = extent_of(ctx, input.dims, 4, 4)?;
         let out_dims: [usize; 3] = input.dims.map(|d| d.div_ceil(p.stride as usize));
         let fft = match method {
             Method::FftGpu => {
-                self.fft_gpu()?;
+                self.build_fft()?;
                 let kernel = Kernel::new(p.neighbourhood, p.radius);
                 let pad = p.pad.unwrap_or_else(|| {
                     crate::passes::occlusion_fft::padded_dims(input.dims, p.radius)
                 });
                 let stride = p.stride as usize;
-                let cached = self.fft_work.borrow_mut().take();
+                let cached = self.fft_work.take();
                 Some(match cached {
                     Some(w) if w.serves(input.dims, pad, kernel, stride) => w,
                     _ => {
@@ -662,12 +667,13 @@ impl Occlusion {
 
     /// Records pass `occlusion` (and `spectrum` when `targets` has a histogram) into `cmd`. The
     /// occlusion volume stays in `targets.occlusion`; its next user transitions it from the
-    /// compute write (or the spectrum's read) to its own access.
+    /// compute write (or the spectrum's read) to its own access. The FFT method's work in
+    /// `targets` remembers that its kernel spectrum is recorded.
     pub fn record(
         &self,
         frame: &mut Frame,
         input: &OcclusionInput,
-        targets: &OcclusionTargets,
+        targets: &mut OcclusionTargets,
         p: &OcclusionParams,
     ) -> Result<()> {
         let (mapping, t0, t1) = match &p.visibility {
@@ -689,21 +695,26 @@ impl Occlusion {
             t0,
             t1,
         };
-        let occlusion = &targets.occlusion;
         frame.profiler.begin(cmd, "occlusion");
         input.intensity.transition(cmd, Access::ComputeRead);
-        if let Some(work) = &targets.fft {
-            self.fft_gpu()?.record(
+        if let Some(work) = &mut targets.fft {
+            let fft = self.fft.as_ref().ok_or_else(|| {
+                Error::Invalid(
+                    "occlusion targets for the FFT were made without its pipelines".into(),
+                )
+            })?;
+            fft.record(
                 frame,
                 work,
                 &input.intensity,
                 &targets.visibility,
                 &Mapping { mapping, t0, t1 },
-                occlusion,
+                &targets.occlusion,
             )?;
             frame.profiler.end(cmd);
             return self.record_spectrum(frame, input, targets, p);
         }
+        let occlusion = &targets.occlusion;
         let (Some(prefix), Some(mapped)) = (&targets.prefix, &targets.mapped) else {
             return Err(Error::Invalid(
                 "occlusion targets lack their work images".into(),

@@ -64,7 +64,7 @@ fn sampled_voxel(o: usize, out_dims: [usize; 3], dims: [usize; 3], stride: usize
 /// Ball occlusion of the uploaded volume with `visibility`, at the output grid of `stride`, as
 /// plain values.
 fn ball_occlusion(
-    occ: &Occlusion,
+    occ: &mut Occlusion,
     input: &OcclusionInput,
     radius: u32,
     visibility: Visibility,
@@ -154,7 +154,7 @@ pub fn variance_of_means(means: &[f64], counts: &[usize]) -> f64 {
 
 /// Adaptive mapping selection for the interval `[lo, hi]` (data units).
 pub fn select(
-    occ: &Occlusion,
+    occ: &mut Occlusion,
     v: &Volume,
     interval: [f64; 2],
     radius: u32,
@@ -282,7 +282,7 @@ pub const MAX_RADII: usize = 64;
 /// Variance of occlusion (ramp mapping, ball) within each of `bands` intensity bands, for each
 /// radius (SPEC OS7, paper Fig. 6). Band edges are in data units.
 pub fn sensitivity(
-    occ: &Occlusion,
+    occ: &mut Occlusion,
     v: &Volume,
     radii: &[u32],
     bands: usize,

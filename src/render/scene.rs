@@ -560,7 +560,7 @@ impl GpuScene {
                 Some((otf.table()?, occlusion_params(otf)?)),
             ),
         };
-        let occlusion = match &otf {
+        let mut occlusion = match &otf {
             Some(_) => Some(Occlusion::new(ctx)?),
             None => None,
         };
@@ -581,11 +581,11 @@ impl GpuScene {
                 )?),
                 None => None,
             };
-            let image = match (&occlusion, &otf) {
+            let image = match (&mut occlusion, &otf) {
                 (Some(occ), Some((_, p))) => {
                     let input = occ.record_input_from_texture(f, &volume, normals.nearest())?;
                     let mut targets = occ.targets(&input, p)?;
-                    occ.record(f, &input, &targets, p)?;
+                    occ.record(f, &input, &mut targets, p)?;
                     // The input and work images drop here, mid-recording: their release is
                     // deferred until this frame completes (gpu/lifetime.rs).
                     let spectrum = targets.spectrum.take();

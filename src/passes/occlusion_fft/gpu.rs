@@ -22,7 +22,6 @@ use crate::gpu::{
     Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Frame, Image, ImageDesc,
 };
 use ash::vk;
-use std::cell::Cell;
 use std::sync::Arc;
 
 /// Push constants of the FFT passes (GLSL twin: `FftPush` in occlusion.glsl).
@@ -207,7 +206,8 @@ pub struct FftWork {
     lengths: [(i32, i32, i32, i32); 3],
     den: Buffer,
     classes: [usize; 3],
-    kernel_ready: Cell<bool>,
+    /// Whether a recorded frame has filled `kernel_hat`.
+    kernel_ready: bool,
 }
 
 impl FftWork {
@@ -282,7 +282,7 @@ impl FftWork {
                 bytemuck::cast_slice(&den_words),
             )?,
             classes: den.classes,
-            kernel_ready: Cell::new(false),
+            kernel_ready: false,
         })
     }
 
@@ -410,7 +410,7 @@ impl FftGpu {
     pub fn record(
         &self,
         frame: &mut Frame,
-        work: &FftWork,
+        work: &mut FftWork,
         intensity: &Image,
         visibility: &Buffer,
         mapping: &Mapping,
@@ -426,7 +426,7 @@ impl FftGpu {
             mapping,
         };
         intensity.transition(cmd, Access::ComputeRead);
-        if !w.kernel_ready.get() {
+        if !w.kernel_ready {
             // Kernel: every row may hold weight, so nothing is pruned.
             let mode = match w.kernel {
                 Kernel::Ball(_) => 1,
@@ -437,7 +437,7 @@ impl FftGpu {
             k.transition(cmd, Access::ComputeWrite);
             res.transition(cmd, Access::ComputeWrite);
             self.z_pass(cmd, w, mapping, 0, w.pad)?;
-            w.kernel_ready.set(true);
+            w.kernel_ready = true;
         }
         // Data: rows and planes beyond the volume are zero and never touched.
         self.forward_xy(cmd, w, &input, 0, w.dims)?;

@@ -98,10 +98,10 @@ pub(crate) fn occlusion_select(
     let method = vellum::passes::occlusion::Method::parse(method)?;
     let v = input.load()?;
     let ctx = context(cli)?;
-    let occ = vellum::passes::occlusion::Occlusion::new(&ctx)?;
+    let mut occ = vellum::passes::occlusion::Occlusion::new(&ctx)?;
     let start = std::time::Instant::now();
     let sel =
-        vellum::passes::occlusion_analysis::select(&occ, &v, interval, radius, stride, method)?;
+        vellum::passes::occlusion_analysis::select(&mut occ, &v, interval, radius, stride, method)?;
     report_validation(&ctx);
     if json {
         println!(
@@ -153,7 +153,7 @@ pub(crate) fn occlusion_sensitivity(cli: &Cli, a: &SensitivityArgs) -> Result<()
     let method = Method::parse(method)?;
     let v = input.load()?;
     let ctx = context(cli)?;
-    let occ = vellum::passes::occlusion::Occlusion::new(&ctx)?;
+    let mut occ = vellum::passes::occlusion::Occlusion::new(&ctx)?;
     let largest = radii.iter().copied().max().unwrap_or(16);
     let stride = if stride == 0 {
         // Full resolution when an FFT method serves the largest radius there (its cost does not
@@ -174,8 +174,9 @@ pub(crate) fn occlusion_sensitivity(cli: &Cli, a: &SensitivityArgs) -> Result<()
     } else {
         stride
     };
-    let rows =
-        vellum::passes::occlusion_analysis::sensitivity(&occ, &v, radii, bands, stride, method)?;
+    let rows = vellum::passes::occlusion_analysis::sensitivity(
+        &mut occ, &v, radii, bands, stride, method,
+    )?;
     report_validation(&ctx);
     let c = vellum::passes::occlusion_analysis::sensitivity_plot(&rows);
     vellum::output::write_png_rgb(out, c.width as u32, c.height as u32, &c.rgb)?;
