@@ -1,6 +1,7 @@
 # vellum: `make run` and `make test` are the two entry points. Each first installs whatever is
 # missing on a Debian 12 machine (apt packages for Vulkan, lavapipe, validation and shaderc; scipy
-# for the CPU peer and SimpleITK, the geometry tests' reference), then builds.
+# for the CPU peer, SimpleITK, the geometry tests' reference, and ome-zarr, zarr and dask, which
+# write the OME-Zarr stores a test reads), then builds.
 
 SHELL := /bin/bash
 # The second line is the viewer's: the X libraries winit opens at run time, and Xvfb, xauth,
@@ -27,6 +28,7 @@ deps:
 		$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing; \
 	fi
 	@python3 -c "import scipy, numpy, SimpleITK" 2>/dev/null || python3 -m pip install --quiet scipy numpy SimpleITK
+	@python3 -c "import ome_zarr, zarr, dask" 2>/dev/null || python3 -m pip install --quiet ome-zarr zarr dask
 
 build: deps
 	cargo build --release --locked

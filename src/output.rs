@@ -50,7 +50,7 @@ pub fn commit() -> Result<()> {
         if let Err(e) = std::fs::rename(tmp, path) {
             // Nothing sensible is left to do with the rest: remove them, report this one.
             for (t, _) in &pending[i..] {
-                let _ = std::fs::remove_file(t);
+                remove(t);
             }
             return Err(Error::io(path, e));
         }
@@ -62,7 +62,7 @@ pub fn commit() -> Result<()> {
 pub fn abort() {
     if let Some(pending) = lock(&PENDING).take() {
         for (tmp, _) in pending {
-            let _ = std::fs::remove_file(tmp);
+            remove(&tmp);
         }
     }
 }
@@ -71,9 +71,71 @@ pub fn abort() {
 /// exits).
 pub fn remove_pending() {
     for tmp in lock(&WRITING).iter() {
-        let _ = std::fs::remove_file(tmp);
+        remove(tmp);
     }
     abort();
+}
+
+/// Removes a temporary file, or a temporary folder and what it holds.
+fn remove(tmp: &Path) {
+    if tmp.is_dir() {
+        let _ = std::fs::remove_dir_all(tmp);
+    } else {
+        let _ = std::fs::remove_file(tmp);
+    }
+}
+
+/// Writes a folder output (a chunked store) as [`write_atomic`] writes a file: `fill` fills a
+/// temporary folder beside `path`, which is renamed into place once complete (at [`commit`] in a
+/// transaction) and removed on an error or Ctrl-C. `path` must not exist yet.
+pub fn write_folder_atomic(path: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    if path.file_name().is_none() {
+        return Err(Error::Invalid(format!(
+            "{} has no folder name; expected a path to a new folder",
+            path.display()
+        )));
+    }
+    if std::fs::symlink_metadata(path).is_ok() {
+        return Err(Error::Invalid(format!(
+            "{} already exists; expected a new folder for the store",
+            path.display()
+        )));
+    }
+    let tmp = temporary_beside(path);
+    lock(&WRITING).push(tmp.clone());
+    let result = std::fs::create_dir(&tmp)
+        .map_err(|e| Error::io(&tmp, e))
+        .and_then(|()| fill(&tmp));
+    lock(&WRITING).retain(|t| t != &tmp);
+    if let Err(e) = result {
+        remove(&tmp);
+        return Err(e);
+    }
+    complete(tmp, path)
+}
+
+/// A temporary name beside `path` (short, so that a name near the file-system limit still fits).
+fn temporary_beside(path: &Path) -> PathBuf {
+    path.with_file_name(format!(
+        ".vellum.{}.{}.tmp",
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    ))
+}
+
+/// A complete temporary output: renamed into place now, or at [`commit`] in a transaction.
+fn complete(tmp: PathBuf, path: &Path) -> Result<()> {
+    let mut pending = lock(&PENDING);
+    match pending.as_mut() {
+        Some(list) => {
+            list.push((tmp, path.to_path_buf()));
+            Ok(())
+        }
+        None => std::fs::rename(&tmp, path).map_err(|e| {
+            remove(&tmp);
+            Error::io(path, e)
+        }),
+    }
 }
 
 /// Refuses `path` when it exists and is not a regular file, or is a symbolic link.
@@ -131,11 +193,7 @@ pub fn write_atomic(
             )));
         }
     }
-    let tmp = path.with_file_name(format!(
-        ".vellum.{}.{}.tmp",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
+    let tmp = temporary_beside(path);
     lock(&WRITING).push(tmp.clone());
     let result = (|| {
         let mut w = BufWriter::new(File::create(&tmp)?);
@@ -148,17 +206,7 @@ pub fn write_atomic(
         let _ = std::fs::remove_file(&tmp);
         return Err(Error::io(path, e));
     }
-    let mut pending = lock(&PENDING);
-    match pending.as_mut() {
-        Some(list) => {
-            list.push((tmp, path.to_path_buf()));
-            Ok(())
-        }
-        None => std::fs::rename(&tmp, path).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            Error::io(path, e)
-        }),
-    }
+    complete(tmp, path)
 }
 
 /// Writes an 8-bit RGB image as PNG, atomically.

@@ -133,18 +133,7 @@ fn engine_matches_scipy() {
     let Some(data) = common::shared_data() else {
         return;
     };
-    let have_scipy = std::process::Command::new("python3")
-        .args(["-c", "import scipy.ndimage, numpy"])
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
-    if !have_scipy {
-        assert_ne!(
-            std::env::var("CI").as_deref(),
-            Ok("true"),
-            "python3 with scipy is required under CI"
-        );
-        eprintln!("note: python3 with scipy is missing; skipping");
+    if !common::python_with("scipy.ndimage, numpy") {
         return;
     }
     let dir = tempfile::tempdir().unwrap();

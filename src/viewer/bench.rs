@@ -45,9 +45,9 @@ pub struct BenchLog {
     presented: u64,
     completed: u64,
     frame_ms: VecDeque<f64>,
-    /// Per completed frame: (index into `names`, ms) per pass.
-    gpu: VecDeque<Vec<(usize, f64)>>,
-    names: Vec<String>,
+    /// Per pass name, its times over the last frames that ran it: a steady frame allocates
+    /// nothing here.
+    gpu: Vec<(String, VecDeque<f64>)>,
     rss_kib: Vec<(u64, u64)>,
 }
 
@@ -60,8 +60,7 @@ impl BenchLog {
             presented: 0,
             completed: 0,
             frame_ms: VecDeque::with_capacity(WINDOW),
-            gpu: VecDeque::with_capacity(WINDOW),
-            names: Vec::new(),
+            gpu: Vec::new(),
             rss_kib: Vec::new(),
         }
     }
@@ -85,20 +84,17 @@ impl BenchLog {
         if self.completed <= WARM_UP {
             return;
         }
-        let row = passes
-            .iter()
-            .map(|p| {
-                let i = match self.names.iter().position(|n| *n == p.name) {
-                    Some(i) => i,
-                    None => {
-                        self.names.push(p.name.clone());
-                        self.names.len() - 1
-                    }
-                };
-                (i, p.ms)
-            })
-            .collect();
-        push_bounded(&mut self.gpu, row);
+        for p in passes {
+            let i = match self.gpu.iter().position(|(n, _)| *n == p.name) {
+                Some(i) => i,
+                None => {
+                    self.gpu
+                        .push((p.name.clone(), VecDeque::with_capacity(WINDOW)));
+                    self.gpu.len() - 1
+                }
+            };
+            push_bounded(&mut self.gpu[i].1, p.ms);
+        }
     }
 
     /// The frame-time percentiles and median pass times; the caller fills in what the log does
@@ -111,15 +107,13 @@ impl BenchLog {
             n => ms[((p * (n - 1) as f64).round() as usize).min(n - 1)],
         };
         // Passes of the warm-up frames only (a one-off smoothing) have no figure to report.
-        let gpu_ms = (0..self.names.len())
-            .filter_map(|k| {
-                let mut v: Vec<f64> = self
-                    .gpu
-                    .iter()
-                    .filter_map(|row| row.iter().find(|(i, _)| *i == k).map(|&(_, ms)| ms))
-                    .collect();
+        let gpu_ms = self
+            .gpu
+            .iter()
+            .filter_map(|(name, times)| {
+                let mut v: Vec<f64> = times.iter().copied().collect();
                 v.sort_by(f64::total_cmp);
-                v.get(v.len() / 2).map(|&med| (self.names[k].clone(), med))
+                v.get(v.len() / 2).map(|&med| (name.clone(), med))
             })
             .collect();
         let mean = ms.iter().sum::<f64>() / ms.len().max(1) as f64;
@@ -199,8 +193,8 @@ mod tests {
         // Only the last WINDOW frames count: the 100 slow ones have left the window.
         assert_eq!((r.p50_ms, r.p99_ms), (10.0, 10.0));
         assert_eq!(r.gpu_ms, vec![("raycast".to_string(), 1.0)]);
-        assert!(log.frame_ms.len() <= WINDOW && log.gpu.len() <= WINDOW);
-        assert_eq!(log.names.len(), 1);
+        assert!(log.frame_ms.len() <= WINDOW && log.gpu[0].1.len() <= WINDOW);
+        assert_eq!(log.gpu.len(), 1);
         if resident_kib().is_some() {
             assert_eq!(r.rss_kib.len() as u64, r.frames_presented / RSS_EVERY);
             assert_eq!(r.rss_kib[0].0, RSS_EVERY);

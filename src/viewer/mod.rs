@@ -1344,8 +1344,7 @@ impl Running {
             }
             // A frame that only presented the last render keeps that render's figures.
             if !r.passes.is_empty() {
-                self.session.model.gpu_ms =
-                    r.passes.iter().map(|p| (p.name.clone(), p.ms)).collect();
+                set_gpu_ms(&mut self.session.model.gpu_ms, &r.passes);
             }
         }
         if !self.pending_free.is_empty() {
@@ -1529,6 +1528,19 @@ impl Running {
             Some(b) => b.report(base),
             None => base,
         }
+    }
+}
+
+/// The corner's pass times from a completed frame's, in place: a frame with the same passes as
+/// the last one (every steady frame) allocates nothing.
+fn set_gpu_ms(shown: &mut Vec<(String, f64)>, passes: &[crate::gpu::PassTime]) {
+    let same = shown.len() == passes.len() && shown.iter().zip(passes).all(|(s, p)| s.0 == p.name);
+    if same {
+        for (s, p) in shown.iter_mut().zip(passes) {
+            s.1 = p.ms;
+        }
+    } else {
+        *shown = passes.iter().map(|p| (p.name.clone(), p.ms)).collect();
     }
 }
 

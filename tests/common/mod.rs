@@ -183,3 +183,22 @@ pub fn styled_frame(
     let passes = frames.finish().unwrap();
     (targets, passes)
 }
+
+/// Whether python3 imports `modules` (comma-separated, as in an import statement), for tests
+/// whose peer is a Python package; under CI its absence fails the test.
+pub fn python_with(modules: &str) -> bool {
+    let have = std::process::Command::new("python3")
+        .args(["-c", &format!("import {modules}")])
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    if !have {
+        assert_ne!(
+            std::env::var("CI").as_deref(),
+            Ok("true"),
+            "python3 with {modules} is required under CI"
+        );
+        eprintln!("note: python3 with {modules} is missing; skipping");
+    }
+    have
+}

@@ -75,12 +75,19 @@ pub(crate) enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Convert a volume to NRRD (gzip).
+    /// Convert a volume to NRRD (gzip), NIfTI, or an OME-Zarr multiscale store.
     Convert {
         #[command(flatten)]
         input: InputArgs,
-        /// Output volume: .nrrd, .nii or .nii.gz (the extension picks the format).
+        /// Output volume: .nrrd, .nii or .nii.gz, or a new folder ending .zarr (OME-NGFF 0.5,
+        /// zstd, a pyramid of 2×2×2 means); the extension picks the format.
         output: PathBuf,
+        /// OME-Zarr: chunk edge in voxels (default 64).
+        #[arg(long)]
+        chunk: Option<usize>,
+        /// OME-Zarr: levels of the pyramid, or auto (halve until the longest axis is ≤ 64).
+        #[arg(long, value_name = "auto|N")]
+        levels: Option<String>,
     },
     /// Upload a volume to a 3D image on the GPU, read it back and check it is bit-exact.
     Roundtrip {

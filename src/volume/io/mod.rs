@@ -14,6 +14,7 @@ mod dicom;
 mod metaimage;
 pub mod nifti;
 pub mod nrrd;
+pub mod ome_zarr;
 mod raw;
 
 pub use nifti::write_nifti;
@@ -88,6 +89,9 @@ pub fn load(path: &Path, raw: Option<&RawSpec>) -> Result<Volume> {
     let has = |ext: &str| name.ends_with(ext);
     let volume = if let Some(spec) = raw {
         raw::read(path, spec)?
+    } else if ome_zarr::is_store(path) {
+        // In core: the finest level whole (the brick cache streams larger ones; issue 26).
+        ome_zarr::Multiscale::open(path)?.read_level(0)?
     } else if path.is_dir() {
         dicom::read(path)?
     } else if has(".nrrd") || has(".nhdr") {

@@ -56,6 +56,17 @@ pub(crate) fn output_paths(command: &Command) -> Vec<&Path> {
     }
 }
 
+/// `--levels`: `auto` (or absent) picks by size; otherwise a count of 1 or more.
+fn parse_levels(levels: Option<&str>) -> Result<Option<usize>> {
+    match levels {
+        None | Some("auto") => Ok(None),
+        Some(n) => match n.parse::<usize>() {
+            Ok(n) if n > 0 => Ok(Some(n)),
+            _ => anyhow::bail!("--levels {n:?} is invalid; expected auto or a number of 1 or more"),
+        },
+    }
+}
+
 /// Refuses two outputs of one command at the same path, before any work is done.
 pub(crate) fn check_distinct_outputs(command: &Command) -> Result<()> {
     let paths = output_paths(command);
@@ -77,9 +88,29 @@ pub(crate) fn run(cli: &Cli) -> Result<()> {
     match &cli.command {
         Command::Devices { json } => devices(cli, *json),
         Command::Info { input, json } => info(input, *json),
-        Command::Convert { input, output } => {
+        Command::Convert {
+            input,
+            output,
+            chunk,
+            levels,
+        } => {
+            let store = output
+                .file_name()
+                .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"));
+            anyhow::ensure!(
+                store || (chunk.is_none() && levels.is_none()),
+                "--chunk and --levels shape an OME-Zarr store; expected an output folder ending .zarr"
+            );
             let v = input.load()?;
-            vellum::volume::io::write(output, &v)?;
+            if store {
+                let opts = vellum::volume::io::ome_zarr::WriteOptions {
+                    chunk: chunk.unwrap_or(64),
+                    levels: parse_levels(levels.as_deref())?,
+                };
+                vellum::volume::io::ome_zarr::write(output, &v, &opts)?;
+            } else {
+                vellum::volume::io::write(output, &v)?;
+            }
             println!(
                 "wrote {} ({}x{}x{} {})",
                 output.display(),
