@@ -79,6 +79,10 @@ fn halving_averages_each_block_and_what_an_odd_edge_has() {
     assert_eq!(h.data, VoxelData::F32(vec![4.0, 15.0]));
 }
 
+/// (t, c, z, y, x) axes, as the v2 helper's arrays have them.
+const TCZYX: &str =
+    r#"[{"name": "t"}, {"name": "c"}, {"name": "z"}, {"name": "y"}, {"name": "x"}]"#;
+
 /// Writes `bytes` to `path`, making its folder.
 fn put(path: &Path, bytes: &[u8]) {
     std::fs::create_dir_all(path.parent().unwrap()).unwrap();
@@ -165,11 +169,9 @@ fn an_ngff_0_4_store_on_zarr_v2_is_read_with_its_scale_and_translation() {
 #[test]
 fn bad_stores_are_one_sentence() {
     let dir = tempfile::tempdir().unwrap();
-    let axes_zyx = r#"[{"name": "z"}, {"name": "y"}, {"name": "x"}]"#;
     // Two channels.
     let root = dir.path().join("channels.zarr");
-    let axes = r#"[{"name": "t"}, {"name": "c"}, {"name": "z"}, {"name": "y"}, {"name": "x"}]"#;
-    v2_store(&root, [2, 2, 2], 2, axes, [1, 2]);
+    v2_store(&root, [2, 2, 2], 2, TCZYX, [1, 2]);
     let e = Multiscale::open(&root).err().expect("refused").to_string();
     assert!(
         e.contains("2 channels") && e.contains("expected one of each"),
@@ -193,7 +195,7 @@ fn bad_stores_are_one_sentence() {
     assert!(e.contains("no OME-NGFF multiscales metadata"), "{e}");
     // A corrupt chunk names the level.
     let root = dir.path().join("corrupt.zarr");
-    v2_store(&root, [4, 4, 4], 4, axes_zyx_as_tczyx(axes_zyx), [1, 1]);
+    v2_store(&root, [4, 4, 4], 4, TCZYX, [1, 1]);
     put(&root.join("0/0/0/0/0/0"), b"short");
     let e = Multiscale::open(&root)
         .unwrap()
@@ -208,11 +210,6 @@ fn bad_stores_are_one_sentence() {
         .to_string();
     assert!(e.contains("already exists"), "{e}");
     assert!(root.join("0/.zarray").exists());
-}
-
-/// The (t, c, z, y, x) axes the v2 helper writes, whatever the case under test.
-fn axes_zyx_as_tczyx(_: &str) -> &'static str {
-    r#"[{"name": "t"}, {"name": "c"}, {"name": "z"}, {"name": "y"}, {"name": "x"}]"#
 }
 
 /// A store written by Python's ome-zarr package (the peer: its default pyramid and codecs, zstd

@@ -5,9 +5,7 @@
 use crate::bench::{median, shared_data};
 use crate::error::{Error, Result};
 use crate::gpu::Context;
-use crate::passes::occlusion::{
-    estimate_ms, Method, Neighbourhood, Occlusion, OcclusionInput, OcclusionParams,
-};
+use crate::passes::occlusion::{estimate_ms, Method, Occlusion, OcclusionInput, OcclusionParams};
 use crate::passes::occlusion_fft::{cpu_bytes, denominator_entries, gpu::gpu_bytes, padded_dims};
 use crate::volume::reference::occlusion::Visibility;
 use crate::volume::{io, phantom, Volume, VoxelData};
@@ -123,19 +121,6 @@ fn memory(method: Method, dims: [usize; 3], radius: u32) -> u64 {
     }
 }
 
-/// What the bench computes: the ball at full resolution, ramp mapping, no spectrum.
-fn ball(radius: u32, method: Method) -> OcclusionParams {
-    OcclusionParams {
-        radius,
-        visibility: Visibility::Ramp,
-        neighbourhood: Neighbourhood::Ball,
-        stride: 1,
-        spectrum_bins: None,
-        method,
-        pad: None,
-    }
-}
-
 /// One untimed computation per GPU method at the smallest radius, so that building pipelines
 /// (the FFT's are made on first use) and the driver's first touches of memory stay out of the
 /// figures, as the render benches keep their first frames out.
@@ -144,7 +129,7 @@ fn warm_up(ctx: &Arc<Context>, input: &OcclusionInput, opts: &Options) -> Result
         return Ok(());
     };
     for &method in &opts.methods {
-        let p = ball(radius, method);
+        let p = OcclusionParams::ball(radius, method);
         let estimate = estimate_ms(method, &ctx.info.device_type, input.dims, &p);
         if method != Method::FftCpu && estimate <= opts.max_seconds * 1e3 {
             Occlusion::new(ctx)?.compute_on(input, &p)?;
@@ -171,7 +156,7 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
     warm_up(ctx, &input, opts)?;
     for &radius in &opts.radii {
         let pad = padded_dims(dims, radius);
-        let p = ball(radius, Method::Auto);
+        let p = OcclusionParams::ball(radius, Method::Auto);
         let mut cells = Vec::new();
         let mut cpu_result: Option<Vec<f32>> = None;
         for &method in &opts.methods {

@@ -203,6 +203,22 @@ pub struct OcclusionParams {
     pub pad: Option<[usize; 3]>,
 }
 
+impl OcclusionParams {
+    /// The ball of `radius` at full resolution under the ramp mapping, no spectrum, by `method`:
+    /// the paper's plain occlusion, which benches and the method choice measure.
+    pub fn ball(radius: u32, method: Method) -> Self {
+        OcclusionParams {
+            radius,
+            visibility: Visibility::Ramp,
+            neighbourhood: Neighbourhood::Ball,
+            stride: 1,
+            spectrum_bins: None,
+            method,
+            pad: None,
+        }
+    }
+}
+
 /// The 2D histogram of (intensity, occlusion): `counts[o * bins[0] + i]`.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Spectrum {

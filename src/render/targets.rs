@@ -74,6 +74,15 @@ struct Smoothed {
     image: Image,
 }
 
+impl Smoothed {
+    /// The image in `slot` when it is volume `volume` smoothed by `radius` (never for radius 0).
+    fn kept(slot: &Option<Smoothed>, volume: u64, radius: u32) -> Option<&Image> {
+        slot.as_ref()
+            .filter(|s| radius > 0 && s.volume == volume && s.radius == radius)
+            .map(|s| &s.image)
+    }
+}
+
 impl ViewState {
     /// The lines' state, made with a buffer of `capacity` segments when this view has none yet,
     /// and the copy of volume `volume` smoothed by `radius` when kept (never for radius 0).
@@ -86,19 +95,13 @@ impl ViewState {
         if self.lines.is_none() {
             self.lines = Some(LineState::new(ctx, capacity)?);
         }
-        let smoothed = self
-            .smoothed
-            .as_ref()
-            .filter(|s| radius > 0 && s.volume == volume && s.radius == radius)
-            .map(|s| &s.image);
+        let smoothed = Smoothed::kept(&self.smoothed, volume, radius);
         Ok((self.lines.as_mut().expect("made above"), smoothed))
     }
 
-    /// Whether the copy of volume `volume` smoothed by `radius` is kept.
+    /// Whether the copy of volume `volume` smoothed by `radius` (> 0) is kept.
     pub fn has_smoothed(&self, volume: u64, radius: u32) -> bool {
-        self.smoothed
-            .as_ref()
-            .is_some_and(|s| s.volume == volume && s.radius == radius)
+        Smoothed::kept(&self.smoothed, volume, radius).is_some()
     }
 
     /// Keeps `image`, the copy of volume `volume` smoothed by `radius`, in place of the last one

@@ -43,7 +43,8 @@ pub struct Multiscale {
     pub levels: Vec<Level>,
     /// Leading axes of size 1 (t and c) before z, y, x.
     leading: usize,
-    store: Arc<FilesystemStore>,
+    /// The levels' arrays, opened once.
+    arrays: Vec<Array<FilesystemStore>>,
 }
 
 /// Whether `path` names an OME-Zarr store: a folder whose name ends in `.zarr`.
@@ -85,6 +86,7 @@ impl Multiscale {
                 )
             })?;
         let mut levels = Vec::new();
+        let mut arrays = Vec::new();
         let mut voxel = None;
         for (i, d) in datasets.iter().enumerate() {
             let name = d["path"]
@@ -101,6 +103,7 @@ impl Multiscale {
             }
             voxel = Some(t);
             levels.push(level(path, name, &array, d, leading)?);
+            arrays.push(array);
         }
         check_levels(path, &levels)?;
         Ok(Multiscale {
@@ -109,7 +112,7 @@ impl Multiscale {
             voxel: voxel.expect("at least one level"),
             levels,
             leading,
-            store,
+            arrays,
         })
     }
 
@@ -121,12 +124,7 @@ impl Multiscale {
                 format!("has no level {level}; it has {}", self.levels.len()),
             )
         })?;
-        let array = Array::open(self.store.clone(), &format!("/{}", l.path)).map_err(|e| {
-            invalid(
-                &self.root,
-                format!("level {} could not be opened ({e})", l.path),
-            )
-        })?;
+        let array = &self.arrays[level];
         let mut ranges: Vec<std::ops::Range<u64>> = vec![0..1; self.leading];
         ranges.extend([l.dims[2], l.dims[1], l.dims[0]].map(|n| 0..n as u64));
         let subset = ArraySubset::new_with_ranges(&ranges);
@@ -398,12 +396,14 @@ pub fn write(path: &Path, v: &Volume, opts: &WriteOptions) -> Result<()> {
 fn write_levels(path: &Path, name: &str, v: &Volume, chunk: usize, levels: usize) -> Result<()> {
     let store = Arc::new(FilesystemStore::new(path).map_err(|e| invalid(path, e))?);
     let mut datasets = Vec::new();
-    let mut current = v.clone();
+    // Level 0 is written from `v` itself; each coarser level is made from the one before.
+    let mut coarser: Option<Volume> = None;
     for i in 0..levels {
         if i > 0 {
-            current = halve(&current)?;
+            coarser = Some(halve(coarser.as_ref().unwrap_or(v))?);
         }
-        write_array(&store, path, &i.to_string(), &current, chunk)?;
+        let current = coarser.as_ref().unwrap_or(v);
+        write_array(&store, path, &i.to_string(), current, chunk)?;
         let s = current.spacing;
         let o = current.geometry.origin;
         datasets.push(json!({

@@ -30,11 +30,7 @@ pub(crate) fn importance(
         let (w, h, rgb) = vellum::volume::slices::thermal_slices(&r.delta_d, limit);
         vellum::output::write_png_rgb(path, w, h, &rgb)?;
     }
-    let passes: serde_json::Map<String, serde_json::Value> = r
-        .passes
-        .iter()
-        .map(|p| (p.name.clone(), json!(p.ms)))
-        .collect();
+    let passes = super::passes_json(&r.passes);
     if json {
         println!(
             "{}",

@@ -56,6 +56,16 @@ pub(crate) fn output_paths(command: &Command) -> Vec<&Path> {
     }
 }
 
+/// Pass times as a JSON object, name → ms (a pass recorded twice keeps its last time).
+pub(crate) fn passes_json<'a>(
+    passes: impl IntoIterator<Item = &'a vellum::gpu::PassTime>,
+) -> serde_json::Map<String, serde_json::Value> {
+    passes
+        .into_iter()
+        .map(|p| (p.name.clone(), serde_json::json!(p.ms)))
+        .collect()
+}
+
 /// `--levels`: `auto` (or absent) picks by size; otherwise a count of 1 or more.
 fn parse_levels(levels: Option<&str>) -> Result<Option<usize>> {
     match levels {

@@ -1,7 +1,7 @@
 //! `vellum occlusion`.
 
 use crate::args::*;
-use crate::commands::{context, report_validation};
+use crate::commands::{context, passes_json, report_validation};
 use anyhow::{Context as _, Result};
 use serde_json::json;
 
@@ -54,11 +54,7 @@ pub(crate) fn occlusion(cli: &Cli, a: &OcclusionArgs) -> Result<()> {
         }
     }
     let stats = vellum::volume::stats::stats(&r.occlusion, 0);
-    let passes: serde_json::Map<String, serde_json::Value> = r
-        .passes
-        .iter()
-        .map(|p| (p.name.clone(), json!(p.ms)))
-        .collect();
+    let passes = passes_json(&r.passes);
     if json {
         let out = json!({
             "device": ctx.info.name, "radius": radius, "mapping": mapping, "stride": stride, "dims": v.dims,
@@ -144,8 +140,7 @@ pub(crate) fn occlusion_select(
 pub(crate) fn occlusion_sensitivity(cli: &Cli, a: &SensitivityArgs) -> Result<()> {
     let (input, radii, bands, stride) = (&a.input, a.radii.as_slice(), a.bands, a.stride);
     let (method, out, csv) = (a.method.as_str(), a.out.as_path(), a.csv.as_deref());
-    use vellum::passes::occlusion::{Method, Neighbourhood, OcclusionParams};
-    use vellum::volume::reference::occlusion::Visibility;
+    use vellum::passes::occlusion::{Method, OcclusionParams};
     anyhow::ensure!(
         !radii.is_empty() && bands > 0,
         "give at least one radius and one band"
@@ -158,15 +153,7 @@ pub(crate) fn occlusion_sensitivity(cli: &Cli, a: &SensitivityArgs) -> Result<()
     let stride = if stride == 0 {
         // Full resolution when an FFT method serves the largest radius there (its cost does not
         // grow with R); otherwise the runs method's cost calls for a coarser output.
-        let p = OcclusionParams {
-            radius: largest,
-            visibility: Visibility::Ramp,
-            neighbourhood: Neighbourhood::Ball,
-            stride: 1,
-            spectrum_bins: None,
-            method,
-            pad: None,
-        };
+        let p = OcclusionParams::ball(largest, method);
         match occ.choose(v.dims, &p, false)? {
             Method::FftCpu | Method::FftGpu => 1,
             _ => (largest / 16).max(1),

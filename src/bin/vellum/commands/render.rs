@@ -1,7 +1,7 @@
 //! `vellum render`.
 
 use crate::args::*;
-use crate::commands::{context, report_validation};
+use crate::commands::{context, passes_json, report_validation};
 use anyhow::Result;
 use serde_json::json;
 use vellum::render::scene::GpuScene;
@@ -91,7 +91,7 @@ pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
         "silhouette_segments": segments.iter().filter(|s| s.kind() < 0.5).count(),
         "suggestive_segments": segments.iter().filter(|s| s.kind() > 0.5).count(),
         "visible_paths": [pieces[0].len(), pieces[1].len()],
-        "passes": frame.passes.iter().map(|p| (p.name.clone(), json!(p.ms))).collect::<serde_json::Map<_, _>>(),
+        "passes": passes_json(&frame.passes),
     });
     if a.render.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -149,10 +149,7 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
     }
     let passes: Vec<_> = gpu.passes.iter().chain(&frame.passes).collect();
     if a.json {
-        let map: serde_json::Map<String, serde_json::Value> = passes
-            .iter()
-            .map(|p| (p.name.clone(), json!(p.ms)))
-            .collect();
+        let map = passes_json(passes.iter().copied());
         println!(
             "{}",
             serde_json::to_string_pretty(

@@ -97,7 +97,7 @@ pub(crate) fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
             json!({
                 "number": t.def.number, "name": t.def.name, "rendered": t.frame.is_some(),
                 "reason": t.def.unavailable_reason(),
-                "passes": t.frame.as_ref().map(|f| f.passes.iter().map(|p| (p.name.clone(), json!(p.ms))).collect::<serde_json::Map<_, _>>()),
+                "passes": t.frame.as_ref().map(|f| super::passes_json(&f.passes)),
                 "saliency_focus": t.saliency.map(|s| s.0), "saliency_context": t.saliency.map(|s| s.1),
                 "focus_share": t.saliency.map(|s| s.0 / (s.0 + s.1)),
             })
