@@ -485,10 +485,7 @@ fn run_reader(reader: Reader, path: &Path) -> Result<()> {
 
 /// Peak resident memory of this process in MiB (Linux), if known.
 pub fn peak_memory_mib() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib / 1024.0)
+    crate::memory::peak_resident_kib().map(|k| k as f64 / 1024.0)
 }
 
 /// Milliseconds since the watchdog's epoch; 0 means "no input running".

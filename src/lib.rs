@@ -17,6 +17,7 @@ pub mod fuzz;
 pub mod gpu;
 pub mod imaging;
 pub mod input;
+pub mod memory;
 pub mod output;
 pub mod passes;
 pub mod plot;

@@ -26,6 +26,25 @@ layout(set = 0, binding = 12, rgba32f) uniform writeonly image2D out_composite;
 layout(set = 0, binding = 13) readonly buffer RayTables { uint ray_tables[]; };
 const int BRICKS_AT = 256;
 
+// The brick cache (passes/paging.rs documents the page table's words). Frames of a volume in
+// core bind one-word stand-ins and never read them.
+layout(set = 0, binding = 14) readonly buffer PageTable { uint pt[]; };
+layout(set = 0, binding = 15) buffer Feedback { uint wanted[]; };
+// A ray's state between the passes of one frame of a bricked volume that waits for its bricks.
+struct RayState {
+    vec4 fp;
+    vec4 fd;
+    vec4 ctx;
+    vec4 walk;   // depth, m (the next sample), prev_t, prev_s
+    uvec4 flags; // x: bit 0 started, bit 1 done, bit 2 no focus sample yet
+};
+layout(set = 0, binding = 16) buffer RayStates { RayState rays[]; };
+const int PT_HEADER = 8 + 8 * 16;
+const uint MODE_WAIT = 1u;
+const uint MODE_RESUME = 2u;
+// The entry this ray last asked for, so that it asks once per brick.
+uint last_wanted = 0xffffffffu;
+
 layout(push_constant) uniform Push {
     mat4 inv_view_proj;   // clip -> box frame
     vec4 planes;          // x: depth of plane 0 along view_dir (farthest), y: spacing, z: planes, w: ert
@@ -36,6 +55,51 @@ layout(push_constant) uniform Push {
 } p;
 
 const float INF = 1.0 / 0.0;
+
+// Sets `ptex` for the sample at `tex` and `world`. In core, the two are the same. Bricked: the
+// sample's level is chosen by its projected voxel size; when that level's brick is resident, its
+// place in the pool; else the brick is asked for and, when the frame waits for bricks, false is
+// returned (the ray stops here); otherwise the finest resident coarser level is sampled (the
+// coarsest is always resident).
+bool locate() {
+    if (!V_BRICKED) {
+        ptex = tex;
+        return true;
+    }
+    int levels = int(pt[0]);
+    float brick = float(pt[1]);
+    int slot_edge = int(pt[2]);
+    float cover = uintBitsToFloat(pt[6]) * length(world - u.eye.xyz) + uintBitsToFloat(pt[7]);
+    int want = clamp(int(floor(log2(max(cover, 1.0)))), 0, levels - 1);
+    vec3 t = clamp(tex, 0.0, 1.0);
+    for (int l = want; l < levels; ++l) {
+        int h = 8 + 8 * l;
+        ivec3 counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
+        vec3 v = t * vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
+        ivec3 b = clamp(ivec3(floor(v / brick)), ivec3(0), counts - 1);
+        uint e = pt[h] + uint(b.x + counts.x * (b.y + counts.y * b.z));
+        uint slot = pt[PT_HEADER + e];
+        if (slot == 0u && l == want) {
+            if (e != last_wanted) {
+                atomicAdd(wanted[e], 1u);
+                last_wanted = e;
+            }
+            if ((pt[3] & MODE_WAIT) != 0u) {
+                return false;
+            }
+        }
+        if (slot != 0u) {
+            int s = int(slot) - 1;
+            int gx = int(pt[4]), gy = int(pt[5]);
+            ivec3 at = ivec3(s % gx, (s / gx) % gy, s / (gx * gy)) * slot_edge;
+            vec3 texel = vec3(at) + 1.0 + (v - vec3(b) * brick);
+            ptex = texel / vec3(textureSize(volume, 0));
+            level_ratio = uintBitsToFloat(pt[h + 7]);
+            return true;
+        }
+    }
+    return false;
+}
 
 // The brick of box-frame texture coordinate t (clamped into the volume).
 ivec3 brick_of(vec3 t) {
@@ -80,6 +144,12 @@ void main() {
     vec4 fp = vec4(0.0), fd = vec4(0.0), ctx = vec4(0.0);
     float depth = INF;
     float cos_t = dot(dir, d);
+    // A bricked frame that waits for its bricks runs in passes: each ray goes on from where the
+    // last pass stopped it until a brick is missing, and saves its state there. A last pass that
+    // no longer waits goes on from the saved states with what is resident.
+    uint ray = uint(px.y * size.x + px.x);
+    bool wait = V_BRICKED && (pt[3] & MODE_WAIT) != 0u;
+    bool stopped = false;
     if (t_out > t_in && cos_t > 0.0) {
         // Samples are t(m) = a + b m for m = m_first, m_first + 1, ... (front to back).
         // Planes: plane k has depth far - (k + 0.5) spacing along d, and depth along the ray is
@@ -114,6 +184,19 @@ void main() {
         float a_min = 0.99 * (1.0 - pow(1.0 - MIN_ALPHA, 1.0 / u.material.w));
         // The previous sample on the ray, for refining an isosurface hit (t < 0: none).
         float prev_t = -1.0, prev_s = 0.0;
+        bool done = false;
+        if (V_BRICKED && (pt[3] & MODE_RESUME) != 0u) {
+            RayState r = rays[ray];
+            fp = r.fp;
+            fd = r.fd;
+            ctx = r.ctx;
+            depth = r.walk.x;
+            m = r.walk.y;
+            prev_t = r.walk.z;
+            prev_s = r.walk.w;
+            done = (r.flags.x & 2u) != 0u;
+            first = (r.flags.x & 4u) != 0u;
+        }
         // The brick of the last sample and its flags, looked up once per brick.
         ivec3 cur_brick = ivec3(-1);
         uint cur_flags = 0u;
@@ -121,7 +204,7 @@ void main() {
         // its intensity and class; the outer one shades and composites it. A CPU rasteriser runs
         // a loop body for all its lanes while any is active, so shading in the walk would be paid
         // at every sample of every lane; here it is paid once per contributing sample.
-        for (;;) {
+        for (; !done;) {
             float t = 0.0, s = 0.0;
             bool focus = false, hit = false;
             vec4 c = vec4(0.0);
@@ -151,6 +234,10 @@ void main() {
                         continue;
                     }
                 }
+                if (!locate()) {
+                    stopped = true;
+                    break;
+                }
                 s = sample_intensity();
                 focus = sample_in_focus(s);
                 // Behind the first focus sample, only focus samples count (the depth test); nor do
@@ -171,9 +258,11 @@ void main() {
                 prev_t = t;
                 prev_s = s;
             }
-            if (!hit) {
+            if (stopped || !hit) {
                 break;
             }
+            // Where to go on from if the refinement below meets a missing brick.
+            float m_hit = m, keep_t = prev_t, keep_s = prev_s;
             m += 1.0;
             if (refine_on && focus && first && prev_t >= 0.0 && s > prev_s) {
                 // Regula falsi between the previous sample (below the isovalue) and this one.
@@ -182,6 +271,10 @@ void main() {
                     float tm = ta + (u.focus.x - sa) / (sb - sa) * (tb - ta);
                     world = o + tm * dir;
                     tex = world / (2.0 * u.half_extent.xyz) + 0.5;
+                    if (!locate()) {
+                        stopped = true;
+                        break;
+                    }
                     float sm = sample_intensity();
                     if (sm >= u.focus.x) {
                         tb = tm;
@@ -194,6 +287,13 @@ void main() {
                 t = ta + (u.focus.x - sa) / (sb - sa) * (tb - ta);
                 world = o + t * dir;
                 tex = world / (2.0 * u.half_extent.xyz) + 0.5;
+                stopped = stopped || !locate();
+                if (stopped) {
+                    m = m_hit;
+                    prev_t = keep_t;
+                    prev_s = keep_s;
+                    break;
+                }
             }
             if (!(V_OTF || V_MOD_OPACITY) || refine_on) {
                 // The exact class (at the surface when refined: an occlusion or importance
@@ -228,6 +328,10 @@ void main() {
                     break;
                 }
             }
+        }
+        if (wait) {
+            uint flags = 1u | (stopped ? 0u : 2u) | (first ? 4u : 0u);
+            rays[ray] = RayState(fp, fd, ctx, vec4(depth, m, prev_t, prev_s), uvec4(flags, 0u, 0u, 0u));
         }
     }
     if (V_TWO_LEVEL) {

@@ -17,9 +17,14 @@ layout(set = 0, binding = 6) uniform sampler3D importance;   // ΔD, normalised 
 layout(set = 0, binding = 7) readonly buffer ImportanceMax { uint max_abs_bits; } importance_max;
 
 #ifdef RAYCAST
-// The ray caster sets the sample's position before each call.
+// The ray caster sets the sample's position before each call: `tex` in the volume, `ptex` where
+// its intensity and gradient are read (the same, or the sample's place in the brick pool).
 vec3 tex;
+vec3 ptex;
 vec3 world;
+// The sampled level's voxel over level 0's (1 in core): opacity is corrected per voxel of the
+// level a bricked sample reads, so a coarse level looks as that level rendered in core.
+float level_ratio = 1.0;
 // The ray caster is specialised per frame set-up (render/raycast.rs, `Variant`): a CPU rasteriser
 // runs both sides of every branch its lanes diverge on, and cannot skip one whose condition is a
 // uniform, so features a frame does not use are compiled out instead of branched around. Each bit
@@ -33,12 +38,15 @@ const bool V_WORLD_STEPS = (VARIANT & 16u) != 0u;
 const bool V_OTF = (VARIANT & 32u) != 0u;
 const bool V_MOD_OPACITY = (VARIANT & 64u) != 0u;
 const bool V_MOD_SHADE = (VARIANT & 128u) != 0u;
+const bool V_BRICKED = (VARIANT & 256u) != 0u;
 #else
 const bool V_OTF = true;
 const bool V_MOD_OPACITY = true;
 const bool V_MOD_SHADE = true;
 layout(location = 0) in vec3 tex;
 layout(location = 1) in vec3 world;
+#define ptex tex
+const float level_ratio = 1.0;
 #endif
 
 bool sample_in_focus(float s) {
@@ -48,7 +56,7 @@ bool sample_in_focus(float s) {
 // The normalised intensity of this fragment's sample. Shaders classify it first and discard
 // before paying for the transfer function, the gradient and the lighting.
 float sample_intensity() {
-    return textureLod(volume, tex, 0.0).r;
+    return textureLod(volume, ptex, 0.0).r;
 }
 
 // Whether importance modulation applies to a sample of the focus level (or of the context).
@@ -75,7 +83,7 @@ vec4 classify(float s, bool focus) {
     if (V_MOD_OPACITY && u.mod_flags.y != 0 && modulated(focus)) {
         rgba.a = modulate_opacity(rgba.a, importance_n(textureLod(importance, tex, 0.0).r), u.mod_opacity);
     }
-    return classify_sample(rgba, u.material.w, focus, u.focus);
+    return classify_sample(rgba, u.material.w * level_ratio, focus, u.focus);
 }
 
 // Phong (with specular) and diffuse-only colours of a sample of straight colour `rgb`, lit by the
@@ -83,7 +91,7 @@ vec4 classify(float s, bool focus) {
 // otherwise colour modulation adds ΔD·γ or |ΔD|·γ (eq. 3, 4) to the unlit or the lit colour.
 void shade(vec3 rgb, bool focus, out vec3 phong, out vec3 diffuse) {
     vec3 to_eye = u.view_dir.w > 0.5 ? -u.view_dir.xyz : normalize(u.eye.xyz - world);
-    shade_phong(rgb, textureLod(gradient, tex, 0.0), u.light.xyz, to_eye, u.material, u.light.w, phong, diffuse);
+    shade_phong(rgb, textureLod(gradient, ptex, 0.0), u.light.xyz, to_eye, u.material, u.light.w, phong, diffuse);
     if (!V_MOD_SHADE || !modulated(focus)) {
         return;
     }

@@ -84,9 +84,7 @@ fn source(input: &Option<String>) -> Result<(Volume, String)> {
 }
 
 fn peak_rss() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-    Some(line.split_whitespace().nth(1)?.parse::<u64>().ok()? * 1024)
+    crate::memory::peak_resident_kib().map(|k| k * 1024)
 }
 
 /// scipy's FFT occlusion of `mapped` at `r`: (ms, result).

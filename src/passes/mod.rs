@@ -7,4 +7,5 @@ pub mod normals;
 pub mod occlusion;
 pub mod occlusion_analysis;
 pub mod occlusion_fft;
+pub mod paging;
 pub mod volume_image;

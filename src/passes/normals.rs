@@ -45,6 +45,9 @@ pub struct VolumeTextures {
     /// A number no other `VolumeTextures` of this process has: what a view keeps for a volume
     /// (its smoothed copy) is keyed by it, so a new volume is never mistaken for the old one.
     pub id: u64,
+    /// The brick cache, when the textures are its pools (`passes::paging`): the volume is then
+    /// sampled through the page table and only the ray caster draws it.
+    pub paged: Option<Box<crate::passes::paging::Paged>>,
 }
 
 /// Edge of a brick in voxels.
@@ -106,6 +109,12 @@ impl Bricks {
     }
 }
 
+/// A number no other `VolumeTextures` of this process has (`VolumeTextures::id`).
+pub fn next_volume_id() -> u64 {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
 impl VolumeTextures {
     /// Allocates the textures of `v` (no GPU work yet) and a staging buffer holding its voxels
     /// normalised to R16; record the copy with [`VolumeTextures::record_upload`].
@@ -137,11 +146,8 @@ impl VolumeTextures {
                 occlusion: None,
                 bricks,
                 importance: None,
-                id: {
-                    static NEXT: std::sync::atomic::AtomicU64 =
-                        std::sync::atomic::AtomicU64::new(0);
-                    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
-                },
+                id: next_volume_id(),
+                paged: None,
             },
             staging,
         ))

@@ -396,6 +396,27 @@ pub struct Recorded {
     pub lines: Option<RasterView>,
 }
 
+impl Recorded {
+    /// The frame image of this frame, with what came back from it.
+    pub fn image(
+        self,
+        size: [u32; 2],
+        (composite, layers): (Vec<[f32; 4]>, Option<crate::render::targets::Layers>),
+        passes: Vec<crate::gpu::PassTime>,
+        segments: Option<(Vec<crate::volume::lines::Segment>, u64)>,
+    ) -> FrameImage {
+        FrameImage {
+            size,
+            composite,
+            layers,
+            passes,
+            slices: self.slices,
+            lines: self.lines,
+            segments,
+        }
+    }
+}
+
 /// The frame's staged data: uniforms, proxy vertices and the ray caster's table.
 struct Staged {
     ubo: BufferSlice,
@@ -434,7 +455,6 @@ impl Staged {
 pub struct Renderer {
     ctx: Arc<Context>,
     slicer: Slicer,
-    raycaster: RayCaster,
     linear: Sampler,
     stand_ins: StandIns,
     /// The ray caster's variants, line extraction's per-kind pipelines and the style passes'.
@@ -445,12 +465,14 @@ pub struct Renderer {
     lines: Option<LineExtractor>,
 }
 
-/// 1×1 stand-ins bound when a frame uses no occlusion or importance volume.
+/// 1×1 stand-ins bound when a frame uses no occlusion or importance volume, or no brick cache.
 struct StandIns {
     /// For the occlusion volume and ΔD.
     volume: Image,
     /// For the max |ΔD| buffer.
     max: crate::gpu::Buffer,
+    /// For the brick cache's feedback and ray states.
+    paging: crate::gpu::Buffer,
 }
 
 impl StandIns {
@@ -467,7 +489,16 @@ impl StandIns {
             vk::BufferUsageFlags::STORAGE_BUFFER,
             &[0u8; 4],
         )?;
-        Ok(StandIns { volume, max })
+        let paging = crate::gpu::Buffer::new(
+            ctx,
+            "dummy paging",
+            &crate::gpu::BufferDesc::storage(crate::passes::paging::RAY_STATE_BYTES),
+        )?;
+        Ok(StandIns {
+            volume,
+            max,
+            paging,
+        })
     }
 
     /// The occlusion volume, ΔD and max |ΔD| the shaders bind (or 1×1 stand-ins when the frame
@@ -526,7 +557,6 @@ impl Renderer {
         Ok(Renderer {
             ctx: ctx.clone(),
             slicer: Slicer::new(ctx)?,
-            raycaster: RayCaster,
             linear: Sampler::new(ctx, true)?,
             stand_ins: StandIns::new(ctx)?,
             pipelines: PipelineCache::new(ctx),
@@ -553,6 +583,7 @@ impl Renderer {
         targets: &mut FrameTargets,
     ) -> Result<Recorded> {
         let max = self.ctx.info.max_image_dimension_2d;
+        check_paged(vol, view)?;
         let setup = FrameSetup::new(&SetupInput::of(vol, classify, max), view)?;
         self.build_style_passes(view)?;
         let staged = Staged::push(frame, &setup)?;
@@ -584,20 +615,16 @@ impl Renderer {
         match (view.raycast, &t.layers, view.one_pass, staged.ray_tables) {
             (Some(options), layers, one_pass, Some(tables)) => {
                 let two_level = !one_pass;
-                self.raycaster.record(
-                    frame,
-                    &mut self.pipelines,
-                    &RayRequest {
-                        shading: &binds,
-                        uniforms: &setup.uniforms,
-                        options,
-                        layers: layers.as_ref().filter(|_| two_level),
-                        composite: &t.composite,
-                        tables,
-                        push: setup.ray_push(&options, vol.bricks.counts, two_level),
-                        size: view.size,
-                    },
-                )?;
+                let rays = RayFrame {
+                    setup: &setup,
+                    options,
+                    binds: &binds,
+                    layers: layers.as_ref().filter(|_| two_level),
+                    composite: &t.composite,
+                    tables,
+                    stand_in: &self.stand_ins.paging,
+                };
+                record_rays(&self.ctx, &mut self.pipelines, frame, vol, &rays, state)?;
             }
             (None, Some(layers), false, _) => {
                 self.slicer
@@ -738,15 +765,123 @@ impl Renderer {
             (Some(lines), true) => Some(lines.buffer.read()?),
             _ => None,
         };
-        Ok(FrameImage {
-            size: view.size,
-            composite,
-            layers,
-            passes,
-            slices: recorded.slices,
-            lines: recorded.lines,
-            segments,
-        })
+        Ok(recorded.image(view.size, (composite, layers), passes, segments))
+    }
+}
+
+/// The ray-casting step: of a volume in core, or through the brick cache's page table (staged
+/// here), with its feedback cleared before and made visible to the host after.
+fn record_rays(
+    ctx: &Arc<Context>,
+    pipelines: &mut PipelineCache,
+    frame: &mut gpu::Frame,
+    vol: &VolumeTextures,
+    r: &RayFrame,
+    state: &mut ViewState,
+) -> Result<()> {
+    let two_level = r.layers.is_some();
+    let size = r.setup.size;
+    let paging = match &vol.paged {
+        Some(p) => {
+            let table = p.page_table(lod_line(r.setup, vol.dims));
+            let table = frame.staging.push(bytemuck::cast_slice(&table), 16)?;
+            p.record_clear_feedback(ctx, frame);
+            let rays = state.ray_states(ctx, size[0] as u64 * size[1] as u64)?;
+            [
+                Bind::StorageSlice(table),
+                Bind::StorageBuffer(&p.feedback),
+                Bind::StorageBuffer(rays),
+            ]
+        }
+        None => [
+            Bind::StorageSlice(r.tables),
+            Bind::StorageBuffer(r.stand_in),
+            Bind::StorageBuffer(r.stand_in),
+        ],
+    };
+    // The ray states (and the stand-ins) are written by every frame's dispatch.
+    gpu::commands::memory_transition(
+        ctx,
+        frame.cmd,
+        Access::ComputeReadWrite,
+        Access::ComputeReadWrite,
+    );
+    RayCaster.record(
+        frame,
+        pipelines,
+        &RayRequest {
+            shading: r.binds,
+            uniforms: &r.setup.uniforms,
+            options: r.options,
+            layers: r.layers,
+            composite: r.composite,
+            tables: r.tables,
+            paging,
+            bricked: vol.paged.is_some(),
+            push: r.setup.ray_push(&r.options, vol.bricks.counts, two_level),
+            size,
+        },
+    )?;
+    if vol.paged.is_some() {
+        gpu::commands::memory_transition(
+            ctx,
+            frame.cmd,
+            Access::ComputeReadWrite,
+            Access::HostRead,
+        );
+    }
+    Ok(())
+}
+
+/// What the ray-casting step of one frame works on.
+struct RayFrame<'a> {
+    setup: &'a FrameSetup,
+    options: RayOptions,
+    binds: &'a [Bind<'a>; 8],
+    layers: Option<&'a crate::render::targets::TargetLayers>,
+    composite: &'a Image,
+    tables: BufferSlice,
+    /// Bound for the brick cache's buffers in core.
+    stand_in: &'a crate::gpu::Buffer,
+}
+
+/// A volume in the brick cache is drawn by the ray caster, without object-space lines (their
+/// extraction reads the whole volume); say so in one sentence.
+fn check_paged(vol: &VolumeTextures, view: &View) -> Result<()> {
+    let Some(p) = &vol.paged else {
+        return Ok(());
+    };
+    let budget = p.pool_bytes as f64 / (1 << 20) as f64;
+    if view.raycast.is_none() {
+        return Err(Error::Invalid(format!(
+            "the volume is larger than the GPU budget ({budget:.0} MiB of bricks), so only the ray caster draws it; use `renderer: raycast`"
+        )));
+    }
+    if let Some(style) = view.style.as_ref().filter(|s| s.def.lines.is_some()) {
+        return Err(Error::Invalid(format!(
+            "style {} ({}) draws object-space lines, which need the whole volume on the GPU; it is larger than the GPU budget ({budget:.0} MiB of bricks)",
+            style.def.number, style.def.name
+        )));
+    }
+    Ok(())
+}
+
+/// The level-of-detail line of a bricked frame: a sample at distance d from the eye covers
+/// a·d + b level-0 voxels (its pixel's footprint there over the longest level-0 voxel edge).
+fn lod_line(setup: &FrameSetup, dims: [usize; 3]) -> (f32, f32) {
+    let cam = &setup.camera.camera;
+    let half = setup.world.half;
+    let voxel = (0..3)
+        .map(|a| 2.0 * half[a] / dims[a] as f32)
+        .fold(0.0f32, f32::max);
+    let tan = (cam.fov_y_deg.to_radians() * 0.5).tan();
+    let pixels = setup.size[1].max(1) as f32;
+    match cam.ortho {
+        true => (
+            0.0,
+            2.0 * setup.world.radius() * cam.distance * tan / pixels / voxel,
+        ),
+        false => (2.0 * tan / pixels / voxel, 0.0),
     }
 }
 

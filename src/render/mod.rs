@@ -4,6 +4,7 @@
 //! `style`), proxy geometry and the scene file. `view`, `camera`, `proxy`, `style` and `scene`'s
 //! data are plain CPU; the rest record Vulkan passes through `gpu/`.
 
+pub mod bricked;
 pub mod camera;
 pub mod frame;
 pub mod post;

@@ -65,17 +65,20 @@ pub const BRICK_VISIBLE: u32 = 1;
 /// Brick flag: may hold focus samples.
 pub const BRICK_FOCUS: u32 = 2;
 
-/// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images and the
-/// brick flags.
-pub const RAY_BINDINGS: [BindingKind; 14] = {
+/// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images, the
+/// brick flags, and the brick cache's page table, feedback and ray states (`passes::paging`).
+pub const RAY_BINDINGS: [BindingKind; 17] = {
     let slicer = SHADE_BINDINGS;
-    let mut all = [BindingKind::StorageImage; 14];
+    let mut all = [BindingKind::StorageBuffer; 17];
     let mut i = 0;
     while i < slicer.len() {
         all[i] = slicer[i];
         i += 1;
     }
-    all[13] = BindingKind::StorageBuffer;
+    while i < 13 {
+        all[i] = BindingKind::StorageImage;
+        i += 1;
+    }
     all
 };
 
@@ -116,12 +119,21 @@ impl Variant {
     pub const OTF: u32 = 32;
     pub const MOD_OPACITY: u32 = 64;
     pub const MOD_SHADE: u32 = 128;
+    /// Samples through the brick cache's page table (and skips no empty space).
+    pub const BRICKED: u32 = 256;
 
-    /// The variant for a frame with these options, level mode and uniforms.
-    pub fn of(options: &RayOptions, two_level: bool, uniforms: &SliceUniforms) -> Self {
+    /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
+    /// or one in core.
+    pub fn of(
+        options: &RayOptions,
+        two_level: bool,
+        uniforms: &SliceUniforms,
+        bricked: bool,
+    ) -> Self {
         let bits = [
             (two_level, Self::TWO_LEVEL),
-            (options.skip_empty, Self::SKIP_EMPTY),
+            (options.skip_empty && !bricked, Self::SKIP_EMPTY),
+            (bricked, Self::BRICKED),
             (options.jitter.is_some(), Self::JITTER),
             (options.refine_iso && two_level, Self::REFINE_ISO),
             (options.sampling == Sampling::WorldSteps, Self::WORLD_STEPS),
@@ -145,6 +157,9 @@ pub struct RayRequest<'a> {
     pub composite: &'a Image,
     /// The opacity bounds and brick flags staged for this frame (`RayTables`).
     pub tables: BufferSlice,
+    /// The page table, feedback and ray states of a bricked volume (stand-ins in core).
+    pub paging: [Bind<'a>; 3],
+    pub bricked: bool,
     pub push: RayPush,
     pub size: [u32; 2],
 }
@@ -193,7 +208,8 @@ impl RayCaster {
         let mut binds: Vec<Bind> = r.shading.to_vec();
         binds.extend(images.map(Bind::StorageImage));
         binds.push(Bind::StorageSlice(r.tables));
-        let variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms);
+        binds.extend(r.paging);
+        let variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         let pipeline = Self::pipeline(pipelines, variant)?;
         let groups = crate::gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
         frame.profiler.begin(cmd, "raycast");
@@ -247,7 +263,8 @@ mod tests {
     fn variants_follow_the_frame() {
         let mut u: SliceUniforms = bytemuck::Zeroable::zeroed();
         let o = RayOptions::default();
-        assert_eq!(Variant::of(&o, false, &u).0, Variant::SKIP_EMPTY);
+        assert_eq!(Variant::of(&o, false, &u, false).0, Variant::SKIP_EMPTY);
+        assert_eq!(Variant::of(&o, false, &u, true).0, Variant::BRICKED);
         u.focus[3] = 1.0;
         u.mod_flags = [1, 1, 0, 3];
         let o = RayOptions {
@@ -257,8 +274,11 @@ mod tests {
             skip_empty: false,
             ..Default::default()
         };
-        assert_eq!(Variant::of(&o, true, &u).0, 0xff & !Variant::SKIP_EMPTY);
+        assert_eq!(
+            Variant::of(&o, true, &u, false).0,
+            0xff & !Variant::SKIP_EMPTY
+        );
         // Refinement only exists in two levels.
-        assert_eq!(Variant::of(&o, false, &u).0 & Variant::REFINE_ISO, 0);
+        assert_eq!(Variant::of(&o, false, &u, false).0 & Variant::REFINE_ISO, 0);
     }
 }

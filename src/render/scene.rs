@@ -535,6 +535,39 @@ pub fn occlusion_params(otf: &crate::classify::otf::OcclusionTf) -> Result<Occlu
 }
 
 impl GpuScene {
+    /// A volume for the brick cache (`volume::bricks`, `passes::paging`): pools of `budget_bytes`,
+    /// nothing resident yet, and the classification. Occlusion transfer functions and importance
+    /// modulation read whole-volume passes and are refused in one sentence naming the budget.
+    pub fn prepare_bricked(
+        ctx: &Arc<Context>,
+        levels: crate::volume::bricks::BrickLevels,
+        classification: &Classification,
+        focus: Focus,
+        budget_bytes: u64,
+        finest: bool,
+    ) -> Result<GpuScene> {
+        focus.validate()?;
+        let budget = budget_bytes as f64 / (1 << 20) as f64;
+        let transfer = match classification {
+            Classification::Transfer(tf) => tf.clone(),
+            Classification::Features(map) => feature_transfer_function(map, levels.range)?,
+            Classification::Occlusion(_) => {
+                return Err(Error::Invalid(format!(
+                    "an occlusion transfer function needs the occlusion volume of the whole volume, which is larger than the GPU budget ({budget:.0} MiB); raise --gpu-budget or use a transfer function"
+                )))
+            }
+        };
+        let volume = VolumeTextures::paged(ctx, levels, budget_bytes, finest)?;
+        focus.check_in(volume.range)?;
+        let classify = GpuClassification::new(ctx, &transfer, focus)?;
+        Ok(GpuScene {
+            volume,
+            classify,
+            passes: Vec::new(),
+            spectrum: None,
+        })
+    }
+
     /// Uploads `v`, computes its normals (occlusion when the classification needs it, ΔD when
     /// `modulation` is active) in one submission, and creates the classification textures.
     pub fn prepare(

@@ -65,6 +65,9 @@ pub struct ViewState {
     /// From the first frame of a style with lines on.
     pub lines: Option<LineState>,
     smoothed: Option<Smoothed>,
+    /// The rays' saved states of a bricked frame that waits for its bricks (`passes::paging`),
+    /// from the first such frame, for as many pixels as it had.
+    rays: Option<(u64, crate::gpu::Buffer)>,
 }
 
 /// A volume smoothed for line extraction: `VolumeTextures::id` of the source and the radius.
@@ -97,6 +100,20 @@ impl ViewState {
         }
         let smoothed = Smoothed::kept(&self.smoothed, volume, radius);
         Ok((self.lines.as_mut().expect("made above"), smoothed))
+    }
+
+    /// The ray states for `pixels` rays, made (or remade larger) when needed.
+    pub fn ray_states(&mut self, ctx: &Arc<Context>, pixels: u64) -> Result<&crate::gpu::Buffer> {
+        if self.rays.as_ref().is_none_or(|(n, _)| *n < pixels) {
+            let bytes = pixels.max(1) * crate::passes::paging::RAY_STATE_BYTES;
+            let buffer = crate::gpu::Buffer::new(
+                ctx,
+                "ray states",
+                &crate::gpu::BufferDesc::storage(bytes),
+            )?;
+            self.rays = Some((pixels, buffer));
+        }
+        Ok(&self.rays.as_ref().expect("made above").1)
     }
 
     /// Whether the copy of volume `volume` smoothed by `radius` (> 0) is kept.

@@ -141,9 +141,7 @@ fn push_bounded<T>(q: &mut VecDeque<T>, value: T) {
 
 /// The process's resident set in KiB (`VmRSS` of /proc/self/status), where the system has one.
 pub fn resident_kib() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
-    line.split_whitespace().nth(1)?.parse().ok()
+    crate::memory::resident_kib()
 }
 
 #[cfg(test)]

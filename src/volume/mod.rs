@@ -3,6 +3,7 @@
 //!
 //! Voxel order is x fastest, then y, then z, as in NRRD and NIfTI files on disk.
 
+pub mod bricks;
 pub mod feature;
 pub mod geometry;
 pub mod io;
@@ -11,6 +12,7 @@ pub mod phantom;
 pub mod reference;
 pub mod resample;
 pub mod slices;
+pub mod source;
 pub mod stats;
 
 use crate::error::{Error, Result};
@@ -260,13 +262,18 @@ pub fn check_dims(dims: [usize; 3]) -> Result<()> {
 }
 
 impl Volume {
+    /// The data values [`Volume::normalised_u16`] maps to 0 and 65535: the smallest and largest.
+    pub fn normalised_range(&self) -> [f64; 2] {
+        let s = stats::stats(self, 0);
+        [s.min, s.max]
+    }
+
     /// The voxels mapped linearly from [min, max] to 0..=65535, with that range. This is what the
     /// renderer samples: one texture format for every voxel type, and transfer functions defined on
     /// the normalised range. A constant volume maps to 0.
     pub fn normalised_u16(&self) -> (Vec<u16>, [f64; 2]) {
         use rayon::prelude::*;
-        let s = stats::stats(self, 0);
-        let (lo, hi) = (s.min, s.max);
+        let [lo, hi] = self.normalised_range();
         let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
         let out = (0..self.len())
             .into_par_iter()

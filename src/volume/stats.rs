@@ -25,6 +25,18 @@ pub struct Stats {
     pub non_finite: usize,
 }
 
+/// The smallest and largest finite value of `v` ([+∞, −∞] when it has none).
+pub fn value_range(v: &Volume) -> [f64; 2] {
+    let mut r = [f64::INFINITY, f64::NEG_INFINITY];
+    for i in 0..v.len() {
+        let x = v.data.get_f64(i);
+        if x.is_finite() {
+            r = [r[0].min(x), r[1].max(x)];
+        }
+    }
+    r
+}
+
 /// Computes [`Stats`] with `bins` histogram bins (none when `bins` is 0).
 pub fn stats(volume: &Volume, bins: usize) -> Stats {
     match &volume.data {

@@ -88,6 +88,9 @@ pub(crate) enum Command {
         /// OME-Zarr: levels of the pyramid, or auto (halve until the longest axis is ≤ 64).
         #[arg(long, value_name = "auto|N")]
         levels: Option<String>,
+        /// OME-Zarr: report what was written (levels, chunks, bytes, rate, peak memory) as JSON.
+        #[arg(long)]
+        json: bool,
     },
     /// Upload a volume to a 3D image on the GPU, read it back and check it is bit-exact.
     Roundtrip {
@@ -188,6 +191,18 @@ pub(crate) struct RenderArgs {
     pub(crate) exr: Option<PathBuf>,
     #[arg(long)]
     pub(crate) json: bool,
+    /// GPU memory for the volume's textures in MiB; a volume that needs more is rendered through
+    /// the brick cache (default: half the device's largest memory heap).
+    #[arg(long, value_name = "MiB")]
+    pub(crate) gpu_budget: Option<f64>,
+    /// Brick cache: wait at most this long for bricks; the image then holds what was resident,
+    /// coarser where a brick was missing, and the command says so.
+    #[arg(long, value_name = "MS")]
+    pub(crate) max_wait_ms: Option<u64>,
+    /// Brick cache: level of detail, auto (the coarsest level whose voxels cover at most one
+    /// pixel at the sample) or finest (level 0 everywhere).
+    #[arg(long, default_value = "auto", value_name = "auto|finest")]
+    pub(crate) lod: String,
 }
 
 /// `vellum occlusion`: the flags.

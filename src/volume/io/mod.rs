@@ -90,8 +90,20 @@ pub fn load(path: &Path, raw: Option<&RawSpec>) -> Result<Volume> {
     let volume = if let Some(spec) = raw {
         raw::read(path, spec)?
     } else if ome_zarr::is_store(path) {
-        // In core: the finest level whole (the brick cache streams larger ones; issue 26).
-        ome_zarr::Multiscale::open(path)?.read_level(0)?
+        // In core: the finest level whole. `render` streams larger ones through the brick
+        // cache without coming here; anything else must fit in memory.
+        let ms = ome_zarr::Multiscale::open(path)?;
+        let bytes = ms.level_bytes(0);
+        if !crate::memory::fits_in_memory(bytes) {
+            return Err(Error::format(
+                path,
+                format!(
+                    "level 0 holds {:.1} GiB, more than half of this machine's memory; expected a store that fits, or `vellum render` (which streams it through the brick cache)",
+                    bytes as f64 / (1u64 << 30) as f64
+                ),
+            ));
+        }
+        ms.read_level(0)?
     } else if path.is_dir() {
         dicom::read(path)?
     } else if has(".nrrd") || has(".nhdr") {

@@ -12,6 +12,7 @@
 
 use crate::error::{Error, Result};
 use crate::volume::geometry::Geometry;
+use crate::volume::source::BoxSource;
 use crate::volume::{Volume, VoxelData, VoxelType};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -41,6 +42,8 @@ pub struct Multiscale {
     pub version: String,
     pub voxel: VoxelType,
     pub levels: Vec<Level>,
+    /// Level 0's value range when the writer recorded it (`vellum.range`, written by vellum).
+    pub range: Option<[f64; 2]>,
     /// Leading axes of size 1 (t and c) before z, y, x.
     leading: usize,
     /// The levels' arrays, opened once.
@@ -106,7 +109,12 @@ impl Multiscale {
             arrays.push(array);
         }
         check_levels(path, &levels)?;
+        let range = attrs["vellum"]["range"]
+            .as_array()
+            .and_then(|r| Some([r.first()?.as_f64()?, r.get(1)?.as_f64()?]))
+            .filter(|r| r[0] <= r[1]);
         Ok(Multiscale {
+            range,
             root: path.to_path_buf(),
             version,
             voxel: voxel.expect("at least one level"),
@@ -118,41 +126,95 @@ impl Multiscale {
 
     /// Reads level `level` whole, as a volume with the level's spacing and origin.
     pub fn read_level(&self, level: usize) -> Result<Volume> {
-        let l = self.levels.get(level).ok_or_else(|| {
-            invalid(
-                &self.root,
-                format!("has no level {level}; it has {}", self.levels.len()),
-            )
-        })?;
-        let array = &self.arrays[level];
-        let mut ranges: Vec<std::ops::Range<u64>> = vec![0..1; self.leading];
-        ranges.extend([l.dims[2], l.dims[1], l.dims[0]].map(|n| 0..n as u64));
-        let subset = ArraySubset::new_with_ranges(&ranges);
-        let read_error = |e: zarrs::array::ArrayError| {
-            invalid(
-                &self.root,
-                format!("level {} could not be read ({e})", l.path),
-            )
-        };
-        let data = match self.voxel {
-            VoxelType::U8 => {
-                VoxelData::U8(array.retrieve_array_subset(&subset).map_err(read_error)?)
-            }
-            VoxelType::U16 => {
-                VoxelData::U16(array.retrieve_array_subset(&subset).map_err(read_error)?)
-            }
-            VoxelType::I16 => {
-                VoxelData::I16(array.retrieve_array_subset(&subset).map_err(read_error)?)
-            }
-            VoxelType::F32 => {
-                VoxelData::F32(array.retrieve_array_subset(&subset).map_err(read_error)?)
-            }
-        };
+        let l = self.level_info(level)?;
+        let v = self.read_box(level, [0; 3], l.dims)?;
         let geometry = Geometry {
             origin: l.origin,
             ..Geometry::default()
         };
-        Volume::new(l.dims, l.spacing, data)?.with_geometry(geometry)
+        v.with_geometry(geometry)
+    }
+
+    fn level_info(&self, level: usize) -> Result<&Level> {
+        self.levels.get(level).ok_or_else(|| {
+            invalid(
+                &self.root,
+                format!("has no level {level}; it has {}", self.levels.len()),
+            )
+        })
+    }
+
+    /// Voxels `lo .. lo + size` of level `level` (inside its dims), with the level's spacing.
+    /// Missing chunks read as the fill value; a corrupt one is named by its key.
+    pub fn read_box(&self, level: usize, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
+        let l = self.level_info(level)?;
+        let data =
+            retrieve(&self.arrays[level], self.leading, self.voxel, lo, size).map_err(|e| {
+                invalid(
+                    &self.root,
+                    format!("level {} could not be read ({e})", l.path),
+                )
+            })?;
+        Volume::new(size, l.spacing, data)
+    }
+
+    /// Bytes of level `level` in memory (0 for a level the store does not have).
+    pub fn level_bytes(&self, level: usize) -> u64 {
+        self.levels.get(level).map_or(0, |l| {
+            l.dims.iter().map(|&n| n as u64).product::<u64>() * self.voxel.size() as u64
+        })
+    }
+
+    /// Level `level` as a [`BoxSource`].
+    pub fn level(&self, level: usize) -> Result<StoreLevel<'_>> {
+        self.level_info(level)?;
+        Ok(StoreLevel { ms: self, level })
+    }
+}
+
+/// Voxels `lo .. lo + size` of `array`, whose first `leading` axes have size 1.
+fn retrieve(
+    array: &Array<FilesystemStore>,
+    leading: usize,
+    voxel: VoxelType,
+    lo: [usize; 3],
+    size: [usize; 3],
+) -> std::result::Result<VoxelData, Box<dyn std::error::Error>> {
+    let mut ranges: Vec<std::ops::Range<u64>> = vec![0..1; leading];
+    ranges.extend([2, 1, 0].map(|a| lo[a] as u64..(lo[a] + size[a]) as u64));
+    let subset = ArraySubset::new_with_ranges(&ranges);
+    Ok(match voxel {
+        VoxelType::U8 => VoxelData::U8(array.retrieve_array_subset(&subset)?),
+        VoxelType::U16 => VoxelData::U16(array.retrieve_array_subset(&subset)?),
+        VoxelType::I16 => VoxelData::I16(array.retrieve_array_subset(&subset)?),
+        VoxelType::F32 => VoxelData::F32(array.retrieve_array_subset(&subset)?),
+    })
+}
+
+/// One level of a store, read a box at a time.
+pub struct StoreLevel<'a> {
+    ms: &'a Multiscale,
+    level: usize,
+}
+
+impl BoxSource for StoreLevel<'_> {
+    fn dims(&self) -> [usize; 3] {
+        self.ms.levels[self.level].dims
+    }
+    fn spacing(&self) -> [f64; 3] {
+        self.ms.levels[self.level].spacing
+    }
+    fn geometry(&self) -> Geometry {
+        Geometry {
+            origin: self.ms.levels[self.level].origin,
+            ..Geometry::default()
+        }
+    }
+    fn voxel(&self) -> VoxelType {
+        self.ms.voxel
+    }
+    fn read_box(&self, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
+        self.ms.read_box(self.level, lo, size)
     }
 }
 
@@ -362,20 +424,64 @@ pub fn auto_levels(dims: [usize; 3]) -> usize {
     n
 }
 
-/// Writes `v` as an NGFF 0.5 (Zarr v3) multiscale image at `path` (a folder that must not exist
-/// yet), zstd-compressed, each level the 2×2×2 mean of the one before it. The store is written
-/// under a temporary name and renamed into place once complete, so no partial store is left.
-pub fn write(path: &Path, v: &Volume, opts: &WriteOptions) -> Result<()> {
+/// Writes `v` as an NGFF 0.5 (Zarr v3) multiscale image at `path`; see [`write_source`].
+pub fn write(path: &Path, v: &Volume, opts: &WriteOptions) -> Result<WriteReport> {
+    write_source(path, v, opts, &|| {})
+}
+
+/// What writing a store did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WriteReport {
+    pub levels: usize,
+    /// Chunks written, over all levels (chunks that hold only the fill value are not stored).
+    pub chunks: usize,
+    /// Uncompressed bytes of every level.
+    pub bytes: u64,
+    /// Smallest and largest value of level 0.
+    pub range: [f64; 2],
+}
+
+/// The number of chunks `write_source` makes for a grid of `dims`: `on_chunk`'s count.
+pub fn chunk_count(dims: [usize; 3], opts: &WriteOptions) -> usize {
+    let levels = opts.levels.unwrap_or_else(|| auto_levels(dims));
+    (0..levels)
+        .map(|i| {
+            let d = level_dims(dims, i);
+            (0..3)
+                .map(|a| d[a].div_ceil(opts.chunk.max(1)))
+                .product::<usize>()
+        })
+        .sum()
+}
+
+/// Dims of pyramid level `i` of a grid of `dims`.
+fn level_dims(dims: [usize; 3], i: usize) -> [usize; 3] {
+    dims.map(|n| (0..i).fold(n, |n, _| n.div_ceil(2)))
+}
+
+/// Writes `src` as an NGFF 0.5 (Zarr v3) multiscale image at `path` (a folder that must not exist
+/// yet), zstd-compressed, each level the 2×2×2 mean of the one before it, one chunk at a time:
+/// level 0 from boxes of `src`, each coarser level from boxes of the level just written, so memory
+/// holds a few chunks whatever the grid's size. `on_chunk` is called after each chunk (a progress
+/// bar). The store is written under a temporary name and renamed into place once complete, so no
+/// partial store is left. Level 0's value range goes in the root attributes (`vellum.range`), so
+/// that a reader can normalise intensities without reading every voxel.
+pub fn write_source(
+    path: &Path,
+    src: &dyn BoxSource,
+    opts: &WriteOptions,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
     if opts.chunk == 0 {
         return Err(Error::Invalid(
             "`chunk` is 0; expected a chunk edge of 1 voxel or more".into(),
         ));
     }
-    let levels = opts.levels.unwrap_or_else(|| auto_levels(v.dims));
+    let levels = opts.levels.unwrap_or_else(|| auto_levels(src.dims()));
     if levels == 0 {
         return Err(Error::Invalid("`levels` is 0; expected 1 or more".into()));
     }
-    if v.geometry.direction != crate::volume::geometry::IDENTITY {
+    if src.geometry().direction != crate::volume::geometry::IDENTITY {
         log::warn!(
             "OME-NGFF has no rotation: {} keeps the origin and spacing and drops the direction matrix",
             path.display()
@@ -390,34 +496,84 @@ pub fn write(path: &Path, v: &Volume, opts: &WriteOptions) -> Result<()> {
                 .to_string()
         })
         .unwrap_or_default();
-    crate::output::write_folder_atomic(path, |tmp| write_levels(tmp, &name, v, opts.chunk, levels))
+    let mut report = None;
+    crate::output::write_folder_atomic(path, |tmp| {
+        report = Some(write_levels(tmp, &name, src, opts.chunk, levels, on_chunk)?);
+        Ok(())
+    })?;
+    report.ok_or_else(|| Error::Invalid("the store was not written".into()))
 }
 
-fn write_levels(path: &Path, name: &str, v: &Volume, chunk: usize, levels: usize) -> Result<()> {
+fn write_levels(
+    path: &Path,
+    name: &str,
+    src: &dyn BoxSource,
+    chunk: usize,
+    levels: usize,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
     let store = Arc::new(FilesystemStore::new(path).map_err(|e| invalid(path, e))?);
     let mut datasets = Vec::new();
-    // Level 0 is written from `v` itself; each coarser level is made from the one before.
-    let mut coarser: Option<Volume> = None;
+    let (voxel, dims0) = (src.voxel(), src.dims());
+    let mut report = WriteReport {
+        levels,
+        chunks: 0,
+        bytes: 0,
+        range: [f64::INFINITY, f64::NEG_INFINITY],
+    };
+    let mut previous: Option<Array<FilesystemStore>> = None;
     for i in 0..levels {
-        if i > 0 {
-            coarser = Some(halve(coarser.as_ref().unwrap_or(v))?);
+        let dims = level_dims(dims0, i);
+        let spacing = src.spacing().map(|s| s * (1u64 << i) as f64);
+        let origin: [f64; 3] = std::array::from_fn(|a| {
+            src.geometry().origin[a] + 0.5 * (spacing[a] - src.spacing()[a])
+        });
+        let array = make_array(&store, path, &i.to_string(), dims, chunk, voxel)?;
+        let range = match &previous {
+            None => store_chunks(
+                &array,
+                path,
+                dims,
+                chunk,
+                &|lo, size| src.read_box(lo, size),
+                on_chunk,
+            )?,
+            Some(prev) => {
+                let prev_dims = level_dims(dims0, i - 1);
+                let read = |lo: [usize; 3], size: [usize; 3]| -> Result<Volume> {
+                    let plo = lo.map(|v| 2 * v);
+                    let psize: [usize; 3] =
+                        std::array::from_fn(|a| (2 * size[a]).min(prev_dims[a] - plo[a]));
+                    let data = retrieve(prev, 0, voxel, plo, psize).map_err(|e| {
+                        invalid(
+                            path,
+                            format!("level {} could not be read back ({e})", i - 1),
+                        )
+                    })?;
+                    halve(&Volume::new(psize, [1.0; 3], data)?)
+                };
+                store_chunks(&array, path, dims, chunk, &read, on_chunk)?
+            }
+        };
+        if i == 0 {
+            report.range = range;
         }
-        let current = coarser.as_ref().unwrap_or(v);
-        write_array(&store, path, &i.to_string(), current, chunk)?;
-        let s = current.spacing;
-        let o = current.geometry.origin;
+        report.chunks += (0..3).map(|a| dims[a].div_ceil(chunk)).product::<usize>();
+        report.bytes += (dims[0] * dims[1] * dims[2] * voxel.size()) as u64;
+        previous = Some(array);
         datasets.push(json!({
             "path": i.to_string(),
             "coordinateTransformations": [
-                {"type": "scale", "scale": [s[2], s[1], s[0]]},
-                {"type": "translation", "translation": [o[2], o[1], o[0]]},
+                {"type": "scale", "scale": [spacing[2], spacing[1], spacing[0]]},
+                {"type": "translation", "translation": [origin[2], origin[1], origin[0]]},
             ],
         }));
     }
     let mut group = zarrs::group::GroupBuilder::new()
         .build(store, "/")
         .map_err(|e| invalid(path, e))?;
-    group.attributes_mut().insert(
+    let attrs = group.attributes_mut();
+    attrs.insert(
         "ome".into(),
         json!({
             "version": "0.5",
@@ -432,17 +588,21 @@ fn write_levels(path: &Path, name: &str, v: &Volume, chunk: usize, levels: usize
             }],
         }),
     );
-    group.store_metadata().map_err(|e| invalid(path, e))
+    attrs.insert("vellum".into(), json!({ "range": report.range }));
+    group.store_metadata().map_err(|e| invalid(path, e))?;
+    Ok(report)
 }
 
-fn write_array(
+/// An empty level of `dims` in `voxel`, chunked by `chunk`, zstd-compressed, metadata stored.
+fn make_array(
     store: &Arc<FilesystemStore>,
     path: &Path,
     name: &str,
-    v: &Volume,
+    dims: [usize; 3],
     chunk: usize,
-) -> Result<()> {
-    let shape: Vec<u64> = [v.dims[2], v.dims[1], v.dims[0]]
+    voxel: VoxelType,
+) -> Result<Array<FilesystemStore>> {
+    let shape: Vec<u64> = [dims[2], dims[1], dims[0]]
         .iter()
         .map(|&n| n as u64)
         .collect();
@@ -450,13 +610,13 @@ fn write_array(
         .iter()
         .map(|&n| (chunk as u64).min(n).max(1))
         .collect();
-    let (dtype, fill): (zarrs::array::DataType, zarrs::array::FillValue) = match &v.data {
-        VoxelData::U8(_) => (data_type::uint8(), 0u8.into()),
-        VoxelData::U16(_) => (data_type::uint16(), 0u16.into()),
-        VoxelData::I16(_) => (data_type::int16(), 0i16.into()),
-        VoxelData::F32(_) => (data_type::float32(), 0f32.into()),
+    let (dtype, fill): (zarrs::array::DataType, zarrs::array::FillValue) = match voxel {
+        VoxelType::U8 => (data_type::uint8(), 0u8.into()),
+        VoxelType::U16 => (data_type::uint16(), 0u16.into()),
+        VoxelType::I16 => (data_type::int16(), 0i16.into()),
+        VoxelType::F32 => (data_type::float32(), 0f32.into()),
     };
-    let array = ArrayBuilder::new(shape.clone(), chunks, dtype, fill)
+    let array = ArrayBuilder::new(shape, chunks, dtype, fill)
         .bytes_to_bytes_codecs(vec![Arc::new(zarrs::array::codec::ZstdCodec::new(
             3, false,
         ))])
@@ -469,15 +629,55 @@ fn write_array(
             format!("level {name}'s metadata could not be written ({e})"),
         )
     })?;
-    let ranges: Vec<std::ops::Range<u64>> = shape.iter().map(|&n| 0..n).collect();
-    let subset = ArraySubset::new_with_ranges(&ranges);
-    let stored = match &v.data {
-        VoxelData::U8(d) => array.store_array_subset(&subset, d.as_slice()),
-        VoxelData::U16(d) => array.store_array_subset(&subset, d.as_slice()),
-        VoxelData::I16(d) => array.store_array_subset(&subset, d.as_slice()),
-        VoxelData::F32(d) => array.store_array_subset(&subset, d.as_slice()),
-    };
-    stored.map_err(|e| invalid(path, format!("level {name} could not be written ({e})")))
+    Ok(array)
+}
+
+/// Fills `array` (a level of `dims`) chunk by chunk from `read(lo, size)`, chunks in parallel;
+/// returns the smallest and largest value written.
+fn store_chunks(
+    array: &Array<FilesystemStore>,
+    path: &Path,
+    dims: [usize; 3],
+    chunk: usize,
+    read: &(dyn Fn([usize; 3], [usize; 3]) -> Result<Volume> + Sync),
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<[f64; 2]> {
+    use rayon::prelude::*;
+    let counts = dims.map(|n| n.div_ceil(chunk));
+    let total = counts[0] * counts[1] * counts[2];
+    (0..total)
+        .into_par_iter()
+        .map(|c| {
+            let index = [
+                c % counts[0],
+                (c / counts[0]) % counts[1],
+                c / (counts[0] * counts[1]),
+            ];
+            let lo = index.map(|i| i * chunk);
+            let size: [usize; 3] = std::array::from_fn(|a| chunk.min(dims[a] - lo[a]));
+            let v = read(lo, size)?;
+            let range = crate::volume::stats::value_range(&v);
+            let ranges: Vec<std::ops::Range<u64>> = [2, 1, 0]
+                .iter()
+                .map(|&a| lo[a] as u64..(lo[a] + size[a]) as u64)
+                .collect();
+            let subset = ArraySubset::new_with_ranges(&ranges);
+            let stored = match &v.data {
+                VoxelData::U8(d) => array.store_array_subset(&subset, d.as_slice()),
+                VoxelData::U16(d) => array.store_array_subset(&subset, d.as_slice()),
+                VoxelData::I16(d) => array.store_array_subset(&subset, d.as_slice()),
+                VoxelData::F32(d) => array.store_array_subset(&subset, d.as_slice()),
+            };
+            stored.map_err(|e| {
+                invalid(path, format!("chunk {index:?} could not be written ({e})"))
+            })?;
+            on_chunk();
+            Ok(range)
+        })
+        .try_reduce(
+            || [f64::INFINITY, f64::NEG_INFINITY],
+            |a, b| Ok([a[0].min(b[0]), a[1].max(b[1])]),
+        )
 }
 
 /// The 2×2×2 mean of `v` (odd edges average what they have), in the same voxel type, with

@@ -50,7 +50,64 @@ pub(crate) fn devices(cli: &Cli, json: bool) -> Result<()> {
     Ok(())
 }
 
+/// A store too large to read whole: its levels, and the statistics of its coarsest level.
+fn store_summary(ms: &vellum::volume::io::ome_zarr::Multiscale, json: bool) -> Result<()> {
+    let coarsest = ms.levels.len() - 1;
+    let v = ms.read_level(coarsest)?;
+    let s = vellum::volume::stats::stats(&v, 16);
+    let levels: Vec<_> = ms
+        .levels
+        .iter()
+        .map(|l| json!({"path": l.path, "dims": l.dims, "chunk": l.chunk, "spacing": l.spacing, "origin": l.origin}))
+        .collect();
+    if json {
+        let out = json!({
+            "input": ms.root, "ngff": ms.version, "voxel_type": ms.voxel, "levels": levels,
+            "range": ms.range, "coarsest_level": {"min": s.min, "max": s.max, "mean": s.mean, "histogram": s.histogram},
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!(
+        "input:   {} (OME-NGFF {}, {})",
+        ms.root.display(),
+        ms.version,
+        ms.voxel.name()
+    );
+    for l in &ms.levels {
+        println!(
+            "level {}: {} x {} x {}, chunks {} x {} x {}, spacing {} x {} x {}",
+            l.path,
+            l.dims[0],
+            l.dims[1],
+            l.dims[2],
+            l.chunk[0],
+            l.chunk[1],
+            l.chunk[2],
+            l.spacing[0],
+            l.spacing[1],
+            l.spacing[2]
+        );
+    }
+    if let Some([lo, hi]) = ms.range {
+        println!("range:   {lo} .. {hi} (level 0, as recorded when written)");
+    }
+    println!(
+        "level {} (coarsest): min {} max {} mean {:.4}; level 0 is too large to read whole here",
+        coarsest, s.min, s.max, s.mean
+    );
+    Ok(())
+}
+
 pub(crate) fn info(input: &InputArgs, json: bool) -> Result<()> {
+    use vellum::volume::io::ome_zarr;
+    let path = std::path::Path::new(&input.input);
+    if ome_zarr::is_store(path) && input.raw.spec()?.is_none() {
+        let ms = ome_zarr::Multiscale::open(path)?;
+        if !vellum::memory::fits_in_memory(ms.level_bytes(0)) {
+            return store_summary(&ms, json);
+        }
+    }
     let v = input.load()?;
     let s = vellum::volume::stats::stats(&v, 16);
     if json {

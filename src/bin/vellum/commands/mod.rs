@@ -1,6 +1,7 @@
 //! One module per group of subcommands; [`run`] dispatches the parsed command line.
 
 mod bench;
+mod convert;
 mod importance;
 mod info;
 mod occlusion;
@@ -8,6 +9,7 @@ mod render;
 mod styles;
 mod view;
 
+use convert::convert;
 use importance::importance;
 use info::{devices, info, roundtrip};
 use occlusion::{occlusion, occlusion_select, occlusion_sensitivity};
@@ -66,17 +68,6 @@ pub(crate) fn passes_json<'a>(
         .collect()
 }
 
-/// `--levels`: `auto` (or absent) picks by size; otherwise a count of 1 or more.
-fn parse_levels(levels: Option<&str>) -> Result<Option<usize>> {
-    match levels {
-        None | Some("auto") => Ok(None),
-        Some(n) => match n.parse::<usize>() {
-            Ok(n) if n > 0 => Ok(Some(n)),
-            _ => anyhow::bail!("--levels {n:?} is invalid; expected auto or a number of 1 or more"),
-        },
-    }
-}
-
 /// Refuses two outputs of one command at the same path, before any work is done.
 pub(crate) fn check_distinct_outputs(command: &Command) -> Result<()> {
     let paths = output_paths(command);
@@ -103,34 +94,8 @@ pub(crate) fn run(cli: &Cli) -> Result<()> {
             output,
             chunk,
             levels,
-        } => {
-            let store = output
-                .file_name()
-                .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"));
-            anyhow::ensure!(
-                store || (chunk.is_none() && levels.is_none()),
-                "--chunk and --levels shape an OME-Zarr store; expected an output folder ending .zarr"
-            );
-            let v = input.load()?;
-            if store {
-                let opts = vellum::volume::io::ome_zarr::WriteOptions {
-                    chunk: chunk.unwrap_or(64),
-                    levels: parse_levels(levels.as_deref())?,
-                };
-                vellum::volume::io::ome_zarr::write(output, &v, &opts)?;
-            } else {
-                vellum::volume::io::write(output, &v)?;
-            }
-            println!(
-                "wrote {} ({}x{}x{} {})",
-                output.display(),
-                v.dims[0],
-                v.dims[1],
-                v.dims[2],
-                v.voxel_type().name()
-            );
-            Ok(())
-        }
+            json,
+        } => convert(input, output, *chunk, levels.as_deref(), *json),
         Command::Roundtrip { input, json } => roundtrip(cli, input, *json),
         Command::Importance {
             input,

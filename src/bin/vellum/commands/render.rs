@@ -133,27 +133,76 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
     let classification = scene
         .classification()
         .map_err(|e| from("classification", e))?;
-    let v = scene.load_volume().map_err(|e| from("input", e))?;
-    let view = scene
-        .view(v.geometry.is_oriented())
-        .map_err(|e| from("style", e))?;
     let ctx = context(cli)?;
-    let modulation = scene.modulation.clone().unwrap_or_default();
-    let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
-    let frame = Renderer::new(&ctx)?.render_frame(&gpu.volume, &mut gpu.classify, &view, true)?;
+    let budget = gpu_budget(&ctx, a.gpu_budget)?;
+    let input = open_input(&scene, budget).map_err(|e| from("input", e))?;
+    let oriented = match &input {
+        Input::InCore(v) => v.geometry.is_oriented(),
+        Input::Bricked(_) => false,
+    };
+    let mut view = scene.view(oriented).map_err(|e| from("style", e))?;
+    let (frame, prepare_passes, stream) = match input {
+        Input::InCore(v) => {
+            let modulation = scene.modulation.clone().unwrap_or_default();
+            let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
+            let frame =
+                Renderer::new(&ctx)?.render_frame(&gpu.volume, &mut gpu.classify, &view, true)?;
+            (frame, gpu.passes, None)
+        }
+        Input::Bricked(levels) => {
+            let budget_mib = budget as f64 / (1 << 20) as f64;
+            anyhow::ensure!(
+                !scene.modulation.as_ref().is_some_and(|m| m.is_active()),
+                "importance modulation needs the importance map of the whole volume, which is larger than the GPU budget ({budget_mib:.0} MiB); raise --gpu-budget or drop the modulation"
+            );
+            if view.raycast.is_none() {
+                eprintln!("the volume is larger than the GPU budget ({budget_mib:.0} MiB): the ray caster draws it through the brick cache");
+                view.raycast = Some(Default::default());
+            }
+            let finest = match a.lod.as_str() {
+                "auto" => false,
+                "finest" => true,
+                other => anyhow::bail!("--lod {other:?} is unknown; expected auto or finest"),
+            };
+            let mut gpu = GpuScene::prepare_bricked(
+                &ctx,
+                levels,
+                &classification,
+                scene.focus,
+                budget,
+                finest,
+            )?;
+            let wait = a.max_wait_ms.map(std::time::Duration::from_millis);
+            let (frame, report) = Renderer::new(&ctx)?.render_bricked(
+                &mut gpu.volume,
+                &mut gpu.classify,
+                &view,
+                wait,
+            )?;
+            if !report.complete {
+                eprintln!(
+                    "the frame is not complete: --max-wait-ms {} ran out after {} passes, so bricks still missing were drawn from coarser levels",
+                    a.max_wait_ms.unwrap_or(0),
+                    report.passes
+                );
+            }
+            (frame, Vec::new(), Some(report))
+        }
+    };
     report_validation(&ctx);
     let [w, h] = frame.size;
     vellum::output::write_png_rgb(out, w, h, &to_rgb8(&frame.composite, scene.background))?;
     if let Some(path) = &a.exr {
         frame.write_exr(path)?;
     }
-    let passes: Vec<_> = gpu.passes.iter().chain(&frame.passes).collect();
+    let passes: Vec<_> = prepare_passes.iter().chain(&frame.passes).collect();
     if a.json {
         let map = passes_json(passes.iter().copied());
         println!(
             "{}",
             serde_json::to_string_pretty(
-                &json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map })
+                &json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map, "bricks": stream,
+                    "peak_rss_mib": vellum::memory::peak_resident_kib().map(|k| k as f64 / 1024.0) })
             )?
         );
     } else {
@@ -161,9 +210,65 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
             "rendered {} ({w}x{h}, {} slices) on {}",
             scene.input.path, frame.slices, ctx.info.name
         );
+        if let Some(r) = &stream {
+            println!(
+                "  brick cache: {} passes, {} bricks loaded ({:.1} MiB), {} evicted, {} of {} slots resident ({:.1} MiB pool), {:.0} ms",
+                r.passes,
+                r.bricks_loaded,
+                r.bytes_streamed as f64 / (1 << 20) as f64,
+                r.bricks_evicted,
+                r.resident,
+                r.capacity,
+                r.pool_bytes as f64 / (1 << 20) as f64,
+                r.total_ms
+            );
+        }
         for p in passes {
             println!("  {:<14} {:>9.3} ms", p.name, p.ms);
         }
     }
     Ok(())
+}
+
+/// The input of a render: whole in memory and on the GPU, or through the brick cache.
+enum Input {
+    InCore(vellum::volume::Volume),
+    Bricked(vellum::volume::bricks::BrickLevels),
+}
+
+/// Bytes a volume of `dims` takes on the GPU in core: R16 intensity and RGBA16F gradients.
+fn in_core_bytes(dims: [usize; 3]) -> u64 {
+    dims.iter().map(|&n| n as u64).product::<u64>() * 10
+}
+
+/// `--gpu-budget` in bytes, or half the device's largest heap.
+fn gpu_budget(ctx: &vellum::gpu::Context, mib: Option<f64>) -> Result<u64> {
+    match mib {
+        None => Ok(ctx.info.device_local_heap_bytes / 2),
+        Some(m) if m.is_finite() && m > 0.0 => Ok((m * (1u64 << 20) as f64) as u64),
+        Some(m) => anyhow::bail!("--gpu-budget {m} is invalid; expected a positive number of MiB"),
+    }
+}
+
+/// Opens the scene's input: a store whose level 0 does not fit `budget` is never read whole;
+/// any other input is read and goes to the brick cache when its textures do not fit.
+fn open_input(scene: &vellum::render::scene::Scene, budget: u64) -> vellum::Result<Input> {
+    use vellum::volume::bricks::BrickLevels;
+    use vellum::volume::io::ome_zarr;
+    let path = std::path::Path::new(&scene.input.path);
+    if ome_zarr::is_store(path) && scene.input.raw.is_none() {
+        let ms = ome_zarr::Multiscale::open(path)?;
+        if in_core_bytes(ms.levels[0].dims) > budget {
+            // Level 0 is read whole for the range only when it is small (64 Mi voxels).
+            return Ok(Input::Bricked(BrickLevels::of_store(
+                std::sync::Arc::new(ms),
+                1 << 26,
+            )?));
+        }
+    }
+    let v = scene.load_volume()?;
+    if in_core_bytes(v.dims) > budget {
+        return Ok(Input::Bricked(BrickLevels::of_volume(v)?));
+    }
+    Ok(Input::InCore(v))
 }

@@ -1,0 +1,110 @@
+//! `vellum convert`: to NRRD or NIfTI in memory, or to an OME-Zarr store chunk by chunk.
+
+use crate::args::InputArgs;
+use anyhow::Result;
+use std::path::Path;
+use vellum::volume::io::ome_zarr::{self, WriteOptions};
+use vellum::volume::phantom::{Phantom, MAX_STREAMED_SIZE};
+use vellum::volume::source::BoxSource;
+
+/// `--levels`: `auto` (or absent) picks by size; otherwise a count of 1 or more.
+fn parse_levels(levels: Option<&str>) -> Result<Option<usize>> {
+    match levels {
+        None | Some("auto") => Ok(None),
+        Some(n) => match n.parse::<usize>() {
+            Ok(n) if n > 0 => Ok(Some(n)),
+            _ => anyhow::bail!("--levels {n:?} is invalid; expected auto or a number of 1 or more"),
+        },
+    }
+}
+
+pub(crate) fn convert(
+    input: &InputArgs,
+    output: &Path,
+    chunk: Option<usize>,
+    levels: Option<&str>,
+    json: bool,
+) -> Result<()> {
+    let store = output
+        .file_name()
+        .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"));
+    anyhow::ensure!(
+        store || (chunk.is_none() && levels.is_none()),
+        "--chunk and --levels shape an OME-Zarr store; expected an output folder ending .zarr"
+    );
+    if !store {
+        let v = input.load()?;
+        vellum::volume::io::write(output, &v)?;
+        return done(output, v.dims, v.voxel_type().name());
+    }
+    let opts = WriteOptions {
+        chunk: chunk.unwrap_or(64),
+        levels: parse_levels(levels)?,
+    };
+    // A phantom is sampled a chunk at a time and a store is read a chunk at a time, so neither
+    // is ever whole in memory; any other input is read whole first.
+    let input_path = Path::new(&input.input);
+    if let Some(phantom) = Phantom::parse(&input.input, MAX_STREAMED_SIZE) {
+        write_store(output, &phantom?, &opts, json)
+    } else if ome_zarr::is_store(input_path) && input.raw.spec()?.is_none() {
+        let ms = ome_zarr::Multiscale::open(input_path)?;
+        write_store(output, &ms.level(0)?, &opts, json)
+    } else {
+        write_store(output, &input.load()?, &opts, json)
+    }
+}
+
+/// Writes `src` as a store with a progress bar (on a terminal), then says what it wrote.
+fn write_store(output: &Path, src: &dyn BoxSource, opts: &WriteOptions, json: bool) -> Result<()> {
+    let bar = vellum::progress::bar(
+        ome_zarr::chunk_count(src.dims(), opts) as u64,
+        "writing chunks",
+    );
+    let start = std::time::Instant::now();
+    let report = ome_zarr::write_source(output, src, opts, &|| bar.inc(1))?;
+    bar.finish_and_clear();
+    let secs = start.elapsed().as_secs_f64();
+    let mib = report.bytes as f64 / (1 << 20) as f64;
+    let peak = vellum::memory::peak_resident_kib().map(|k| k as f64 / 1024.0);
+    let d = src.dims();
+    if json {
+        let out = serde_json::json!({
+            "store": output,
+            "dims": d,
+            "voxel": src.voxel().name(),
+            "levels": report.levels,
+            "chunks": report.chunks,
+            "bytes": report.bytes,
+            "seconds": secs,
+            "mib_per_s": mib / secs.max(1e-9),
+            "range": report.range,
+            "peak_rss_mib": peak,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!(
+        "wrote {} ({}x{}x{} {}): {} levels, {} chunks, {mib:.0} MiB uncompressed in {secs:.1} s ({:.0} MiB/s), peak resident set {:.0} MiB",
+        output.display(),
+        d[0],
+        d[1],
+        d[2],
+        src.voxel().name(),
+        report.levels,
+        report.chunks,
+        mib / secs.max(1e-9),
+        peak.unwrap_or(0.0),
+    );
+    Ok(())
+}
+
+fn done(output: &Path, dims: [usize; 3], voxel: &str) -> Result<()> {
+    println!(
+        "wrote {} ({}x{}x{} {voxel})",
+        output.display(),
+        dims[0],
+        dims[1],
+        dims[2]
+    );
+    Ok(())
+}
