@@ -46,6 +46,9 @@ pub(crate) struct Lifetimes {
     recording: AtomicU32,
     garbage: Mutex<Vec<(u64, Garbage)>>,
     allocations: AtomicU64,
+    /// Bytes of GPU memory allocated now, and the most at any time.
+    allocated_bytes: AtomicU64,
+    peak_allocated_bytes: AtomicU64,
     transfers: Mutex<BTreeMap<String, TransferCount>>,
 }
 
@@ -139,8 +142,28 @@ impl Context {
         lock(&self.lifetimes.garbage).len()
     }
 
-    pub(crate) fn count_allocation(&self) {
-        self.lifetimes.allocations.fetch_add(1, Ordering::Relaxed);
+    pub(crate) fn count_allocation(&self, bytes: u64) {
+        let l = &self.lifetimes;
+        l.allocations.fetch_add(1, Ordering::Relaxed);
+        let now = l.allocated_bytes.fetch_add(bytes, Ordering::Relaxed) + bytes;
+        l.peak_allocated_bytes.fetch_max(now, Ordering::Relaxed);
+    }
+
+    /// Notes `bytes` of GPU memory freed.
+    pub(crate) fn count_free(&self, bytes: u64) {
+        self.lifetimes
+            .allocated_bytes
+            .fetch_sub(bytes, Ordering::Relaxed);
+    }
+
+    /// Bytes of GPU memory allocated through the allocator now.
+    pub fn allocated_bytes(&self) -> u64 {
+        self.lifetimes.allocated_bytes.load(Ordering::Relaxed)
+    }
+
+    /// The most bytes of GPU memory allocated through the allocator at any time.
+    pub fn peak_allocated_bytes(&self) -> u64 {
+        self.lifetimes.peak_allocated_bytes.load(Ordering::Relaxed)
     }
 
     /// GPU memory allocations made through the allocator since the context was created.

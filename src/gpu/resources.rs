@@ -73,8 +73,8 @@ fn allocate(
     location: MemoryLocation,
     linear: bool,
 ) -> Result<Allocation> {
-    ctx.count_allocation();
-    ctx.allocator()
+    let a = ctx
+        .allocator()
         .allocate(&AllocationCreateDesc {
             name,
             requirements,
@@ -85,11 +85,14 @@ fn allocate(
         .map_err(|cause| Error::Alloc {
             what: name.to_string(),
             cause,
-        })
+        })?;
+    ctx.count_allocation(a.size());
+    Ok(a)
 }
 
 fn free(ctx: &Context, allocation: Option<Allocation>) {
     if let Some(a) = allocation {
+        ctx.count_free(a.size());
         if let Err(e) = ctx.allocator().free(a) {
             log::error!("freeing GPU memory failed: {e}");
         }

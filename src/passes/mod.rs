@@ -1,6 +1,7 @@
 //! Passes join volumes and the GPU: each module records the dispatches of one technique and has a
 //! CPU twin in `volume::reference` that tests compare it with.
 
+pub mod chunked;
 pub mod importance;
 pub mod lines;
 pub mod normals;

@@ -908,7 +908,17 @@ impl OcclusionInput {
 
     /// [`OcclusionInput::upload`] that also returns the time of its pass, `upload`.
     pub fn upload_timed(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, Vec<PassTime>)> {
-        let (intensity, range) = normalised_f32(v);
+        Self::upload_in_range(ctx, v, None)
+    }
+
+    /// [`OcclusionInput::upload_timed`] normalised over `range` instead of `v`'s own [min, max]:
+    /// a chunk of a larger volume is normalised as the whole volume is.
+    pub fn upload_in_range(
+        ctx: &Arc<Context>,
+        v: &Volume,
+        range: Option<[f64; 2]>,
+    ) -> Result<(Self, Vec<PassTime>)> {
+        let (intensity, range) = normalised_f32_in(v, range);
         let extent = extent_of(ctx, v.dims, 4, 4)?;
         let image = Image::new(
             ctx,
@@ -978,18 +988,19 @@ pub fn check_radius_stride(radius: u32, stride: u32) -> Result<()> {
 
 /// The voxels of `v` mapped linearly from [min, max] to [0, 1] as f32, and that range.
 pub fn normalised_f32(v: &Volume) -> (Vec<f32>, [f64; 2]) {
+    normalised_f32_in(v, None)
+}
+
+/// [`normalised_f32`] over `range` when given (values outside it go below 0 or above 1).
+pub fn normalised_f32_in(v: &Volume, range: Option<[f64; 2]>) -> (Vec<f32>, [f64; 2]) {
     use rayon::prelude::*;
-    let s = crate::volume::stats::stats(v, 0);
-    let scale = if s.max > s.min {
-        1.0 / (s.max - s.min)
-    } else {
-        0.0
-    };
+    let [min, max] = range.unwrap_or_else(|| v.normalised_range());
+    let scale = if max > min { 1.0 / (max - min) } else { 0.0 };
     let out = (0..v.len())
         .into_par_iter()
-        .map(|i| ((v.data.get_f64(i) - s.min) * scale) as f32)
+        .map(|i| ((v.data.get_f64(i) - min) * scale) as f32)
         .collect();
-    (out, [s.min, s.max])
+    (out, [min, max])
 }
 
 #[cfg(test)]

@@ -92,6 +92,42 @@ impl BoxSource for Phantom {
     }
 }
 
+/// A float grid computed box by box from `src`: a box is read with `halo` more voxels on every
+/// side (as far as the grid goes), and `f(box, offset, size)` returns its part `offset ..
+/// offset + size`, the box asked for. What the chunked passes (importance, occlusion) write: a
+/// filter whose reach is at most `halo` gives every kept voxel exactly as on the whole grid.
+pub struct Halo<'a> {
+    pub src: &'a dyn BoxSource,
+    pub halo: usize,
+    #[allow(clippy::type_complexity)]
+    pub f: &'a (dyn Fn(&Volume, [usize; 3], [usize; 3]) -> Result<Volume> + Sync),
+}
+
+impl BoxSource for Halo<'_> {
+    fn dims(&self) -> [usize; 3] {
+        self.src.dims()
+    }
+    fn spacing(&self) -> [f64; 3] {
+        self.src.spacing()
+    }
+    fn geometry(&self) -> Geometry {
+        self.src.geometry()
+    }
+    fn voxel(&self) -> VoxelType {
+        VoxelType::F32
+    }
+    fn read_box(&self, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
+        let dims = self.src.dims();
+        let ext_lo = lo.map(|v| v.saturating_sub(self.halo));
+        let ext_hi: [usize; 3] =
+            std::array::from_fn(|a| (lo[a] + size[a] + self.halo).min(dims[a]));
+        let ext_size: [usize; 3] = std::array::from_fn(|a| ext_hi[a] - ext_lo[a]);
+        let v = self.src.read_box(ext_lo, ext_size)?;
+        let offset: [usize; 3] = std::array::from_fn(|a| lo[a] - ext_lo[a]);
+        (self.f)(&v, offset, size)
+    }
+}
+
 /// Voxels `lo .. lo + size` of `src` as f32, where the box may reach outside the grid: voxels
 /// outside repeat the nearest edge voxel, as a clamp-to-edge sampler reads them. What the brick
 /// cache fills a brick and its apron with.

@@ -106,12 +106,15 @@ pub(crate) enum Command {
         /// Gaussian radius R in voxels (σ = R/3).
         #[arg(long, default_value_t = 5)]
         radius: u32,
-        /// Write ΔD as a float volume (.nrrd, .nii or .nii.gz).
+        /// Write ΔD as a float volume (.nrrd, .nii or .nii.gz), or as an OME-Zarr store
+        /// (a new folder ending .zarr), computed chunk by chunk.
         #[arg(long)]
         out: Option<PathBuf>,
         /// Write the three middle slices as a thermal PNG.
         #[arg(long)]
         slices: Option<PathBuf>,
+        #[command(flatten)]
+        chunking: ChunkArgs,
         #[arg(long)]
         json: bool,
     },
@@ -205,6 +208,18 @@ pub(crate) struct RenderArgs {
     pub(crate) lod: String,
 }
 
+/// How the chunked passes run (issue 26).
+#[derive(Args, Clone, Debug)]
+pub(crate) struct ChunkArgs {
+    /// Host memory for the pass in MiB: above it (and for a store input) the pass runs chunk by
+    /// chunk into an OME-Zarr store (default: half the machine's memory).
+    #[arg(long, value_name = "MiB")]
+    pub(crate) memory_budget: Option<f64>,
+    /// Chunk edge of a chunked pass (default: the largest that fits the budget, at most 256).
+    #[arg(long, value_name = "N")]
+    pub(crate) chunk: Option<usize>,
+}
+
 /// `vellum occlusion`: the flags.
 #[derive(Args)]
 pub(crate) struct OcclusionArgs {
@@ -234,6 +249,8 @@ pub(crate) struct OcclusionArgs {
     /// How the neighbourhood sum is computed: auto (a measured cost model), runs (direct sums on the GPU), fft-gpu or fft-cpu (FFT convolution, a cost that does not grow with the radius).
     #[arg(long, default_value = "auto")]
     pub(crate) method: String,
+    #[command(flatten)]
+    pub(crate) chunking: ChunkArgs,
     #[arg(long)]
     pub(crate) json: bool,
 }

@@ -41,16 +41,63 @@ pub(crate) fn convert(
         chunk: chunk.unwrap_or(64),
         levels: parse_levels(levels)?,
     };
-    // A phantom is sampled a chunk at a time and a store is read a chunk at a time, so neither
-    // is ever whole in memory; any other input is read whole first.
-    let input_path = Path::new(&input.input);
-    if let Some(phantom) = Phantom::parse(&input.input, MAX_STREAMED_SIZE) {
-        write_store(output, &phantom?, &opts, json)
-    } else if ome_zarr::is_store(input_path) && input.raw.spec()?.is_none() {
-        let ms = ome_zarr::Multiscale::open(input_path)?;
-        write_store(output, &ms.level(0)?, &opts, json)
-    } else {
-        write_store(output, &input.load()?, &opts, json)
+    let source = Source::open(input)?;
+    let boxes = source.boxes()?;
+    write_store(output, &*boxes, &opts, json)
+}
+
+/// An input read a box at a time: a phantom is sampled a chunk at a time and a store is read a
+/// chunk at a time, so neither is ever whole in memory; any other input is read whole first.
+pub(crate) enum Source {
+    Phantom(Phantom),
+    Store(ome_zarr::Multiscale),
+    Volume(vellum::volume::Volume),
+}
+
+impl Source {
+    pub(crate) fn open(input: &InputArgs) -> Result<Self> {
+        let path = Path::new(&input.input);
+        Ok(
+            if let Some(phantom) = Phantom::parse(&input.input, MAX_STREAMED_SIZE) {
+                Source::Phantom(phantom?)
+            } else if ome_zarr::is_store(path) && input.raw.spec()?.is_none() {
+                Source::Store(ome_zarr::Multiscale::open(path)?)
+            } else {
+                Source::Volume(input.load()?)
+            },
+        )
+    }
+
+    pub(crate) fn boxes(&self) -> Result<Box<dyn BoxSource + '_>> {
+        Ok(match self {
+            Source::Phantom(p) => Box::new(*p),
+            Source::Store(ms) => Box::new(ms.level(0)?),
+            Source::Volume(v) => Box::new(v),
+        })
+    }
+
+    /// Level 0's value range: recorded in a store written by vellum, else read a chunk at a time.
+    pub(crate) fn range(&self) -> Result<[f64; 2]> {
+        if let Source::Store(ms) = self {
+            if let Some(r) = ms.range {
+                return Ok(r);
+            }
+        }
+        let src = self.boxes()?;
+        let d = src.dims();
+        let mut r = [f64::INFINITY, f64::NEG_INFINITY];
+        let step = 64;
+        for z in (0..d[2]).step_by(step) {
+            for y in (0..d[1]).step_by(step) {
+                for x in (0..d[0]).step_by(step) {
+                    let lo = [x, y, z];
+                    let size: [usize; 3] = std::array::from_fn(|a| step.min(d[a] - lo[a]));
+                    let b = vellum::volume::stats::value_range(&src.read_box(lo, size)?);
+                    r = [r[0].min(b[0]), r[1].max(b[1])];
+                }
+            }
+        }
+        Ok(r)
     }
 }
 

@@ -9,11 +9,50 @@ pub(crate) fn importance(
     cli: &Cli,
     input: &InputArgs,
     radius: u32,
-    out: Option<&std::path::Path>,
-    slices: Option<&std::path::Path>,
+    (out, slices): (Option<&std::path::Path>, Option<&std::path::Path>),
+    chunking: &ChunkArgs,
     json: bool,
 ) -> Result<()> {
-    let v = input.load()?;
+    use super::chunked::{plan, Plan};
+    let bytes = vellum::passes::chunked::IMPORTANCE_BYTES;
+    let whole = [("--slices", slices.is_some())];
+    let v = match plan(input, out, chunking, radius as usize, bytes, &whole)? {
+        Plan::InCore(v) => v,
+        Plan::Chunked { source, chunk } => {
+            let ctx = context(cli)?;
+            let out = out.ok_or_else(|| anyhow::anyhow!("a chunked pass needs --out"))?;
+            let boxes = source.boxes()?;
+            let bar = super::chunked::bar(boxes.dims(), chunk, "importance chunks");
+            let start = std::time::Instant::now();
+            let store = vellum::passes::chunked::importance_store(
+                &ctx,
+                &*boxes,
+                radius,
+                out,
+                chunk,
+                &|| bar.inc(1),
+            )?;
+            bar.finish_and_clear();
+            report_validation(&ctx);
+            let mut r = super::chunked::report(
+                &ctx,
+                &store,
+                chunk,
+                radius as usize,
+                start.elapsed().as_secs_f64(),
+            );
+            r["max_abs_delta_d"] = json!(store.range[0].abs().max(store.range[1].abs()));
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                println!(
+                    "importance map of {} (R = {radius}) on {}, chunk by chunk: {}",
+                    input.input, ctx.info.name, r
+                );
+            }
+            return Ok(());
+        }
+    };
     let ctx = context(cli)?;
     let mut map = vellum::passes::importance::ImportanceMap::new(&ctx)?;
     let r = map.compute(&v, radius, false)?;

@@ -1,6 +1,7 @@
 //! One module per group of subcommands; [`run`] dispatches the parsed command line.
 
 mod bench;
+mod chunked;
 mod convert;
 mod importance;
 mod info;
@@ -102,13 +103,14 @@ pub(crate) fn run(cli: &Cli) -> Result<()> {
             radius,
             out,
             slices,
+            chunking,
             json,
         } => importance(
             cli,
             input,
             *radius,
-            out.as_deref(),
-            slices.as_deref(),
+            (out.as_deref(), slices.as_deref()),
+            chunking,
             *json,
         ),
         Command::Render(args) => render(cli, args),

@@ -16,8 +16,6 @@ pub(crate) fn occlusion(cli: &Cli, a: &OcclusionArgs) -> Result<()> {
     use vellum::passes::occlusion::{parse_mapping, Method, Occlusion, OcclusionParams};
     let (visibility, neighbourhood) = parse_mapping(mapping)?;
     let method = Method::parse(method)?;
-    let v = input.load()?;
-    let ctx = context(cli)?;
     let want_spectrum = spectrum_png.is_some() || spectrum_csv.is_some() || json;
     let params = OcclusionParams {
         radius,
@@ -28,6 +26,15 @@ pub(crate) fn occlusion(cli: &Cli, a: &OcclusionArgs) -> Result<()> {
         method,
         pad: None,
     };
+    use super::chunked::{plan, Plan};
+    let bytes = vellum::passes::chunked::OCCLUSION_BYTES;
+    let v = match plan(input, out, &a.chunking, radius as usize, bytes, &[])? {
+        Plan::InCore(v) => v,
+        Plan::Chunked { source, chunk } => {
+            return occlusion_chunked(cli, a, &source, &params, chunk);
+        }
+    };
+    let ctx = context(cli)?;
     let start = std::time::Instant::now();
     let r = Occlusion::new(&ctx)?.compute(&v, &params)?;
     let wall_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -37,21 +44,7 @@ pub(crate) fn occlusion(cli: &Cli, a: &OcclusionArgs) -> Result<()> {
             .with_context(|| format!("writing the occlusion volume to {}", path.display()))?;
     }
     if let Some(s) = &r.spectrum {
-        let b = [s.bins[0] as usize, s.bins[1] as usize];
-        if let Some(path) = spectrum_png {
-            let c = vellum::plot::histogram_2d(
-                &s.counts,
-                b,
-                "INTENSITY",
-                s.intensity_range,
-                "OCCLUSION",
-                [0.0, 1.0],
-            );
-            vellum::output::write_png_rgb(path, c.width as u32, c.height as u32, &c.rgb)?;
-        }
-        if let Some(path) = spectrum_csv {
-            s.write_csv(path)?;
-        }
+        write_spectrum(s, spectrum_png, spectrum_csv)?;
     }
     let stats = vellum::volume::stats::stats(&r.occlusion, 0);
     let passes = passes_json(&r.passes);
@@ -77,6 +70,84 @@ pub(crate) fn occlusion(cli: &Cli, a: &OcclusionArgs) -> Result<()> {
             println!("  {:<18} {:>10.3} ms", p.name, p.ms);
         }
         println!("  {:<18} {wall_ms:>10.3} ms", "total");
+    }
+    Ok(())
+}
+
+/// `occlusion` chunk by chunk into a store, with the whole grid's spectrum.
+fn occlusion_chunked(
+    cli: &Cli,
+    a: &OcclusionArgs,
+    source: &super::convert::Source,
+    params: &vellum::passes::occlusion::OcclusionParams,
+    chunk: usize,
+) -> Result<()> {
+    let ctx = context(cli)?;
+    let out = a
+        .out
+        .as_deref()
+        .ok_or_else(|| anyhow::anyhow!("a chunked pass needs --out"))?;
+    let range = source.range()?;
+    let boxes = source.boxes()?;
+    let bar = super::chunked::bar(boxes.dims(), chunk, "occlusion chunks");
+    let start = std::time::Instant::now();
+    let (store, spectrum) = vellum::passes::chunked::occlusion_store(
+        &ctx,
+        &*boxes,
+        params,
+        range,
+        out,
+        chunk,
+        &|| bar.inc(1),
+    )?;
+    bar.finish_and_clear();
+    report_validation(&ctx);
+    if let Some(s) = &spectrum {
+        write_spectrum(s, a.spectrum.as_deref(), a.spectrum_data.as_deref())?;
+    }
+    let mut r = super::chunked::report(
+        &ctx,
+        &store,
+        chunk,
+        params.radius as usize,
+        start.elapsed().as_secs_f64(),
+    );
+    r["intensity_range"] = json!(range);
+    r["spectrum_total"] =
+        json!(spectrum
+            .as_ref()
+            .map(|s| s.counts.iter().map(|&c| c as u64).sum::<u64>()));
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "occlusion of {} (R = {}) on {}, chunk by chunk: {r}",
+            a.input.input, params.radius, ctx.info.name
+        );
+    }
+    Ok(())
+}
+
+/// Writes the spectrum as a PNG and as CSV, where asked.
+fn write_spectrum(
+    s: &vellum::passes::occlusion::Spectrum,
+    png: Option<&std::path::Path>,
+    csv: Option<&std::path::Path>,
+) -> Result<()> {
+    let b = [s.bins[0] as usize, s.bins[1] as usize];
+    if let Some(path) = png {
+        let c = vellum::plot::histogram_2d(
+            &s.counts,
+            b,
+            "INTENSITY",
+            s.intensity_range,
+            "OCCLUSION",
+            [0.0, 1.0],
+        );
+        vellum::output::write_png_rgb(path, c.width as u32, c.height as u32, &c.rgb)?;
+    }
+    if let Some(path) = csv {
+        s.write_csv(path)?;
     }
     Ok(())
 }

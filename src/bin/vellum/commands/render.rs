@@ -202,7 +202,8 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
             "{}",
             serde_json::to_string_pretty(
                 &json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map, "bricks": stream,
-                    "peak_rss_mib": vellum::memory::peak_resident_kib().map(|k| k as f64 / 1024.0) })
+                    "peak_rss_mib": vellum::memory::peak_resident_kib().map(|k| k as f64 / 1024.0),
+                    "peak_device_mib": ctx.peak_allocated_bytes() as f64 / (1 << 20) as f64 })
             )?
         );
     } else {

@@ -1,0 +1,109 @@
+//! Whether `importance` and `occlusion` run in core or chunk by chunk (issue 26), and the report
+//! of a chunked run.
+
+use crate::args::{ChunkArgs, InputArgs};
+use crate::commands::convert::Source;
+use anyhow::Result;
+use std::path::Path;
+use vellum::volume::Volume;
+
+/// How a pass runs: on the whole volume, or chunk by chunk from a source into a store.
+pub(crate) enum Plan {
+    InCore(Volume),
+    Chunked { source: Source, chunk: usize },
+}
+
+fn is_store_path(p: &Path) -> bool {
+    p.file_name()
+        .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"))
+}
+
+/// Chunk by chunk when the output is a store, the input is a store, or the in-core need
+/// (`bytes_per_voxel` per voxel) exceeds the memory budget; then `--out` must be a store and
+/// `--slices`-like whole-volume outputs (`whole_outputs`) are refused in one sentence.
+pub(crate) fn plan(
+    input: &InputArgs,
+    out: Option<&Path>,
+    c: &ChunkArgs,
+    halo: usize,
+    bytes_per_voxel: u64,
+    whole_outputs: &[(&str, bool)],
+) -> Result<Plan> {
+    let budget = match c.memory_budget {
+        Some(m) if m.is_finite() && m > 0.0 => (m * (1u64 << 20) as f64) as u64,
+        Some(m) => {
+            anyhow::bail!("--memory-budget {m} is invalid; expected a positive number of MiB")
+        }
+        None => vellum::memory::total_kib().map_or(u64::MAX, |k| k * 1024 / 2),
+    };
+    let source = Source::open(input)?;
+    let dims = source.boxes()?.dims();
+    let need = dims.iter().map(|&n| n as u64).product::<u64>() * bytes_per_voxel;
+    let store_out = out.is_some_and(is_store_path);
+    let store_in = matches!(source, Source::Store(_));
+    let reason = if store_in {
+        Some("a store input is computed chunk by chunk")
+    } else if need > budget {
+        Some("the pass needs more than --memory-budget in core, so it runs chunk by chunk")
+    } else {
+        None
+    };
+    if !store_out {
+        if let Some(why) = reason {
+            anyhow::bail!("{why}; expected --out x.ome.zarr for its result");
+        }
+        return Ok(Plan::InCore(match source {
+            Source::Volume(v) => v,
+            Source::Phantom(p) => p.volume(),
+            Source::Store(ms) => ms.read_level(0)?,
+        }));
+    }
+    for (flag, given) in whole_outputs {
+        anyhow::ensure!(
+            !given,
+            "{flag} needs the whole result in memory; a chunked pass writes only its store"
+        );
+    }
+    let chunk = match c.chunk {
+        Some(0) => anyhow::bail!("--chunk 0 is invalid; expected a chunk edge of 1 voxel or more"),
+        Some(n) => n,
+        None => vellum::passes::chunked::chunk_for(dims, halo, bytes_per_voxel, budget)?,
+    };
+    Ok(Plan::Chunked { source, chunk })
+}
+
+/// A progress bar over the chunks a chunked pass writes for a grid of `dims`.
+pub(crate) fn bar(dims: [usize; 3], chunk: usize, what: &str) -> indicatif::ProgressBar {
+    let opts = vellum::volume::io::ome_zarr::WriteOptions {
+        chunk,
+        levels: None,
+    };
+    vellum::progress::bar(
+        vellum::volume::io::ome_zarr::chunk_count(dims, &opts) as u64,
+        what,
+    )
+}
+
+/// The JSON of a chunked run.
+pub(crate) fn report(
+    ctx: &vellum::gpu::Context,
+    store: &vellum::volume::io::ome_zarr::WriteReport,
+    chunk: usize,
+    halo: usize,
+    secs: f64,
+) -> serde_json::Value {
+    let voxels = store.bytes as f64 / 4.0;
+    serde_json::json!({
+        "chunked": true,
+        "chunk": chunk,
+        "halo": halo,
+        "levels": store.levels,
+        "chunks": store.chunks,
+        "range": store.range,
+        "seconds": secs,
+        "voxels_per_second": voxels / secs.max(1e-9),
+        "peak_rss_mib": vellum::memory::peak_resident_kib().map(|k| k as f64 / 1024.0),
+        "peak_device_mib": ctx.peak_allocated_bytes() as f64 / (1 << 20) as f64,
+        "device": ctx.info.name,
+    })
+}

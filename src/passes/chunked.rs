@@ -1,0 +1,185 @@
+//! Passes chunk by chunk (issue 26): the importance map and the occlusion volume of a grid too
+//! large to hold, written as an OME-Zarr store.
+//!
+//! Each output chunk is computed from its box of the input widened by the filter's reach (R for
+//! the Gaussian of ΔD and for the occlusion's ball or Gaussian neighbourhood), as far as the
+//! grid goes, and the widened part is dropped (overlap–save, for the FFT method too): every kept
+//! voxel sees exactly the neighbours it sees on the whole grid, and the grid's own borders are
+//! where the in-core pass has them. The occlusion normalises every chunk over the whole grid's
+//! value range, as the in-core pass does, and the spectrum is summed over the kept voxels of
+//! every chunk. The output store's pyramid and value range (so max |ΔD|) come with it.
+//!
+//! Chunks are computed one at a time on the GPU (the passes sit behind a lock) while another
+//! is compressed and written, so host memory holds a few chunks with their halos whatever the
+//! grid's size.
+
+use crate::error::{Error, Result};
+use crate::gpu::Context;
+use crate::passes::importance::ImportanceMap;
+use crate::passes::occlusion::{Occlusion, OcclusionInput, OcclusionParams, Spectrum};
+use crate::volume::io::ome_zarr::{write_source, WriteOptions, WriteReport};
+use crate::volume::source::{BoxSource, Halo};
+use crate::volume::Volume;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+/// Chunk edges tried, largest first.
+const CHUNKS: [usize; 6] = [256, 192, 128, 96, 64, 32];
+
+/// Host bytes per voxel of a chunk's box while its pass runs (input, staging, work and output
+/// copies): importance and occlusion.
+pub const IMPORTANCE_BYTES: u64 = 24;
+pub const OCCLUSION_BYTES: u64 = 40;
+
+/// The largest chunk edge whose box with `halo`, at `bytes_per_voxel`, fits `budget` twice (one
+/// chunk in its pass, one being written), at most the grid's longest axis; one sentence when
+/// not even the smallest fits.
+pub fn chunk_for(
+    dims: [usize; 3],
+    halo: usize,
+    bytes_per_voxel: u64,
+    budget: u64,
+) -> Result<usize> {
+    let need = |c: usize| {
+        let edge: [u64; 3] =
+            std::array::from_fn(|a| (c.min(dims[a]) + 2 * halo).min(dims[a]) as u64);
+        2 * edge.iter().product::<u64>() * bytes_per_voxel
+    };
+    let longest = dims.into_iter().max().unwrap_or(1);
+    CHUNKS
+        .iter()
+        .map(|&c| c.min(longest))
+        .find(|&c| need(c) <= budget)
+        .ok_or_else(|| {
+            Error::Invalid(format!(
+                "a memory budget of {:.0} MiB is smaller than two chunks of {} voxels with their halo of {halo} ({:.0} MiB); raise --memory-budget",
+                budget as f64 / (1 << 20) as f64,
+                CHUNKS[CHUNKS.len() - 1],
+                need(CHUNKS[CHUNKS.len() - 1]) as f64 / (1 << 20) as f64
+            ))
+        })
+}
+
+fn locked<T>(m: &Mutex<T>) -> Result<std::sync::MutexGuard<'_, T>> {
+    m.lock()
+        .map_err(|_| Error::Invalid("a chunk's pass failed on another thread".into()))
+}
+
+/// ΔD = G∗V − V of `src` (Gaussian radius `radius`), chunk by chunk, into a new store at `out`.
+pub fn importance_store(
+    ctx: &Arc<Context>,
+    src: &dyn BoxSource,
+    radius: u32,
+    out: &Path,
+    chunk: usize,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
+    let map = Mutex::new(ImportanceMap::new(ctx)?);
+    let f = |v: &Volume, offset: [usize; 3], size: [usize; 3]| -> Result<Volume> {
+        let r = locked(&map)?.compute(v, radius, false)?;
+        r.delta_d.read_box(offset, size)
+    };
+    let halo = Halo {
+        src,
+        halo: radius as usize,
+        f: &f,
+    };
+    let opts = WriteOptions {
+        chunk,
+        levels: None,
+    };
+    write_source(out, &halo, &opts, on_chunk)
+}
+
+/// The occlusion volume of `src` under `p` (stride 1), chunk by chunk, into a new store at
+/// `out`, every chunk normalised over `range` (the whole grid's); with the spectrum of the
+/// whole grid when `p` asks for one.
+pub fn occlusion_store(
+    ctx: &Arc<Context>,
+    src: &dyn BoxSource,
+    p: &OcclusionParams,
+    range: [f64; 2],
+    out: &Path,
+    chunk: usize,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<(WriteReport, Option<Spectrum>)> {
+    if p.stride != 1 {
+        return Err(Error::Invalid(format!(
+            "a chunked occlusion runs at stride 1, not {}; drop --stride or write a volume file",
+            p.stride
+        )));
+    }
+    let occlusion = Mutex::new(Occlusion::new(ctx)?);
+    let params = OcclusionParams {
+        spectrum_bins: None,
+        ..p.clone()
+    };
+    let bins = p.spectrum_bins.map(|b| b.map(|n| n as usize));
+    let counts = Mutex::new(vec![0u64; bins.map_or(0, |[x, y]| x * y)]);
+    let f = |v: &Volume, offset: [usize; 3], size: [usize; 3]| -> Result<Volume> {
+        // One recording at a time on the context: the upload goes under the lock too.
+        let mut pass = locked(&occlusion)?;
+        let (input, _) = OcclusionInput::upload_in_range(ctx, v, Some(range))?;
+        let o = pass.compute_on(&input, &params)?.occlusion;
+        drop(pass);
+        let kept = o.read_box(offset, size)?;
+        if let (Some(b), Some(host)) = (bins, &input.host) {
+            let s = Volume::new(
+                v.dims,
+                v.spacing,
+                crate::volume::VoxelData::F32(host.to_vec()),
+            )?
+            .read_box(offset, size)?;
+            add_to_spectrum(&mut locked(&counts)?, b, &s, &kept);
+        }
+        Ok(kept)
+    };
+    let halo = Halo {
+        src,
+        halo: p.radius as usize,
+        f: &f,
+    };
+    let opts = WriteOptions {
+        chunk,
+        levels: None,
+    };
+    let report = write_source(out, &halo, &opts, on_chunk)?;
+    let spectrum = p.spectrum_bins.map(|b| -> Result<Spectrum> {
+        Ok(Spectrum {
+            bins: b,
+            counts: locked(&counts)?
+                .iter()
+                .map(|&c| c.min(u32::MAX as u64) as u32)
+                .collect(),
+            intensity_range: range,
+        })
+    });
+    Ok((report, spectrum.transpose()?))
+}
+
+/// Adds the (intensity, occlusion) pairs of one chunk to the spectrum's counts, binned as
+/// `glsl/occlusion/spectrum.comp` bins them.
+fn add_to_spectrum(counts: &mut [u64], [bx, by]: [usize; 2], s: &Volume, o: &Volume) {
+    for i in 0..s.len() {
+        let (si, oi) = (s.data.get_f64(i) as f32, o.data.get_f64(i) as f32);
+        let x = ((si * bx as f32) as i64).clamp(0, bx as i64 - 1) as usize;
+        let y = ((oi * by as f32) as i64).clamp(0, by as i64 - 1) as usize;
+        counts[y * bx + x] += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chunks_fit_the_budget_twice() {
+        let mib = 1u64 << 20;
+        assert_eq!(chunk_for([512; 3], 5, 24, 4096 * mib).unwrap(), 256);
+        let c = chunk_for([512; 3], 16, 24, 64 * mib).unwrap();
+        assert!(2 * ((c + 32) as u64).pow(3) * 24 <= 64 * mib, "{c}");
+        assert_eq!(chunk_for([40; 3], 5, 24, 64 * mib).unwrap(), 40);
+        let refused = chunk_for([512; 3], 64, 40, mib).unwrap_err().to_string();
+        assert!(refused.contains("raise --memory-budget"), "{refused}");
+    }
+}
