@@ -141,17 +141,23 @@ fn a_two_mib_cache_renders_what_the_whole_volume_renders() {
     }
 }
 
+/// Shepp–Logan 128³ at isovalue 0.9 under the grey ramp, in core and through a cache of
+/// `budget` bytes at level 0 everywhere.
+fn shepp_logan_both_ways(gpu: &Gpu, budget: u64) -> (GpuScene, GpuScene) {
+    let v = phantom::shepp_logan(128);
+    let c = classification("grey");
+    let core = GpuScene::prepare(&gpu.ctx, &v, &c, Focus::Iso(0.9), &Default::default()).unwrap();
+    let levels = BrickLevels::of_volume(v).unwrap();
+    let bricked =
+        GpuScene::prepare_bricked(&gpu.ctx, levels, &c, Focus::Iso(0.9), budget, true).unwrap();
+    (core, bricked)
+}
+
 #[test]
 fn a_frame_cut_short_says_so_and_draws_coarser_levels() {
     let gpu = Gpu::new();
     let mut renderer = Renderer::new(&gpu.ctx).unwrap();
-    let v = phantom::shepp_logan(128);
-    let c = classification("grey");
-    let mut core =
-        GpuScene::prepare(&gpu.ctx, &v, &c, Focus::Iso(0.9), &Default::default()).unwrap();
-    let levels = BrickLevels::of_volume(v).unwrap();
-    let mut bricked =
-        GpuScene::prepare_bricked(&gpu.ctx, levels, &c, Focus::Iso(0.9), BUDGET, true).unwrap();
+    let (mut core, mut bricked) = shepp_logan_both_ways(&gpu, BUDGET);
     let view = view("30,20,2.5", false, None, None);
     let want = renderer
         .render_frame(&core.volume, &mut core.classify, &view, true)
@@ -297,4 +303,24 @@ fn a_store_renders_through_the_cache_as_it_renders_in_core() {
         &["GPU budget of 0.5 MiB", "at least 2"],
     );
     assert!(!dir.path().join("small.png").exists());
+}
+
+#[test]
+fn a_frame_whose_bricks_fit_is_drawn_whole_from_them() {
+    let gpu = Gpu::new();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let (mut core, mut bricked) = shepp_logan_both_ways(&gpu, 64 << 20);
+    let view = view("30,20,2.5", false, None, None);
+    let want = renderer
+        .render_frame(&core.volume, &mut core.classify, &view, true)
+        .unwrap();
+    let (got, report) = renderer
+        .render_bricked(&mut bricked.volume, &mut bricked.classify, &view, None)
+        .unwrap();
+    assert!(report.complete && report.whole_frame, "{report:?}");
+    assert_eq!(report.bricks_evicted, 0);
+    let (mean, max) = diff8(&want, &got);
+    println!("whole frame: mean {mean:.4}/255, max {max}/255");
+    assert!(mean <= 1.0, "mean {mean}/255");
+    assert!(got.passes.iter().any(|p| p.name == "raycast"));
 }

@@ -33,7 +33,7 @@ pub const RAY_STATE_BYTES: u64 = 80;
 
 /// A volume in the brick cache.
 pub struct Paged {
-    pub levels: BrickLevels,
+    pub levels: Arc<BrickLevels>,
     pub cache: BrickCache,
     /// Slots along x, y, z of the pool images.
     pub grid: [usize; 3],
@@ -107,7 +107,7 @@ impl VolumeTextures {
             importance: None,
             id: crate::passes::normals::next_volume_id(),
             paged: Some(Box::new(Paged {
-                levels,
+                levels: Arc::new(levels),
                 cache,
                 grid,
                 feedback,

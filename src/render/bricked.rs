@@ -8,7 +8,9 @@
 //! level stays). Every pass loads at least one brick some ray waits for and that ray then moves
 //! on, so the frame completes whatever the budget, as long as it holds the coarsest level and
 //! one brick. With a bound on the wait, a last pass finishes every ray with what is resident,
-//! falling back to coarser levels where a brick is missing.
+//! falling back to coarser levels where a brick is missing. When the frame's bricks all fit the
+//! pool, the frame returned is drawn once more from scratch over them, so that its `raycast`
+//! time is a whole frame's.
 //!
 //! The samples, their order and the compositing are the in-core ray caster's, so the complete
 //! frame equals the in-core frame of the same levels.
@@ -17,7 +19,7 @@ use crate::classify::textures::GpuClassification;
 use crate::error::{Error, Result};
 use crate::gpu::{Frames, FramesDesc};
 use crate::passes::normals::VolumeTextures;
-use crate::passes::paging::{MODE_RESUME, MODE_WAIT};
+use crate::passes::paging::{Paged, MODE_RESUME, MODE_WAIT};
 use crate::render::frame::Renderer;
 use crate::render::targets::{FrameImage, FrameTargets, TargetsReadback};
 use crate::render::view::View;
@@ -41,6 +43,9 @@ pub struct StreamReport {
     /// Whether every ray reached its end with the bricks it asked for (false: the wait was cut
     /// short and missing bricks were sampled from coarser levels).
     pub complete: bool,
+    /// Whether the last frame drew every ray from its start over resident bricks (the frame's
+    /// bricks all fit the pool), so that its `raycast` time is a whole frame's.
+    pub whole_frame: bool,
     /// Slots in the pool, and bricks resident at the end.
     pub capacity: usize,
     pub resident: usize,
@@ -75,6 +80,7 @@ impl Renderer {
             ..view.clone()
         };
         let pinned = BrickCache::pinned_entries(&paged(vol)?.levels);
+        let evicted_before = paged(vol)?.cache.evicted;
         let mut loads = plan_loads(
             vol,
             &pinned.iter().map(|&e| (e, 1)).collect::<Vec<_>>(),
@@ -110,9 +116,13 @@ impl Renderer {
                 break;
             }
         }
-        // The last frame: the rays' saved results (or, cut short, the rest of each ray with
-        // what is resident), the style, and the readback.
-        paged_mut(vol)?.mode = MODE_RESUME;
+        // The last frame, with the style and the readback. When the frame's bricks all fit (none
+        // was evicted), every ray is drawn from its start again over them: the frame the passes
+        // built, drawn as the viewer draws it and timed as one. Otherwise the rays' saved results
+        // are kept (or, cut short, each ray goes on with what is resident).
+        let evicted = paged(vol)?.cache.evicted - evicted_before;
+        report.whole_frame = report.complete && evicted == 0;
+        paged_mut(vol)?.mode = if report.whole_frame { 0 } else { MODE_RESUME };
         let (recorded, readback) = frames
             .frame(|f| {
                 let r = self.record(f, vol, classify, view, &mut targets)?;
@@ -135,13 +145,13 @@ impl Renderer {
     }
 }
 
-fn paged(vol: &VolumeTextures) -> Result<&crate::passes::paging::Paged> {
+fn paged(vol: &VolumeTextures) -> Result<&Paged> {
     vol.paged
         .as_deref()
         .ok_or_else(|| Error::Invalid("the volume is not in the brick cache".into()))
 }
 
-fn paged_mut(vol: &mut VolumeTextures) -> Result<&mut crate::passes::paging::Paged> {
+fn paged_mut(vol: &mut VolumeTextures) -> Result<&mut Paged> {
     vol.paged
         .as_deref_mut()
         .ok_or_else(|| Error::Invalid("the volume is not in the brick cache".into()))

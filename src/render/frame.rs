@@ -584,6 +584,8 @@ impl Renderer {
     ) -> Result<Recorded> {
         let max = self.ctx.info.max_image_dimension_2d;
         check_paged(vol, view)?;
+        let paged_view = paged_planes(vol, view);
+        let view = paged_view.as_ref().unwrap_or(view);
         let setup = FrameSetup::new(&SetupInput::of(vol, classify, max), view)?;
         self.build_style_passes(view)?;
         let staged = Staged::push(frame, &setup)?;
@@ -869,20 +871,47 @@ fn check_paged(vol: &VolumeTextures, view: &View) -> Result<()> {
 /// The level-of-detail line of a bricked frame: a sample at distance d from the eye covers
 /// a·d + b level-0 voxels (its pixel's footprint there over the longest level-0 voxel edge).
 fn lod_line(setup: &FrameSetup, dims: [usize; 3]) -> (f32, f32) {
-    let cam = &setup.camera.camera;
-    let half = setup.world.half;
+    lod_of(&setup.camera, &setup.world, setup.size, dims)
+}
+
+fn lod_of(camera: &FrameCamera, world: &WorldBox, size: [u32; 2], dims: [usize; 3]) -> (f32, f32) {
+    let cam = &camera.camera;
+    let half = world.half;
     let voxel = (0..3)
         .map(|a| 2.0 * half[a] / dims[a] as f32)
         .fold(0.0f32, f32::max);
     let tan = (cam.fov_y_deg.to_radians() * 0.5).tan();
-    let pixels = setup.size[1].max(1) as f32;
+    let pixels = size[1].max(1) as f32;
     match cam.ortho {
         true => (
             0.0,
-            2.0 * setup.world.radius() * cam.distance * tan / pixels / voxel,
+            2.0 * world.radius() * cam.distance * tan / pixels / voxel,
         ),
         false => (2.0 * tan / pixels / voxel, 0.0),
     }
+}
+
+/// A bricked frame that chooses levels by projected voxel size samples no finer than the finest
+/// level any of its samples reads (the one at the box's point nearest the eye): two planes per
+/// voxel of that level instead of level 0's, unless the view sets its planes. `None`: the view
+/// as it is.
+fn paged_planes(vol: &VolumeTextures, view: &View) -> Option<View> {
+    let p = vol.paged.as_deref().filter(|p| !p.finest)?;
+    if view.slices.is_some() || view.raycast.is_none() {
+        return None;
+    }
+    let world = WorldBox::new(vol.dims, vol.spacing, &vol.geometry);
+    let camera = FrameCamera::new(&world, view);
+    let (a, b) = lod_of(&camera, &world, view.size, vol.dims);
+    let nearest = (camera.eye - camera.eye.clamp(-world.half, world.half)).length();
+    let cover = (a * nearest + b).max(1.0);
+    let levels = p.levels.levels();
+    let level = (cover.log2().floor() as usize).min(levels.len() - 1);
+    let longest = levels[level].dims.into_iter().max().unwrap_or(1);
+    Some(View {
+        slices: Some(2 * longest as u32),
+        ..view.clone()
+    })
 }
 
 /// What the style passes of one frame work on: the frame's setup, the style, the layers and the

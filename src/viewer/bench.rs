@@ -34,6 +34,10 @@ pub struct BenchReport {
     pub gpu_ms: Vec<(String, f64)>,
     /// (frames presented, resident set in KiB), every 1,000 frames (Linux only).
     pub rss_kib: Vec<(u64, u64)>,
+    /// Milliseconds from opening the window's context to the first frame presented.
+    pub first_frame_ms: Option<f64>,
+    /// The brick cache's line at the end, when the volume is streamed.
+    pub streaming: Option<String>,
 }
 
 /// What the report is made of, gathered frame by frame.
@@ -163,6 +167,8 @@ mod tests {
             p99_ms: 0.0,
             gpu_ms: Vec::new(),
             rss_kib: Vec::new(),
+            first_frame_ms: None,
+            streaming: None,
         }
     }
 

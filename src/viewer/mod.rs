@@ -12,6 +12,7 @@
 //! change, one frame at full resolution follows and the loop goes idle until the next event.
 
 mod bench;
+mod stream;
 mod ui;
 
 use crate::classify::transfer::TransferFunction;
@@ -65,6 +66,9 @@ pub struct ViewOptions {
     pub bench_frames: Option<u32>,
     /// Orbit at full resolution; otherwise at the interactive resolution of a drag.
     pub bench_full: bool,
+    /// GPU memory for the volume's textures in MiB; a store that needs more is streamed through
+    /// the brick cache (default: half the device's largest heap).
+    pub gpu_budget: Option<f64>,
 }
 
 /// Opens the window and runs until it is closed. Returns the bench report in bench mode.
@@ -212,7 +216,10 @@ struct PendingOcclusion {
 /// A volume loaded on a worker thread.
 struct Loaded {
     scene: Scene,
+    /// The volume, or for a store streamed through the brick cache its coarsest level (which the
+    /// histogram and range come from), with the pyramid in `levels`.
     volume: Volume,
+    levels: Option<crate::volume::bricks::BrickLevels>,
     classification: Classification,
     tf: TransferFunction,
     histogram: Vec<u64>,
@@ -221,9 +228,33 @@ struct Loaded {
     otf: Option<crate::classify::otf::OcclusionTf>,
 }
 
-fn load(scene: Scene) -> Result<Loaded> {
+/// A store whose in-core textures (10 bytes a voxel) exceed `budget` bytes: its pyramid for the
+/// brick cache and its coarsest level, without reading level 0.
+fn open_streamed(
+    scene: &Scene,
+    budget: u64,
+) -> Result<Option<(crate::volume::bricks::BrickLevels, Volume)>> {
+    use crate::volume::io::ome_zarr;
+    let path = Path::new(&scene.input.path);
+    if !ome_zarr::is_store(path) || scene.input.raw.is_some() {
+        return Ok(None);
+    }
+    let ms = ome_zarr::Multiscale::open(path)?;
+    let voxels: u64 = ms.levels[0].dims.iter().map(|&n| n as u64).product();
+    if voxels * 10 <= budget {
+        return Ok(None);
+    }
+    let coarsest = ms.read_level(ms.levels.len() - 1)?;
+    let levels = crate::volume::bricks::BrickLevels::of_store(Arc::new(ms), 1 << 26)?;
+    Ok(Some((levels, coarsest)))
+}
+
+fn load(scene: Scene, budget: u64) -> Result<Loaded> {
     let classification = scene.classification()?;
-    let volume = scene.load_volume()?;
+    let (levels, volume) = match open_streamed(&scene, budget)? {
+        Some((levels, coarsest)) => (Some(levels), coarsest),
+        None => (None, scene.load_volume()?),
+    };
     let tf = match &classification {
         Classification::Transfer(tf) => tf.clone(),
         _ => TransferFunction::preset("grey")?,
@@ -246,9 +277,57 @@ fn load(scene: Scene) -> Result<Loaded> {
         classification,
         tf,
         histogram: s.histogram,
-        range: [s.min, s.max],
+        range: levels.as_ref().map_or([s.min, s.max], |l| l.range),
         volume,
+        levels,
         features,
+    })
+}
+
+/// The GPU state of a loaded volume: in core, or the brick cache's pools with a loader thread
+/// started on the coarsest level.
+fn prepare_gpu(
+    ctx: &Arc<Context>,
+    l: &mut Loaded,
+    budget: u64,
+) -> Result<(GpuScene, Option<stream::Streamer>)> {
+    let modulation = l.scene.modulation.clone().unwrap_or_default();
+    let Some(levels) = l.levels.take() else {
+        let gpu = GpuScene::prepare(
+            ctx,
+            &l.volume,
+            &l.classification,
+            l.scene.focus,
+            &modulation,
+        )?;
+        return Ok((gpu, None));
+    };
+    if modulation.is_active() {
+        return Err(Error::Invalid(format!(
+            "importance modulation needs the importance map of the whole volume, which is larger than the GPU budget ({:.0} MiB)",
+            budget as f64 / (1 << 20) as f64
+        )));
+    }
+    let gpu =
+        GpuScene::prepare_bricked(ctx, levels, &l.classification, l.scene.focus, budget, false)?;
+    let paged = gpu
+        .volume
+        .paged
+        .as_deref()
+        .ok_or_else(|| Error::Invalid("the bricked volume has no cache".into()))?;
+    let mut s = stream::Streamer::new(paged.levels.clone());
+    s.start(paged);
+    // The ray caster draws bricked volumes.
+    if l.scene.raycast.is_none() {
+        l.scene.raycast = Some(Default::default());
+    }
+    Ok((gpu, Some(s)))
+}
+
+/// `--gpu-budget` in bytes, or half the device's largest heap.
+fn gpu_budget(ctx: &Context, mib: Option<f64>) -> u64 {
+    mib.map_or(ctx.info.device_local_heap_bytes / 2, |m| {
+        (m * (1u64 << 20) as f64) as u64
     })
 }
 
@@ -283,6 +362,9 @@ struct Running {
     /// When egui asked to draw again (its animations).
     egui_repaint_at: Option<Instant>,
     errors_in_a_row: u32,
+    /// When the window's context was made, and how long after it the first frame was presented.
+    opened: Instant,
+    first_frame_ms: Option<f64>,
     window: Arc<Window>,
     ctx: Arc<Context>,
 }
@@ -300,6 +382,10 @@ struct GpuState {
     renderer: Renderer,
     /// The volume and its classification on the GPU.
     scene: GpuScene,
+    /// The brick cache's loader, when the volume is streamed.
+    stream: Option<stream::Streamer>,
+    /// GPU memory for a volume's textures; a store that needs more is streamed.
+    budget: u64,
 }
 
 /// The session: the model the panels edit (with the scene), what of it is applied to the GPU,
@@ -487,6 +573,7 @@ impl ApplicationHandler for App {
             r.changed();
         }
         let busy = r.session.bench.is_some()
+            || r.streaming()
             || r.session.pending_load.is_some()
             || r.session.pending_occlusion.is_some();
         let refine_at = r.input.last_change + REFINE_AFTER;
@@ -613,7 +700,7 @@ fn initial_model(loaded: &Loaded, gpu: &mut GpuScene, ctx: &Context, opts: &View
     model.otf = loaded.otf.clone();
     model.spectrum = gpu.spectrum.take();
     model.range = loaded.range;
-    model.dims = loaded.volume.dims;
+    model.dims = gpu.volume.dims;
     model.oriented = loaded.volume.geometry.is_oriented();
     model.message = format!("{} on {}", loaded.scene.input.path, ctx.info.name);
     model.scene_path = opts
@@ -631,7 +718,6 @@ fn initial_model(loaded: &Loaded, gpu: &mut GpuScene, ctx: &Context, opts: &View
 
 impl Running {
     fn new(event_loop: &ActiveEventLoop, opts: &ViewOptions) -> Result<Self> {
-        let loaded = load(opts.scene.clone())?;
         let (window, display, handle, present) = open_window(event_loop, opts)?;
         let ctx = Context::with_presentation(
             &ContextDesc {
@@ -640,6 +726,9 @@ impl Running {
             },
             &present,
         )?;
+        let opened = Instant::now();
+        let budget = gpu_budget(&ctx, opts.gpu_budget);
+        let mut loaded = load(opts.scene.clone(), budget)?;
         let size = window.inner_size();
         let frames = Frames::new(&ctx, &FramesDesc::interactive("view"))?;
         // SAFETY: the window (held in `Running` after the swapchain) outlives it.
@@ -679,15 +768,7 @@ impl Running {
             Some(ctx.info.max_image_dimension_2d as usize),
         );
         let renderer = Renderer::new(&ctx)?;
-        let modulation = loaded.scene.modulation.clone().unwrap_or_default();
-        let gpu = GpuScene::prepare(
-            &ctx,
-            &loaded.volume,
-            &loaded.classification,
-            loaded.scene.focus,
-            &modulation,
-        )?;
-        let mut gpu = gpu;
+        let (mut gpu, stream) = prepare_gpu(&ctx, &mut loaded, budget)?;
         let model = initial_model(&loaded, &mut gpu, &ctx, opts);
         let home = loaded.scene.camera.clone();
         Ok(Running {
@@ -701,6 +782,8 @@ impl Running {
                 targets: FrameTargets::new(&ctx),
                 renderer,
                 scene: gpu,
+                stream,
+                budget,
             },
             session: Session {
                 applied: loaded.scene,
@@ -741,6 +824,8 @@ impl Running {
             timings_of: None,
             egui_repaint_at: None,
             errors_in_a_row: 0,
+            opened,
+            first_frame_ms: None,
             window,
             ctx,
         })
@@ -901,8 +986,9 @@ impl Running {
 
     fn start_load(&mut self, what: String, scene: Scene) {
         let (tx, rx) = mpsc::channel();
+        let budget = self.gpu.budget;
         std::thread::spawn(move || {
-            let _ = tx.send(load(scene));
+            let _ = tx.send(load(scene, budget));
         });
         self.session.model.loading = Some(what);
         self.session.pending_load = Some(rx);
@@ -923,19 +1009,16 @@ impl Running {
         };
         self.session.pending_load = None;
         let what = self.session.model.loading.take().unwrap_or_default();
-        let result = got.and_then(|l| {
-            let modulation = l.scene.modulation.clone().unwrap_or_default();
-            let gpu = GpuScene::prepare(
-                &self.ctx,
-                &l.volume,
-                &l.classification,
-                l.scene.focus,
-                &modulation,
-            )?;
-            Ok((l, gpu))
+        let budget = self.gpu.budget;
+        let result = got.and_then(|mut l| {
+            let (gpu, stream) = prepare_gpu(&self.ctx, &mut l, budget)?;
+            Ok((l, gpu, stream))
         });
         match result {
-            Ok((l, mut gpu)) => {
+            Ok((l, mut gpu, stream)) => {
+                // The old loader and pools go with the old volume.
+                self.gpu.frames.wait_idle().ok();
+                self.gpu.stream = stream;
                 self.session.generation += 1;
                 self.session.epoch += 1;
                 self.session.model.reopen(l.scene.clone(), l.tf.clone());
@@ -946,7 +1029,7 @@ impl Running {
                 self.session.model.histogram = l.histogram;
                 self.session.model.features = l.features;
                 self.session.model.range = l.range;
-                self.session.model.dims = l.volume.dims;
+                self.session.model.dims = self.gpu.scene.volume.dims;
                 self.session.model.oriented = l.volume.geometry.is_oriented();
                 self.session.model.message = format!("opened {what}");
                 self.session.home = l.scene.camera.clone();
@@ -1242,6 +1325,17 @@ impl Running {
     /// layers again), a readback for a screenshot, the present pass and egui; then presents.
     fn record_and_present(&mut self, ui: &UiFrame, view: Result<View>) -> Result<Option<Drawn>> {
         let slot = self.gpu.frames.next_slot()?;
+        // Bricks that arrived go up with this frame, which then draws anew.
+        let loads = match (
+            &mut self.gpu.stream,
+            self.gpu.scene.volume.paged.as_deref_mut(),
+        ) {
+            (Some(s), Some(p)) => s.arrivals(p)?,
+            _ => Vec::new(),
+        };
+        if !loads.is_empty() {
+            self.session.epoch += 1;
+        }
         let Some(image) = self.gpu.swapchain.acquire(slot)? else {
             self.resize = true;
             self.window.request_redraw();
@@ -1273,6 +1367,10 @@ impl Running {
         };
         let egui_renderer = &mut self.gpu.egui_renderer;
         let (_, index) = self.gpu.frames.frame_sync(|f| {
+            if let Some(p) = gpu.volume.paged.as_deref() {
+                let pools = [&gpu.volume.intensity, &gpu.volume.gradient];
+                p.record_loads(ctx, f, pools, &loads)?;
+            }
             let drawn = match &view {
                 Ok(_) if reuse => Ok(()),
                 Ok(v) => renderer
@@ -1325,6 +1423,9 @@ impl Running {
             }
             self.timings_of = Some(drawn.index);
         }
+        if self.first_frame_ms.is_none() {
+            self.first_frame_ms = Some((now - self.opened).as_secs_f64() * 1e3);
+        }
         if let Some(t) = self.last_present.replace(now) {
             let ms = (now - t).as_secs_f64() * 1e3;
             if let Some(b) = &mut self.session.bench {
@@ -1346,6 +1447,7 @@ impl Running {
             if !r.passes.is_empty() {
                 set_gpu_ms(&mut self.session.model.gpu_ms, &r.passes);
             }
+            self.stream_requests()?;
         }
         if !self.pending_free.is_empty() {
             self.gpu.frames.wait_idle()?;
@@ -1357,6 +1459,27 @@ impl Running {
             }
         }
         Ok(())
+    }
+
+    /// After a frame completed: what its rays asked for goes to the loader, and the corner's
+    /// line says where the cache stands.
+    fn stream_requests(&mut self) -> Result<()> {
+        let (Some(s), Some(p)) = (
+            &mut self.gpu.stream,
+            self.gpu.scene.volume.paged.as_deref_mut(),
+        ) else {
+            self.session.model.streaming = None;
+            return Ok(());
+        };
+        let wanted = p.take_feedback()?;
+        s.request(p, &wanted);
+        self.session.model.streaming = Some(s.status(p));
+        Ok(())
+    }
+
+    /// Whether bricks are on their way (the loop keeps drawing until they are up).
+    fn streaming(&self) -> bool {
+        self.gpu.stream.as_ref().is_some_and(|s| s.requested() > 0)
     }
 
     /// What the frame leaves behind: the key of what it rendered, a refused setting rolled back
@@ -1523,6 +1646,8 @@ impl Running {
             p99_ms: f64::NAN,
             gpu_ms: Vec::new(),
             rss_kib: Vec::new(),
+            first_frame_ms: self.first_frame_ms,
+            streaming: self.session.model.streaming.clone(),
         };
         match &self.session.bench {
             Some(b) => b.report(base),

@@ -59,6 +59,8 @@ pub struct Model {
     /// Frame statistics shown in the corner.
     pub fps: f64,
     pub gpu_ms: Vec<(String, f64)>,
+    /// The brick cache's line (resident, requested, streamed), when the volume is streamed.
+    pub streaming: Option<String>,
     pub render_size: [u32; 2],
     pub interactive: bool,
     pub requests: Requests,
@@ -115,6 +117,7 @@ impl Model {
             scale: 1.0,
             fps: 0.0,
             gpu_ms: Vec::new(),
+            streaming: None,
             render_size: [0, 0],
             interactive: false,
             requests: Requests::default(),
@@ -149,6 +152,7 @@ impl Model {
         self.log_histogram = old.log_histogram;
         self.fps = old.fps;
         self.gpu_ms = old.gpu_ms;
+        self.streaming = old.streaming;
         self.render_size = old.render_size;
         self.interactive = old.interactive;
         self.requests = old.requests;
@@ -228,6 +232,9 @@ fn stats(ui: &mut egui::Ui, m: &Model) {
     )));
     for (name, ms) in &m.gpu_ms {
         ui.add(text(format!("{name:<14} {ms:8.2} ms")));
+    }
+    if let Some(s) = &m.streaming {
+        ui.add(text(s.clone()));
     }
 }
 

@@ -323,6 +323,10 @@ pub(crate) struct ViewArgs {
     /// With --bench: orbit at full resolution instead.
     #[arg(long)]
     pub(crate) bench_full: bool,
+    /// GPU memory for the volume's textures in MiB; a store that needs more is streamed through
+    /// the brick cache (default: half the device's largest memory heap).
+    #[arg(long, value_name = "MiB")]
+    pub(crate) gpu_budget: Option<f64>,
     /// With --bench: print the report as JSON.
     #[arg(long)]
     pub(crate) json: bool,
@@ -718,6 +722,23 @@ pub(crate) enum FiguresCommand {
 
 #[derive(Subcommand)]
 pub(crate) enum BenchCommand {
+    /// Out of core (issue 26): Shepp-Logan phantoms streamed into stores, rendered through the
+    /// brick cache and in core where they fit, and the importance map chunked and in core.
+    Scale {
+        #[arg(long)]
+        json: bool,
+        /// Phantom sizes (voxels per axis).
+        #[arg(long, value_delimiter = ',', default_value = "256,512,1024,2048")]
+        sizes: Vec<usize>,
+        /// Square image size in pixels.
+        #[arg(long, default_value_t = 256)]
+        image: u32,
+        /// Where the stores go (removed afterwards unless --keep).
+        #[arg(long, default_value = "bench-scale")]
+        dir: PathBuf,
+        #[arg(long)]
+        keep: bool,
+    },
     /// Frame rate of every style the build can render, with each style pass's GPU time (paper Fig. 9).
     Styles {
         #[arg(long)]

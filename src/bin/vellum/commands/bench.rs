@@ -13,6 +13,13 @@ pub(crate) fn bench(cli: &Cli, which: &BenchCommand) -> Result<()> {
         BenchCommand::Lines { .. } | BenchCommand::Occlusion { .. } => {
             lines_and_occlusion(cli, which)
         }
+        BenchCommand::Scale {
+            json,
+            sizes,
+            image,
+            dir,
+            keep,
+        } => super::scale::scale(sizes, *image, dir, *keep, *json),
     }
 }
 

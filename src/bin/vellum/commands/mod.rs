@@ -7,6 +7,7 @@ mod importance;
 mod info;
 mod occlusion;
 mod render;
+mod scale;
 mod styles;
 mod view;
 

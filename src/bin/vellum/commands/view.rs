@@ -45,6 +45,7 @@ pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
         vsync: !a.no_vsync,
         bench_frames: a.bench.map(|n| n + 5),
         bench_full: a.bench_full,
+        gpu_budget: a.gpu_budget,
     })?;
     if let Some(r) = report {
         if a.json {
@@ -56,6 +57,12 @@ pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
             );
             for (name, ms) in &r.gpu_ms {
                 println!("  {name:<14} {ms:>9.3} ms (median GPU)");
+            }
+            if let Some(ms) = r.first_frame_ms {
+                println!("  first frame {ms:.0} ms after the window's device was ready");
+            }
+            if let Some(s) = &r.streaming {
+                println!("  {s}");
             }
             if let (Some(a), Some(b)) = (r.rss_kib.first(), r.rss_kib.last()) {
                 println!(

@@ -1,0 +1,150 @@
+//! `vellum bench scale` (issue 26): each step runs this binary as a child process, so that every
+//! row's host peak (VmHWM) and device peak (the allocator's) are that step's alone.
+
+use anyhow::{Context as _, Result};
+use serde_json::{json, Value};
+use std::path::Path;
+
+/// Runs `vellum ARGS --json` and parses its report.
+fn child(args: &[&str]) -> Result<Value> {
+    let exe = std::env::current_exe().context("finding this binary")?;
+    let out = std::process::Command::new(exe)
+        .args(args)
+        .arg("--json")
+        .output()
+        .context("running a bench step")?;
+    if !out.status.success() {
+        anyhow::bail!(
+            "bench step `vellum {}` failed: {}",
+            args.join(" "),
+            String::from_utf8_lossy(&out.stderr).trim()
+        );
+    }
+    Ok(serde_json::from_slice(&out.stdout)?)
+}
+
+/// The render's flags for a store at a square image of `image` pixels.
+fn render_args<'a>(store: &'a str, size: &'a str, png: &'a str) -> Vec<&'a str> {
+    let mut a = vec![
+        "render",
+        store,
+        "--iso",
+        "0.9",
+        "--tf",
+        "grey",
+        "--camera",
+        "30,20,2.5",
+    ];
+    a.extend(["--size", size, "--renderer", "raycast", "--out", png]);
+    a
+}
+
+/// One size: the store written, rendered through the cache (where it fits in core, at level 0
+/// everywhere through a pool just below the in-core need, against the in-core frame; above,
+/// at the default budget and level of detail), and the importance map chunked against in core
+/// where it fits.
+fn row(n: usize, image: u32, dir: &Path) -> Result<Value> {
+    let store = dir.join(format!("scale_{n}.ome.zarr"));
+    let s = store.to_string_lossy().to_string();
+    let phantom = format!("phantom:shepp-logan:{n}");
+    let write = child(&["convert", &phantom, &s])?;
+    let size = format!("{image}x{image}");
+    let png = dir
+        .join(format!("scale_{n}.png"))
+        .to_string_lossy()
+        .to_string();
+    let in_core_mib = (n as f64).powi(3) * 10.0 / (1 << 20) as f64;
+    let mut row = json!({ "n": n, "write": write });
+    if n <= 512 {
+        let mut a = render_args(&s, &size, &png);
+        let big = format!("{}", in_core_mib * 1.5);
+        a.extend(["--gpu-budget", big.as_str()]);
+        row["in_core"] = child(&a)?;
+        // The same samples as in core (level 0 everywhere), through a pool just below the
+        // in-core need, for the frame-time ratio.
+        let mut a = render_args(&s, &size, &png);
+        let small = format!("{}", in_core_mib * 0.9);
+        a.extend(["--gpu-budget", small.as_str(), "--lod", "finest"]);
+        row["bricked"] = child(&a)?;
+        let dd = dir
+            .join(format!("dd_{n}.ome.zarr"))
+            .to_string_lossy()
+            .to_string();
+        row["importance_in_core"] = child(&["importance", &phantom, "--radius", "5"])?;
+        row["importance_chunked"] = child(&[
+            "importance",
+            &phantom,
+            "--radius",
+            "5",
+            "--out",
+            &dd,
+            "--chunk",
+            "128",
+        ])?;
+    } else {
+        row["bricked"] = child(&render_args(&s, &size, &png))?;
+    }
+    Ok(row)
+}
+
+fn ms(v: &Value, path: &[&str]) -> Option<f64> {
+    path.iter().try_fold(v, |v, k| v.get(k))?.as_f64()
+}
+
+/// One line of the text table.
+fn line(r: &Value) -> String {
+    let f = |x: Option<f64>, d: usize| x.map_or("-".into(), |x| format!("{x:.d$}"));
+    let b = &r["bricked"];
+    // The last frame's ray casting is a whole frame's only when the frame's bricks all fit.
+    let whole = b["bricks"]["whole_frame"].as_bool() == Some(true);
+    let raycast = ms(b, &["passes", "raycast"]).filter(|_| whole);
+    let core = ms(&r["in_core"], &["passes", "raycast"]);
+    let ratio = raycast.zip(core).map(|(b, c)| b / c);
+    let imp_core = ms(&r["importance_in_core"], &["total_ms"]);
+    let imp_chunk = ms(&r["importance_chunked"], &["seconds"]).map(|s| s * 1e3);
+    format!(
+        "{:>5}³ | {:>7} MiB/s {:>6} s | {:>7} ms {:>8} ms {:>8} MiB | {:>6} {:>7} MiB | {:>7} ms {:>7} ms {:>5} | {:>5}\n",
+        r["n"],
+        f(ms(&r["write"], &["mib_per_s"]), 0),
+        f(ms(&r["write"], &["seconds"]), 1),
+        f(ms(b, &["bricks", "first_pass_ms"]), 0),
+        f(ms(b, &["bricks", "total_ms"]), 0),
+        f(ms(b, &["bricks", "bytes_streamed"]).map(|x| x / (1 << 20) as f64), 0),
+        f(ms(b, &["peak_rss_mib"]), 0),
+        f(ms(b, &["peak_device_mib"]), 0),
+        f(raycast, 1),
+        f(core, 1),
+        f(ratio, 2),
+        f(imp_core.zip(imp_chunk).map(|(c, k)| c / k), 2),
+    )
+}
+
+pub(crate) fn scale(sizes: &[usize], image: u32, dir: &Path, keep: bool, json: bool) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut rows = Vec::new();
+    for &n in sizes {
+        for name in [format!("scale_{n}.ome.zarr"), format!("dd_{n}.ome.zarr")] {
+            let _ = std::fs::remove_dir_all(dir.join(name));
+        }
+        rows.push(row(n, image, dir)?);
+        if !keep {
+            for name in [format!("scale_{n}.ome.zarr"), format!("dd_{n}.ome.zarr")] {
+                let _ = std::fs::remove_dir_all(dir.join(name));
+            }
+        }
+    }
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({ "image": image, "rows": rows }))?
+        );
+        return Ok(());
+    }
+    println!(
+        "    n | store write rate, time | first pass, complete frame, streamed | host, device peak | raycast bricked, in core, ratio | importance chunked / in core (voxels/s)"
+    );
+    for r in &rows {
+        print!("{}", line(r));
+    }
+    Ok(())
+}
