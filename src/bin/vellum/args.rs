@@ -727,8 +727,9 @@ pub(crate) enum BenchCommand {
     Scale {
         #[arg(long)]
         json: bool,
-        /// Phantom sizes (voxels per axis).
-        #[arg(long, value_delimiter = ',', default_value = "256,512,1024,2048")]
+        /// Phantom sizes (voxels per axis), e.g. 256,512,1024,2048 (required: 2048³ takes a few
+        /// minutes and 37 GiB of writes before compression).
+        #[arg(long, value_delimiter = ',', required = true)]
         sizes: Vec<usize>,
         /// Square image size in pixels.
         #[arg(long, default_value_t = 256)]

@@ -120,7 +120,13 @@ fn line(r: &Value) -> String {
 }
 
 pub(crate) fn scale(sizes: &[usize], image: u32, dir: &Path, keep: bool, json: bool) -> Result<()> {
+    anyhow::ensure!(
+        sizes.iter().all(|&n| (1..=16384).contains(&n)),
+        "--sizes {sizes:?} is invalid; expected phantom sizes from 1 to 16384"
+    );
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    // Absolute, so that no path handed to a step can be read as a flag (`--dir -7`).
+    let dir = &std::path::absolute(dir).with_context(|| format!("resolving {}", dir.display()))?;
     let mut rows = Vec::new();
     for &n in sizes {
         for name in [format!("scale_{n}.ome.zarr"), format!("dd_{n}.ome.zarr")] {
