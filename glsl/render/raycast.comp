@@ -42,8 +42,11 @@ layout(set = 0, binding = 16) buffer RayStates { RayState rays[]; };
 const int PT_HEADER = 8 + 8 * 16;
 const uint MODE_WAIT = 1u;
 const uint MODE_RESUME = 2u;
-// The entry this ray last asked for, so that it asks once per brick.
+// The entry this ray last asked for, and the last resident one it read, so that it says each
+// once per brick.
 uint last_wanted = 0xffffffffu;
+uint last_used = 0xffffffffu;
+const uint USED_BIT = 0x80000000u;
 
 layout(push_constant) uniform Push {
     mat4 inv_view_proj;   // clip -> box frame
@@ -89,6 +92,12 @@ bool locate() {
             }
         }
         if (slot != 0u) {
+            // A frame that does not wait says which resident bricks it read, so that the cache
+            // evicts the ones no view uses (the top bit; the count of a missing brick is below).
+            if ((pt[3] & MODE_WAIT) == 0u && e != last_used) {
+                atomicOr(wanted[e], USED_BIT);
+                last_used = e;
+            }
             int s = int(slot) - 1;
             int gx = int(pt[4]), gy = int(pt[5]);
             ivec3 at = ivec3(s % gx, (s / gx) % gy, s / (gx * gy)) * slot_edge;

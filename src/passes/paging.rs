@@ -28,6 +28,19 @@ pub const HEADER: usize = 8 + 8 * MAX_LEVELS;
 pub const MODE_WAIT: u32 = 1;
 /// Mode bit: rays continue from the state the previous pass of this frame saved.
 pub const MODE_RESUME: u32 = 2;
+/// Feedback flag: a resident brick was read (`USED_BIT` in raycast.comp); the bits below count
+/// the rays that asked for a missing one.
+pub const USED_BIT: u32 = 1 << 31;
+
+/// What a frame's rays said about the bricks ([`Paged::take_feedback`]).
+#[derive(Clone, Debug, Default)]
+pub struct Feedback {
+    /// Missing bricks asked for, with how many rays asked.
+    pub wanted: Vec<(usize, u32)>,
+    /// Resident bricks read (frames that do not wait only).
+    pub used: Vec<usize>,
+}
+
 /// Bytes of one ray's saved state (`RayState` in raycast.comp).
 pub const RAY_STATE_BYTES: u64 = 80;
 
@@ -160,18 +173,22 @@ impl Paged {
         words
     }
 
-    /// The entries rays asked for in the last completed frame, with how many asked, and the
-    /// feedback zeroed for the next (which must not be in flight).
-    pub fn take_feedback(&mut self) -> Result<Vec<(usize, u32)>> {
+    /// What the rays of the last completed frame said: the missing bricks they asked for (with
+    /// how many asked) and, in a frame that does not wait, the resident ones they read.
+    pub fn take_feedback(&mut self) -> Result<Feedback> {
         let counts: &[u32] = bytemuck::cast_slice(self.feedback.mapped().ok_or_else(|| {
             Error::Invalid("the brick feedback buffer is not host-visible".into())
         })?);
-        Ok(counts
-            .iter()
-            .enumerate()
-            .filter(|(_, &c)| c > 0)
-            .map(|(e, &c)| (e, c))
-            .collect())
+        let mut f = Feedback::default();
+        for (e, &c) in counts.iter().enumerate() {
+            if c & USED_BIT != 0 {
+                f.used.push(e);
+            }
+            if c & !USED_BIT != 0 {
+                f.wanted.push((e, c & !USED_BIT));
+            }
+        }
+        Ok(f)
     }
 
     /// Records the clearing of the feedback buffer, before the frame's ray casting writes it.

@@ -101,7 +101,7 @@ impl Renderer {
                 report.first_pass_ms = start.elapsed().as_secs_f64() * 1e3;
             }
             mode |= MODE_RESUME;
-            let wanted = paged_mut(vol)?.take_feedback()?;
+            let wanted = paged_mut(vol)?.take_feedback()?.wanted;
             if wanted.is_empty() {
                 report.complete = true;
                 break;

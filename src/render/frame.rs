@@ -893,8 +893,10 @@ fn lod_of(camera: &FrameCamera, world: &WorldBox, size: [u32; 2], dims: [usize; 
 
 /// A bricked frame that chooses levels by projected voxel size samples no finer than the finest
 /// level any of its samples reads (the one at the box's point nearest the eye): two planes per
-/// voxel of that level instead of level 0's, unless the view sets its planes. `None`: the view
-/// as it is.
+/// voxel of that level instead of level 0's, unless the view sets its planes. A frame that does
+/// not wait for its bricks nor resume rays (the viewer's) reads nothing finer than what is resident, so it takes
+/// no more planes than that either: the first frames of a store, with its coarsest level only,
+/// are quick, and the planes follow the bricks in. `None`: the view as it is.
 fn paged_planes(vol: &VolumeTextures, view: &View) -> Option<View> {
     let p = vol.paged.as_deref().filter(|p| !p.finest)?;
     if view.slices.is_some() || view.raycast.is_none() {
@@ -906,7 +908,16 @@ fn paged_planes(vol: &VolumeTextures, view: &View) -> Option<View> {
     let nearest = (camera.eye - camera.eye.clamp(-world.half, world.half)).length();
     let cover = (a * nearest + b).max(1.0);
     let levels = p.levels.levels();
-    let level = (cover.log2().floor() as usize).min(levels.len() - 1);
+    let mut level = (cover.log2().floor() as usize).min(levels.len() - 1);
+    // Waiting or resumed rays keep the planes their passes began with.
+    let waits = crate::passes::paging::MODE_WAIT | crate::passes::paging::MODE_RESUME;
+    if p.mode & waits == 0 {
+        level = level.max(
+            p.cache
+                .finest_resident(&p.levels)
+                .unwrap_or(levels.len() - 1),
+        );
+    }
     let longest = levels[level].dims.into_iter().max().unwrap_or(1);
     Some(View {
         slices: Some(2 * longest as u32),

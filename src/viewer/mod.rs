@@ -1471,8 +1471,9 @@ impl Running {
             self.session.model.streaming = None;
             return Ok(());
         };
-        let wanted = p.take_feedback()?;
-        s.request(p, &wanted);
+        let feedback = p.take_feedback()?;
+        p.cache.touch(&feedback.used);
+        s.request(p, &feedback.wanted);
         self.session.model.streaming = Some(s.status(p));
         Ok(())
     }

@@ -4,7 +4,8 @@
 //! Frames draw with what is resident (missing bricks are sampled from coarser levels, and the
 //! coarsest level is always there) and ask for what they missed in the feedback buffer. When a
 //! frame completes, its requests go to the loader, most asked first, at most [`IN_FLIGHT`] at a
-//! time; bricks that arrive are given slots (evicting the least recently loaded ones) and
+//! time, and the resident bricks they read are marked used; bricks that arrive are given slots
+//! (evicting the least recently used ones) and
 //! uploaded through the next frame's staging ring, at most [`UPLOADS_PER_FRAME`] a frame, so a
 //! frame stays short while the view refines. The feedback buffer is shared by the frames in
 //! flight, so what is read after a frame completes may already hold part of the next frame's

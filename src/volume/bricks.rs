@@ -21,7 +21,8 @@
 //!
 //! ## Slots
 //! [`BrickCache`] hands out slots: the coarsest level's first and for good, then the bricks a
-//! frame asks for most, evicting the least recently used bricks no ray asked for this time.
+//! frame asks for most, evicting the least recently used bricks no ray asked for this time
+//! (used: loaded, or read by a frame that said so, [`BrickCache::touch`]).
 
 use crate::error::{Error, Result};
 use crate::volume::io::ome_zarr::Multiscale;
@@ -339,6 +340,15 @@ impl BrickCache {
         self.slot_of.len()
     }
 
+    /// The finest level of `levels` with a resident brick.
+    pub fn finest_resident(&self, levels: &BrickLevels) -> Option<usize> {
+        self.slot_of
+            .keys()
+            .filter_map(|&e| levels.key(e))
+            .map(|k| k.level)
+            .min()
+    }
+
     /// The coarsest level's entries: load these first; they are never evicted.
     pub fn pinned_entries(levels: &BrickLevels) -> Vec<usize> {
         let l = levels.levels.last().expect("a pyramid has a level");
@@ -382,6 +392,16 @@ impl BrickCache {
             loads.push((e, slot));
         }
         loads
+    }
+
+    /// Marks the resident bricks of `entries` as used now: the last to be evicted.
+    pub fn touch(&mut self, entries: &[usize]) {
+        self.clock += 1;
+        for e in entries {
+            if let Some(&s) = self.slot_of.get(e) {
+                self.last_used[s] = self.clock;
+            }
+        }
     }
 
     /// A free slot, or the least recently used one that was not asked for this time (never a
@@ -468,5 +488,11 @@ mod tests {
         assert_eq!((cache.loaded, cache.evicted), (5, 2));
         // Everything asked for at once: only what fits this time.
         assert_eq!(cache.plan(&[(4, 1), (5, 1), (6, 1)], 8).len(), 2);
+        // A brick a frame read goes after one nobody read since.
+        let (a, b) = (cache.page_table[4], cache.page_table[5]);
+        assert!(a != 0 && b != 0);
+        cache.touch(&[4]);
+        assert_eq!(cache.plan(&[(7, 1)], 8), vec![(7, b as usize - 1)]);
+        assert_eq!(cache.page_table[4], a, "the touched brick stays");
     }
 }
