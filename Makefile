@@ -37,7 +37,8 @@ build: deps
 # importance map as NRRD and thermal slices, a two-level render as PNG plus layered EXR and its
 # scene file, a styled render, a ray-cast render, the style gallery, importance stippling, and the
 # nested phantom's occlusion volume, spectrum and occlusion-transfer-function render, and a
-# migrated phantom feature rendered in its own colour.
+# migrated phantom feature rendered in its own colour; a phantom streamed into an OME-Zarr store
+# and rendered through a 16 MiB brick cache.
 run: build
 	$(VELLUM) devices
 	$(VELLUM) info $(INPUT)
@@ -57,13 +58,17 @@ run: build
 	$(VELLUM) migrate phantom:nested:128 --seed 92,64,64 --window 0.7:0.8 --label sphere --parent spheres --out $(OUT)/feature.nrrd
 	$(VELLUM) features $(OUT)/feature.features.json
 	$(VELLUM) render $(OUT)/feature.nrrd --features $(OUT)/feature.features.json --one-pass --camera 0,20,2.2 --size 512x512 --out $(OUT)/render_features.png
+	@rm -rf $(OUT)/head.ome.zarr
+	$(VELLUM) convert phantom:shepp-logan:256 $(OUT)/head.ome.zarr
+	$(VELLUM) render $(OUT)/head.ome.zarr --iso 0.9 --tf grey --camera 30,20,2.5 --size 512x512 --renderer raycast --gpu-budget 16 --out $(OUT)/render_bricked.png
 	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr,"
 	@echo "  render_two_level.scene.json (the scene file of that render: vellum render --scene FILE), render_one_pass.png,"
 	@echo "  render_style_canny.png, render_raycast.png (the ray caster, refined isosurface), styles_gallery.png (the 15 styles),"
 	@echo "  lines_torus.png, lines_torus.svg (object-space lines; the SVG holds their visible parts),"
 	@echo "  render_stipple.png (importance stippling),"
 	@echo "  occlusion_ao.nrrd, occlusion_spectrum.png, occlusion_spectrum.csv, occlusion_otf.png,"
-	@echo "  feature.nrrd, feature.features.json, render_features.png"
+	@echo "  feature.nrrd, feature.features.json, render_features.png,"
+	@echo "  head.ome.zarr (a 256³ phantom streamed into an OME-Zarr store), render_bricked.png (it, through a 16 MiB brick cache)"
 
 # Every test, with the Khronos validation layer on (debug build), including its synchronization
 # validation: a missing or wrong barrier fails the test like any other validation message.

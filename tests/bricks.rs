@@ -9,6 +9,10 @@
 //! - a phantom streamed into a store chunk by chunk equals the same phantom written whole, and
 //!   converting it stays far below its size in memory;
 //! - a store rendered through the cache from the command line equals the in-core render;
+//! - a view whose pixels cover four voxels reads the store's 64³ level and nothing finer, with
+//!   two planes per voxel of that level, and equals that level rendered in core (mean ≤ 1/255;
+//!   observed 0.07/255);
+//! - a frame whose bricks all fit is drawn whole from them;
 //! - a budget that cannot hold the coarsest level and one brick is one sentence.
 
 mod common;
@@ -323,4 +327,57 @@ fn a_frame_whose_bricks_fit_is_drawn_whole_from_them() {
     println!("whole frame: mean {mean:.4}/255, max {max}/255");
     assert!(mean <= 1.0, "mean {mean}/255");
     assert!(got.passes.iter().any(|p| p.name == "raycast"));
+}
+
+#[test]
+fn a_coarse_view_of_a_store_is_its_coarse_level_rendered_in_core() {
+    use vellum::volume::io::ome_zarr::{write, Multiscale, WriteOptions};
+    let gpu = Gpu::new();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("head.ome.zarr");
+    let opts = WriteOptions {
+        chunk: 64,
+        levels: None,
+    };
+    write(&path, &phantom::shepp_logan(256), &opts).unwrap();
+    let ms = std::sync::Arc::new(Multiscale::open(&path).unwrap());
+    let levels = BrickLevels::of_store(ms.clone(), 1 << 26).unwrap();
+    let c = classification("grey");
+    let focus = Focus::Iso(0.9);
+    let mut bricked =
+        GpuScene::prepare_bricked(&gpu.ctx, levels, &c, focus, 64 << 20, false).unwrap();
+    // 64 pixels across a 256³ volume: each pixel covers about four level-0 voxels.
+    let view = View {
+        size: [64, 64],
+        ..view("30,20,2.5", false, None, None)
+    };
+    let (got, report) = renderer
+        .render_bricked(&mut bricked.volume, &mut bricked.classify, &view, None)
+        .unwrap();
+    let per_level = &report.loaded_per_level;
+    let (level, most) = per_level[..per_level.len() - 1]
+        .iter()
+        .enumerate()
+        .max_by_key(|(_, n)| **n)
+        .unwrap();
+    println!("bricks per level {per_level:?}; {} slices", got.slices);
+    assert_eq!(level, 2, "the level whose voxels cover a pixel");
+    assert!(
+        *most as f64 >= 0.8 * report.bricks_loaded as f64,
+        "{per_level:?}"
+    );
+    assert_eq!(per_level[0], 0, "nothing finer than a pixel is read");
+    let coarse = ms.read_level(level).unwrap();
+    let mut core = GpuScene::prepare(&gpu.ctx, &coarse, &c, focus, &Default::default()).unwrap();
+    let want = renderer
+        .render_frame(&core.volume, &mut core.classify, &view, true)
+        .unwrap();
+    assert_eq!(
+        want.slices, got.slices,
+        "two planes per voxel of the level read"
+    );
+    let (mean, max) = diff8(&want, &got);
+    println!("level {level} in core against the store: mean {mean:.4}/255, max {max}/255");
+    assert!(mean <= 1.0, "mean {mean}/255");
 }
