@@ -30,6 +30,9 @@ impl BindingKind {
     }
 }
 
+/// Most bindings one dispatch or draw pushes (the ray caster has 17).
+pub const MAX_BINDINGS: usize = 32;
+
 /// A resource bound at dispatch time; its position in the slice is its binding number.
 #[derive(Copy, Clone)]
 pub enum Bind<'a> {
@@ -150,15 +153,24 @@ impl PipelineLayout {
                 push.len()
             )));
         }
-        let mut image_infos = Vec::with_capacity(binds.len());
-        let mut buffer_infos = Vec::with_capacity(binds.len());
+        if binds.len() > MAX_BINDINGS {
+            return Err(mismatch(format!(
+                "{} bindings are more than the {MAX_BINDINGS} a dispatch pushes",
+                binds.len()
+            )));
+        }
+        // On the stack: a steady frame's dispatches allocate nothing.
+        let mut image_infos = [vk::DescriptorImageInfo::default(); MAX_BINDINGS];
+        let mut buffer_infos = [vk::DescriptorBufferInfo::default(); MAX_BINDINGS];
+        let (mut ni, mut nb) = (0, 0);
         for b in binds {
             match b {
-                Bind::StorageImage(img) => image_infos.push(
-                    vk::DescriptorImageInfo::default()
+                Bind::StorageImage(img) => {
+                    image_infos[ni] = vk::DescriptorImageInfo::default()
                         .image_view(img.view)
-                        .image_layout(access_info(img.access()).layout),
-                ),
+                        .image_layout(access_info(img.access()).layout);
+                    ni += 1;
+                }
                 Bind::StorageImageAlias(img) => {
                     if img.alias_view == vk::ImageView::null() {
                         return Err(Error::Invalid(format!(
@@ -166,59 +178,59 @@ impl PipelineLayout {
                             img.name
                         )));
                     }
-                    image_infos.push(
-                        vk::DescriptorImageInfo::default()
-                            .image_view(img.alias_view)
-                            .image_layout(access_info(img.access()).layout),
-                    )
+                    image_infos[ni] = vk::DescriptorImageInfo::default()
+                        .image_view(img.alias_view)
+                        .image_layout(access_info(img.access()).layout);
+                    ni += 1;
                 }
-                Bind::Sampled(img, s) => image_infos.push(
-                    vk::DescriptorImageInfo::default()
+                Bind::Sampled(img, s) => {
+                    image_infos[ni] = vk::DescriptorImageInfo::default()
                         .image_view(img.view)
                         .sampler(s.raw)
-                        .image_layout(access_info(img.access()).layout),
-                ),
-                Bind::StorageBuffer(buf) | Bind::Uniform(buf) => buffer_infos.push(
-                    vk::DescriptorBufferInfo::default()
+                        .image_layout(access_info(img.access()).layout);
+                    ni += 1;
+                }
+                Bind::StorageBuffer(buf) | Bind::Uniform(buf) => {
+                    buffer_infos[nb] = vk::DescriptorBufferInfo::default()
                         .buffer(buf.raw)
                         .offset(0)
-                        .range(vk::WHOLE_SIZE),
-                ),
-                Bind::UniformSlice(slice) | Bind::StorageSlice(slice) => buffer_infos.push(
-                    vk::DescriptorBufferInfo::default()
+                        .range(vk::WHOLE_SIZE);
+                    nb += 1;
+                }
+                Bind::UniformSlice(slice) | Bind::StorageSlice(slice) => {
+                    buffer_infos[nb] = vk::DescriptorBufferInfo::default()
                         .buffer(slice.raw)
                         .offset(slice.offset)
-                        .range(slice.size),
-                ),
+                        .range(slice.size);
+                    nb += 1;
+                }
             }
         }
         let (mut ii, mut bi) = (0, 0);
-        let writes: Vec<_> = binds
-            .iter()
-            .enumerate()
-            .map(|(i, b)| {
-                let w = vk::WriteDescriptorSet::default()
-                    .dst_binding(i as u32)
-                    .descriptor_type(b.kind().descriptor_type());
-                match b {
-                    Bind::StorageImage(_) | Bind::StorageImageAlias(_) | Bind::Sampled(..) => {
-                        ii += 1;
-                        w.image_info(std::slice::from_ref(&image_infos[ii - 1]))
-                    }
-                    Bind::StorageBuffer(_)
-                    | Bind::Uniform(_)
-                    | Bind::UniformSlice(_)
-                    | Bind::StorageSlice(_) => {
-                        bi += 1;
-                        w.buffer_info(std::slice::from_ref(&buffer_infos[bi - 1]))
-                    }
+        let mut writes = [vk::WriteDescriptorSet::default(); MAX_BINDINGS];
+        for (i, b) in binds.iter().enumerate() {
+            let w = vk::WriteDescriptorSet::default()
+                .dst_binding(i as u32)
+                .descriptor_type(b.kind().descriptor_type());
+            writes[i] = match b {
+                Bind::StorageImage(_) | Bind::StorageImageAlias(_) | Bind::Sampled(..) => {
+                    ii += 1;
+                    w.image_info(std::slice::from_ref(&image_infos[ii - 1]))
                 }
-            })
-            .collect();
+                Bind::StorageBuffer(_)
+                | Bind::Uniform(_)
+                | Bind::UniformSlice(_)
+                | Bind::StorageSlice(_) => {
+                    bi += 1;
+                    w.buffer_info(std::slice::from_ref(&buffer_infos[bi - 1]))
+                }
+            };
+        }
+        let writes = &writes[..binds.len()];
         unsafe {
             self.ctx
                 .push_descriptor
-                .cmd_push_descriptor_set(cmd, bind_point, self.raw, 0, &writes);
+                .cmd_push_descriptor_set(cmd, bind_point, self.raw, 0, writes);
             if !push.is_empty() {
                 self.ctx
                     .device

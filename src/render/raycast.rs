@@ -205,10 +205,29 @@ impl RayCaster {
         for image in images {
             image.transition(cmd, Access::ComputeWrite);
         }
-        let mut binds: Vec<Bind> = r.shading.to_vec();
-        binds.extend(images.map(Bind::StorageImage));
-        binds.push(Bind::StorageSlice(r.tables));
-        binds.extend(r.paging);
+        // On the stack: a steady frame allocates nothing here.
+        let s = r.shading;
+        let [i0, i1, i2, i3, i4] = images.map(Bind::StorageImage);
+        let [p0, p1, p2] = r.paging;
+        let binds: [Bind; 17] = [
+            s[0],
+            s[1],
+            s[2],
+            s[3],
+            s[4],
+            s[5],
+            s[6],
+            s[7],
+            i0,
+            i1,
+            i2,
+            i3,
+            i4,
+            Bind::StorageSlice(r.tables),
+            p0,
+            p1,
+            p2,
+        ];
         let variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         let pipeline = Self::pipeline(pipelines, variant)?;
         let groups = crate::gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
