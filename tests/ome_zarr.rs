@@ -193,7 +193,7 @@ fn bad_stores_are_one_sentence() {
     put(&root.join(".zgroup"), br#"{"zarr_format": 2}"#);
     let e = Multiscale::open(&root).err().expect("refused").to_string();
     assert!(e.contains("no OME-NGFF multiscales metadata"), "{e}");
-    // A corrupt chunk names the level.
+    // A corrupt chunk is named by its key.
     let root = dir.path().join("corrupt.zarr");
     v2_store(&root, [4, 4, 4], 4, TCZYX, [1, 1]);
     put(&root.join("0/0/0/0/0/0"), b"short");
@@ -202,7 +202,10 @@ fn bad_stores_are_one_sentence() {
         .read_level(0)
         .expect_err("refused")
         .to_string();
-    assert!(e.contains("level 0 could not be read"), "{e}");
+    assert!(
+        e.contains("chunk 0/0/0/0/0/0 of level 0 could not be read"),
+        "{e}"
+    );
     // Writing over an existing folder is refused and leaves it as it was.
     let v = sample(8);
     let e = write(&root, &v, &WriteOptions::default())

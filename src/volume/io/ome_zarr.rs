@@ -148,14 +148,48 @@ impl Multiscale {
     /// Missing chunks read as the fill value; a corrupt one is named by its key.
     pub fn read_box(&self, level: usize, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
         let l = self.level_info(level)?;
-        let data =
-            retrieve(&self.arrays[level], self.leading, self.voxel, lo, size).map_err(|e| {
-                invalid(
-                    &self.root,
-                    format!("level {} could not be read ({e})", l.path),
-                )
-            })?;
+        let data = retrieve(&self.arrays[level], self.leading, self.voxel, lo, size)
+            .map_err(|e| self.read_error(level, lo, size, e))?;
         Volume::new(size, l.spacing, data)
+    }
+
+    /// The error of a box that could not be read, naming the first chunk of the box that fails
+    /// to decode (by its key in the store) when one does.
+    fn read_error(
+        &self,
+        level: usize,
+        lo: [usize; 3],
+        size: [usize; 3],
+        cause: Box<dyn std::error::Error>,
+    ) -> Error {
+        let (l, array) = (&self.levels[level], &self.arrays[level]);
+        let range = |a: usize| lo[a] / l.chunk[a]..=(lo[a] + size[a] - 1) / l.chunk[a];
+        for z in range(2) {
+            for y in range(1) {
+                for x in range(0) {
+                    let mut index = vec![0u64; self.leading];
+                    index.extend([z, y, x].map(|i| i as u64));
+                    let chunk = array.retrieve_chunk::<zarrs::array::ArrayBytes<'static>>(&index);
+                    if let Err(e) = chunk {
+                        // The key in the store, from its root.
+                        let key = array.chunk_key(&index);
+                        let key = key.as_str().trim_start_matches('/');
+                        let key = match key.starts_with(&format!("{}/", l.path)) {
+                            true => key.to_string(),
+                            false => format!("{}/{key}", l.path),
+                        };
+                        return invalid(
+                            &self.root,
+                            format!("chunk {key} of level {} could not be read ({e})", l.path),
+                        );
+                    }
+                }
+            }
+        }
+        invalid(
+            &self.root,
+            format!("level {} could not be read ({cause})", l.path),
+        )
     }
 
     /// Bytes of level `level` in memory (0 for a level the store does not have).
