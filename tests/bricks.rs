@@ -103,20 +103,23 @@ fn a_two_mib_cache_renders_what_the_whole_volume_renders() {
         let c = classification(tf);
         let mut core = GpuScene::prepare(&gpu.ctx, &v, &c, focus, &Default::default()).unwrap();
         let levels = BrickLevels::of_volume(v).unwrap();
-        let mut bricked =
-            GpuScene::prepare_bricked(&gpu.ctx, levels, &c, focus, BUDGET, false).unwrap();
+        let mut bricked = GpuScene::prepare_bricked(
+            &gpu.ctx,
+            levels,
+            &c,
+            (focus, &Default::default()),
+            BUDGET,
+            false,
+        )
+        .unwrap();
         for (one_pass, style, jitter) in [
             (true, None, None),
             (false, None, None),
             (false, Some("canny"), Some(7)),
         ] {
             let view = view(camera, one_pass, style, jitter);
-            let want = renderer
-                .render_frame(&core.volume, &mut core.classify, &view, true)
-                .unwrap();
-            let (got, report) = renderer
-                .render_bricked(&mut bricked.volume, &mut bricked.classify, &view, None)
-                .unwrap();
+            let (want, got, report) =
+                both_ways(&mut renderer, (&mut core, &mut bricked), &view, None);
             let (mean, max) = diff8(&want, &got);
             println!(
                 "{name} one pass {one_pass} style {style:?}: mean {mean:.4}/255, max {max}/255; {} passes, {} loaded, {} evicted, {} slots",
@@ -152,9 +155,37 @@ fn shepp_logan_both_ways(gpu: &Gpu, budget: u64) -> (GpuScene, GpuScene) {
     let c = classification("grey");
     let core = GpuScene::prepare(&gpu.ctx, &v, &c, Focus::Iso(0.9), &Default::default()).unwrap();
     let levels = BrickLevels::of_volume(v).unwrap();
-    let bricked =
-        GpuScene::prepare_bricked(&gpu.ctx, levels, &c, Focus::Iso(0.9), budget, true).unwrap();
+    let bricked = GpuScene::prepare_bricked(
+        &gpu.ctx,
+        levels,
+        &c,
+        (Focus::Iso(0.9), &Default::default()),
+        budget,
+        true,
+    )
+    .unwrap();
     (core, bricked)
+}
+
+/// The frame of `view` in core and through the cache (waiting at most `wait`), with the
+/// cache's report.
+fn both_ways(
+    renderer: &mut Renderer,
+    (core, bricked): (&mut GpuScene, &mut GpuScene),
+    view: &View,
+    wait: Option<std::time::Duration>,
+) -> (
+    FrameImage,
+    FrameImage,
+    vellum::render::bricked::StreamReport,
+) {
+    let want = renderer
+        .render_frame(&core.volume, &mut core.classify, view, true)
+        .unwrap();
+    let (got, report) = renderer
+        .render_bricked(&mut bricked.volume, &mut bricked.classify, view, wait)
+        .unwrap();
+    (want, got, report)
 }
 
 #[test]
@@ -163,17 +194,12 @@ fn a_frame_cut_short_says_so_and_draws_coarser_levels() {
     let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     let (mut core, mut bricked) = shepp_logan_both_ways(&gpu, BUDGET);
     let view = view("30,20,2.5", false, None, None);
-    let want = renderer
-        .render_frame(&core.volume, &mut core.classify, &view, true)
-        .unwrap();
-    let (got, report) = renderer
-        .render_bricked(
-            &mut bricked.volume,
-            &mut bricked.classify,
-            &view,
-            Some(std::time::Duration::ZERO),
-        )
-        .unwrap();
+    let (want, got, report) = both_ways(
+        &mut renderer,
+        (&mut core, &mut bricked),
+        &view,
+        Some(std::time::Duration::ZERO),
+    );
     assert!(!report.complete);
     assert_eq!(report.passes, 2, "one waiting pass, then the last one");
     let (mean, _) = diff8(&want, &got);
@@ -315,12 +341,7 @@ fn a_frame_whose_bricks_fit_is_drawn_whole_from_them() {
     let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     let (mut core, mut bricked) = shepp_logan_both_ways(&gpu, 64 << 20);
     let view = view("30,20,2.5", false, None, None);
-    let want = renderer
-        .render_frame(&core.volume, &mut core.classify, &view, true)
-        .unwrap();
-    let (got, report) = renderer
-        .render_bricked(&mut bricked.volume, &mut bricked.classify, &view, None)
-        .unwrap();
+    let (want, got, report) = both_ways(&mut renderer, (&mut core, &mut bricked), &view, None);
     assert!(report.complete && report.whole_frame, "{report:?}");
     assert_eq!(report.bricks_evicted, 0);
     let (mean, max) = diff8(&want, &got);
@@ -345,8 +366,15 @@ fn a_coarse_view_of_a_store_is_its_coarse_level_rendered_in_core() {
     let levels = BrickLevels::of_store(ms.clone(), 1 << 26).unwrap();
     let c = classification("grey");
     let focus = Focus::Iso(0.9);
-    let mut bricked =
-        GpuScene::prepare_bricked(&gpu.ctx, levels, &c, focus, 64 << 20, false).unwrap();
+    let mut bricked = GpuScene::prepare_bricked(
+        &gpu.ctx,
+        levels,
+        &c,
+        (focus, &Default::default()),
+        64 << 20,
+        false,
+    )
+    .unwrap();
     // 64 pixels across a 256³ volume: each pixel covers about four level-0 voxels.
     let view = View {
         size: [64, 64],

@@ -724,6 +724,18 @@ fn validated_view(x: &Xvfb, dir: &Path) -> Command {
     c
 }
 
+/// The JSON report of a finished `view --bench`, which must have exited cleanly with
+/// validation and synchronization validation silent.
+fn bench_report(out: &std::process::Output) -> serde_json::Value {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        !stderr.contains("validation layer reported") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+    serde_json::from_slice(&out.stdout).expect("a JSON report")
+}
+
 /// `--bench` orbits a scene in style 4 as a drag does: the interactive frames extract lines by
 /// the seeded traversal, seeded frame after frame with two frames in flight, with validation and
 /// synchronization validation silent. The report names the passes, and `--screenshot-on-exit`
@@ -757,13 +769,7 @@ fn the_bench_orbits_with_seeded_lines_and_writes_the_exit_screenshot() {
         .arg(&shot)
         .output()
         .expect("running vellum view --bench");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
-    assert!(
-        !stderr.contains("validation layer reported") && !stderr.contains("panicked"),
-        "{stderr}"
-    );
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("a JSON report");
+    let report = bench_report(&out);
     assert_eq!(report["quality"], "interactive", "{report}");
     assert!(report["fps"].as_f64().unwrap() > 0.0, "{report}");
     let passes: Vec<&str> = report["gpu_ms"]
@@ -814,13 +820,7 @@ fn a_store_larger_than_the_budget_streams_while_the_view_orbits() {
         .arg(&shot)
         .output()
         .expect("running vellum view --bench");
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
-    assert!(
-        !stderr.contains("validation layer reported") && !stderr.contains("panicked"),
-        "{stderr}"
-    );
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("a JSON report");
+    let report = bench_report(&out);
     let line = report["streaming"]
         .as_str()
         .expect("a streamed volume's brick line");

@@ -113,8 +113,15 @@ impl StagingRing {
     /// Copies `bytes` into the ring at an offset aligned to `align` (a power of two; uniform
     /// offsets need the device's minimum) and returns where they are.
     pub fn push(&mut self, bytes: &[u8], align: u64) -> Result<BufferSlice> {
+        self.push_parts(&[bytes], align)
+    }
+
+    /// [`StagingRing::push`] of `parts` one after the other, as one slice (a header and a table
+    /// kept apart on the host, without joining them first).
+    pub fn push_parts(&mut self, parts: &[&[u8]], align: u64) -> Result<BufferSlice> {
         let align = align.max(16);
-        let len = bytes.len().max(4) as u64;
+        let bytes_len: usize = parts.iter().map(|p| p.len()).sum();
+        let len = bytes_len.max(4) as u64;
         let start = self.head.next_multiple_of(align);
         let capacity = self.buffer.as_ref().map_or(0, |b| b.size);
         if start + len > capacity {
@@ -129,7 +136,7 @@ impl StagingRing {
                 self.retired.push(old);
             }
             self.head = 0;
-            return self.push(bytes, align);
+            return self.push_parts(parts, align);
         }
         let buffer = self.buffer.as_mut().expect("grown above");
         let dst = buffer
@@ -138,7 +145,11 @@ impl StagingRing {
                 name: "staging ring".into(),
                 msg: "buffer is not host-visible".into(),
             })?;
-        dst[start as usize..start as usize + bytes.len()].copy_from_slice(bytes);
+        let mut at = start as usize;
+        for p in parts {
+            dst[at..at + p.len()].copy_from_slice(p);
+            at += p.len();
+        }
         self.head = start + len;
         Ok(BufferSlice {
             raw: buffer.raw,

@@ -133,12 +133,13 @@ impl VolumeTextures {
 }
 
 impl Paged {
-    /// The page table for a frame whose samples at distance d from the eye cover `lod.0 · d +
-    /// lod.1` level-0 voxels (see the module's documentation).
-    pub fn page_table(&self, lod: (f32, f32)) -> Vec<u32> {
+    /// The page table's header for a frame whose samples at distance d from the eye cover
+    /// `lod.0 · d + lod.1` level-0 voxels (see the module's documentation); the entries,
+    /// `cache.page_table`, follow it.
+    pub fn header(&self, lod: (f32, f32)) -> [u32; HEADER] {
         let levels = self.levels.levels();
         let (a, b) = if self.finest { (0.0, 0.0) } else { lod };
-        let mut words = vec![0u32; HEADER];
+        let mut words = [0u32; HEADER];
         let dims0 = levels[0].dims;
         let s0 = levels[0].spacing;
         words[..8].copy_from_slice(&[
@@ -169,7 +170,6 @@ impl Paged {
                 .fold(f64::INFINITY, f64::min);
             w[7] = (ratio as f32).to_bits();
         }
-        words.extend_from_slice(&self.cache.page_table);
         words
     }
 

@@ -26,6 +26,18 @@ use crate::render::view::View;
 use crate::volume::bricks::{BrickCache, BrickTexels};
 use std::time::{Duration, Instant};
 
+/// `--gpu-budget` (MiB) in bytes, or half the device's largest memory heap: what a volume's
+/// textures may take before it goes through the brick cache.
+pub fn gpu_budget_bytes(ctx: &crate::gpu::Context, mib: Option<f64>) -> Result<u64> {
+    match mib {
+        None => Ok(ctx.info.device_local_heap_bytes / 2),
+        Some(m) if m.is_finite() && m > 0.0 => Ok((m * (1u64 << 20) as f64) as u64),
+        Some(m) => Err(Error::Invalid(format!(
+            "`gpu_budget` {m} is invalid; expected a positive number of MiB"
+        ))),
+    }
+}
+
 /// Bricks loaded between two passes at most (each is 386 KiB of staging).
 pub const LOADS_PER_PASS: usize = 128;
 

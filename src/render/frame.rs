@@ -785,8 +785,13 @@ fn record_rays(
     let size = r.setup.size;
     let paging = match &vol.paged {
         Some(p) => {
-            let table = p.page_table(lod_line(r.setup, vol.dims));
-            let table = frame.staging.push(bytemuck::cast_slice(&table), 16)?;
+            // The header and the entries, one slice, staged without joining them on the host.
+            let header = p.header(lod_line(r.setup, vol.dims));
+            let parts: [&[u8]; 2] = [
+                bytemuck::cast_slice(&header),
+                bytemuck::cast_slice(&p.cache.page_table),
+            ];
+            let table = frame.staging.push_parts(&parts, 16)?;
             p.record_clear_feedback(ctx, frame);
             let rays = state.ray_states(ctx, size[0] as u64 * size[1] as u64)?;
             [

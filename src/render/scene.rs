@@ -542,12 +542,17 @@ impl GpuScene {
         ctx: &Arc<Context>,
         levels: crate::volume::bricks::BrickLevels,
         classification: &Classification,
-        focus: Focus,
+        (focus, modulation): (Focus, &Modulation),
         budget_bytes: u64,
         finest: bool,
     ) -> Result<GpuScene> {
         focus.validate()?;
         let budget = budget_bytes as f64 / (1 << 20) as f64;
+        if modulation.is_active() {
+            return Err(Error::Invalid(format!(
+                "importance modulation needs the importance map of the whole volume, which is larger than the GPU budget ({budget:.0} MiB); raise --gpu-budget or drop the modulation"
+            )));
+        }
         let transfer = match classification {
             Classification::Transfer(tf) => tf.clone(),
             Classification::Features(map) => feature_transfer_function(map, levels.range)?,

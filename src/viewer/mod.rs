@@ -228,25 +228,21 @@ struct Loaded {
     otf: Option<crate::classify::otf::OcclusionTf>,
 }
 
-/// A store whose in-core textures (10 bytes a voxel) exceed `budget` bytes: its pyramid for the
-/// brick cache and its coarsest level, without reading level 0.
+/// A store whose textures exceed `budget` bytes: its pyramid for the brick cache and a level
+/// small enough to read whole (for the histogram), without reading level 0.
 fn open_streamed(
     scene: &Scene,
     budget: u64,
 ) -> Result<Option<(crate::volume::bricks::BrickLevels, Volume)>> {
-    use crate::volume::io::ome_zarr;
+    if scene.input.raw.is_some() {
+        return Ok(None);
+    }
     let path = Path::new(&scene.input.path);
-    if !ome_zarr::is_store(path) || scene.input.raw.is_some() {
+    let Some(levels) = crate::volume::bricks::BrickLevels::of_store_beyond(path, budget)? else {
         return Ok(None);
-    }
-    let ms = ome_zarr::Multiscale::open(path)?;
-    let voxels: u64 = ms.levels[0].dims.iter().map(|&n| n as u64).product();
-    if voxels * 10 <= budget {
-        return Ok(None);
-    }
-    let coarsest = ms.read_level(ms.levels.len() - 1)?;
-    let levels = crate::volume::bricks::BrickLevels::of_store(Arc::new(ms), 1 << 26)?;
-    Ok(Some((levels, coarsest)))
+    };
+    let small = levels.read_small_level(64 * 64 * 64)?;
+    Ok(Some((levels, small)))
 }
 
 fn load(scene: Scene, budget: u64) -> Result<Loaded> {
@@ -302,14 +298,8 @@ fn prepare_gpu(
         )?;
         return Ok((gpu, None));
     };
-    if modulation.is_active() {
-        return Err(Error::Invalid(format!(
-            "importance modulation needs the importance map of the whole volume, which is larger than the GPU budget ({:.0} MiB)",
-            budget as f64 / (1 << 20) as f64
-        )));
-    }
-    let gpu =
-        GpuScene::prepare_bricked(ctx, levels, &l.classification, l.scene.focus, budget, false)?;
+    let focus = (l.scene.focus, &modulation);
+    let gpu = GpuScene::prepare_bricked(ctx, levels, &l.classification, focus, budget, false)?;
     let paged = gpu
         .volume
         .paged
@@ -322,13 +312,6 @@ fn prepare_gpu(
         l.scene.raycast = Some(Default::default());
     }
     Ok((gpu, Some(s)))
-}
-
-/// `--gpu-budget` in bytes, or half the device's largest heap.
-fn gpu_budget(ctx: &Context, mib: Option<f64>) -> u64 {
-    mib.map_or(ctx.info.device_local_heap_bytes / 2, |m| {
-        (m * (1u64 << 20) as f64) as u64
-    })
 }
 
 /// Camera drag in progress.
@@ -727,7 +710,7 @@ impl Running {
             &present,
         )?;
         let opened = Instant::now();
-        let budget = gpu_budget(&ctx, opts.gpu_budget);
+        let budget = crate::render::bricked::gpu_budget_bytes(&ctx, opts.gpu_budget)?;
         let mut loaded = load(opts.scene.clone(), budget)?;
         let size = window.inner_size();
         let frames = Frames::new(&ctx, &FramesDesc::interactive("view"))?;

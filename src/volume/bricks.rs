@@ -37,8 +37,15 @@ pub const BRICK: usize = 32;
 pub const APRON: usize = 1;
 /// Edge of a pool slot in texels.
 pub const SLOT: usize = BRICK + 2 * APRON;
-/// Bytes of one slot: R16 intensity and RGBA16F gradient per texel.
-pub const SLOT_BYTES: usize = SLOT * SLOT * SLOT * (2 + 8);
+/// Bytes a voxel takes in the renderer's textures: R16 intensity and RGBA16F gradient.
+pub const TEXTURE_BYTES_PER_VOXEL: u64 = 2 + 8;
+/// Bytes of one slot.
+pub const SLOT_BYTES: usize = SLOT * SLOT * SLOT * TEXTURE_BYTES_PER_VOXEL as usize;
+
+/// Bytes the renderer's textures of a volume of `dims` take in core.
+pub fn in_core_bytes(dims: [usize; 3]) -> u64 {
+    dims.iter().map(|&n| n as u64).product::<u64>() * TEXTURE_BYTES_PER_VOXEL
+}
 /// Most levels a pyramid may have (the page table's header has room for this many).
 pub const MAX_LEVELS: usize = 16;
 
@@ -183,8 +190,34 @@ impl BrickLevels {
         })
     }
 
+    /// The pyramid of the store at `path` when `path` is a store whose in-core textures exceed
+    /// `budget` bytes; `None` when it is not a store or fits (level 0 is never read here).
+    pub fn of_store_beyond(path: &std::path::Path, budget: u64) -> Result<Option<Self>> {
+        use crate::volume::io::ome_zarr;
+        if !ome_zarr::is_store(path) {
+            return Ok(None);
+        }
+        let ms = ome_zarr::Multiscale::open(path)?;
+        if in_core_bytes(ms.levels[0].dims) <= budget {
+            return Ok(None);
+        }
+        // Level 0 is read whole for the range only when it is small (64 Mi voxels).
+        Ok(Some(Self::of_store(Arc::new(ms), 1 << 26)?))
+    }
+
     pub fn levels(&self) -> &[PagedLevel] {
         &self.levels
+    }
+
+    /// The finest level of at most `voxels` voxels, read whole (for a histogram or a preview).
+    pub fn read_small_level(&self, voxels: usize) -> Result<Volume> {
+        let i = self
+            .levels
+            .iter()
+            .position(|l| l.dims.iter().product::<usize>() <= voxels)
+            .unwrap_or(self.levels.len() - 1);
+        let dims = self.levels[i].dims;
+        self.sources[i].source()?.read_box([0; 3], dims)
     }
 
     /// Page-table entries over all levels.

@@ -957,7 +957,7 @@ pub(crate) fn parse_cli() -> Cli {
 
 /// The library's errors name the scene's keys and the passes' parameters in backticks
 /// (`one_pass`, `iso`, `method`); the command line names its flags for them.
-pub(crate) const KEY_FLAGS: [(&str, &str); 8] = [
+pub(crate) const KEY_FLAGS: [(&str, &str); 9] = [
     ("`one_pass`", "--one-pass"),
     ("`iso`", "--iso V"),
     ("`focus`", "--focus LO:HI"),
@@ -966,6 +966,7 @@ pub(crate) const KEY_FLAGS: [(&str, &str); 8] = [
     ("`method`", "--method"),
     ("`radius`", "--radius"),
     ("`style`", "--style"),
+    ("`gpu_budget`", "--gpu-budget"),
 ];
 
 /// `message` with each key the library names replaced by its flag.

@@ -72,16 +72,25 @@ pub(crate) fn plan(
     Ok(Plan::Chunked { source, chunk })
 }
 
-/// A progress bar over the chunks a chunked pass writes for a grid of `dims`.
-pub(crate) fn bar(dims: [usize; 3], chunk: usize, what: &str) -> indicatif::ProgressBar {
+/// Runs a chunked pass, `run(on_chunk)`, over a grid of `dims` with a progress bar over its
+/// chunks; returns its result and the seconds it took, validation reported.
+pub(crate) fn run_with_bar<T>(
+    ctx: &vellum::gpu::Context,
+    (dims, chunk): ([usize; 3], usize),
+    what: &str,
+    run: impl FnOnce(&(dyn Fn() + Sync)) -> vellum::Result<T>,
+) -> Result<(T, f64)> {
     let opts = vellum::volume::io::ome_zarr::WriteOptions {
         chunk,
         levels: None,
     };
-    vellum::progress::bar(
-        vellum::volume::io::ome_zarr::chunk_count(dims, &opts) as u64,
-        what,
-    )
+    let count = vellum::volume::io::ome_zarr::chunk_count(dims, &opts) as u64;
+    let bar = vellum::progress::bar(count, what);
+    let start = std::time::Instant::now();
+    let result = run(&|| bar.inc(1))?;
+    bar.finish_and_clear();
+    crate::commands::report_validation(ctx);
+    Ok((result, start.elapsed().as_secs_f64()))
 }
 
 /// The JSON of a chunked run.

@@ -22,25 +22,14 @@ pub(crate) fn importance(
             let ctx = context(cli)?;
             let out = out.ok_or_else(|| anyhow::anyhow!("a chunked pass needs --out"))?;
             let boxes = source.boxes()?;
-            let bar = super::chunked::bar(boxes.dims(), chunk, "importance chunks");
-            let start = std::time::Instant::now();
-            let store = vellum::passes::chunked::importance_store(
-                &ctx,
-                &*boxes,
-                radius,
-                out,
-                chunk,
-                &|| bar.inc(1),
-            )?;
-            bar.finish_and_clear();
-            report_validation(&ctx);
-            let mut r = super::chunked::report(
-                &ctx,
-                &store,
-                chunk,
-                radius as usize,
-                start.elapsed().as_secs_f64(),
-            );
+            let grid = (boxes.dims(), chunk);
+            let (store, secs) =
+                super::chunked::run_with_bar(&ctx, grid, "importance chunks", |on_chunk| {
+                    vellum::passes::chunked::importance_store(
+                        &ctx, &*boxes, radius, out, chunk, on_chunk,
+                    )
+                })?;
+            let mut r = super::chunked::report(&ctx, &store, chunk, radius as usize, secs);
             r["max_abs_delta_d"] = json!(store.range[0].abs().max(store.range[1].abs()));
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);

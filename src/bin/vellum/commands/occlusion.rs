@@ -89,29 +89,17 @@ fn occlusion_chunked(
         .ok_or_else(|| anyhow::anyhow!("a chunked pass needs --out"))?;
     let range = source.range()?;
     let boxes = source.boxes()?;
-    let bar = super::chunked::bar(boxes.dims(), chunk, "occlusion chunks");
-    let start = std::time::Instant::now();
-    let (store, spectrum) = vellum::passes::chunked::occlusion_store(
-        &ctx,
-        &*boxes,
-        params,
-        range,
-        out,
-        chunk,
-        &|| bar.inc(1),
-    )?;
-    bar.finish_and_clear();
-    report_validation(&ctx);
+    let grid = (boxes.dims(), chunk);
+    let ((store, spectrum), secs) =
+        super::chunked::run_with_bar(&ctx, grid, "occlusion chunks", |on_chunk| {
+            vellum::passes::chunked::occlusion_store(
+                &ctx, &*boxes, params, range, out, chunk, on_chunk,
+            )
+        })?;
     if let Some(s) = &spectrum {
         write_spectrum(s, a.spectrum.as_deref(), a.spectrum_data.as_deref())?;
     }
-    let mut r = super::chunked::report(
-        &ctx,
-        &store,
-        chunk,
-        params.radius as usize,
-        start.elapsed().as_secs_f64(),
-    );
+    let mut r = super::chunked::report(&ctx, &store, chunk, params.radius as usize, secs);
     r["intensity_range"] = json!(range);
     r["spectrum_total"] =
         json!(spectrum

@@ -134,7 +134,7 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
         .classification()
         .map_err(|e| from("classification", e))?;
     let ctx = context(cli)?;
-    let budget = gpu_budget(&ctx, a.gpu_budget)?;
+    let budget = vellum::render::bricked::gpu_budget_bytes(&ctx, a.gpu_budget)?;
     let input = open_input(&scene, budget).map_err(|e| from("input", e))?;
     let oriented = match &input {
         Input::InCore(v) => v.geometry.is_oriented(),
@@ -150,28 +150,25 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
             (frame, gpu.passes, None)
         }
         Input::Bricked(levels) => {
-            let budget_mib = budget as f64 / (1 << 20) as f64;
-            anyhow::ensure!(
-                !scene.modulation.as_ref().is_some_and(|m| m.is_active()),
-                "importance modulation needs the importance map of the whole volume, which is larger than the GPU budget ({budget_mib:.0} MiB); raise --gpu-budget or drop the modulation"
-            );
-            if view.raycast.is_none() {
-                eprintln!("the volume is larger than the GPU budget ({budget_mib:.0} MiB): the ray caster draws it through the brick cache");
-                view.raycast = Some(Default::default());
-            }
             let finest = match a.lod.as_str() {
                 "auto" => false,
                 "finest" => true,
                 other => anyhow::bail!("--lod {other:?} is unknown; expected auto or finest"),
             };
+            let modulation = scene.modulation.clone().unwrap_or_default();
             let mut gpu = GpuScene::prepare_bricked(
                 &ctx,
                 levels,
                 &classification,
-                scene.focus,
+                (scene.focus, &modulation),
                 budget,
                 finest,
             )?;
+            if view.raycast.is_none() {
+                let mib = budget as f64 / (1 << 20) as f64;
+                eprintln!("the volume is larger than the GPU budget ({mib:.0} MiB): the ray caster draws it through the brick cache");
+                view.raycast = Some(Default::default());
+            }
             let wait = a.max_wait_ms.map(std::time::Duration::from_millis);
             let (frame, report) = Renderer::new(&ctx)?.render_bricked(
                 &mut gpu.volume,
@@ -237,34 +234,14 @@ enum Input {
     Bricked(vellum::volume::bricks::BrickLevels),
 }
 
-/// Bytes a volume of `dims` takes on the GPU in core: R16 intensity and RGBA16F gradients.
-fn in_core_bytes(dims: [usize; 3]) -> u64 {
-    dims.iter().map(|&n| n as u64).product::<u64>() * 10
-}
-
-/// `--gpu-budget` in bytes, or half the device's largest heap.
-fn gpu_budget(ctx: &vellum::gpu::Context, mib: Option<f64>) -> Result<u64> {
-    match mib {
-        None => Ok(ctx.info.device_local_heap_bytes / 2),
-        Some(m) if m.is_finite() && m > 0.0 => Ok((m * (1u64 << 20) as f64) as u64),
-        Some(m) => anyhow::bail!("--gpu-budget {m} is invalid; expected a positive number of MiB"),
-    }
-}
-
-/// Opens the scene's input: a store whose level 0 does not fit `budget` is never read whole;
+/// Opens the scene's input: a store whose textures do not fit `budget` is never read whole;
 /// any other input is read and goes to the brick cache when its textures do not fit.
 fn open_input(scene: &vellum::render::scene::Scene, budget: u64) -> vellum::Result<Input> {
-    use vellum::volume::bricks::BrickLevels;
-    use vellum::volume::io::ome_zarr;
+    use vellum::volume::bricks::{in_core_bytes, BrickLevels};
     let path = std::path::Path::new(&scene.input.path);
-    if ome_zarr::is_store(path) && scene.input.raw.is_none() {
-        let ms = ome_zarr::Multiscale::open(path)?;
-        if in_core_bytes(ms.levels[0].dims) > budget {
-            // Level 0 is read whole for the range only when it is small (64 Mi voxels).
-            return Ok(Input::Bricked(BrickLevels::of_store(
-                std::sync::Arc::new(ms),
-                1 << 26,
-            )?));
+    if scene.input.raw.is_none() {
+        if let Some(levels) = BrickLevels::of_store_beyond(path, budget)? {
+            return Ok(Input::Bricked(levels));
         }
     }
     let v = scene.load_volume()?;
