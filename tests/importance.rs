@@ -7,7 +7,7 @@
 mod common;
 
 use common::Gpu;
-use vellum::passes::importance::ImportanceMap;
+use vellum::passes::importance::{GaussKernel, ImportanceMap, KernelChoice, Tile};
 use vellum::volume::reference::gaussian::importance_map;
 use vellum::volume::stats::stats;
 use vellum::volume::{phantom, Volume, VoxelData};
@@ -105,6 +105,71 @@ fn thin_volumes_and_tiny_rows() {
         let s = stats(&v, 0);
         let scale = (s.max - s.min).max(s.max.abs()).max(s.min.abs());
         check_scaled(&gpu, &mut map, &format!("{dims:?}"), &v, &[1, 5, 10], scale);
+    }
+}
+
+#[test]
+fn tiled_kernel_matches_reference() {
+    // The GPUs' kernel (shared-memory tiles), run here on lavapipe: the largest radius picks a
+    // narrower tile; rows of 1..3 voxels, lines shorter than the radius and sizes that are not
+    // multiples of a tile exercise every clamped border and partial tile.
+    let gpu = Gpu::new();
+    let mut map = ImportanceMap::new(&gpu.ctx).unwrap();
+    map.set_kernel(KernelChoice::Tiled);
+    for r in [1, 10, 32] {
+        let k = map.kernel(r).unwrap();
+        assert!(matches!(k, GaussKernel::Tiled { .. }), "R={r}: {k:?}");
+    }
+    check(
+        &gpu,
+        &mut map,
+        "shepp-logan 37, tiled",
+        &phantom::shepp_logan(37),
+        &[1, 5, 10, 20, 32],
+    );
+    for dims in [[1, 1, 1], [3, 5, 2], [2, 17, 1], [70, 1, 3], [301, 40, 9]] {
+        let n = dims[0] * dims[1] * dims[2];
+        let data: Vec<i16> = (0..n).map(|i| ((i * 7919) % 2001) as i16 - 1000).collect();
+        let v = Volume::new(dims, [1.0; 3], VoxelData::I16(data)).unwrap();
+        let s = stats(&v, 0);
+        let scale = (s.max - s.min).max(s.max.abs()).max(s.min.abs());
+        check_scaled(
+            &gpu,
+            &mut map,
+            &format!("{dims:?}, tiled"),
+            &v,
+            &[1, 5, 10],
+            scale,
+        );
+    }
+    // Tiles deeper than one line, and shorter or narrower ones.
+    for (tx, depth, lanes, length) in [(8, 4, 4, 16), (16, 2, 4, 8), (4, 2, 2, 32)] {
+        let tile = Tile {
+            tx,
+            depth,
+            lanes,
+            length,
+        };
+        map.set_kernel(KernelChoice::Tile(tile));
+        let k = map.kernel(5).unwrap();
+        assert!(
+            matches!(k, GaussKernel::Tiled { y, z, .. } if y == tile && z == tile),
+            "{k:?}"
+        );
+        check(
+            &gpu,
+            &mut map,
+            &format!("nested 30, {tile:?}"),
+            &phantom::nested(30),
+            &[1, 5],
+        );
+    }
+    map.set_kernel(KernelChoice::Tiled);
+    for name in ["tooth16", "lobster"] {
+        let Some(v) = common::real_volume(name) else {
+            return;
+        };
+        check(&gpu, &mut map, &format!("{name}, tiled"), &v, &[1, 5, 10]);
     }
 }
 

@@ -72,6 +72,8 @@ pub struct Options {
     pub scipy: bool,
     /// Comma-separated `case:R` filters, e.g. `ct-body:1,salmon:10`.
     pub cases: Option<String>,
+    /// Rounds of the four passes per submission for the sustained figures (0: not measured).
+    pub sustained: usize,
 }
 
 /// One row of the table: medians over the repeats.
@@ -101,6 +103,9 @@ pub struct Row {
     pub scipy_ms: Option<f64>,
     /// Our passes (3 filters + subtract) over scipy's time.
     pub vellum_over_scipy: Option<f64>,
+    /// gauss_x, gauss_y, gauss_z and subtract with the device kept busy: the medians of
+    /// `--sustained N` rounds recorded back to back, on the volume uploaded once.
+    pub sustained_ms: Option<[f64; 4]>,
 }
 
 /// The whole table.
@@ -243,6 +248,10 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                 speedup_total: paper_total[ri] / total_ms,
                 scipy_ms: scipy,
                 vellum_over_scipy: scipy.map(|s| passes_ms / s),
+                sustained_ms: match opts.sustained {
+                    0 => None,
+                    n => Some(map.sustained(&v, r, n, 3)?),
+                },
             });
             drop(runs);
         }
@@ -283,6 +292,25 @@ impl Table {
                 r.subtract_over_copy,
                 r.scipy_ms.map(|x| format!("{x:.1}")).unwrap_or_else(|| "-".into()),
                 r.vellum_over_scipy.map(|x| format!("{x:.2}")).unwrap_or_else(|| "-".into()),
+            );
+        }
+        for r in self.rows.iter().filter(|r| r.sustained_ms.is_some()) {
+            let ms = r.sustained_ms.unwrap_or_default();
+            // Bytes each pass must move: a float volume read and one written (subtract reads two).
+            let n = (r.dims[0].div_ceil(4) * 16 * r.dims[1] * r.dims[2]) as f64;
+            let gbs = |ms: f64, volumes: f64| volumes * n / (ms * 1e-3) / 1e9;
+            s += &format!(
+                "sustained {:<8} R={:<2} x {:.3} ms ({:.0} GB/s), y {:.3} ({:.0}), z {:.3} ({:.0}), subtract {:.3} ({:.0})\n",
+                r.case,
+                r.radius,
+                ms[0],
+                gbs(ms[0], 2.0),
+                ms[1],
+                gbs(ms[1], 2.0),
+                ms[2],
+                gbs(ms[2], 2.0),
+                ms[3],
+                gbs(ms[3], 3.0),
             );
         }
         s += "data: ";

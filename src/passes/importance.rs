@@ -10,8 +10,8 @@ use crate::gpu::pipeline::group_count;
 use crate::gpu::profiler::PassTime;
 use crate::gpu::transfer::{record_readback, record_upload, staging_buffer};
 use crate::gpu::{
-    submit_timed, Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Frame, Image,
-    ImageDesc,
+    submit_timed, Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Frame, Frames,
+    FramesDesc, Image, ImageDesc,
 };
 use crate::passes::volume_image::extent_of;
 use crate::volume::reference::gaussian::gaussian_kernel;
@@ -120,6 +120,7 @@ pub struct ImportanceMap {
     /// Gaussian pipelines and their weights by radius, built on first use: R is a
     /// specialisation constant.
     gauss: HashMap<u32, Gauss>,
+    choice: KernelChoice,
     subtract: ComputePipeline,
     pack: ComputePipeline,
     unpack: ComputePipeline,
@@ -133,12 +134,172 @@ pub struct ImportanceVolume {
     pub radius_voxels: u32,
 }
 
-/// A Gaussian pipeline specialised for one radius, and its weights.
+/// Which shaders filter along each axis.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum GaussKernel {
+    /// `gauss1d.comp`: each invocation filters a segment of its line from a private array read
+    /// straight from the image. Lavapipe's: its SIMD lanes gather, and shared memory gains nothing.
+    Segments(Segments),
+    /// `gauss_tile_x.comp` and `gauss_tile_yz.comp`: workgroup tiles staged through shared memory,
+    /// the y pass's and the z pass's (see [`Tile`]). GPUs': a warp's loads are contiguous and the
+    /// halo is read once per tile.
+    /// `x` is the x pass's tile width in texels.
+    Tiled { x: u32, y: Tile, z: Tile },
+}
+
+/// The y and z passes' tile in `gauss_tile_yz.comp`: `tx` texels along x by `depth` lines across,
+/// `length` outputs along the axis, filtered by `lanes` lanes per line.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct Tile {
+    pub tx: u32,
+    pub depth: u32,
+    pub lanes: u32,
+    pub length: u32,
+}
+
+impl Tile {
+    /// Bytes of shared memory the tile stages at `radius_voxels` (RGBA32F texels).
+    pub fn shared_bytes(self, radius_voxels: u32) -> u32 {
+        (self.length + 2 * radius_voxels) * self.depth * self.tx * 16
+    }
+
+    /// `VELLUM_GAUSS_TILE=TX,DEPTH,LANES,LENGTH`, for measuring.
+    fn from_env() -> Option<Tile> {
+        let v = std::env::var("VELLUM_GAUSS_TILE").ok()?;
+        let n: Vec<u32> = v
+            .split(',')
+            .map(|x| x.trim().parse().ok())
+            .collect::<Option<_>>()?;
+        let &[tx, depth, lanes, length] = n.as_slice() else {
+            return None;
+        };
+        let ok = tx * depth * lanes <= 1024 && lanes > 0 && length % lanes == 0;
+        ok.then_some(Tile {
+            tx,
+            depth,
+            lanes,
+            length,
+        })
+    }
+}
+
+const fn tile(tx: u32, depth: u32, lanes: u32, length: u32) -> Tile {
+    Tile {
+        tx,
+        depth,
+        lanes,
+        length,
+    }
+}
+
+/// The x pass's tile width in texels (`gauss_tile_x.comp`): 32 was 1–4 % faster than 64 and 128 on
+/// an H100, and 256 30 % slower (BENCHMARKS.md, "On a GPU").
+const TILE_X: u32 = 32;
+
+/// The tiles a GPU tries for the pass along `axis` (1 = y, 2 = z) at `radius_voxels`, best first;
+/// the first that fits the device's shared memory is taken, and the last two fit lavapipe's
+/// 32 KiB up to R = 32. Swept on an H100 over Table 1's CT head (BENCHMARKS.md, "On a GPU"): a
+/// warp's loads cover few texels along x and several rows, the blocks a GPU's optimal tiling
+/// stores together; and at larger radii each lane filters more outputs (a longer window per
+/// halo) from a longer tile.
+fn gpu_tiles(axis: usize, radius_voxels: u32) -> [Tile; 3] {
+    let best = match (axis, radius_voxels) {
+        (1, 0..=5) => tile(8, 1, 32, 64),
+        (1, _) => tile(4, 1, 32, 128),
+        (_, 0..=2) => tile(4, 8, 16, 64),
+        _ => tile(8, 2, 16, 64),
+    };
+    [best, tile(32, 1, 8, 32), tile(16, 1, 8, 32)]
+}
+
+/// What [`ImportanceMap::set_kernel`] asks for.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum KernelChoice {
+    /// Tiles on a GPU where they fit in its shared memory, segments on a CPU.
+    Auto,
+    Segments,
+    Tiled,
+    /// This tile (segments where it does not fit).
+    Tile(Tile),
+}
+
+impl GaussKernel {
+    /// The kernel for `choice` on a device with `device_type` and `shared_bytes` of shared
+    /// memory per workgroup, at `radius_voxels`. `VELLUM_GAUSS_KERNEL=segments|tiled` overrides
+    /// `Auto`, for measuring. Tiles fall back to segments where no tile fits.
+    pub fn choose(
+        choice: KernelChoice,
+        device_type: &str,
+        shared_bytes: u32,
+        radius_voxels: u32,
+    ) -> GaussKernel {
+        let segments = GaussKernel::Segments(Segments::choose(device_type, radius_voxels));
+        let env = std::env::var("VELLUM_GAUSS_KERNEL").ok();
+        let tiled = match choice {
+            KernelChoice::Segments => false,
+            KernelChoice::Tiled | KernelChoice::Tile(_) => true,
+            KernelChoice::Auto => match env.as_deref() {
+                Some("segments") => false,
+                Some("tiled") => true,
+                _ => device_type != "CPU",
+            },
+        };
+        if !tiled {
+            return segments;
+        }
+        let pick = |axis: usize| -> Option<Tile> {
+            let tiles = match choice {
+                KernelChoice::Tile(t) => vec![t],
+                _ => Tile::from_env()
+                    .into_iter()
+                    .chain(gpu_tiles(axis, radius_voxels))
+                    .collect(),
+            };
+            tiles
+                .into_iter()
+                .find(|t| t.shared_bytes(radius_voxels) <= shared_bytes)
+        };
+        // `VELLUM_GAUSS_TILE_X=N`, for measuring.
+        let x = std::env::var("VELLUM_GAUSS_TILE_X")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .filter(|n| (1..=256).contains(n))
+            .unwrap_or(TILE_X);
+        match (pick(1), pick(2)) {
+            (Some(y), Some(z)) => GaussKernel::Tiled { x, y, z },
+            _ => segments,
+        }
+    }
+
+    /// Workgroups of the pass along `axis` over an image of `extent` texels (x holds four voxels
+    /// per texel).
+    pub fn groups(self, extent: [u32; 3], axis: usize) -> [u32; 3] {
+        match (self, axis) {
+            (GaussKernel::Segments(s), _) => gauss_groups(extent, axis, s),
+            (GaussKernel::Tiled { x, .. }, 0) => [
+                extent[0].div_ceil(x),
+                extent[1].div_ceil(2),
+                extent[2].div_ceil(2),
+            ],
+            (GaussKernel::Tiled { y, z, .. }, _) => {
+                let (along, across, t) = if axis == 1 { (1, 2, y) } else { (2, 1, z) };
+                [
+                    extent[along].div_ceil(t.length),
+                    extent[0].div_ceil(t.tx),
+                    extent[across].div_ceil(t.depth),
+                ]
+            }
+        }
+    }
+}
+
+/// The Gaussian pipelines specialised for one radius, by axis (one and the same for segments), and
+/// the weights.
 #[derive(Clone)]
 struct Gauss {
-    pipeline: Arc<ComputePipeline>,
+    axes: [Arc<ComputePipeline>; 3],
     weights: Arc<Buffer>,
-    segments: Segments,
+    kernel: GaussKernel,
 }
 
 /// The images of the importance map for one volume size, kept on the GPU: `src` holds the volume
@@ -201,6 +362,7 @@ impl ImportanceMap {
         Ok(ImportanceMap {
             ctx: ctx.clone(),
             gauss: HashMap::new(),
+            choice: KernelChoice::Auto,
             subtract,
             pack: ComputePipeline::new(
                 ctx,
@@ -217,7 +379,20 @@ impl ImportanceMap {
         })
     }
 
-    /// The Gaussian pipeline and weights for `radius_voxels` (built on first use).
+    /// Which Gaussian shaders to use from now on (default [`KernelChoice::Auto`]).
+    pub fn set_kernel(&mut self, choice: KernelChoice) {
+        if choice != self.choice {
+            self.choice = choice;
+            self.gauss.clear();
+        }
+    }
+
+    /// The kernel the passes use at `radius_voxels`.
+    pub fn kernel(&mut self, radius_voxels: u32) -> Result<GaussKernel> {
+        Ok(self.gauss(radius_voxels)?.kernel)
+    }
+
+    /// The Gaussian pipelines and weights for `radius_voxels` (built on first use).
     fn gauss(&mut self, radius_voxels: u32) -> Result<Gauss> {
         if radius_voxels > MAX_RADIUS {
             return Err(Error::Invalid(format!(
@@ -227,29 +402,53 @@ impl ImportanceMap {
         if let Some(g) = self.gauss.get(&radius_voxels) {
             return Ok(g.clone());
         }
-        let kernel: Vec<f32> = gaussian_kernel(radius_voxels)?
+        let taps: Vec<f32> = gaussian_kernel(radius_voxels)?
             .iter()
             .map(|&w| w as f32)
             .collect();
-        let segments = Segments::choose(&self.ctx.info.device_type, radius_voxels);
+        let info = &self.ctx.info;
+        let kernel = GaussKernel::choose(
+            self.choice,
+            &info.device_type,
+            info.max_compute_shared_memory,
+            radius_voxels,
+        );
+        let bindings = [
+            BindingKind::StorageImage,
+            BindingKind::StorageImage,
+            BindingKind::StorageBuffer,
+        ];
+        let push = std::mem::size_of::<GaussPush>() as u32;
+        let pipeline = |shader: &str, constants: &[u32]| -> Result<Arc<ComputePipeline>> {
+            Ok(Arc::new(ComputePipeline::with_constants(
+                &self.ctx, shader, &bindings, push, constants,
+            )?))
+        };
+        let yz = |t: Tile| {
+            pipeline(
+                "importance/gauss_tile_yz.comp",
+                &[radius_voxels, t.tx, t.depth, t.lanes, t.length],
+            )
+        };
+        let axes = match kernel {
+            GaussKernel::Segments(s) => {
+                let p = pipeline("importance/gauss1d.comp", &[radius_voxels, s.yz, s.x])?;
+                [p.clone(), p.clone(), p]
+            }
+            GaussKernel::Tiled { x, y, z } => [
+                pipeline("importance/gauss_tile_x.comp", &[radius_voxels, x])?,
+                yz(y)?,
+                yz(z)?,
+            ],
+        };
         let g = Gauss {
-            segments,
-            pipeline: Arc::new(ComputePipeline::with_constants(
-                &self.ctx,
-                "importance/gauss1d.comp",
-                &[
-                    BindingKind::StorageImage,
-                    BindingKind::StorageImage,
-                    BindingKind::StorageBuffer,
-                ],
-                std::mem::size_of::<GaussPush>() as u32,
-                &[radius_voxels, segments.yz, segments.x],
-            )?),
+            axes,
+            kernel,
             weights: Arc::new(Buffer::from_bytes(
                 &self.ctx,
                 "gaussian weights",
                 vk::BufferUsageFlags::STORAGE_BUFFER,
-                bytemuck::cast_slice(&kernel),
+                bytemuck::cast_slice(&taps),
             )?),
         };
         self.gauss.insert(radius_voxels, g.clone());
@@ -293,7 +492,7 @@ impl ImportanceMap {
                 radius: radius_voxels as i32,
                 pad: [0; 3],
             };
-            gauss.pipeline.dispatch(
+            gauss.axes[axis].dispatch(
                 cmd,
                 &[
                     Bind::StorageImage(input),
@@ -301,7 +500,7 @@ impl ImportanceMap {
                     Bind::StorageBuffer(&gauss.weights),
                 ],
                 &push,
-                gauss_groups(extent, axis, gauss.segments),
+                gauss.kernel.groups(extent, axis),
             )?;
             profiler.end(cmd);
         }
@@ -439,6 +638,24 @@ impl ImportanceMap {
         Ok((delta_d, max_abs))
     }
 
+    /// The images for `v` and a staging buffer holding `v` as float, packed four voxels per
+    /// texel (paper step 1, in parallel, straight into the staging memory). Fails early on a bad
+    /// radius, before any allocation.
+    fn staged(&mut self, v: &Volume, radius_voxels: u32) -> Result<(ImportanceImages, Buffer)> {
+        let ctx = &self.ctx.clone();
+        self.gauss(radius_voxels)?;
+        v.check_finite("the input volume")?;
+        let images = ImportanceImages::new(ctx, v.dims)?;
+        let mut staging = staging_buffer(ctx, "importance staging", images.src.byte_size())?;
+        let mapped = staging
+            .mapped_mut()
+            .ok_or_else(|| Error::Invalid("staging buffer is not host-visible".into()))?;
+        let floats: &mut [f32] = bytemuck::try_cast_slice_mut(mapped)
+            .map_err(|e| Error::Invalid(format!("staging memory cannot hold floats: {e}")))?;
+        pack_rows_into(v, floats);
+        Ok((images, staging))
+    }
+
     /// Computes ΔD of `v` with radius `radius_voxels`: allocation, upload, the passes and
     /// readback, timed as the paper's "Total". With `copy_reference`, the submission also times a
     /// plain image copy of one float volume (pass `copy`), the bandwidth bound of a 1D pass.
@@ -450,19 +667,7 @@ impl ImportanceMap {
     ) -> Result<ImportanceOutput> {
         let start = Instant::now();
         let ctx = &self.ctx.clone();
-        // Fails early on a bad radius, before any allocation.
-        self.gauss(radius_voxels)?;
-        v.check_finite("the input volume")?;
-        let images = ImportanceImages::new(ctx, v.dims)?;
-        let mut staging = staging_buffer(ctx, "importance staging", images.src.byte_size())?;
-        // Conversion to float (paper step 1), in parallel, straight into the staging memory and
-        // packed four voxels per texel.
-        let mapped = staging
-            .mapped_mut()
-            .ok_or_else(|| Error::Invalid("staging buffer is not host-visible".into()))?;
-        let floats: &mut [f32] = bytemuck::try_cast_slice_mut(mapped)
-            .map_err(|e| Error::Invalid(format!("staging memory cannot hold floats: {e}")))?;
-        pack_rows_into(v, floats);
+        let (images, staging) = self.staged(v, radius_voxels)?;
         let ((), passes) = submit_timed(ctx, "importance map", |f| {
             let cmd = f.cmd;
             f.profiler.pass(cmd, "upload", |cmd| {
@@ -501,6 +706,65 @@ impl ImportanceMap {
         })
     }
 }
+
+impl ImportanceMap {
+    /// Median GPU ms of `gauss_x`, `gauss_y`, `gauss_z` and `subtract` under sustained load:
+    /// `v` is uploaded once, then `submissions` submissions (and more until [`WARM_SECONDS`]
+    /// have passed) each record `rounds` rounds of the four passes back to back, and the medians
+    /// come from the last submission. A GPU lowers its clocks while the host works between
+    /// frames (BENCHMARKS.md, "On a GPU"); this is the rate of a device kept busy, the yardstick
+    /// for bandwidth.
+    pub fn sustained(
+        &mut self,
+        v: &Volume,
+        radius_voxels: u32,
+        rounds: usize,
+        submissions: usize,
+    ) -> Result<[f64; 4]> {
+        let ctx = &self.ctx.clone();
+        let (images, staging) = self.staged(v, radius_voxels)?;
+        submit_timed(ctx, "importance upload", |f| {
+            record_upload(ctx, f.cmd, &staging, &images.src, Access::ComputeRead);
+            for image in [&images.a, &images.b] {
+                clear_image(ctx, f.cmd, image);
+            }
+            Ok(())
+        })?;
+        let desc = FramesDesc::one_shot("importance sustained", 4 * rounds as u32 + 4);
+        let mut passes = Vec::new();
+        // At least `submissions`, and on for half a second: after the host's packing the GPU
+        // takes that long to raise its clocks again (seen on an H100: a CT-head pass ran at two
+        // thirds of its rate through three submissions of 40 rounds right after the upload).
+        let start = Instant::now();
+        let mut done = 0;
+        while done < submissions.max(1) || start.elapsed().as_secs_f64() < WARM_SECONDS {
+            done += 1;
+            let mut frames = Frames::new(ctx, &desc)?;
+            frames.frame(|f| {
+                (0..rounds.max(1)).try_for_each(|_| self.record(f, &images, radius_voxels))
+            })?;
+            passes = frames.finish()?;
+        }
+        let med = |name: &str| {
+            let mut t: Vec<f64> = passes
+                .iter()
+                .filter(|p| p.name == name)
+                .map(|p| p.ms)
+                .collect();
+            t.sort_by(f64::total_cmp);
+            t.get(t.len() / 2).copied().unwrap_or(f64::NAN)
+        };
+        Ok([
+            med(GAUSS_PASSES[0]),
+            med(GAUSS_PASSES[1]),
+            med(GAUSS_PASSES[2]),
+            med("subtract"),
+        ])
+    }
+}
+
+/// How long [`ImportanceMap::sustained`] keeps the device busy before the submission it reports.
+pub const WARM_SECONDS: f64 = 0.5;
 
 /// Largest radius: R sizes private arrays in the shader (a specialisation constant).
 pub const MAX_RADIUS: u32 = 32;

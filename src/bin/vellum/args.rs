@@ -832,6 +832,10 @@ pub(crate) enum BenchCommand {
         /// Only these cases (e.g. "ct-body:1,salmon:10"); default all nine.
         #[arg(long, allow_hyphen_values = true)]
         cases: Option<String>,
+        /// Also time the four passes with the device kept busy: N rounds back to back in each of
+        /// three submissions on the volume uploaded once, medians of the last (0: off).
+        #[arg(long, default_value_t = 0)]
+        sustained: usize,
     },
 }
 

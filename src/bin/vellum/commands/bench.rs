@@ -78,12 +78,14 @@ fn frames_and_table1(cli: &Cli, which: &BenchCommand) -> Result<()> {
             repeat,
             no_scipy,
             cases,
+            sustained,
         } => {
             let ctx = context(cli)?;
             let opts = vellum::bench::table1::Options {
                 repeat: (*repeat).max(1),
                 scipy: !no_scipy,
                 cases: cases.clone(),
+                sustained: *sustained,
             };
             let table = vellum::bench::table1::run(&ctx, &opts)?;
             report_validation(&ctx);
