@@ -112,17 +112,23 @@ fn a_two_mib_cache_renders_what_the_whole_volume_renders() {
             false,
         )
         .unwrap();
-        for (one_pass, style, jitter) in [
-            (true, None, None),
-            (false, None, None),
-            (false, Some("canny"), Some(7)),
+        // The GPUs' variant, in which each ray reuses its last brick's lookup, for the first
+        // view too (lavapipe's default is without).
+        for (one_pass, style, jitter, reuse) in [
+            (true, None, None, true),
+            (true, None, None, false),
+            (false, None, None, false),
+            (false, Some("canny"), Some(7), false),
         ] {
+            if let Some(p) = bricked.volume.paged.as_mut() {
+                p.reuse = reuse;
+            }
             let view = view(camera, one_pass, style, jitter);
             let (want, got, report) =
                 both_ways(&mut renderer, (&mut core, &mut bricked), &view, None);
             let (mean, max) = diff8(&want, &got);
             println!(
-                "{name} one pass {one_pass} style {style:?}: mean {mean:.4}/255, max {max}/255; {} passes, {} loaded, {} evicted, {} slots",
+                "{name} one pass {one_pass} style {style:?} reuse {reuse}: mean {mean:.4}/255, max {max}/255; {} passes, {} loaded, {} evicted, {} slots",
                 report.passes, report.bricks_loaded, report.bricks_evicted, report.capacity
             );
             assert!(report.complete, "{name}");

@@ -64,46 +64,104 @@ const float INF = 1.0 / 0.0;
 // place in the pool; else the brick is asked for and, when the frame waits for bricks, false is
 // returned (the ray stops here); otherwise the finest resident coarser level is sampled (the
 // coarsest is always resident).
+// The page table's header, read once per ray (see passes/paging.rs): levels, brick edge in
+// voxels, slot edge in texels, mode, slots along x and y of the pool, the coefficients of a
+// sample's footprint in voxels (cover = a · distance + b), and the pool's size in texels.
+int pt_levels;
+float pt_brick;
+int pt_slot_edge;
+uint pt_mode;
+int pt_gx, pt_gy;
+float pt_cover_a, pt_cover_b;
+vec3 pool_size;
+
+void read_header() {
+    pt_levels = int(pt[0]);
+    pt_brick = float(pt[1]);
+    pt_slot_edge = int(pt[2]);
+    pt_mode = pt[3];
+    pt_gx = int(pt[4]);
+    pt_gy = int(pt[5]);
+    pt_cover_a = uintBitsToFloat(pt[6]);
+    pt_cover_b = uintBitsToFloat(pt[7]);
+    pool_size = vec3(textureSize(volume, 0));
+}
+
+// The level the last sample wanted, with its header, and (V_BRICK_REUSE) the brick it read there
+// with its place in the pool: a ray takes many samples in a brick, and reuses that lookup while
+// the wanted level and the brick stay the same.
+int c_level = -1;
+ivec3 c_counts;
+vec3 c_scale;
+uint c_first;
+float c_ratio;
+bool c_hit = false;
+ivec3 c_brick;
+vec3 c_offset;
+
 bool locate() {
     if (!V_BRICKED) {
         ptex = tex;
         return true;
     }
-    int levels = int(pt[0]);
-    float brick = float(pt[1]);
-    int slot_edge = int(pt[2]);
-    float cover = uintBitsToFloat(pt[6]) * length(world - u.eye.xyz) + uintBitsToFloat(pt[7]);
-    int want = clamp(int(floor(log2(max(cover, 1.0)))), 0, levels - 1);
+    float brick = pt_brick;
+    float cover = pt_cover_a * length(world - u.eye.xyz) + pt_cover_b;
+    int want = clamp(int(floor(log2(max(cover, 1.0)))), 0, pt_levels - 1);
     vec3 t = clamp(tex, 0.0, 1.0);
-    for (int l = want; l < levels; ++l) {
+    if (want != c_level) {
+        int h = 8 + 8 * want;
+        c_level = want;
+        c_first = pt[h];
+        c_counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
+        c_scale = vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
+        c_ratio = uintBitsToFloat(pt[h + 7]);
+        c_hit = false;
+    }
+    vec3 v = t * c_scale;
+    ivec3 b = clamp(ivec3(floor(v / brick)), ivec3(0), c_counts - 1);
+    if (V_BRICK_REUSE && c_hit && b == c_brick) {
+        ptex = (c_offset + v) / pool_size;
+        level_ratio = c_ratio;
+        return true;
+    }
+    c_hit = false;
+    for (int l = want; l < pt_levels; ++l) {
         int h = 8 + 8 * l;
-        ivec3 counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
-        vec3 v = t * vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
-        ivec3 b = clamp(ivec3(floor(v / brick)), ivec3(0), counts - 1);
-        uint e = pt[h] + uint(b.x + counts.x * (b.y + counts.y * b.z));
+        ivec3 counts = l == want ? c_counts : ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
+        vec3 vl = l == want ? v : t * vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
+        ivec3 bl = l == want ? b : clamp(ivec3(floor(vl / brick)), ivec3(0), counts - 1);
+        uint e = pt[h] + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
         uint slot = pt[PT_HEADER + e];
         if (slot == 0u && l == want) {
             if (e != last_wanted) {
                 atomicAdd(wanted[e], 1u);
                 last_wanted = e;
             }
-            if ((pt[3] & MODE_WAIT) != 0u) {
+            if ((pt_mode & MODE_WAIT) != 0u) {
                 return false;
             }
         }
         if (slot != 0u) {
             // A frame that does not wait says which resident bricks it read, so that the cache
             // evicts the ones no view uses (the top bit; the count of a missing brick is below).
-            if ((pt[3] & MODE_WAIT) == 0u && e != last_used) {
-                atomicOr(wanted[e], USED_BIT);
+            // A plain read first: most rays find the bit already set, and an atomic on the
+            // same few words from every ray would serialise.
+            if ((pt_mode & MODE_WAIT) == 0u && e != last_used) {
+                if ((wanted[e] & USED_BIT) == 0u) {
+                    atomicOr(wanted[e], USED_BIT);
+                }
                 last_used = e;
             }
             int s = int(slot) - 1;
-            int gx = int(pt[4]), gy = int(pt[5]);
-            ivec3 at = ivec3(s % gx, (s / gx) % gy, s / (gx * gy)) * slot_edge;
-            vec3 texel = vec3(at) + 1.0 + (v - vec3(b) * brick);
-            ptex = texel / vec3(textureSize(volume, 0));
+            ivec3 at = ivec3(s % pt_gx, (s / pt_gx) % pt_gy, s / (pt_gx * pt_gy)) * pt_slot_edge;
+            vec3 offset = vec3(at) + 1.0 - vec3(bl) * brick;
+            ptex = (offset + vl) / pool_size;
             level_ratio = uintBitsToFloat(pt[h + 7]);
+            if (l == want) {
+                c_hit = true;
+                c_brick = b;
+                c_offset = offset;
+            }
             return true;
         }
     }
@@ -157,7 +215,10 @@ void main() {
     // last pass stopped it until a brick is missing, and saves its state there. A last pass that
     // no longer waits goes on from the saved states with what is resident.
     uint ray = uint(px.y * size.x + px.x);
-    bool wait = V_BRICKED && (pt[3] & MODE_WAIT) != 0u;
+    if (V_BRICKED) {
+        read_header();
+    }
+    bool wait = V_BRICKED && (pt_mode & MODE_WAIT) != 0u;
     bool stopped = false;
     if (t_out > t_in && cos_t > 0.0) {
         // Samples are t(m) = a + b m for m = m_first, m_first + 1, ... (front to back).
@@ -194,7 +255,7 @@ void main() {
         // The previous sample on the ray, for refining an isosurface hit (t < 0: none).
         float prev_t = -1.0, prev_s = 0.0;
         bool done = false;
-        if (V_BRICKED && (pt[3] & MODE_RESUME) != 0u) {
+        if (V_BRICKED && (pt_mode & MODE_RESUME) != 0u) {
             RayState r = rays[ray];
             fp = r.fp;
             fd = r.fd;

@@ -59,6 +59,20 @@ pub struct Paged {
     pub finest: bool,
     /// Bytes the pool images take.
     pub pool_bytes: u64,
+    /// Each ray keeps its last brick's place in the pool and reuses it while its samples stay in
+    /// that brick (the ray caster's `BRICK_REUSE` variant). On by default on a GPU, where it
+    /// halves the bricked frame (H100, BENCHMARKS.md); off on lavapipe, whose lanes run both
+    /// sides of the test and come out slower. `VELLUM_BRICK_REUSE=0|1` overrides, for measuring.
+    pub reuse: bool,
+}
+
+/// The default of [`Paged::reuse`] on a device of `device_type`.
+pub fn brick_reuse(device_type: &str) -> bool {
+    match std::env::var("VELLUM_BRICK_REUSE").ok().as_deref() {
+        Some("0") => false,
+        Some("1") => true,
+        _ => device_type != "CPU",
+    }
 }
 
 /// Slots per axis for a pool of at most `capacity` slots, each axis within `max_texels`.
@@ -127,6 +141,7 @@ impl VolumeTextures {
                 mode: 0,
                 finest,
                 pool_bytes: (capacity * SLOT_BYTES) as u64,
+                reuse: brick_reuse(&ctx.info.device_type),
             })),
         })
     }

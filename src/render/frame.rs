@@ -825,6 +825,7 @@ fn record_rays(
             tables: r.tables,
             paging,
             bricked: vol.paged.is_some(),
+            brick_reuse: vol.paged.as_ref().is_some_and(|p| p.reuse),
             push: r.setup.ray_push(&r.options, vol.bricks.counts, two_level),
             size,
         },

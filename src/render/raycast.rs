@@ -121,6 +121,8 @@ impl Variant {
     pub const MOD_SHADE: u32 = 128;
     /// Samples through the brick cache's page table (and skips no empty space).
     pub const BRICKED: u32 = 256;
+    /// With BRICKED: each ray reuses its last brick's place in the pool (`Paged::reuse`).
+    pub const BRICK_REUSE: u32 = 512;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -160,12 +162,14 @@ pub struct RayRequest<'a> {
     /// The page table, feedback and ray states of a bricked volume (stand-ins in core).
     pub paging: [Bind<'a>; 3],
     pub bricked: bool,
+    /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
+    pub brick_reuse: bool,
     pub push: RayPush,
     pub size: [u32; 2],
 }
 
 /// The ray caster. Its pipelines, one per variant, live in the caller's [`PipelineCache`]: built
-/// when a frame first needs one and kept. At most 256 exist; a session uses a handful.
+/// when a frame first needs one and kept. At most 1,024 exist; a session uses a handful.
 #[derive(Copy, Clone, Debug, Default)]
 pub struct RayCaster;
 
@@ -228,7 +232,10 @@ impl RayCaster {
             p1,
             p2,
         ];
-        let variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
+        let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
+        if r.bricked && r.brick_reuse {
+            variant.0 |= Variant::BRICK_REUSE;
+        }
         let pipeline = Self::pipeline(pipelines, variant)?;
         let groups = crate::gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
         frame.profiler.begin(cmd, "raycast");
