@@ -8,7 +8,7 @@ B=.device
 DATA=${VELLUM_DATA:-../shared/data}
 rm -rf "$B" && mkdir -p "$B/debs" "$B/data/volumes"
 cp target/release/vellum "$B/vellum"
-strip --strip-debug "$B/vellum"
+strip --strip-all "$B/vellum"
 (cd "$B/debs" && apt-get download libvulkan1 libglvnd0 libglx0 libegl1 vulkan-validationlayers >/dev/null 2>&1)
 # cthead_stanford and engine: bench render, styles and lines; bonsai: bench occlusion;
 # ct_chest_lidc2 and boston_teapot: bench table1's CT body and salmon.

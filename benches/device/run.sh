@@ -42,24 +42,56 @@ run() {
     local rc=$?
     echo "$name: rc $rc, $((SECONDS - t0)) s"
     [ $rc -eq 0 ] || { tail -5 "$R/$name.log"; rm -f "$R/$name.json"; }
+    # Re-packed after every bench, so a call cut off at its limit still brings back what ran.
+    tar -C "$R" -cf "$OUT/results.tar" .
 }
 
 # table1 after the renderers: its sub-millisecond passes read low on a GPU whose clocks have
 # not yet ramped up (seen as half the bandwidth when it ran first).
 run render 150 render --repeat 9
 run styles 120 styles --repeat 5 --sizes 512,1024
-run table1 100 table1 --no-scipy --repeat 9
+run table1 150 table1 --no-scipy --repeat 9 --sustained 40
 run styles_raycast 60 styles --repeat 9 --sizes 1024 --renderer raycast
 run lines 80 lines
 run occlusion 150 occlusion --methods runs,fft-gpu --radii 4,8,16,32,64,100 --max-seconds 20
 run occlusion512 80 occlusion phantom:shepp-logan:512 --methods fft-gpu --radii 64
+# The brick cache (issue 26) against in core, for volumes that fit, at 1024².
+run scale 120 scale --sizes 256,512 --image 1024 --dir /tmp/bench-scale
 
-# The Gaussian passes' segment lengths (texels per invocation along y/z, and along x), swept on
-# the Table 1 cases: what Segments::choose takes on a GPU comes from here.
-for s in 4,4 8,4 16,4 32,4 8,8 16,8 4,8 16,2; do
-    VELLUM_GAUSS_SEGMENTS=$s run "gauss_${s/,/_}" 60 table1 --no-scipy --repeat 5 \
-        --cases ct-head:1,ct-head:5,ct-head:10,salmon:5
+# The Gaussian kernels on Table 1's CT head, sustained: the segments kernel (lavapipe's), and the
+# GPU's tiles for the y and z passes (TX,DEPTH,LANES,LENGTH) and widths for the x pass, the sweep
+# behind passes::importance::gpu_tiles.
+CT="--no-scipy --repeat 3 --sustained 40 --cases ct-head:1,ct-head:5,ct-head:10"
+VELLUM_GAUSS_KERNEL=segments run sweep_segments 60 table1 $CT
+for t in 32,1,8,64 8,1,32,64 4,1,32,128 8,1,16,64 16,2,8,64 8,2,16,64 4,8,16,64 16,2,16,64 \
+    4,1,32,256 8,2,16,128 4,2,32,128 4,4,16,128; do
+    VELLUM_GAUSS_KERNEL=tiled VELLUM_GAUSS_TILE=$t run "sweep_tile_${t//,/_}" 60 table1 $CT
 done
+for x in 32 64 128; do
+    VELLUM_GAUSS_KERNEL=tiled VELLUM_GAUSS_TILE_X=$x run "sweep_x_$x" 60 table1 $CT
+done
+
+# The bricked ray caster against in core on a 256³ store at 1024², two levels: five renders of
+# each, the ray caster's GPU ms (in core with and without empty-space skipping; through a pool
+# just below the in-core need at level 0, each ray looking its brick up at every sample or
+# reusing its last lookup).
+case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
+    "$V" convert phantom:shepp-logan:256 /tmp/b.ome.zarr >/dev/null 2>&1
+    mib=$(python3 -c "print(256**3*10/2**20)")
+    A="/tmp/b.ome.zarr --iso 0.9 --tf grey --camera 30,20,2.5 --size 1024x1024 --renderer raycast --out /tmp/b.png"
+    core="--gpu-budget $(python3 -c "print($mib*1.5)")"
+    brick="--gpu-budget $(python3 -c "print($mib*0.99)") --lod finest"
+    for c in "core_skip|$core" "core_noskip|$core --no-skip-empty" \
+        "bricked_lookup|$brick|VELLUM_BRICK_REUSE=0" "bricked_reuse|$brick|VELLUM_BRICK_REUSE=1"; do
+        IFS='|' read -r name flags env <<<"$c"
+        for i in 1 2 3 4 5; do
+            env $env timeout 60 "$V" render $A $flags 2>&1 | awk '$1 == "raycast" {print $2}'
+        done | python3 -c "import json,sys; print(json.dumps({'case': '$name', 'ms': [float(x) for x in sys.stdin]}))"
+    done | python3 -c "import json,sys; print(json.dumps({'rows': [json.loads(l) for l in sys.stdin]}))" >"$R/bricked.json"
+    cat "$R/bricked.json"
+    tar -C "$R" -cf "$OUT/results.tar" .
+    ;;
+esac
 
 # Synchronization validation on a real asynchronous GPU: one two-level frame and one styled frame
 # with lines, through the Khronos layer (packed when the host had it).
@@ -69,6 +101,12 @@ case " ${BENCHES:-all} " in *" all "* | *" validation "*)
             "$B/data/volumes/cthead_stanford/cthead_stanford.nhdr" --iso 1300 --tf ct-skin-bone \
             --renderer raycast --style 11 --size 512x512 --out /tmp/v.png >"$R/validation.log" 2>&1
         echo "validation: rc $? ($(grep -ci 'validation' "$R/validation.log") lines naming validation)"
+        # The bricked ray caster, streaming through a 16 MiB pool.
+        "$V" convert phantom:shepp-logan:256 /tmp/v.ome.zarr >/dev/null 2>&1
+        VELLUM_VALIDATION=1 VELLUM_SYNC_VALIDATION=1 timeout 120 "$V" render /tmp/v.ome.zarr \
+            --iso 0.9 --tf grey --gpu-budget 16 --size 512x512 --out /tmp/vb.png \
+            >"$R/validation_bricked.log" 2>&1
+        echo "validation, bricked: rc $? ($(grep -ci 'validation' "$R/validation_bricked.log") lines naming validation)"
     fi
     ;;
 esac
