@@ -668,6 +668,12 @@ fn make_array(
 
 /// Fills `array` (a level of `dims`) chunk by chunk from `read(lo, size)`, chunks in parallel;
 /// returns the smallest and largest value written.
+///
+/// The chunks run on plain threads, one per core, not as rayon tasks: `read` may hold a lock
+/// while it calls into rayon (the chunked passes share one GPU pipeline behind a mutex, and its
+/// packing is parallel), and a rayon worker waiting for that inner work steals other tasks,
+/// which can be another chunk that waits for the lock its own thread holds. That deadlocked a
+/// 512³ chunked importance map on a 16-core machine.
 fn store_chunks(
     array: &Array<FilesystemStore>,
     path: &Path,
@@ -676,42 +682,67 @@ fn store_chunks(
     read: &(dyn Fn([usize; 3], [usize; 3]) -> Result<Volume> + Sync),
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<[f64; 2]> {
-    use rayon::prelude::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
     let counts = dims.map(|n| n.div_ceil(chunk));
     let total = counts[0] * counts[1] * counts[2];
-    (0..total)
-        .into_par_iter()
-        .map(|c| {
-            let index = [
-                c % counts[0],
-                (c / counts[0]) % counts[1],
-                c / (counts[0] * counts[1]),
-            ];
-            let lo = index.map(|i| i * chunk);
-            let size: [usize; 3] = std::array::from_fn(|a| chunk.min(dims[a] - lo[a]));
-            let v = read(lo, size)?;
-            let range = crate::volume::stats::value_range(&v);
-            let ranges: Vec<std::ops::Range<u64>> = [2, 1, 0]
-                .iter()
-                .map(|&a| lo[a] as u64..(lo[a] + size[a]) as u64)
-                .collect();
-            let subset = ArraySubset::new_with_ranges(&ranges);
-            let stored = match &v.data {
-                VoxelData::U8(d) => array.store_array_subset(&subset, d.as_slice()),
-                VoxelData::U16(d) => array.store_array_subset(&subset, d.as_slice()),
-                VoxelData::I16(d) => array.store_array_subset(&subset, d.as_slice()),
-                VoxelData::F32(d) => array.store_array_subset(&subset, d.as_slice()),
-            };
-            stored.map_err(|e| {
-                invalid(path, format!("chunk {index:?} could not be written ({e})"))
-            })?;
-            on_chunk();
-            Ok(range)
-        })
-        .try_reduce(
-            || [f64::INFINITY, f64::NEG_INFINITY],
-            |a, b| Ok([a[0].min(b[0]), a[1].max(b[1])]),
-        )
+    let one = |c: usize| -> Result<[f64; 2]> {
+        let index = [
+            c % counts[0],
+            (c / counts[0]) % counts[1],
+            c / (counts[0] * counts[1]),
+        ];
+        let lo = index.map(|i| i * chunk);
+        let size: [usize; 3] = std::array::from_fn(|a| chunk.min(dims[a] - lo[a]));
+        let v = read(lo, size)?;
+        let range = crate::volume::stats::value_range(&v);
+        let ranges: Vec<std::ops::Range<u64>> = [2, 1, 0]
+            .iter()
+            .map(|&a| lo[a] as u64..(lo[a] + size[a]) as u64)
+            .collect();
+        let subset = ArraySubset::new_with_ranges(&ranges);
+        let stored = match &v.data {
+            VoxelData::U8(d) => array.store_array_subset(&subset, d.as_slice()),
+            VoxelData::U16(d) => array.store_array_subset(&subset, d.as_slice()),
+            VoxelData::I16(d) => array.store_array_subset(&subset, d.as_slice()),
+            VoxelData::F32(d) => array.store_array_subset(&subset, d.as_slice()),
+        };
+        stored.map_err(|e| invalid(path, format!("chunk {index:?} could not be written ({e})")))?;
+        on_chunk();
+        Ok(range)
+    };
+    let next = AtomicUsize::new(0);
+    // Each thread takes the next chunk until none is left or one has failed (then every thread
+    // stops at its next chunk).
+    let worker = || -> Result<[f64; 2]> {
+        let mut acc = [f64::INFINITY, f64::NEG_INFINITY];
+        loop {
+            let c = next.fetch_add(1, Ordering::Relaxed);
+            if c >= total {
+                return Ok(acc);
+            }
+            match one(c) {
+                Ok(r) => acc = [acc[0].min(r[0]), acc[1].max(r[1])],
+                Err(e) => {
+                    next.store(total, Ordering::Relaxed);
+                    return Err(e);
+                }
+            }
+        }
+    };
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(total.max(1));
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads).map(|_| s.spawn(worker)).collect();
+        let mut acc = [f64::INFINITY, f64::NEG_INFINITY];
+        for h in handles {
+            let r = h
+                .join()
+                .map_err(|_| invalid(path, "a chunk's thread failed".to_string()))??;
+            acc = [acc[0].min(r[0]), acc[1].max(r[1])];
+        }
+        Ok(acc)
+    })
 }
 
 /// The 2×2×2 mean of `v` (odd edges average what they have), in the same voxel type, with
