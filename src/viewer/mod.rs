@@ -116,7 +116,7 @@ struct Drawn {
     index: u64,
     /// Whether it only presented the last render again.
     reuse: bool,
-    key: Option<DrawnKey>,
+    key: DrawnState,
     render_error: Option<Error>,
     readback: Option<TargetsReadback>,
     background: [f32; 3],
@@ -196,6 +196,18 @@ struct DrawnKey {
     tf: TransferFunction,
     otf: Option<crate::classify::otf::OcclusionTf>,
     epoch: u64,
+}
+
+/// How a rendered frame's key differs from the last one's (see `Running::last_drawn`).
+enum DrawnState {
+    /// No view: nothing is remembered.
+    None,
+    /// The same key.
+    Same,
+    /// The same but for the view.
+    View(crate::render::view::View),
+    /// A new key.
+    All(Box<DrawnKey>),
 }
 
 /// An occlusion volume being recomputed on a worker thread. The worker opens its own Vulkan
@@ -1324,14 +1336,30 @@ impl Running {
             self.window.request_redraw();
             return Ok(None);
         };
-        let key = view.as_ref().ok().map(|v| DrawnKey {
-            view: v.clone(),
-            scene: self.session.applied.clone(),
-            tf: self.session.applied_tf.clone(),
-            otf: self.session.applied_otf.clone(),
-            epoch: self.session.epoch,
+        // What this frame depends on, compared with the last frame's key in place: an orbit
+        // changes only the view, and cloning the scene and transfer functions every frame was
+        // the viewer's largest per-frame allocation.
+        let session = &self.session;
+        let same_state = session.last_drawn.as_ref().is_some_and(|k| {
+            k.scene == session.applied
+                && k.tf == session.applied_tf
+                && k.otf == session.applied_otf
+                && k.epoch == session.epoch
         });
-        let reuse = key.is_some() && key == self.session.last_drawn;
+        let reuse =
+            same_state && matches!((&view, &session.last_drawn), (Ok(v), Some(k)) if k.view == *v);
+        let key = match &view {
+            Ok(_) if reuse => DrawnState::Same,
+            Ok(v) if same_state => DrawnState::View(v.clone()),
+            Ok(v) => DrawnState::All(Box::new(DrawnKey {
+                view: v.clone(),
+                scene: session.applied.clone(),
+                tf: session.applied_tf.clone(),
+                otf: session.applied_otf.clone(),
+                epoch: session.epoch,
+            })),
+            Err(_) => DrawnState::None,
+        };
         let readback_wanted = self.session.screenshot.is_some();
         let background = self.session.model.scene.background;
         let (mut readback, mut render_error) = (None, None);
@@ -1469,10 +1497,13 @@ impl Running {
     /// What the frame leaves behind: the key of what it rendered, a refused setting rolled back
     /// with its message, and the screenshot written.
     fn finish_frame(&mut self, drawn: Drawn, full: bool) -> Result<()> {
-        self.session.last_drawn = match drawn.render_error {
-            None => drawn.key,
-            Some(_) => None,
-        };
+        match (&drawn.render_error, drawn.key, &mut self.session.last_drawn) {
+            (Some(_), _, last) | (None, DrawnState::None, last) => *last = None,
+            (None, DrawnState::Same, _) => {}
+            (None, DrawnState::View(v), Some(last)) => last.view = v,
+            (None, DrawnState::View(_), last) => *last = None,
+            (None, DrawnState::All(k), last) => *last = Some(*k),
+        }
         match drawn.render_error {
             Some(e) => {
                 // A setting the renderer refuses: say why, and go back to what rendered.
