@@ -60,32 +60,38 @@ run scale 120 scale --sizes 256,512 --image 1024 --dir /tmp/bench-scale
 
 # The Gaussian kernels on Table 1's CT head, sustained: the segments kernel (lavapipe's), and the
 # GPU's tiles for the y and z passes (TX,DEPTH,LANES,LENGTH) and widths for the x pass, the sweep
-# behind passes::importance::gpu_tiles.
+# behind passes::importance::gpu_tiles. TILES="..." and TILES_X="..." sweep other shapes.
 CT="--no-scipy --repeat 3 --sustained 40 --cases ct-head:1,ct-head:5,ct-head:10"
 VELLUM_GAUSS_KERNEL=segments run sweep_segments 60 table1 $CT
-for t in 32,1,8,64 8,1,32,64 4,1,32,128 8,1,16,64 16,2,8,64 8,2,16,64 4,8,16,64 16,2,16,64 \
-    4,1,32,256 8,2,16,128 4,2,32,128 4,4,16,128; do
+for t in ${TILES:-32,1,8,64 8,1,32,64 4,1,32,128 8,1,16,64 16,2,8,64 8,2,16,64 4,8,16,64 \
+    16,2,16,64 4,1,32,256 8,2,16,128 4,2,32,128 4,4,16,128}; do
     VELLUM_GAUSS_KERNEL=tiled VELLUM_GAUSS_TILE=$t run "sweep_tile_${t//,/_}" 60 table1 $CT
 done
-for x in 32 64 128; do
+for x in ${TILES_X:-32 64 128}; do
     VELLUM_GAUSS_KERNEL=tiled VELLUM_GAUSS_TILE_X=$x run "sweep_x_$x" 60 table1 $CT
 done
 
 # The bricked ray caster against in core on a 256³ store at 1024², two levels: five renders of
 # each, the ray caster's GPU ms (in core with and without empty-space skipping; through a pool
 # just below the in-core need at level 0, each ray looking its brick up at every sample or
-# reusing its last lookup).
+# reusing its last lookup); and empty-space skipping in core on the CT head and the engine.
 case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
     "$V" convert phantom:shepp-logan:256 /tmp/b.ome.zarr >/dev/null 2>&1
     mib=$(python3 -c "print(256**3*10/2**20)")
     A="/tmp/b.ome.zarr --iso 0.9 --tf grey --camera 30,20,2.5 --size 1024x1024 --renderer raycast --out /tmp/b.png"
     core="--gpu-budget $(python3 -c "print($mib*1.5)")"
     brick="--gpu-budget $(python3 -c "print($mib*0.99)") --lod finest"
-    for c in "core_skip|$core" "core_noskip|$core --no-skip-empty" \
-        "bricked_lookup|$brick|VELLUM_BRICK_REUSE=0" "bricked_reuse|$brick|VELLUM_BRICK_REUSE=1"; do
+    D="$B/data/volumes"
+    head="$D/cthead_stanford/cthead_stanford.nhdr --iso 1300 --tf ct-skin-bone"
+    engine="$D/engine/engine.nhdr --iso 180 --tf grey"
+    F="--size 1024x1024 --renderer raycast --out /tmp/b.png"
+    for c in "core_skip|$A $core" "core_noskip|$A $core --no-skip-empty" \
+        "bricked_lookup|$A $brick|VELLUM_BRICK_REUSE=0" "bricked_reuse|$A $brick|VELLUM_BRICK_REUSE=1" \
+        "head_skip|$head $F" "head_noskip|$head $F --no-skip-empty" \
+        "engine_skip|$engine $F" "engine_noskip|$engine $F --no-skip-empty"; do
         IFS='|' read -r name flags env <<<"$c"
         for i in 1 2 3 4 5; do
-            env $env timeout 60 "$V" render $A $flags 2>&1 | awk '$1 == "raycast" {print $2}'
+            env $env timeout 60 "$V" render $flags 2>&1 | awk '$1 == "raycast" {print $2}'
         done | python3 -c "import json,sys; print(json.dumps({'case': '$name', 'ms': [float(x) for x in sys.stdin]}))"
     done | python3 -c "import json,sys; print(json.dumps({'rows': [json.loads(l) for l in sys.stdin]}))" >"$R/bricked.json"
     cat "$R/bricked.json"

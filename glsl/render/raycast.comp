@@ -59,11 +59,6 @@ layout(push_constant) uniform Push {
 
 const float INF = 1.0 / 0.0;
 
-// Sets `ptex` for the sample at `tex` and `world`. In core, the two are the same. Bricked: the
-// sample's level is chosen by its projected voxel size; when that level's brick is resident, its
-// place in the pool; else the brick is asked for and, when the frame waits for bricks, false is
-// returned (the ray stops here); otherwise the finest resident coarser level is sampled (the
-// coarsest is always resident).
 // The page table's header, read once per ray (see passes/paging.rs): levels, brick edge in
 // voxels, slot edge in texels, mode, slots along x and y of the pool, the coefficients of a
 // sample's footprint in voxels (cover = a · distance + b), and the pool's size in texels.
@@ -99,6 +94,11 @@ bool c_hit = false;
 ivec3 c_brick;
 vec3 c_offset;
 
+// Sets `ptex` for the sample at `tex` and `world`. In core, the two are the same. Bricked: the
+// sample's level is chosen by its projected voxel size; when that level's brick is resident, its
+// place in the pool; else the brick is asked for and, when the frame waits for bricks, false is
+// returned (the ray stops here); otherwise the finest resident coarser level is sampled (the
+// coarsest is always resident).
 bool locate() {
     if (!V_BRICKED) {
         ptex = tex;
@@ -130,7 +130,7 @@ bool locate() {
         ivec3 counts = l == want ? c_counts : ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
         vec3 vl = l == want ? v : t * vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
         ivec3 bl = l == want ? b : clamp(ivec3(floor(vl / brick)), ivec3(0), counts - 1);
-        uint e = pt[h] + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
+        uint e = (l == want ? c_first : pt[h]) + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
         uint slot = pt[PT_HEADER + e];
         if (slot == 0u && l == want) {
             if (e != last_wanted) {

@@ -296,8 +296,9 @@ impl Table {
         }
         for r in self.rows.iter().filter(|r| r.sustained_ms.is_some()) {
             let ms = r.sustained_ms.unwrap_or_default();
-            // Bytes each pass must move: a float volume read and one written (subtract reads two).
-            let n = (r.dims[0].div_ceil(4) * 16 * r.dims[1] * r.dims[2]) as f64;
+            // Bytes each pass must move: a float volume read and one written (subtract reads two),
+            // counted as voxels × 4 bytes, as BENCHMARKS.md's GPU tables count them.
+            let n = (r.dims[0] * r.dims[1] * r.dims[2] * 4) as f64;
             let gbs = |ms: f64, volumes: f64| volumes * n / (ms * 1e-3) / 1e9;
             s += &format!(
                 "sustained {:<8} R={:<2} x {:.3} ms ({:.0} GB/s), y {:.3} ({:.0}), z {:.3} ({:.0}), subtract {:.3} ({:.0})\n",
