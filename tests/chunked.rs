@@ -2,6 +2,8 @@
 //! - the importance map and the occlusion volume (runs, GPU FFT, CPU FFT) computed in chunks of
 //!   32³ with their halos equal the in-core pass within max |Δ| ≤ 1e-5 (observed: ΔD bit for bit,
 //!   O ≤ 1.3e-6), max |ΔD| and the spectrum are the whole grid's (the spectrum count for count);
+//! - the Sobel normals computed in chunks with their one-voxel halo equal the in-core gradient
+//!   texture bit for bit, all four channels, on a phantom and the real engine block;
 //! - from the command line, a chunked importance map stays within its memory budget's order
 //!   (host peak far below the in-core need, device peak below the budget), and a store input
 //!   without a store output is one sentence.
@@ -10,7 +12,7 @@ mod common;
 
 use common::Gpu;
 use vellum::classify::mapping::{Neighbourhood, Visibility};
-use vellum::passes::chunked::{importance_store, occlusion_store};
+use vellum::passes::chunked::{importance_store, normals_store, occlusion_store};
 use vellum::passes::importance::ImportanceMap;
 use vellum::passes::occlusion::{Method, Occlusion, OcclusionParams};
 use vellum::volume::io::ome_zarr::Multiscale;
@@ -42,6 +44,51 @@ fn chunked_importance_is_the_in_core_importance() {
     let r = vellum::volume::stats::value_range(&whole);
     assert_eq!(report.range, r, "max |ΔD| is the whole grid's");
     assert_eq!(report.chunks, 27 + 8);
+}
+
+/// The chunked normals of `v` (chunk `chunk`) against the in-core gradient texture: every
+/// channel of level 0 bit for bit.
+fn normals_match(gpu: &Gpu, v: &Volume, chunk: usize) {
+    let normals = vellum::passes::normals::Normals::new(&gpu.ctx).unwrap();
+    let range = v.normalised_range();
+    let whole = normals.gradients(v, range).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("n.ome.zarr");
+    let report = normals_store(&gpu.ctx, v, range, &out, chunk, &|| {}).unwrap();
+    assert_eq!(
+        report.levels,
+        vellum::volume::io::ome_zarr::auto_levels(v.dims)
+    );
+    assert!(
+        Multiscale::open(&out).is_err(),
+        "four channels are refused as a scalar grid"
+    );
+    let mut moved = 0;
+    for c in [0, 1, 2, 3] {
+        let ms = Multiscale::open_channel(&out, c).unwrap();
+        assert_eq!(ms.channels, 4);
+        let got = ms.read_level(0).unwrap();
+        assert_eq!(got.dims, v.dims);
+        let differ = (0..got.len())
+            .filter(|&i| got.data.get_f64(i) as f32 != whole[i][c])
+            .count();
+        assert_eq!(differ, 0, "channel {c}: {differ} voxels differ");
+        moved += (0..got.len()).filter(|&i| whole[i][c] != 0.0).count();
+    }
+    assert!(
+        moved > v.len() / 50,
+        "the gradients are not all zero ({moved})"
+    );
+}
+
+#[test]
+fn chunked_normals_are_the_in_core_gradients() {
+    let gpu = Gpu::new();
+    // 70 is not a multiple of the chunk: the last chunks are partial.
+    normals_match(&gpu, &phantom::shepp_logan(70), 32);
+    if let Some(engine) = common::real_volume("engine") {
+        normals_match(&gpu, &engine, 64);
+    }
 }
 
 #[test]
@@ -134,4 +181,17 @@ fn a_chunked_pass_keeps_to_its_memory_budget() {
         &common::vellum(&["importance", s, "--out", "dd.nrrd"]),
         "expected --out x.ome.zarr",
     );
+    // The normals from the command line: a store of four channels that `info` describes, and
+    // a file output refused in one sentence.
+    let normals = dir.path().join("n.ome.zarr");
+    let n = normals.to_str().unwrap();
+    let r = common::ok_json(&common::vellum(&["normals", s, "--out", n, "--json"]));
+    assert_eq!(r["halo"], 1);
+    let info = common::ok_json(&common::vellum(&["info", n, "--json"]));
+    assert_eq!(info["channels"], 4);
+    common::fails_with(
+        &common::vellum(&["normals", s, "--out", "n.nrrd"]),
+        "expected --out x.ome.zarr",
+    );
+    assert!(!std::path::Path::new("n.nrrd").exists());
 }

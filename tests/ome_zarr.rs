@@ -174,9 +174,23 @@ fn bad_stores_are_one_sentence() {
     v2_store(&root, [2, 2, 2], 2, TCZYX, [1, 2]);
     let e = Multiscale::open(&root).err().expect("refused").to_string();
     assert!(
-        e.contains("2 channels") && e.contains("expected one of each"),
+        e.contains("2 channels") && e.contains("expected one"),
         "{e}"
     );
+    // Read one channel at a time, it opens: channel 1 has no chunks, so it is the fill value.
+    let c1 = Multiscale::open_channel(&root, 1).unwrap();
+    assert_eq!(c1.channels, 2);
+    assert_eq!(c1.read_level(0).unwrap().data, VoxelData::U16(vec![7; 8]));
+    let e = Multiscale::open_channel(&root, 2)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("channel 2 does not exist"), "{e}");
+    // Two time points.
+    let root = dir.path().join("times.zarr");
+    v2_store(&root, [2, 2, 2], 2, TCZYX, [2, 1]);
+    let e = Multiscale::open(&root).err().expect("refused").to_string();
+    assert!(e.contains("2 time points"), "{e}");
     // Axes that are not z, y, x.
     let root = dir.path().join("axes.zarr");
     v2_store(
@@ -187,7 +201,10 @@ fn bad_stores_are_one_sentence() {
         [1, 1],
     );
     let e = Multiscale::open(&root).err().expect("refused").to_string();
-    assert!(e.contains("expected (z, y, x) or (t, c, z, y, x)"), "{e}");
+    assert!(
+        e.contains("expected (z, y, x), (c, z, y, x) or (t, c, z, y, x)"),
+        "{e}"
+    );
     // No multiscales metadata.
     let root = dir.path().join("plain.zarr");
     put(&root.join(".zgroup"), br#"{"zarr_format": 2}"#);

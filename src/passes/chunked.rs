@@ -1,5 +1,5 @@
-//! Passes chunk by chunk (issue 26): the importance map and the occlusion volume of a grid too
-//! large to hold, written as an OME-Zarr store.
+//! Passes chunk by chunk (issue 26): the importance map, the occlusion volume and the Sobel
+//! normals of a grid too large to hold, written as an OME-Zarr store.
 //!
 //! Each output chunk is computed from its box of the input widened by the filter's reach (R for
 //! the Gaussian of ΔD and for the occlusion's ball or Gaussian neighbourhood), as far as the
@@ -16,10 +16,13 @@
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::passes::importance::ImportanceMap;
+use crate::passes::normals::Normals;
 use crate::passes::occlusion::{Occlusion, OcclusionInput, OcclusionParams, Spectrum};
-use crate::volume::io::ome_zarr::{write_source, WriteOptions, WriteReport};
-use crate::volume::source::{BoxSource, Halo};
-use crate::volume::Volume;
+use crate::volume::io::ome_zarr::{
+    write_channels, write_source, Channels, WriteOptions, WriteReport,
+};
+use crate::volume::source::{read_widened, BoxSource, Halo};
+use crate::volume::{Volume, VoxelData, VoxelType};
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
@@ -27,9 +30,10 @@ use std::sync::{Arc, Mutex};
 const CHUNKS: [usize; 6] = [256, 192, 128, 96, 64, 32];
 
 /// Host bytes per voxel of a chunk's box while its pass runs (input, staging, work and output
-/// copies): importance and occlusion.
+/// copies): importance, occlusion and normals.
 pub const IMPORTANCE_BYTES: u64 = 24;
 pub const OCCLUSION_BYTES: u64 = 40;
+pub const NORMALS_BYTES: u64 = 56;
 
 /// The largest chunk edge whose box with `halo`, at `bytes_per_voxel`, fits `budget` twice (one
 /// chunk in its pass, one being written), at most the grid's longest axis; one sentence when
@@ -124,12 +128,8 @@ pub fn occlusion_store(
         drop(pass);
         let kept = o.read_box(offset, size)?;
         if let (Some(b), Some(host)) = (bins, &input.host) {
-            let s = Volume::new(
-                v.dims,
-                v.spacing,
-                crate::volume::VoxelData::F32(host.to_vec()),
-            )?
-            .read_box(offset, size)?;
+            let s = Volume::new(v.dims, v.spacing, VoxelData::F32(host.to_vec()))?
+                .read_box(offset, size)?;
             add_to_spectrum(&mut locked(&counts)?, b, &s, &kept);
         }
         Ok(kept)
@@ -155,6 +155,46 @@ pub fn occlusion_store(
         })
     });
     Ok((report, spectrum.transpose()?))
+}
+
+/// Halo of the Sobel normals: one voxel.
+pub const NORMALS_HALO: usize = 1;
+
+/// The Sobel normals of `src` normalised over `range` (the whole grid's), chunk by chunk, into
+/// a new store at `out` of four float32 channels: the gradient's x, y and z in world units and
+/// its length, bit for bit the half floats of the renderer's in-core gradient texture.
+pub fn normals_store(
+    ctx: &Arc<Context>,
+    src: &dyn BoxSource,
+    range: [f64; 2],
+    out: &Path,
+    chunk: usize,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
+    let normals = Mutex::new(Normals::new(ctx)?);
+    let read = |lo: [usize; 3], size: [usize; 3]| -> Result<Vec<Volume>> {
+        let (v, offset) = read_widened(src, NORMALS_HALO, lo, size)?;
+        let g = locked(&normals)?.gradients(&v, range)?;
+        (0..4)
+            .map(|c| {
+                let one = g.iter().map(|t| t[c]).collect();
+                Volume::new(v.dims, v.spacing, VoxelData::F32(one))?.read_box(offset, size)
+            })
+            .collect()
+    };
+    let channels = Channels {
+        dims: src.dims(),
+        spacing: src.spacing(),
+        geometry: src.geometry(),
+        voxel: VoxelType::F32,
+        count: 4,
+        read: &read,
+    };
+    let opts = WriteOptions {
+        chunk,
+        levels: None,
+    };
+    write_channels(out, &channels, &opts, on_chunk)
 }
 
 /// Adds the (intensity, occlusion) pairs of one chunk to the spectrum's counts, binned as

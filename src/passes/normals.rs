@@ -119,6 +119,16 @@ impl VolumeTextures {
     /// Allocates the textures of `v` (no GPU work yet) and a staging buffer holding its voxels
     /// normalised to R16; record the copy with [`VolumeTextures::record_upload`].
     pub fn new(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, crate::gpu::Buffer)> {
+        Self::new_in_range(ctx, v, v.normalised_range())
+    }
+
+    /// [`VolumeTextures::new`] with intensities normalised over `range`, not `v`'s own: a
+    /// chunk of a larger grid takes the grid's range.
+    pub fn new_in_range(
+        ctx: &Arc<Context>,
+        v: &Volume,
+        range: [f64; 2],
+    ) -> Result<(Self, crate::gpu::Buffer)> {
         let extent = extent_of(ctx, v.dims, 2 + 8, 1)?;
         let intensity = Image::new(
             ctx,
@@ -130,7 +140,7 @@ impl VolumeTextures {
             "volume gradient",
             &ImageDesc::new_3d(vk::Format::R16G16B16A16_SFLOAT, extent),
         )?;
-        let (texels, range) = v.normalised_u16();
+        let (texels, range) = v.normalised_u16_in(range);
         let bricks = Bricks::new(&texels, v.dims);
         let mut staging =
             crate::gpu::transfer::staging_buffer(ctx, "volume staging", texels.len() * 2)?;
@@ -216,8 +226,17 @@ impl Normals {
     /// Uploads `v` normalised (pass `upload`) and computes its gradients (pass `sobel_normals`) in
     /// one submission. Both images end sampled by fragment shaders. Returns the passes' times too.
     pub fn prepare(&self, v: &Volume) -> Result<(VolumeTextures, Vec<PassTime>)> {
+        self.prepare_in_range(v, v.normalised_range())
+    }
+
+    /// [`Normals::prepare`] with intensities normalised over `range`.
+    pub fn prepare_in_range(
+        &self,
+        v: &Volume,
+        range: [f64; 2],
+    ) -> Result<(VolumeTextures, Vec<PassTime>)> {
         let ctx = &self.ctx;
-        let (textures, staging) = VolumeTextures::new(ctx, v)?;
+        let (textures, staging) = VolumeTextures::new_in_range(ctx, v, range)?;
         let ((), times) = crate::gpu::submit_timed(ctx, "volume textures", |f| {
             textures.record_upload(ctx, f, &staging);
             self.record(f, &textures)?;
@@ -259,6 +278,19 @@ impl Normals {
         )?;
         profiler.end(cmd);
         Ok(())
+    }
+
+    /// The gradients of `v` normalised over `range`, read back: per voxel (x fastest) the
+    /// gradient in world units and its length, exactly the half floats the renderer samples.
+    pub fn gradients(&self, v: &Volume, range: [f64; 2]) -> Result<Vec<[f32; 4]>> {
+        let (tex, _) = self.prepare_in_range(v, range)?;
+        let bytes = crate::gpu::transfer::readback(&self.ctx, &tex.gradient)?;
+        Ok(bytes
+            .chunks_exact(8)
+            .map(|t| {
+                std::array::from_fn(|c| half::f16::from_le_bytes([t[2 * c], t[2 * c + 1]]).to_f32())
+            })
+            .collect())
     }
 
     /// The nearest-texel sampler the pass reads with (also right for `texelFetch` elsewhere).

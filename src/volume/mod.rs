@@ -272,8 +272,13 @@ impl Volume {
     /// renderer samples: one texture format for every voxel type, and transfer functions defined on
     /// the normalised range. A constant volume maps to 0.
     pub fn normalised_u16(&self) -> (Vec<u16>, [f64; 2]) {
+        self.normalised_u16_in(self.normalised_range())
+    }
+
+    /// [`Volume::normalised_u16`] over a given `[lo, hi]`, such as a whole grid's range for one
+    /// of its chunks (values outside it clamp).
+    pub fn normalised_u16_in(&self, [lo, hi]: [f64; 2]) -> (Vec<u16>, [f64; 2]) {
         use rayon::prelude::*;
-        let [lo, hi] = self.normalised_range();
         let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
         let out = (0..self.len())
             .into_par_iter()

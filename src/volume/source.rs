@@ -117,15 +117,25 @@ impl BoxSource for Halo<'_> {
         VoxelType::F32
     }
     fn read_box(&self, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
-        let dims = self.src.dims();
-        let ext_lo = lo.map(|v| v.saturating_sub(self.halo));
-        let ext_hi: [usize; 3] =
-            std::array::from_fn(|a| (lo[a] + size[a] + self.halo).min(dims[a]));
-        let ext_size: [usize; 3] = std::array::from_fn(|a| ext_hi[a] - ext_lo[a]);
-        let v = self.src.read_box(ext_lo, ext_size)?;
-        let offset: [usize; 3] = std::array::from_fn(|a| lo[a] - ext_lo[a]);
+        let (v, offset) = read_widened(self.src, self.halo, lo, size)?;
         (self.f)(&v, offset, size)
     }
+}
+
+/// The box `lo .. lo + size` of `src` widened by `halo` on every side as far as the grid goes,
+/// and where the box asked for starts in it.
+pub fn read_widened(
+    src: &dyn BoxSource,
+    halo: usize,
+    lo: [usize; 3],
+    size: [usize; 3],
+) -> Result<(Volume, [usize; 3])> {
+    let dims = src.dims();
+    let ext_lo = lo.map(|v| v.saturating_sub(halo));
+    let ext_hi: [usize; 3] = std::array::from_fn(|a| (lo[a] + size[a] + halo).min(dims[a]));
+    let ext_size: [usize; 3] = std::array::from_fn(|a| ext_hi[a] - ext_lo[a]);
+    let v = src.read_box(ext_lo, ext_size)?;
+    Ok((v, std::array::from_fn(|a| lo[a] - ext_lo[a])))
 }
 
 /// Voxels `lo .. lo + size` of `src` as f32, where the box may reach outside the grid: voxels

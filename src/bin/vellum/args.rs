@@ -118,6 +118,20 @@ pub(crate) enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// The Sobel normals the renderer shades with (SPEC TL1), chunk by chunk with a one-voxel
+    /// halo, into an OME-Zarr store of four float32 channels: the gradient of the normalised
+    /// intensity in world units (x, y, z) and its length.
+    Normals {
+        #[command(flatten)]
+        input: InputArgs,
+        /// The store to write: a new folder ending .zarr.
+        #[arg(long)]
+        out: PathBuf,
+        #[command(flatten)]
+        chunking: ChunkArgs,
+        #[arg(long)]
+        json: bool,
+    },
     /// Render a volume with 3D-texture slicing, in two levels (focus, context) or one pass.
     Render(Box<RenderArgs>),
     /// Object-space lines (silhouettes, suggestive contours) of the focus surface, drawn into the

@@ -44,8 +44,10 @@ pub struct Multiscale {
     pub levels: Vec<Level>,
     /// Level 0's value range when the writer recorded it (`vellum.range`, written by vellum).
     pub range: Option<[f64; 2]>,
-    /// Leading axes of size 1 (t and c) before z, y, x.
-    leading: usize,
+    /// Values per voxel: the c axis's size (1 without one).
+    pub channels: usize,
+    /// The index on the leading axes (t, c) that is read: time point 0 and the channel chosen.
+    lead: Vec<u64>,
     /// The levels' arrays, opened once.
     arrays: Vec<Array<FilesystemStore>>,
 }
@@ -63,8 +65,25 @@ fn invalid(path: &Path, what: impl std::fmt::Display) -> Error {
 }
 
 impl Multiscale {
-    /// Opens the store at `path` and reads its multiscale metadata (no voxels yet).
+    /// Opens the store at `path` and reads its multiscale metadata (no voxels yet). A store of
+    /// more than one channel is refused in one sentence; see [`Multiscale::open_channel`].
     pub fn open(path: &Path) -> Result<Self> {
+        let ms = Self::open_channel(path, 0)?;
+        if ms.channels > 1 {
+            return Err(invalid(
+                path,
+                format!(
+                    "holds {} channels; expected one (a vector store such as `vellum normals` writes is read one channel at a time)",
+                    ms.channels
+                ),
+            ));
+        }
+        Ok(ms)
+    }
+
+    /// Opens the store at `path` to read channel `channel` of its c axis (0 for a store without
+    /// one): a multi-channel store such as the normals' reads as one scalar grid per channel.
+    pub fn open_channel(path: &Path, channel: usize) -> Result<Self> {
         let store =
             Arc::new(FilesystemStore::new(path).map_err(|e| {
                 invalid(path, format!("could not be opened as a Zarr store ({e})"))
@@ -79,6 +98,7 @@ impl Multiscale {
         let (version, ms) = multiscales(path, &attrs)?;
         let axes = axis_names(path, ms)?;
         let leading = axes.len() - 3;
+        let c_axis = axes.iter().position(|a| a == "c");
         let datasets = ms["datasets"]
             .as_array()
             .filter(|d| !d.is_empty())
@@ -105,10 +125,30 @@ impl Multiscale {
                 ));
             }
             voxel = Some(t);
-            levels.push(level(path, name, &array, d, leading)?);
+            levels.push(level(path, name, &array, d, (leading, c_axis))?);
             arrays.push(array);
         }
         check_levels(path, &levels)?;
+        let channels = c_axis.map_or(1, |c| arrays[0].shape()[c] as usize);
+        if arrays
+            .iter()
+            .any(|a| c_axis.is_some_and(|c| a.shape()[c] as usize != channels))
+        {
+            return Err(invalid(
+                path,
+                "levels hold different numbers of channels; expected the same in every level",
+            ));
+        }
+        if channel >= channels {
+            return Err(invalid(
+                path,
+                format!("has {channels} channel(s); channel {channel} does not exist"),
+            ));
+        }
+        let mut lead = vec![0u64; leading];
+        if let Some(c) = c_axis {
+            lead[c] = channel as u64;
+        }
         let range = attrs["vellum"]["range"]
             .as_array()
             .and_then(|r| Some([r.first()?.as_f64()?, r.get(1)?.as_f64()?]))
@@ -119,7 +159,8 @@ impl Multiscale {
             version,
             voxel: voxel.expect("at least one level"),
             levels,
-            leading,
+            channels,
+            lead,
             arrays,
         })
     }
@@ -148,7 +189,7 @@ impl Multiscale {
     /// Missing chunks read as the fill value; a corrupt one is named by its key.
     pub fn read_box(&self, level: usize, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
         let l = self.level_info(level)?;
-        let data = retrieve(&self.arrays[level], self.leading, self.voxel, lo, size)
+        let data = retrieve(&self.arrays[level], &self.lead, self.voxel, lo, size)
             .map_err(|e| self.read_error(level, lo, size, e))?;
         Volume::new(size, l.spacing, data)
     }
@@ -167,7 +208,7 @@ impl Multiscale {
         for z in range(2) {
             for y in range(1) {
                 for x in range(0) {
-                    let mut index = vec![0u64; self.leading];
+                    let mut index = self.lead.clone();
                     index.extend([z, y, x].map(|i| i as u64));
                     let chunk = array.retrieve_chunk::<zarrs::array::ArrayBytes<'static>>(&index);
                     if let Err(e) = chunk {
@@ -206,15 +247,15 @@ impl Multiscale {
     }
 }
 
-/// Voxels `lo .. lo + size` of `array`, whose first `leading` axes have size 1.
+/// Voxels `lo .. lo + size` of `array` at index `lead` on its leading axes (t, c).
 fn retrieve(
     array: &Array<FilesystemStore>,
-    leading: usize,
+    lead: &[u64],
     voxel: VoxelType,
     lo: [usize; 3],
     size: [usize; 3],
 ) -> std::result::Result<VoxelData, Box<dyn std::error::Error>> {
-    let mut ranges: Vec<std::ops::Range<u64>> = vec![0..1; leading];
+    let mut ranges: Vec<std::ops::Range<u64>> = lead.iter().map(|&i| i..i + 1).collect();
     ranges.extend([2, 1, 0].map(|a| lo[a] as u64..(lo[a] + size[a]) as u64));
     let subset = ArraySubset::new_with_ranges(&ranges);
     Ok(match voxel {
@@ -296,11 +337,13 @@ fn axis_names(path: &Path, ms: &Value) -> Result<Vec<String>> {
                 .collect()
         })
         .unwrap_or_default();
-    let ok = names == ["z", "y", "x"] || names == ["t", "c", "z", "y", "x"];
+    let ok = names == ["z", "y", "x"]
+        || names == ["c", "z", "y", "x"]
+        || names == ["t", "c", "z", "y", "x"];
     if !ok {
         return Err(invalid(
             path,
-            format!("has axes {names:?}; expected (z, y, x) or (t, c, z, y, x)"),
+            format!("has axes {names:?}; expected (z, y, x), (c, z, y, x) or (t, c, z, y, x)"),
         ));
     }
     Ok(names)
@@ -324,13 +367,14 @@ fn voxel_type(path: &Path, name: &str, array: &Array<FilesystemStore>) -> Result
     })
 }
 
-/// One level from its array and its dataset entry (scale and translation, z y x order).
+/// One level from its array and its dataset entry (scale and translation, z y x order);
+/// `leading` axes come before z, y, x, the c axis among them at `c_axis`.
 fn level(
     path: &Path,
     name: &str,
     array: &Array<FilesystemStore>,
     d: &Value,
-    leading: usize,
+    (leading, c_axis): (usize, Option<usize>),
 ) -> Result<Level> {
     let shape = array.shape();
     if shape.len() != leading + 3 {
@@ -343,12 +387,13 @@ fn level(
             ),
         ));
     }
-    if shape[..leading].iter().any(|&n| n != 1) {
+    let times = if leading == 2 { shape[0] } else { 1 };
+    if times != 1 {
+        let channels = c_axis.map_or(1, |c| shape[c]);
         return Err(invalid(
             path,
             format!(
-                "level {name} holds {} time points and {} channels; expected one of each",
-                shape[0], shape[1]
+                "level {name} holds {times} time points and {channels} channels; expected one time point"
             ),
         ));
     }
@@ -506,16 +551,48 @@ pub fn write_source(
     opts: &WriteOptions,
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
+    let read = |lo, size| Ok(vec![src.read_box(lo, size)?]);
+    let channels = Channels {
+        dims: src.dims(),
+        spacing: src.spacing(),
+        geometry: src.geometry(),
+        voxel: src.voxel(),
+        count: 1,
+        read: &read,
+    };
+    write_channels(path, &channels, opts, on_chunk)
+}
+
+/// A grid of `count` values per voxel, read a box at a time as one volume per channel.
+pub struct Channels<'a> {
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+    pub geometry: Geometry,
+    pub voxel: VoxelType,
+    pub count: usize,
+    #[allow(clippy::type_complexity)]
+    pub read: &'a (dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
+}
+
+/// [`write_source`] for a grid of several channels: the arrays get a leading c axis (`channel`
+/// in the axes) when `src.count` is above 1, each channel's pyramid is made as a scalar one's,
+/// and the recorded range spans every channel.
+pub fn write_channels(
+    path: &Path,
+    src: &Channels,
+    opts: &WriteOptions,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
     if opts.chunk == 0 {
         return Err(Error::Invalid(
             "`chunk` is 0; expected a chunk edge of 1 voxel or more".into(),
         ));
     }
-    let levels = opts.levels.unwrap_or_else(|| auto_levels(src.dims()));
+    let levels = opts.levels.unwrap_or_else(|| auto_levels(src.dims));
     if levels == 0 {
         return Err(Error::Invalid("`levels` is 0; expected 1 or more".into()));
     }
-    if src.geometry().direction != crate::volume::geometry::IDENTITY {
+    if src.geometry.direction != crate::volume::geometry::IDENTITY {
         log::warn!(
             "OME-NGFF has no rotation: {} keeps the origin and spacing and drops the direction matrix",
             path.display()
@@ -541,50 +618,47 @@ pub fn write_source(
 fn write_levels(
     path: &Path,
     name: &str,
-    src: &dyn BoxSource,
+    src: &Channels,
     chunk: usize,
     levels: usize,
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
     let store = Arc::new(FilesystemStore::new(path).map_err(|e| invalid(path, e))?);
     let mut datasets = Vec::new();
-    let (voxel, dims0) = (src.voxel(), src.dims());
+    let (voxel, dims0, base) = (src.voxel, src.dims, src.spacing);
+    let channels = src.count;
     let mut report = WriteReport {
         levels,
         chunks: 0,
         bytes: 0,
         range: [f64::INFINITY, f64::NEG_INFINITY],
     };
+    // A c axis only for more than one channel: (c, z, y, x); its scale is 1 and translation 0.
+    let with_c = |zyx: [f64; 3], c: f64| -> Vec<f64> {
+        let mut v = if channels > 1 { vec![c] } else { vec![] };
+        v.extend([zyx[2], zyx[1], zyx[0]]);
+        v
+    };
     let mut previous: Option<Array<FilesystemStore>> = None;
     for i in 0..levels {
         let dims = level_dims(dims0, i);
-        let spacing = src.spacing().map(|s| s * (1u64 << i) as f64);
-        let origin: [f64; 3] = std::array::from_fn(|a| {
-            src.geometry().origin[a] + 0.5 * (spacing[a] - src.spacing()[a])
-        });
-        let array = make_array(&store, path, &i.to_string(), dims, chunk, voxel)?;
+        let spacing = base.map(|s| s * (1u64 << i) as f64);
+        let origin: [f64; 3] =
+            std::array::from_fn(|a| src.geometry.origin[a] + 0.5 * (spacing[a] - base[a]));
+        let array = make_array(&store, path, &i.to_string(), (dims, channels), chunk, voxel)?;
         let range = match &previous {
-            None => store_chunks(
-                &array,
-                path,
-                dims,
-                chunk,
-                &|lo, size| src.read_box(lo, size),
-                on_chunk,
-            )?,
+            None => store_chunks(&array, path, dims, chunk, src.read, on_chunk)?,
             Some(prev) => {
-                let prev_dims = level_dims(dims0, i - 1);
-                let read = |lo: [usize; 3], size: [usize; 3]| -> Result<Volume> {
-                    let plo = lo.map(|v| 2 * v);
-                    let psize: [usize; 3] =
-                        std::array::from_fn(|a| (2 * size[a]).min(prev_dims[a] - plo[a]));
-                    let data = retrieve(prev, 0, voxel, plo, psize).map_err(|e| {
+                let read = |lo, size| {
+                    halved_box(prev, channels, voxel, level_dims(dims0, i - 1), (lo, size))
+                };
+                let read = |lo, size| {
+                    read(lo, size).map_err(|e| {
                         invalid(
                             path,
                             format!("level {} could not be read back ({e})", i - 1),
                         )
-                    })?;
-                    halve(&Volume::new(psize, [1.0; 3], data)?)
+                    })
                 };
                 store_chunks(&array, path, dims, chunk, &read, on_chunk)?
             }
@@ -592,17 +666,23 @@ fn write_levels(
         if i == 0 {
             report.range = range;
         }
-        report.chunks += (0..3).map(|a| dims[a].div_ceil(chunk)).product::<usize>();
-        report.bytes += (dims[0] * dims[1] * dims[2] * voxel.size()) as u64;
+        let count = (0..3).map(|a| dims[a].div_ceil(chunk)).product::<usize>();
+        report.chunks += count * channels;
+        report.bytes += (dims[0] * dims[1] * dims[2] * voxel.size() * channels) as u64;
         previous = Some(array);
         datasets.push(json!({
             "path": i.to_string(),
             "coordinateTransformations": [
-                {"type": "scale", "scale": [spacing[2], spacing[1], spacing[0]]},
-                {"type": "translation", "translation": [origin[2], origin[1], origin[0]]},
+                {"type": "scale", "scale": with_c(spacing, 1.0)},
+                {"type": "translation", "translation": with_c(origin, 0.0)},
             ],
         }));
     }
+    let mut axes = vec![];
+    if channels > 1 {
+        axes.push(json!({"name": "c", "type": "channel"}));
+    }
+    axes.extend(["z", "y", "x"].map(|n| json!({"name": n, "type": "space"})));
     let mut group = zarrs::group::GroupBuilder::new()
         .build(store, "/")
         .map_err(|e| invalid(path, e))?;
@@ -611,15 +691,7 @@ fn write_levels(
         "ome".into(),
         json!({
             "version": "0.5",
-            "multiscales": [{
-                "name": name,
-                "axes": [
-                    {"name": "z", "type": "space"},
-                    {"name": "y", "type": "space"},
-                    {"name": "x", "type": "space"},
-                ],
-                "datasets": datasets,
-            }],
+            "multiscales": [{ "name": name, "axes": axes, "datasets": datasets }],
         }),
     );
     attrs.insert("vellum".into(), json!({ "range": report.range }));
@@ -627,22 +699,54 @@ fn write_levels(
     Ok(report)
 }
 
-/// An empty level of `dims` in `voxel`, chunked by `chunk`, zstd-compressed, metadata stored.
+/// The box `lo .. lo + size` of the level after `prev` (a level of `prev_dims`): the 2×2×2 mean
+/// of `prev`'s box under it, channel by channel.
+fn halved_box(
+    prev: &Array<FilesystemStore>,
+    channels: usize,
+    voxel: VoxelType,
+    prev_dims: [usize; 3],
+    (lo, size): ([usize; 3], [usize; 3]),
+) -> std::result::Result<Vec<Volume>, Box<dyn std::error::Error>> {
+    let plo = lo.map(|v| 2 * v);
+    let psize: [usize; 3] = std::array::from_fn(|a| (2 * size[a]).min(prev_dims[a] - plo[a]));
+    (0..channels)
+        .map(|c| {
+            let lead = lead_of(channels, c);
+            let data = retrieve(prev, &lead, voxel, plo, psize)?;
+            Ok(halve(&Volume::new(psize, [1.0; 3], data)?)?)
+        })
+        .collect()
+}
+
+/// The leading index of channel `c` in a written store: none for one channel, (c) otherwise.
+fn lead_of(channels: usize, c: usize) -> Vec<u64> {
+    if channels > 1 {
+        vec![c as u64]
+    } else {
+        vec![]
+    }
+}
+
+/// An empty level of `dims` and `channels` in `voxel`, chunked by `chunk` (one channel a chunk),
+/// zstd-compressed, metadata stored.
 fn make_array(
     store: &Arc<FilesystemStore>,
     path: &Path,
     name: &str,
-    dims: [usize; 3],
+    (dims, channels): ([usize; 3], usize),
     chunk: usize,
     voxel: VoxelType,
 ) -> Result<Array<FilesystemStore>> {
-    let shape: Vec<u64> = [dims[2], dims[1], dims[0]]
-        .iter()
-        .map(|&n| n as u64)
-        .collect();
+    let mut shape: Vec<u64> = lead_of(channels, channels);
+    shape.extend([dims[2], dims[1], dims[0]].map(|n| n as u64));
     let chunks: Vec<u64> = shape
         .iter()
-        .map(|&n| (chunk as u64).min(n).max(1))
+        .enumerate()
+        .map(|(k, &n)| match k + 3 < shape.len() {
+            true => 1,
+            false => (chunk as u64).min(n).max(1),
+        })
         .collect();
     let (dtype, fill): (zarrs::array::DataType, zarrs::array::FillValue) = match voxel {
         VoxelType::U8 => (data_type::uint8(), 0u8.into()),
@@ -650,11 +754,16 @@ fn make_array(
         VoxelType::I16 => (data_type::int16(), 0i16.into()),
         VoxelType::F32 => (data_type::float32(), 0f32.into()),
     };
+    let names: &[&str] = if channels > 1 {
+        &["c", "z", "y", "x"]
+    } else {
+        &["z", "y", "x"]
+    };
     let array = ArrayBuilder::new(shape, chunks, dtype, fill)
         .bytes_to_bytes_codecs(vec![Arc::new(zarrs::array::codec::ZstdCodec::new(
             3, false,
         ))])
-        .dimension_names(Some(["z", "y", "x"]))
+        .dimension_names(Some(names.to_vec()))
         .build(store.clone(), &format!("/{name}"))
         .map_err(|e| invalid(path, format!("level {name} could not be made ({e})")))?;
     array.store_metadata().map_err(|e| {
@@ -666,20 +775,21 @@ fn make_array(
     Ok(array)
 }
 
-/// Fills `array` (a level of `dims`) chunk by chunk from `read(lo, size)`, chunks in parallel;
-/// returns the smallest and largest value written.
+/// Fills `array` (a level of `dims`) chunk by chunk from `read(lo, size)` (one volume per
+/// channel), chunks in parallel; returns the smallest and largest value written.
 ///
 /// The chunks run on plain threads, one per core, not as rayon tasks: `read` may hold a lock
 /// while it calls into rayon (the chunked passes share one GPU pipeline behind a mutex, and its
 /// packing is parallel), and a rayon worker waiting for that inner work steals other tasks,
 /// which can be another chunk that waits for the lock its own thread holds. That deadlocked a
 /// 512³ chunked importance map on a 16-core machine.
+#[allow(clippy::type_complexity)]
 fn store_chunks(
     array: &Array<FilesystemStore>,
     path: &Path,
     dims: [usize; 3],
     chunk: usize,
-    read: &(dyn Fn([usize; 3], [usize; 3]) -> Result<Volume> + Sync),
+    read: &(dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<[f64; 2]> {
     use std::sync::atomic::{AtomicUsize, Ordering};
@@ -693,20 +803,27 @@ fn store_chunks(
         ];
         let lo = index.map(|i| i * chunk);
         let size: [usize; 3] = std::array::from_fn(|a| chunk.min(dims[a] - lo[a]));
-        let v = read(lo, size)?;
-        let range = crate::volume::stats::value_range(&v);
-        let ranges: Vec<std::ops::Range<u64>> = [2, 1, 0]
-            .iter()
-            .map(|&a| lo[a] as u64..(lo[a] + size[a]) as u64)
-            .collect();
-        let subset = ArraySubset::new_with_ranges(&ranges);
-        let stored = match &v.data {
-            VoxelData::U8(d) => array.store_array_subset(&subset, d.as_slice()),
-            VoxelData::U16(d) => array.store_array_subset(&subset, d.as_slice()),
-            VoxelData::I16(d) => array.store_array_subset(&subset, d.as_slice()),
-            VoxelData::F32(d) => array.store_array_subset(&subset, d.as_slice()),
-        };
-        stored.map_err(|e| invalid(path, format!("chunk {index:?} could not be written ({e})")))?;
+        let channels = read(lo, size)?;
+        let mut range = [f64::INFINITY, f64::NEG_INFINITY];
+        for (k, v) in channels.iter().enumerate() {
+            let r = crate::volume::stats::value_range(v);
+            range = [range[0].min(r[0]), range[1].max(r[1])];
+            let mut ranges: Vec<std::ops::Range<u64>> = lead_of(channels.len(), k)
+                .into_iter()
+                .map(|i| i..i + 1)
+                .collect();
+            ranges.extend([2, 1, 0].map(|a| lo[a] as u64..(lo[a] + size[a]) as u64));
+            let subset = ArraySubset::new_with_ranges(&ranges);
+            let stored = match &v.data {
+                VoxelData::U8(d) => array.store_array_subset(&subset, d.as_slice()),
+                VoxelData::U16(d) => array.store_array_subset(&subset, d.as_slice()),
+                VoxelData::I16(d) => array.store_array_subset(&subset, d.as_slice()),
+                VoxelData::F32(d) => array.store_array_subset(&subset, d.as_slice()),
+            };
+            stored.map_err(|e| {
+                invalid(path, format!("chunk {index:?} could not be written ({e})"))
+            })?;
+        }
         on_chunk();
         Ok(range)
     };

@@ -7,13 +7,24 @@ use anyhow::Result;
 use std::path::Path;
 use vellum::volume::Volume;
 
+/// `--memory-budget` in bytes; by default half the machine's memory.
+pub(crate) fn memory_budget(c: &ChunkArgs) -> Result<u64> {
+    Ok(match c.memory_budget {
+        Some(m) if m.is_finite() && m > 0.0 => (m * (1u64 << 20) as f64) as u64,
+        Some(m) => {
+            anyhow::bail!("--memory-budget {m} is invalid; expected a positive number of MiB")
+        }
+        None => vellum::memory::total_kib().map_or(u64::MAX, |k| k * 1024 / 2),
+    })
+}
+
 /// How a pass runs: on the whole volume, or chunk by chunk from a source into a store.
 pub(crate) enum Plan {
     InCore(Volume),
     Chunked { source: Source, chunk: usize },
 }
 
-fn is_store_path(p: &Path) -> bool {
+pub(crate) fn is_store_path(p: &Path) -> bool {
     p.file_name()
         .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"))
 }
@@ -29,13 +40,7 @@ pub(crate) fn plan(
     bytes_per_voxel: u64,
     whole_outputs: &[(&str, bool)],
 ) -> Result<Plan> {
-    let budget = match c.memory_budget {
-        Some(m) if m.is_finite() && m > 0.0 => (m * (1u64 << 20) as f64) as u64,
-        Some(m) => {
-            anyhow::bail!("--memory-budget {m} is invalid; expected a positive number of MiB")
-        }
-        None => vellum::memory::total_kib().map_or(u64::MAX, |k| k * 1024 / 2),
-    };
+    let budget = memory_budget(c)?;
     let source = Source::open(input)?;
     let dims = source.boxes()?.dims();
     let need = dims.iter().map(|&n| n as u64).product::<u64>() * bytes_per_voxel;

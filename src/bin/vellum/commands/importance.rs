@@ -1,4 +1,4 @@
-//! `vellum importance`.
+//! `vellum importance` and `vellum normals`.
 
 use crate::args::*;
 use crate::commands::{context, report_validation};
@@ -79,6 +79,52 @@ pub(crate) fn importance(
         println!(
             "  total     {:>9.3} ms (conversion, allocation, upload, passes, readback)",
             r.total_ms
+        );
+    }
+    Ok(())
+}
+
+/// `vellum normals`: always chunk by chunk into a store (the normals have four channels, which
+/// only the store holds).
+pub(crate) fn normals(
+    cli: &Cli,
+    input: &InputArgs,
+    out: &std::path::Path,
+    chunking: &ChunkArgs,
+    json: bool,
+) -> Result<()> {
+    use vellum::passes::chunked::{chunk_for, normals_store, NORMALS_BYTES, NORMALS_HALO};
+    anyhow::ensure!(
+        super::chunked::is_store_path(out),
+        "{} is not a store; the normals are written as an OME-Zarr store of four channels, expected --out x.ome.zarr",
+        out.display()
+    );
+    let source = super::convert::Source::open(input)?;
+    let boxes = source.boxes()?;
+    let dims = boxes.dims();
+    let chunk = match chunking.chunk {
+        Some(0) => anyhow::bail!("--chunk 0 is invalid; expected a chunk edge of 1 voxel or more"),
+        Some(n) => n,
+        None => {
+            let budget = super::chunked::memory_budget(chunking)?;
+            chunk_for(dims, NORMALS_HALO, NORMALS_BYTES, budget)?
+        }
+    };
+    let ctx = context(cli)?;
+    let range = source.range()?;
+    let (store, secs) =
+        super::chunked::run_with_bar(&ctx, (dims, chunk), "normal chunks", |on_chunk| {
+            normals_store(&ctx, &*boxes, range, out, chunk, on_chunk)
+        })?;
+    let mut r = super::chunked::report(&ctx, &store, chunk, NORMALS_HALO, secs);
+    r["voxels_per_second"] = json!(dims.iter().product::<usize>() as f64 / secs.max(1e-9));
+    r["intensity_range"] = json!(range);
+    if json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        println!(
+            "normals of {} on {}, chunk by chunk: {r}",
+            input.input, ctx.info.name
         );
     }
     Ok(())

@@ -62,14 +62,18 @@ fn store_summary(ms: &vellum::volume::io::ome_zarr::Multiscale, json: bool) -> R
         .collect();
     if json {
         let out = json!({
-            "input": ms.root, "ngff": ms.version, "voxel_type": ms.voxel, "levels": levels,
+            "input": ms.root, "ngff": ms.version, "voxel_type": ms.voxel, "channels": ms.channels, "levels": levels,
             "range": ms.range, "coarsest_level": {"min": s.min, "max": s.max, "mean": s.mean, "histogram": s.histogram},
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
     }
+    let channels = match ms.channels {
+        1 => String::new(),
+        n => format!(", {n} channels; the statistics below are channel 0's"),
+    };
     println!(
-        "input:   {} (OME-NGFF {}, {})",
+        "input:   {} (OME-NGFF {}, {}{channels})",
         ms.root.display(),
         ms.version,
         ms.voxel.name()
@@ -93,8 +97,15 @@ fn store_summary(ms: &vellum::volume::io::ome_zarr::Multiscale, json: bool) -> R
         println!("range:   {lo} .. {hi} (level 0, as recorded when written)");
     }
     println!(
-        "level {} (coarsest): min {} max {} mean {:.4}; level 0 is too large to read whole here",
-        coarsest, s.min, s.max, s.mean
+        "level {} (coarsest): min {} max {} mean {:.4}{}",
+        coarsest,
+        s.min,
+        s.max,
+        s.mean,
+        match ms.channels {
+            1 => "; level 0 is too large to read whole here",
+            _ => "",
+        }
     );
     Ok(())
 }
@@ -103,8 +114,9 @@ pub(crate) fn info(input: &InputArgs, json: bool) -> Result<()> {
     use vellum::volume::io::ome_zarr;
     let path = std::path::Path::new(&input.input);
     if ome_zarr::is_store(path) && input.raw.spec()?.is_none() {
-        let ms = ome_zarr::Multiscale::open(path)?;
-        if !vellum::memory::fits_in_memory(ms.level_bytes(0)) {
+        // A store of several channels (the normals') is described, channel 0's statistics.
+        let ms = ome_zarr::Multiscale::open_channel(path, 0)?;
+        if ms.channels > 1 || !vellum::memory::fits_in_memory(ms.level_bytes(0)) {
             return store_summary(&ms, json);
         }
     }

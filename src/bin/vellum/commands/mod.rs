@@ -45,6 +45,7 @@ pub(crate) fn output_paths(command: &Command) -> Vec<&Path> {
     match command {
         Command::Convert { output, .. } => vec![output.as_path()],
         Command::Importance { out, slices, .. } => all(&[out, slices]),
+        Command::Normals { out, .. } => vec![out.as_path()],
         Command::Render(a) => all(&[&a.out, &a.exr, &a.save_scene]),
         Command::Lines(a) => all(&[&a.render.out, &a.render.exr, &a.svg]),
         Command::Occlusion(a) => all(&[&a.out, &a.spectrum, &a.spectrum_data]),
@@ -114,6 +115,12 @@ pub(crate) fn run(cli: &Cli) -> Result<()> {
             chunking,
             *json,
         ),
+        Command::Normals {
+            input,
+            out,
+            chunking,
+            json,
+        } => importance::normals(cli, input, out, chunking, *json),
         Command::Render(args) => render(cli, args),
         Command::Lines(args) => lines(cli, args),
         Command::Occlusion(a) => occlusion(cli, a),
