@@ -10,6 +10,9 @@ SHELL := /bin/bash
 APT_PACKAGES := mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan-validationlayers \
 	libshaderc-dev glslc \
 	libx11-6 libx11-xcb1 libxcursor1 libxi6 libxrandr2 libxkbcommon-x11-0 xvfb xauth xdotool x11-apps twm
+# MPI for the tests of the `mpi` feature (issue 27): Open MPI, and libclang for rsmpi's bindgen.
+# `make run` and a plain `cargo build` need none of it.
+MPI_PACKAGES := libopenmpi-dev openmpi-bin libclang-dev
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 INPUT ?= phantom:shepp-logan:128
 # Focus isovalue of the two-level render, in the input's data units (the phantom's skull is 1.0).
@@ -17,7 +20,7 @@ ISO ?= 0.9
 OUT ?= out
 VELLUM := ./target/release/vellum
 
-.PHONY: deps build run view test bench bench-device bench-device-tables fuzz fmt
+.PHONY: deps deps-mpi build run view test bench bench-device bench-device-tables fuzz fmt
 
 deps:
 	@command -v cargo >/dev/null || { echo "cargo is missing: install Rust 1.95+ (https://rustup.rs)"; exit 1; }
@@ -29,6 +32,14 @@ deps:
 	fi
 	@python3 -c "import scipy, numpy, SimpleITK" 2>/dev/null || python3 -m pip install --quiet scipy numpy SimpleITK
 	@python3 -c "import ome_zarr, zarr, dask" 2>/dev/null || python3 -m pip install --quiet ome-zarr zarr dask
+
+deps-mpi: deps
+	@missing=$$(for p in $(MPI_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+		echo "installing: $$missing"; \
+		$(SUDO) apt-get update -qq && \
+		$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
 
 build: deps
 	cargo build --release --locked
@@ -70,14 +81,15 @@ run: build
 	@echo "  feature.nrrd, feature.features.json, render_features.png,"
 	@echo "  head.ome.zarr (a 256³ phantom streamed into an OME-Zarr store), render_bricked.png (it, through a 16 MiB brick cache)"
 
-# Every test, with the Khronos validation layer on (debug build), including its synchronization
-# validation: a missing or wrong barrier fails the test like any other validation message.
 # The windowed viewer on INPUT (needs a display; under no display: xvfb-run -a make view).
 view: build
 	$(VELLUM) view $(INPUT)
 
-test: deps
-	VELLUM_SYNC_VALIDATION=1 cargo test --locked
+# Every test, with the Khronos validation layer on (debug build), including its synchronization
+# validation: a missing or wrong barrier fails the test like any other validation message. The
+# `mpi` feature is on, so tests/mpi.rs runs jobs under Open MPI's mpirun.
+test: deps-mpi
+	VELLUM_SYNC_VALIDATION=1 cargo test --locked --features mpi
 
 # The long fuzz run (see src/fuzz.rs): a million mutated inputs per reader, each under a 5 s
 # watchdog; prints inputs, refusals, crashes, the slowest input and peak memory. INPUTS=N to change.

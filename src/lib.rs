@@ -11,6 +11,8 @@
 
 pub mod bench;
 pub mod classify;
+#[cfg(feature = "mpi")]
+pub mod cluster;
 pub mod error;
 pub mod figures;
 pub mod fuzz;
@@ -23,6 +25,7 @@ pub mod passes;
 pub mod plot;
 pub mod progress;
 pub mod render;
+pub mod team;
 pub mod viewer;
 pub mod volume;
 

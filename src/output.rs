@@ -89,6 +89,21 @@ fn remove(tmp: &Path) {
 /// temporary folder beside `path`, which is renamed into place once complete (at [`commit`] in a
 /// transaction) and removed on an error or Ctrl-C. `path` must not exist yet.
 pub fn write_folder_atomic(path: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let folder = begin_folder(path)?;
+    let result = fill(&folder.tmp);
+    folder.finish(result)
+}
+
+/// A folder output being written under its temporary name (see [`write_folder_atomic`], which
+/// is [`begin_folder`], filling [`FolderInProgress::tmp`], then [`FolderInProgress::finish`]).
+/// The split lets the ranks of a job fill one folder that rank 0 made and renames.
+pub struct FolderInProgress {
+    pub tmp: PathBuf,
+    path: PathBuf,
+}
+
+/// Checks that `path` is a new folder's path and makes its temporary folder beside it.
+pub fn begin_folder(path: &Path) -> Result<FolderInProgress> {
     if path.file_name().is_none() {
         return Err(Error::Invalid(format!(
             "{} has no folder name; expected a path to a new folder",
@@ -103,15 +118,27 @@ pub fn write_folder_atomic(path: &Path, fill: impl FnOnce(&Path) -> Result<()>) 
     }
     let tmp = temporary_beside(path);
     lock(&WRITING).push(tmp.clone());
-    let result = std::fs::create_dir(&tmp)
-        .map_err(|e| Error::io(&tmp, e))
-        .and_then(|()| fill(&tmp));
-    lock(&WRITING).retain(|t| t != &tmp);
-    if let Err(e) = result {
-        remove(&tmp);
-        return Err(e);
+    if let Err(e) = std::fs::create_dir(&tmp) {
+        lock(&WRITING).retain(|t| t != &tmp);
+        return Err(Error::io(&tmp, e));
     }
-    complete(tmp, path)
+    Ok(FolderInProgress {
+        tmp,
+        path: path.to_path_buf(),
+    })
+}
+
+impl FolderInProgress {
+    /// Renames the folder into place when `result` is `Ok` (at [`commit`] in a transaction), or
+    /// removes it and returns the error.
+    pub fn finish(self, result: Result<()>) -> Result<()> {
+        lock(&WRITING).retain(|t| t != &self.tmp);
+        if let Err(e) = result {
+            remove(&self.tmp);
+            return Err(e);
+        }
+        complete(self.tmp, &self.path)
+    }
 }
 
 /// A temporary name beside `path` (short, so that a name near the file-system limit still fits).

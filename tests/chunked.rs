@@ -15,6 +15,7 @@ use vellum::classify::mapping::{Neighbourhood, Visibility};
 use vellum::passes::chunked::{importance_store, normals_store, occlusion_store};
 use vellum::passes::importance::ImportanceMap;
 use vellum::passes::occlusion::{Method, Occlusion, OcclusionParams};
+use vellum::team::Solo;
 use vellum::volume::io::ome_zarr::Multiscale;
 use vellum::volume::{phantom, Volume};
 
@@ -36,7 +37,7 @@ fn chunked_importance_is_the_in_core_importance() {
         .delta_d;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("dd.ome.zarr");
-    let report = importance_store(&gpu.ctx, &v, 5, &out, 32, &|| {}).unwrap();
+    let report = importance_store((&Solo, &gpu.ctx), &v, 5, &out, 32, &|| {}).unwrap();
     let chunked = Multiscale::open(&out).unwrap().read_level(0).unwrap();
     let d = max_abs_diff(&whole, &chunked);
     println!("importance: max |Δ| {d:e}");
@@ -54,7 +55,7 @@ fn normals_match(gpu: &Gpu, v: &Volume, chunk: usize) {
     let whole = normals.gradients(v, range).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("n.ome.zarr");
-    let report = normals_store(&gpu.ctx, v, range, &out, chunk, &|| {}).unwrap();
+    let report = normals_store((&Solo, &gpu.ctx), v, range, &out, chunk, &|| {}).unwrap();
     assert_eq!(
         report.levels,
         vellum::volume::io::ome_zarr::auto_levels(v.dims)
@@ -110,7 +111,8 @@ fn chunked_occlusion_is_the_in_core_occlusion_with_its_spectrum() {
         let whole = occ.compute(&v, &p).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("o.ome.zarr");
-        let (_, spectrum) = occlusion_store(&gpu.ctx, &v, &p, range, &out, 32, &|| {}).unwrap();
+        let (_, spectrum) =
+            occlusion_store((&Solo, &gpu.ctx), &v, &p, range, &out, 32, &|| {}).unwrap();
         let chunked = Multiscale::open(&out).unwrap().read_level(0).unwrap();
         let d = max_abs_diff(&whole.occlusion, &chunked);
         println!("occlusion {}: max |Δ| {d:e}", method.name());
@@ -133,7 +135,7 @@ fn chunked_occlusion_is_the_in_core_occlusion_with_its_spectrum() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("s.ome.zarr");
-    let refused = occlusion_store(&gpu.ctx, &v, &strided, range, &out, 32, &|| {});
+    let refused = occlusion_store((&Solo, &gpu.ctx), &v, &strided, range, &out, 32, &|| {});
     assert!(refused.unwrap_err().to_string().contains("stride 1"));
     assert!(!out.exists());
 }

@@ -11,16 +11,16 @@
 //!
 //! Chunks are computed one at a time on the GPU (the passes sit behind a lock) while another
 //! is compressed and written, so host memory holds a few chunks with their halos whatever the
-//! grid's size.
+//! grid's size. The ranks of a team (an MPI job) share the chunks, each its own boxes of the
+//! grid, and reduce the spectrum; the store is the one a process alone writes.
 
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::passes::importance::ImportanceMap;
 use crate::passes::normals::Normals;
 use crate::passes::occlusion::{Occlusion, OcclusionInput, OcclusionParams, Spectrum};
-use crate::volume::io::ome_zarr::{
-    write_channels, write_source, Channels, WriteOptions, WriteReport,
-};
+use crate::team::Team;
+use crate::volume::io::ome_zarr::{write_channels_in, Channels, WriteOptions, WriteReport};
 use crate::volume::source::{read_widened, BoxSource, Halo};
 use crate::volume::{Volume, VoxelData, VoxelType};
 use std::path::Path;
@@ -64,6 +64,26 @@ pub fn chunk_for(
         })
 }
 
+/// A scalar source written by `team` (see `ome_zarr::write_channels_in`).
+fn write_scalar(
+    team: &dyn Team,
+    out: &Path,
+    src: &dyn BoxSource,
+    opts: &WriteOptions,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
+    let read = |lo, size| Ok(vec![src.read_box(lo, size)?]);
+    let channels = Channels {
+        dims: src.dims(),
+        spacing: src.spacing(),
+        geometry: src.geometry(),
+        voxel: src.voxel(),
+        count: 1,
+        read: &read,
+    };
+    write_channels_in(team, out, &channels, opts, on_chunk)
+}
+
 fn locked<T>(m: &Mutex<T>) -> Result<std::sync::MutexGuard<'_, T>> {
     m.lock()
         .map_err(|_| Error::Invalid("a chunk's pass failed on another thread".into()))
@@ -71,14 +91,14 @@ fn locked<T>(m: &Mutex<T>) -> Result<std::sync::MutexGuard<'_, T>> {
 
 /// ΔD = G∗V − V of `src` (Gaussian radius `radius`), chunk by chunk, into a new store at `out`.
 pub fn importance_store(
-    ctx: &Arc<Context>,
+    (team, ctx): (&dyn Team, &Arc<Context>),
     src: &dyn BoxSource,
     radius: u32,
     out: &Path,
     chunk: usize,
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
-    let map = Mutex::new(ImportanceMap::new(ctx)?);
+    let map = Mutex::new(team.together(ImportanceMap::new(ctx))?);
     let f = |v: &Volume, offset: [usize; 3], size: [usize; 3]| -> Result<Volume> {
         let r = locked(&map)?.compute(v, radius, false)?;
         r.delta_d.read_box(offset, size)
@@ -92,14 +112,14 @@ pub fn importance_store(
         chunk,
         levels: None,
     };
-    write_source(out, &halo, &opts, on_chunk)
+    write_scalar(team, out, &halo, &opts, on_chunk)
 }
 
 /// The occlusion volume of `src` under `p` (stride 1), chunk by chunk, into a new store at
 /// `out`, every chunk normalised over `range` (the whole grid's); with the spectrum of the
 /// whole grid when `p` asks for one.
 pub fn occlusion_store(
-    ctx: &Arc<Context>,
+    (team, ctx): (&dyn Team, &Arc<Context>),
     src: &dyn BoxSource,
     p: &OcclusionParams,
     range: [f64; 2],
@@ -113,7 +133,7 @@ pub fn occlusion_store(
             p.stride
         )));
     }
-    let occlusion = Mutex::new(Occlusion::new(ctx)?);
+    let occlusion = Mutex::new(team.together(Occlusion::new(ctx))?);
     let params = OcclusionParams {
         spectrum_bins: None,
         ..p.clone()
@@ -143,11 +163,16 @@ pub fn occlusion_store(
         chunk,
         levels: None,
     };
-    let report = write_source(out, &halo, &opts, on_chunk)?;
+    let report = write_scalar(team, out, &halo, &opts, on_chunk)?;
+    let mut counts = counts
+        .into_inner()
+        .map_err(|_| Error::Invalid("a chunk's pass failed on another thread".into()))?;
+    // Every rank counted its own chunks' voxels.
+    team.sum(&mut counts);
     let spectrum = p.spectrum_bins.map(|b| -> Result<Spectrum> {
         Ok(Spectrum {
             bins: b,
-            counts: locked(&counts)?
+            counts: counts
                 .iter()
                 .map(|&c| c.min(u32::MAX as u64) as u32)
                 .collect(),
@@ -164,14 +189,14 @@ pub const NORMALS_HALO: usize = 1;
 /// a new store at `out` of four float32 channels: the gradient's x, y and z in world units and
 /// its length, bit for bit the half floats of the renderer's in-core gradient texture.
 pub fn normals_store(
-    ctx: &Arc<Context>,
+    (team, ctx): (&dyn Team, &Arc<Context>),
     src: &dyn BoxSource,
     range: [f64; 2],
     out: &Path,
     chunk: usize,
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
-    let normals = Mutex::new(Normals::new(ctx)?);
+    let normals = Mutex::new(team.together(Normals::new(ctx))?);
     let read = |lo: [usize; 3], size: [usize; 3]| -> Result<Vec<Volume>> {
         let (v, offset) = read_widened(src, NORMALS_HALO, lo, size)?;
         let g = locked(&normals)?.gradients(&v, range)?;
@@ -194,7 +219,7 @@ pub fn normals_store(
         chunk,
         levels: None,
     };
-    write_channels(out, &channels, &opts, on_chunk)
+    write_channels_in(team, out, &channels, &opts, on_chunk)
 }
 
 /// Adds the (intensity, occlusion) pairs of one chunk to the spectrum's counts, binned as

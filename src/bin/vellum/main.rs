@@ -42,14 +42,52 @@ fn main() -> ExitCode {
     }
     // Every output of the command, or none (see output.rs).
     vellum::output::begin();
-    let result = run(&cli).and_then(|()| Ok(vellum::output::commit()?));
-    match result {
+    let team = start_team();
+    let result = match &team {
+        Ok(team) => run(&cli, &**team).and_then(|()| Ok(vellum::output::commit()?)),
+        Err(e) => Err(anyhow::anyhow!("{e:#}")),
+    };
+    let root = team.as_ref().map_or(true, |t| t.is_root());
+    let code = match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             vellum::output::abort();
-            let message = flags_for_keys(&format!("{e:#}"));
-            eprintln!("error: {}", vellum::error::one_line(&message));
+            // In a job, every rank ends with the same agreed sentence; rank 0 says it.
+            if root {
+                let message = flags_for_keys(&format!("{e:#}"));
+                eprintln!("error: {}", vellum::error::one_line(&message));
+            }
             ExitCode::FAILURE
         }
+    };
+    // No rank exits before rank 0 has spoken.
+    if let Ok(team) = &team {
+        team.barrier();
+    }
+    code
+}
+
+/// The ranks this process works with: the MPI job it was launched into, or itself alone.
+#[cfg(feature = "mpi")]
+fn start_team() -> anyhow::Result<Box<dyn vellum::team::Team>> {
+    if vellum::team::launched_ranks().is_none() {
+        return Ok(Box::new(vellum::team::Solo));
+    }
+    Ok(match vellum::cluster::start()? {
+        Some(team) => Box::new(team),
+        None => Box::new(vellum::team::Solo),
+    })
+}
+
+/// Without the `mpi` feature a process runs alone, and refuses to be one of many ranks (each
+/// would do the whole job and write the same outputs).
+#[cfg(not(feature = "mpi"))]
+fn start_team() -> anyhow::Result<Box<dyn vellum::team::Team>> {
+    match vellum::team::launched_ranks() {
+        Some(n) if n != 1 => anyhow::bail!(
+            "vellum was started as one of {} ranks of a parallel job but was built without MPI; build it with `cargo build --release --features mpi`",
+            if n == 0 { "several".to_string() } else { n.to_string() }
+        ),
+        _ => Ok(Box::new(vellum::team::Solo)),
     }
 }

@@ -11,6 +11,7 @@
 //! Missing chunks read as the array's fill value, as the Zarr spec says.
 
 use crate::error::{Error, Result};
+use crate::team::{Solo, Team};
 use crate::volume::geometry::Geometry;
 use crate::volume::source::BoxSource;
 use crate::volume::{Volume, VoxelData, VoxelType};
@@ -583,6 +584,22 @@ pub fn write_channels(
     opts: &WriteOptions,
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
+    write_channels_in(&Solo, path, src, opts, on_chunk)
+}
+
+/// [`write_channels`] by the ranks of `team` together: rank 0 makes the temporary folder and
+/// writes the metadata, every rank writes the chunks of its own boxes of each level (a k-d
+/// split of the chunk grid; chunks are separate objects, so no two ranks write one), the ranks
+/// agree after each level (one failed rank ends every rank with its sentence, and rank 0
+/// removes the folder), and level 0's range is reduced over the ranks. The store is the one a
+/// process alone writes, byte for byte.
+pub fn write_channels_in(
+    team: &dyn Team,
+    path: &Path,
+    src: &Channels,
+    opts: &WriteOptions,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
     if opts.chunk == 0 {
         return Err(Error::Invalid(
             "`chunk` is 0; expected a chunk edge of 1 voxel or more".into(),
@@ -592,7 +609,7 @@ pub fn write_channels(
     if levels == 0 {
         return Err(Error::Invalid("`levels` is 0; expected 1 or more".into()));
     }
-    if src.geometry.direction != crate::volume::geometry::IDENTITY {
+    if src.geometry.direction != crate::volume::geometry::IDENTITY && team.is_root() {
         log::warn!(
             "OME-NGFF has no rotation: {} keeps the origin and spacing and drops the direction matrix",
             path.display()
@@ -607,20 +624,37 @@ pub fn write_channels(
                 .to_string()
         })
         .unwrap_or_default();
-    let mut report = None;
-    crate::output::write_folder_atomic(path, |tmp| {
-        report = Some(write_levels(tmp, &name, src, opts.chunk, levels, on_chunk)?);
-        Ok(())
-    })?;
-    report.ok_or_else(|| Error::Invalid("the store was not written".into()))
+    // Rank 0 makes the temporary folder; every rank learns its name, or rank 0's sentence.
+    let folder = team.is_root().then(|| crate::output::begin_folder(path));
+    let made = match &folder {
+        Some(Err(e)) => Err(Error::Invalid(e.to_string())),
+        _ => Ok(()),
+    };
+    team.agree(made)?;
+    let folder = folder.transpose()?;
+    let tmp = folder
+        .as_ref()
+        .map(|f| f.tmp.to_string_lossy().into_owned());
+    let tmp = PathBuf::from(
+        String::from_utf8_lossy(&team.broadcast(tmp.unwrap_or_default().into_bytes())).into_owned(),
+    );
+    let report = write_levels(team, &tmp, &name, src, (opts.chunk, levels), on_chunk);
+    match (folder, report) {
+        (None, report) => report,
+        (Some(f), Ok(r)) => f.finish(Ok(())).map(|()| r),
+        (Some(f), Err(e)) => Err(f
+            .finish(Err(e))
+            .err()
+            .unwrap_or_else(|| Error::Invalid("the store failed and was removed".into()))),
+    }
 }
 
 fn write_levels(
+    team: &dyn Team,
     path: &Path,
     name: &str,
     src: &Channels,
-    chunk: usize,
-    levels: usize,
+    (chunk, levels): (usize, usize),
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
     let store = Arc::new(FilesystemStore::new(path).map_err(|e| invalid(path, e))?);
@@ -645,9 +679,28 @@ fn write_levels(
         let spacing = base.map(|s| s * (1u64 << i) as f64);
         let origin: [f64; 3] =
             std::array::from_fn(|a| src.geometry.origin[a] + 0.5 * (spacing[a] - base[a]));
-        let array = make_array(&store, path, &i.to_string(), (dims, channels), chunk, voxel)?;
-        let range = match &previous {
-            None => store_chunks(&array, path, dims, chunk, src.read, on_chunk)?,
+        let meta = team.is_root();
+        let made = make_array(
+            &store,
+            path,
+            &i.to_string(),
+            (dims, channels, meta),
+            chunk,
+            voxel,
+        );
+        team.agree(
+            made.as_ref()
+                .map(|_| ())
+                .map_err(|e| Error::Invalid(e.to_string())),
+        )?;
+        let array = made?;
+        let grid = dims.map(|n| n.div_ceil(chunk));
+        let owners = crate::team::kd_owners(grid, &[], team.size());
+        let mine: Vec<usize> = (0..owners.len())
+            .filter(|&c| owners[c] == team.rank())
+            .collect();
+        let written = match &previous {
+            None => store_chunks(&array, path, (dims, chunk, &mine), src.read, on_chunk),
             Some(prev) => {
                 let read = |lo, size| {
                     halved_box(prev, channels, voxel, level_dims(dims0, i - 1), (lo, size))
@@ -660,9 +713,23 @@ fn write_levels(
                         )
                     })
                 };
-                store_chunks(&array, path, dims, chunk, &read, on_chunk)?
+                store_chunks(&array, path, (dims, chunk, &mine), &read, on_chunk)
             }
         };
+        // Every rank's chunks of this level are written before any rank reads them for the next.
+        let local = match written {
+            Ok(r) => {
+                team.agree(Ok(()))?;
+                r
+            }
+            Err(e) => {
+                return Err(team
+                    .agree(Err(e))
+                    .err()
+                    .unwrap_or_else(|| Error::Invalid("a chunk failed".into())))
+            }
+        };
+        let range = team.min_max(local);
         if i == 0 {
             report.range = range;
         }
@@ -683,6 +750,9 @@ fn write_levels(
         axes.push(json!({"name": "c", "type": "channel"}));
     }
     axes.extend(["z", "y", "x"].map(|n| json!({"name": n, "type": "space"})));
+    if !team.is_root() {
+        return Ok(report);
+    }
     let mut group = zarrs::group::GroupBuilder::new()
         .build(store, "/")
         .map_err(|e| invalid(path, e))?;
@@ -729,12 +799,12 @@ fn lead_of(channels: usize, c: usize) -> Vec<u64> {
 }
 
 /// An empty level of `dims` and `channels` in `voxel`, chunked by `chunk` (one channel a chunk),
-/// zstd-compressed, metadata stored.
+/// zstd-compressed, its metadata stored when `meta` (rank 0's part in a team).
 fn make_array(
     store: &Arc<FilesystemStore>,
     path: &Path,
     name: &str,
-    (dims, channels): ([usize; 3], usize),
+    (dims, channels, meta): ([usize; 3], usize, bool),
     chunk: usize,
     voxel: VoxelType,
 ) -> Result<Array<FilesystemStore>> {
@@ -766,17 +836,19 @@ fn make_array(
         .dimension_names(Some(names.to_vec()))
         .build(store.clone(), &format!("/{name}"))
         .map_err(|e| invalid(path, format!("level {name} could not be made ({e})")))?;
-    array.store_metadata().map_err(|e| {
-        invalid(
-            path,
-            format!("level {name}'s metadata could not be written ({e})"),
-        )
-    })?;
+    if meta {
+        array.store_metadata().map_err(|e| {
+            invalid(
+                path,
+                format!("level {name}'s metadata could not be written ({e})"),
+            )
+        })?;
+    }
     Ok(array)
 }
 
-/// Fills `array` (a level of `dims`) chunk by chunk from `read(lo, size)` (one volume per
-/// channel), chunks in parallel; returns the smallest and largest value written.
+/// Fills chunks `mine` (indices, x fastest) of `array` (a level of `dims`) from `read(lo, size)`
+/// (one volume per channel), chunks in parallel; returns the smallest and largest value written.
 ///
 /// The chunks run on plain threads, one per core, not as rayon tasks: `read` may hold a lock
 /// while it calls into rayon (the chunked passes share one GPU pipeline behind a mutex, and its
@@ -787,15 +859,15 @@ fn make_array(
 fn store_chunks(
     array: &Array<FilesystemStore>,
     path: &Path,
-    dims: [usize; 3],
-    chunk: usize,
+    (dims, chunk, mine): ([usize; 3], usize, &[usize]),
     read: &(dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<[f64; 2]> {
     use std::sync::atomic::{AtomicUsize, Ordering};
     let counts = dims.map(|n| n.div_ceil(chunk));
-    let total = counts[0] * counts[1] * counts[2];
-    let one = |c: usize| -> Result<[f64; 2]> {
+    let total = mine.len();
+    let one = |k: usize| -> Result<[f64; 2]> {
+        let c = mine[k];
         let index = [
             c % counts[0],
             (c / counts[0]) % counts[1],

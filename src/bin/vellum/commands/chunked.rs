@@ -33,6 +33,7 @@ pub(crate) fn is_store_path(p: &Path) -> bool {
 /// (`bytes_per_voxel` per voxel) exceeds the memory budget; then `--out` must be a store and
 /// `--slices`-like whole-volume outputs (`whole_outputs`) are refused in one sentence.
 pub(crate) fn plan(
+    team: &dyn vellum::team::Team,
     input: &InputArgs,
     out: Option<&Path>,
     c: &ChunkArgs,
@@ -41,8 +42,10 @@ pub(crate) fn plan(
     whole_outputs: &[(&str, bool)],
 ) -> Result<Plan> {
     let budget = memory_budget(c)?;
-    let source = Source::open(input)?;
-    let dims = source.boxes()?.dims();
+    // Every rank opens the input before any work starts: one that cannot ends the job.
+    let source = crate::commands::together(team, Source::open(input))?;
+    let dims = crate::commands::together(team, source.boxes().map(|b| b.dims()))?;
+    team.same_inputs(crate::commands::inputs_key(&dims))?;
     let need = dims.iter().map(|&n| n as u64).product::<u64>() * bytes_per_voxel;
     let store_out = out.is_some_and(is_store_path);
     let store_in = matches!(source, Source::Store(_));
@@ -80,6 +83,7 @@ pub(crate) fn plan(
 /// Runs a chunked pass, `run(on_chunk)`, over a grid of `dims` with a progress bar over its
 /// chunks; returns its result and the seconds it took, validation reported.
 pub(crate) fn run_with_bar<T>(
+    team: &dyn vellum::team::Team,
     ctx: &vellum::gpu::Context,
     (dims, chunk): ([usize; 3], usize),
     what: &str,
@@ -90,7 +94,11 @@ pub(crate) fn run_with_bar<T>(
         levels: None,
     };
     let count = vellum::volume::io::ome_zarr::chunk_count(dims, &opts) as u64;
-    let bar = vellum::progress::bar(count, what);
+    // Rank 0's bar counts its own chunks against the whole grid's; the others show none.
+    let bar = match team.is_root() {
+        true => vellum::progress::bar(count, what),
+        false => indicatif::ProgressBar::hidden(),
+    };
     let start = std::time::Instant::now();
     let result = run(&|| bar.inc(1))?;
     bar.finish_and_clear();
@@ -100,6 +108,7 @@ pub(crate) fn run_with_bar<T>(
 
 /// The JSON of a chunked run.
 pub(crate) fn report(
+    team: &dyn vellum::team::Team,
     ctx: &vellum::gpu::Context,
     store: &vellum::volume::io::ome_zarr::WriteReport,
     chunk: usize,
@@ -109,6 +118,7 @@ pub(crate) fn report(
     let voxels = store.bytes as f64 / 4.0;
     serde_json::json!({
         "chunked": true,
+        "ranks": team.size(),
         "chunk": chunk,
         "halo": halo,
         "levels": store.levels,

@@ -1,12 +1,13 @@
 //! `vellum importance` and `vellum normals`.
 
 use crate::args::*;
-use crate::commands::{context, report_validation};
+use crate::commands::{context, report_validation, together};
 use anyhow::{Context as _, Result};
 use serde_json::json;
+use vellum::team::Team;
 
 pub(crate) fn importance(
-    cli: &Cli,
+    (cli, team): (&Cli, &dyn Team),
     input: &InputArgs,
     radius: u32,
     (out, slices): (Option<&std::path::Path>, Option<&std::path::Path>),
@@ -16,21 +17,30 @@ pub(crate) fn importance(
     use super::chunked::{plan, Plan};
     let bytes = vellum::passes::chunked::IMPORTANCE_BYTES;
     let whole = [("--slices", slices.is_some())];
-    let v = match plan(input, out, chunking, radius as usize, bytes, &whole)? {
+    let v = match plan(team, input, out, chunking, radius as usize, bytes, &whole)? {
+        Plan::InCore(_) if !team.is_root() => return Ok(()),
         Plan::InCore(v) => v,
         Plan::Chunked { source, chunk } => {
-            let ctx = context(cli)?;
+            let ctx = together(team, context(cli))?;
             let out = out.ok_or_else(|| anyhow::anyhow!("a chunked pass needs --out"))?;
             let boxes = source.boxes()?;
             let grid = (boxes.dims(), chunk);
             let (store, secs) =
-                super::chunked::run_with_bar(&ctx, grid, "importance chunks", |on_chunk| {
+                super::chunked::run_with_bar(team, &ctx, grid, "importance chunks", |on_chunk| {
                     vellum::passes::chunked::importance_store(
-                        &ctx, &*boxes, radius, out, chunk, on_chunk,
+                        (team, &ctx),
+                        &*boxes,
+                        radius,
+                        out,
+                        chunk,
+                        on_chunk,
                     )
                 })?;
-            let mut r = super::chunked::report(&ctx, &store, chunk, radius as usize, secs);
+            let mut r = super::chunked::report(team, &ctx, &store, chunk, radius as usize, secs);
             r["max_abs_delta_d"] = json!(store.range[0].abs().max(store.range[1].abs()));
+            if !team.is_root() {
+                return Ok(());
+            }
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);
             } else {
@@ -87,7 +97,7 @@ pub(crate) fn importance(
 /// `vellum normals`: always chunk by chunk into a store (the normals have four channels, which
 /// only the store holds).
 pub(crate) fn normals(
-    cli: &Cli,
+    (cli, team): (&Cli, &dyn Team),
     input: &InputArgs,
     out: &std::path::Path,
     chunking: &ChunkArgs,
@@ -99,9 +109,11 @@ pub(crate) fn normals(
         "{} is not a store; the normals are written as an OME-Zarr store of four channels, expected --out x.ome.zarr",
         out.display()
     );
-    let source = super::convert::Source::open(input)?;
-    let boxes = source.boxes()?;
+    // Every rank opens the input before any work starts: one that cannot ends the job.
+    let source = together(team, super::convert::Source::open(input))?;
+    let boxes = together(team, source.boxes())?;
     let dims = boxes.dims();
+    team.same_inputs(super::inputs_key(&dims))?;
     let chunk = match chunking.chunk {
         Some(0) => anyhow::bail!("--chunk 0 is invalid; expected a chunk edge of 1 voxel or more"),
         Some(n) => n,
@@ -110,13 +122,17 @@ pub(crate) fn normals(
             chunk_for(dims, NORMALS_HALO, NORMALS_BYTES, budget)?
         }
     };
-    let ctx = context(cli)?;
-    let range = source.range()?;
+    let ctx = together(team, context(cli))?;
+    let range = together(team, source.range())?;
+    let grid = (dims, chunk);
     let (store, secs) =
-        super::chunked::run_with_bar(&ctx, (dims, chunk), "normal chunks", |on_chunk| {
-            normals_store(&ctx, &*boxes, range, out, chunk, on_chunk)
+        super::chunked::run_with_bar(team, &ctx, grid, "normal chunks", |on_chunk| {
+            normals_store((team, &ctx), &*boxes, range, out, chunk, on_chunk)
         })?;
-    let mut r = super::chunked::report(&ctx, &store, chunk, NORMALS_HALO, secs);
+    if !team.is_root() {
+        return Ok(());
+    }
+    let mut r = super::chunked::report(team, &ctx, &store, chunk, NORMALS_HALO, secs);
     r["voxels_per_second"] = json!(dims.iter().product::<usize>() as f64 / secs.max(1e-9));
     r["intensity_range"] = json!(range);
     if json {

@@ -24,6 +24,31 @@ use anyhow::Result;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use vellum::gpu::{Context, ContextDesc};
+use vellum::team::Team;
+
+/// `r` when every rank of `team` succeeded, else the agreed sentence on every rank (see
+/// `Team::agree`): a step each rank takes before the others go on.
+pub(crate) fn together<T>(team: &dyn Team, r: Result<T>) -> Result<T> {
+    if team.size() == 1 {
+        return r;
+    }
+    let outcome = r
+        .as_ref()
+        .map(|_| ())
+        .map_err(|e| vellum::Error::Invalid(format!("{e:#}")));
+    team.agree(outcome)?;
+    r
+}
+
+/// A digest of this process's command line and of what it opened (`what`): every rank of a job
+/// must compute the same (`Team::same_inputs`).
+pub(crate) fn inputs_key(what: &impl std::hash::Hash) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    std::env::args_os().collect::<Vec<_>>().hash(&mut h);
+    what.hash(&mut h);
+    h.finish()
+}
 
 pub(crate) fn context(cli: &Cli) -> Result<Arc<Context>> {
     Ok(Context::new(&ContextDesc {
@@ -86,9 +111,23 @@ pub(crate) fn check_distinct_outputs(command: &Command) -> Result<()> {
     Ok(())
 }
 
-pub(crate) fn run(cli: &Cli) -> Result<()> {
+/// Runs the command. In an MPI job (`team` of more than one rank) the chunked passes share the
+/// work; every other command runs on rank 0 alone.
+pub(crate) fn run(cli: &Cli, team: &dyn Team) -> Result<()> {
     ContextDesc::check_environment()?;
     check_distinct_outputs(&cli.command)?;
+    let shared = matches!(
+        cli.command,
+        Command::Importance { .. } | Command::Occlusion(_) | Command::Normals { .. }
+    );
+    if team.size() > 1 && !shared {
+        if !team.is_root() {
+            return Ok(());
+        }
+        log::warn!(
+            "this command runs on rank 0 alone; the ranks of a job share importance, occlusion and normals chunk by chunk"
+        );
+    }
     match &cli.command {
         Command::Devices { json } => devices(cli, *json),
         Command::Info { input, json } => info(input, *json),
@@ -108,7 +147,7 @@ pub(crate) fn run(cli: &Cli) -> Result<()> {
             chunking,
             json,
         } => importance(
-            cli,
+            (cli, team),
             input,
             *radius,
             (out.as_deref(), slices.as_deref()),
@@ -120,10 +159,10 @@ pub(crate) fn run(cli: &Cli) -> Result<()> {
             out,
             chunking,
             json,
-        } => importance::normals(cli, input, out, chunking, *json),
+        } => importance::normals((cli, team), input, out, chunking, *json),
         Command::Render(args) => render(cli, args),
         Command::Lines(args) => lines(cli, args),
-        Command::Occlusion(a) => occlusion(cli, a),
+        Command::Occlusion(a) => occlusion((cli, team), a),
         Command::OcclusionSelect {
             input,
             interval,

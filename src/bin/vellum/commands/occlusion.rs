@@ -1,11 +1,12 @@
 //! `vellum occlusion`.
 
 use crate::args::*;
-use crate::commands::{context, passes_json, report_validation};
+use crate::commands::{context, passes_json, report_validation, together};
 use anyhow::{Context as _, Result};
 use serde_json::json;
+use vellum::team::Team;
 
-pub(crate) fn occlusion(cli: &Cli, a: &OcclusionArgs) -> Result<()> {
+pub(crate) fn occlusion((cli, team): (&Cli, &dyn Team), a: &OcclusionArgs) -> Result<()> {
     let (input, radius, mapping, stride) = (&a.input, a.radius, a.mapping.as_str(), a.stride);
     let (out, spectrum_png, spectrum_csv) = (
         a.out.as_deref(),
@@ -28,10 +29,11 @@ pub(crate) fn occlusion(cli: &Cli, a: &OcclusionArgs) -> Result<()> {
     };
     use super::chunked::{plan, Plan};
     let bytes = vellum::passes::chunked::OCCLUSION_BYTES;
-    let v = match plan(input, out, &a.chunking, radius as usize, bytes, &[])? {
+    let v = match plan(team, input, out, &a.chunking, radius as usize, bytes, &[])? {
+        Plan::InCore(_) if !team.is_root() => return Ok(()),
         Plan::InCore(v) => v,
         Plan::Chunked { source, chunk } => {
-            return occlusion_chunked(cli, a, &source, &params, chunk);
+            return occlusion_chunked((cli, team), a, &source, &params, chunk);
         }
     };
     let ctx = context(cli)?;
@@ -76,30 +78,39 @@ pub(crate) fn occlusion(cli: &Cli, a: &OcclusionArgs) -> Result<()> {
 
 /// `occlusion` chunk by chunk into a store, with the whole grid's spectrum.
 fn occlusion_chunked(
-    cli: &Cli,
+    (cli, team): (&Cli, &dyn Team),
     a: &OcclusionArgs,
     source: &super::convert::Source,
     params: &vellum::passes::occlusion::OcclusionParams,
     chunk: usize,
 ) -> Result<()> {
-    let ctx = context(cli)?;
+    let ctx = together(team, context(cli))?;
     let out = a
         .out
         .as_deref()
         .ok_or_else(|| anyhow::anyhow!("a chunked pass needs --out"))?;
-    let range = source.range()?;
+    let range = together(team, source.range())?;
     let boxes = source.boxes()?;
     let grid = (boxes.dims(), chunk);
     let ((store, spectrum), secs) =
-        super::chunked::run_with_bar(&ctx, grid, "occlusion chunks", |on_chunk| {
+        super::chunked::run_with_bar(team, &ctx, grid, "occlusion chunks", |on_chunk| {
             vellum::passes::chunked::occlusion_store(
-                &ctx, &*boxes, params, range, out, chunk, on_chunk,
+                (team, &ctx),
+                &*boxes,
+                params,
+                range,
+                out,
+                chunk,
+                on_chunk,
             )
         })?;
+    if !team.is_root() {
+        return Ok(());
+    }
     if let Some(s) = &spectrum {
         write_spectrum(s, a.spectrum.as_deref(), a.spectrum_data.as_deref())?;
     }
-    let mut r = super::chunked::report(&ctx, &store, chunk, params.radius as usize, secs);
+    let mut r = super::chunked::report(team, &ctx, &store, chunk, params.radius as usize, secs);
     r["intensity_range"] = json!(range);
     r["spectrum_total"] =
         json!(spectrum
