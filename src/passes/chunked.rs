@@ -20,7 +20,9 @@ use crate::passes::importance::ImportanceMap;
 use crate::passes::normals::Normals;
 use crate::passes::occlusion::{Occlusion, OcclusionInput, OcclusionParams, Spectrum};
 use crate::team::Team;
-use crate::volume::io::ome_zarr::{write_channels_in, Channels, WriteOptions, WriteReport};
+use crate::volume::io::ome_zarr::{
+    write_channels_in, write_source_in, Channels, WriteOptions, WriteReport,
+};
 use crate::volume::source::{read_widened, BoxSource, Halo};
 use crate::volume::{Volume, VoxelData, VoxelType};
 use std::path::Path;
@@ -64,26 +66,6 @@ pub fn chunk_for(
         })
 }
 
-/// A scalar source written by `team` (see `ome_zarr::write_channels_in`).
-fn write_scalar(
-    team: &dyn Team,
-    out: &Path,
-    src: &dyn BoxSource,
-    opts: &WriteOptions,
-    on_chunk: &(dyn Fn() + Sync),
-) -> Result<WriteReport> {
-    let read = |lo, size| Ok(vec![src.read_box(lo, size)?]);
-    let channels = Channels {
-        dims: src.dims(),
-        spacing: src.spacing(),
-        geometry: src.geometry(),
-        voxel: src.voxel(),
-        count: 1,
-        read: &read,
-    };
-    write_channels_in(team, out, &channels, opts, on_chunk)
-}
-
 fn locked<T>(m: &Mutex<T>) -> Result<std::sync::MutexGuard<'_, T>> {
     m.lock()
         .map_err(|_| Error::Invalid("a chunk's pass failed on another thread".into()))
@@ -112,7 +94,7 @@ pub fn importance_store(
         chunk,
         levels: None,
     };
-    write_scalar(team, out, &halo, &opts, on_chunk)
+    write_source_in(team, out, &halo, &opts, on_chunk)
 }
 
 /// The occlusion volume of `src` under `p` (stride 1), chunk by chunk, into a new store at
@@ -163,7 +145,7 @@ pub fn occlusion_store(
         chunk,
         levels: None,
     };
-    let report = write_scalar(team, out, &halo, &opts, on_chunk)?;
+    let report = write_source_in(team, out, &halo, &opts, on_chunk)?;
     let mut counts = counts
         .into_inner()
         .map_err(|_| Error::Invalid("a chunk's pass failed on another thread".into()))?;

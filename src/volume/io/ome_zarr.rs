@@ -552,6 +552,17 @@ pub fn write_source(
     opts: &WriteOptions,
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
+    write_source_in(&Solo, path, src, opts, on_chunk)
+}
+
+/// [`write_source`] by the ranks of `team` together (see [`write_channels_in`]).
+pub fn write_source_in(
+    team: &dyn Team,
+    path: &Path,
+    src: &dyn BoxSource,
+    opts: &WriteOptions,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
     let read = |lo, size| Ok(vec![src.read_box(lo, size)?]);
     let channels = Channels {
         dims: src.dims(),
@@ -561,7 +572,7 @@ pub fn write_source(
         count: 1,
         read: &read,
     };
-    write_channels(path, &channels, opts, on_chunk)
+    write_channels_in(team, path, &channels, opts, on_chunk)
 }
 
 /// A grid of `count` values per voxel, read a box at a time as one volume per channel.
