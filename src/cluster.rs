@@ -8,8 +8,10 @@
 use crate::error::{Error, Result};
 use crate::team::Team;
 use mpi::collective::SystemOperation;
+use mpi::datatype::{Partition, PartitionMut};
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
+use mpi::Count;
 
 /// Bytes of a rank's sentence in an agreement (longer ones are cut at a character boundary).
 const SENTENCE: usize = 1024;
@@ -122,4 +124,46 @@ impl Team for MpiTeam {
     fn barrier(&self) {
         self.world.barrier();
     }
+
+    fn exchange(
+        &self,
+        (send, send_counts): (&[f32], &[usize]),
+        (recv, recv_counts): (&mut [f32], &[usize]),
+    ) {
+        let (sc, sd) = counts_and_displacements(send_counts);
+        let (rc, rd) = counts_and_displacements(recv_counts);
+        let send = Partition::new(send, sc, sd);
+        let mut recv = PartitionMut::new(recv, rc, rd);
+        self.world.all_to_all_varcount_into(&send, &mut recv);
+    }
+
+    fn swap(&self, partner: usize, send: &[f32], recv: &mut [f32]) {
+        let p = self.world.process_at_rank(partner as i32);
+        mpi::point_to_point::send_receive_into(send, &p, recv, &p);
+    }
+
+    fn gather(&self, send: &[f32], counts: &[usize], recv: &mut [f32]) {
+        let root = self.world.process_at_rank(0);
+        if self.rank() == 0 {
+            let (c, d) = counts_and_displacements(counts);
+            let mut recv = PartitionMut::new(recv, c, d);
+            root.gather_varcount_into_root(send, &mut recv);
+        } else {
+            root.gather_varcount_into(send);
+        }
+    }
+}
+
+/// MPI's counts and displacements of consecutive parts of `counts` values.
+fn counts_and_displacements(counts: &[usize]) -> (Vec<Count>, Vec<Count>) {
+    let c: Vec<Count> = counts.iter().map(|&n| n as Count).collect();
+    let d = c
+        .iter()
+        .scan(0, |acc, &n| {
+            let at = *acc;
+            *acc += n;
+            Some(at)
+        })
+        .collect();
+    (c, d)
 }

@@ -24,6 +24,14 @@ pub trait Team {
     /// went (a launcher ends the whole job when any rank exits with an error, which could cut
     /// rank 0 off before its sentence).
     fn barrier(&self);
+    /// All to all: `send.0` holds `send.1[r]` values for each rank r in rank order, and
+    /// `recv.0` receives `recv.1[r]` values from each rank r, in rank order.
+    fn exchange(&self, send: (&[f32], &[usize]), recv: (&mut [f32], &[usize]));
+    /// Sends `send` to `partner` and receives `recv` from it, at once.
+    fn swap(&self, partner: usize, send: &[f32], recv: &mut [f32]);
+    /// Every rank's `send` (`counts[r]` values from rank r) into rank 0's `recv`, in rank order
+    /// (`recv` is not touched elsewhere).
+    fn gather(&self, send: &[f32], counts: &[usize], recv: &mut [f32]);
 }
 
 impl dyn Team + '_ {
@@ -85,6 +93,15 @@ impl Team for Solo {
         bytes
     }
     fn barrier(&self) {}
+    fn exchange(&self, send: (&[f32], &[usize]), recv: (&mut [f32], &[usize])) {
+        recv.0.copy_from_slice(send.0);
+    }
+    fn swap(&self, _partner: usize, send: &[f32], recv: &mut [f32]) {
+        recv.copy_from_slice(send);
+    }
+    fn gather(&self, send: &[f32], _counts: &[usize], recv: &mut [f32]) {
+        recv.copy_from_slice(send);
+    }
 }
 
 /// How many ranks the launcher that started this process says the job has, when one did
@@ -116,16 +133,69 @@ impl CellBox {
 
 /// Splits a grid of `counts` cells (x fastest) into `parts` boxes, one per rank, by a k-d split:
 /// each box is cut across its longest axis where the weights on either side are closest to the
-/// ratio of the ranks each side gets. A weight is what a cell costs (1 for each, or more for a
-/// cell with something in it). A box may be empty when there are more ranks than cells.
+/// ratio of the ranks each side gets. A weight is what a cell costs (1 for each when `weights`
+/// is empty). A box may be empty when there are more ranks than cells.
 pub fn kd_split(counts: [usize; 3], weights: &[f64], parts: usize) -> Vec<CellBox> {
-    let whole = CellBox {
-        lo: [0; 3],
-        hi: counts,
-    };
-    let mut out = Vec::with_capacity(parts);
-    split_into(whole, counts, weights, parts.max(1), &mut out);
-    out
+    KdTree::new(counts, weights, parts).boxes
+}
+
+/// A k-d split of a grid among ranks: their boxes (rank order), and the cuts that made them,
+/// which give the boxes' order along any ray from an eye.
+pub struct KdTree {
+    pub boxes: Vec<CellBox>,
+    root: Node,
+}
+
+enum Node {
+    /// A rank's box.
+    Leaf(usize),
+    /// Cells below `cut` along `axis` go left, the rest right.
+    Cut {
+        axis: usize,
+        cut: usize,
+        left: Box<Node>,
+        right: Box<Node>,
+    },
+}
+
+impl KdTree {
+    /// See [`kd_split`].
+    pub fn new(counts: [usize; 3], weights: &[f64], parts: usize) -> Self {
+        let whole = CellBox {
+            lo: [0; 3],
+            hi: counts,
+        };
+        let mut boxes = Vec::with_capacity(parts);
+        let root = split_into(whole, counts, weights, parts.max(1), &mut boxes);
+        KdTree { boxes, root }
+    }
+
+    /// The ranks front to back as seen from `eye` (in cells; far outside the grid against the
+    /// view direction for a parallel projection): at each cut, the side the eye is on first. The
+    /// boxes are convex and the cuts are planes, so this is the order along every ray.
+    pub fn order(&self, eye: [f64; 3]) -> Vec<usize> {
+        let mut out = Vec::with_capacity(self.boxes.len());
+        fn walk(n: &Node, eye: [f64; 3], out: &mut Vec<usize>) {
+            match n {
+                Node::Leaf(r) => out.push(*r),
+                Node::Cut {
+                    axis,
+                    cut,
+                    left,
+                    right,
+                } => {
+                    let (first, second) = match eye[*axis] < *cut as f64 {
+                        true => (left, right),
+                        false => (right, left),
+                    };
+                    walk(first, eye, out);
+                    walk(second, eye, out);
+                }
+            }
+        }
+        walk(&self.root, eye, &mut out);
+        out
+    }
 }
 
 fn split_into(
@@ -134,16 +204,26 @@ fn split_into(
     weights: &[f64],
     parts: usize,
     out: &mut Vec<CellBox>,
-) {
+) -> Node {
     let extent: [usize; 3] = std::array::from_fn(|a| b.hi[a] - b.lo[a]);
     let axis = (0..3).max_by_key(|&a| (extent[a], a)).unwrap_or(0);
     if parts == 1 || extent[axis] < 2 {
+        // Ranks beyond what the box can be cut into get empty boxes (at its far corner).
+        let first = out.len();
         out.push(b);
-        // Ranks beyond what the box can be cut into get empty boxes.
         for _ in 1..parts {
             out.push(CellBox { lo: b.hi, hi: b.hi });
         }
-        return;
+        let mut node = Node::Leaf(first + parts - 1);
+        for r in (first..first + parts - 1).rev() {
+            node = Node::Cut {
+                axis,
+                cut: b.hi[axis],
+                left: Box::new(Node::Leaf(r)),
+                right: Box::new(node),
+            };
+        }
+        return node;
     }
     // The weight of each slab across `axis`.
     let mut slabs = vec![0f64; extent[axis]];
@@ -176,8 +256,14 @@ fn split_into(
     let (mut left, mut right) = (b, b);
     left.hi[axis] = cut;
     right.lo[axis] = cut;
-    split_into(left, counts, weights, left_parts, out);
-    split_into(right, counts, weights, parts - left_parts, out);
+    let left = Box::new(split_into(left, counts, weights, left_parts, out));
+    let right = Box::new(split_into(right, counts, weights, parts - left_parts, out));
+    Node::Cut {
+        axis,
+        cut,
+        left,
+        right,
+    }
 }
 
 /// The owner of each cell of a grid of `counts` (x fastest) under the boxes of [`kd_split`].
@@ -234,6 +320,14 @@ mod tests {
         }
         let boxes = kd_split(counts, &w, 2);
         assert_eq!(boxes[0].hi[0], 1, "{boxes:?}");
+        // Front to back: from an eye left of the grid along x, the left box first.
+        let tree = KdTree::new(counts, &[], 2);
+        assert_eq!(tree.order([-5.0, 2.0, 2.0]), [0, 1]);
+        assert_eq!(tree.order([50.0, 2.0, 2.0]), [1, 0]);
+        let tree = KdTree::new(counts, &[], 4);
+        let order = tree.order([-5.0, -5.0, -5.0]);
+        assert_eq!(order[0], 0, "{order:?}");
+        assert_eq!(order[3], 3, "{order:?}");
         // More ranks than cells: the rest get empty boxes.
         let boxes = kd_split([1, 1, 2], &[], 4);
         assert_eq!(

@@ -134,6 +134,16 @@ fn real_store(name: &str, chunk: &str, dir: &Path) -> Option<String> {
     Some(s)
 }
 
+/// `phantom:NAME` streamed into a store at `path` with `chunk`-voxel chunks.
+fn phantom_store(name: &str, chunk: &str, path: &Path) -> PathBuf {
+    let p = path.to_str().unwrap();
+    let spec = format!("phantom:{name}");
+    common::ok_json(&common::vellum(&[
+        "convert", &spec, p, "--chunk", chunk, "--json",
+    ]));
+    path.to_path_buf()
+}
+
 #[test]
 fn chunked_importance_and_normals_by_many_ranks_are_the_single_process_stores() {
     let dir = tempfile::tempdir().unwrap();
@@ -184,16 +194,8 @@ fn chunked_occlusion_by_many_ranks_is_the_single_process_store_with_its_spectrum
 #[test]
 fn a_failing_rank_ends_the_job_in_one_sentence_with_no_output() {
     let dir = tempfile::tempdir().unwrap();
-    let store = dir.path().join("in.ome.zarr");
+    let store = phantom_store("shepp-logan:96", "32", &dir.path().join("in.ome.zarr"));
     let s = store.to_str().unwrap();
-    common::ok_json(&common::vellum(&[
-        "convert",
-        "phantom:shepp-logan:96",
-        s,
-        "--chunk",
-        "32",
-        "--json",
-    ]));
     // The last chunk of the grid is corrupt: with 4 ranks, the last rank reads it.
     std::fs::write(store.join("0/c/2/2/2"), b"not zstd").unwrap();
     let out = dir.path().join("dd.ome.zarr");
@@ -268,4 +270,86 @@ fn a_failing_rank_ends_the_job_in_one_sentence_with_no_output() {
         .unwrap();
     failed_job(&job, &["rank 1 of 2 failed", "differ from rank 0's"]);
     assert!(!out.exists());
+}
+
+/// Mean and max absolute difference of two PNGs' 8-bit channels, in 1/255.
+fn png_diff(a: &Path, b: &Path) -> (f64, u8) {
+    let (a, b) = (
+        image::open(a).unwrap().to_rgb8(),
+        image::open(b).unwrap().to_rgb8(),
+    );
+    assert_eq!(a.dimensions(), b.dimensions());
+    let d: Vec<u8> = a
+        .iter()
+        .zip(b.iter())
+        .map(|(x, y)| x.abs_diff(*y))
+        .collect();
+    let mean = d.iter().map(|&x| x as f64).sum::<f64>() / d.len() as f64;
+    (mean, d.iter().copied().max().unwrap_or(0))
+}
+
+#[test]
+fn a_frame_shared_by_1_to_8_ranks_is_the_single_process_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = phantom_store("shepp-logan:128", "64", &dir.path().join("head.ome.zarr"));
+    let s = store.to_str().unwrap();
+    // Through a 2 MiB brick cache, so each rank streams the bricks of its own region.
+    let scene = [
+        s,
+        "--tf",
+        "grey",
+        "--camera",
+        "30,20,2.5",
+        "--size",
+        "128x128",
+    ];
+    let scene = scene
+        .into_iter()
+        .chain(["--renderer", "raycast", "--gpu-budget", "2"]);
+    let frames: [(&str, Vec<&str>, &[usize]); 3] = [
+        ("two levels", vec!["--iso", "0.9"], &[1, 2, 3, 4, 8]),
+        ("one pass", vec!["--one-pass"], &[3]),
+        (
+            "style 3 (canny)",
+            vec!["--iso", "0.9", "--style", "canny"],
+            &[2, 4],
+        ),
+    ];
+    for (what, extra, ranks) in frames {
+        let args = |out: &Path| -> Vec<String> {
+            let out = out.to_str().unwrap().to_string();
+            let mut a = vec!["render".to_string()];
+            a.extend(
+                scene
+                    .clone()
+                    .chain(extra.iter().copied())
+                    .map(str::to_string),
+            );
+            a.extend(["--out".into(), out, "--json".into()]);
+            a
+        };
+        let alone = dir.path().join("alone.png");
+        let a = args(&alone);
+        common::ok_json(&common::vellum(
+            &a.iter().map(String::as_str).collect::<Vec<_>>(),
+        ));
+        for &n in ranks {
+            let shared = dir.path().join(format!("shared{n}.png"));
+            let a = args(&shared);
+            let r = ok_job(&mpirun(
+                n,
+                &a.iter().map(String::as_str).collect::<Vec<_>>(),
+            ));
+            assert_eq!(r["ranks"], n);
+            let (mean, max) = png_diff(&alone, &shared);
+            println!(
+                "{what}, {n} ranks ({}): mean {mean:.4}/255, max {max}/255",
+                r["compositing"]
+            );
+            assert!(
+                mean <= 1.0 && max <= 8,
+                "{what}, {n} ranks: mean {mean}, max {max}"
+            );
+        }
+    }
 }

@@ -27,6 +27,8 @@ struct SliceUniforms {
     vec4 stipple_white;
     vec4 stipple_black;
     vec4 volume_dims;    // voxels along x, y, z
+    vec4 region_lo;      // the ray caster's region (one rank's box of a job), texture coords:
+    vec4 region_hi;      // samples in [lo, hi) only; region_hi.w = 1 when a region is set
 };
 
 #define NORMALS_LOCAL_X 8

@@ -207,6 +207,17 @@ void main() {
     vec3 tmin3 = min(t1, t2), tmax3 = max(t1, t2);
     float t_in = max(max(max(tmin3.x, tmin3.y), tmin3.z), 0.0);
     float t_out = min(min(tmax3.x, tmax3.y), tmax3.z);
+    // One rank's region of a job: the walk is clipped to its box, a hair wider, and each sample
+    // tested against [lo, hi), so that a sample on a shared face counts in exactly one region.
+    bool region = u.region_hi.w > 0.5;
+    if (region) {
+        vec3 r1 = ((u.region_lo.xyz - 0.5) * 2.0 * u.half_extent.xyz - o) * inv;
+        vec3 r2 = ((u.region_hi.xyz - 0.5) * 2.0 * u.half_extent.xyz - o) * inv;
+        vec3 rmin = min(r1, r2), rmax = max(r1, r2);
+        float hair = 1e-3 * p.planes.y;
+        t_in = max(t_in, max(max(rmin.x, rmin.y), rmin.z) - hair);
+        t_out = min(t_out, min(min(rmax.x, rmax.y), rmax.z) + hair);
+    }
 
     vec4 fp = vec4(0.0), fd = vec4(0.0), ctx = vec4(0.0);
     float depth = INF;
@@ -285,6 +296,10 @@ void main() {
                 }
                 world = o + t * dir;
                 tex = world / (2.0 * u.half_extent.xyz) + 0.5;
+                if (region && (any(lessThan(tex, u.region_lo.xyz)) || any(greaterThanEqual(tex, u.region_hi.xyz)))) {
+                    prev_t = -1.0;
+                    continue;
+                }
                 if (skip) {
                     ivec3 bk = brick_of(tex);
                     if (bk != cur_brick) {

@@ -32,7 +32,7 @@ use crate::render::shading::SliceUniforms;
 use crate::render::slicer::{SliceDraw, Slicer};
 use crate::render::style::{LineKind, Style};
 use crate::render::targets::{
-    FrameImage, FrameTargets, PostTargets, TargetImages, TargetsReadback, ViewState,
+    FrameImage, FrameTargets, Layers, PostTargets, TargetImages, TargetsReadback, ViewState,
 };
 use crate::render::view::{FrameCamera, RayOptions, View, WorldBox, MAX_SLICES};
 use crate::volume::geometry::Geometry;
@@ -276,6 +276,7 @@ fn shading_uniforms(
     focus: [f32; 3],
 ) -> SliceUniforms {
     let (half, eye, view_dir) = (world.half, camera.eye, camera.view_dir);
+    let region = view.raycast.and_then(|r| r.region);
     let light = -view_dir; // a headlight
     let l = &view.lighting;
     SliceUniforms {
@@ -301,6 +302,8 @@ fn shading_uniforms(
             focus[2],
             if input.uses_occlusion { 1.0 } else { 0.0 },
         ],
+        region_lo: region.map_or([0.0; 4], |r| [r[0][0], r[0][1], r[0][2], 0.0]),
+        region_hi: region.map_or([0.0; 4], |r| [r[1][0], r[1][1], r[1][2], 1.0]),
         ..bytemuck::Zeroable::zeroed()
     }
 }
@@ -768,6 +771,74 @@ impl Renderer {
             _ => None,
         };
         Ok(recorded.image(view.size, (composite, layers), passes, segments))
+    }
+}
+
+impl Renderer {
+    /// Styles a two-level frame whose layers were made elsewhere (composited from the ranks of a
+    /// job by `render::sortlast`): uploads `layers` and `composite` into targets of `size`,
+    /// records `style`'s passes over them and reads the frame back. A style with object-space
+    /// lines is refused: they are drawn from the volume, which no one rank holds.
+    pub fn style_layers(
+        &mut self,
+        (layers, composite): (&Layers, &[[f32; 4]]),
+        size: [u32; 2],
+        style: &Style,
+    ) -> Result<FrameImage> {
+        if style.def.lines.is_some() {
+            return Err(Error::Invalid(format!(
+                "style {} draws object-space lines, which need the whole volume on one rank; choose an image-space style",
+                style.def.name
+            )));
+        }
+        if self.post.is_none() {
+            self.post = Some(Post::new(&mut self.pipelines)?);
+        }
+        let ctx = &self.ctx.clone();
+        let mut targets = FrameTargets::new(ctx);
+        targets.ensure(size, true, true)?;
+        let t = targets
+            .images()
+            .ok_or_else(|| Error::Invalid("no targets".into()))?;
+        let (l, post) = match (&t.layers, &t.post, &self.post) {
+            (Some(l), Some(p), Some(post)) => ((l, p), post),
+            _ => return Err(Error::Invalid("the styled targets were not made".into())),
+        };
+        let uploads: [(&Image, &[u8]); 5] = [
+            (&l.0.focus_phong, bytemuck::cast_slice(&layers.focus_phong)),
+            (
+                &l.0.focus_diffuse,
+                bytemuck::cast_slice(&layers.focus_diffuse),
+            ),
+            (&l.0.focus_depth, bytemuck::cast_slice(&layers.focus_depth)),
+            (&l.0.context, bytemuck::cast_slice(&layers.context)),
+            (&t.composite, bytemuck::cast_slice(composite)),
+        ];
+        let mut desc = FramesDesc::one_shot("styled layers", 32);
+        desc.staging_bytes = uploads.iter().map(|(_, b)| b.len() as u64 + 256).sum();
+        let mut frames = Frames::new(ctx, &desc)?;
+        let rb = TargetsReadback::new(ctx, &targets)?;
+        frames.frame(|f| {
+            for (image, bytes) in uploads {
+                let src = f.staging.push(bytes, 16)?;
+                crate::gpu::transfer::record_upload_from(
+                    ctx,
+                    f.cmd,
+                    src,
+                    image,
+                    Access::ComputeRead,
+                );
+            }
+            post.record(f, style, t, l.1, None)?;
+            rb.record(f, &targets);
+            Ok(())
+        })?;
+        let passes = frames.finish()?;
+        let recorded = Recorded {
+            slices: 0,
+            lines: None,
+        };
+        Ok(recorded.image(size, rb.read()?, passes, None))
     }
 }
 

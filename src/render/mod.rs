@@ -13,6 +13,7 @@ pub mod raycast;
 pub mod scene;
 pub mod shading;
 pub mod slicer;
+pub mod sortlast;
 pub mod style;
 pub mod targets;
 pub mod view;

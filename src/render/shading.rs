@@ -31,6 +31,10 @@ pub struct SliceUniforms {
     pub stipple_black: [f32; 4],
     /// Volume size in voxels (xyz), for the stipple grid.
     pub volume_dims: [f32; 4],
+    /// The ray caster's region in texture coordinates, samples in [lo, hi) only (`region_hi[3]`
+    /// = 1 when set): one rank's box of an MPI job.
+    pub region_lo: [f32; 4],
+    pub region_hi: [f32; 4],
 }
 
 impl SliceUniforms {
@@ -110,7 +114,9 @@ mod tests {
                 mod_seed,
                 stipple_white,
                 stipple_black,
-                volume_dims
+                volume_dims,
+                region_lo,
+                region_hi
             ]
         );
     }

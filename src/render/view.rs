@@ -93,6 +93,10 @@ pub struct RayOptions {
     /// Where samples lie: on the slicer's planes (the default, images comparable with the
     /// slicer's), or at equal steps of the plane spacing along each ray.
     pub sampling: Sampling,
+    /// Sample only inside this box of texture coordinates, `[lo, hi)` (one rank's region of an
+    /// MPI job; a bound at or past the volume's edge is open). Not part of a scene file.
+    #[serde(skip)]
+    pub region: Option<[[f32; 3]; 2]>,
 }
 
 /// Where the ray caster samples.
@@ -130,6 +134,7 @@ impl Default for RayOptions {
             skip_empty: true,
             refine_iso: false,
             sampling: Sampling::Planes,
+            region: None,
         }
     }
 }

@@ -220,6 +220,10 @@ pub(crate) struct RenderArgs {
     /// pixel at the sample) or finest (level 0 everywhere).
     #[arg(long, default_value = "auto", value_name = "auto|finest")]
     pub(crate) lod: String,
+    /// Under mpirun: how the ranks' partial frames are composited, auto (binary swap for a power
+    /// of two of ranks, else direct send), direct-send or binary-swap.
+    #[arg(long, value_name = "auto|direct-send|binary-swap")]
+    pub(crate) composite: Option<String>,
 }
 
 /// How the chunked passes run (issue 26).
@@ -750,6 +754,31 @@ pub(crate) enum BenchCommand {
         image: u32,
         /// Where the stores go (removed afterwards unless --keep).
         #[arg(long, default_value = "bench-scale")]
+        dir: PathBuf,
+        #[arg(long)]
+        keep: bool,
+    },
+    /// Many ranks (issue 27; needs a build with --features mpi and Open MPI's mpirun): strong
+    /// scaling of the chunked importance map (R = 10) and occlusion (R = 16) of a Shepp-Logan
+    /// phantom streamed into a store, and the compositing of a shared two-level frame against the
+    /// ranks, the image size and the exchange, with the bytes each frame sends.
+    Mpi {
+        #[arg(long)]
+        json: bool,
+        /// Phantom size (voxels per axis).
+        #[arg(long, default_value_t = 1024)]
+        size: usize,
+        /// Chunk edge of the passes' output stores.
+        #[arg(long, default_value_t = 128)]
+        chunk: usize,
+        /// Rank counts; counts above the cores are oversubscribed.
+        #[arg(long, value_delimiter = ',', default_value = "1,2,4")]
+        ranks: Vec<usize>,
+        /// Square image sizes of the compositing rows.
+        #[arg(long, value_delimiter = ',', default_value = "512,1024")]
+        images: Vec<u32>,
+        /// Where the stores go (removed afterwards unless --keep).
+        #[arg(long, default_value = "bench-mpi")]
         dir: PathBuf,
         #[arg(long)]
         keep: bool,

@@ -20,6 +20,15 @@ pub(crate) fn bench(cli: &Cli, which: &BenchCommand) -> Result<()> {
             dir,
             keep,
         } => super::scale::scale(sizes, *image, dir, *keep, *json),
+        BenchCommand::Mpi {
+            json,
+            size,
+            chunk,
+            ranks,
+            images,
+            dir,
+            keep,
+        } => super::mpi_bench::mpi((*size, *chunk), ranks, images, (dir, *keep, *json)),
     }
 }
 

@@ -5,6 +5,7 @@ mod chunked;
 mod convert;
 mod importance;
 mod info;
+mod mpi_bench;
 mod occlusion;
 mod render;
 mod scale;
@@ -118,14 +119,17 @@ pub(crate) fn run(cli: &Cli, team: &dyn Team) -> Result<()> {
     check_distinct_outputs(&cli.command)?;
     let shared = matches!(
         cli.command,
-        Command::Importance { .. } | Command::Occlusion(_) | Command::Normals { .. }
+        Command::Importance { .. }
+            | Command::Occlusion(_)
+            | Command::Normals { .. }
+            | Command::Render(_)
     );
     if team.size() > 1 && !shared {
         if !team.is_root() {
             return Ok(());
         }
         log::warn!(
-            "this command runs on rank 0 alone; the ranks of a job share importance, occlusion and normals chunk by chunk"
+            "this command runs on rank 0 alone; the ranks of a job share importance, occlusion and normals chunk by chunk, and render"
         );
     }
     match &cli.command {
@@ -160,7 +164,7 @@ pub(crate) fn run(cli: &Cli, team: &dyn Team) -> Result<()> {
             chunking,
             json,
         } => importance::normals((cli, team), input, out, chunking, *json),
-        Command::Render(args) => render(cli, args),
+        Command::Render(args) => render((cli, team), args),
         Command::Lines(args) => lines(cli, args),
         Command::Occlusion(a) => occlusion((cli, team), a),
         Command::OcclusionSelect {

@@ -1,10 +1,11 @@
 //! `vellum render`.
 
 use crate::args::*;
-use crate::commands::{context, passes_json, report_validation};
+use crate::commands::{context, inputs_key, passes_json, report_validation, together};
 use anyhow::Result;
 use serde_json::json;
 use vellum::render::scene::GpuScene;
+use vellum::team::Team;
 
 pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
     use vellum::render::frame::Renderer;
@@ -111,12 +112,13 @@ pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
     Ok(())
 }
 
-pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
-    use vellum::render::frame::Renderer;
+pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<()> {
     use vellum::render::targets::to_rgb8;
     let scene = a.scene.scene("render")?;
     if let Some(path) = &a.save_scene {
-        scene.save(path)?;
+        if team.is_root() {
+            scene.save(path)?;
+        }
         if a.out.is_none() {
             println!("wrote the scene to {}", path.display());
             return Ok(());
@@ -133,60 +135,40 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
     let classification = scene
         .classification()
         .map_err(|e| from("classification", e))?;
-    let ctx = context(cli)?;
+    let ctx = together(team, context(cli))?;
     let budget = vellum::render::bricked::gpu_budget_bytes(&ctx, a.gpu_budget)?;
-    let input = open_input(&scene, budget).map_err(|e| from("input", e))?;
-    let oriented = match &input {
-        Input::InCore(v) => v.geometry.is_oriented(),
-        Input::Bricked(_) => false,
+    let input = together(
+        team,
+        open_input(&scene, budget).map_err(|e| from("input", e)),
+    )?;
+    let grid = input.grid();
+    team.same_inputs(inputs_key(&(&scene.input.path, grid.0)))?;
+    let mut view = scene
+        .view(grid.2.is_oriented())
+        .map_err(|e| from("style", e))?;
+    let shared = match team.size() {
+        1 => None,
+        _ => Some(share(team, &mut view, grid, a)?),
     };
-    let mut view = scene.view(oriented).map_err(|e| from("style", e))?;
-    let (frame, prepare_passes, stream) = match input {
-        Input::InCore(v) => {
-            let modulation = scene.modulation.clone().unwrap_or_default();
-            let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
-            let frame =
-                Renderer::new(&ctx)?.render_frame(&gpu.volume, &mut gpu.classify, &view, true)?;
-            (frame, gpu.passes, None)
-        }
-        Input::Bricked(levels) => {
-            let finest = match a.lod.as_str() {
-                "auto" => false,
-                "finest" => true,
-                other => anyhow::bail!("--lod {other:?} is unknown; expected auto or finest"),
-            };
-            let modulation = scene.modulation.clone().unwrap_or_default();
-            let mut gpu = GpuScene::prepare_bricked(
-                &ctx,
-                levels,
-                &classification,
-                (scene.focus, &modulation),
-                budget,
-                finest,
-            )?;
-            if view.raycast.is_none() {
-                let mib = budget as f64 / (1 << 20) as f64;
-                eprintln!("the volume is larger than the GPU budget ({mib:.0} MiB): the ray caster draws it through the brick cache");
-                view.raycast = Some(Default::default());
-            }
-            let wait = a.max_wait_ms.map(std::time::Duration::from_millis);
-            let (frame, report) = Renderer::new(&ctx)?.render_bricked(
-                &mut gpu.volume,
-                &mut gpu.classify,
-                &view,
-                wait,
-            )?;
-            if !report.complete {
-                eprintln!(
-                    "the frame is not complete: --max-wait-ms {} ran out after {} passes, so bricks still missing were drawn from coarser levels",
-                    a.max_wait_ms.unwrap_or(0),
-                    report.passes
-                );
-            }
-            (frame, Vec::new(), Some(report))
-        }
-    };
+    let drawn = together(
+        team,
+        draw(
+            &ctx,
+            (&scene, &classification),
+            input,
+            &mut view,
+            (a, budget),
+        ),
+    );
+    let (frame, prepare_passes, stream) = drawn?;
     report_validation(&ctx);
+    let (frame, composited) = match shared {
+        None => (frame, None),
+        Some(s) => match composite(team, &ctx, frame, s)? {
+            Some((f, report)) => (f, Some(report)),
+            None => return Ok(()),
+        },
+    };
     let [w, h] = frame.size;
     vellum::output::write_png_rgb(out, w, h, &to_rgb8(&frame.composite, scene.background))?;
     if let Some(path) = &a.exr {
@@ -199,6 +181,7 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
             "{}",
             serde_json::to_string_pretty(
                 &json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map, "bricks": stream,
+                    "ranks": team.size(), "compositing": composited,
                     "peak_rss_mib": vellum::memory::peak_resident_kib().map(|k| k as f64 / 1024.0),
                     "peak_device_mib": ctx.peak_allocated_bytes() as f64 / (1 << 20) as f64 })
             )?
@@ -221,6 +204,9 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
                 r.total_ms
             );
         }
+        if let Some(c) = &composited {
+            println!("  composited by {} ranks: {c}", team.size());
+        }
         for p in passes {
             println!("  {:<14} {:>9.3} ms", p.name, p.ms);
         }
@@ -228,10 +214,163 @@ pub(crate) fn render(cli: &Cli, a: &RenderArgs) -> Result<()> {
     Ok(())
 }
 
+type Drawn = (
+    vellum::render::targets::FrameImage,
+    Vec<vellum::gpu::PassTime>,
+    Option<vellum::render::bricked::StreamReport>,
+);
+
+/// Draws the frame of `view`: in core, or through the brick cache (waiting for its bricks).
+fn draw(
+    ctx: &std::sync::Arc<vellum::gpu::Context>,
+    (scene, classification): (
+        &vellum::render::scene::Scene,
+        &vellum::classify::Classification,
+    ),
+    input: Input,
+    view: &mut vellum::render::view::View,
+    (a, budget): (&RenderArgs, u64),
+) -> Result<Drawn> {
+    use vellum::render::frame::Renderer;
+    let modulation = scene.modulation.clone().unwrap_or_default();
+    match input {
+        Input::InCore(v) => {
+            let mut gpu = GpuScene::prepare(ctx, &v, classification, scene.focus, &modulation)?;
+            let frame =
+                Renderer::new(ctx)?.render_frame(&gpu.volume, &mut gpu.classify, view, true)?;
+            Ok((frame, gpu.passes, None))
+        }
+        Input::Bricked(levels) => {
+            let finest = match a.lod.as_str() {
+                "auto" => false,
+                "finest" => true,
+                other => anyhow::bail!("--lod {other:?} is unknown; expected auto or finest"),
+            };
+            let mut gpu = GpuScene::prepare_bricked(
+                ctx,
+                levels,
+                classification,
+                (scene.focus, &modulation),
+                budget,
+                finest,
+            )?;
+            if view.raycast.is_none() {
+                let mib = budget as f64 / (1 << 20) as f64;
+                eprintln!("the volume is larger than the GPU budget ({mib:.0} MiB): the ray caster draws it through the brick cache");
+                view.raycast = Some(Default::default());
+            }
+            let wait = a.max_wait_ms.map(std::time::Duration::from_millis);
+            let (frame, report) = Renderer::new(ctx)?.render_bricked(
+                &mut gpu.volume,
+                &mut gpu.classify,
+                view,
+                wait,
+            )?;
+            if !report.complete {
+                eprintln!(
+                    "the frame is not complete: --max-wait-ms {} ran out after {} passes, so bricks still missing were drawn from coarser levels",
+                    a.max_wait_ms.unwrap_or(0),
+                    report.passes
+                );
+            }
+            Ok((frame, Vec::new(), Some(report)))
+        }
+    }
+}
+
+/// This rank's part of a shared frame: the style kept for rank 0, the ranks' order.
+struct Share {
+    style: Option<vellum::render::style::Style>,
+    order: Vec<usize>,
+    how: vellum::render::sortlast::Exchange,
+    two_level: bool,
+}
+
+/// Makes `view` this rank's share of the frame: the ray caster on its region, without the
+/// style (rank 0 styles the composited layers).
+fn share(
+    team: &dyn Team,
+    view: &mut vellum::render::view::View,
+    grid: ([usize; 3], [f64; 3], vellum::volume::geometry::Geometry),
+    a: &RenderArgs,
+) -> Result<Share> {
+    use vellum::render::sortlast::{regions, Exchange};
+    let how = match a.composite.as_deref() {
+        None | Some("auto") => Exchange::auto(team.size()),
+        Some(other) => Exchange::parse(other)?,
+    };
+    if view.raycast.is_none() {
+        if team.is_root() {
+            eprintln!("a frame shared by the ranks of a job is ray cast: the ray caster draws it");
+        }
+        view.raycast = Some(Default::default());
+    }
+    let (boxes, order) = regions((grid.0, grid.1, &grid.2), view, team.size());
+    if let Some(r) = view.raycast.as_mut() {
+        r.region = Some(boxes[team.rank()]);
+    }
+    Ok(Share {
+        style: view.style.take(),
+        order,
+        how,
+        two_level: !view.one_pass,
+    })
+}
+
+/// Composites the ranks' partial frames; rank 0 styles the result and gets the frame and a
+/// report of the compositing, the others `None`.
+fn composite(
+    team: &dyn Team,
+    ctx: &std::sync::Arc<vellum::gpu::Context>,
+    frame: vellum::render::targets::FrameImage,
+    s: Share,
+) -> Result<Option<(vellum::render::targets::FrameImage, serde_json::Value)>> {
+    use vellum::render::sortlast;
+    let size = frame.size;
+    let (whole, cost) = sortlast::composite(team, s.how, sortlast::pack(&frame), &s.order)?;
+    let mut sent = [cost.bytes_sent];
+    team.sum(&mut sent);
+    let Some(whole) = whole else {
+        return Ok(None);
+    };
+    let (pixels, layers) = sortlast::unpack(&whole, s.two_level);
+    let styled = match (&s.style, &layers) {
+        (Some(style), Some(l)) => {
+            let mut r = vellum::render::frame::Renderer::new(ctx)?;
+            Some(r.style_layers((l, &pixels), size, style)?)
+        }
+        _ => None,
+    };
+    let out = match styled {
+        Some(mut f) => {
+            f.passes = frame.passes.iter().chain(&f.passes).cloned().collect();
+            f
+        }
+        None => vellum::render::targets::FrameImage {
+            composite: pixels,
+            layers,
+            ..frame
+        },
+    };
+    let report =
+        json!({ "exchange": s.how.name(), "ms": cost.seconds * 1e3, "bytes_sent": sent[0] });
+    Ok(Some((out, report)))
+}
+
 /// The input of a render: whole in memory and on the GPU, or through the brick cache.
 enum Input {
     InCore(vellum::volume::Volume),
     Bricked(vellum::volume::bricks::BrickLevels),
+}
+
+impl Input {
+    /// Level 0's dims, spacing and placement.
+    fn grid(&self) -> ([usize; 3], [f64; 3], vellum::volume::geometry::Geometry) {
+        match self {
+            Input::InCore(v) => (v.dims, v.spacing, v.geometry),
+            Input::Bricked(b) => (b.levels()[0].dims, b.levels()[0].spacing, b.geometry),
+        }
+    }
 }
 
 /// Opens the scene's input: a store whose textures do not fit `budget` is never read whole;

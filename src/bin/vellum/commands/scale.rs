@@ -8,15 +8,19 @@ use std::path::Path;
 /// Runs `vellum ARGS --json` and parses its report.
 fn child(args: &[&str]) -> Result<Value> {
     let exe = std::env::current_exe().context("finding this binary")?;
-    let out = std::process::Command::new(exe)
-        .args(args)
-        .arg("--json")
+    let mut c = std::process::Command::new(exe);
+    c.args(args).arg("--json");
+    report_of(c, &format!("vellum {}", args.join(" ")))
+}
+
+/// Runs a bench step and parses the JSON it prints; its stderr in one sentence when it fails.
+pub(crate) fn report_of(mut step: std::process::Command, what: &str) -> Result<Value> {
+    let out = step
         .output()
-        .context("running a bench step")?;
+        .with_context(|| format!("running the bench step `{what}`"))?;
     if !out.status.success() {
         anyhow::bail!(
-            "bench step `vellum {}` failed: {}",
-            args.join(" "),
+            "bench step `{what}` failed: {}",
             String::from_utf8_lossy(&out.stderr).trim()
         );
     }
@@ -24,7 +28,7 @@ fn child(args: &[&str]) -> Result<Value> {
 }
 
 /// The render's flags for a store at a square image of `image` pixels.
-fn render_args<'a>(store: &'a str, size: &'a str, png: &'a str) -> Vec<&'a str> {
+pub(crate) fn render_args<'a>(store: &'a str, size: &'a str, png: &'a str) -> Vec<&'a str> {
     let mut a = vec![
         "render",
         store,
