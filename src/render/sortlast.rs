@@ -14,6 +14,7 @@ use crate::render::targets::{FrameImage, Layers};
 use crate::render::view::{FrameCamera, View, WorldBox};
 use crate::team::{KdTree, Team};
 use crate::volume::geometry::Geometry;
+use crate::volume::Volume;
 
 /// Floats per pixel of a partial: focus.phong, focus.diffuse, context (RGBA each), focus depth.
 pub const FLOATS: usize = 13;
@@ -38,13 +39,10 @@ impl Exchange {
         }
     }
 
-    /// Binary swap when the ranks are a power of two (it was the faster where both ran; see
-    /// BENCHMARKS.md), direct send otherwise.
-    pub fn auto(ranks: usize) -> Self {
-        match ranks.is_power_of_two() {
-            true => Exchange::BinarySwap,
-            false => Exchange::DirectSend,
-        }
+    /// Direct send: it takes any number of ranks and was the faster at 4 and 8 ranks at 512²
+    /// and 1024²; binary swap was at 2 ranks (BENCHMARKS.md, `bench mpi`).
+    pub fn auto(_ranks: usize) -> Self {
+        Exchange::DirectSend
     }
 
     pub fn name(self) -> &'static str {
@@ -58,16 +56,53 @@ impl Exchange {
 /// Edge of a cell of the k-d split of a frame's volume, in voxels.
 pub const CELL: usize = 32;
 
+/// Weight of a cell that holds only background, against 1 for one that holds more: its rays
+/// still walk it, but classify nothing and skip it where they can.
+pub const EMPTY_CELL: f64 = 0.25;
+
+/// The weight of each 32³-voxel cell of a grid of `dims` (x fastest), from `coarse`, the grid or
+/// any coarser copy of it (a store's small level): 1 where the cell's largest value rises above
+/// the copy's smallest by more than 1 % of its range, [`EMPTY_CELL`] elsewhere.
+pub fn cell_weights(coarse: &Volume, dims: [usize; 3]) -> Vec<f64> {
+    let counts = dims.map(|n| n.div_ceil(CELL).max(1));
+    let c = coarse.dims;
+    let [lo, hi] = crate::volume::stats::value_range(coarse);
+    let floor = lo + 0.01 * (hi - lo);
+    let mut weights = vec![EMPTY_CELL; counts.iter().product()];
+    // The coarse voxels under cell k along axis a.
+    let span = |k: usize, a: usize| -> std::ops::Range<usize> {
+        let from = (k * CELL * c[a]) / dims[a];
+        let to = (((k + 1) * CELL).min(dims[a]) * c[a]).div_ceil(dims[a]);
+        from.min(c[a] - 1)..to.clamp(from.min(c[a] - 1) + 1, c[a])
+    };
+    for (i, w) in weights.iter_mut().enumerate() {
+        let k = [
+            i % counts[0],
+            (i / counts[0]) % counts[1],
+            i / (counts[0] * counts[1]),
+        ];
+        let full = span(k[2], 2).any(|z| {
+            span(k[1], 1)
+                .any(|y| span(k[0], 0).any(|x| coarse.data.get_f64(coarse.index(x, y, z)) > floor))
+        });
+        if full {
+            *w = 1.0;
+        }
+    }
+    weights
+}
+
 /// The ranks' shares of a frame of a volume of `dims`, `spacing` and `geometry` seen by `view`:
 /// each rank's region (texture coordinates for `RayOptions::region`, open where it meets the
-/// volume's edge) from a k-d split of 32³-voxel cells, and the ranks front to back.
+/// volume's edge) from a k-d split of 32³-voxel cells balanced by `weights` ([`cell_weights`];
+/// empty for equal weights), and the ranks front to back.
 pub fn regions(
     (dims, spacing, geometry): ([usize; 3], [f64; 3], &Geometry),
     view: &View,
-    ranks: usize,
+    (ranks, weights): (usize, &[f64]),
 ) -> (Vec<[[f32; 3]; 2]>, Vec<usize>) {
     let counts = dims.map(|n| n.div_ceil(CELL).max(1));
-    let tree = KdTree::new(counts, &[], ranks);
+    let tree = KdTree::new(counts, weights, ranks);
     let edge = |cell: usize, a: usize| -> f32 {
         match (cell * CELL).min(dims[a]) {
             0 => -1.0,
@@ -173,6 +208,8 @@ pub struct Cost {
     /// Bytes this rank sent to others (its piece's gather to rank 0 included).
     pub bytes_sent: u64,
     pub seconds: f64,
+    /// Of those seconds, the ones spent in [`over`] (the rest is the exchange and the gather).
+    pub over_seconds: f64,
 }
 
 /// Composites every rank's `mine` (a partial of `pixels` pixels) in the visibility order
@@ -184,9 +221,12 @@ pub fn composite(
     order: &[usize],
 ) -> Result<(Option<Vec<f32>>, Cost)> {
     let n = team.size();
+    // The ranks finish ray casting at different times: wait for the last, so that the time is
+    // the compositing's own, not the imbalance's.
+    team.barrier();
     let start = std::time::Instant::now();
     let pixels = mine.len() / FLOATS;
-    let (piece, range, mut sent) = match how {
+    let (piece, range, mut sent, over_seconds) = match how {
         Exchange::DirectSend => direct_send(team, &mine, order),
         Exchange::BinarySwap if n.is_power_of_two() => binary_swap(team, mine, order),
         Exchange::BinarySwap => {
@@ -209,6 +249,7 @@ pub fn composite(
         let cost = Cost {
             bytes_sent: sent,
             seconds: start.elapsed().as_secs_f64(),
+            over_seconds,
         };
         return Ok((None, cost));
     }
@@ -221,6 +262,7 @@ pub fn composite(
     let cost = Cost {
         bytes_sent: sent,
         seconds: start.elapsed().as_secs_f64(),
+        over_seconds,
     };
     Ok((Some(all), cost))
 }
@@ -252,7 +294,7 @@ fn band(r: usize, n: usize, pixels: usize) -> (usize, usize) {
 }
 
 /// Direct send: band r of every rank's partial to rank r, which composites them in order.
-fn direct_send(team: &dyn Team, mine: &[f32], order: &[usize]) -> (Vec<f32>, (usize, usize), u64) {
+fn direct_send(team: &dyn Team, mine: &[f32], order: &[usize]) -> Exchanged {
     let (n, me) = (team.size(), team.rank());
     let pixels = mine.len() / FLOATS;
     let send_counts: Vec<usize> = (0..n)
@@ -266,20 +308,20 @@ fn direct_send(team: &dyn Team, mine: &[f32], order: &[usize]) -> (Vec<f32>, (us
     let mut recv = vec![0f32; len * n];
     team.exchange((mine, &send_counts), (&mut recv, &vec![len; n]));
     let sent = (send_counts.iter().sum::<usize>() - send_counts[me]) as u64 * 4;
+    let start = std::time::Instant::now();
     let mut acc = recv[order[0] * len..(order[0] + 1) * len].to_vec();
     for &r in &order[1..] {
         over(&mut acc, &recv[r * len..(r + 1) * len]);
     }
-    (acc, (a, b), sent)
+    (acc, (a, b), sent, start.elapsed().as_secs_f64())
 }
+
+/// A rank's composited piece, its pixels, the bytes it sent and the seconds spent in [`over`].
+type Exchanged = (Vec<f32>, (usize, usize), u64, f64);
 
 /// Binary swap: in round k the ranks that differ in bit k swap halves of their current piece;
 /// the pair's two groups are sibling boxes of the k-d split, so one lies wholly in front.
-fn binary_swap(
-    team: &dyn Team,
-    mine: Vec<f32>,
-    order: &[usize],
-) -> (Vec<f32>, (usize, usize), u64) {
+fn binary_swap(team: &dyn Team, mine: Vec<f32>, order: &[usize]) -> Exchanged {
     let (n, me) = (team.size(), team.rank());
     let position: Vec<usize> = {
         let mut p = vec![0; n];
@@ -299,6 +341,7 @@ fn binary_swap(
     let (mut a, mut b) = (0, mine.len() / FLOATS);
     let mut piece = mine;
     let mut sent = 0u64;
+    let mut over_seconds = 0.0;
     let mut bit = 1;
     while bit < n {
         let partner = me ^ bit;
@@ -316,18 +359,20 @@ fn binary_swap(
         sent += ((give.1 - give.0) * FLOATS * 4) as u64;
         let mut ours = piece[keep.0 * FLOATS..keep.1 * FLOATS].to_vec();
         // The groups so far: this rank's and the partner's, each of `bit` ranks.
+        let start = std::time::Instant::now();
         if first(me, bit) < first(partner, bit) {
             over(&mut ours, &theirs);
         } else {
             over(&mut theirs, &ours);
             ours = theirs;
         }
+        over_seconds += start.elapsed().as_secs_f64();
         piece = ours;
         b = a + keep.1;
         a += keep.0;
         bit <<= 1;
     }
-    (piece, (a, b), sent)
+    (piece, (a, b), sent, over_seconds)
 }
 
 #[cfg(test)]
@@ -384,6 +429,20 @@ mod tests {
         for (l, r) in left.iter().zip(&right) {
             assert!((l - r).abs() < 1e-6, "{left:?} {right:?}");
         }
+    }
+
+    #[test]
+    fn cells_with_something_in_them_weigh_more() {
+        // 64 x 32 x 32: the right half holds a value, the left half only background.
+        let dims = [64, 32, 32];
+        let data = (0..64 * 32 * 32)
+            .map(|i| if i % 64 >= 32 { 5.0 } else { 0.0 })
+            .collect();
+        let v = Volume::new(dims, [1.0; 3], crate::volume::VoxelData::F32(data)).unwrap();
+        assert_eq!(cell_weights(&v, dims), [EMPTY_CELL, 1.0]);
+        // The same from a copy at half the resolution.
+        let half = crate::volume::io::ome_zarr::halve(&v).unwrap();
+        assert_eq!(cell_weights(&half, dims), [EMPTY_CELL, 1.0]);
     }
 
     #[test]

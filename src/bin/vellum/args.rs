@@ -220,8 +220,8 @@ pub(crate) struct RenderArgs {
     /// pixel at the sample) or finest (level 0 everywhere).
     #[arg(long, default_value = "auto", value_name = "auto|finest")]
     pub(crate) lod: String,
-    /// Under mpirun: how the ranks' partial frames are composited, auto (binary swap for a power
-    /// of two of ranks, else direct send), direct-send or binary-swap.
+    /// Under mpirun: how the ranks' partial frames are composited, auto (direct send),
+    /// direct-send or binary-swap (a power of two of ranks).
     #[arg(long, value_name = "auto|direct-send|binary-swap")]
     pub(crate) composite: Option<String>,
 }

@@ -69,7 +69,7 @@ fn compositing(store: &str, ranks: &[usize], images: &[u32], dir: &Path) -> Resu
                     c["ms"].as_f64().unwrap_or(0.0)
                 );
                 rows.push(json!({
-                    "image": size, "ranks": n, "exchange": how, "ms": c["ms"],
+                    "image": size, "ranks": n, "exchange": how, "ms": c["ms"], "over_ms": c["over_ms"],
                     "bytes_sent": c["bytes_sent"], "raycast_ms": r["passes"]["raycast"],
                 }));
             }

@@ -148,7 +148,10 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
         .map_err(|e| from("style", e))?;
     let shared = match team.size() {
         1 => None,
-        _ => Some(share(team, &mut view, grid, a)?),
+        _ => {
+            let weights = together(team, input.cell_weights().map_err(anyhow::Error::from))?;
+            Some(share(team, &mut view, (grid, &weights), a)?)
+        }
     };
     let drawn = together(
         team,
@@ -291,7 +294,7 @@ struct Share {
 fn share(
     team: &dyn Team,
     view: &mut vellum::render::view::View,
-    grid: ([usize; 3], [f64; 3], vellum::volume::geometry::Geometry),
+    (grid, weights): (Grid, &[f64]),
     a: &RenderArgs,
 ) -> Result<Share> {
     use vellum::render::sortlast::{regions, Exchange};
@@ -305,7 +308,7 @@ fn share(
         }
         view.raycast = Some(Default::default());
     }
-    let (boxes, order) = regions((grid.0, grid.1, &grid.2), view, team.size());
+    let (boxes, order) = regions((grid.0, grid.1, &grid.2), view, (team.size(), weights));
     if let Some(r) = view.raycast.as_mut() {
         r.region = Some(boxes[team.rank()]);
     }
@@ -352,10 +355,15 @@ fn composite(
             ..frame
         },
     };
-    let report =
-        json!({ "exchange": s.how.name(), "ms": cost.seconds * 1e3, "bytes_sent": sent[0] });
+    let report = json!({
+        "exchange": s.how.name(), "ms": cost.seconds * 1e3, "over_ms": cost.over_seconds * 1e3,
+        "bytes_sent": sent[0],
+    });
     Ok(Some((out, report)))
 }
+
+/// Level 0's dims, spacing and placement.
+type Grid = ([usize; 3], [f64; 3], vellum::volume::geometry::Geometry);
 
 /// The input of a render: whole in memory and on the GPU, or through the brick cache.
 enum Input {
@@ -364,8 +372,19 @@ enum Input {
 }
 
 impl Input {
+    /// The weights the ranks' regions balance (`sortlast::cell_weights`): from the volume in
+    /// core, or from a level of at most 64³ voxels of the pyramid.
+    fn cell_weights(&self) -> vellum::Result<Vec<f64>> {
+        use vellum::render::sortlast::cell_weights;
+        let dims = self.grid().0;
+        match self {
+            Input::InCore(v) => Ok(cell_weights(v, dims)),
+            Input::Bricked(b) => Ok(cell_weights(&b.read_small_level(1 << 18)?, dims)),
+        }
+    }
+
     /// Level 0's dims, spacing and placement.
-    fn grid(&self) -> ([usize; 3], [f64; 3], vellum::volume::geometry::Geometry) {
+    fn grid(&self) -> Grid {
         match self {
             Input::InCore(v) => (v.dims, v.spacing, v.geometry),
             Input::Bricked(b) => (b.levels()[0].dims, b.levels()[0].spacing, b.geometry),
