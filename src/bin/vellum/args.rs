@@ -771,8 +771,9 @@ pub(crate) enum BenchCommand {
         /// Chunk edge of the passes' output stores.
         #[arg(long, default_value_t = 128)]
         chunk: usize,
-        /// Rank counts; counts above the cores are oversubscribed.
-        #[arg(long, value_delimiter = ',', default_value = "1,2,4")]
+        /// Rank counts, e.g. 1,2,4 (required: a 1024³ store takes minutes per count); counts
+        /// above the cores are oversubscribed.
+        #[arg(long, value_delimiter = ',', required = true)]
         ranks: Vec<usize>,
         /// Square image sizes of the compositing rows.
         #[arg(long, value_delimiter = ',', default_value = "512,1024")]
