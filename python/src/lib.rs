@@ -398,20 +398,32 @@ fn occlusion_params(
 /// `mapping`: "ramp" (M = intensity, ball), "gaussian" (M = intensity, Gaussian weights with
 /// σ = R/3), "truncated:T0,T1" (a ramp from T0 to T1, fractions of the range) or
 /// "tf:FILE.json" (a transfer function's opacity). `method`: "auto", "runs", "fft-gpu" or
-/// "fft-cpu"; all give the same values.
+/// "fft-cpu"; all give the same values. `range`: the data values that normalise to 0 and 1,
+/// when `volume` is one block of a larger grid (the grid's min and max; `vellum.dask` passes
+/// them); by default the volume's own.
 #[pyfunction]
-#[pyo3(signature = (volume, radius, mapping = String::from("ramp"), method = String::from("auto")))]
+#[pyo3(signature = (volume, radius, mapping = String::from("ramp"), method = String::from("auto"), range = None))]
 fn occlusion<'py>(
     py: Python<'py>,
     volume: &Bound<'py, PyVolume>,
     radius: i64,
     mapping: String,
     method: String,
+    range: Option<(f64, f64)>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let params = occlusion_params(radius, &mapping, &method, None)?;
+    if let Some((lo, hi)) = range {
+        if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+            return Err(refuse(format!(
+                "range ({lo}, {hi}) is invalid; expected finite (min, max) with min <= max"
+            )));
+        }
+    }
     let v = &volume.get().inner;
     let o = on_gpu(py, move |ctx| {
-        Ok(Occlusion::new(ctx)?.compute(v, &params)?.occlusion)
+        let range = range.map(|(lo, hi)| [lo, hi]);
+        let (input, _) = vellum::passes::occlusion::OcclusionInput::upload_in_range(ctx, v, range)?;
+        Ok(Occlusion::new(ctx)?.compute_on(&input, &params)?.occlusion)
     })?;
     to_numpy(py, o.dims, o.data)
 }

@@ -86,7 +86,8 @@ def occlusion(
 
     Values in [0, 1], float32, indexed (z, y, x). `mapping`: "ramp", "gaussian",
     "truncated:T0,T1" (fractions of the data range) or "tf:FILE.json". `method`: "auto",
-    "runs", "fft-gpu" or "fft-cpu"; all give the same values.
+    "runs", "fft-gpu" or "fft-cpu"; all give the same values. `range`: the data values that
+    normalise to 0 and 1 when `volume` is a block of a larger grid; by default its own.
     """
 
 def spectrum(
