@@ -34,6 +34,8 @@ use vellum::passes::occlusion::{parse_mapping, Method, Occlusion, OcclusionParam
 use vellum::volume::geometry::{Geometry, Space, IDENTITY};
 use vellum::volume::{VoxelData, VoxelType};
 
+mod render;
+
 pyo3::create_exception!(
     vellum,
     Error,
@@ -45,12 +47,12 @@ pyo3::create_exception!(
 type Triple = (f64, f64, f64);
 
 /// The library's error as `vellum.Error`, on one line.
-fn to_py(e: vellum::Error) -> PyErr {
+pub(crate) fn to_py(e: vellum::Error) -> PyErr {
     Error::new_err(one_line(&e.to_string()))
 }
 
 /// A sentence of this module's own as `vellum.Error`.
-fn refuse(sentence: String) -> PyErr {
+pub(crate) fn refuse(sentence: String) -> PyErr {
     Error::new_err(sentence)
 }
 
@@ -82,7 +84,7 @@ fn detached<T: Send>(
 static DEVICE: Mutex<Option<Arc<Context>>> = Mutex::new(None);
 
 /// Runs `work` on the process's device with the GIL released, holding the device's lock.
-fn on_gpu<T: Send>(
+pub(crate) fn on_gpu<T: Send>(
     py: Python<'_>,
     work: impl FnOnce(&Arc<Context>) -> vellum::Result<T> + Send,
 ) -> PyResult<T> {
@@ -484,5 +486,6 @@ fn _vellum(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(occlusion, m)?)?;
     m.add_function(wrap_pyfunction!(spectrum, m)?)?;
     m.add_function(wrap_pyfunction!(validation_messages, m)?)?;
+    render::add(m)?;
     Ok(())
 }

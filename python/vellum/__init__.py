@@ -18,22 +18,30 @@ made on first use; the GIL is released while it runs.
 
 from ._vellum import (
     Error,
+    Image,
+    Renderer,
+    Scene,
     Volume,
     devices,
     importance,
     occlusion,
     read,
+    render,
     spectrum,
     validation_messages,
 )
 
 __all__ = [
     "Error",
+    "Image",
+    "Renderer",
+    "Scene",
     "Volume",
     "devices",
     "importance",
     "occlusion",
     "read",
+    "render",
     "spectrum",
     "validation_messages",
 ]

@@ -106,3 +106,45 @@ def spectrum(
 def validation_messages() -> tuple[int, int]:
     """The validation layer's (errors, warnings) on the process's device so far; (0, 0) before
     the device is made or with validation off (VELLUM_VALIDATION=1 turns it on)."""
+
+class Scene:
+    """A scene: input, classification, focus, camera, size, style and the rest, as the JSON
+    scene file holds them (`vellum render --save-scene`)."""
+
+    @staticmethod
+    def load(path: str | os.PathLike[str]) -> Scene: ...
+    @staticmethod
+    def from_json(text: str) -> Scene: ...
+    def to_json(self) -> str: ...
+    def save(self, path: str | os.PathLike[str]) -> None: ...
+
+class Image:
+    """A rendered frame."""
+
+    @property
+    def rgba(self) -> npt.NDArray[np.uint8]:
+        """(height, width, 4) over the scene's background, alpha 255: the pixels of `vellum render`'s PNG."""
+    @property
+    def layers(self) -> dict[str, npt.NDArray[np.float32]]:
+        """composite, and for two levels focus.phong, focus.diffuse, context (H, W, 4) and focus.depth (H, W)."""
+    @property
+    def timings(self) -> dict[str, float]:
+        """GPU milliseconds per pass."""
+    @property
+    def size(self) -> tuple[int, int]: ...
+    def _repr_png_(self) -> bytes: ...
+
+class Renderer:
+    """A scene prepared once on the device and rendered many times (an orbit) with nothing
+    uploaded again. `close()` releases its device memory."""
+
+    def __init__(self, scene: Scene) -> None: ...
+    def render(
+        self,
+        camera: tuple[float, float] | tuple[float, float, float] | None = None,
+        size: tuple[int, int] | None = None,
+    ) -> Image: ...
+    def close(self) -> None: ...
+
+def render(scene: Scene | str | os.PathLike[str]) -> Image:
+    """Renders a scene once: the pixels `vellum render --scene FILE` writes."""

@@ -1,0 +1,244 @@
+//! Rendering from Python: `vellum.Scene` (the JSON scene file), `vellum.Renderer` (a scene's
+//! volume, classification and renderer kept on the device for many frames) and `vellum.Image`
+//! (a frame read back). A scene renders the pixels `vellum render --scene FILE` writes.
+
+use crate::{on_gpu, refuse, to_py};
+use numpy::prelude::*;
+use numpy::PyArray1;
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+use std::path::PathBuf;
+use std::sync::Mutex;
+use vellum::render::frame::Renderer;
+use vellum::render::scene::{GpuScene, Scene};
+use vellum::render::targets::{to_rgb8, FrameImage};
+use vellum::render::view::View;
+
+/// A scene: the input, classification, focus, camera, size, style and the rest, as the JSON
+/// scene file holds them (`vellum render --save-scene`).
+#[pyclass(name = "Scene", module = "vellum")]
+#[derive(Clone)]
+pub struct PyScene {
+    pub inner: Scene,
+}
+
+#[pymethods]
+impl PyScene {
+    /// Reads a scene file; relative paths in it are resolved against its folder.
+    #[staticmethod]
+    fn load(path: PathBuf) -> PyResult<Self> {
+        Ok(PyScene {
+            inner: Scene::load(&path).map_err(to_py)?,
+        })
+    }
+
+    /// A scene from the text of a scene file.
+    #[staticmethod]
+    fn from_json(text: &str) -> PyResult<Self> {
+        Ok(PyScene {
+            inner: Scene::from_json_str(text).map_err(to_py)?,
+        })
+    }
+
+    /// The scene as the text of a scene file.
+    fn to_json(&self) -> PyResult<String> {
+        serde_json::to_string_pretty(&self.inner)
+            .map_err(|e| refuse(format!("the scene could not be written as JSON ({e})")))
+    }
+
+    /// Writes the scene file (input paths made absolute).
+    fn save(&self, path: PathBuf) -> PyResult<()> {
+        self.inner.save(&path).map_err(to_py)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "vellum.Scene(input={:?}, size={:?})",
+            self.inner.input.path, self.inner.size
+        )
+    }
+}
+
+/// A rendered frame: `.rgba` (H, W, 4) uint8 over the scene's background, `.layers` (the
+/// two-level layers as float arrays), `.timings` (GPU ms per pass); shown inline in Jupyter.
+#[pyclass(name = "Image", module = "vellum", frozen)]
+pub struct PyImage {
+    frame: FrameImage,
+    rgb: Vec<u8>,
+}
+
+fn rgba_of(rgb: &[u8]) -> Vec<u8> {
+    rgb.chunks_exact(3)
+        .flat_map(|p| [p[0], p[1], p[2], 255])
+        .collect()
+}
+
+#[pymethods]
+impl PyImage {
+    /// The frame over the scene's background, (height, width, 4) uint8, alpha 255: the pixels
+    /// `vellum render` writes to its PNG.
+    #[getter]
+    fn rgba<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let [w, h] = self.frame.size;
+        let flat = PyArray1::from_vec(py, rgba_of(&self.rgb));
+        Ok(flat.reshape([h as usize, w as usize, 4])?.into_any())
+    }
+
+    /// `composite` (premultiplied RGBA, float32 (H, W, 4)) and, for a two-level frame,
+    /// `focus.phong`, `focus.diffuse`, `context` (the same) and `focus.depth` (float32 (H, W),
+    /// +inf where no focus was hit).
+    #[getter]
+    fn layers<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let [w, h] = self.frame.size.map(|n| n as usize);
+        let d = PyDict::new(py);
+        let rgba = |px: &[[f32; 4]]| -> PyResult<Bound<'py, PyAny>> {
+            let flat: Vec<f32> = px.iter().flatten().copied().collect();
+            Ok(PyArray1::from_vec(py, flat).reshape([h, w, 4])?.into_any())
+        };
+        d.set_item("composite", rgba(&self.frame.composite)?)?;
+        if let Some(l) = &self.frame.layers {
+            d.set_item("focus.phong", rgba(&l.focus_phong)?)?;
+            d.set_item("focus.diffuse", rgba(&l.focus_diffuse)?)?;
+            d.set_item("context", rgba(&l.context)?)?;
+            let depth = PyArray1::from_vec(py, l.focus_depth.clone()).reshape([h, w])?;
+            d.set_item("focus.depth", depth.into_any())?;
+        }
+        Ok(d)
+    }
+
+    /// GPU milliseconds per pass of the frame.
+    #[getter]
+    fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for p in &self.frame.passes {
+            d.set_item(&p.name, p.ms)?;
+        }
+        Ok(d)
+    }
+
+    #[getter]
+    fn size(&self) -> (u32, u32) {
+        (self.frame.size[0], self.frame.size[1])
+    }
+
+    /// The frame as PNG bytes, for Jupyter.
+    fn _repr_png_<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        let [w, h] = self.frame.size;
+        let mut png = Vec::new();
+        image::codecs::png::PngEncoder::new(&mut png)
+            .write_image(&self.rgb, w, h, image::ExtendedColorType::Rgb8)
+            .map_err(|e| refuse(format!("the frame could not be encoded as PNG ({e})")))?;
+        Ok(PyBytes::new(py, &png))
+    }
+}
+
+use image::ImageEncoder;
+
+/// What a renderer keeps on the device between frames.
+struct Kept {
+    gpu: GpuScene,
+    renderer: Renderer,
+    view: View,
+    background: [f32; 3],
+}
+
+/// A scene prepared once on the device (volume, normals, occlusion or ΔD when the scene needs
+/// them, transfer functions) and rendered as many times as asked, e.g. an orbit, with nothing
+/// uploaded again. `close()` releases the device memory; a closed renderer refuses to render.
+#[pyclass(name = "Renderer", module = "vellum")]
+pub struct PyRenderer {
+    kept: Mutex<Option<Kept>>,
+}
+
+#[pymethods]
+impl PyRenderer {
+    #[new]
+    fn new(py: Python<'_>, scene: &PyScene) -> PyResult<Self> {
+        let scene = scene.inner.clone();
+        let kept = on_gpu(py, move |ctx| {
+            let classification = scene.classification()?;
+            let v = scene.load_volume()?;
+            let view = scene.view(v.geometry.is_oriented())?;
+            let modulation = scene.modulation.clone().unwrap_or_default();
+            let gpu = GpuScene::prepare(ctx, &v, &classification, scene.focus, &modulation)?;
+            Ok(Kept {
+                gpu,
+                renderer: Renderer::new(ctx)?,
+                view,
+                background: scene.background,
+            })
+        })?;
+        Ok(PyRenderer {
+            kept: Mutex::new(Some(kept)),
+        })
+    }
+
+    /// Renders a frame: the scene's view, or with `camera=(azimuth, elevation[, distance])` in
+    /// degrees (and radii) and `size=(width, height)` changed for this frame and the next.
+    #[pyo3(signature = (camera = None, size = None))]
+    fn render(
+        &self,
+        py: Python<'_>,
+        camera: Option<Vec<f32>>,
+        size: Option<(u32, u32)>,
+    ) -> PyResult<PyImage> {
+        let mut slot = self.kept.lock().unwrap_or_else(|p| p.into_inner());
+        let kept = slot
+            .as_mut()
+            .ok_or_else(|| refuse("the renderer is closed; make a new vellum.Renderer".into()))?;
+        if let Some(c) = camera {
+            if !(2..=3).contains(&c.len()) {
+                return Err(refuse(format!(
+                    "camera has {} numbers; expected (azimuth, elevation) or (azimuth, elevation, distance)",
+                    c.len()
+                )));
+            }
+            kept.view.camera.azimuth_deg = c[0];
+            kept.view.camera.elevation_deg = c[1];
+            if let Some(&d) = c.get(2) {
+                kept.view.camera.distance = d;
+            }
+        }
+        if let Some((w, h)) = size {
+            kept.view.size = [w, h];
+        }
+        let frame = on_gpu(py, |_| {
+            let k = &mut *kept;
+            k.view.camera.validate()?;
+            k.renderer
+                .render_frame(&k.gpu.volume, &mut k.gpu.classify, &k.view, true)
+        })?;
+        let rgb = to_rgb8(&frame.composite, kept.background);
+        Ok(PyImage { frame, rgb })
+    }
+
+    /// Releases the device memory the renderer holds; later `render` calls raise vellum.Error.
+    fn close(&self) {
+        *self.kept.lock().unwrap_or_else(|p| p.into_inner()) = None;
+    }
+}
+
+/// Renders `scene` (a `vellum.Scene` or the path of a scene file) once: the pixels `vellum
+/// render --scene FILE` writes.
+#[pyfunction]
+pub fn render(py: Python<'_>, scene: &Bound<'_, PyAny>) -> PyResult<PyImage> {
+    let scene = match scene.cast::<PyScene>() {
+        Ok(s) => s.borrow().clone(),
+        Err(_) => PyScene::load(scene.extract::<PathBuf>().map_err(|_| {
+            refuse("scene is neither a vellum.Scene nor a path; expected one of them".into())
+        })?)?,
+    };
+    let r = PyRenderer::new(py, &scene)?;
+    let image = r.render(py, None, None)?;
+    r.close();
+    Ok(image)
+}
+
+/// Registers the classes and `render` in the module.
+pub fn add(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyScene>()?;
+    m.add_class::<PyImage>()?;
+    m.add_class::<PyRenderer>()?;
+    m.add_function(wrap_pyfunction!(render, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,92 @@
+"""Rendering from Python (issue 28): a scene gives the pixels `vellum render --scene` writes, bit
+for bit; a Renderer keeps its scene on the device through 200 frames without the resident set
+growing; a closed renderer refuses in one sentence."""
+
+import os
+import pathlib
+import subprocess
+
+import numpy as np
+import pytest
+
+import vellum
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+
+def cli():
+    """The command line binary `cargo test` or `cargo build` left in target/."""
+    for profile in ["debug", "release"]:
+        exe = ROOT / "target" / profile / "vellum"
+        if exe.is_file():
+            return exe
+    if os.environ.get("CI") == "true":
+        pytest.fail("no target/*/vellum; CI builds it before the Python tests")
+    pytest.skip("no target/*/vellum; build it first")
+
+
+def scene_file(tmp_path, *flags):
+    path = tmp_path / "scene.json"
+    args = [str(cli()), "render", "phantom:shepp-logan:64", "--tf", "grey", "--size", "96x80"]
+    subprocess.run(args + list(flags) + ["--save-scene", str(path)], check=True, capture_output=True)
+    return path
+
+
+def rss_kib():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0
+
+
+@pytest.mark.parametrize(
+    "flags",
+    [("--iso", "0.9"), ("--iso", "0.9", "--style", "canny"), ("--one-pass", "--renderer", "raycast")],
+)
+def test_a_scene_renders_the_command_lines_pixels(tmp_path, flags):
+    from PIL import Image as PilImage
+
+    path = scene_file(tmp_path, *flags)
+    png = tmp_path / "cli.png"
+    subprocess.run([str(cli()), "render", "--scene", str(path), "--out", str(png)], check=True, capture_output=True)
+    theirs = np.asarray(PilImage.open(png).convert("RGB"))
+    image = vellum.render(str(path))
+    ours = image.rgba
+    assert ours.shape == (80, 96, 4) and ours.dtype == np.uint8
+    np.testing.assert_array_equal(ours[..., :3], theirs)
+    assert (ours[..., 3] == 255).all()
+    assert ours[..., :3].max() > 0, "the frame is not empty"
+    # The same through a Scene object, and its JSON round trip.
+    scene = vellum.Scene.load(str(path))
+    again = vellum.render(vellum.Scene.from_json(scene.to_json()))
+    np.testing.assert_array_equal(again.rgba, ours)
+
+
+def test_an_image_has_its_layers_timings_and_a_png():
+    scene = vellum.Scene.from_json('{"version": 1, "input": {"path": "phantom:shepp-logan:48"}, "focus": {"iso": 0.9}, "size": [64, 48]}')
+    image = vellum.render(scene)
+    assert image.size == (64, 48)
+    layers = image.layers
+    assert set(layers) == {"composite", "focus.phong", "focus.diffuse", "context", "focus.depth"}
+    assert layers["focus.depth"].shape == (48, 64)
+    assert np.isfinite(layers["focus.depth"]).any(), "the iso surface was hit"
+    assert image.timings and all(ms >= 0 for ms in image.timings.values())
+    assert image._repr_png_()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_renderer_keeps_its_scene_through_200_frames():
+    scene = vellum.Scene.from_json('{"version": 1, "input": {"path": "phantom:shepp-logan:48"}, "focus": {"iso": 0.9}, "size": [64, 64]}')
+    r = vellum.Renderer(scene)
+    first = r.render(camera=(0, 20)).rgba
+    for i in range(20):
+        r.render(camera=(i * 18, 20))
+    before = rss_kib()
+    for i in range(200):
+        r.render(camera=(i * 1.8, 20))
+    grown = (rss_kib() - before) / 1024
+    assert grown <= 5.0, f"the resident set grew {grown:.1f} MiB over 200 frames"
+    np.testing.assert_array_equal(r.render(camera=(0, 20)).rgba, first)
+    r.close()
+    with pytest.raises(vellum.Error, match="closed") as raised:
+        r.render()
+    assert "\n" not in str(raised.value)
