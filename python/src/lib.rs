@@ -233,8 +233,8 @@ fn to_numpy(py: Python<'_>, dims: [usize; 3], data: VoxelData) -> PyResult<Bound
 /// Origin and direction are kept as given, with no claim of an anatomical (LPS) orientation.
 /// Bad input raises `vellum.Error` with one sentence.
 #[pyclass(name = "Volume", module = "vellum", frozen)]
-struct PyVolume {
-    inner: vellum::volume::Volume,
+pub(crate) struct PyVolume {
+    pub(crate) inner: vellum::volume::Volume,
 }
 
 #[pymethods]

@@ -134,6 +134,115 @@ impl PyImage {
 
 use image::ImageEncoder;
 
+/// The keyword options of `render` and `Renderer`, named as the command line's flags.
+const OPTIONS: &str = "iso, focus, tf, otf, features, camera, size, slices, one_pass, background, style, renderer, jitter";
+
+/// `scene` with the keyword `options` applied over it, each named as on the command line.
+fn apply(mut scene: Scene, options: Option<&Bound<'_, PyDict>>) -> PyResult<Scene> {
+    use vellum::classify::Focus;
+    use vellum::render::scene::{ClassificationSpec, StyleSpec};
+    let Some(options) = options else {
+        return Ok(scene);
+    };
+    for (key, value) in options.iter() {
+        let key: String = key.extract()?;
+        let bad = |what: &str| refuse(format!("{key}={value} is invalid; expected {what}"));
+        match key.as_str() {
+            "iso" => scene.focus = Focus::Iso(value.extract().map_err(|_| bad("a number"))?),
+            "focus" => {
+                let (lo, hi): (f64, f64) = value.extract().map_err(|_| bad("(lo, hi)"))?;
+                scene.focus = Focus::Range { lo, hi };
+            }
+            "tf" | "otf" | "features" => {
+                let name: String = value.extract().map_err(|_| bad("a name or a path"))?;
+                scene.classification = match key.as_str() {
+                    "tf" => ClassificationSpec::Transfer(name),
+                    "otf" => ClassificationSpec::Occlusion(name),
+                    _ => ClassificationSpec::Features(name),
+                };
+            }
+            "camera" => {
+                let c: Vec<f32> = value
+                    .extract()
+                    .map_err(|_| bad("(azimuth, elevation[, distance])"))?;
+                if !(2..=3).contains(&c.len()) {
+                    return Err(bad("(azimuth, elevation[, distance])"));
+                }
+                scene.camera.azimuth = Some(c[0]);
+                scene.camera.elevation = Some(c[1]);
+                scene.camera.distance = c.get(2).copied().or(scene.camera.distance);
+            }
+            "size" => {
+                let (w, h): (u32, u32) = value.extract().map_err(|_| bad("(width, height)"))?;
+                scene.size = [w, h];
+            }
+            "slices" => scene.slices = Some(value.extract().map_err(|_| bad("a whole number"))?),
+            "one_pass" => scene.one_pass = value.extract().map_err(|_| bad("True or False"))?,
+            "background" => {
+                let (r, g, b): (f32, f32, f32) = value.extract().map_err(|_| bad("(r, g, b)"))?;
+                scene.background = [r, g, b];
+            }
+            "style" => {
+                let style = match value.extract::<u32>() {
+                    Ok(n) => serde_json::json!(n),
+                    Err(_) => serde_json::json!(value
+                        .extract::<String>()
+                        .map_err(|_| bad("a style name or number"))?),
+                };
+                scene.style = Some(StyleSpec {
+                    style,
+                    params: Default::default(),
+                });
+            }
+            "renderer" => {
+                scene.raycast = match value.extract::<String>().as_deref() {
+                    Ok("raycast") => Some(scene.raycast.unwrap_or_default()),
+                    Ok("slicer") => None,
+                    _ => return Err(bad("\"slicer\" or \"raycast\"")),
+                }
+            }
+            "jitter" => {
+                let seed: u32 = value.extract().map_err(|_| bad("a whole number"))?;
+                let mut r = scene.raycast.unwrap_or_default();
+                r.jitter = Some(seed);
+                scene.raycast = Some(r);
+            }
+            other => {
+                return Err(refuse(format!(
+                    "render has no option {other:?}; expected one of {OPTIONS}"
+                )))
+            }
+        }
+    }
+    scene.validate().map_err(to_py)?;
+    Ok(scene)
+}
+
+/// The scene and, for an array, the volume a renderer draws: a `vellum.Scene`, a scene file's
+/// path, or a `vellum.Volume` (its scene otherwise at the defaults), with `options` over it.
+fn source(
+    what: &Bound<'_, PyAny>,
+    options: Option<&Bound<'_, PyDict>>,
+) -> PyResult<(Scene, Option<vellum::volume::Volume>)> {
+    if let Ok(v) = what.cast::<crate::PyVolume>() {
+        let input = vellum::render::scene::InputSpec {
+            path: "a numpy array".into(),
+            raw: None,
+        };
+        return Ok((
+            apply(Scene::new(input), options)?,
+            Some(v.get().inner.clone()),
+        ));
+    }
+    let scene = match what.cast::<PyScene>() {
+        Ok(s) => s.borrow().clone(),
+        Err(_) => PyScene::load(what.extract::<PathBuf>().map_err(|_| {
+            refuse("the first argument is not a vellum.Scene, a Volume or a path; expected one of them".into())
+        })?)?,
+    };
+    Ok((apply(scene.inner, options)?, None))
+}
+
 /// What a renderer keeps on the device between frames.
 struct Kept {
     gpu: GpuScene,
@@ -152,12 +261,23 @@ pub struct PyRenderer {
 
 #[pymethods]
 impl PyRenderer {
+    /// `Renderer(scene_or_volume, **options)`: a `vellum.Scene`, a scene file's path or a
+    /// `vellum.Volume`, with options named as the command line's flags (iso, focus, tf, otf,
+    /// features, camera, size, slices, one_pass, background, style, renderer, jitter).
     #[new]
-    fn new(py: Python<'_>, scene: &PyScene) -> PyResult<Self> {
-        let scene = scene.inner.clone();
+    #[pyo3(signature = (scene, **options))]
+    fn new(
+        py: Python<'_>,
+        scene: &Bound<'_, PyAny>,
+        options: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        let (scene, volume) = source(scene, options)?;
         let kept = on_gpu(py, move |ctx| {
             let classification = scene.classification()?;
-            let v = scene.load_volume()?;
+            let v = match volume {
+                Some(v) => v,
+                None => scene.load_volume()?,
+            };
             let view = scene.view(v.geometry.is_oriented())?;
             let modulation = scene.modulation.clone().unwrap_or_default();
             let gpu = GpuScene::prepare(ctx, &v, &classification, scene.focus, &modulation)?;
@@ -218,17 +338,18 @@ impl PyRenderer {
     }
 }
 
-/// Renders `scene` (a `vellum.Scene` or the path of a scene file) once: the pixels `vellum
-/// render --scene FILE` writes.
+/// Renders once: `render(scene_or_volume, **options)`, with the arguments of `Renderer`. A
+/// scene file renders the pixels `vellum render --scene FILE` writes, and the options are the
+/// flags of `vellum render` (`iso=`, `focus=(lo, hi)`, `tf=`, `camera=(az, el)`, `size=(w, h)`,
+/// `style=`, `renderer=`, ...).
 #[pyfunction]
-pub fn render(py: Python<'_>, scene: &Bound<'_, PyAny>) -> PyResult<PyImage> {
-    let scene = match scene.cast::<PyScene>() {
-        Ok(s) => s.borrow().clone(),
-        Err(_) => PyScene::load(scene.extract::<PathBuf>().map_err(|_| {
-            refuse("scene is neither a vellum.Scene nor a path; expected one of them".into())
-        })?)?,
-    };
-    let r = PyRenderer::new(py, &scene)?;
+#[pyo3(signature = (scene, **options))]
+pub fn render(
+    py: Python<'_>,
+    scene: &Bound<'_, PyAny>,
+    options: Option<&Bound<'_, PyDict>>,
+) -> PyResult<PyImage> {
+    let r = PyRenderer::new(py, scene, options)?;
     let image = r.render(py, None, None)?;
     r.close();
     Ok(image)

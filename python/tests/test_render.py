@@ -90,3 +90,34 @@ def test_a_renderer_keeps_its_scene_through_200_frames():
     with pytest.raises(vellum.Error, match="closed") as raised:
         r.render()
     assert "\n" not in str(raised.value)
+
+
+def test_options_named_as_the_flags_render_a_volume_as_the_command_line_does(tmp_path):
+    from PIL import Image as PilImage
+
+    nrrd = tmp_path / "phantom.nrrd"
+    subprocess.run([str(cli()), "convert", "phantom:shepp-logan:64", str(nrrd)], check=True, capture_output=True)
+    flags = ["--iso", "0.9", "--tf", "grey", "--camera", "30,20", "--size", "96x80", "--style", "canny"]
+    png = tmp_path / "cli.png"
+    subprocess.run([str(cli()), "render", str(nrrd), *flags, "--out", str(png)], check=True, capture_output=True)
+    theirs = np.asarray(PilImage.open(png).convert("RGB"))
+    v = vellum.read(str(nrrd))
+    image = vellum.render(v, iso=0.9, tf="grey", camera=(30, 20), size=(96, 80), style="canny")
+    np.testing.assert_array_equal(image.rgba[..., :3], theirs)
+    # The same volume from its numpy array.
+    again = vellum.render(vellum.Volume(v.array, spacing=v.spacing, origin=v.origin), iso=0.9,
+                          camera=(30, 20), size=(96, 80), style=3)
+    np.testing.assert_array_equal(again.rgba, image.rgba)
+    ray = vellum.render(v, iso=0.9, size=(64, 64), renderer="raycast", jitter=1)
+    assert ray.rgba[..., :3].max() > 0
+
+
+def test_an_unknown_or_bad_option_is_one_sentence():
+    v = vellum.Volume(np.zeros((8, 8, 8), np.float32))
+    with pytest.raises(vellum.Error, match='has no option "colour"') as raised:
+        vellum.render(v, colour="red")
+    assert "\n" not in str(raised.value)
+    with pytest.raises(vellum.Error, match="expected \\(width, height\\)"):
+        vellum.render(v, size="big")
+    with pytest.raises(vellum.Error, match="renderer"):
+        vellum.render(v, renderer="pathtracer")

@@ -138,7 +138,10 @@ class Renderer:
     """A scene prepared once on the device and rendered many times (an orbit) with nothing
     uploaded again. `close()` releases its device memory."""
 
-    def __init__(self, scene: Scene) -> None: ...
+    def __init__(self, scene: Scene | Volume | str | os.PathLike[str], **options: object) -> None:
+        """A scene, a scene file's path or a Volume, with options named as `vellum render`'s
+        flags: iso, focus=(lo, hi), tf, otf, features, camera=(az, el[, dist]),
+        size=(w, h), slices, one_pass, background=(r, g, b), style, renderer, jitter."""
     def render(
         self,
         camera: tuple[float, float] | tuple[float, float, float] | None = None,
@@ -146,5 +149,6 @@ class Renderer:
     ) -> Image: ...
     def close(self) -> None: ...
 
-def render(scene: Scene | str | os.PathLike[str]) -> Image:
-    """Renders a scene once: the pixels `vellum render --scene FILE` writes."""
+def render(scene: Scene | Volume | str | os.PathLike[str], **options: object) -> Image:
+    """Renders once, with the arguments of `Renderer`: a scene file gives the pixels `vellum
+    render --scene FILE` writes, and the options those of the same flags."""
