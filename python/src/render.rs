@@ -272,6 +272,42 @@ impl PyRenderer {
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         let (scene, volume) = source(scene, options)?;
+        Self::prepare(py, scene, volume)
+    }
+
+    /// Renders a frame: the scene's view, or with `camera=(azimuth, elevation[, distance])` in
+    /// degrees (and radii) and `size=(width, height)` changed for this frame and the next.
+    #[pyo3(signature = (camera = None, size = None))]
+    fn render(
+        &self,
+        py: Python<'_>,
+        camera: Option<Vec<f32>>,
+        size: Option<(u32, u32)>,
+    ) -> PyResult<PyImage> {
+        let frame = self.frame(py, camera, size)?;
+        let background = self
+            .kept
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_ref()
+            .map_or([0.0; 3], |k| k.background);
+        let rgb = to_rgb8(&frame.composite, background);
+        Ok(PyImage { frame, rgb })
+    }
+
+    /// Releases the device memory the renderer holds; later `render` calls raise vellum.Error.
+    fn close(&self) {
+        *self.kept.lock().unwrap_or_else(|p| p.into_inner()) = None;
+    }
+}
+
+impl PyRenderer {
+    /// `scene` (its input, or `volume` instead) prepared on the process's device.
+    fn prepare(
+        py: Python<'_>,
+        scene: Scene,
+        volume: Option<vellum::volume::Volume>,
+    ) -> PyResult<Self> {
         let kept = on_gpu(py, move |ctx| {
             let classification = scene.classification()?;
             let v = match volume {
@@ -293,15 +329,13 @@ impl PyRenderer {
         })
     }
 
-    /// Renders a frame: the scene's view, or with `camera=(azimuth, elevation[, distance])` in
-    /// degrees (and radii) and `size=(width, height)` changed for this frame and the next.
-    #[pyo3(signature = (camera = None, size = None))]
-    fn render(
+    /// A frame read back: the kept view, with `camera` and `size` changed first when given.
+    fn frame(
         &self,
         py: Python<'_>,
         camera: Option<Vec<f32>>,
         size: Option<(u32, u32)>,
-    ) -> PyResult<PyImage> {
+    ) -> PyResult<FrameImage> {
         let mut slot = self.kept.lock().unwrap_or_else(|p| p.into_inner());
         let kept = slot
             .as_mut()
@@ -322,20 +356,67 @@ impl PyRenderer {
         if let Some((w, h)) = size {
             kept.view.size = [w, h];
         }
-        let frame = on_gpu(py, |_| {
+        on_gpu(py, |_| {
             let k = &mut *kept;
             k.view.camera.validate()?;
             k.renderer
                 .render_frame(&k.gpu.volume, &mut k.gpu.classify, &k.view, true)
-        })?;
-        let rgb = to_rgb8(&frame.composite, kept.background);
-        Ok(PyImage { frame, rgb })
+        })
     }
+}
 
-    /// Releases the device memory the renderer holds; later `render` calls raise vellum.Error.
-    fn close(&self) {
-        *self.kept.lock().unwrap_or_else(|p| p.into_inner()) = None;
+/// Object-space lines of the isosurface at `iso` of `volume` (a `vellum.Volume`, a scene or
+/// its path) as seen from `camera=(azimuth, elevation[, distance])`: a dict from each of `kinds`
+/// ("silhouettes", "suggestive") to a float32 array (N, 2, 3) of segment ends in voxel index
+/// coordinates (x, y, z), as `vellum lines` finds them. Other options as for `render`
+/// (`line_smooth` is not among them yet).
+#[pyfunction]
+#[pyo3(signature = (volume, iso, kinds = vec![String::from("silhouettes"), String::from("suggestive")], **options))]
+pub fn lines<'py>(
+    py: Python<'py>,
+    volume: &Bound<'py, PyAny>,
+    iso: f64,
+    kinds: Vec<String>,
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let wanted: Vec<f32> = kinds
+        .iter()
+        .map(|k| match k.as_str() {
+            "silhouettes" => Ok(0.0),
+            "suggestive" => Ok(1.0),
+            other => Err(refuse(format!(
+                "kind {other:?} is not known; expected \"silhouettes\" or \"suggestive\""
+            ))),
+        })
+        .collect::<PyResult<_>>()?;
+    let (mut scene, vol) = source(volume, options)?;
+    scene.focus = vellum::classify::Focus::Iso(iso);
+    let style = if wanted.contains(&0.0) {
+        "silhouettes"
+    } else {
+        "suggestive"
+    };
+    let mut params = vellum::render::style::StyleParams::default();
+    params.line_both = wanted.len() > 1;
+    scene.style = Some(vellum::render::scene::StyleSpec {
+        style: serde_json::json!(style),
+        params,
+    });
+    let r = PyRenderer::prepare(py, scene, vol)?;
+    let frame = r.frame(py, None, None)?;
+    r.close();
+    let (segments, _) = frame.segments.unwrap_or_default();
+    let out = PyDict::new(py);
+    for (name, kind) in kinds.iter().zip(wanted) {
+        let ends: Vec<f32> = segments
+            .iter()
+            .filter(|s| (s.kind() - kind).abs() < 0.5)
+            .flat_map(|s| [s.a[0], s.a[1], s.a[2], s.b[0], s.b[1], s.b[2]])
+            .collect();
+        let n = ends.len() / 6;
+        out.set_item(name, PyArray1::from_vec(py, ends).reshape([n, 2, 3])?)?;
     }
+    Ok(out)
 }
 
 /// Renders once: `render(scene_or_volume, **options)`, with the arguments of `Renderer`. A
@@ -361,5 +442,6 @@ pub fn add(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyImage>()?;
     m.add_class::<PyRenderer>()?;
     m.add_function(wrap_pyfunction!(render, m)?)?;
+    m.add_function(wrap_pyfunction!(lines, m)?)?;
     Ok(())
 }

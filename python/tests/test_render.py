@@ -121,3 +121,26 @@ def test_an_unknown_or_bad_option_is_one_sentence():
         vellum.render(v, size="big")
     with pytest.raises(vellum.Error, match="renderer"):
         vellum.render(v, renderer="pathtracer")
+
+
+def test_lines_are_the_command_lines_segments(tmp_path):
+    import json
+
+    nrrd = tmp_path / "torus.nrrd"
+    subprocess.run([str(cli()), "convert", "phantom:torus:64", str(nrrd)], check=True, capture_output=True)
+    flags = ["--iso", "0.5", "--camera", "20,35", "--size", "128x128", "--kind", "both"]
+    out = subprocess.run([str(cli()), "lines", str(nrrd), *flags, "--out", str(tmp_path / "l.png"), "--json"],
+                         check=True, capture_output=True, text=True)
+    report = json.loads(out.stdout)
+    v = vellum.read(str(nrrd))
+    got = vellum.lines(v, 0.5, camera=(20, 35), size=(128, 128))
+    assert set(got) == {"silhouettes", "suggestive"}
+    assert len(got["silhouettes"]) == report["silhouette_segments"] > 0
+    assert len(got["suggestive"]) == report["suggestive_segments"]
+    s = got["silhouettes"]
+    assert s.shape[1:] == (2, 3) and s.dtype == np.float32
+    assert (s >= -1).all() and (s <= 64).all(), "ends lie in the voxel grid"
+    only = vellum.lines(v, 0.5, kinds=["silhouettes"], camera=(20, 35), size=(128, 128))
+    assert list(only) == ["silhouettes"] and len(only["silhouettes"]) == len(s)
+    with pytest.raises(vellum.Error, match="not known"):
+        vellum.lines(v, 0.5, kinds=["creases"])

@@ -152,3 +152,12 @@ class Renderer:
 def render(scene: Scene | Volume | str | os.PathLike[str], **options: object) -> Image:
     """Renders once, with the arguments of `Renderer`: a scene file gives the pixels `vellum
     render --scene FILE` writes, and the options those of the same flags."""
+
+def lines(
+    volume: Volume | Scene | str | os.PathLike[str],
+    iso: float,
+    kinds: list[str] = ["silhouettes", "suggestive"],
+    **options: object,
+) -> dict[str, npt.NDArray[np.float32]]:
+    """Object-space lines of the isosurface at `iso`: per kind, (N, 2, 3) segment ends in voxel
+    index coordinates (x, y, z), as `vellum lines` finds them. Options as for `render`."""
