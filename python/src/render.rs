@@ -396,8 +396,10 @@ pub fn lines<'py>(
     } else {
         "suggestive"
     };
-    let mut params = vellum::render::style::StyleParams::default();
-    params.line_both = wanted.len() > 1;
+    let params = vellum::render::style::StyleParams {
+        line_both: wanted.len() > 1,
+        ..Default::default()
+    };
     scene.style = Some(vellum::render::scene::StyleSpec {
         style: serde_json::json!(style),
         params,
