@@ -34,6 +34,7 @@ use vellum::passes::occlusion::{parse_mapping, Method, Occlusion, OcclusionParam
 use vellum::volume::geometry::{Geometry, Space, IDENTITY};
 use vellum::volume::{VoxelData, VoxelType};
 
+mod features;
 mod render;
 
 pyo3::create_exception!(
@@ -70,7 +71,7 @@ fn bug(panic: Box<dyn std::any::Any + Send>) -> PyErr {
 }
 
 /// Runs `work` with the GIL released: its error becomes `vellum.Error`, a panic a `RuntimeError`.
-fn detached<T: Send>(
+pub(crate) fn detached<T: Send>(
     py: Python<'_>,
     work: impl FnOnce() -> vellum::Result<T> + Send,
 ) -> PyResult<T> {
@@ -487,5 +488,6 @@ fn _vellum(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(spectrum, m)?)?;
     m.add_function(wrap_pyfunction!(validation_messages, m)?)?;
     render::add(m)?;
+    features::add(m)?;
     Ok(())
 }

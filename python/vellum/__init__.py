@@ -18,6 +18,7 @@ made on first use; the GIL is released while it runs.
 
 from ._vellum import (
     Error,
+    FeatureMap,
     Image,
     Renderer,
     Scene,
@@ -25,6 +26,7 @@ from ._vellum import (
     devices,
     importance,
     lines,
+    migrate,
     occlusion,
     read,
     render,
@@ -34,6 +36,7 @@ from ._vellum import (
 
 __all__ = [
     "Error",
+    "FeatureMap",
     "Image",
     "Renderer",
     "Scene",
@@ -41,6 +44,7 @@ __all__ = [
     "devices",
     "importance",
     "lines",
+    "migrate",
     "occlusion",
     "read",
     "render",

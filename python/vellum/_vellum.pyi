@@ -161,3 +161,29 @@ def lines(
 ) -> dict[str, npt.NDArray[np.float32]]:
     """Object-space lines of the isosurface at `iso`: per kind, (N, 2, 3) segment ends in voxel
     index coordinates (x, y, z), as `vellum lines` finds them. Options as for `render`."""
+
+class FeatureMap:
+    """A feature map: features (label, private interval, colour) over the context's range, as
+    `vellum migrate` writes it."""
+
+    @staticmethod
+    def load(path: str | os.PathLike[str]) -> FeatureMap: ...
+    @staticmethod
+    def from_json(text: str) -> FeatureMap: ...
+    def to_json(self) -> str: ...
+    def save(self, path: str | os.PathLike[str]) -> None: ...
+    @property
+    def features(self) -> list[tuple[str, tuple[float, float], tuple[float, float, float]]]: ...
+
+def migrate(
+    volume: Volume,
+    label: str,
+    seeds: list[tuple[int, int, int]] | None = None,
+    window: tuple[float, float] | None = None,
+    mask: Volume | None = None,
+    connectivity: int = 26,
+    features: FeatureMap | None = None,
+) -> tuple[Volume, FeatureMap]:
+    """Migrates the feature given by `mask`, or grown from `seeds` (x, y, z) within `window`,
+    into a private density interval, its fuzzy boundary rebuilt: the feature volume and the
+    map, as `vellum migrate` writes them."""
