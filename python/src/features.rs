@@ -7,6 +7,9 @@ use pyo3::prelude::*;
 use std::path::PathBuf;
 use vellum::volume::feature::{self, Connectivity, Feature, FeatureMap, MigrateParams, Roi};
 
+/// A feature as Python sees it: label, (lo, hi) private interval, (r, g, b) colour.
+type FeatureRow = (String, (f64, f64), (f32, f32, f32));
+
 /// A feature map: the features (label, private interval, colour) in their groups, over the
 /// context's range, as `vellum migrate` writes it.
 #[pyclass(name = "FeatureMap", module = "vellum")]
@@ -42,7 +45,7 @@ impl PyFeatureMap {
 
     /// Each feature as (label, (lo, hi) private interval, (r, g, b) colour).
     #[getter]
-    fn features(&self) -> Vec<(String, (f64, f64), (f32, f32, f32))> {
+    fn features(&self) -> Vec<FeatureRow> {
         self.inner
             .features()
             .iter()
