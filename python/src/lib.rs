@@ -1,12 +1,13 @@
 //! `vellum._vellum`, the compiled half of the Python package (issue 28): volumes as numpy arrays,
-//! the importance map, ambient occlusion and its spectrum, and the device listing.
+//! the importance map, ambient occlusion and its spectrum, and the device listing; rendering,
+//! scenes and lines in `render.rs`, migration and feature maps in `features.rs`.
 //!
 //! ## Arrays
 //! A C-contiguous numpy array indexed (z, y, x) has the library's voxel order (x fastest), so
-//! voxels cross as one flat copy each way, never reordered. Spacing, origin and direction keep
-//! the library's (x, y, z) order, as the files give them. Sharing memory with numpy instead of
-//! copying is left for later: a copy keeps `Volume` immutable, which lets the GPU work read it
-//! with the GIL released.
+//! voxels cross never reordered. An array is copied once into a `Volume`, which is frozen: its
+//! voxels never change, so the GPU work reads them with the GIL released, and `.array` is a
+//! read-only view of them with the volume as its base. Results come back as new arrays that own
+//! their memory. Spacing, origin and direction keep the library's (x, y, z) order.
 //!
 //! ## Errors
 //! Every library error becomes `vellum.Error` (a `ValueError`) carrying the library's sentence,
@@ -221,6 +222,21 @@ fn to_numpy(py: Python<'_>, dims: [usize; 3], data: VoxelData) -> PyResult<Bound
     }
 }
 
+/// `data` (x fastest, of a grid of `dims`) as a numpy array (z, y, x) over the same memory,
+/// kept alive by `owner`, the frozen volume that holds it.
+fn view_of<'py, T: Element>(
+    owner: &Bound<'py, PyVolume>,
+    [nx, ny, nz]: [usize; 3],
+    data: &[T],
+) -> PyResult<Bound<'py, PyAny>> {
+    let view = numpy::ndarray::ArrayView3::from_shape((nz, ny, nx), data)
+        .map_err(|e| refuse(format!("the volume's voxels do not fill its grid ({e})")))?;
+    // SAFETY: the array borrows `data`, which lives in `owner`'s `inner`; `owner` is frozen (the
+    // data never moves or changes) and becomes the array's base, so it outlives the array.
+    let array = unsafe { PyArray3::borrow_from_array(&view, owner.clone().into_any()) };
+    Ok(array.into_any())
+}
+
 /// A 3-D scalar volume: voxels, spacing, origin and direction.
 ///
 /// Volume(array, spacing=(1, 1, 1), origin=(0, 0, 0), direction=None)
@@ -262,11 +278,19 @@ impl PyVolume {
         Ok(PyVolume { inner })
     }
 
-    /// The voxels as a numpy array indexed (z, y, x), of the volume's dtype. A new copy at each
-    /// access: writing to it leaves the volume as it was.
+    /// The voxels as a read-only numpy view indexed (z, y, x), of the volume's dtype: no copy,
+    /// and the volume stays alive as long as the view does. `.array.copy()` to change them.
     #[getter]
-    fn array<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_numpy(py, self.inner.dims, self.inner.data.clone())
+    fn array<'py>(slf: &Bound<'py, Self>) -> PyResult<Bound<'py, PyAny>> {
+        let v = &slf.get().inner;
+        let view = match &v.data {
+            VoxelData::U8(d) => view_of(slf, v.dims, d)?,
+            VoxelData::U16(d) => view_of(slf, v.dims, d)?,
+            VoxelData::I16(d) => view_of(slf, v.dims, d)?,
+            VoxelData::F32(d) => view_of(slf, v.dims, d)?,
+        };
+        view.getattr("flags")?.setattr("writeable", false)?;
+        Ok(view)
     }
 
     /// The size of a voxel along x, y and z.

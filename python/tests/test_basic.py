@@ -80,11 +80,10 @@ def test_volume_round_trip(dtype):
     assert v.direction == ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
-def test_the_array_is_a_copy():
+def test_the_volume_keeps_its_own_voxels():
     a = np.zeros((2, 3, 4), np.uint8)
     v = vellum.Volume(a)
-    v.array[0, 0, 0] = 7
-    a[0, 0, 1] = 9
+    a[0, 0, 1] = 9  # the caller's array is copied in
     assert v.array.max() == 0
 
 
@@ -195,3 +194,14 @@ def test_devices():
     keys = {"index", "name", "type", "api_version", "driver", "rejected", "chosen"}
     assert found and all(keys <= d.keys() for d in found)
     assert sum(d["chosen"] for d in found) == 1
+
+
+def test_the_array_is_a_read_only_view_that_keeps_its_volume():
+    a = np.arange(2 * 3 * 4, dtype=np.float32).reshape(2, 3, 4)
+    view = vellum.Volume(a).array  # the Volume itself is dropped here
+    assert not view.flags.writeable and not view.flags.owndata
+    np.testing.assert_array_equal(view, a)
+    with pytest.raises(ValueError):
+        view[0, 0, 0] = 1
+    v = vellum.Volume(a)
+    assert v.array.__array_interface__["data"][0] == v.array.__array_interface__["data"][0], "no copy"

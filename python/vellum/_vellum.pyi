@@ -39,7 +39,7 @@ class Volume:
     ) -> "Volume": ...
     @property
     def array(self) -> npt.NDArray[Any]:
-        """The voxels, indexed (z, y, x), of the volume's dtype: a new copy at each access."""
+        """The voxels, indexed (z, y, x), of the volume's dtype: a read-only view, no copy."""
     @property
     def spacing(self) -> _Tuple3:
         """The size of a voxel along x, y and z."""
