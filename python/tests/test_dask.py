@@ -33,6 +33,8 @@ def test_dask_importance_equals_the_in_memory_call(client):
     ours = vellum.dask.importance(darr, 5).compute()
     whole = vellum.importance(vellum.Volume(a), 5)
     np.testing.assert_array_equal(ours, whole)
+    # The workers' own devices ran with validation on, and it stayed silent.
+    assert set(client.run(vellum.validation_messages).values()) == {(0, 0)}
 
 
 def test_dask_occlusion_equals_the_in_memory_call(client):

@@ -27,6 +27,13 @@ def test_importance_beside_scipy_agrees():
     assert "of the range" in run("importance_vs_scipy.py")
 
 
-def test_the_dask_example_agrees_with_memory():
+def test_the_dask_example_agrees_with_memory(tmp_path):
     pytest.importorskip("distributed")
     assert "2 workers" in run("dask_cluster.py")
+    # On a level of an OME-Zarr store, read by dask.array.from_zarr.
+    from test_render import cli
+
+    store = tmp_path / "s.ome.zarr"
+    subprocess.run([str(cli()), "convert", "phantom:shepp-logan:48", str(store), "--chunk", "16"],
+                   check=True, capture_output=True)
+    assert "in chunks (16, 16, 16)" in run("dask_cluster.py", store, 3)
