@@ -31,3 +31,50 @@ pub fn fits_in_memory(bytes: u64) -> bool {
 pub fn peak_resident_kib() -> Option<u64> {
     status_kib("VmHWM:")
 }
+
+/// Bytes of Rust heap allocations live now, counted by [`Counting`] when a binary installs it as
+/// its global allocator (`vellum` does); `None` otherwise. Memory that C libraries allocate
+/// themselves (the Vulkan driver and the validation layer) is not in it, which is the point:
+/// it tells what vellum's own code keeps, where the resident set also moves with theirs.
+pub fn live_heap_bytes() -> Option<u64> {
+    use std::sync::atomic::Ordering;
+    COUNTING
+        .load(Ordering::Relaxed)
+        .then(|| LIVE.load(Ordering::Relaxed).max(0) as u64)
+}
+
+static LIVE: std::sync::atomic::AtomicI64 = std::sync::atomic::AtomicI64::new(0);
+static COUNTING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// The system allocator, counting the bytes live ([`live_heap_bytes`]): one relaxed atomic add
+/// per allocation and per free.
+pub struct Counting;
+
+// SAFETY: every call is forwarded to the system allocator unchanged; the counter only adds.
+unsafe impl std::alloc::GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        use std::sync::atomic::Ordering;
+        COUNTING.store(true, Ordering::Relaxed);
+        LIVE.fetch_add(layout.size() as i64, Ordering::Relaxed);
+        // SAFETY: the caller's contract for `alloc` is passed on.
+        unsafe { std::alloc::System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        LIVE.fetch_sub(layout.size() as i64, std::sync::atomic::Ordering::Relaxed);
+        // SAFETY: as for `dealloc`.
+        unsafe { std::alloc::System.dealloc(ptr, layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: std::alloc::Layout) -> *mut u8 {
+        use std::sync::atomic::Ordering;
+        COUNTING.store(true, Ordering::Relaxed);
+        LIVE.fetch_add(layout.size() as i64, Ordering::Relaxed);
+        // SAFETY: as for `alloc_zeroed`.
+        unsafe { std::alloc::System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new: usize) -> *mut u8 {
+        let grown = new as i64 - layout.size() as i64;
+        LIVE.fetch_add(grown, std::sync::atomic::Ordering::Relaxed);
+        // SAFETY: as for `realloc`.
+        unsafe { std::alloc::System.realloc(ptr, layout, new) }
+    }
+}

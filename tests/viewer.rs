@@ -842,9 +842,12 @@ fn a_store_larger_than_the_budget_streams_while_the_view_orbits() {
 }
 
 /// The soak: 20,000 bench frames of a small phantom, with validation and synchronization
-/// validation on, hold the process's resident set: after frame 20,000 it is within 2 MiB of what
-/// it was after frame 2,000. The viewer keeps nothing per frame; the bench's own bookkeeping is
-/// a bounded window.
+/// validation on. From frame 2,000 to 20,000:
+/// - the Rust heap vellum keeps (counted by the binary's allocator) stays within 64 KiB: the
+///   viewer keeps nothing per frame, and the bench's own bookkeeping is a bounded window;
+/// - the resident set stays within 8 MiB. It is looser because the validation layer's own
+///   memory grows in 1 MiB steps, by 1 to 5 MiB over these frames from run to run (measured:
+///   without validation one step, then flat), while the Rust heap stayed within 5 KiB.
 #[test]
 fn twenty_thousand_frames_hold_the_resident_set() {
     let Some((x, _guard)) = xvfb() else {
@@ -879,8 +882,26 @@ fn twenty_thousand_frames_hold_the_resident_set() {
     let (early, late) = (at(2_000), at(20_000));
     eprintln!("resident set: {early} KiB after frame 2,000, {late} KiB after frame 20,000");
     assert!(
-        late <= early + 2048,
+        late <= early + 8192,
         "the resident set grew by {} KiB from frame 2,000 to 20,000: {rss:?}",
+        late - early
+    );
+    let heap: Vec<(u64, u64)> = report["heap_bytes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s[0].as_u64().unwrap(), s[1].as_u64().unwrap()))
+        .collect();
+    let bytes = |frame: u64| {
+        heap.iter()
+            .find(|(f, _)| *f == frame)
+            .map(|&(_, b)| b as i64)
+    };
+    let (early, late) = (bytes(2_000).unwrap(), bytes(20_000).unwrap());
+    eprintln!("Rust heap: {early} bytes after frame 2,000, {late} after frame 20,000");
+    assert!(
+        late <= early + 65_536,
+        "vellum's heap grew by {} bytes from frame 2,000 to 20,000: {heap:?}",
         late - early
     );
 }

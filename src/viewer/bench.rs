@@ -34,6 +34,9 @@ pub struct BenchReport {
     pub gpu_ms: Vec<(String, f64)>,
     /// (frames presented, resident set in KiB), every 1,000 frames (Linux only).
     pub rss_kib: Vec<(u64, u64)>,
+    /// (frames presented, bytes of Rust heap live), every 1,000 frames, where the binary counts
+    /// them (`memory::Counting`): what vellum keeps, without the driver's and the layer's.
+    pub heap_bytes: Vec<(u64, u64)>,
     /// Milliseconds from opening the window's context to the first frame presented.
     pub first_frame_ms: Option<f64>,
     /// The brick cache's line at the end, when the volume is streamed.
@@ -53,6 +56,7 @@ pub struct BenchLog {
     /// nothing here.
     gpu: Vec<(String, VecDeque<f64>)>,
     rss_kib: Vec<(u64, u64)>,
+    heap_bytes: Vec<(u64, u64)>,
 }
 
 impl BenchLog {
@@ -66,6 +70,7 @@ impl BenchLog {
             frame_ms: VecDeque::with_capacity(WINDOW),
             gpu: Vec::new(),
             rss_kib: Vec::new(),
+            heap_bytes: Vec::new(),
         }
     }
 
@@ -78,6 +83,9 @@ impl BenchLog {
         if self.presented.is_multiple_of(RSS_EVERY) {
             if let Some(kib) = resident_kib() {
                 self.rss_kib.push((self.presented, kib));
+            }
+            if let Some(bytes) = crate::memory::live_heap_bytes() {
+                self.heap_bytes.push((self.presented, bytes));
             }
         }
     }
@@ -130,6 +138,7 @@ impl BenchLog {
             p99_ms: pct(0.99),
             gpu_ms,
             rss_kib: self.rss_kib.clone(),
+            heap_bytes: self.heap_bytes.clone(),
             ..base
         }
     }
@@ -167,6 +176,7 @@ mod tests {
             p99_ms: 0.0,
             gpu_ms: Vec::new(),
             rss_kib: Vec::new(),
+            heap_bytes: Vec::new(),
             first_frame_ms: None,
             streaming: None,
         }

@@ -1661,6 +1661,7 @@ impl Running {
             p99_ms: f64::NAN,
             gpu_ms: Vec::new(),
             rss_kib: Vec::new(),
+            heap_bytes: Vec::new(),
             first_frame_ms: self.first_frame_ms,
             streaming: self.session.model.streaming.clone(),
         };

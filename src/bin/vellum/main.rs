@@ -11,6 +11,11 @@ use args::{flags_for_keys, parse_cli};
 use commands::run;
 use std::process::ExitCode;
 
+/// The system allocator, counting live bytes: the viewer's bench reports what vellum's own code
+/// keeps (`memory::live_heap_bytes`), apart from what the driver and validation layer keep.
+#[global_allocator]
+static ALLOCATOR: vellum::memory::Counting = vellum::memory::Counting;
+
 #[cfg(unix)]
 unsafe extern "C" {
     fn signal(signum: i32, handler: usize) -> usize;
