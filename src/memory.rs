@@ -46,6 +46,16 @@ pub fn live_heap_bytes() -> Option<u64> {
 static LIVE: std::sync::atomic::AtomicI64 = std::sync::atomic::AtomicI64::new(0);
 static COUNTING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
+/// Adds `bytes` to the live count, and marks the count as kept (read first: a shared line that
+/// every thread only reads after the first allocation).
+fn counted(bytes: i64) {
+    use std::sync::atomic::Ordering;
+    if !COUNTING.load(Ordering::Relaxed) {
+        COUNTING.store(true, Ordering::Relaxed);
+    }
+    LIVE.fetch_add(bytes, Ordering::Relaxed);
+}
+
 /// The system allocator, counting the bytes live ([`live_heap_bytes`]): one relaxed atomic add
 /// per allocation and per free.
 pub struct Counting;
@@ -53,9 +63,7 @@ pub struct Counting;
 // SAFETY: every call is forwarded to the system allocator unchanged; the counter only adds.
 unsafe impl std::alloc::GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
-        use std::sync::atomic::Ordering;
-        COUNTING.store(true, Ordering::Relaxed);
-        LIVE.fetch_add(layout.size() as i64, Ordering::Relaxed);
+        counted(layout.size() as i64);
         // SAFETY: the caller's contract for `alloc` is passed on.
         unsafe { std::alloc::System.alloc(layout) }
     }
@@ -65,9 +73,7 @@ unsafe impl std::alloc::GlobalAlloc for Counting {
         unsafe { std::alloc::System.dealloc(ptr, layout) }
     }
     unsafe fn alloc_zeroed(&self, layout: std::alloc::Layout) -> *mut u8 {
-        use std::sync::atomic::Ordering;
-        COUNTING.store(true, Ordering::Relaxed);
-        LIVE.fetch_add(layout.size() as i64, Ordering::Relaxed);
+        counted(layout.size() as i64);
         // SAFETY: as for `alloc_zeroed`.
         unsafe { std::alloc::System.alloc_zeroed(layout) }
     }
