@@ -134,6 +134,17 @@ fn real_store(name: &str, chunk: &str, dir: &Path) -> Option<String> {
     Some(s)
 }
 
+/// A two-rank job whose ranks run `importance` on different inputs, `first` and `second`, into
+/// `out` (two programs of one mpirun, `A : B`).
+fn two_programs(first: &str, second: &str, out: &str) -> Output {
+    let exe = env!("CARGO_BIN_EXE_vellum");
+    launcher(1)
+        .args([exe, "importance", first, "--out", out, ":", "-n", "1"])
+        .args([exe, "importance", second, "--out", out])
+        .output()
+        .unwrap()
+}
+
 /// `phantom:NAME` streamed into a store at `path` with `chunk`-voxel chunks.
 fn phantom_store(name: &str, chunk: &str, path: &Path) -> PathBuf {
     let p = path.to_str().unwrap();
@@ -224,50 +235,11 @@ fn a_failing_rank_ends_the_job_in_one_sentence_with_no_output() {
 
     // Rank 1 of an MPMD job cannot open its input: found before any work.
     let missing = dir.path().join("missing.ome.zarr");
-    let job = launcher(1)
-        .args([
-            env!("CARGO_BIN_EXE_vellum"),
-            "importance",
-            s,
-            "--out",
-            o,
-            ":",
-            "-n",
-            "1",
-        ])
-        .args([
-            env!("CARGO_BIN_EXE_vellum"),
-            "importance",
-            missing.to_str().unwrap(),
-            "--out",
-            o,
-        ])
-        .output()
-        .unwrap();
+    let job = two_programs(s, missing.to_str().unwrap(), o);
     failed_job(&job, &["rank 1 of 2 failed", "missing.ome.zarr"]);
     // Rank 1 was given another store of the same grid: refused.
-    let other = dir.path().join("other.ome.zarr");
-    let t = other.to_str().unwrap();
-    common::ok_json(&common::vellum(&[
-        "convert",
-        "phantom:nested:96",
-        t,
-        "--json",
-    ]));
-    let job = launcher(1)
-        .args([
-            env!("CARGO_BIN_EXE_vellum"),
-            "importance",
-            s,
-            "--out",
-            o,
-            ":",
-            "-n",
-            "1",
-        ])
-        .args([env!("CARGO_BIN_EXE_vellum"), "importance", t, "--out", o])
-        .output()
-        .unwrap();
+    let other = phantom_store("nested:96", "64", &dir.path().join("other.ome.zarr"));
+    let job = two_programs(s, other.to_str().unwrap(), o);
     failed_job(&job, &["rank 1 of 2 failed", "differ from rank 0's"]);
     assert!(!out.exists());
 }

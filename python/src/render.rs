@@ -284,13 +284,7 @@ impl PyRenderer {
         camera: Option<Vec<f32>>,
         size: Option<(u32, u32)>,
     ) -> PyResult<PyImage> {
-        let frame = self.frame(py, camera, size)?;
-        let background = self
-            .kept
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .as_ref()
-            .map_or([0.0; 3], |k| k.background);
+        let (frame, background) = self.frame(py, camera, size)?;
         let rgb = to_rgb8(&frame.composite, background);
         Ok(PyImage { frame, rgb })
     }
@@ -329,13 +323,14 @@ impl PyRenderer {
         })
     }
 
-    /// A frame read back: the kept view, with `camera` and `size` changed first when given.
+    /// A frame read back, with the scene's background: the kept view, with `camera` and `size`
+    /// changed first when given.
     fn frame(
         &self,
         py: Python<'_>,
         camera: Option<Vec<f32>>,
         size: Option<(u32, u32)>,
-    ) -> PyResult<FrameImage> {
+    ) -> PyResult<(FrameImage, [f32; 3])> {
         let mut slot = self.kept.lock().unwrap_or_else(|p| p.into_inner());
         let kept = slot
             .as_mut()
@@ -356,12 +351,14 @@ impl PyRenderer {
         if let Some((w, h)) = size {
             kept.view.size = [w, h];
         }
-        on_gpu(py, |_| {
+        let background = kept.background;
+        let frame = on_gpu(py, |_| {
             let k = &mut *kept;
             k.view.camera.validate()?;
             k.renderer
                 .render_frame(&k.gpu.volume, &mut k.gpu.classify, &k.view, true)
-        })
+        })?;
+        Ok((frame, background))
     }
 }
 
@@ -405,7 +402,7 @@ pub fn lines<'py>(
         params,
     });
     let r = PyRenderer::prepare(py, scene, vol)?;
-    let frame = r.frame(py, None, None)?;
+    let (frame, _) = r.frame(py, None, None)?;
     r.close();
     let (segments, _) = frame.segments.unwrap_or_default();
     let out = PyDict::new(py);

@@ -189,14 +189,7 @@ pub fn normals_store(
             })
             .collect()
     };
-    let channels = Channels {
-        dims: src.dims(),
-        spacing: src.spacing(),
-        geometry: src.geometry(),
-        voxel: VoxelType::F32,
-        count: 4,
-        read: &read,
-    };
+    let channels = Channels::over(src, (4, VoxelType::F32), &read);
     let opts = WriteOptions {
         chunk,
         levels: None,

@@ -564,14 +564,7 @@ pub fn write_source_in(
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
     let read = |lo, size| Ok(vec![src.read_box(lo, size)?]);
-    let channels = Channels {
-        dims: src.dims(),
-        spacing: src.spacing(),
-        geometry: src.geometry(),
-        voxel: src.voxel(),
-        count: 1,
-        read: &read,
-    };
+    let channels = Channels::over(src, (1, src.voxel()), &read);
     write_channels_in(team, path, &channels, opts, on_chunk)
 }
 
@@ -584,6 +577,26 @@ pub struct Channels<'a> {
     pub count: usize,
     #[allow(clippy::type_complexity)]
     pub read: &'a (dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
+}
+
+impl<'a> Channels<'a> {
+    /// `count` channels of `voxel` over the grid of `src` (its dims, spacing and placement),
+    /// read by `read`.
+    #[allow(clippy::type_complexity)]
+    pub fn over(
+        src: &dyn BoxSource,
+        (count, voxel): (usize, VoxelType),
+        read: &'a (dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
+    ) -> Self {
+        Channels {
+            dims: src.dims(),
+            spacing: src.spacing(),
+            geometry: src.geometry(),
+            voxel,
+            count,
+            read,
+        }
+    }
 }
 
 /// [`write_source`] for a grid of several channels: the arrays get a leading c axis (`channel`
@@ -819,7 +832,12 @@ fn make_array(
     chunk: usize,
     voxel: VoxelType,
 ) -> Result<Array<FilesystemStore>> {
-    let mut shape: Vec<u64> = lead_of(channels, channels);
+    // (c, z, y, x) for several channels, (z, y, x) for one.
+    let mut shape: Vec<u64> = if channels > 1 {
+        vec![channels as u64]
+    } else {
+        vec![]
+    };
     shape.extend([dims[2], dims[1], dims[0]].map(|n| n as u64));
     let chunks: Vec<u64> = shape
         .iter()

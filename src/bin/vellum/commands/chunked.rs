@@ -7,6 +7,32 @@ use anyhow::Result;
 use std::path::Path;
 use vellum::volume::Volume;
 
+/// The input, opened by every rank before any work starts (one that cannot ends the job), with
+/// its grid, after the ranks have checked that they were given the same.
+pub(crate) fn open_shared(
+    team: &dyn vellum::team::Team,
+    input: &InputArgs,
+) -> Result<(Source, [usize; 3])> {
+    let source = crate::commands::together(team, Source::open(input))?;
+    let dims = crate::commands::together(team, source.boxes().map(|b| b.dims()))?;
+    team.same_inputs(crate::commands::inputs_key(&dims))?;
+    Ok((source, dims))
+}
+
+/// `--chunk`, or the largest edge whose chunks with their `halo` fit the memory budget twice.
+pub(crate) fn chunk_edge(
+    c: &ChunkArgs,
+    dims: [usize; 3],
+    halo: usize,
+    bytes_per_voxel: u64,
+) -> Result<usize> {
+    Ok(match c.chunk {
+        Some(0) => anyhow::bail!("--chunk 0 is invalid; expected a chunk edge of 1 voxel or more"),
+        Some(n) => n,
+        None => vellum::passes::chunked::chunk_for(dims, halo, bytes_per_voxel, memory_budget(c)?)?,
+    })
+}
+
 /// `--memory-budget` in bytes; by default half the machine's memory.
 pub(crate) fn memory_budget(c: &ChunkArgs) -> Result<u64> {
     Ok(match c.memory_budget {
@@ -42,10 +68,7 @@ pub(crate) fn plan(
     whole_outputs: &[(&str, bool)],
 ) -> Result<Plan> {
     let budget = memory_budget(c)?;
-    // Every rank opens the input before any work starts: one that cannot ends the job.
-    let source = crate::commands::together(team, Source::open(input))?;
-    let dims = crate::commands::together(team, source.boxes().map(|b| b.dims()))?;
-    team.same_inputs(crate::commands::inputs_key(&dims))?;
+    let (source, dims) = open_shared(team, input)?;
     let need = dims.iter().map(|&n| n as u64).product::<u64>() * bytes_per_voxel;
     let store_out = out.is_some_and(is_store_path);
     let store_in = matches!(source, Source::Store(_));
@@ -72,11 +95,7 @@ pub(crate) fn plan(
             "{flag} needs the whole result in memory; a chunked pass writes only its store"
         );
     }
-    let chunk = match c.chunk {
-        Some(0) => anyhow::bail!("--chunk 0 is invalid; expected a chunk edge of 1 voxel or more"),
-        Some(n) => n,
-        None => vellum::passes::chunked::chunk_for(dims, halo, bytes_per_voxel, budget)?,
-    };
+    let chunk = chunk_edge(c, dims, halo, bytes_per_voxel)?;
     Ok(Plan::Chunked { source, chunk })
 }
 

@@ -103,25 +103,15 @@ pub(crate) fn normals(
     chunking: &ChunkArgs,
     json: bool,
 ) -> Result<()> {
-    use vellum::passes::chunked::{chunk_for, normals_store, NORMALS_BYTES, NORMALS_HALO};
+    use vellum::passes::chunked::{normals_store, NORMALS_BYTES, NORMALS_HALO};
     anyhow::ensure!(
         super::chunked::is_store_path(out),
         "{} is not a store; the normals are written as an OME-Zarr store of four channels, expected --out x.ome.zarr",
         out.display()
     );
-    // Every rank opens the input before any work starts: one that cannot ends the job.
-    let source = together(team, super::convert::Source::open(input))?;
-    let boxes = together(team, source.boxes())?;
-    let dims = boxes.dims();
-    team.same_inputs(super::inputs_key(&dims))?;
-    let chunk = match chunking.chunk {
-        Some(0) => anyhow::bail!("--chunk 0 is invalid; expected a chunk edge of 1 voxel or more"),
-        Some(n) => n,
-        None => {
-            let budget = super::chunked::memory_budget(chunking)?;
-            chunk_for(dims, NORMALS_HALO, NORMALS_BYTES, budget)?
-        }
-    };
+    let (source, dims) = super::chunked::open_shared(team, input)?;
+    let boxes = source.boxes()?;
+    let chunk = super::chunked::chunk_edge(chunking, dims, NORMALS_HALO, NORMALS_BYTES)?;
     let ctx = together(team, context(cli))?;
     let range = together(team, source.range())?;
     let grid = (dims, chunk);

@@ -33,12 +33,8 @@ pub(crate) fn together<T>(team: &dyn Team, r: Result<T>) -> Result<T> {
     if team.size() == 1 {
         return r;
     }
-    let outcome = r
-        .as_ref()
-        .map(|_| ())
-        .map_err(|e| vellum::Error::Invalid(format!("{e:#}")));
-    team.agree(outcome)?;
-    r
+    let r = r.map_err(|e| vellum::Error::Invalid(format!("{e:#}")));
+    Ok(team.together(r)?)
 }
 
 /// A digest of this process's command line and of what it opened (`what`): every rank of a job
