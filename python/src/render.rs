@@ -155,9 +155,22 @@ fn apply(mut scene: Scene, options: Option<&Bound<'_, PyDict>>) -> PyResult<Scen
             }
             "tf" | "otf" | "features" => {
                 let name: String = value.extract().map_err(|_| bad("a name or a path"))?;
-                scene.classification = match key.as_str() {
-                    "tf" => ClassificationSpec::Transfer(name),
-                    "otf" => ClassificationSpec::Occlusion(name),
+                // otf= and features= together compose the two (as --otf and --features do).
+                scene.classification = match (key.as_str(), &scene.classification) {
+                    ("tf", _) => ClassificationSpec::Transfer(name),
+                    ("otf", ClassificationSpec::Features(f)) if given(options, "features") => {
+                        ClassificationSpec::Composed {
+                            features: f.clone(),
+                            occlusion: name,
+                        }
+                    }
+                    ("otf", _) => ClassificationSpec::Occlusion(name),
+                    (_, ClassificationSpec::Occlusion(o)) if given(options, "otf") => {
+                        ClassificationSpec::Composed {
+                            features: name,
+                            occlusion: o.clone(),
+                        }
+                    }
                     _ => ClassificationSpec::Features(name),
                 };
             }
@@ -216,6 +229,11 @@ fn apply(mut scene: Scene, options: Option<&Bound<'_, PyDict>>) -> PyResult<Scen
     }
     scene.validate().map_err(to_py)?;
     Ok(scene)
+}
+
+/// Whether the keyword `key` is among `options`.
+fn given(options: &Bound<'_, PyDict>, key: &str) -> bool {
+    options.contains(key).unwrap_or(false)
 }
 
 /// The scene and, for an array, the volume a renderer draws: a `vellum.Scene`, a scene file's

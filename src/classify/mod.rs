@@ -4,7 +4,8 @@
 //!
 //! It sits beneath both `passes/` and `render/` and holds:
 //! - the data: 1D transfer functions ([`transfer`]), occlusion transfer functions ([`otf`]) and
-//!   their visibility mappings ([`mapping`]), feature-map transfer functions ([`features`]), the
+//!   their visibility mappings ([`mapping`]), feature-map transfer functions ([`features`]) and
+//!   their composition with an occlusion transfer function ([`compose`]), the
 //!   focus of a two-level frame ([`Focus`]) and importance modulation ([`modulation`]);
 //! - their persistent GPU state ([`textures::GpuClassification`]): textures re-uploaded only when
 //!   their contents change, focus and modulation as per-frame uniforms;
@@ -15,6 +16,7 @@
 //! Command-line grammar (`--focus LO:HI`, `tf:FILE`) is parsed by the binary; this layer takes
 //! typed values. File formats (transfer-function and occlusion-TF JSON) are parsed here.
 
+pub mod compose;
 pub mod features;
 pub mod mapping;
 pub mod modulation;
@@ -106,4 +108,7 @@ pub enum Classification {
     Features(FeatureMap),
     /// An occlusion transfer function; its occlusion volume is computed when a scene is prepared.
     Occlusion(OcclusionTf),
+    /// A feature map composed with an occlusion transfer function ([`compose`]): the features in
+    /// their colours, the context by intensity and occlusion.
+    Composed(FeatureMap, OcclusionTf),
 }

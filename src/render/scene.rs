@@ -38,6 +38,7 @@
 //! uploads the volume once, and the occlusion volume that an occlusion transfer function needs is
 //! computed from the texture already on the GPU and sampled by the renderer where it lies.
 
+use crate::classify::compose::{composed_table, composed_visibility};
 use crate::classify::features::feature_transfer_function;
 use crate::classify::mapping::parse_mapping;
 use crate::classify::modulation::Modulation;
@@ -105,6 +106,33 @@ pub enum ClassificationSpec {
     Occlusion(String),
     /// A feature map (features.json from `vellum migrate`).
     Features(String),
+    /// A feature map composed with an occlusion transfer function (`classify::compose`): the
+    /// features in their colours, the context by intensity and occlusion.
+    Composed { features: String, occlusion: String },
+}
+
+impl ClassificationSpec {
+    /// The spec with every file path it names passed through `f` (transfer-function presets are
+    /// left alone).
+    fn map_paths(&self, f: impl Fn(&str) -> String) -> Self {
+        match self {
+            ClassificationSpec::Transfer(t)
+                if crate::classify::transfer::PRESETS.contains(&t.as_str()) =>
+            {
+                self.clone()
+            }
+            ClassificationSpec::Transfer(t) => ClassificationSpec::Transfer(f(t)),
+            ClassificationSpec::Occlusion(o) => ClassificationSpec::Occlusion(f(o)),
+            ClassificationSpec::Features(m) => ClassificationSpec::Features(f(m)),
+            ClassificationSpec::Composed {
+                features,
+                occlusion,
+            } => ClassificationSpec::Composed {
+                features: f(features),
+                occlusion: f(occlusion),
+            },
+        }
+    }
 }
 
 impl Default for ClassificationSpec {
@@ -364,16 +392,7 @@ impl Scene {
         let mut scene = Scene::from_json_str(&text).map_err(in_file)?;
         let dir = path.parent().unwrap_or(Path::new("."));
         scene.input.path = resolve(dir, &scene.input.path);
-        scene.classification = match &scene.classification {
-            ClassificationSpec::Transfer(t)
-                if !crate::classify::transfer::PRESETS.contains(&t.as_str()) =>
-            {
-                ClassificationSpec::Transfer(resolve(dir, t))
-            }
-            ClassificationSpec::Occlusion(f) => ClassificationSpec::Occlusion(resolve(dir, f)),
-            ClassificationSpec::Features(f) => ClassificationSpec::Features(resolve(dir, f)),
-            other => other.clone(),
-        };
+        scene.classification = scene.classification.map_paths(|p| resolve(dir, p));
         Ok(scene)
     }
 
@@ -382,11 +401,7 @@ impl Scene {
     pub fn save(&self, path: &Path) -> Result<()> {
         let mut s = self.clone();
         s.input.path = absolute(&s.input.path);
-        s.classification = match &s.classification {
-            ClassificationSpec::Transfer(t) => ClassificationSpec::Transfer(absolute(t)),
-            ClassificationSpec::Occlusion(f) => ClassificationSpec::Occlusion(absolute(f)),
-            ClassificationSpec::Features(f) => ClassificationSpec::Features(absolute(f)),
-        };
+        s.classification = s.classification.map_paths(absolute);
         let json = serde_json::to_string_pretty(&s)
             .map_err(|e| Error::Invalid(format!("scene cannot be written as JSON: {e}")))?;
         crate::output::write_atomic(path, |w| {
@@ -464,27 +479,37 @@ impl Scene {
             ClassificationSpec::Occlusion(f) => {
                 Classification::Occlusion(OcclusionTf::load(Path::new(f))?)
             }
-            ClassificationSpec::Features(f) => {
-                let map = crate::volume::feature::FeatureMap::load(Path::new(f))?;
-                if map.nodes.is_empty() {
-                    return Err(Error::Invalid(format!(
-                        "the feature map {f} holds no features; expected one made by `vellum migrate`"
-                    )));
-                }
-                // A map names the volume it was made for; rendering another one would colour
-                // intervals that mean nothing there.
-                let input = Path::new(&self.input.path).file_name();
-                if let (Some(named), Some(input)) = (&map.volume, input) {
-                    if Path::new(named).file_name() != Some(input) {
-                        return Err(Error::Invalid(format!(
-                            "the feature map {f} was made for {named}, not {}; expected the feature volume it describes",
-                            input.to_string_lossy()
-                        )));
-                    }
-                }
-                Classification::Features(map)
-            }
+            ClassificationSpec::Features(f) => Classification::Features(self.feature_map(f)?),
+            ClassificationSpec::Composed {
+                features,
+                occlusion,
+            } => Classification::Composed(
+                self.feature_map(features)?,
+                OcclusionTf::load(Path::new(occlusion))?,
+            ),
         })
+    }
+
+    /// Loads the feature map at `f` and checks that it names this scene's input.
+    fn feature_map(&self, f: &str) -> Result<crate::volume::feature::FeatureMap> {
+        let map = crate::volume::feature::FeatureMap::load(Path::new(f))?;
+        if map.nodes.is_empty() {
+            return Err(Error::Invalid(format!(
+                "the feature map {f} holds no features; expected one made by `vellum migrate`"
+            )));
+        }
+        // A map names the volume it was made for; rendering another one would colour
+        // intervals that mean nothing there.
+        let input = Path::new(&self.input.path).file_name();
+        if let (Some(named), Some(input)) = (&map.volume, input) {
+            if Path::new(named).file_name() != Some(input) {
+                return Err(Error::Invalid(format!(
+                    "the feature map {f} was made for {named}, not {}; expected the feature volume it describes",
+                    input.to_string_lossy()
+                )));
+            }
+        }
+        Ok(map)
     }
 
     /// The view of a volume whose orientation is known (`oriented`) or not: camera (fitted to
@@ -534,6 +559,19 @@ pub fn occlusion_params(otf: &crate::classify::otf::OcclusionTf) -> Result<Occlu
     })
 }
 
+/// The table and occlusion parameters of a feature map composed with an occlusion TF, on a
+/// feature volume whose data range is `range`: the occlusion TF's mapping applies to each value's
+/// original intensity (`classify::compose`).
+fn composed(
+    map: &crate::volume::feature::FeatureMap,
+    otf: &OcclusionTf,
+    range: [f64; 2],
+) -> Result<(Vec<[f32; 4]>, OcclusionParams)> {
+    let mut params = occlusion_params(otf)?;
+    params.visibility = composed_visibility(map, &params.visibility, range)?;
+    Ok((composed_table(map, &otf.table()?, range)?, params))
+}
+
 impl GpuScene {
     /// A volume for the brick cache (`volume::bricks`, `passes::paging`): pools of `budget_bytes`,
     /// nothing resident yet, and the classification. Occlusion transfer functions and importance
@@ -556,7 +594,7 @@ impl GpuScene {
         let transfer = match classification {
             Classification::Transfer(tf) => tf.clone(),
             Classification::Features(map) => feature_transfer_function(map, levels.range)?,
-            Classification::Occlusion(_) => {
+            Classification::Occlusion(_) | Classification::Composed(..) => {
                 return Err(Error::Invalid(format!(
                     "an occlusion transfer function needs the occlusion volume of the whole volume, which is larger than the GPU budget ({budget:.0} MiB); raise --gpu-budget or use a transfer function"
                 )))
@@ -596,6 +634,10 @@ impl GpuScene {
             Classification::Occlusion(otf) => (
                 TransferFunction::preset("grey")?,
                 Some((otf.table()?, occlusion_params(otf)?)),
+            ),
+            Classification::Composed(map, otf) => (
+                TransferFunction::preset("grey")?,
+                Some(composed(map, otf, volume.range)?),
             ),
         };
         let mut occlusion = match &otf {

@@ -392,6 +392,7 @@ fn transfer(ui: &mut egui::Ui, m: &mut Model) {
         ui.label(match &m.scene.classification {
             ClassificationSpec::Occlusion(f) => format!("occlusion transfer function {f}: edit it over the spectrum (see Occlusion spectrum)"),
             ClassificationSpec::Features(f) => format!("feature map {f}: its features set the transfer function (see Feature map)"),
+            ClassificationSpec::Composed { features, occlusion } => format!("feature map {features} composed with the occlusion transfer function {occlusion}: shown as the files say (edit each alone to change it)"),
             ClassificationSpec::Transfer(_) => String::new(),
         });
         return;

@@ -78,7 +78,8 @@ pub(crate) struct SceneArgs {
     #[arg(long, conflicts_with = "tf")]
     pub(crate) otf: Option<PathBuf>,
     /// A feature map (features.json from `vellum migrate`): each feature gets its colour (FM6).
-    #[arg(long, conflicts_with_all = ["otf", "tf"])]
+    /// With --otf, the two compose: features in their colours, the context by the occlusion TF.
+    #[arg(long, conflicts_with = "tf")]
     pub(crate) features: Option<PathBuf>,
     #[command(flatten)]
     pub(crate) modulation: ModulationArgs,
@@ -149,12 +150,15 @@ impl SceneArgs {
         if let Some(tf) = &a.tf {
             scene.classification = ClassificationSpec::Transfer(tf.clone());
         }
-        if let Some(otf) = &a.otf {
-            scene.classification = ClassificationSpec::Occlusion(path_arg(otf));
-        }
-        if let Some(f) = &a.features {
-            scene.classification = ClassificationSpec::Features(path_arg(f));
-        }
+        scene.classification = match (&a.otf, &a.features) {
+            (Some(o), Some(f)) => ClassificationSpec::Composed {
+                features: path_arg(f),
+                occlusion: path_arg(o),
+            },
+            (Some(o), None) => ClassificationSpec::Occlusion(path_arg(o)),
+            (None, Some(f)) => ClassificationSpec::Features(path_arg(f)),
+            (None, None) => scene.classification,
+        };
         if a.focus.is_some() || a.iso.is_some() {
             scene.focus = parse_focus(a.focus.as_deref(), a.iso)?;
         }
