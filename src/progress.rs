@@ -12,3 +12,30 @@ pub fn bar(len: u64, what: &str) -> ProgressBar {
     pb.set_message(what.to_string());
     pb
 }
+
+/// A spinner for work whose length is not known ahead (one GPU submission, a file read): `what`,
+/// the elapsed time, and a moving mark, redrawn on stderr every 120 ms while it lives. Drawn only
+/// when stderr is a terminal; cleared when dropped.
+pub struct Spinner(ProgressBar);
+
+impl Spinner {
+    pub fn new(what: &str) -> Spinner {
+        use std::io::IsTerminal;
+        if !std::io::stderr().is_terminal() {
+            return Spinner(ProgressBar::hidden());
+        }
+        let pb = ProgressBar::new_spinner();
+        if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} {elapsed}") {
+            pb.set_style(style);
+        }
+        pb.set_message(what.to_string());
+        pb.enable_steady_tick(std::time::Duration::from_millis(120));
+        Spinner(pb)
+    }
+}
+
+impl Drop for Spinner {
+    fn drop(&mut self) {
+        self.0.finish_and_clear();
+    }
+}

@@ -1008,3 +1008,62 @@ fn the_seeded_traversal_follows_the_lines_from_frame_to_frame() {
         }
     }
 }
+
+/// `--line-smooth auto`, the default (issue 29): a smooth sphere stored as uint8 gets no
+/// suggestive contours (thousands unsmoothed, from the quantisation step), while the float torus
+/// is not smoothed and keeps its reference lines exactly.
+#[test]
+fn line_smoothing_auto_smooths_quantised_data_only() {
+    use vellum::volume::lines::auto_smooth_radius;
+    let float = phantom::smooth_sphere(128);
+    let bytes: Vec<u8> = values(&float)
+        .iter()
+        .map(|&x| (x.clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect();
+    let quantised = Volume::new(float.dims, float.spacing, VoxelData::U8(bytes)).unwrap();
+    assert_eq!(auto_smooth_radius(&float), 0);
+    assert!(auto_smooth_radius(&quantised) >= 1);
+    assert_eq!(auto_smooth_radius(&phantom::smooth_torus(96)), 0);
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sphere_u8.nrrd");
+    vellum::volume::io::nrrd::write_nrrd(&path, &quantised).unwrap();
+    let png = dir.path().join("lines.png");
+    let sphere = |smooth: Option<&str>| {
+        let mut args = vec![path.to_str().unwrap(), "--iso", "127", "--size", "256x256"];
+        args.extend(["--out", png.to_str().unwrap()]);
+        if let Some(s) = smooth {
+            args.extend(["--line-smooth", s]);
+        }
+        lines_json(&args)["suggestive_segments"].as_u64().unwrap()
+    };
+    let (by_default, unsmoothed) = (sphere(None), sphere(Some("0")));
+    eprintln!("uint8 sphere: {by_default} suggestive segments by default, {unsmoothed} unsmoothed");
+    assert!(
+        by_default <= 10,
+        "{by_default} suggestive segments on a smooth sphere"
+    );
+    assert!(
+        unsmoothed > 100,
+        "the quantisation makes spurious contours ({unsmoothed})"
+    );
+
+    let torus = |smooth: Option<&str>| {
+        let mut args = vec!["phantom:torus:96", "--iso", "0.5", "--camera", "20,35"];
+        args.extend(["--size", "256x256", "--out", png.to_str().unwrap()]);
+        if let Some(s) = smooth {
+            args.extend(["--line-smooth", s]);
+        }
+        let j = lines_json(&args);
+        (
+            j["suggestive_segments"].as_u64().unwrap(),
+            j["silhouette_segments"].as_u64().unwrap(),
+        )
+    };
+    let (t_default, t_raw) = (torus(None), torus(Some("0")));
+    assert!(
+        t_default.0 > 20,
+        "the torus keeps its suggestive contours ({t_default:?})"
+    );
+    assert_eq!(t_default, t_raw, "float data are not smoothed by default");
+}

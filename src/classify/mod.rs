@@ -23,6 +23,7 @@ pub mod modulation;
 pub mod otf;
 pub mod textures;
 pub mod transfer;
+pub mod window;
 
 use crate::volume::feature::FeatureMap;
 use otf::OcclusionTf;
@@ -102,6 +103,9 @@ impl Focus {
 /// How samples get colour and opacity.
 #[derive(Clone, Debug)]
 pub enum Classification {
+    /// The default: the grey ramp over the data's histogram window ([`window`]), found when the
+    /// volume is known.
+    Auto,
     /// A 1D transfer function.
     Transfer(TransferFunction),
     /// A feature map: each feature's private interval in its colour (FM6).

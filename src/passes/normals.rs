@@ -48,6 +48,9 @@ pub struct VolumeTextures {
     /// The brick cache, when the textures are its pools (`passes::paging`): the volume is then
     /// sampled through the page table and only the ray caster draws it.
     pub paged: Option<Box<crate::passes::paging::Paged>>,
+    /// The smoothing radius `--line-smooth auto` gives this volume's object-space lines
+    /// (`volume::lines::auto_smooth_radius`).
+    pub auto_line_smooth: u32,
 }
 
 /// Edge of a brick in voxels.
@@ -158,6 +161,7 @@ impl VolumeTextures {
                 importance: None,
                 id: next_volume_id(),
                 paged: None,
+                auto_line_smooth: crate::volume::lines::auto_smooth_radius(v),
             },
             staging,
         ))

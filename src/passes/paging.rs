@@ -133,6 +133,8 @@ impl VolumeTextures {
             },
             importance: None,
             id: crate::passes::normals::next_volume_id(),
+            // Lines are not drawn through the brick cache.
+            auto_line_smooth: 0,
             paged: Some(Box::new(Paged {
                 levels: Arc::new(levels),
                 cache,

@@ -684,7 +684,7 @@ impl Renderer {
             .post
             .as_ref()
             .ok_or_else(|| Error::Invalid("the style passes were not built".into()))?;
-        let radius = f.style.params.line_smooth;
+        let radius = f.style.params.line_smooth.radius(vol.auto_line_smooth);
         if let (Some(_), Some(extractor)) = (f.style.def.lines, self.lines.as_mut()) {
             if radius > 0 && !state.has_smoothed(vol.id, radius) {
                 let image = extractor.record_smoothing(frame, &vol.intensity, vol.dims, radius)?;
@@ -1050,7 +1050,7 @@ fn line_geometry(vol: &VolumeTextures, f: &StyleFrame, kind: LineKind) -> LineGe
             min_angle_deg: p.line_angle,
             derivative_threshold: p.line_derivative_threshold,
             stride: p.line_stride,
-            smooth: p.line_smooth,
+            smooth: p.line_smooth.radius(vol.auto_line_smooth),
             seeded: p.line_seeded,
         },
         view: RasterView {

@@ -116,11 +116,7 @@ impl ClassificationSpec {
     /// left alone).
     fn map_paths(&self, f: impl Fn(&str) -> String) -> Self {
         match self {
-            ClassificationSpec::Transfer(t)
-                if crate::classify::transfer::PRESETS.contains(&t.as_str()) =>
-            {
-                self.clone()
-            }
+            ClassificationSpec::Transfer(t) if is_named(t) => self.clone(),
             ClassificationSpec::Transfer(t) => ClassificationSpec::Transfer(f(t)),
             ClassificationSpec::Occlusion(o) => ClassificationSpec::Occlusion(f(o)),
             ClassificationSpec::Features(m) => ClassificationSpec::Features(f(m)),
@@ -137,7 +133,7 @@ impl ClassificationSpec {
 
 impl Default for ClassificationSpec {
     fn default() -> Self {
-        ClassificationSpec::Transfer("grey".into())
+        ClassificationSpec::Transfer(crate::classify::window::AUTO.into())
     }
 }
 
@@ -342,8 +338,13 @@ fn resolve(dir: &Path, p: &str) -> String {
 }
 
 /// Makes `p` absolute (for saving) unless it is a phantom spec or a preset name.
+/// Whether a transfer function `t` is a name (a preset or `auto`) rather than a file.
+fn is_named(t: &str) -> bool {
+    crate::classify::transfer::PRESETS.contains(&t) || t == crate::classify::window::AUTO
+}
+
 fn absolute(p: &str) -> String {
-    if p.starts_with("phantom:") || crate::classify::transfer::PRESETS.contains(&p) {
+    if p.starts_with("phantom:") || is_named(p) {
         return p.to_string();
     }
     std::path::absolute(p)
@@ -473,6 +474,9 @@ impl Scene {
     /// Loads the files the classification names.
     pub fn classification(&self) -> Result<Classification> {
         Ok(match &self.classification {
+            ClassificationSpec::Transfer(t) if t == crate::classify::window::AUTO => {
+                Classification::Auto
+            }
             ClassificationSpec::Transfer(t) => {
                 Classification::Transfer(TransferFunction::from_arg(t)?)
             }
@@ -592,6 +596,11 @@ impl GpuScene {
             )));
         }
         let transfer = match classification {
+            Classification::Auto => {
+                // The window from the finest level of at most 16 M voxels.
+                let small = levels.read_small_level(1 << 24)?;
+                crate::classify::window::auto(&small, levels.range)?
+            }
             Classification::Transfer(tf) => tf.clone(),
             Classification::Features(map) => feature_transfer_function(map, levels.range)?,
             Classification::Occlusion(_) | Classification::Composed(..) => {
@@ -626,6 +635,7 @@ impl GpuScene {
         let (mut volume, staging) = VolumeTextures::new(ctx, v)?;
         focus.check_in(volume.range)?;
         let (transfer, otf) = match classification {
+            Classification::Auto => (crate::classify::window::auto(v, volume.range)?, None),
             Classification::Transfer(tf) => (tf.clone(), None),
             Classification::Features(map) => {
                 let s = crate::volume::stats::stats(v, 0);

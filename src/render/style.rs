@@ -158,6 +158,67 @@ impl StyleDef {
     }
 }
 
+/// How object-space lines smooth the volume before extraction. In files and on the command line:
+/// `"auto"` or a radius in voxels.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "SmoothRepr", into = "SmoothRepr")]
+pub enum LineSmooth {
+    /// By the data's quantisation (`volume::lines::auto_smooth_radius`).
+    #[default]
+    Auto,
+    /// A Gaussian of this radius in voxels (σ = R/3); 0 = none.
+    Radius(u32),
+}
+
+impl LineSmooth {
+    /// Parses `auto` or a radius.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s.trim() {
+            "auto" => Ok(LineSmooth::Auto),
+            r => r.parse().map(LineSmooth::Radius).map_err(|_| {
+                Error::Invalid(format!(
+                    "line smoothing {s:?} is invalid; expected auto or a radius in voxels"
+                ))
+            }),
+        }
+    }
+
+    /// The radius for a volume whose `auto` radius is `auto`.
+    pub fn radius(self, auto: u32) -> u32 {
+        match self {
+            LineSmooth::Auto => auto,
+            LineSmooth::Radius(r) => r,
+        }
+    }
+}
+
+/// The JSON form of [`LineSmooth`]: a number or a name.
+#[derive(Serialize, Deserialize)]
+#[serde(untagged)]
+enum SmoothRepr {
+    Radius(u32),
+    Name(String),
+}
+
+impl TryFrom<SmoothRepr> for LineSmooth {
+    type Error = String;
+    fn try_from(r: SmoothRepr) -> std::result::Result<Self, String> {
+        match r {
+            SmoothRepr::Radius(r) => Ok(LineSmooth::Radius(r)),
+            SmoothRepr::Name(n) => LineSmooth::parse(&n).map_err(|e| e.to_string()),
+        }
+    }
+}
+
+impl From<LineSmooth> for SmoothRepr {
+    fn from(s: LineSmooth) -> Self {
+        match s {
+            LineSmooth::Auto => SmoothRepr::Name("auto".into()),
+            LineSmooth::Radius(r) => SmoothRepr::Radius(r),
+        }
+    }
+}
+
 /// Parameters of the styles; every field has the default the gallery uses.
 #[derive(Copy, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -195,8 +256,9 @@ pub struct StyleParams {
     /// Draw both kinds of lines whatever the style's kind (`vellum lines --kind both`).
     pub line_both: bool,
     /// Object-space lines: the radius in voxels of the Gaussian (σ = R/3) the volume is smoothed
-    /// with before extraction; 0 = none. Suggestive contours need it on measured data.
-    pub line_smooth: u32,
+    /// with before extraction, or `auto` (the default: by the data's quantisation,
+    /// `volume::lines::auto_smooth_radius`). Suggestive contours need it on measured data.
+    pub line_smooth: LineSmooth,
     /// Object-space lines by the seeded traversal (`LineParams::seeded`), the viewer's
     /// interactive mode: lines followed from the previous frame's and a sparse grid of seeds.
     pub line_seeded: bool,
@@ -224,7 +286,7 @@ impl Default for StyleParams {
             line_depth_bias: 1.5,
             line_stride: 1,
             line_both: false,
-            line_smooth: 0,
+            line_smooth: LineSmooth::Auto,
             line_seeded: false,
         }
     }
@@ -292,10 +354,9 @@ impl StyleParams {
             ));
         }
         positive("the line depth bias", self.line_depth_bias, 64.0)?;
-        if self.line_smooth > 16 {
+        if let LineSmooth::Radius(r @ 17..) = self.line_smooth {
             return Err(Error::Invalid(format!(
-                "line smoothing radius {} is invalid; expected 0..=16 voxels",
-                self.line_smooth
+                "line smoothing radius {r} is invalid; expected auto or 0..=16 voxels"
             )));
         }
         if !(1..=8).contains(&self.line_stride) {

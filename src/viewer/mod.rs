@@ -263,11 +263,13 @@ fn load(scene: Scene, budget: u64) -> Result<Loaded> {
         Some((levels, coarsest)) => (Some(levels), coarsest),
         None => (None, scene.load_volume()?),
     };
+    let s = crate::volume::stats::stats(&volume, 256);
+    let range = levels.as_ref().map_or([s.min, s.max], |l| l.range);
     let tf = match &classification {
         Classification::Transfer(tf) => tf.clone(),
+        Classification::Auto => crate::classify::window::auto(&volume, range)?,
         _ => TransferFunction::preset("grey")?,
     };
-    let s = crate::volume::stats::stats(&volume, 256);
     let (tf, features) = match &classification {
         Classification::Features(map) => (
             crate::classify::features::feature_transfer_function(map, [s.min, s.max])?,
@@ -285,7 +287,7 @@ fn load(scene: Scene, budget: u64) -> Result<Loaded> {
         classification,
         tf,
         histogram: s.histogram,
-        range: levels.as_ref().map_or([s.min, s.max], |l| l.range),
+        range,
         volume,
         levels,
         features,

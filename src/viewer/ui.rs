@@ -694,9 +694,27 @@ fn style(ui: &mut egui::Ui, m: &mut Model) {
         ui.add(
             egui::Slider::new(&mut p.line_derivative_threshold, 0.0..=1.0).text("line threshold"),
         );
-        ui.add(egui::Slider::new(&mut p.line_smooth, 0..=8).text("line smoothing (voxels)"))
-            .on_hover_text("Gaussian radius (σ = R/3) applied before extracting lines; 3 against noise on CT and MRI");
+        line_smoothing(ui, &mut p.line_smooth);
     }
+}
+
+/// The line-smoothing control: `auto` (by the data's quantisation) or a radius.
+fn line_smoothing(ui: &mut egui::Ui, smooth: &mut crate::render::style::LineSmooth) {
+    use crate::render::style::LineSmooth;
+    ui.horizontal(|ui| {
+        let mut auto = *smooth == LineSmooth::Auto;
+        if ui
+            .checkbox(&mut auto, "auto")
+            .on_hover_text("smooth quantised data (integer voxels) by radius 1 or 2; float data not at all")
+            .changed()
+        {
+            *smooth = if auto { LineSmooth::Auto } else { LineSmooth::Radius(0) };
+        }
+        if let LineSmooth::Radius(r) = smooth {
+            ui.add(egui::Slider::new(r, 0..=8).text("line smoothing (voxels)"))
+                .on_hover_text("Gaussian radius (σ = R/3) applied before extracting lines; 3 against noise on CT and MRI");
+        }
+    });
 }
 
 fn importance(ui: &mut egui::Ui, m: &mut Model) {

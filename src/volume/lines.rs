@@ -56,6 +56,66 @@ pub struct LineParams {
     pub seeded: bool,
 }
 
+/// `--line-smooth auto` smooths when the quantisation step is at least this fraction of the
+/// surfaces' gradient (see [`auto_smooth_radius`]).
+pub const AUTO_SMOOTH_FROM: f64 = 0.003;
+/// ... and with radius 2 from this fraction on.
+pub const AUTO_SMOOTH_WIDE_FROM: f64 = 0.03;
+
+/// The smoothing radius of `--line-smooth auto` for `v`: 0 (none), 1 or 2 voxels.
+///
+/// Suggestive contours are zeros of a curvature, a second derivative, and on integer data the
+/// quantisation step makes second differences jump where the surface is smooth: a smooth sphere
+/// stored as uint8 gets about 140 spurious segments unsmoothed, and none after a Gaussian of
+/// radius 1. The rule compares the step q (one data unit for integer voxels, none for floats)
+/// with g, the 90th percentile of the non-zero gradient magnitudes (central differences, data
+/// units per voxel, over up to a million sampled voxels), which is the gradient across the
+/// volume's surfaces: no smoothing for q/g < [`AUTO_SMOOTH_FROM`], radius 1 up to
+/// [`AUTO_SMOOTH_WIDE_FROM`], radius 2 above. Measured q/g: smooth float phantoms 0; the uint8
+/// sphere 0.023; CT heads 0.002–0.004 (16-bit), the chest CT 0.019, brain MRI 0.037 (8-bit).
+/// Noise in float data is not measured: such data need `--line-smooth N` by hand.
+pub fn auto_smooth_radius(v: &crate::volume::Volume) -> u32 {
+    if v.voxel_type() == crate::volume::VoxelType::F32 {
+        return 0;
+    }
+    let [nx, ny, nz] = v.dims;
+    if nx < 3 || ny < 3 || nz < 3 {
+        return 0;
+    }
+    let at = |x: usize, y: usize, z: usize| v.data.get_f64(x + nx * (y + ny * z));
+    let inner = (nx - 2) * (ny - 2) * (nz - 2);
+    let stride = inner.div_ceil(1 << 20).max(1);
+    let mut magnitudes: Vec<f32> = (0..inner.div_ceil(stride))
+        .into_par_iter()
+        .filter_map(|k| {
+            let i = k * stride;
+            let (x, y, z) = (
+                1 + i % (nx - 2),
+                1 + (i / (nx - 2)) % (ny - 2),
+                1 + i / ((nx - 2) * (ny - 2)),
+            );
+            let g = [
+                at(x + 1, y, z) - at(x - 1, y, z),
+                at(x, y + 1, z) - at(x, y - 1, z),
+                at(x, y, z + 1) - at(x, y, z - 1),
+            ];
+            let m = 0.5 * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+            (m.is_finite() && m > 0.0).then_some(m as f32)
+        })
+        .collect();
+    if magnitudes.is_empty() {
+        return 0;
+    }
+    let k = (magnitudes.len() * 9 / 10).min(magnitudes.len() - 1);
+    let (_, g90, _) = magnitudes.select_nth_unstable_by(k, f32::total_cmp);
+    let ratio = 1.0 / *g90 as f64;
+    match ratio {
+        r if r < AUTO_SMOOTH_FROM => 0,
+        r if r < AUTO_SMOOTH_WIDE_FROM => 1,
+        _ => 2,
+    }
+}
+
 /// The values of `v` normalised to [0, 1] over its range (as [`extract`] and the GPU passes see
 /// them), after the Gaussian of radius `radius` voxels when it is not 0: the CPU twin of the
 /// smoothing the GPU passes do (`ImportanceMap::record_blur_of_texture`).

@@ -6,6 +6,7 @@ use anyhow::Result;
 use std::path::PathBuf;
 use vellum::classify::modulation::Modulation;
 use vellum::classify::Focus;
+use vellum::render::style::LineSmooth;
 use vellum::volume::io::RawSpec;
 use vellum::volume::{Volume, VoxelType};
 
@@ -355,8 +356,9 @@ pub(crate) struct ViewArgs {
 pub(crate) struct StylesArgs {
     #[command(flatten)]
     pub(crate) input: InputArgs,
-    /// Transfer function: a preset or a JSON file.
-    #[arg(long, default_value = "grey")]
+    /// Transfer function: auto (the grey ramp over the histogram's window), a preset or a JSON
+    /// file.
+    #[arg(long, default_value = "auto")]
     pub(crate) tf: String,
     /// Focus: an interval of data values LO:HI.
     #[arg(long, value_name = "LO:HI", allow_hyphen_values = true)]
@@ -387,9 +389,9 @@ pub(crate) struct StylesArgs {
     #[arg(long, value_name = "R,G,B", allow_hyphen_values = true)]
     pub(crate) edge_color: Option<String>,
     /// Object-space lines (styles 4-12): smooth the volume first with a Gaussian of this radius in
-    /// voxels (σ = R/3; 0 none) [default: 0].
-    #[arg(long, value_name = "R")]
-    pub(crate) line_smooth: Option<u32>,
+    /// voxels (σ = R/3; 0 none), or auto: by the data's quantisation [default: auto].
+    #[arg(long, value_name = "auto|R", value_parser = parse_line_smooth)]
+    pub(crate) line_smooth: Option<LineSmooth>,
     /// The contact sheet (PNG).
     #[arg(long)]
     pub(crate) out: PathBuf,
@@ -454,9 +456,11 @@ pub(crate) struct StyleArgs {
     #[arg(long)]
     pub(crate) line_stride: Option<u32>,
     /// Object-space lines: smooth the volume first with a Gaussian of this radius in voxels
-    /// (σ = R/3; 0 none), against speckle of suggestive contours on measured data [default: 0].
-    #[arg(long)]
-    pub(crate) line_smooth: Option<u32>,
+    /// (σ = R/3; 0 none), against speckle of suggestive contours on measured data; auto smooths
+    /// quantised data (radius 1 or 2 by the quantisation step against the surfaces' gradient)
+    /// and leaves float data alone [default: auto].
+    #[arg(long, value_name = "auto|R", value_parser = parse_line_smooth)]
+    pub(crate) line_smooth: Option<LineSmooth>,
     /// Object-space lines by the seeded traversal (Burns et al.): followed from a sparse grid of
     /// seeds for a bounded number of rounds, the viewer's interactive mode.
     #[arg(long)]
@@ -1069,4 +1073,9 @@ pub(crate) fn parse_interval(s: &str) -> Result<[f64; 2]> {
         .and_then(|(a, b)| Some([a.trim().parse().ok()?, b.trim().parse().ok()?]))
         .filter(|[a, b]: &[f64; 2]| a <= b)
         .ok_or_else(|| anyhow::anyhow!("interval '{s}' is not LO:HI in data units with LO <= HI"))
+}
+
+/// `--line-smooth auto|R`.
+fn parse_line_smooth(s: &str) -> std::result::Result<LineSmooth, String> {
+    LineSmooth::parse(s).map_err(|e| e.to_string())
 }

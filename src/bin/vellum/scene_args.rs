@@ -21,7 +21,9 @@ pub(crate) struct SceneArgs {
     /// A scene file (JSON); every flag given on the command line overrides its value.
     #[arg(long = "scene", value_name = "FILE")]
     pub(crate) file: Option<PathBuf>,
-    /// Transfer function: a preset (grey, ct-bone, ct-skin-bone, mri-brain) or a JSON file [default: grey].
+    /// Transfer function: auto (the grey ramp over the window from the 1st to the 99.5th
+    /// percentile of the voxels above the background), a preset (grey, ct-bone, ct-skin-bone,
+    /// mri-brain) or a JSON file [default: auto].
     #[arg(long)]
     pub(crate) tf: Option<String>,
     /// Focus: an interval of data values LO:HI.

@@ -159,7 +159,13 @@ pub(crate) fn info(input: &InputArgs, json: bool) -> Result<()> {
             row[2]
         );
     }
-    println!("orientation: {}", g.orientation_code());
+    match g.is_oriented() {
+        true => println!("orientation: {}", g.orientation_code()),
+        false => println!(
+            "orientation: unknown: {}",
+            vellum::volume::geometry::Geometry::UNKNOWN_ORIENTATION
+        ),
+    }
     println!("range:   {} .. {}", s.min, s.max);
     println!("mean:    {:.4}", s.mean);
     println!("sha256:  {}", v.sha256_hex());

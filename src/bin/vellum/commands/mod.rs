@@ -128,6 +128,18 @@ pub(crate) fn run(cli: &Cli, team: &dyn Team) -> Result<()> {
             "this command runs on rank 0 alone; the ranks of a job share importance, occlusion and normals chunk by chunk, and render"
         );
     }
+    // Commands without bars of their own show a spinner on a terminal (rank 0 only).
+    let _spinner = match &cli.command {
+        Command::Devices { .. }
+        | Command::Info { .. }
+        | Command::Convert { .. }
+        | Command::Normals { .. }
+        | Command::Bench { .. }
+        | Command::View(_)
+        | Command::Features(_) => None,
+        _ if !team.is_root() => None,
+        _ => Some(vellum::progress::Spinner::new("vellum: working")),
+    };
     match &cli.command {
         Command::Devices { json } => devices(cli, *json),
         Command::Info { input, json } => info(input, *json),

@@ -143,6 +143,13 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
     )?;
     let grid = input.grid();
     team.same_inputs(inputs_key(&(&scene.input.path, grid.0)))?;
+    if !grid.2.is_oriented() && team.is_root() {
+        eprintln!(
+            "note: {}: {}",
+            scene.input.path,
+            vellum::volume::geometry::Geometry::UNKNOWN_ORIENTATION
+        );
+    }
     let mut view = scene
         .view(grid.2.is_oriented())
         .map_err(|e| from("style", e))?;

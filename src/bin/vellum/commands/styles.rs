@@ -23,7 +23,12 @@ pub(crate) fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
         size[1]
     );
     let background = parse_rgb("--background", &a.background)?;
-    let tf = vellum::classify::transfer::TransferFunction::from_arg(&a.tf)?;
+    let classification = match a.tf.as_str() {
+        vellum::classify::window::AUTO => vellum::classify::Classification::Auto,
+        tf => vellum::classify::Classification::Transfer(
+            vellum::classify::transfer::TransferFunction::from_arg(tf)?,
+        ),
+    };
     let view = View {
         camera: vellum::render::camera::Camera::parse(&a.camera)?,
         size,
@@ -42,13 +47,7 @@ pub(crate) fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
     };
     let v = a.input.load()?;
     let ctx = context(cli)?;
-    let mut scene = GpuScene::prepare(
-        &ctx,
-        &v,
-        &vellum::classify::Classification::Transfer(tf),
-        focus,
-        &Modulation::default(),
-    )?;
+    let mut scene = GpuScene::prepare(&ctx, &v, &classification, focus, &Modulation::default())?;
     let (sheet, tiles) = vellum::figures::style_gallery(
         &ctx,
         &mut scene,
