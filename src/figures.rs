@@ -378,8 +378,9 @@ pub fn style_gallery(
     }
     const COLUMNS: usize = 5;
     const PAD: usize = 8;
-    const SCALE: i64 = 2;
-    let label_h = 5 * SCALE as usize + 2 * PAD;
+    // Labels grow with the tiles: 10 px letters at 256², 15 px at 384², and so on.
+    let scale = (w / 128).clamp(2, 4) as i64;
+    let label_h = 5 * scale as usize + 2 * PAD;
     let rows = tiles.len().div_ceil(COLUMNS);
     let mut c = Canvas::new(
         PAD + COLUMNS * (w + PAD),
@@ -411,24 +412,28 @@ pub fn style_gallery(
                     x0 as i64 + 6,
                     (y0 + h / 2) as i64 - 5,
                     "NEEDS LINES",
-                    SCALE,
+                    scale,
                     [150, 150, 150],
                 );
                 c.text(
                     x0 as i64 + 6,
                     (y0 + h / 2) as i64 + 8,
                     "NOT BUILT YET",
-                    SCALE,
+                    scale,
                     [150, 150, 150],
                 );
             }
         }
-        let label = format!("{} {}", t.def.number, t.def.name);
-        let scale = if Canvas::text_width(&label, SCALE) as usize <= w {
-            SCALE
-        } else {
-            1
-        };
+        // The largest letters that fit the tile's width, the name shortened ("suggestive" for
+        // "suggestive-contours") rather than printed below twice the small size.
+        let full = format!("{} {}", t.def.number, t.def.name);
+        let short = full.replace("suggestive-contours", "suggestive");
+        let fits = |l: &str, s: i64| Canvas::text_width(l, s) as usize <= w;
+        let (label, scale) = (2..=scale)
+            .rev()
+            .flat_map(|s| [(full.clone(), s), (short.clone(), s)])
+            .find(|(l, s)| fits(l, *s))
+            .unwrap_or((full, 1));
         c.text(
             x0 as i64,
             (y0 + h + PAD / 2) as i64,

@@ -25,6 +25,7 @@ pub mod passes;
 pub mod plot;
 pub mod progress;
 pub mod render;
+pub mod showcase;
 pub mod team;
 pub mod viewer;
 pub mod volume;

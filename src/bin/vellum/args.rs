@@ -181,6 +181,10 @@ pub(crate) enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// The showcase page: runs every command of a manifest (examples/showcase.json) on a volume
+    /// and writes OUT/index.html, one offline page with each image, the command that made it and
+    /// its GPU timings (what `make run` ends with).
+    Showcase(ShowcaseArgs),
     /// The papers' figures, rendered again as labelled contact sheets.
     Figures {
         #[command(subcommand)]
@@ -1078,4 +1082,21 @@ pub(crate) fn parse_interval(s: &str) -> Result<[f64; 2]> {
 /// `--line-smooth auto|R`.
 fn parse_line_smooth(s: &str) -> std::result::Result<LineSmooth, String> {
     LineSmooth::parse(s).map_err(|e| e.to_string())
+}
+
+/// `vellum showcase`.
+#[derive(Args)]
+pub(crate) struct ShowcaseArgs {
+    /// The volume of the per-technique sections (file, DICOM folder or phantom spec); the composed
+    /// picture and the feature and occlusion sections use the scenes the manifest names.
+    pub(crate) input: String,
+    /// The focus isovalue of the two-level sections, in the input's data units.
+    #[arg(long, allow_negative_numbers = true)]
+    pub(crate) iso: f64,
+    /// The output folder; it gets index.html and every file the page shows.
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+    /// The manifest: sections, their commands, images and captions.
+    #[arg(long, default_value = "examples/showcase.json")]
+    pub(crate) manifest: PathBuf,
 }

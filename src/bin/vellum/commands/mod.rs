@@ -9,6 +9,7 @@ mod mpi_bench;
 mod occlusion;
 mod render;
 mod scale;
+mod showcase;
 mod styles;
 mod view;
 
@@ -136,7 +137,8 @@ pub(crate) fn run(cli: &Cli, team: &dyn Team) -> Result<()> {
         | Command::Normals { .. }
         | Command::Bench { .. }
         | Command::View(_)
-        | Command::Features(_) => None,
+        | Command::Features(_)
+        | Command::Showcase(_) => None,
         _ if !team.is_root() => None,
         _ => Some(vellum::progress::Spinner::new("vellum: working")),
     };
@@ -186,6 +188,7 @@ pub(crate) fn run(cli: &Cli, team: &dyn Team) -> Result<()> {
         Command::OcclusionSensitivity(a) => occlusion_sensitivity(cli, a),
         Command::Styles(args) => styles(cli, args),
         Command::View(args) => view(cli, args),
+        Command::Showcase(args) => showcase::showcase(args),
         Command::Saliency {
             image,
             mask,
