@@ -81,7 +81,7 @@ fn centre(i: usize) -> f64 {
 fn check(map: &FeatureMap, range: [f64; 2]) -> Result<()> {
     map.validate()?;
     let [c0, c1] = map.context_range;
-    if !(c1 > c0) {
+    if c1.partial_cmp(&c0) != Some(std::cmp::Ordering::Greater) {
         return Err(Error::Invalid(format!(
             "the feature map's context range [{c0}, {c1}] is empty; expected the data range before migration, min < max"
         )));

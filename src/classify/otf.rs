@@ -94,7 +94,7 @@ impl OcclusionTf {
     pub fn load(path: &Path) -> Result<Self> {
         let text = crate::volume::io::read_text(path)?;
         let otf: OcclusionTf = serde_json::from_str(&text)
-            .map_err(|e| Error::format(path, format!("not an occlusion transfer function ({e}); see the format in render/otf.rs or the README")))?;
+            .map_err(|e| Error::format(path, format!("not an occlusion transfer function ({e}); see the format in src/classify/otf.rs or docs/cli.md")))?;
         otf.validate()
             .map_err(|e| Error::format(path, e.to_string()))?;
         // What the file names must resolve too, so that its errors name the file.

@@ -26,7 +26,7 @@ const BINS: usize = 4096;
 /// the voxels of `v` above the background.
 pub fn auto_window(v: &Volume, range: [f64; 2]) -> [f32; 2] {
     let width = range[1] - range[0];
-    if !(width > 0.0) {
+    if width.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return [0.0, 1.0];
     }
     let floor = BACKGROUND * BINS as f64;

@@ -205,7 +205,7 @@ enum DrawnState {
     /// The same key.
     Same,
     /// The same but for the view.
-    View(crate::render::view::View),
+    View(Box<crate::render::view::View>),
     /// A new key.
     All(Box<DrawnKey>),
 }
@@ -1352,7 +1352,7 @@ impl Running {
             same_state && matches!((&view, &session.last_drawn), (Ok(v), Some(k)) if k.view == *v);
         let key = match &view {
             Ok(_) if reuse => DrawnState::Same,
-            Ok(v) if same_state => DrawnState::View(v.clone()),
+            Ok(v) if same_state => DrawnState::View(Box::new(v.clone())),
             Ok(v) => DrawnState::All(Box::new(DrawnKey {
                 view: v.clone(),
                 scene: session.applied.clone(),
@@ -1502,7 +1502,7 @@ impl Running {
         match (&drawn.render_error, drawn.key, &mut self.session.last_drawn) {
             (Some(_), _, last) | (None, DrawnState::None, last) => *last = None,
             (None, DrawnState::Same, _) => {}
-            (None, DrawnState::View(v), Some(last)) => last.view = v,
+            (None, DrawnState::View(v), Some(last)) => last.view = *v,
             (None, DrawnState::View(_), last) => *last = None,
             (None, DrawnState::All(k), last) => *last = Some(*k),
         }

@@ -125,20 +125,19 @@ impl Geometry {
         })
     }
 
+    /// What vellum does with a volume whose orientation is unknown, in one sentence: `info` and
+    /// `render` say it once.
+    pub const UNKNOWN_ORIENTATION: &'static str = "the file gives no orientation, so its axes are kept as stored (seen from azimuth 0: x to the right, y away, z up; no anatomical view names)";
+
     /// Whether the anatomical orientation is known.
     pub fn is_oriented(&self) -> bool {
         self.space == Space::Lps
     }
 
-    /// What vellum does with a volume whose orientation is unknown, in one sentence: `info` and
-    /// `render` say it once.
-    pub const UNKNOWN_ORIENTATION: &'static str = "the file gives no orientation, so its axes are kept as stored (seen from azimuth 0: x to the right, y away, z up; no anatomical view names)";
-
     /// Where each index axis points, as a three-letter code in the space's letters (L/R, P/A,
     /// S/I for LPS), e.g. "LPS" for the identity, "RAS" for a NIfTI-style flip; "oblique" is
     /// appended when an axis is more than 1° off its closest anatomical axis. For an unknown
     /// space, "unknown".
-
     pub fn orientation_code(&self) -> String {
         if !self.is_oriented() {
             return "unknown".into();
