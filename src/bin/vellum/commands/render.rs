@@ -143,13 +143,6 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
     )?;
     let grid = input.grid();
     team.same_inputs(inputs_key(&(&scene.input.path, grid.0)))?;
-    if !grid.2.is_oriented() && team.is_root() {
-        eprintln!(
-            "note: {}: {}",
-            scene.input.path,
-            vellum::volume::geometry::Geometry::UNKNOWN_ORIENTATION
-        );
-    }
     let mut view = scene
         .view(grid.2.is_oriented())
         .map_err(|e| from("style", e))?;
@@ -220,6 +213,14 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
         for p in passes {
             println!("  {:<14} {:>9.3} ms", p.name, p.ms);
         }
+    }
+    // Once, and only on success: a failure says its one sentence alone.
+    if !grid.2.is_oriented() {
+        eprintln!(
+            "note: {}: {}",
+            scene.input.path,
+            vellum::volume::geometry::Geometry::UNKNOWN_ORIENTATION
+        );
     }
     Ok(())
 }
