@@ -328,10 +328,18 @@ fn mark(line: &str, name: &str) -> Option<[i64; 4]> {
 fn orbit_edit_save_and_resize_through_x_events() {
     let Some((x, _one)) = xvfb() else { return };
     let dir = tempfile::tempdir().expect("a temporary folder");
+    // The two-point grey ramp, whose last point sets the opacity of every value (the default
+    // `auto` window has 17 points, and its last one only the densest few).
     let v = start(
         &x,
         dir.path(),
-        &["phantom:shepp-logan:48", "--size", "720x480"],
+        &[
+            "phantom:shepp-logan:48",
+            "--size",
+            "720x480",
+            "--tf",
+            "grey",
+        ],
     );
     v.expect("layout view");
     let (view, _) = v.layout();

@@ -81,10 +81,15 @@ const RAMP_POINTS: usize = 16;
 /// above `hi`.
 pub fn grey_window([lo, hi]: [f32; 2]) -> Result<TransferFunction> {
     let hi = hi.min(1.0);
-    let mut points = vec![ControlPoint {
-        x: 0.0,
-        rgba: [0.0; 4],
-    }];
+    // No point twice at one x (the viewer's editor drags one point at a time): the ends of the
+    // range get points of their own only outside the window.
+    let mut points = Vec::with_capacity(RAMP_POINTS + 3);
+    if lo > 0.0 {
+        points.push(ControlPoint {
+            x: 0.0,
+            rgba: [0.0; 4],
+        });
+    }
     points.extend((0..=RAMP_POINTS).map(|i| {
         let t = i as f32 / RAMP_POINTS as f32;
         let g = t.sqrt();
@@ -93,10 +98,12 @@ pub fn grey_window([lo, hi]: [f32; 2]) -> Result<TransferFunction> {
             rgba: [g, g, g, t],
         }
     }));
-    points.push(ControlPoint {
-        x: 1.0,
-        rgba: [1.0; 4],
-    });
+    if hi < 1.0 {
+        points.push(ControlPoint {
+            x: 1.0,
+            rgba: [1.0; 4],
+        });
+    }
     TransferFunction::new(AUTO, points)
 }
 
@@ -124,6 +131,12 @@ mod tests {
         assert!((lo * 255.0 - 50.0).abs() < 1.0, "{}", lo * 255.0);
         assert!((hi * 255.0 - 150.0).abs() < 1.0, "{}", hi * 255.0);
         let tf = grey_window([lo, hi]).unwrap();
+        let whole = grey_window([0.0, 1.0]).unwrap();
+        let xs: Vec<f32> = whole.points.iter().map(|p| p.x).collect();
+        assert!(
+            xs.windows(2).all(|w| w[0] < w[1]),
+            "one point per x: {xs:?}"
+        );
         assert_eq!(tf.sample(0.1)[3], 0.0);
         assert!((tf.sample(hi)[3] - 1.0).abs() < 1e-6);
         let mid = tf.sample(0.5 * (lo + hi));
