@@ -106,7 +106,7 @@ def test_options_named_as_the_flags_render_a_volume_as_the_command_line_does(tmp
     np.testing.assert_array_equal(image.rgba[..., :3], theirs)
     # The same volume from its numpy array.
     again = vellum.render(vellum.Volume(v.array, spacing=v.spacing, origin=v.origin), iso=0.9,
-                          camera=(30, 20), size=(96, 80), style=3)
+                          tf="grey", camera=(30, 20), size=(96, 80), style=3)
     np.testing.assert_array_equal(again.rgba, image.rgba)
     ray = vellum.render(v, iso=0.9, size=(64, 64), renderer="raycast", jitter=1)
     assert ray.rgba[..., :3].max() > 0

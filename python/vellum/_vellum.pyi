@@ -140,7 +140,8 @@ class Renderer:
 
     def __init__(self, scene: Scene | Volume | str | os.PathLike[str], **options: object) -> None:
         """A scene, a scene file's path or a Volume, with options named as `vellum render`'s
-        flags: iso, focus=(lo, hi), tf, otf, features, camera=(az, el[, dist]),
+        flags: iso, focus=(lo, hi), tf (default "auto": the grey ramp over the histogram's
+        window), otf, features (with otf: the two composed), camera=(az, el[, dist]),
         size=(w, h), slices, one_pass, background=(r, g, b), style, renderer, jitter."""
     def render(
         self,
