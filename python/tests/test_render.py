@@ -2,6 +2,7 @@
 for bit; a Renderer keeps its scene on the device through 200 frames without the resident set
 growing; a closed renderer refuses in one sentence."""
 
+import json
 import os
 import pathlib
 import subprocess
@@ -144,3 +145,23 @@ def test_lines_are_the_command_lines_segments(tmp_path):
     assert list(only) == ["silhouettes"] and len(only["silhouettes"]) == len(s)
     with pytest.raises(vellum.Error, match="not known"):
         vellum.lines(v, 0.5, kinds=["creases"])
+
+
+def test_otf_with_features_composes_as_the_command_line_does(tmp_path):
+    """otf= and features= together compose the two classifications (issue 29), as --otf with
+    --features does on the command line."""
+    from PIL import Image as PilImage
+
+    examples = ROOT / "examples"
+    volume = examples / "features" / "nested_sphere.nrrd"
+    features = examples / "features" / "nested_sphere.features.json"
+    otf = examples / "nested_otf.json"
+    png = tmp_path / "cli.png"
+    subprocess.run([str(cli()), "render", str(volume), "--features", str(features), "--otf", str(otf),
+                    "--camera", "0,20", "--size", "64x64", "--out", str(png)], check=True, capture_output=True)
+    theirs = np.asarray(PilImage.open(png).convert("RGB"))
+    scene = vellum.Scene.from_json(json.dumps({"version": 1, "input": {"path": str(volume)}}))
+    image = vellum.render(scene, features=str(features), otf=str(otf), camera=(0, 20), size=(64, 64))
+    np.testing.assert_array_equal(image.rgba[..., :3], theirs)
+    alone = vellum.render(scene, otf=str(otf), camera=(0, 20), size=(64, 64))
+    assert np.abs(alone.rgba.astype(int) - image.rgba.astype(int)).max() > 0, "the features add their colour"
