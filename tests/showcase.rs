@@ -163,3 +163,46 @@ fn the_showcase_page_shows_every_image() {
     );
     eprintln!("screenshot of the page: {}", shot.display());
 }
+
+/// A missing manifest, and a command of the manifest that fails, each end the showcase with one
+/// sentence and no page.
+#[test]
+fn a_failing_showcase_says_where_and_writes_no_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let out_s = out.to_str().unwrap();
+    let o = common::vellum(&[
+        "showcase",
+        "x.nhdr",
+        "--iso",
+        "1",
+        "--out",
+        out_s,
+        "--manifest",
+        "/no/such.json",
+    ]);
+    common::fails_with(&o, "the showcase manifest /no/such.json cannot be read");
+    let manifest = dir.path().join("m.json");
+    std::fs::write(
+        &manifest,
+        r#"{"title": "t", "intro": "i", "sections": [{"id": "a", "title": "A", "sentence": "s",
+            "runs": [{"args": ["info", "{input}"]}]}]}"#,
+    )
+    .unwrap();
+    let missing = dir.path().join("missing.nhdr");
+    let o = common::vellum(&[
+        "showcase",
+        missing.to_str().unwrap(),
+        "--iso",
+        "1",
+        "--out",
+        out_s,
+        "--manifest",
+        manifest.to_str().unwrap(),
+    ]);
+    common::fails_with_all(
+        &o,
+        &["the showcase stopped at `vellum info", "missing.nhdr"],
+    );
+    assert!(!out.join("index.html").exists(), "no page after a failure");
+}

@@ -36,6 +36,7 @@ pub(crate) fn showcase(a: &ShowcaseArgs) -> Result<()> {
         for run in &section.runs {
             bar.set_message(section.id.clone());
             let (outcome, dev) = execute(run, &vars, &a.out)?;
+            bar.suspend(|| println!("{:>5.1} s  {}", outcome.seconds, outcome.command));
             device = device.or(dev);
             done.push(outcome);
             bar.inc(1);
