@@ -189,3 +189,57 @@ fn scene_files_and_flags_compose() {
     let json = common::ok_json(&out);
     assert!(json["passes"]["occlusion"].is_number(), "{json}");
 }
+
+/// The composed chest scene (`examples/chest_composed.json`, the showcase's first picture) shows
+/// all four techniques: the migrated heart's red, the occlusion TF's colours (tan organs, ivory
+/// bone), the amber object-space lines (against the same scene with `--style none`), and a context
+/// that importance modulation changes (against `--gamma 0`, colour unmodulated). Thresholds are
+/// about half of what lavapipe gives at 512².
+#[test]
+fn the_composed_chest_shows_all_four_techniques() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = example("chest_composed.json");
+    let render = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let mut args = vec!["render", "--scene", scene.to_str().unwrap()];
+        args.extend(["--size", "512x512"]);
+        args.extend_from_slice(extra);
+        args.extend(["--out", out.to_str().unwrap()]);
+        let o = common::vellum(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        image::open(&out).unwrap().to_rgb8()
+    };
+    let picture = render("composed.png", &[]);
+    let count = |f: &dyn Fn([f32; 3]) -> bool| {
+        picture
+            .pixels()
+            .filter(|p| f(p.0.map(|c| c as f32 / 255.0)))
+            .count()
+    };
+    let red = count(&|[r, g, b]| r > 0.45 && g < 0.6 * r && b < 0.6 * r);
+    let tan = count(&|[r, g, b]| r > 0.2 && r > g && g > b && b < 0.7 * r && g > 0.55 * r);
+    let ivory = count(&|[r, g, b]| r > 0.7 && g > 0.65 && b > 0.55 && r >= b);
+    // Pixels where two pictures differ by more than `by` in some channel, and where the first
+    // is the greener by more than `by` (amber over red).
+    let differ = |other: &image::RgbImage, by: u8, greener: bool| {
+        picture
+            .pixels()
+            .zip(other.pixels())
+            .filter(|(a, b)| match greener {
+                true => a.0[1] > b.0[1].saturating_add(by),
+                false => a.0.iter().zip(b.0).any(|(x, y)| x.abs_diff(y) > by),
+            })
+            .count()
+    };
+    let lines = differ(&render("no_lines.png", &["--style", "none"]), 40, true);
+    let modulated = differ(&render("unmodulated.png", &["--gamma", "0"]), 8, false);
+    eprintln!("composed chest at 512²: red {red}, tan {tan}, ivory {ivory}, line pixels {lines}, modulated {modulated}");
+    assert!(red > 1500, "the heart's colour ({red} pixels)");
+    assert!(tan > 3000, "the occlusion TF's organs ({tan} pixels)");
+    assert!(ivory > 1500, "the occlusion TF's bone ({ivory} pixels)");
+    assert!(lines > 150, "the lines ({lines} pixels)");
+    assert!(
+        modulated > 5000,
+        "importance modulation changes the context ({modulated} pixels)"
+    );
+}
