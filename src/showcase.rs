@@ -155,7 +155,11 @@ impl Outcome {
     /// report's order, which is the order the passes ran in (`serde_json` with
     /// `preserve_order`).
     pub fn passes_of(report: &str) -> Vec<(String, f64)> {
-        let report: serde_json::Value = serde_json::from_str(report).unwrap_or_default();
+        Self::passes_in(&serde_json::from_str(report).unwrap_or_default())
+    }
+
+    /// [`Outcome::passes_of`] for a report already parsed.
+    pub fn passes_in(report: &serde_json::Value) -> Vec<(String, f64)> {
         report["passes"]
             .as_object()
             .map(|o| {

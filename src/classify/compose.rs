@@ -79,16 +79,11 @@ fn centre(i: usize) -> f64 {
 
 /// Checks the map and the feature volume's range before composing.
 fn check(map: &FeatureMap, range: [f64; 2]) -> Result<()> {
-    map.validate()?;
+    crate::classify::features::check(map, range)?;
     let [c0, c1] = map.context_range;
     if c1.partial_cmp(&c0) != Some(std::cmp::Ordering::Greater) {
         return Err(Error::Invalid(format!(
             "the feature map's context range [{c0}, {c1}] is empty; expected the data range before migration, min < max"
-        )));
-    }
-    if !(range[0].is_finite() && range[1].is_finite() && range[0] < range[1]) {
-        return Err(Error::Invalid(format!(
-            "data range {range:?} is invalid; expected the feature volume's finite [min, max] with min < max"
         )));
     }
     Ok(())

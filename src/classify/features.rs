@@ -39,19 +39,25 @@ struct Band {
     context: bool,
 }
 
+/// Checks `map` and the feature volume's data range: finite, with min < max.
+pub(crate) fn check(map: &FeatureMap, [r0, r1]: [f64; 2]) -> Result<()> {
+    map.validate()?;
+    if !(r0.is_finite() && r1.is_finite() && r0 < r1) {
+        return Err(Error::Invalid(format!(
+            "data range [{r0}, {r1}] is invalid; expected the feature volume's finite [min, max] with min < max"
+        )));
+    }
+    Ok(())
+}
+
 /// The transfer function that gives every feature of `map` its colour, on the normalised range of
 /// a feature volume whose data range is `data_range` = [min, max].
 pub fn feature_transfer_function(
     map: &FeatureMap,
     data_range: [f64; 2],
 ) -> Result<TransferFunction> {
-    map.validate()?;
+    check(map, data_range)?;
     let [r0, r1] = data_range;
-    if !(r0.is_finite() && r1.is_finite() && r0 < r1) {
-        return Err(Error::Invalid(format!(
-            "data range [{r0}, {r1}] is invalid; expected the feature volume's finite [min, max] with min < max"
-        )));
-    }
     let width = r1 - r0;
     let norm = |v: f64| (((v - r0) / width).clamp(0.0, 1.0)) as f32;
     let tolerance = 1e-6 * width;

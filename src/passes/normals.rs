@@ -121,12 +121,16 @@ pub fn next_volume_id() -> u64 {
 impl VolumeTextures {
     /// Allocates the textures of `v` (no GPU work yet) and a staging buffer holding its voxels
     /// normalised to R16; record the copy with [`VolumeTextures::record_upload`].
+    /// A whole volume, which a renderer may draw lines of: its `auto` line smoothing is measured
+    /// here (a chunk of [`VolumeTextures::new_in_range`] is never drawn, and skips it).
     pub fn new(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, crate::gpu::Buffer)> {
-        Self::new_in_range(ctx, v, v.normalised_range())
+        let (mut textures, staging) = Self::new_in_range(ctx, v, v.normalised_range())?;
+        textures.auto_line_smooth = crate::volume::lines::auto_smooth_radius(v);
+        Ok((textures, staging))
     }
 
     /// [`VolumeTextures::new`] with intensities normalised over `range`, not `v`'s own: a
-    /// chunk of a larger grid takes the grid's range.
+    /// chunk of a larger grid takes the grid's range. Its `auto_line_smooth` is 0.
     pub fn new_in_range(
         ctx: &Arc<Context>,
         v: &Volume,
@@ -161,7 +165,7 @@ impl VolumeTextures {
                 importance: None,
                 id: next_volume_id(),
                 paged: None,
-                auto_line_smooth: crate::volume::lines::auto_smooth_radius(v),
+                auto_line_smooth: 0,
             },
             staging,
         ))

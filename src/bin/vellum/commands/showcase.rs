@@ -118,11 +118,10 @@ fn execute(run: &Run, vars: &Vars, out: &std::path::Path) -> Result<(Outcome, Op
             bail!("`{shown}` succeeded but did not write {file}, which the manifest names");
         }
     }
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    let device = serde_json::from_str::<serde_json::Value>(&stdout)
-        .ok()
-        .and_then(|r| r["device"].as_str().map(str::to_string));
-    let passes = Outcome::passes_of(&stdout);
+    // A command without --json prints text: no report, no passes.
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
+    let device = report["device"].as_str().map(str::to_string);
+    let passes = Outcome::passes_in(&report);
     Ok((
         Outcome {
             command: shown,
