@@ -104,7 +104,8 @@ bench: build
 
 # The GPU benches (issue 30), in two halves around one call of the device tool, which is a session
 # tool and not a shell command: `make bench-device` builds the release binary here and packs it,
-# the Vulkan loader and the volumes into .device/; the device tool then runs
+# the Vulkan loader, the volumes and a cut-down VTK for the GPU peer (VTK=0 leaves it out) into
+# .device/, at most 63 MiB with the working tree; the device tool then runs
 # `bash benches/device/run.sh` there with `carry: [".device"]` and brings $$OUT back; and
 # `make bench-device-tables JSON=<its results.tar>` writes BENCHMARKS.md's GPU tables from the JSON.
 bench-device: build

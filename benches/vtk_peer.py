@@ -21,9 +21,26 @@ import statistics
 import sys
 import time
 
-import vtk
-from vtk.util import numpy_support
 import numpy as np
+
+# Only the modules named here, so that the cut-down VTK of benches/device/slim_vtk.py (which lists
+# the same modules in PEER) serves the lent GPU machine. The two OpenGL2 imports register the
+# OpenGL implementations of the render window and of the volume mapper.
+import vtkmodules.vtkRenderingOpenGL2  # noqa: F401
+import vtkmodules.vtkRenderingVolumeOpenGL2  # noqa: F401
+from vtkmodules.util import numpy_support
+from vtkmodules.vtkCommonCore import VTK_UNSIGNED_SHORT
+from vtkmodules.vtkCommonDataModel import vtkImageData, vtkPiecewiseFunction
+from vtkmodules.vtkIOImage import vtkPNGWriter
+from vtkmodules.vtkRenderingCore import (
+    vtkColorTransferFunction,
+    vtkRenderer,
+    vtkRenderWindow,
+    vtkVolume,
+    vtkVolumeProperty,
+    vtkWindowToImageFilter,
+)
+from vtkmodules.vtkRenderingVolume import vtkGPUVolumeRayCastMapper
 
 
 def main():
@@ -32,16 +49,16 @@ def main():
     spacing = (float(sx), float(sy), float(sz))
     data = np.fromfile(raw, dtype="<u2")
     lo, hi = float(data.min()), float(data.max())
-    image = vtk.vtkImageData()
+    image = vtkImageData()
     image.SetDimensions(*dims)
     image.SetSpacing(*spacing)
-    array = numpy_support.numpy_to_vtk(data, deep=True, array_type=vtk.VTK_UNSIGNED_SHORT)
+    array = numpy_support.numpy_to_vtk(data, deep=True, array_type=VTK_UNSIGNED_SHORT)
     image.GetPointData().SetScalars(array)
 
     with open(tf_path) as f:
         tf = json.load(f)
-    color = vtk.vtkColorTransferFunction()
-    opacity = vtk.vtkPiecewiseFunction()
+    color = vtkColorTransferFunction()
+    opacity = vtkPiecewiseFunction()
     for p in tf["points"]:
         s = lo + p["x"] * (hi - lo)
         r, g, b, a = p["rgba"]
@@ -49,7 +66,7 @@ def main():
         opacity.AddPoint(s, a)
 
     voxel = min(spacing)
-    prop = vtk.vtkVolumeProperty()
+    prop = vtkVolumeProperty()
     prop.SetColor(color)
     prop.SetScalarOpacity(opacity)
     prop.SetScalarOpacityUnitDistance(voxel)
@@ -60,18 +77,18 @@ def main():
     prop.SetSpecular(0.35)
     prop.SetSpecularPower(24.0)
 
-    mapper = vtk.vtkGPUVolumeRayCastMapper()
+    mapper = vtkGPUVolumeRayCastMapper()
     mapper.SetInputData(image)
     mapper.SetAutoAdjustSampleDistances(0)
     mapper.SetSampleDistance(0.5 * voxel)
-    volume = vtk.vtkVolume()
+    volume = vtkVolume()
     volume.SetMapper(mapper)
     volume.SetProperty(prop)
 
-    renderer = vtk.vtkRenderer()
+    renderer = vtkRenderer()
     renderer.AddVolume(volume)
     renderer.SetBackground(0, 0, 0)
-    window = vtk.vtkRenderWindow()
+    window = vtkRenderWindow()
     window.SetOffScreenRendering(1)
     window.AddRenderer(renderer)
 
@@ -99,11 +116,11 @@ def main():
         place(30.0)
         window.Render()
         window.WaitForCompletion()
-        grab = vtk.vtkWindowToImageFilter()
+        grab = vtkWindowToImageFilter()
         grab.SetInput(window)
         grab.ReadFrontBufferOff()
         grab.Update()
-        writer = vtk.vtkPNGWriter()
+        writer = vtkPNGWriter()
         writer.SetFileName(f"{outdir}/vtk_{size}.png")
         writer.SetInputConnection(grab.GetOutputPort())
         writer.Write()

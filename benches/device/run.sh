@@ -10,17 +10,34 @@ set -uo pipefail
 cd "$(dirname "$0")/../.."
 : "${OUT:?OUT must name the folder whose files come back}"
 B=.device
-[ -x "$B/vellum" ] || { echo "no $B/vellum: run make bench-device first and carry .device"; exit 2; }
+[ -f "$B/vellum.xz" ] || { echo "no $B/vellum.xz: run make bench-device first and carry .device"; exit 2; }
+# Python's lzma, not xz(1), which the machine may lack; pack.sh compressed with the x86 filter.
+unxz_to() { python3 -c 'import lzma, shutil, sys; shutil.copyfileobj(lzma.open(sys.argv[1]), open(sys.argv[2], "wb"))' "$1" "$2"; }
+V=/tmp/vellum
+unxz_to "$B/vellum.xz" "$V" && chmod +x "$V"
+# Data files pack.sh left out because the working tree holds them byte for byte.
+while read -r to from; do cp "$from" "$to"; done <"$B/data/from_tree.txt"
 
 # The Vulkan loader, the GL dispatch libraries NVIDIA's ICD (libGLX_nvidia) needs to hand out
-# vkCreateInstance, and the Khronos layer for the validation run, from Debian's packages.
-for f in "$B"/debs/*.deb; do dpkg -x "$f" /; done
-ldconfig
+# vkCreateInstance and VTK needs for EGL, and the Khronos layer for the validation run, from
+# Debian's packages.
+# SKIP_DEBS=1 leaves them out, for a rehearsal on the development machine, which has them.
+if [ "${SKIP_DEBS:-0}" != 1 ]; then
+    for f in "$B"/debs/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+fi
 export VELLUM_DATA="$B/data" VELLUM_VALIDATION=0 RUST_LOG=warn
-if ! "$B/vellum" devices >/dev/null 2>&1; then
+if ! "$V" devices >/dev/null 2>&1; then
     export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
 fi
-V="$B/vellum"
+N=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+if [ -f "$N" ] && ! ls /usr/share/glvnd/egl_vendor.d/*nvidia* >/dev/null 2>&1; then
+    export __EGL_VENDOR_LIBRARY_FILENAMES=$N
+fi
+# The cut-down VTK for the peer, unpacked beside the machine's own Python packages.
+if [ -f "$B/vtk.tar.xz" ]; then
+    python3 -c 'import sys, tarfile; tarfile.open(sys.argv[1]).extractall(sys.argv[2])' "$B/vtk.tar.xz" /tmp/vtk-site
+fi
 # The device tool brings back at most 8 files: everything goes into one tar, results.tar.
 R=$(mktemp -d)
 
@@ -45,6 +62,15 @@ run() {
     # Re-packed after every bench, so a call cut off at its limit still brings back what ran.
     tar -C "$R" -cf "$OUT/results.tar" .
 }
+
+# VTK's GPU ray caster on the CT head beside ours, on the same orbit (benches/vtk_peer.py through
+# EGL on NVIDIA's driver); its first frame of each size comes back to be looked at.
+if [ -d /tmp/vtk-site ]; then
+    PYTHONPATH=/tmp/vtk-site run vtk 150 render --repeat 3 --sizes "${VTK_SIZES:-256,512,1024}" \
+        --orbit-frames "${VTK_FRAMES:-18}" --peer vtk
+    imgs=$(python3 -c 'import json, sys; print(json.load(open(sys.argv[1]))["peer"]["images"])' "$R/vtk.json" 2>/dev/null)
+    [ -n "$imgs" ] && cp "$imgs"/vtk_*.png "$R/" 2>/dev/null && tar -C "$R" -cf "$OUT/results.tar" .
+fi
 
 # table1 after the renderers: its sub-millisecond passes read low on a GPU whose clocks have
 # not yet ramped up (seen as half the bandwidth when it ran first).
@@ -113,6 +139,9 @@ case " ${BENCHES:-all} " in *" all "* | *" validation "*)
             --iso 0.9 --tf grey --gpu-budget 16 --size 512x512 --out /tmp/vb.png \
             >"$R/validation_bricked.log" 2>&1
         echo "validation, bricked: rc $? ($(grep -ci 'validation' "$R/validation_bricked.log") lines naming validation)"
+        # Both frames come back, to be looked at: what the GPU drew, not only how fast.
+        cp /tmp/v.png "$R/style11_raycast.png" 2>/dev/null
+        cp /tmp/vb.png "$R/bricked.png" 2>/dev/null
     fi
     ;;
 esac

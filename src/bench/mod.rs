@@ -32,14 +32,25 @@ pub fn shared_data() -> Option<std::path::PathBuf> {
     p.is_dir().then_some(p)
 }
 
+/// The peer script `benches/<script>` of the checkout the binary was built in, or, when the binary
+/// runs away from it (on a lent GPU machine, beside a copy of the working tree), of the current
+/// folder.
+pub fn peer_script(script: &str) -> std::path::PathBuf {
+    let built = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("benches")
+        .join(script);
+    if built.is_file() {
+        built
+    } else {
+        std::path::Path::new("benches").join(script)
+    }
+}
+
 /// Runs the peer script `benches/<script>` with python3 and `args`, and parses its stdout as JSON;
 /// `None`, with a warning, when python3, the script or its libraries fail.
 pub fn python_peer(script: &str, args: &[std::ffi::OsString]) -> Option<serde_json::Value> {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("benches")
-        .join(script);
     match std::process::Command::new("python3")
-        .arg(&path)
+        .arg(peer_script(script))
         .args(args)
         .output()
     {

@@ -652,9 +652,13 @@ pub struct PeerRow {
     /// Ours: median GPU ms of the one-pass frame (slicer, then ray caster).
     pub slicer_ms: f64,
     pub raycast_ms: f64,
+    /// Ours, timed as VTK's frames are: median wall ms from recording a ray-caster frame to its
+    /// completion, one frame at a time.
+    pub raycast_wall_ms: f64,
     /// VTK's time over ours (above 1: we are faster).
     pub vtk_over_slicer: f64,
     pub vtk_over_raycast: f64,
+    pub vtk_over_raycast_wall: f64,
 }
 
 /// The peer comparison (`bench render --peer vtk`).
@@ -679,42 +683,7 @@ pub fn vtk_peer(ctx: &Arc<Context>, sizes: &[u32], frames: usize) -> Result<Peer
     }
     let tf = TransferFunction::preset("ct-bone")?;
     let dir = std::env::temp_dir().join(format!("vellum-vtk-peer-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    let raw = dir.join("cthead.u16");
-    std::fs::write(&raw, v.data.as_bytes()).map_err(|e| Error::io(&raw, e))?;
-    let tf_path = dir.join("ct-bone.json");
-    std::fs::write(&tf_path, tf.to_json()).map_err(|e| Error::io(&tf_path, e))?;
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/vtk_peer.py");
-    let list = sizes
-        .iter()
-        .map(u32::to_string)
-        .collect::<Vec<_>>()
-        .join(",");
-    let out = std::process::Command::new("python3")
-        .arg(&script)
-        .arg(&raw)
-        .args(v.dims.iter().map(|d| d.to_string()))
-        .args(v.spacing.iter().map(|s| s.to_string()))
-        .arg(&tf_path)
-        .arg(&list)
-        .arg(frames.to_string())
-        .arg(&dir)
-        .output()
-        .map_err(|e| Error::Invalid(format!("the VTK peer could not run python3 ({e})")))?;
-    let _ = std::fs::remove_file(&raw);
-    if !out.status.success() {
-        let err = String::from_utf8_lossy(&out.stderr);
-        let last = err
-            .lines()
-            .rev()
-            .find(|l| !l.trim().is_empty())
-            .unwrap_or("");
-        return Err(Error::Invalid(format!(
-            "the VTK peer failed ({last}); expected python3 with the vtk wheel (pip install vtk)"
-        )));
-    }
-    let peer: serde_json::Value = serde_json::from_slice(&out.stdout)
-        .map_err(|e| Error::Invalid(format!("the VTK peer printed no JSON ({e})")))?;
+    let peer = run_vtk_script(&v, &tf, &dir, sizes, frames)?;
 
     let mut renderer = Renderer::new(ctx)?;
     let classification = Classification::Transfer(tf);
@@ -733,34 +702,18 @@ pub fn vtk_peer(ctx: &Arc<Context>, sizes: &[u32], frames: usize) -> Result<Peer
             targets: FrameTargets::new(ctx),
             scene: &mut scene,
         };
-        // Warm-up, then the orbit, slicer and ray caster alternating frame by frame.
-        s.frame(&view(size, 30.0, true))?;
-        s.frame(&ray_view(size, 30.0, true))?;
-        s.drain()?;
-        for k in 0..frames {
-            let az = 40.0 + 10.0 * k as f32;
-            s.frame(&view(size, az, true))?;
-            s.frame(&ray_view(size, az, true))?;
-        }
-        let done = s.drain()?;
-        let ms = |parity: u64| {
-            median(
-                &done
-                    .iter()
-                    .filter(|r| r.index % 2 == parity)
-                    .map(|r| frame_ms(&r.passes))
-                    .collect::<Vec<_>>(),
-            )
-        };
-        let (slicer_ms, raycast_ms) = (ms(0), ms(1));
+        let (slicer_ms, raycast_ms) = peer_orbit(&mut s, size, frames)?;
+        let raycast_wall_ms = peer_wall(&mut s, size, frames)?;
         let vtk_ms = peer["sizes"][i]["median_ms"].as_f64().unwrap_or(f64::NAN);
         rows.push(PeerRow {
             size,
             vtk_ms,
             slicer_ms,
             raycast_ms,
+            raycast_wall_ms,
             vtk_over_slicer: vtk_ms / slicer_ms,
             vtk_over_raycast: vtk_ms / raycast_ms,
+            vtk_over_raycast_wall: vtk_ms / raycast_wall_ms,
         });
     }
     Ok(PeerTable {
@@ -771,19 +724,111 @@ pub fn vtk_peer(ctx: &Arc<Context>, sizes: &[u32], frames: usize) -> Result<Peer
     })
 }
 
+/// Writes the volume and transfer function into `dir` for `benches/vtk_peer.py`, runs it, and
+/// returns the JSON it printed.
+fn run_vtk_script(
+    v: &Volume,
+    tf: &TransferFunction,
+    dir: &std::path::Path,
+    sizes: &[u32],
+    frames: usize,
+) -> Result<serde_json::Value> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let raw = dir.join("cthead.u16");
+    std::fs::write(&raw, v.data.as_bytes()).map_err(|e| Error::io(&raw, e))?;
+    let tf_path = dir.join("ct-bone.json");
+    std::fs::write(&tf_path, tf.to_json()).map_err(|e| Error::io(&tf_path, e))?;
+    let list = sizes
+        .iter()
+        .map(u32::to_string)
+        .collect::<Vec<_>>()
+        .join(",");
+    let out = std::process::Command::new("python3")
+        .arg(crate::bench::peer_script("vtk_peer.py"))
+        .arg(&raw)
+        .args(v.dims.iter().map(|d| d.to_string()))
+        .args(v.spacing.iter().map(|s| s.to_string()))
+        .arg(&tf_path)
+        .arg(&list)
+        .arg(frames.to_string())
+        .arg(dir)
+        .output()
+        .map_err(|e| Error::Invalid(format!("the VTK peer could not run python3 ({e})")))?;
+    let _ = std::fs::remove_file(&raw);
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        let last = err
+            .lines()
+            .rev()
+            .find(|l| !l.trim().is_empty())
+            .unwrap_or("");
+        return Err(Error::Invalid(format!(
+            "the VTK peer failed ({last}); expected python3 with the vtk wheel (pip install vtk)"
+        )));
+    }
+    serde_json::from_slice(&out.stdout)
+        .map_err(|e| Error::Invalid(format!("the VTK peer printed no JSON ({e})")))
+}
+
+/// Our side of the peer's orbit at one size, the slicer and the ray caster alternating frame by
+/// frame after a warm-up: their median GPU ms.
+fn peer_orbit(s: &mut Session, size: u32, frames: usize) -> Result<(f64, f64)> {
+    s.frame(&view(size, 30.0, true))?;
+    s.frame(&ray_view(size, 30.0, true))?;
+    s.drain()?;
+    for k in 0..frames {
+        let az = 40.0 + 10.0 * k as f32;
+        s.frame(&view(size, az, true))?;
+        s.frame(&ray_view(size, az, true))?;
+    }
+    let done = s.drain()?;
+    let ms = |parity: u64| {
+        median(
+            &done
+                .iter()
+                .filter(|r| r.index % 2 == parity)
+                .map(|r| frame_ms(&r.passes))
+                .collect::<Vec<_>>(),
+        )
+    };
+    Ok((ms(0), ms(1)))
+}
+
+/// The ray caster's orbit again, timed as `vtk_peer.py` times VTK's (Render, then
+/// WaitForCompletion): the median wall ms from recording each frame to its completion, one frame
+/// in flight.
+fn peer_wall(s: &mut Session, size: u32, frames: usize) -> Result<f64> {
+    let mut wall = Vec::with_capacity(frames);
+    for k in 0..frames {
+        let t0 = Instant::now();
+        s.frame(&ray_view(size, 40.0 + 10.0 * k as f32, true))?;
+        s.drain()?;
+        wall.push(t0.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(median(&wall))
+}
+
 impl PeerTable {
     /// The comparison as text.
     pub fn to_text(&self) -> String {
         let mut s = format!(
             "\nPeer: VTK vtkGPUVolumeRayCastMapper on {} against vellum, CT head, ct-bone, one pass, \
-             median of {} orbit frames (VTK: wall ms of Render; vellum: GPU ms)\n",
+             median of {} orbit frames (VTK: wall ms of Render; vellum: GPU ms, and wall ms of a frame \
+             recorded and waited for alone)\n",
             self.vtk_renderer, self.frames
         );
-        s += "size | VTK ms | slicer ms | ray caster ms | VTK/slicer | VTK/ray caster\n";
+        s += "size | VTK ms | slicer ms | ray caster ms | ray caster wall ms | VTK/slicer | VTK/ray caster | VTK/ray caster wall\n";
         for r in &self.rows {
             s += &format!(
-                "{:>4}² | {:>6.1} | {:>9.1} | {:>13.1} | {:>10.2} | {:>14.2}\n",
-                r.size, r.vtk_ms, r.slicer_ms, r.raycast_ms, r.vtk_over_slicer, r.vtk_over_raycast
+                "{:>4}² | {:>6.1} | {:>9.1} | {:>13.1} | {:>18.1} | {:>10.2} | {:>14.2} | {:>19.2}\n",
+                r.size,
+                r.vtk_ms,
+                r.slicer_ms,
+                r.raycast_ms,
+                r.raycast_wall_ms,
+                r.vtk_over_slicer,
+                r.vtk_over_raycast,
+                r.vtk_over_raycast_wall
             );
         }
         s += &format!("VTK's first frames: {}/vtk_SIZE.png\n", self.images);

@@ -1,0 +1,135 @@
+//! What `make bench-device` sends to a lent GPU and how its results come back (issue 30), checked
+//! without a GPU:
+//! - the cut-down VTK keeps every wrapper module the VTK peer imports;
+//! - `tables.py` turns a results folder into BENCHMARKS.md's GPU section, the VTK goal judged from
+//!   the wall-clock ratio, and leaves the text outside its markers alone.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn repo(p: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(p)
+}
+
+/// The `vtkmodules.X` names a Python file imports, by either form of import.
+fn vtk_imports(source: &str) -> Vec<String> {
+    let mut names: Vec<String> = source
+        .lines()
+        .filter_map(|l| {
+            let l = l.trim();
+            let rest = l
+                .strip_prefix("import vtkmodules.")
+                .or_else(|| l.strip_prefix("from vtkmodules."))?;
+            let name: String = rest
+                .chars()
+                .take_while(|c| c.is_ascii_alphanumeric())
+                .collect();
+            (name.starts_with("vtk")).then_some(name)
+        })
+        .collect();
+    names.sort();
+    names.dedup();
+    names
+}
+
+#[test]
+fn the_cut_down_vtk_keeps_what_the_peer_imports() {
+    let peer = std::fs::read_to_string(repo("benches/vtk_peer.py")).unwrap();
+    let slim = std::fs::read_to_string(repo("benches/device/slim_vtk.py")).unwrap();
+    let imports = vtk_imports(&peer);
+    assert!(
+        imports.len() >= 6,
+        "vtk_peer.py should import VTK module by module, found {imports:?}"
+    );
+    assert!(
+        !peer.lines().any(|l| l.trim() == "import vtk"),
+        "vtk_peer.py imports the whole of VTK, which the cut-down package lacks"
+    );
+    let list = slim
+        .split("PEER = [")
+        .nth(1)
+        .and_then(|s| s.split(']').next())
+        .expect("slim_vtk.py has a PEER list");
+    let kept: Vec<String> = list
+        .split(',')
+        .map(|s| s.trim().trim_matches('"').to_string())
+        .filter(|s| !s.is_empty())
+        .collect();
+    let missing: Vec<&String> = imports.iter().filter(|m| !kept.contains(m)).collect();
+    assert!(
+        missing.is_empty(),
+        "slim_vtk.py's PEER lacks {missing:?}, which vtk_peer.py imports"
+    );
+}
+
+fn peer_json(vtk_ms: [f64; 2], wall_ms: [f64; 2]) -> String {
+    let rows: Vec<String> = [256, 1024]
+        .iter()
+        .enumerate()
+        .map(|(i, size)| {
+            format!(
+                r#"{{"size": {size}, "vtk_ms": {v}, "slicer_ms": 9.0, "raycast_ms": 0.8,
+                "raycast_wall_ms": {w}, "vtk_over_slicer": 1.0, "vtk_over_raycast": 1.0,
+                "vtk_over_raycast_wall": {r}}}"#,
+                v = vtk_ms[i],
+                w = wall_ms[i],
+                r = vtk_ms[i] / wall_ms[i]
+            )
+        })
+        .collect();
+    format!(
+        r#"{{"device": "NVIDIA H100 80GB HBM3", "rows": [], "orbit": [],
+        "peer": {{"vtk_renderer": "NVIDIA H100 80GB HBM3/PCIe/SSE2", "frames": 18,
+        "images": "/tmp/x", "rows": [{}]}}}}"#,
+        rows.join(",")
+    )
+}
+
+/// Runs tables.py on a folder holding `vtk.json` and returns the Markdown it wrote.
+fn tables(vtk: &str) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let results = dir.path().join("results");
+    std::fs::create_dir(&results).unwrap();
+    std::fs::write(results.join("device.txt"), "date: 2026-11-26T00:00Z\n").unwrap();
+    std::fs::write(results.join("vtk.json"), vtk).unwrap();
+    let md = dir.path().join("BENCHMARKS.md");
+    std::fs::write(&md, "# Benchmarks\n\nkept before\n").unwrap();
+    // Twice: the second run replaces the section the first wrote.
+    for _ in 0..2 {
+        let out = Command::new("python3")
+            .arg(repo("benches/device/tables.py"))
+            .arg(&results)
+            .arg(&md)
+            .output()
+            .expect("python3 runs");
+        assert!(
+            out.status.success(),
+            "tables.py failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    std::fs::read_to_string(&md).unwrap()
+}
+
+#[test]
+fn tables_judge_the_vtk_goal_by_wall_time() {
+    // 2 ms against VTK's 10 at 256² (0.2×) and 3 against 20 at 1024² (0.15×): met.
+    let md = tables(&peer_json([10.0, 20.0], [2.0, 3.0]));
+    assert!(md.starts_with("# Benchmarks\n\nkept before\n"), "{md}");
+    let row = md
+        .lines()
+        .find(|l| l.starts_with("| VTK's GPU ray caster"))
+        .expect("a VTK goal row");
+    assert!(row.contains("256²: 0.200×") && row.contains("1024²: 0.150×"), "{row}");
+    assert!(row.ends_with("| **met** |"), "{row}");
+    assert!(md.contains("### Against VTK"), "{md}");
+    // One size above 0.25× fails the goal.
+    let md = tables(&peer_json([10.0, 20.0], [3.0, 3.0]));
+    let row = md
+        .lines()
+        .find(|l| l.starts_with("| VTK's GPU ray caster"))
+        .unwrap();
+    assert!(row.ends_with("| not met |"), "{row}");
+    // Written twice over the same file: one section, replaced in place.
+    assert_eq!(md.matches("<!-- bench-device:begin -->").count(), 1, "{md}");
+}
