@@ -120,7 +120,10 @@ fn tables_judge_the_vtk_goal_by_wall_time() {
         .lines()
         .find(|l| l.starts_with("| VTK's GPU ray caster"))
         .expect("a VTK goal row");
-    assert!(row.contains("256²: 0.200×") && row.contains("1024²: 0.150×"), "{row}");
+    assert!(
+        row.contains("256²: 0.200×") && row.contains("1024²: 0.150×"),
+        "{row}"
+    );
     assert!(row.ends_with("| **met** |"), "{row}");
     assert!(md.contains("### Against VTK"), "{md}");
     // One size above 0.25× fails the goal.

@@ -8,7 +8,8 @@
 //!   2 frames in flight with persistent targets. It reports the median GPU ms per frame, the median
 //!   host ms spent recording and submitting a frame, the fps over the whole orbit (wall clock,
 //!   which on a CPU device is the GPU time plus whatever the host does meanwhile), and the GPU
-//!   memory allocations made after the first frame (0 is the design).
+//!   memory allocations made after the first frame (0 is the design); then the same orbit drawn
+//!   by the ray caster, the viewer's renderer.
 //! - **Modulation:** the two-level frame again with colour modulation by ΔD (one more 3D texture
 //!   fetch per shaded sample), interleaved with the plain frames; its extra cost in percent.
 //! - **Edits:** frames that change the transfer function between frames (only its 4 KiB texture is
@@ -90,6 +91,12 @@ pub struct OrbitRow {
     pub fps: f64,
     /// GPU memory allocations made after the first frame.
     pub allocations_after_first_frame: u64,
+    /// The same orbit drawn by the ray caster (the viewer's renderer): median GPU ms, median host
+    /// ms recording and submitting, and frames over the wall time, which is the frame rate a
+    /// window gets when neither waits on a display.
+    pub raycast_gpu_ms: f64,
+    pub raycast_cpu_record_submit_ms: f64,
+    pub raycast_fps: f64,
     /// Wall ms per frame when the transfer function changes between frames (only its texture is
     /// re-uploaded), measured like `fps`.
     pub tf_edit_frame_ms: f64,
@@ -352,20 +359,8 @@ fn orbit_row(
     base: &TransferFunction,
 ) -> Result<OrbitRow> {
     let ctx = s.renderer_context();
-    // The first frame may allocate (targets, staging growth); the rest must not.
-    s.frame(&view(size, 0.0, false))?;
-    s.drain()?;
-    let allocations = ctx.allocation_count();
-    let start = Instant::now();
-    let mut host = Vec::new();
-    for i in 1..=frames {
-        s.frame(&view(size, 10.0 * i as f32, false))?;
-        host.push(s.frames.host_times().record_submit_ms);
-    }
-    let done = s.drain()?;
-    let wall = start.elapsed().as_secs_f64();
-    let allocations_after_first_frame = ctx.allocation_count() - allocations;
-    let gpu_ms = median(&done.iter().map(|r| frame_ms(&r.passes)).collect::<Vec<_>>());
+    let slicer = orbit(s, frames, |az| view(size, az, false))?;
+    let raycast = orbit(s, frames, |az| ray_view(size, az, false))?;
 
     // Transfer-function edits: the opacity of every point scaled up and down between frames.
     let uploads_before = uploaded_bytes(&ctx);
@@ -387,13 +382,47 @@ fn orbit_row(
         size,
         frames,
         frames_in_flight: s.frames.len(),
-        gpu_ms,
-        cpu_record_submit_ms: median(&host),
-        fps: frames as f64 / wall,
-        allocations_after_first_frame,
+        gpu_ms: slicer.gpu_ms,
+        cpu_record_submit_ms: slicer.host_ms,
+        fps: slicer.fps,
+        allocations_after_first_frame: slicer.allocations + raycast.allocations,
+        raycast_gpu_ms: raycast.gpu_ms,
+        raycast_cpu_record_submit_ms: raycast.host_ms,
+        raycast_fps: raycast.fps,
         tf_edit_frame_ms,
         tf_edit_upload_bytes,
         reprepare_frame_ms: 0.0,
+    })
+}
+
+/// What one orbit measured.
+struct Orbit {
+    gpu_ms: f64,
+    host_ms: f64,
+    fps: f64,
+    allocations: u64,
+}
+
+/// `frames` frames of `view` with the camera turning 10° a frame, after a first frame that may
+/// allocate (targets, staging growth); the rest must not.
+fn orbit(s: &mut Session, frames: usize, view: impl Fn(f32) -> View) -> Result<Orbit> {
+    let ctx = s.renderer_context();
+    s.frame(&view(0.0))?;
+    s.drain()?;
+    let allocations = ctx.allocation_count();
+    let start = Instant::now();
+    let mut host = Vec::new();
+    for i in 1..=frames {
+        s.frame(&view(10.0 * i as f32))?;
+        host.push(s.frames.host_times().record_submit_ms);
+    }
+    let done = s.drain()?;
+    let wall = start.elapsed().as_secs_f64();
+    Ok(Orbit {
+        gpu_ms: median(&done.iter().map(|r| frame_ms(&r.passes)).collect::<Vec<_>>()),
+        host_ms: median(&host),
+        fps: frames as f64 / wall,
+        allocations: ctx.allocation_count() - allocations,
     })
 }
 
@@ -451,11 +480,11 @@ impl Table {
         }
         s +=
             "\nOrbit: two levels, camera turning 10° a frame, persistent state, frames in flight\n";
-        s += "data                 size  frames | GPU ms/frame  host record+submit ms |    fps | allocs after 1st | TF edit ms/frame (bytes up) | re-prepare ms/frame\n";
+        s += "data                 size  frames | GPU ms/frame  host record+submit ms |    fps | ray caster GPU ms  host ms     fps | allocs after 1st | TF edit ms/frame (bytes up) | re-prepare ms/frame\n";
         for o in &self.orbit {
             s += &format!(
-                "{:<20} {:>4}² {:>6} | {:>12.2} {:>22.3} | {:>6.2} | {:>16} | {:>16.2} ({:>7}) | {:>19.1}\n",
-                o.data, o.size, o.frames, o.gpu_ms, o.cpu_record_submit_ms, o.fps, o.allocations_after_first_frame, o.tf_edit_frame_ms, o.tf_edit_upload_bytes, o.reprepare_frame_ms
+                "{:<20} {:>4}² {:>6} | {:>12.2} {:>22.3} | {:>6.2} | {:>17.2} {:>8.3} {:>7.1} | {:>16} | {:>16.2} ({:>7}) | {:>19.1}\n",
+                o.data, o.size, o.frames, o.gpu_ms, o.cpu_record_submit_ms, o.fps, o.raycast_gpu_ms, o.raycast_cpu_record_submit_ms, o.raycast_fps, o.allocations_after_first_frame, o.tf_edit_frame_ms, o.tf_edit_upload_bytes, o.reprepare_frame_ms
             );
         }
         s
