@@ -113,22 +113,27 @@ fn a_two_mib_cache_renders_what_the_whole_volume_renders() {
         )
         .unwrap();
         // The GPUs' variant, in which each ray reuses its last brick's lookup, for the first
-        // view too (lavapipe's default is without).
-        for (one_pass, style, jitter, reuse) in [
-            (true, None, None, true),
-            (true, None, None, false),
-            (false, None, None, false),
-            (false, Some("canny"), Some(7), false),
+        // view too (lavapipe's default is without), and the one in which it keeps the stretch
+        // of its path that lookup holds for.
+        for (one_pass, style, jitter, reuse, span) in [
+            (true, None, None, true, false),
+            (true, None, None, false, false),
+            (true, None, None, false, true),
+            (false, None, None, false, false),
+            (false, None, None, false, true),
+            (false, Some("canny"), Some(7), false, false),
+            (false, Some("canny"), Some(7), true, true),
         ] {
             if let Some(p) = bricked.volume.paged.as_mut() {
                 p.reuse = reuse;
+                p.span = span;
             }
             let view = view(camera, one_pass, style, jitter);
             let (want, got, report) =
                 both_ways(&mut renderer, (&mut core, &mut bricked), &view, None);
             let (mean, max) = diff8(&want, &got);
             println!(
-                "{name} one pass {one_pass} style {style:?} reuse {reuse}: mean {mean:.4}/255, max {max}/255; {} passes, {} loaded, {} evicted, {} slots",
+                "{name} one pass {one_pass} style {style:?} reuse {reuse} span {span}: mean {mean:.4}/255, max {max}/255; {} passes, {} loaded, {} evicted, {} slots",
                 report.passes, report.bricks_loaded, report.bricks_evicted, report.capacity
             );
             assert!(report.complete, "{name}");
@@ -356,6 +361,55 @@ fn a_frame_whose_bricks_fit_is_drawn_whole_from_them() {
     assert!(got.passes.iter().any(|p| p.name == "raycast"));
 }
 
+/// A pyramid at isovalue 0.9 under the grey ramp, through a 64 MiB cache, each sample's level by
+/// its projected voxel size.
+fn grey_pyramid(gpu: &Gpu, levels: BrickLevels) -> GpuScene {
+    let c = classification("grey");
+    GpuScene::prepare_bricked(
+        &gpu.ctx,
+        levels,
+        &c,
+        (Focus::Iso(0.9), &Default::default()),
+        64 << 20,
+        false,
+    )
+    .unwrap()
+}
+
+/// A store's pyramid seen close up, so that rays cross from level to level along their paths:
+/// a ray that keeps the stretch its lookup holds for (`Paged::span`) draws what one that looks
+/// every sample up draws.
+#[test]
+fn keeping_a_lookup_along_the_ray_draws_what_looking_up_every_sample_draws() {
+    let gpu = Gpu::new();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let levels = BrickLevels::of_volume(phantom::shepp_logan(256)).unwrap();
+    let mut bricked = grey_pyramid(&gpu, levels);
+    let view = View {
+        size: [96, 96],
+        ..view("30,20,1.6", false, Some("canny"), None)
+    };
+    let mut frames = Vec::new();
+    for span in [false, true] {
+        bricked.volume.paged.as_mut().unwrap().span = span;
+        let (frame, report) = renderer
+            .render_bricked(&mut bricked.volume, &mut bricked.classify, &view, None)
+            .unwrap();
+        assert!(report.complete, "{report:?}");
+        frames.push((frame, report.loaded_per_level.clone()));
+    }
+    let ((each, each_levels), (kept, kept_levels)) = (&frames[0], &frames[1]);
+    println!("bricks per level {each_levels:?} (each sample), {kept_levels:?} (kept)");
+    let read = each_levels.iter().filter(|&&n| n > 0).count();
+    assert!(
+        read >= 3,
+        "the view should read several levels: {each_levels:?}"
+    );
+    let (mean, max) = diff8(each, kept);
+    println!("kept against each sample: mean {mean:.4}/255, max {max}/255");
+    assert!(mean <= 0.05 && max <= 8, "mean {mean}/255, max {max}/255");
+}
+
 #[test]
 fn a_coarse_view_of_a_store_is_its_coarse_level_rendered_in_core() {
     use vellum::volume::io::ome_zarr::{write, Multiscale, WriteOptions};
@@ -370,17 +424,8 @@ fn a_coarse_view_of_a_store_is_its_coarse_level_rendered_in_core() {
     write(&path, &phantom::shepp_logan(256), &opts).unwrap();
     let ms = std::sync::Arc::new(Multiscale::open(&path).unwrap());
     let levels = BrickLevels::of_store(ms.clone(), 1 << 26).unwrap();
-    let c = classification("grey");
-    let focus = Focus::Iso(0.9);
-    let mut bricked = GpuScene::prepare_bricked(
-        &gpu.ctx,
-        levels,
-        &c,
-        (focus, &Default::default()),
-        64 << 20,
-        false,
-    )
-    .unwrap();
+    let (c, focus) = (classification("grey"), Focus::Iso(0.9));
+    let mut bricked = grey_pyramid(&gpu, levels);
     // 64 pixels across a 256³ volume: each pixel covers about four level-0 voxels.
     let view = View {
         size: [64, 64],

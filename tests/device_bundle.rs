@@ -85,13 +85,16 @@ fn peer_json(vtk_ms: [f64; 2], wall_ms: [f64; 2]) -> String {
     )
 }
 
-/// Runs tables.py on a folder holding `vtk.json` and returns the Markdown it wrote.
-fn tables(vtk: &str) -> String {
+/// Runs tables.py on a folder holding these results (`vtk` → vtk.json, ...) and returns the
+/// Markdown it wrote.
+fn tables(results_json: &[(&str, &str)]) -> String {
     let dir = tempfile::tempdir().unwrap();
     let results = dir.path().join("results");
     std::fs::create_dir(&results).unwrap();
     std::fs::write(results.join("device.txt"), "date: 2026-11-26T00:00Z\n").unwrap();
-    std::fs::write(results.join("vtk.json"), vtk).unwrap();
+    for (name, json) in results_json {
+        std::fs::write(results.join(format!("{name}.json")), json).unwrap();
+    }
     let md = dir.path().join("BENCHMARKS.md");
     std::fs::write(&md, "# Benchmarks\n\nkept before\n").unwrap();
     // Twice: the second run replaces the section the first wrote.
@@ -114,7 +117,7 @@ fn tables(vtk: &str) -> String {
 #[test]
 fn tables_judge_the_vtk_goal_by_wall_time() {
     // 2 ms against VTK's 10 at 256² (0.2×) and 3 against 20 at 1024² (0.15×): met.
-    let md = tables(&peer_json([10.0, 20.0], [2.0, 3.0]));
+    let md = tables(&[("vtk", &peer_json([10.0, 20.0], [2.0, 3.0]))]);
     assert!(md.starts_with("# Benchmarks\n\nkept before\n"), "{md}");
     let row = md
         .lines()
@@ -127,7 +130,7 @@ fn tables_judge_the_vtk_goal_by_wall_time() {
     assert!(row.ends_with("| **met** |"), "{row}");
     assert!(md.contains("### Against VTK"), "{md}");
     // One size above 0.25× fails the goal.
-    let md = tables(&peer_json([10.0, 20.0], [3.0, 3.0]));
+    let md = tables(&[("vtk", &peer_json([10.0, 20.0], [3.0, 3.0]))]);
     let row = md
         .lines()
         .find(|l| l.starts_with("| VTK's GPU ray caster"))
@@ -135,4 +138,23 @@ fn tables_judge_the_vtk_goal_by_wall_time() {
     assert!(row.ends_with("| not met |"), "{row}");
     // Written twice over the same file: one section, replaced in place.
     assert_eq!(md.matches("<!-- bench-device:begin -->").count(), 1, "{md}");
+}
+
+#[test]
+fn tables_judge_the_bricked_goal_by_the_fastest_lookup() {
+    let bricked = r#"{"rows": [
+        {"case": "core_skip", "ms": [1.0, 1.0, 1.0]},
+        {"case": "bricked_lookup", "ms": [1.9, 1.9, 1.9]},
+        {"case": "bricked_reuse", "ms": [1.5, 1.4, 1.5]},
+        {"case": "bricked_span", "ms": [1.2, 1.25, 1.3]}]}"#;
+    let md = tables(&[("bricked", bricked)]);
+    let row = md
+        .lines()
+        .find(|l| l.starts_with("| bricked ray caster"))
+        .expect("a bricked goal row");
+    assert!(
+        row.contains("1.250 ms (bricked_span) against 1.000 ms: 1.25×"),
+        "{row}"
+    );
+    assert!(row.ends_with("| **met** |"), "{row}");
 }

@@ -99,8 +99,10 @@ done
 
 # The bricked ray caster against in core on a 256³ store at 1024², two levels: five renders of
 # each, the ray caster's GPU ms (in core with and without empty-space skipping; through a pool
-# just below the in-core need at level 0, each ray looking its brick up at every sample or
-# reusing its last lookup); and empty-space skipping in core on the CT head and the engine.
+# just below the in-core need at level 0, each ray looking its brick up at every sample, reusing
+# its last lookup, or keeping the stretch of its path that lookup holds for: Paged::span, off by
+# default until this case has measured it); and empty-space skipping in core on the CT head and
+# the engine.
 case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
     "$V" convert phantom:shepp-logan:256 /tmp/b.ome.zarr >/dev/null 2>&1
     mib=$(python3 -c "print(256**3*10/2**20)")
@@ -113,6 +115,7 @@ case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
     F="--size 1024x1024 --renderer raycast --out /tmp/b.png"
     for c in "core_skip|$A $core" "core_noskip|$A $core --no-skip-empty" \
         "bricked_lookup|$A $brick|VELLUM_BRICK_REUSE=0" "bricked_reuse|$A $brick|VELLUM_BRICK_REUSE=1" \
+        "bricked_span|$A $brick|VELLUM_BRICK_REUSE=1 VELLUM_BRICK_SPAN=1" \
         "head_skip|$head $F" "head_noskip|$head $F --no-skip-empty" \
         "engine_skip|$engine $F" "engine_noskip|$engine $F --no-skip-empty"; do
         IFS='|' read -r name flags env <<<"$c"

@@ -94,6 +94,56 @@ bool c_hit = false;
 ivec3 c_brick;
 vec3 c_offset;
 
+// V_BRICK_SPAN: the stretch [c_from, c_until) of the ray parameter over which the last lookup
+// holds (the sample stays in its brick and its level stays the one it wanted), and its place in
+// the pool as a line in t, so that a sample there costs a compare and a multiply-add. `ray_t` is
+// the parameter of the sample `locate` is asked about; the ray's texture coordinates are
+// ray_tex0 + t ray_dtex and its distance from the eye |ray_eo + t dir|.
+float ray_t;
+vec3 ray_tex0, ray_dtex, ray_eo, ray_dir;
+float c_from = INF, c_until = -INF;
+vec3 c_base, c_step;
+
+// The ray parameter at which the distance from the eye reaches `dist` (the later root), past the
+// ray's nearest point to the eye, where that distance only grows.
+float t_at_distance(float dist) {
+    float k = dot(ray_dir, ray_eo);
+    return -k + sqrt(max(k * k - dot(ray_eo, ray_eo) + dist * dist, 0.0));
+}
+
+// Sets the span of the lookup just made: brick b of level `want`, whose texture coordinates
+// scale to its voxels by c_scale, placed at `offset` in the pool.
+void set_span(int want, ivec3 b, vec3 offset) {
+    // The level: `want` holds while the footprint a·d + b stays in [2^want, 2^(want+1)), the
+    // finest level below 2 and the coarsest above its floor.
+    float k = dot(ray_dir, ray_eo);
+    float from = -k, until = INF;
+    if (pt_cover_a > 0.0) {
+        if (want > 0) {
+            from = max(from, t_at_distance((exp2(float(want)) - pt_cover_b) / pt_cover_a));
+        }
+        if (want < pt_levels - 1) {
+            until = t_at_distance((exp2(float(want + 1)) - pt_cover_b) / pt_cover_a);
+        }
+    }
+    // The brick: the slab of voxels [32 b, 32 (b + 1)) on each axis, open outwards at the
+    // volume's faces, where the lookup clamps.
+    vec3 v0 = ray_tex0 * c_scale, dv = ray_dtex * c_scale;
+    vec3 lo = mix(vec3(b) * pt_brick, vec3(-1e30), equal(b, ivec3(0)));
+    vec3 hi = mix(vec3(b + 1) * pt_brick, vec3(1e30), equal(b, c_counts - 1));
+    for (int i = 0; i < 3; ++i) {
+        if (dv[i] != 0.0) {
+            float ta = (lo[i] - v0[i]) / dv[i], tb = (hi[i] - v0[i]) / dv[i];
+            from = max(from, min(ta, tb));
+            until = min(until, max(ta, tb));
+        }
+    }
+    c_from = from;
+    c_until = until;
+    c_base = (offset + v0) / pool_size;
+    c_step = dv / pool_size;
+}
+
 // Sets `ptex` for the sample at `tex` and `world`. In core, the two are the same. Bricked: the
 // sample's level is chosen by its projected voxel size; when that level's brick is resident, its
 // place in the pool; else the brick is asked for and, when the frame waits for bricks, false is
@@ -102,6 +152,11 @@ vec3 c_offset;
 bool locate() {
     if (!V_BRICKED) {
         ptex = tex;
+        return true;
+    }
+    if (V_BRICK_SPAN && ray_t >= c_from && ray_t < c_until) {
+        ptex = c_base + ray_t * c_step;
+        level_ratio = c_ratio;
         return true;
     }
     float brick = pt_brick;
@@ -161,6 +216,11 @@ bool locate() {
                 c_hit = true;
                 c_brick = b;
                 c_offset = offset;
+                if (V_BRICK_SPAN) {
+                    set_span(want, b, offset);
+                }
+            } else if (V_BRICK_SPAN) {
+                c_from = INF;
             }
             return true;
         }
@@ -228,6 +288,10 @@ void main() {
     uint ray = uint(px.y * size.x + px.x);
     if (V_BRICKED) {
         read_header();
+        ray_tex0 = o / (2.0 * u.half_extent.xyz) + 0.5;
+        ray_dtex = dir / (2.0 * u.half_extent.xyz);
+        ray_eo = o - u.eye.xyz;
+        ray_dir = dir;
     }
     bool wait = V_BRICKED && (pt_mode & MODE_WAIT) != 0u;
     bool stopped = false;
@@ -296,6 +360,7 @@ void main() {
                 }
                 world = o + t * dir;
                 tex = world / (2.0 * u.half_extent.xyz) + 0.5;
+                ray_t = t;
                 if (region && (any(lessThan(tex, u.region_lo.xyz)) || any(greaterThanEqual(tex, u.region_hi.xyz)))) {
                     prev_t = -1.0;
                     continue;
@@ -356,6 +421,7 @@ void main() {
                     float tm = ta + (u.focus.x - sa) / (sb - sa) * (tb - ta);
                     world = o + tm * dir;
                     tex = world / (2.0 * u.half_extent.xyz) + 0.5;
+                    ray_t = tm;
                     if (!locate()) {
                         stopped = true;
                         break;
@@ -372,6 +438,7 @@ void main() {
                 t = ta + (u.focus.x - sa) / (sb - sa) * (tb - ta);
                 world = o + t * dir;
                 tex = world / (2.0 * u.half_extent.xyz) + 0.5;
+                ray_t = t;
                 stopped = stopped || !locate();
                 if (stopped) {
                     m = m_hit;

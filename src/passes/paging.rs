@@ -64,6 +64,11 @@ pub struct Paged {
     /// halves the bricked frame (H100, BENCHMARKS.md); off on lavapipe, whose lanes run both
     /// sides of the test and come out slower. `VELLUM_BRICK_REUSE=0|1` overrides, for measuring.
     pub reuse: bool,
+    /// Each ray keeps the stretch of its path over which its last lookup holds (the brick, and
+    /// the level its distance from the eye wants) and places the samples there by one
+    /// multiply-add, without choosing a level or finding a brick (the ray caster's `BRICK_SPAN`
+    /// variant). Off by default until a GPU has measured it; `VELLUM_BRICK_SPAN=0|1` overrides.
+    pub span: bool,
 }
 
 /// The default of [`Paged::reuse`] on a device of `device_type`.
@@ -73,6 +78,11 @@ pub fn brick_reuse(device_type: &str) -> bool {
         Some("1") => true,
         _ => device_type != "CPU",
     }
+}
+
+/// The default of [`Paged::span`].
+pub fn brick_span() -> bool {
+    std::env::var("VELLUM_BRICK_SPAN").ok().as_deref() == Some("1")
 }
 
 /// Slots per axis for a pool of at most `capacity` slots, each axis within `max_texels`.
@@ -144,6 +154,7 @@ impl VolumeTextures {
                 finest,
                 pool_bytes: (capacity * SLOT_BYTES) as u64,
                 reuse: brick_reuse(&ctx.info.device_type),
+                span: brick_span(),
             })),
         })
     }

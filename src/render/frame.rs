@@ -897,6 +897,7 @@ fn record_rays(
             paging,
             bricked: vol.paged.is_some(),
             brick_reuse: vol.paged.as_ref().is_some_and(|p| p.reuse),
+            brick_span: vol.paged.as_ref().is_some_and(|p| p.span),
             push: r.setup.ray_push(&r.options, vol.bricks.counts, two_level),
             size,
         },

@@ -123,6 +123,10 @@ impl Variant {
     pub const BRICKED: u32 = 256;
     /// With BRICKED: each ray reuses its last brick's place in the pool (`Paged::reuse`).
     pub const BRICK_REUSE: u32 = 512;
+    /// With BRICKED: each ray keeps the stretch of its path over which its last lookup holds
+    /// (its brick, and its level by distance) and places the samples there by one multiply-add
+    /// (`Paged::span`).
+    pub const BRICK_SPAN: u32 = 1024;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -164,6 +168,8 @@ pub struct RayRequest<'a> {
     pub bricked: bool,
     /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
     pub brick_reuse: bool,
+    /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
+    pub brick_span: bool,
     pub push: RayPush,
     pub size: [u32; 2],
 }
@@ -235,6 +241,9 @@ impl RayCaster {
         let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         if r.bricked && r.brick_reuse {
             variant.0 |= Variant::BRICK_REUSE;
+        }
+        if r.bricked && r.brick_span {
+            variant.0 |= Variant::BRICK_SPAN;
         }
         let pipeline = Self::pipeline(pipelines, variant)?;
         let groups = crate::gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
