@@ -119,8 +119,10 @@ void set_span(int want, ivec3 b, vec3 offset) {
     float k = dot(ray_dir, ray_eo);
     float from = -k, until = INF;
     if (pt_cover_a > 0.0) {
-        if (want > 0) {
-            from = max(from, t_at_distance((exp2(float(want)) - pt_cover_b) / pt_cover_a));
+        // (A footprint whose constant term alone reaches 2^want leaves no lower bound.)
+        float near = (exp2(float(want)) - pt_cover_b) / pt_cover_a;
+        if (want > 0 && near > 0.0) {
+            from = max(from, t_at_distance(near));
         }
         if (want < pt_levels - 1) {
             until = t_at_distance((exp2(float(want + 1)) - pt_cover_b) / pt_cover_a);
@@ -154,10 +156,14 @@ bool locate() {
         ptex = tex;
         return true;
     }
-    if (V_BRICK_SPAN && ray_t >= c_from && ray_t < c_until) {
-        ptex = c_base + ray_t * c_step;
-        level_ratio = c_ratio;
-        return true;
+    if (V_BRICK_SPAN) {
+        if (ray_t >= c_from && ray_t < c_until) {
+            ptex = c_base + ray_t * c_step;
+            level_ratio = c_ratio;
+            return true;
+        }
+        // Until a lookup of the wanted level succeeds (set_span), there is no stretch.
+        c_from = INF;
     }
     float brick = pt_brick;
     float cover = pt_cover_a * length(world - u.eye.xyz) + pt_cover_b;
@@ -219,8 +225,6 @@ bool locate() {
                 if (V_BRICK_SPAN) {
                     set_span(want, b, offset);
                 }
-            } else if (V_BRICK_SPAN) {
-                c_from = INF;
             }
             return true;
         }
