@@ -136,6 +136,18 @@ fn tables_judge_the_vtk_goal_by_wall_time() {
         .find(|l| l.starts_with("| VTK's GPU ray caster"))
         .unwrap();
     assert!(row.ends_with("| not met |"), "{row}");
+    // A size VTK gave no time for (NaN, written as null) is left out, not a crash.
+    let partial =
+        peer_json([10.0, 20.0], [2.0, 3.0]).replacen("\"vtk_ms\": 20", "\"vtk_ms\": null", 1);
+    let md_partial = tables(&[("vtk", &partial)]);
+    let row = md_partial
+        .lines()
+        .find(|l| l.starts_with("| VTK's GPU ray caster"))
+        .unwrap();
+    assert!(
+        row.contains("256²: 0.200×") && !row.contains("1024²"),
+        "{row}"
+    );
     // Written twice over the same file: one section, replaced in place.
     assert_eq!(md.matches("<!-- bench-device:begin -->").count(), 1, "{md}");
 }
@@ -146,7 +158,8 @@ fn tables_judge_the_bricked_goal_by_the_fastest_lookup() {
         {"case": "core_skip", "ms": [1.0, 1.0, 1.0]},
         {"case": "bricked_lookup", "ms": [1.9, 1.9, 1.9]},
         {"case": "bricked_reuse", "ms": [1.5, 1.4, 1.5]},
-        {"case": "bricked_span", "ms": [1.2, 1.25, 1.3]}]}"#;
+        {"case": "bricked_span", "ms": [1.2, 1.25, 1.3]},
+        {"case": "bricked_failed", "ms": []}]}"#;
     let md = tables(&[("bricked", bricked)]);
     let row = md
         .lines()

@@ -32,7 +32,7 @@ for v in cthead_stanford engine bonsai ct_chest_lidc2 boston_teapot; do
     [ -d "$DATA/volumes/$v" ] || { echo "$DATA/volumes/$v is missing"; exit 1; }
     mkdir -p "$B/data/volumes/$v"
     for f in "$DATA/volumes/$v"/*; do
-        twin=$(find data -type f -size "$(stat -c %s "$f")c" -exec cmp -s "$f" {} \; -print -quit)
+        twin=$(git ls-files data | while read -r t; do cmp -s "$f" "$t" && { echo "$t"; break; }; done || true)
         if [ -n "$twin" ]; then
             echo "$B/data/volumes/$v/$(basename "$f") $twin" >>"$B/data/from_tree.txt"
         else
@@ -59,7 +59,8 @@ fi
 
 # What one call carries: the working tree (tracked files and untracked ones git does not ignore)
 # and .device.
-tree=$( (git ls-files -z; git ls-files -z -o --exclude-standard) | xargs -0 stat -c %s 2>/dev/null |
+# (A tracked file deleted from the working tree does not travel: stat skips it.)
+tree=$( (git ls-files -z; git ls-files -z -o --exclude-standard) | { xargs -0 stat -c %s 2>/dev/null || true; } |
     awk '{s += $1} END {print s}')
 bundle=$(du -sb "$B" | cut -f1)
 total=$((tree + bundle))

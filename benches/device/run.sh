@@ -16,7 +16,7 @@ unxz_to() { python3 -c 'import lzma, shutil, sys; shutil.copyfileobj(lzma.open(s
 V=/tmp/vellum
 unxz_to "$B/vellum.xz" "$V" && chmod +x "$V"
 # Data files pack.sh left out because the working tree holds them byte for byte.
-while read -r to from; do cp "$from" "$to"; done <"$B/data/from_tree.txt"
+while read -r to from; do mkdir -p "$(dirname "$to")" && cp "$from" "$to"; done <"$B/data/from_tree.txt"
 
 # The Vulkan loader, the GL dispatch libraries NVIDIA's ICD (libGLX_nvidia) needs to hand out
 # vkCreateInstance and VTK needs for EGL, and the Khronos layer for the validation run, from
@@ -36,7 +36,10 @@ if [ -f "$N" ] && ! ls /usr/share/glvnd/egl_vendor.d/*nvidia* >/dev/null 2>&1; t
 fi
 # The cut-down VTK for the peer, unpacked beside the machine's own Python packages.
 if [ -f "$B/vtk.tar.xz" ]; then
-    python3 -c 'import sys, tarfile; tarfile.open(sys.argv[1]).extractall(sys.argv[2])' "$B/vtk.tar.xz" /tmp/vtk-site
+    python3 -c 'import sys, tarfile; tarfile.open(sys.argv[1]).extractall(sys.argv[2], filter="data")' \
+        "$B/vtk.tar.xz" /tmp/vtk-site
+    # EGL even if a DISPLAY is ever set there: the GPU renders, not an X server.
+    export VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow
 fi
 # The device tool brings back at most 8 files: everything goes into one tar, results.tar.
 R=$(mktemp -d)

@@ -116,8 +116,8 @@ float t_at_distance(float dist) {
 void set_span(int want, ivec3 b, vec3 offset) {
     // The level: `want` holds while the footprint a·d + b stays in [2^want, 2^(want+1)), the
     // finest level below 2 and the coarsest above its floor.
-    float k = dot(ray_dir, ray_eo);
-    float from = -k, until = INF;
+    // (With no distance term the level is the same all along the ray.)
+    float from = pt_cover_a > 0.0 ? -dot(ray_dir, ray_eo) : -INF, until = INF;
     if (pt_cover_a > 0.0) {
         // (A footprint whose constant term alone reaches 2^want leaves no lower bound.)
         float near = (exp2(float(want)) - pt_cover_b) / pt_cover_a;
@@ -180,7 +180,8 @@ bool locate() {
     }
     vec3 v = t * c_scale;
     ivec3 b = clamp(ivec3(floor(v / brick)), ivec3(0), c_counts - 1);
-    if (V_BRICK_REUSE && c_hit && b == c_brick) {
+    // (With V_BRICK_SPAN every lookup goes on to set the stretch again.)
+    if (V_BRICK_REUSE && !V_BRICK_SPAN && c_hit && b == c_brick) {
         ptex = (c_offset + v) / pool_size;
         level_ratio = c_ratio;
         return true;

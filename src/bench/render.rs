@@ -362,7 +362,10 @@ fn orbit_row(
     let slicer = orbit(s, frames, |az| view(size, az, false))?;
     let raycast = orbit(s, frames, |az| ray_view(size, az, false))?;
 
-    // Transfer-function edits: the opacity of every point scaled up and down between frames.
+    // Transfer-function edits: the opacity of every point scaled up and down between frames,
+    // after a slicer frame that is not timed (the orbit before drew with the ray caster).
+    s.frame(&view(size, 0.0, false))?;
+    s.drain()?;
     let uploads_before = uploaded_bytes(&ctx);
     let edits = frames.min(12);
     let start = Instant::now();
