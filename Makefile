@@ -110,7 +110,8 @@ bench: build
 # `make bench-device-tables JSON=<its results.tar>` writes BENCHMARKS.md's GPU tables from the JSON.
 bench-device: build
 	bash benches/device/pack.sh
-	@echo "now, through the device tool: bash benches/device/run.sh   (carry .device)"
+	@echo "now one device call: command 'bash benches/device/run.sh', carry [\".device\"], timeout_s 570;"
+	@echo "then: make bench-device-tables JSON=<the results.tar it brings back>"
 
 bench-device-tables:
 	@[ -n "$(JSON)" ] || { echo "give JSON=<the results.tar or folder the device run brought back>"; exit 2; }
