@@ -110,11 +110,28 @@ pub fn one_line(message: &str) -> String {
         .collect()
 }
 
+/// The last line that is not blank in what a child process wrote to stderr: where its own
+/// one-sentence error is.
+pub fn last_line(stderr: &[u8]) -> String {
+    String::from_utf8_lossy(stderr)
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or("")
+        .to_string()
+}
+
 #[cfg(test)]
 mod one_line_tests {
     #[test]
     fn control_characters_are_escaped() {
         assert_eq!(super::one_line("a\nb\tc\u{7}"), "a\\nb\\tc\\u{7}");
         assert_eq!(super::one_line("plain"), "plain");
+    }
+
+    #[test]
+    fn the_last_line_skips_blank_ones() {
+        assert_eq!(super::last_line(b"warn\nerror: gone\n  \n"), "error: gone");
+        assert_eq!(super::last_line(b""), "");
     }
 }

@@ -41,8 +41,10 @@ if [ -f "$B/vtk.tar.xz" ]; then
     # EGL even if a DISPLAY is ever set there: the GPU renders, not an X server.
     export VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow
 fi
-# The device tool brings back at most 8 files: everything goes into one tar, results.tar.
+# The device tool brings back at most 8 files: everything goes into one tar, results.tar,
+# re-packed after every bench, so a call cut off at its limit still brings back what ran.
 R=$(mktemp -d)
+repack() { tar -C "$R" -cf "$OUT/results.tar" .; }
 
 {
     echo "date: $(date -u +%Y-%m-%dT%H:%MZ)"
@@ -62,8 +64,7 @@ run() {
     local rc=$?
     echo "$name: rc $rc, $((SECONDS - t0)) s"
     [ $rc -eq 0 ] || { tail -5 "$R/$name.log"; rm -f "$R/$name.json"; }
-    # Re-packed after every bench, so a call cut off at its limit still brings back what ran.
-    tar -C "$R" -cf "$OUT/results.tar" .
+    repack
 }
 
 # VTK's GPU ray caster on the CT head beside ours, on the same orbit (benches/vtk_peer.py through
@@ -72,7 +73,7 @@ if [ -d /tmp/vtk-site ]; then
     PYTHONPATH=/tmp/vtk-site run vtk 150 render --repeat 3 --sizes "${VTK_SIZES:-256,512,1024}" \
         --orbit-frames "${VTK_FRAMES:-18}" --peer vtk
     imgs=$(python3 -c 'import json, sys; print(json.load(open(sys.argv[1]))["peer"]["images"])' "$R/vtk.json" 2>/dev/null)
-    [ -n "$imgs" ] && cp "$imgs"/vtk_*.png "$R/" 2>/dev/null && tar -C "$R" -cf "$OUT/results.tar" .
+    [ -n "$imgs" ] && cp "$imgs"/vtk_*.png "$R/" 2>/dev/null && repack
 fi
 
 # table1 after the renderers: its sub-millisecond passes read low on a GPU whose clocks have
@@ -127,7 +128,7 @@ case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
         done | python3 -c "import json,sys; print(json.dumps({'case': '$name', 'ms': [float(x) for x in sys.stdin]}))"
     done | python3 -c "import json,sys; print(json.dumps({'rows': [json.loads(l) for l in sys.stdin]}))" >"$R/bricked.json"
     cat "$R/bricked.json"
-    tar -C "$R" -cf "$OUT/results.tar" .
+    repack
     ;;
 esac
 
@@ -151,4 +152,4 @@ case " ${BENCHES:-all} " in *" all "* | *" validation "*)
     fi
     ;;
 esac
-tar -C "$R" -cf "$OUT/results.tar" . && tar -tvf "$OUT/results.tar"
+repack && tar -tvf "$OUT/results.tar"

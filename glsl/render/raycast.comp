@@ -98,17 +98,18 @@ vec3 c_offset;
 // holds (the sample stays in its brick and its level stays the one it wanted), and its place in
 // the pool as a line in t, so that a sample there costs a compare and a multiply-add. `ray_t` is
 // the parameter of the sample `locate` is asked about; the ray's texture coordinates are
-// ray_tex0 + t ray_dtex and its distance from the eye |ray_eo + t dir|.
+// ray_tex0 + t ray_dtex, and its distance from the eye is sqrt(t² + 2 ray_k t + ray_q): ray_k and
+// ray_q are dir · (o − eye) and |o − eye|².
 float ray_t;
-vec3 ray_tex0, ray_dtex, ray_eo, ray_dir;
+vec3 ray_tex0, ray_dtex;
+float ray_k, ray_q;
 float c_from = INF, c_until = -INF;
 vec3 c_base, c_step;
 
 // The ray parameter at which the distance from the eye reaches `dist` (the later root), past the
 // ray's nearest point to the eye, where that distance only grows.
 float t_at_distance(float dist) {
-    float k = dot(ray_dir, ray_eo);
-    return -k + sqrt(max(k * k - dot(ray_eo, ray_eo) + dist * dist, 0.0));
+    return -ray_k + sqrt(max(ray_k * ray_k - ray_q + dist * dist, 0.0));
 }
 
 // Sets the span of the lookup just made: brick b of level `want`, whose texture coordinates
@@ -117,7 +118,7 @@ void set_span(int want, ivec3 b, vec3 offset) {
     // The level: `want` holds while the footprint a·d + b stays in [2^want, 2^(want+1)), the
     // finest level below 2 and the coarsest above its floor.
     // (With no distance term the level is the same all along the ray.)
-    float from = pt_cover_a > 0.0 ? -dot(ray_dir, ray_eo) : -INF, until = INF;
+    float from = pt_cover_a > 0.0 ? -ray_k : -INF, until = INF;
     if (pt_cover_a > 0.0) {
         // (A footprint whose constant term alone reaches 2^want leaves no lower bound.)
         float near = (exp2(float(want)) - pt_cover_b) / pt_cover_a;
@@ -295,8 +296,9 @@ void main() {
         read_header();
         ray_tex0 = o / (2.0 * u.half_extent.xyz) + 0.5;
         ray_dtex = dir / (2.0 * u.half_extent.xyz);
-        ray_eo = o - u.eye.xyz;
-        ray_dir = dir;
+        vec3 eo = o - u.eye.xyz;
+        ray_k = dot(dir, eo);
+        ray_q = dot(eo, eo);
     }
     bool wait = V_BRICKED && (pt_mode & MODE_WAIT) != 0u;
     bool stopped = false;

@@ -788,12 +788,7 @@ fn run_vtk_script(
         .map_err(|e| Error::Invalid(format!("the VTK peer could not run python3 ({e})")))?;
     let _ = std::fs::remove_file(&raw);
     if !out.status.success() {
-        let err = String::from_utf8_lossy(&out.stderr);
-        let last = err
-            .lines()
-            .rev()
-            .find(|l| !l.trim().is_empty())
-            .unwrap_or("");
+        let last = crate::error::last_line(&out.stderr);
         return Err(Error::Invalid(format!(
             "the VTK peer failed ({last}); expected python3 with the vtk wheel (pip install vtk)"
         )));

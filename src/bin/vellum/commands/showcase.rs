@@ -102,12 +102,7 @@ fn execute(run: &Run, vars: &Vars, out: &std::path::Path) -> Result<(Outcome, Op
         bail!("`{shown}`: the Vulkan validation layer reported errors or warnings; rerun it with -vv to see them");
     }
     if !o.status.success() {
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        let last = stderr
-            .lines()
-            .rev()
-            .find(|l| !l.trim().is_empty())
-            .unwrap_or("");
+        let last = vellum::error::last_line(&o.stderr);
         bail!(
             "the showcase stopped at `{shown}`: {}",
             last.trim_start_matches("error: ")
