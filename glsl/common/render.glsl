@@ -31,6 +31,17 @@ struct SliceUniforms {
     vec4 region_hi;      // samples in [lo, hi) only; region_hi.w = 1 when a region is set
 };
 
+// One brick of the brick cache's upload (render/brick_fill.comp, passes/paging.rs).
+struct BrickFill {
+    ivec4 lo_slot;       // xyz: the level's voxel at the upload's first voxel; w: the pool slot
+    ivec4 dims_offset;   // xyz: the level's size in voxels; w: the upload's first voxel in the batch
+    vec4 inv_spacing;    // 1 / the level's voxel spacing (xyz), w unused
+};
+
+struct FillPush {
+    ivec4 grid;          // x, y: slots along x and y of the pool; z: 1 for 8-bit voxels; w: bricks
+};
+
 #define NORMALS_LOCAL_X 8
 #define NORMALS_LOCAL_Y 8
 #define NORMALS_LOCAL_Z 4

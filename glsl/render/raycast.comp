@@ -47,6 +47,16 @@ const uint MODE_RESUME = 2u;
 uint last_wanted = 0xffffffffu;
 uint last_used = 0xffffffffu;
 const uint USED_BIT = 0x80000000u;
+// A page-table word: the slot + 1 in the low bits; KNOWN: the brick's range is known, and bits 24
+// and 25 say whether it may hold visible context (or one-pass) samples and focus.
+const uint SLOT_MASK = 0xffffffu;
+const uint KNOWN = 0x4000000u;
+// What locate() found: a place to sample, a missing brick the ray waits for, or a brick that
+// holds nothing for the ray, which it walks past up to `skip_t`.
+const int FOUND = 0;
+const int WAITS = 1;
+const int EMPTY = 2;
+float skip_t;
 
 layout(push_constant) uniform Push {
     mat4 inv_view_proj;   // clip -> box frame
@@ -112,9 +122,9 @@ float t_at_distance(float dist) {
     return -ray_k + sqrt(max(ray_k * ray_k - ray_q + dist * dist, 0.0));
 }
 
-// Sets the span of the lookup just made: brick b of level `want`, whose texture coordinates
-// scale to its voxels by c_scale, placed at `offset` in the pool.
-void set_span(int want, ivec3 b, vec3 offset) {
+// The stretch [from, until) of the ray parameter over which the samples stay in brick b of level
+// `want` (whose texture coordinates scale to its voxels by c_scale) and keep wanting that level.
+vec2 lookup_span(int want, ivec3 b) {
     // The level: `want` holds while the footprint a·d + b stays in [2^want, 2^(want+1)), the
     // finest level below 2 and the coarsest above its floor.
     // (With no distance term the level is the same all along the ray.)
@@ -141,27 +151,34 @@ void set_span(int want, ivec3 b, vec3 offset) {
             until = min(until, max(ta, tb));
         }
     }
-    c_from = from;
-    c_until = until;
-    c_base = (offset + v0) / pool_size;
-    c_step = dv / pool_size;
+    return vec2(from, until);
+}
+
+// Sets the span of the lookup just made: brick b of level `want`, placed at `offset` in the pool.
+void set_span(int want, ivec3 b, vec3 offset) {
+    vec2 span = lookup_span(want, b);
+    c_from = span.x;
+    c_until = span.y;
+    c_base = (offset + ray_tex0 * c_scale) / pool_size;
+    c_step = ray_dtex * c_scale / pool_size;
 }
 
 // Sets `ptex` for the sample at `tex` and `world`. In core, the two are the same. Bricked: the
-// sample's level is chosen by its projected voxel size; when that level's brick is resident, its
-// place in the pool; else the brick is asked for and, when the frame waits for bricks, false is
-// returned (the ray stops here); otherwise the finest resident coarser level is sampled (the
-// coarsest is always resident).
-bool locate() {
+// sample's level is chosen by its projected voxel size. When that level's brick is known to hold
+// nothing the ray needs (`skip`: the flags it needs, 0 never to skip), EMPTY, with `skip_t` the end
+// of its stretch. When it is resident, its place in the pool. Else the brick is asked for and,
+// when the frame waits for bricks, WAITS (the ray stops here); otherwise the finest resident
+// coarser level is sampled (the coarsest is always resident).
+int locate(uint skip) {
     if (!V_BRICKED) {
         ptex = tex;
-        return true;
+        return FOUND;
     }
     if (V_BRICK_SPAN) {
         if (ray_t >= c_from && ray_t < c_until) {
             ptex = c_base + ray_t * c_step;
             level_ratio = c_ratio;
-            return true;
+            return FOUND;
         }
         // Until a lookup of the wanted level succeeds (set_span), there is no stretch.
         c_from = INF;
@@ -185,7 +202,7 @@ bool locate() {
     if (V_BRICK_REUSE && !V_BRICK_SPAN && c_hit && b == c_brick) {
         ptex = (c_offset + v) / pool_size;
         level_ratio = c_ratio;
-        return true;
+        return FOUND;
     }
     c_hit = false;
     for (int l = want; l < pt_levels; ++l) {
@@ -194,14 +211,19 @@ bool locate() {
         vec3 vl = l == want ? v : t * vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
         ivec3 bl = l == want ? b : clamp(ivec3(floor(vl / brick)), ivec3(0), counts - 1);
         uint e = (l == want ? c_first : pt[h]) + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
-        uint slot = pt[PT_HEADER + e];
+        uint word = pt[PT_HEADER + e];
+        uint slot = word & SLOT_MASK;
+        if (l == want && skip != 0u && (word & KNOWN) != 0u && ((word >> 24u) & skip) == 0u) {
+            skip_t = lookup_span(want, b).y;
+            return EMPTY;
+        }
         if (slot == 0u && l == want) {
             if (e != last_wanted) {
                 atomicAdd(wanted[e], 1u);
                 last_wanted = e;
             }
             if ((pt_mode & MODE_WAIT) != 0u) {
-                return false;
+                return WAITS;
             }
         }
         if (slot != 0u) {
@@ -228,10 +250,10 @@ bool locate() {
                     set_span(want, b, offset);
                 }
             }
-            return true;
+            return FOUND;
         }
     }
-    return false;
+    return WAITS;
 }
 
 // The brick of box-frame texture coordinate t (clamped into the volume).
@@ -372,15 +394,15 @@ void main() {
                     prev_t = -1.0;
                     continue;
                 }
-                if (skip) {
+                // One pass needs visible bricks; two levels need visible context in front of
+                // the first focus sample, or focus.
+                uint need = V_TWO_LEVEL ? (first && ctx.a < ert ? 3u : 2u) : 1u;
+                if (skip && !V_BRICKED) {
                     ivec3 bk = brick_of(tex);
                     if (bk != cur_brick) {
                         cur_brick = bk;
                         cur_flags = ray_tables[BRICKS_AT + bk.x + p.bricks.x * (bk.y + p.bricks.y * bk.z)];
                     }
-                    // One pass needs visible bricks; two levels need visible context in front of
-                    // the first focus sample, or focus.
-                    uint need = V_TWO_LEVEL ? (first && ctx.a < ert ? 3u : 2u) : 1u;
                     if ((cur_flags & need) == 0u) {
                         // Resume at the first sample at or behind the brick's exit (less a hair,
                         // so that rounding can only revisit this brick, never skip a sample of
@@ -391,7 +413,14 @@ void main() {
                         continue;
                     }
                 }
-                if (!locate()) {
+                int found = locate(skip ? need : 0u);
+                if (found == EMPTY) {
+                    // As above, from the end of the brick's stretch.
+                    m = max(ceil((skip_t - 1e-4 * b - a) / b), m + 1.0) - 1.0;
+                    prev_t = -1.0;
+                    continue;
+                }
+                if (found == WAITS) {
                     stopped = true;
                     break;
                 }
@@ -429,7 +458,7 @@ void main() {
                     world = o + tm * dir;
                     tex = world / (2.0 * u.half_extent.xyz) + 0.5;
                     ray_t = tm;
-                    if (!locate()) {
+                    if (locate(0u) != FOUND) {
                         stopped = true;
                         break;
                     }
@@ -446,7 +475,7 @@ void main() {
                 world = o + t * dir;
                 tex = world / (2.0 * u.half_extent.xyz) + 0.5;
                 ray_t = t;
-                stopped = stopped || !locate();
+                stopped = stopped || locate(0u) != FOUND;
                 if (stopped) {
                     m = m_hit;
                     prev_t = keep_t;

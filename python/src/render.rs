@@ -9,8 +9,8 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 use std::path::PathBuf;
 use std::sync::Mutex;
-use vellum::render::frame::Renderer;
-use vellum::render::scene::{GpuScene, Scene};
+use vellum::render::scene::Scene;
+use vellum::render::session::{Lod, Session, SessionOptions};
 use vellum::render::targets::{to_rgb8, FrameImage};
 use vellum::render::view::View;
 
@@ -135,19 +135,35 @@ impl PyImage {
 use image::ImageEncoder;
 
 /// The keyword options of `render` and `Renderer`, named as the command line's flags.
-const OPTIONS: &str = "iso, focus, tf, otf, features, camera, size, slices, one_pass, background, style, renderer, jitter";
+const OPTIONS: &str = "iso, focus, tf, otf, features, camera, size, slices, one_pass, background, style, renderer, jitter, gpu_budget, lod";
 
-/// `scene` with the keyword `options` applied over it, each named as on the command line.
-fn apply(mut scene: Scene, options: Option<&Bound<'_, PyDict>>) -> PyResult<Scene> {
+/// `scene` with the keyword `options` applied over it, each named as on the command line, and
+/// the session's options among them (`gpu_budget` in MiB, `lod`).
+fn apply(
+    mut scene: Scene,
+    options: Option<&Bound<'_, PyDict>>,
+) -> PyResult<(Scene, SessionOptions)> {
     use vellum::classify::Focus;
     use vellum::render::scene::{ClassificationSpec, StyleSpec};
+    let mut session = SessionOptions::default();
     let Some(options) = options else {
-        return Ok(scene);
+        return Ok((scene, session));
     };
     for (key, value) in options.iter() {
         let key: String = key.extract()?;
         let bad = |what: &str| refuse(format!("{key}={value} is invalid; expected {what}"));
         match key.as_str() {
+            "gpu_budget" => {
+                let mib: f64 = value.extract().map_err(|_| bad("a number of MiB"))?;
+                if !(mib.is_finite() && mib > 0.0) {
+                    return Err(bad("a positive number of MiB"));
+                }
+                session.gpu_budget_mib = Some(mib);
+            }
+            "lod" => {
+                let lod: String = value.extract().map_err(|_| bad("\"auto\" or \"finest\""))?;
+                session.lod = Lod::parse(&lod).map_err(|_| bad("\"auto\" or \"finest\""))?;
+            }
             "iso" => scene.focus = Focus::Iso(value.extract().map_err(|_| bad("a number"))?),
             "focus" => {
                 let (lo, hi): (f64, f64) = value.extract().map_err(|_| bad("(lo, hi)"))?;
@@ -228,7 +244,7 @@ fn apply(mut scene: Scene, options: Option<&Bound<'_, PyDict>>) -> PyResult<Scen
         }
     }
     scene.validate().map_err(to_py)?;
-    Ok(scene)
+    Ok((scene, session))
 }
 
 /// Whether the keyword `key` is among `options`.
@@ -236,35 +252,42 @@ fn given(options: &Bound<'_, PyDict>, key: &str) -> bool {
     options.contains(key).unwrap_or(false)
 }
 
+/// What a renderer draws: the scene, the volume given in place of its input (an array), and
+/// how the session opens it.
+type Source = (Scene, Option<vellum::volume::Volume>, SessionOptions);
+
 /// The scene and, for an array, the volume a renderer draws: a `vellum.Scene`, a scene file's
-/// path, or a `vellum.Volume` (its scene otherwise at the defaults), with `options` over it.
-fn source(
-    what: &Bound<'_, PyAny>,
-    options: Option<&Bound<'_, PyDict>>,
-) -> PyResult<(Scene, Option<vellum::volume::Volume>)> {
+/// path (`.json`), an input's path or spec (a volume file, a DICOM folder, an OME-Zarr store,
+/// `phantom:NAME:N`), or a `vellum.Volume` (the scene of the last two otherwise at the
+/// defaults), with `options` over it.
+fn source(what: &Bound<'_, PyAny>, options: Option<&Bound<'_, PyDict>>) -> PyResult<Source> {
+    let input = |path: String| vellum::render::scene::InputSpec { path, raw: None };
     if let Ok(v) = what.cast::<crate::PyVolume>() {
-        let input = vellum::render::scene::InputSpec {
-            path: "a numpy array".into(),
-            raw: None,
-        };
-        return Ok((
-            apply(Scene::new(input), options)?,
-            Some(v.get().inner.clone()),
-        ));
+        let (scene, session) = apply(Scene::new(input("a numpy array".into())), options)?;
+        return Ok((scene, Some(v.get().inner.clone()), session));
     }
     let scene = match what.cast::<PyScene>() {
-        Ok(s) => s.borrow().clone(),
-        Err(_) => PyScene::load(what.extract::<PathBuf>().map_err(|_| {
-            refuse("the first argument is not a vellum.Scene, a Volume or a path; expected one of them".into())
-        })?)?,
+        Ok(s) => s.borrow().inner.clone(),
+        Err(_) => {
+            let path = what.extract::<PathBuf>().map_err(|_| {
+                refuse("the first argument is not a vellum.Scene, a Volume or a path; expected one of them".into())
+            })?;
+            let is_scene = path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+            match is_scene {
+                true => PyScene::load(path)?.inner,
+                false => Scene::new(input(path.to_string_lossy().into_owned())),
+            }
+        }
     };
-    Ok((apply(scene.inner, options)?, None))
+    let (scene, session) = apply(scene, options)?;
+    Ok((scene, None, session))
 }
 
 /// What a renderer keeps on the device between frames.
 struct Kept {
-    gpu: GpuScene,
-    renderer: Renderer,
+    session: Session,
     view: View,
     background: [f32; 3],
 }
@@ -279,9 +302,12 @@ pub struct PyRenderer {
 
 #[pymethods]
 impl PyRenderer {
-    /// `Renderer(scene_or_volume, **options)`: a `vellum.Scene`, a scene file's path or a
+    /// `Renderer(scene_or_volume, **options)`: a `vellum.Scene`, a scene file's path, an
+    /// input's path (a volume file, a DICOM folder, an OME-Zarr store, `phantom:NAME:N`) or a
     /// `vellum.Volume`, with options named as the command line's flags (iso, focus, tf, otf,
-    /// features, camera, size, slices, one_pass, background, style, renderer, jitter).
+    /// features, camera, size, slices, one_pass, background, style, renderer, jitter,
+    /// gpu_budget in MiB, lod). A volume whose textures exceed `gpu_budget` is ray-cast through
+    /// the brick cache, a store beyond it without reading it whole.
     #[new]
     #[pyo3(signature = (scene, **options))]
     fn new(
@@ -289,8 +315,7 @@ impl PyRenderer {
         scene: &Bound<'_, PyAny>,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        let (scene, volume) = source(scene, options)?;
-        Self::prepare(py, scene, volume)
+        Self::prepare(py, source(scene, options)?)
     }
 
     /// Renders a frame: the scene's view, or with `camera=(azimuth, elevation[, distance])` in
@@ -314,24 +339,15 @@ impl PyRenderer {
 }
 
 impl PyRenderer {
-    /// `scene` (its input, or `volume` instead) prepared on the process's device.
-    fn prepare(
-        py: Python<'_>,
-        scene: Scene,
-        volume: Option<vellum::volume::Volume>,
-    ) -> PyResult<Self> {
+    /// `scene` (its input, or `volume` instead) opened by a session on the process's device.
+    fn prepare(py: Python<'_>, (scene, volume, opts): Source) -> PyResult<Self> {
         let kept = on_gpu(py, move |ctx| {
-            let classification = scene.classification()?;
-            let v = match volume {
-                Some(v) => v,
-                None => scene.load_volume()?,
-            };
-            let view = scene.view(v.geometry.is_oriented())?;
-            let modulation = scene.modulation.clone().unwrap_or_default();
-            let gpu = GpuScene::prepare(ctx, &v, &classification, scene.focus, &modulation)?;
+            let session = Session::open(ctx, &scene, volume, &opts)?;
+            let oriented = session.prepared.volume().geometry().is_oriented();
+            // A volume through the brick cache is ray-cast (the session's rule).
+            let (view, _) = session.view(scene.view(oriented)?);
             Ok(Kept {
-                gpu,
-                renderer: Renderer::new(ctx)?,
+                session,
                 view,
                 background: scene.background,
             })
@@ -373,8 +389,8 @@ impl PyRenderer {
         let frame = on_gpu(py, |_| {
             let k = &mut *kept;
             k.view.camera.validate()?;
-            k.renderer
-                .render_frame(&k.gpu.volume, &mut k.gpu.classify, &k.view, true)
+            let (frame, _) = k.session.still(&k.view, Default::default())?;
+            Ok(frame)
         })?;
         Ok((frame, background))
     }
@@ -404,7 +420,7 @@ pub fn lines<'py>(
             ))),
         })
         .collect::<PyResult<_>>()?;
-    let (mut scene, vol) = source(volume, options)?;
+    let (mut scene, vol, session) = source(volume, options)?;
     scene.focus = vellum::classify::Focus::Iso(iso);
     let style = if wanted.contains(&0.0) {
         "silhouettes"
@@ -419,7 +435,7 @@ pub fn lines<'py>(
         style: serde_json::json!(style),
         params,
     });
-    let r = PyRenderer::prepare(py, scene, vol)?;
+    let r = PyRenderer::prepare(py, (scene, vol, session))?;
     let (frame, _) = r.frame(py, None, None)?;
     r.close();
     let (segments, _) = frame.segments.unwrap_or_default();

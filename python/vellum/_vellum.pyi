@@ -139,10 +139,14 @@ class Renderer:
     uploaded again. `close()` releases its device memory."""
 
     def __init__(self, scene: Scene | Volume | str | os.PathLike[str], **options: object) -> None:
-        """A scene, a scene file's path or a Volume, with options named as `vellum render`'s
-        flags: iso, focus=(lo, hi), tf (default "auto": the grey ramp over the histogram's
-        window), otf, features (with otf: the two composed), camera=(az, el[, dist]),
-        size=(w, h), slices, one_pass, background=(r, g, b), style, renderer, jitter."""
+        """A scene, a scene file's path (.json), an input's path (a volume file, a DICOM folder,
+        an OME-Zarr store, "phantom:NAME:N") or a Volume, with options named as `vellum
+        render`'s flags: iso, focus=(lo, hi), tf (default "auto": the grey ramp over the
+        histogram's window), otf, features (with otf: the two composed), camera=(az, el[, dist]),
+        size=(w, h), slices, one_pass, background=(r, g, b), style, renderer, jitter,
+        gpu_budget (MiB of GPU memory for the volume's textures; a volume that needs more is
+        ray-cast through the brick cache, a store without reading it whole; default: half the
+        device's largest heap), lod ("auto" or "finest": the levels a bricked frame samples)."""
     def render(
         self,
         camera: tuple[float, float] | tuple[float, float, float] | None = None,

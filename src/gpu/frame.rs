@@ -119,15 +119,32 @@ impl StagingRing {
     /// [`StagingRing::push`] of `parts` one after the other, as one slice (a header and a table
     /// kept apart on the host, without joining them first).
     pub fn push_parts(&mut self, parts: &[&[u8]], align: u64) -> Result<BufferSlice> {
-        let align = align.max(16);
         let bytes_len: usize = parts.iter().map(|p| p.len()).sum();
-        let len = bytes_len.max(4) as u64;
+        self.push_with(bytes_len, align, |dst| {
+            let mut at = 0;
+            for p in parts {
+                dst[at..at + p.len()].copy_from_slice(p);
+                at += p.len();
+            }
+        })
+    }
+
+    /// Reserves `len` bytes at an offset aligned to `align` and lets `fill` write them in place
+    /// (a table made for this frame only, without a host buffer of its own).
+    pub fn push_with(
+        &mut self,
+        len: usize,
+        align: u64,
+        fill: impl FnOnce(&mut [u8]),
+    ) -> Result<BufferSlice> {
+        let align = align.max(16);
+        let size = len.max(4) as u64;
         let start = self.head.next_multiple_of(align);
         let capacity = self.buffer.as_ref().map_or(0, |b| b.size);
-        if start + len > capacity {
+        if start + size > capacity {
             // Grow to fit this frame's data so far and this push; the old buffer may already be
             // referenced by this frame's commands, so it stays alive until the frame completes.
-            let needed = (start + len)
+            let needed = (start + size)
                 .max(2 * capacity)
                 .next_power_of_two()
                 .max(1 << 16);
@@ -136,7 +153,7 @@ impl StagingRing {
                 self.retired.push(old);
             }
             self.head = 0;
-            return self.push_parts(parts, align);
+            return self.push_with(len, align, fill);
         }
         let buffer = self.buffer.as_mut().expect("grown above");
         let dst = buffer
@@ -145,16 +162,12 @@ impl StagingRing {
                 name: "staging ring".into(),
                 msg: "buffer is not host-visible".into(),
             })?;
-        let mut at = start as usize;
-        for p in parts {
-            dst[at..at + p.len()].copy_from_slice(p);
-            at += p.len();
-        }
-        self.head = start + len;
+        fill(&mut dst[start as usize..start as usize + len]);
+        self.head = start + size;
         Ok(BufferSlice {
             raw: buffer.raw,
             offset: start,
-            size: len,
+            size,
         })
     }
 

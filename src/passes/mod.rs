@@ -2,6 +2,7 @@
 //! CPU twin in `volume::reference` that tests compare it with.
 
 pub mod chunked;
+pub mod gpu_volume;
 pub mod importance;
 pub mod lines;
 pub mod normals;

@@ -45,9 +45,6 @@ pub struct VolumeTextures {
     /// A number no other `VolumeTextures` of this process has: what a view keeps for a volume
     /// (its smoothed copy) is keyed by it, so a new volume is never mistaken for the old one.
     pub id: u64,
-    /// The brick cache, when the textures are its pools (`passes::paging`): the volume is then
-    /// sampled through the page table and only the ray caster draws it.
-    pub paged: Option<Box<crate::passes::paging::Paged>>,
     /// The smoothing radius `--line-smooth auto` gives this volume's object-space lines
     /// (`volume::lines::auto_smooth_radius`).
     pub auto_line_smooth: u32,
@@ -164,7 +161,6 @@ impl VolumeTextures {
                 bricks,
                 importance: None,
                 id: next_volume_id(),
-                paged: None,
                 auto_line_smooth: 0,
             },
             staging,

@@ -1,5 +1,5 @@
-//! The GPU side of the brick cache (issue 26): the pool images, the feedback buffer, and the
-//! uploads of bricks into their slots. Which brick goes where is decided on the host
+//! The GPU side of the brick cache (issues 26 and 39): the pool images, the feedback buffer, and
+//! the uploads of bricks into their slots. Which brick goes where is decided on the host
 //! (`volume::bricks`); the ray caster reads the page table, staged with each frame, and writes
 //! what it missed into the feedback buffer.
 //!
@@ -11,14 +11,28 @@
 //! - words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its texture to
 //!   voxel scale along x, y, z, and level 0's voxel over its own (f32 bits): opacity is corrected
 //!   per voxel of the level sampled, so that a coarse level looks as that level rendered in core;
-
-//! - from word [`HEADER`]: per entry, its slot + 1, or 0 when not resident.
+//! - from word [`HEADER`]: per entry, its slot + 1 in the low 24 bits (0 when not resident), and
+//!   when the brick's range is known ([`KNOWN_BIT`]) what it may hold under this frame's
+//!   classification (bit 24: visible context or one-pass samples, bit 25: focus), so that a ray
+//!   walks past a brick that holds nothing for it, resident or not, without asking for it.
+//!
+//! ## Uploads
+//! A brick travels as its slot's texels and one more voxel on every side, at 16 bits (8 for
+//! 8-bit data), and `render/brick_fill.comp` writes the slot's intensity and Sobel gradients on
+//! the GPU: a quarter of the bytes the host once made and sent (intensity and four half-floats
+//! of gradient per texel), and no per-voxel arithmetic on the host but the type's conversion.
 
 use crate::error::{Error, Result};
 use crate::gpu::resources::BufferLocation;
-use crate::gpu::{Access, Buffer, BufferDesc, Context, Frame, Image, ImageDesc};
-use crate::passes::normals::{Bricks, VolumeTextures};
-use crate::volume::bricks::{BrickCache, BrickLevels, BrickTexels, MAX_LEVELS, SLOT, SLOT_BYTES};
+use crate::gpu::{
+    Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Frame, Image,
+    ImageDesc,
+};
+use crate::passes::normals::Bricks;
+use crate::volume::bricks::{
+    BrickCache, BrickData, BrickLevels, BrickVoxels, MAX_LEVELS, SLOT, SLOT_BYTES, UNKNOWN_RANGE,
+    UPLOAD,
+};
 use ash::vk;
 use std::sync::Arc;
 
@@ -31,6 +45,12 @@ pub const MODE_RESUME: u32 = 2;
 /// Feedback flag: a resident brick was read (`USED_BIT` in raycast.comp); the bits below count
 /// the rays that asked for a missing one.
 pub const USED_BIT: u32 = 1 << 31;
+/// Page-table word: the slot + 1 (0: not resident).
+pub const SLOT_MASK: u32 = (1 << 24) - 1;
+/// Page-table word: the brick's range is known, and bits 24 and 25 say what it may hold.
+pub const KNOWN_BIT: u32 = 1 << 26;
+/// Bricks one dispatch of `brick_fill` writes at most (its workgroup rows).
+pub const FILL_BATCH: usize = 4096;
 
 /// What a frame's rays said about the bricks ([`Paged::take_feedback`]).
 #[derive(Clone, Debug, Default)]
@@ -44,7 +64,29 @@ pub struct Feedback {
 /// Bytes of one ray's saved state (`RayState` in raycast.comp).
 pub const RAY_STATE_BYTES: u64 = 80;
 
-/// A volume in the brick cache.
+/// A volume in the brick cache, on the GPU: the pools (sampled as the in-core textures are), the
+/// cache and the upload pass.
+pub struct PagedVolume {
+    /// The intensity pool: R16_UNORM, slots of [`SLOT`]³ texels.
+    pub intensity: Image,
+    /// The gradient pool: RGBA16F, the same slots.
+    pub gradient: Image,
+    /// Data values that map to normalised 0 and 1.
+    pub range: [f64; 2],
+    /// Level 0's voxels, spacing and placement.
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+    pub geometry: crate::volume::geometry::Geometry,
+    /// One brick of the full range: the in-core table of brick flags skips nothing here, since
+    /// the page table carries the bricks' flags.
+    pub whole: Bricks,
+    /// A number no other GPU volume of the process has.
+    pub id: u64,
+    pub paged: Paged,
+    fill: ComputePipeline,
+}
+
+/// The brick cache's state between frames.
 pub struct Paged {
     pub levels: Arc<BrickLevels>,
     pub cache: BrickCache,
@@ -96,16 +138,40 @@ pub fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
     [gx, gy, gz]
 }
 
-impl VolumeTextures {
-    /// A volume for the brick cache: pool images of as many slots as `budget_bytes` holds (the
-    /// intensity and gradient textures are the pools), nothing resident yet. `finest` samples
-    /// level 0 everywhere.
-    pub fn paged(
+/// Push constants of `render/brick_fill.comp` (GLSL twin: `FillPush` in render.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct FillPush {
+    pub grid: [i32; 4],
+}
+
+/// One brick of an upload (GLSL twin: `BrickFill` in render.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct BrickFill {
+    pub lo_slot: [i32; 4],
+    pub dims_offset: [i32; 4],
+    pub inv_spacing: [f32; 4],
+}
+
+/// A brick to upload: its slot, its page-table entry and its voxels.
+#[derive(Copy, Clone)]
+pub struct Upload<'a> {
+    pub slot: usize,
+    pub entry: usize,
+    pub voxels: &'a BrickVoxels,
+}
+
+impl PagedVolume {
+    /// A volume for the brick cache: pool images of as many slots as `budget_bytes` holds, nothing
+    /// resident yet. `finest` samples level 0 everywhere.
+    pub fn new(
         ctx: &Arc<Context>,
-        levels: BrickLevels,
+        levels: Arc<BrickLevels>,
         budget_bytes: u64,
         finest: bool,
     ) -> Result<Self> {
+        check_pool_formats(ctx)?;
         let max = ctx.info.max_image_dimension_3d as usize;
         let grid = pool_grid((budget_bytes / SLOT_BYTES as u64) as usize, max);
         let capacity = grid
@@ -127,26 +193,32 @@ impl VolumeTextures {
                 location: BufferLocation::Readback,
             },
         )?;
+        let fill = ComputePipeline::new(
+            ctx,
+            "render/brick_fill.comp",
+            &[
+                BindingKind::StorageBuffer,
+                BindingKind::StorageBuffer,
+                BindingKind::StorageImage,
+                BindingKind::StorageImage,
+            ],
+            std::mem::size_of::<FillPush>() as u32,
+        )?;
         let level0 = levels.levels()[0].clone();
-        Ok(VolumeTextures {
+        Ok(PagedVolume {
             intensity,
             gradient,
             range: levels.range,
             dims: level0.dims,
             spacing: level0.spacing,
             geometry: levels.geometry,
-            occlusion: None,
-            // One brick of the full range: empty-space skipping is off on this path.
-            bricks: Bricks {
+            whole: Bricks {
                 counts: [1; 3],
                 range: vec![[0, u16::MAX]],
             },
-            importance: None,
             id: crate::passes::normals::next_volume_id(),
-            // Lines are not drawn through the brick cache.
-            auto_line_smooth: 0,
-            paged: Some(Box::new(Paged {
-                levels: Arc::new(levels),
+            paged: Paged {
+                levels,
                 cache,
                 grid,
                 feedback,
@@ -155,15 +227,120 @@ impl VolumeTextures {
                 pool_bytes: (capacity * SLOT_BYTES) as u64,
                 reuse: brick_reuse(&ctx.info.device_type),
                 span: brick_span(),
-            })),
+            },
+            fill,
         })
     }
+
+    /// Records the upload of `loads` through the frame's staging ring (pass `brick_upload`):
+    /// their voxels and a table of where each goes, then `brick_fill`, which writes each slot's
+    /// intensity and gradients. The pools end ready for sampling in compute.
+    pub fn record_loads(&self, ctx: &Context, frame: &mut Frame, loads: &[Upload]) -> Result<()> {
+        if loads.is_empty() {
+            return Ok(());
+        }
+        frame.profiler.begin(frame.cmd, "brick_upload");
+        self.intensity.transition(frame.cmd, Access::ComputeWrite);
+        self.gradient.transition(frame.cmd, Access::ComputeWrite);
+        // 8-bit bricks and normalised ones in separate dispatches (a pyramid has one kind).
+        for wide in [false, true] {
+            let batch: Vec<&Upload> = loads
+                .iter()
+                .filter(|u| matches!(u.voxels.data, BrickData::U16(_)) == wide)
+                .collect();
+            for part in batch.chunks(FILL_BATCH) {
+                self.record_fill(ctx, frame, part, wide)?;
+            }
+        }
+        self.intensity.transition(frame.cmd, Access::ComputeSampled);
+        self.gradient.transition(frame.cmd, Access::ComputeSampled);
+        frame.profiler.end(frame.cmd);
+        Ok(())
+    }
+
+    /// One `brick_fill` dispatch over `part`, all of one width.
+    fn record_fill(
+        &self,
+        ctx: &Context,
+        frame: &mut Frame,
+        part: &[&Upload],
+        wide: bool,
+    ) -> Result<()> {
+        let levels = self.paged.levels.levels();
+        let per = (UPLOAD * UPLOAD * UPLOAD) as i32;
+        let mut fills = Vec::with_capacity(part.len());
+        for (i, u) in part.iter().enumerate() {
+            let key = self.paged.levels.key(u.entry).ok_or_else(|| {
+                Error::Invalid(format!("page-table entry {} names no brick", u.entry))
+            })?;
+            let l = &levels[key.level];
+            let lo = key
+                .brick
+                .map(|b| (b * crate::volume::bricks::BRICK) as i32 - 2);
+            let dims = l.dims.map(|d| d as i32);
+            let inv = l.spacing.map(|s| (1.0 / s) as f32);
+            fills.push(BrickFill {
+                lo_slot: [lo[0], lo[1], lo[2], u.slot as i32],
+                dims_offset: [dims[0], dims[1], dims[2], per * i as i32],
+                inv_spacing: [inv[0], inv[1], inv[2], 0.0],
+            });
+        }
+        let table: [u32; 128] = match self.paged.levels.u8_table() {
+            Some(t) => std::array::from_fn(|i| t[2 * i] as u32 | (t[2 * i + 1] as u32) << 16),
+            None => [0; 128],
+        };
+        let voxels: Vec<&[u8]> = part.iter().map(|u| u.voxels.data.bytes()).collect();
+        let voxels = frame.staging.push_parts(&voxels, 16)?;
+        let fills = frame.staging.push_parts(
+            &[bytemuck::cast_slice(&table), bytemuck::cast_slice(&fills)],
+            16,
+        )?;
+        ctx.count_transfer(&self.intensity.name, true, voxels.size);
+        let slot_texels = (SLOT * SLOT * SLOT) as u32;
+        let push = FillPush {
+            grid: [
+                self.paged.grid[0] as i32,
+                self.paged.grid[1] as i32,
+                (!wide) as i32,
+                part.len() as i32,
+            ],
+        };
+        self.fill.dispatch(
+            frame.cmd,
+            &[
+                Bind::StorageSlice(voxels),
+                Bind::StorageSlice(fills),
+                Bind::StorageImage(&self.intensity),
+                Bind::StorageImage(&self.gradient),
+            ],
+            &push,
+            [slot_texels.div_ceil(64), part.len() as u32, 1],
+        )
+    }
+}
+
+/// The pools are written as storage images: R16_UNORM needs the extended storage formats.
+fn check_pool_formats(ctx: &Context) -> Result<()> {
+    let props = unsafe {
+        ctx.instance
+            .get_physical_device_format_properties(ctx.physical, vk::Format::R16_UNORM)
+    };
+    let storage = props
+        .optimal_tiling_features
+        .contains(vk::FormatFeatureFlags::STORAGE_IMAGE);
+    if !(ctx.info.storage_image_extended_formats && storage) {
+        return Err(Error::Invalid(format!(
+            "{} cannot write R16 storage images, which the brick cache fills; raise --gpu-budget so that the volume fits in core",
+            ctx.info.name
+        )));
+    }
+    Ok(())
 }
 
 impl Paged {
     /// The page table's header for a frame whose samples at distance d from the eye cover
     /// `lod.0 · d + lod.1` level-0 voxels (see the module's documentation); the entries,
-    /// `cache.page_table`, follow it.
+    /// [`Paged::page_words`], follow it.
     pub fn header(&self, lod: (f32, f32)) -> [u32; HEADER] {
         let levels = self.levels.levels();
         let (a, b) = if self.finest { (0.0, 0.0) } else { lod };
@@ -199,6 +376,19 @@ impl Paged {
             w[7] = (ratio as f32).to_bits();
         }
         words
+    }
+
+    /// The page table's entries for this frame into `dst` (one word each): the slot, and for a
+    /// brick whose range is known [`KNOWN_BIT`] and `flags(range)` (bit 0: may hold visible
+    /// context or one-pass samples, bit 1: may hold focus) in bits 24 and 25.
+    pub fn page_words(&self, dst: &mut [u32], flags: &dyn Fn([u16; 2]) -> u32) {
+        let c = &self.cache;
+        for ((w, &slot), &range) in dst.iter_mut().zip(&c.page_table).zip(&c.ranges) {
+            *w = match range == UNKNOWN_RANGE {
+                true => slot,
+                false => slot | KNOWN_BIT | (flags(range) & 3) << 24,
+            };
+        }
     }
 
     /// What the rays of the last completed frame said: the missing bricks they asked for (with
@@ -238,82 +428,12 @@ impl Paged {
             Access::ComputeReadWrite,
         );
     }
-
-    /// Records the copies of `loads` (slot, texels) into the pool images through the frame's
-    /// staging ring; the images end ready for sampling in compute.
-    pub fn record_loads(
-        &self,
-        ctx: &Context,
-        frame: &mut Frame,
-        pools: [&Image; 2],
-        loads: &[(usize, BrickTexels)],
-    ) -> Result<()> {
-        if loads.is_empty() {
-            return Ok(());
-        }
-        let mut copies: [Vec<(vk::Buffer, vk::BufferImageCopy)>; 2] = [Vec::new(), Vec::new()];
-        for (slot, texels) in loads {
-            let g = self.grid;
-            let at = [slot % g[0], (slot / g[0]) % g[1], slot / (g[0] * g[1])]
-                .map(|v| (v * SLOT) as i32);
-            let bytes: [&[u8]; 2] = [
-                bytemuck::cast_slice(&texels.intensity),
-                bytemuck::cast_slice(&texels.gradient),
-            ];
-            for (k, b) in bytes.iter().enumerate() {
-                let src = frame.staging.push(b, 16)?;
-                copies[k].push((src.raw, slot_copy(src.offset, at, pools[k].aspect())));
-            }
-        }
-        for (k, pool) in pools.iter().enumerate() {
-            ctx.count_transfer(
-                &pool.name,
-                true,
-                (copies[k].len() * SLOT.pow(3) * [2, 8][k]) as u64,
-            );
-            pool.transition(frame.cmd, Access::TransferWrite);
-            for (raw, copy) in &copies[k] {
-                unsafe {
-                    ctx.device.cmd_copy_buffer_to_image(
-                        frame.cmd,
-                        *raw,
-                        pool.raw,
-                        vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                        std::slice::from_ref(copy),
-                    )
-                };
-            }
-            pool.transition(frame.cmd, Access::ComputeSampled);
-        }
-        Ok(())
-    }
-}
-
-/// A copy of one slot's texels at `offset` in a buffer to texel `at` of a pool image.
-fn slot_copy(offset: u64, at: [i32; 3], aspect: vk::ImageAspectFlags) -> vk::BufferImageCopy {
-    vk::BufferImageCopy::default()
-        .buffer_offset(offset)
-        .image_subresource(vk::ImageSubresourceLayers {
-            aspect_mask: aspect,
-            mip_level: 0,
-            base_array_layer: 0,
-            layer_count: 1,
-        })
-        .image_offset(vk::Offset3D {
-            x: at[0],
-            y: at[1],
-            z: at[2],
-        })
-        .image_extent(vk::Extent3D {
-            width: SLOT as u32,
-            height: SLOT as u32,
-            depth: SLOT as u32,
-        })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gpu::interface::assert_glsl_layout;
 
     #[test]
     fn pool_grids_stay_within_the_budget_and_the_device() {
@@ -324,5 +444,16 @@ mod tests {
             assert!(n <= capacity && n * 2 > capacity, "{capacity}: {g:?}");
             assert!(g.iter().all(|&s| s * SLOT <= 2048));
         }
+    }
+
+    #[test]
+    fn fill_interfaces_match_glsl() {
+        assert_glsl_layout!(FillPush, "render.glsl", "FillPush", [grid]);
+        assert_glsl_layout!(
+            BrickFill,
+            "render.glsl",
+            "BrickFill",
+            [lo_slot, dims_offset, inv_spacing]
+        );
     }
 }

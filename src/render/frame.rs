@@ -21,8 +21,10 @@ use crate::gpu::{
     self, Access, Bind, BufferSlice, Context, Frames, FramesDesc, Image, ImageDesc, PipelineCache,
     Sampler,
 };
+use crate::passes::gpu_volume::VolumeRef;
 use crate::passes::lines::{LineExtractor, RasterView, DEFAULT_CAPACITY};
 use crate::passes::normals::{Bricks, VolumeTextures};
+use crate::passes::paging::HEADER;
 use crate::render::post::{LinesDraw, Post};
 use crate::render::proxy::{depth_span, view_aligned_slices_in, ProxySlices};
 use crate::render::raycast::{
@@ -64,19 +66,19 @@ pub struct SetupInput<'a> {
 
 impl<'a> SetupInput<'a> {
     /// The host side of a volume and classification that are on the GPU.
-    pub fn of(vol: &'a VolumeTextures, classify: &'a GpuClassification, max: u32) -> Self {
+    pub fn of(vol: VolumeRef<'a>, classify: &'a GpuClassification, max: u32) -> Self {
         SetupInput {
-            dims: vol.dims,
-            spacing: vol.spacing,
-            geometry: vol.geometry,
-            range: vol.range,
-            bricks: &vol.bricks,
+            dims: vol.dims(),
+            spacing: vol.spacing(),
+            geometry: vol.geometry(),
+            range: vol.range(),
+            bricks: vol.bricks(),
             table: classify.transfer_table(),
             focus: classify.focus,
             modulation: &classify.modulation,
             uses_occlusion: classify.uses_occlusion(),
-            has_occlusion: vol.occlusion.is_some(),
-            has_importance: vol.importance.is_some(),
+            has_occlusion: vol.occlusion().is_some(),
+            has_importance: vol.importance().is_some(),
             max_image_size: max,
         }
     }
@@ -510,21 +512,18 @@ impl StandIns {
         &'a self,
         ctx: &Context,
         cmd: vk::CommandBuffer,
-        vol: &'a VolumeTextures,
+        vol: VolumeRef<'a>,
         classify: &GpuClassification,
         sampled: Access,
     ) -> (&'a Image, &'a Image, &'a crate::gpu::Buffer) {
-        let occlusion = match (classify.uses_occlusion(), &vol.occlusion) {
+        let occlusion = match (classify.uses_occlusion(), vol.occlusion()) {
             (true, Some(o)) => o,
             _ => &self.volume,
         };
-        vol.intensity.transition(cmd, sampled);
-        vol.gradient.transition(cmd, sampled);
+        vol.intensity().transition(cmd, sampled);
+        vol.gradient().transition(cmd, sampled);
         occlusion.transition(cmd, sampled);
-        let importance = vol
-            .importance
-            .as_ref()
-            .filter(|_| classify.modulation.is_active());
+        let importance = vol.importance().filter(|_| classify.modulation.is_active());
         let Some(i) = importance else {
             return (occlusion, &self.volume, &self.max);
         };
@@ -577,14 +576,15 @@ impl Renderer {
     /// modulation), as seen by `view`, into `frame`; the layers land in `targets` (resized if
     /// needed). Passes: `focus`, `context`, `composite`; or `one_pass`; or `raycast`; then the
     /// style's.
-    pub fn record(
+    pub fn record<'v>(
         &mut self,
         frame: &mut gpu::Frame,
-        vol: &VolumeTextures,
+        vol: impl Into<VolumeRef<'v>>,
         classify: &mut GpuClassification,
         view: &View,
         targets: &mut FrameTargets,
     ) -> Result<Recorded> {
+        let vol = vol.into();
         let max = self.ctx.info.max_image_dimension_2d;
         check_paged(vol, view)?;
         let paged_view = paged_planes(vol, view);
@@ -603,8 +603,8 @@ impl Renderer {
             .shading_inputs(&self.ctx, frame.cmd, vol, classify, sampled);
         let binds = [
             Bind::UniformSlice(staged.ubo),
-            Bind::Sampled(&vol.intensity, &self.linear),
-            Bind::Sampled(&vol.gradient, &self.linear),
+            Bind::Sampled(vol.intensity(), &self.linear),
+            Bind::Sampled(vol.gradient(), &self.linear),
             Bind::Sampled(classify.transfer_image(), &self.linear),
             Bind::Sampled(occlusion, &self.linear),
             Bind::Sampled(classify.occlusion_image(), &self.linear),
@@ -628,6 +628,11 @@ impl Renderer {
                     composite: &t.composite,
                     tables,
                     stand_in: &self.stand_ins.paging,
+                    flags: BrickFlags::new(
+                        classify.transfer_table(),
+                        setup.focus,
+                        classify.uses_occlusion(),
+                    ),
                 };
                 record_rays(&self.ctx, &mut self.pipelines, frame, vol, &rays, state)?;
             }
@@ -676,7 +681,7 @@ impl Renderer {
     fn record_style(
         &mut self,
         frame: &mut gpu::Frame,
-        vol: &VolumeTextures,
+        vol: VolumeRef,
         f: &StyleFrame,
         state: &mut ViewState,
     ) -> Result<Option<RasterView>> {
@@ -684,6 +689,11 @@ impl Renderer {
             .post
             .as_ref()
             .ok_or_else(|| Error::Invalid("the style passes were not built".into()))?;
+        // Lines are drawn from a volume in core only (`check_paged` refuses them otherwise).
+        let Some(vol) = vol.in_core().filter(|_| f.style.def.lines.is_some()) else {
+            passes.record(frame, f.style, f.images, f.post, None)?;
+            return Ok(None);
+        };
         let radius = f.style.params.line_smooth.radius(vol.auto_line_smooth);
         if let (Some(_), Some(extractor)) = (f.style.def.lines, self.lines.as_mut()) {
             if radius > 0 && !state.has_smoothed(vol.id, radius) {
@@ -718,9 +728,9 @@ impl Renderer {
     /// Renders one frame in one submission (the tools' path): the persistent-state types, used
     /// once. With `readback`, the composite (and the layers of a two-level frame) come back to
     /// the host.
-    pub fn render(
+    pub fn render<'v>(
         &mut self,
-        vol: &VolumeTextures,
+        vol: impl Into<VolumeRef<'v>>,
         params: &RenderParams,
         readback: bool,
     ) -> Result<FrameImage> {
@@ -741,13 +751,14 @@ impl Renderer {
 
     /// [`Renderer::render`] for a volume and classification that are already on the GPU. A
     /// frame read back brings its object-space lines' segments too.
-    pub fn render_frame(
+    pub fn render_frame<'v>(
         &mut self,
-        vol: &VolumeTextures,
+        vol: impl Into<VolumeRef<'v>>,
         classify: &mut GpuClassification,
         view: &View,
         readback: bool,
     ) -> Result<FrameImage> {
+        let vol = vol.into();
         let ctx = &self.ctx.clone();
         let mut targets = FrameTargets::new(ctx);
         let mut frames = Frames::new(ctx, &FramesDesc::one_shot("render frame", 32))?;
@@ -848,21 +859,23 @@ fn record_rays(
     ctx: &Arc<Context>,
     pipelines: &mut PipelineCache,
     frame: &mut gpu::Frame,
-    vol: &VolumeTextures,
+    vol: VolumeRef,
     r: &RayFrame,
     state: &mut ViewState,
 ) -> Result<()> {
     let two_level = r.layers.is_some();
     let size = r.setup.size;
-    let paging = match &vol.paged {
+    let paging = match vol.paged() {
         Some(p) => {
-            // The header and the entries, one slice, staged without joining them on the host.
-            let header = p.header(lod_line(r.setup, vol.dims));
-            let parts: [&[u8]; 2] = [
-                bytemuck::cast_slice(&header),
-                bytemuck::cast_slice(&p.cache.page_table),
-            ];
-            let table = frame.staging.push_parts(&parts, 16)?;
+            // The header, then the entries with the flags of the bricks whose range is known,
+            // written into the frame's ring in place.
+            let header = p.header(lod_line(r.setup, vol.dims()));
+            let entries = p.cache.page_table.len();
+            let table = frame.staging.push_with(4 * (HEADER + entries), 16, |dst| {
+                let words: &mut [u32] = bytemuck::cast_slice_mut(dst);
+                words[..HEADER].copy_from_slice(&header);
+                p.page_words(&mut words[HEADER..], &|range| r.flags.of(range));
+            })?;
             p.record_clear_feedback(ctx, frame);
             let rays = state.ray_states(ctx, size[0] as u64 * size[1] as u64)?;
             [
@@ -895,14 +908,14 @@ fn record_rays(
             composite: r.composite,
             tables: r.tables,
             paging,
-            bricked: vol.paged.is_some(),
-            brick_reuse: vol.paged.as_ref().is_some_and(|p| p.reuse),
-            brick_span: vol.paged.as_ref().is_some_and(|p| p.span),
-            push: r.setup.ray_push(&r.options, vol.bricks.counts, two_level),
+            bricked: vol.paged().is_some(),
+            brick_reuse: vol.paged().is_some_and(|p| p.reuse),
+            brick_span: vol.paged().is_some_and(|p| p.span),
+            push: r.setup.ray_push(&r.options, vol.bricks().counts, two_level),
             size,
         },
     )?;
-    if vol.paged.is_some() {
+    if vol.paged().is_some() {
         gpu::commands::memory_transition(
             ctx,
             frame.cmd,
@@ -923,12 +936,59 @@ struct RayFrame<'a> {
     tables: BufferSlice,
     /// Bound for the brick cache's buffers in core.
     stand_in: &'a crate::gpu::Buffer,
+    /// What a brick of a known range may hold under this frame's classification (the page
+    /// table's flags of a volume in the brick cache).
+    flags: BrickFlags,
+}
+
+/// What a brick of a given range may hold under a classification: [`BRICK_VISIBLE`] when the
+/// transfer function gives some of its samples opacity (always under an occlusion transfer
+/// function), [`BRICK_FOCUS`] when some of them may be in focus. The in-core table's tests
+/// (`any_opacity`, `may_focus`) in constant time, for the page table's entries of every frame.
+struct BrickFlags {
+    /// Per TF entry i, the entries before it that have opacity.
+    opaque_before: Vec<u32>,
+    focus: [f32; 3],
+    uses_occlusion: bool,
+}
+
+impl BrickFlags {
+    fn new(table: &[[f32; 4]], focus: [f32; 3], uses_occlusion: bool) -> Self {
+        let mut opaque_before = Vec::with_capacity(table.len() + 1);
+        let mut n = 0;
+        opaque_before.push(0);
+        for c in table {
+            n += (c[3] > 0.0) as u32;
+            opaque_before.push(n);
+        }
+        BrickFlags {
+            opaque_before,
+            focus,
+            uses_occlusion,
+        }
+    }
+
+    fn of(&self, r: [u16; 2]) -> u32 {
+        let n = self.opaque_before.len() - 1;
+        let (mn, mx) = widened(&r);
+        let first = ((mn * n as f32 - 0.5).floor().max(0.0)) as usize;
+        let last = ((mx * n as f32 + 0.5).ceil() as usize).min(n - 1);
+        let first = first.min(last);
+        let visible =
+            self.uses_occlusion || self.opaque_before[last + 1] > self.opaque_before[first];
+        (if visible { BRICK_VISIBLE } else { 0 })
+            | (if may_focus(&r, self.focus) {
+                BRICK_FOCUS
+            } else {
+                0
+            })
+    }
 }
 
 /// A volume in the brick cache is drawn by the ray caster, without object-space lines (their
 /// extraction reads the whole volume); say so in one sentence.
-fn check_paged(vol: &VolumeTextures, view: &View) -> Result<()> {
-    let Some(p) = &vol.paged else {
+fn check_paged(vol: VolumeRef, view: &View) -> Result<()> {
+    let Some(p) = vol.paged() else {
         return Ok(());
     };
     let budget = p.pool_bytes as f64 / (1 << 20) as f64;
@@ -975,14 +1035,14 @@ fn lod_of(camera: &FrameCamera, world: &WorldBox, size: [u32; 2], dims: [usize; 
 /// not wait for its bricks nor resume rays (the viewer's) reads nothing finer than what is resident, so it takes
 /// no more planes than that either: the first frames of a store, with its coarsest level only,
 /// are quick, and the planes follow the bricks in. `None`: the view as it is.
-fn paged_planes(vol: &VolumeTextures, view: &View) -> Option<View> {
-    let p = vol.paged.as_deref().filter(|p| !p.finest)?;
+fn paged_planes(vol: VolumeRef, view: &View) -> Option<View> {
+    let p = vol.paged().filter(|p| !p.finest)?;
     if view.slices.is_some() || view.raycast.is_none() {
         return None;
     }
-    let world = WorldBox::new(vol.dims, vol.spacing, &vol.geometry);
+    let world = WorldBox::new(vol.dims(), vol.spacing(), &vol.geometry());
     let camera = FrameCamera::new(&world, view);
-    let (a, b) = lod_of(&camera, &world, view.size, vol.dims);
+    let (a, b) = lod_of(&camera, &world, view.size, vol.dims());
     let nearest = (camera.eye - camera.eye.clamp(-world.half, world.half)).length();
     let cover = (a * nearest + b).max(1.0);
     let levels = p.levels.levels();

@@ -576,18 +576,25 @@ fn composed(
     Ok((composed_table(map, &otf.table()?, range)?, params))
 }
 
-impl GpuScene {
+/// A volume prepared for rendering through the brick cache: its pools, nothing resident yet,
+/// and the classification.
+pub struct PagedScene {
+    pub volume: crate::passes::paging::PagedVolume,
+    pub classify: GpuClassification,
+}
+
+impl PagedScene {
     /// A volume for the brick cache (`volume::bricks`, `passes::paging`): pools of `budget_bytes`,
     /// nothing resident yet, and the classification. Occlusion transfer functions and importance
     /// modulation read whole-volume passes and are refused in one sentence naming the budget.
-    pub fn prepare_bricked(
+    pub fn prepare(
         ctx: &Arc<Context>,
-        levels: crate::volume::bricks::BrickLevels,
+        levels: Arc<crate::volume::bricks::BrickLevels>,
         classification: &Classification,
         (focus, modulation): (Focus, &Modulation),
         budget_bytes: u64,
         finest: bool,
-    ) -> Result<GpuScene> {
+    ) -> Result<PagedScene> {
         focus.validate()?;
         let budget = budget_bytes as f64 / (1 << 20) as f64;
         if modulation.is_active() {
@@ -609,17 +616,14 @@ impl GpuScene {
                 )))
             }
         };
-        let volume = VolumeTextures::paged(ctx, levels, budget_bytes, finest)?;
+        let volume = crate::passes::paging::PagedVolume::new(ctx, levels, budget_bytes, finest)?;
         focus.check_in(volume.range)?;
         let classify = GpuClassification::new(ctx, &transfer, focus)?;
-        Ok(GpuScene {
-            volume,
-            classify,
-            passes: Vec::new(),
-            spectrum: None,
-        })
+        Ok(PagedScene { volume, classify })
     }
+}
 
+impl GpuScene {
     /// Uploads `v`, computes its normals (occlusion when the classification needs it, ΔD when
     /// `modulation` is active) in one submission, and creates the classification textures.
     pub fn prepare(

@@ -10,7 +10,6 @@
 //! box → clip is VP · R.
 
 use crate::error::{Error, Result};
-use crate::passes::normals::VolumeTextures;
 use crate::render::camera::Camera;
 use crate::render::style::Style;
 use crate::volume::geometry::Geometry;
@@ -189,8 +188,9 @@ impl WorldBox {
     }
 
     /// The box of a volume on the GPU.
-    pub fn of(vol: &VolumeTextures) -> Self {
-        WorldBox::new(vol.dims, vol.spacing, &vol.geometry)
+    pub fn of<'v>(vol: impl Into<crate::passes::gpu_volume::VolumeRef<'v>>) -> Self {
+        let vol = vol.into();
+        WorldBox::new(vol.dims(), vol.spacing(), &vol.geometry())
     }
 
     /// The radius of the bounding sphere, the camera's unit of distance.

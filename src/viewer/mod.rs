@@ -12,7 +12,6 @@
 //! change, one frame at full resolution follows and the loop goes idle until the next event.
 
 mod bench;
-mod stream;
 mod ui;
 
 use crate::classify::transfer::TransferFunction;
@@ -26,6 +25,8 @@ use crate::gpu::{
 };
 use crate::render::frame::Renderer;
 use crate::render::scene::{ClassificationSpec, GpuScene, InputSpec, NamedView, Scene};
+use crate::render::session::{Opened, Prepared, SessionOptions};
+use crate::render::stream::{Order, Streamer};
 use crate::render::targets::to_rgb8;
 use crate::render::targets::{FrameTargets, TargetsReadback};
 use crate::render::view::{frame_camera, View, WorldBox};
@@ -231,7 +232,7 @@ struct Loaded {
     /// The volume, or for a store streamed through the brick cache its coarsest level (which the
     /// histogram and range come from), with the pyramid in `levels`.
     volume: Volume,
-    levels: Option<crate::volume::bricks::BrickLevels>,
+    levels: Option<Arc<crate::volume::bricks::BrickLevels>>,
     classification: Classification,
     tf: TransferFunction,
     histogram: Vec<u64>,
@@ -240,28 +241,17 @@ struct Loaded {
     otf: Option<crate::classify::otf::OcclusionTf>,
 }
 
-/// A store whose textures exceed `budget` bytes: its pyramid for the brick cache and a level
-/// small enough to read whole (for the histogram), without reading level 0.
-fn open_streamed(
-    scene: &Scene,
-    budget: u64,
-) -> Result<Option<(crate::volume::bricks::BrickLevels, Volume)>> {
-    if scene.input.raw.is_some() {
-        return Ok(None);
-    }
-    let path = Path::new(&scene.input.path);
-    let Some(levels) = crate::volume::bricks::BrickLevels::of_store_beyond(path, budget)? else {
-        return Ok(None);
-    };
-    let small = levels.read_small_level(64 * 64 * 64)?;
-    Ok(Some((levels, small)))
-}
-
 fn load(scene: Scene, budget: u64) -> Result<Loaded> {
     let classification = scene.classification()?;
-    let (levels, volume) = match open_streamed(&scene, budget)? {
-        Some((levels, coarsest)) => (Some(levels), coarsest),
-        None => (None, scene.load_volume()?),
+    // The session's rule: a store beyond the budget is never read whole, and the level of at
+    // most 64³ voxels stands in for it on the host (histogram, range); a volume beyond it is
+    // drawn through the brick cache too.
+    let (levels, volume) = match Opened::open(&scene, None, budget, None)? {
+        Opened::Bricked(levels) => {
+            let small = levels.read_small_level(64 * 64 * 64)?;
+            (Some(levels), small)
+        }
+        Opened::InCore(v) => (None, v),
     };
     let s = crate::volume::stats::stats(&volume, 256);
     let range = levels.as_ref().map_or([s.min, s.max], |l| l.range);
@@ -294,13 +284,9 @@ fn load(scene: Scene, budget: u64) -> Result<Loaded> {
     })
 }
 
-/// The GPU state of a loaded volume: in core, or the brick cache's pools with a loader thread
-/// started on the coarsest level.
-fn prepare_gpu(
-    ctx: &Arc<Context>,
-    l: &mut Loaded,
-    budget: u64,
-) -> Result<(GpuScene, Option<stream::Streamer>)> {
+/// The GPU state of a loaded volume: in core, or the brick cache's pools with the streamer
+/// started on the coarsest level (and the scene made to ray-cast it).
+fn prepare_gpu(ctx: &Arc<Context>, l: &mut Loaded, budget: u64) -> Result<Prepared> {
     let modulation = l.scene.modulation.clone().unwrap_or_default();
     let Some(levels) = l.levels.take() else {
         let gpu = GpuScene::prepare(
@@ -310,22 +296,36 @@ fn prepare_gpu(
             l.scene.focus,
             &modulation,
         )?;
-        return Ok((gpu, None));
+        return Ok(Prepared::InCore(gpu));
     };
-    let focus = (l.scene.focus, &modulation);
-    let gpu = GpuScene::prepare_bricked(ctx, levels, &l.classification, focus, budget, false)?;
-    let paged = gpu
-        .volume
-        .paged
-        .as_deref()
-        .ok_or_else(|| Error::Invalid("the bricked volume has no cache".into()))?;
-    let mut s = stream::Streamer::new(paged.levels.clone());
-    s.start(paged);
+    let opts = SessionOptions::default();
+    let opened = Opened::Bricked(levels);
+    let prepared = Prepared::new(ctx, &l.scene, &l.classification, &opened, (budget, &opts))?;
     // The ray caster draws bricked volumes.
     if l.scene.raycast.is_none() {
         l.scene.raycast = Some(Default::default());
     }
-    Ok((gpu, Some(s)))
+    Ok(prepared)
+}
+
+/// Bricks uploaded per frame at most, so that a frame stays short while the view refines.
+pub const UPLOADS_PER_FRAME: usize = 24;
+
+/// The corner's line of a streamed volume: resident, requested and streamed bricks, and the
+/// sentence of bricks that could not be read (drawn from coarser levels instead).
+fn stream_status(s: &Streamer, paged: &crate::passes::paging::Paged) -> String {
+    let line = format!(
+        "bricks {}/{} resident, {} requested, {} streamed ({:.0} MiB)",
+        paged.cache.resident(),
+        paged.cache.capacity(),
+        s.outstanding(),
+        s.uploaded,
+        s.uploaded_bytes as f64 / (1 << 20) as f64
+    );
+    match &s.failure {
+        Some(f) => format!("{line}; drawn from coarser levels where bricks are missing: {f}"),
+        None => line,
+    }
 }
 
 /// Camera drag in progress.
@@ -377,10 +377,11 @@ struct GpuState {
     sampler: Sampler,
     targets: FrameTargets,
     renderer: Renderer,
-    /// The volume and its classification on the GPU.
-    scene: GpuScene,
-    /// The brick cache's loader, when the volume is streamed.
-    stream: Option<stream::Streamer>,
+    /// The volume and its classification on the GPU (with the streamer of a volume in the brick
+    /// cache).
+    scene: Prepared,
+    /// The view of the last frame drawn, whose eye orders the bricks its rays asked for.
+    last_view: Option<View>,
     /// GPU memory for a volume's textures; a store that needs more is streamed.
     budget: u64,
 }
@@ -690,14 +691,17 @@ fn egui_renderer(
 
 /// The panels' model for the first volume: its histogram, features, occlusion TF, spectrum and
 /// geometry, and the scene and TF files beside the screenshots.
-fn initial_model(loaded: &Loaded, gpu: &mut GpuScene, ctx: &Context, opts: &ViewOptions) -> Model {
+fn initial_model(loaded: &Loaded, gpu: &mut Prepared, ctx: &Context, opts: &ViewOptions) -> Model {
     let mut model = Model::new(loaded.scene.clone(), loaded.tf.clone());
     model.histogram = loaded.histogram.clone();
     model.features = loaded.features.clone();
     model.otf = loaded.otf.clone();
-    model.spectrum = gpu.spectrum.take();
+    model.spectrum = match gpu {
+        Prepared::InCore(g) => g.spectrum.take(),
+        Prepared::Paged(..) => None,
+    };
     model.range = loaded.range;
-    model.dims = gpu.volume.dims;
+    model.dims = gpu.volume().dims();
     model.oriented = loaded.volume.geometry.is_oriented();
     model.message = format!("{} on {}", loaded.scene.input.path, ctx.info.name);
     model.scene_path = opts
@@ -765,7 +769,7 @@ impl Running {
             Some(ctx.info.max_image_dimension_2d as usize),
         );
         let renderer = Renderer::new(&ctx)?;
-        let (mut gpu, stream) = prepare_gpu(&ctx, &mut loaded, budget)?;
+        let mut gpu = prepare_gpu(&ctx, &mut loaded, budget)?;
         let model = initial_model(&loaded, &mut gpu, &ctx, opts);
         let home = loaded.scene.camera.clone();
         Ok(Running {
@@ -779,7 +783,7 @@ impl Running {
                 targets: FrameTargets::new(&ctx),
                 renderer,
                 scene: gpu,
-                stream,
+                last_view: None,
                 budget,
             },
             session: Session {
@@ -913,7 +917,7 @@ impl Running {
     fn resolved_camera(&self) -> Result<crate::render::camera::Camera> {
         let mut view = self.session.model.scene.view(self.session.model.oriented)?;
         view.size = self.view_size();
-        Ok(frame_camera(&WorldBox::of(&self.gpu.scene.volume), &view))
+        Ok(frame_camera(&WorldBox::of(self.gpu.scene.volume()), &view))
     }
 
     /// Makes the scene's camera explicit (angles and distance) so that a drag can change it.
@@ -1008,25 +1012,27 @@ impl Running {
         let what = self.session.model.loading.take().unwrap_or_default();
         let budget = self.gpu.budget;
         let result = got.and_then(|mut l| {
-            let (gpu, stream) = prepare_gpu(&self.ctx, &mut l, budget)?;
-            Ok((l, gpu, stream))
+            let gpu = prepare_gpu(&self.ctx, &mut l, budget)?;
+            Ok((l, gpu))
         });
         match result {
-            Ok((l, mut gpu, stream)) => {
-                // The old loader and pools go with the old volume.
+            Ok((l, mut gpu)) => {
+                // The old loaders and pools go with the old volume.
                 self.gpu.frames.wait_idle().ok();
-                self.gpu.stream = stream;
                 self.session.generation += 1;
                 self.session.epoch += 1;
                 self.session.model.reopen(l.scene.clone(), l.tf.clone());
-                self.session.model.spectrum = gpu.spectrum.take();
+                self.session.model.spectrum = match &mut gpu {
+                    Prepared::InCore(g) => g.spectrum.take(),
+                    Prepared::Paged(..) => None,
+                };
                 self.session.model.otf = l.otf.clone();
                 self.session.applied_otf = l.otf.clone();
                 self.gpu.scene = gpu;
                 self.session.model.histogram = l.histogram;
                 self.session.model.features = l.features;
                 self.session.model.range = l.range;
-                self.session.model.dims = self.gpu.scene.volume.dims;
+                self.session.model.dims = self.gpu.scene.volume().dims();
                 self.session.model.oriented = l.volume.geometry.is_oriented();
                 self.session.model.message = format!("opened {what}");
                 self.session.home = l.scene.camera.clone();
@@ -1114,7 +1120,9 @@ impl Running {
         match attached {
             Ok((image, spectrum)) => {
                 // The old image may be in use by frames in flight: its release is deferred.
-                self.gpu.scene.volume.occlusion = Some(image);
+                if let Prepared::InCore(g) = &mut self.gpu.scene {
+                    g.volume.occlusion = Some(image);
+                }
                 self.session.epoch += 1;
                 self.session.model.spectrum = spectrum;
                 self.session.model.spectrum_texture = None;
@@ -1156,22 +1164,26 @@ impl Running {
         }
         if let Err(e) = s
             .focus
-            .check_in(self.gpu.scene.volume.range)
+            .check_in(self.gpu.scene.volume().range())
             .and(s.focus.validate())
         {
             self.session.model.message = e.to_string();
             self.session.model.scene.focus = self.session.applied.focus;
         }
-        self.gpu.scene.classify.focus = self.session.model.scene.focus;
+        self.gpu.scene.classify().focus = self.session.model.scene.focus;
         self.apply_occlusion()?;
         if self.session.model.tf != self.session.applied_tf {
-            self.gpu.scene.classify.set_transfer(&self.session.model.tf);
+            self.gpu
+                .scene
+                .classify()
+                .set_transfer(&self.session.model.tf);
             self.session.applied_tf = self.session.model.tf.clone();
         }
-        self.gpu.scene.classify.modulation = match &self.session.model.scene.modulation {
-            Some(m) if self.gpu.scene.volume.importance.is_some() => m.clone(),
+        let modulation = match &self.session.model.scene.modulation {
+            Some(m) if self.gpu.scene.volume().importance().is_some() => m.clone(),
             _ => Default::default(),
         };
+        self.gpu.scene.classify().modulation = modulation;
         self.session.applied = self.session.model.scene.clone();
         Ok(())
     }
@@ -1192,7 +1204,7 @@ impl Running {
         }
         if self.session.applied_otf.as_ref() != Some(&otf) {
             match otf.table() {
-                Ok(table) => self.gpu.scene.classify.set_occlusion_table(Some(table))?,
+                Ok(table) => self.gpu.scene.classify().set_occlusion_table(Some(table))?,
                 Err(e) => self.session.model.message = e.to_string(),
             }
             self.session.applied_otf = Some(otf);
@@ -1322,13 +1334,13 @@ impl Running {
     /// layers again), a readback for a screenshot, the present pass and egui; then presents.
     fn record_and_present(&mut self, ui: &UiFrame, view: Result<View>) -> Result<Option<Drawn>> {
         let slot = self.gpu.frames.next_slot()?;
-        // Bricks that arrived go up with this frame, which then draws anew.
-        let loads = match (
-            &mut self.gpu.stream,
-            self.gpu.scene.volume.paged.as_deref_mut(),
-        ) {
-            (Some(s), Some(p)) => s.arrivals(p)?,
-            _ => Vec::new(),
+        // Bricks that arrived go up with this frame, which then draws anew; a frame never
+        // waits for them.
+        let loads = match &mut self.gpu.scene {
+            Prepared::Paged(p, s) => {
+                s.arrivals(&mut p.volume.paged, UPLOADS_PER_FRAME, None, false)?
+            }
+            Prepared::InCore(_) => Vec::new(),
         };
         if !loads.is_empty() {
             self.session.epoch += 1;
@@ -1380,15 +1392,13 @@ impl Running {
         };
         let egui_renderer = &mut self.gpu.egui_renderer;
         let (_, index) = self.gpu.frames.frame_sync(|f| {
-            if let Some(p) = gpu.volume.paged.as_deref() {
-                let pools = [&gpu.volume.intensity, &gpu.volume.gradient];
-                p.record_loads(ctx, f, pools, &loads)?;
+            if let Prepared::Paged(p, _) = &*gpu {
+                crate::render::stream::record_arrivals(&p.volume, ctx, f, &loads)?;
             }
+            let (volume, classify) = gpu.parts();
             let drawn = match &view {
                 Ok(_) if reuse => Ok(()),
-                Ok(v) => renderer
-                    .record(f, &gpu.volume, &mut gpu.classify, v, targets)
-                    .map(|_| ()),
+                Ok(v) => renderer.record(f, volume, classify, v, targets).map(|_| ()),
                 Err(e) => Err(Error::Invalid(e.to_string())),
             };
             let drawn = drawn.map_err(|e| render_error = Some(e)).is_ok();
@@ -1410,6 +1420,9 @@ impl Running {
                 },
             ))
         })?;
+        if let (Ok(v), false, true) = (&view, reuse, self.gpu.scene.is_paged()) {
+            self.gpu.last_view = Some(v.clone());
+        }
         if !self.gpu.swapchain.present(&image)? {
             self.resize = true;
         }
@@ -1474,26 +1487,24 @@ impl Running {
         Ok(())
     }
 
-    /// After a frame completed: what its rays asked for goes to the loader, and the corner's
-    /// line says where the cache stands.
+    /// After a frame completed: what its rays asked for goes to the loaders (coarse levels
+    /// first, then nearest the eye), and the corner's line says where the cache stands.
     fn stream_requests(&mut self) -> Result<()> {
-        let (Some(s), Some(p)) = (
-            &mut self.gpu.stream,
-            self.gpu.scene.volume.paged.as_deref_mut(),
-        ) else {
+        let (Prepared::Paged(p, s), Some(view)) = (&mut self.gpu.scene, &self.gpu.last_view) else {
             self.session.model.streaming = None;
             return Ok(());
         };
-        let feedback = p.take_feedback()?;
-        p.cache.touch(&feedback.used);
-        s.request(p, &feedback.wanted);
-        self.session.model.streaming = Some(s.status(p));
+        let paged = &mut p.volume.paged;
+        let feedback = paged.take_feedback()?;
+        paged.cache.touch(&feedback.used);
+        s.request(paged, view, &feedback.wanted, Order::CoarseFirst);
+        self.session.model.streaming = Some(stream_status(s, paged));
         Ok(())
     }
 
     /// Whether bricks are on their way (the loop keeps drawing until they are up).
     fn streaming(&self) -> bool {
-        self.gpu.stream.as_ref().is_some_and(|s| s.requested() > 0)
+        matches!(&self.gpu.scene, Prepared::Paged(_, s) if s.outstanding() > 0)
     }
 
     /// What the frame leaves behind: the key of what it rendered, a refused setting rolled back

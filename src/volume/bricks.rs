@@ -25,9 +25,10 @@
 //! (used: loaded, or read by a frame that said so, [`BrickCache::touch`]).
 
 use crate::error::{Error, Result};
+use crate::volume::chunks::ChunkCache;
 use crate::volume::io::ome_zarr::Multiscale;
-use crate::volume::source::{read_box_clamped, BoxSource};
-use crate::volume::Volume;
+use crate::volume::source::BoxSource;
+use crate::volume::{Volume, VoxelData};
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -89,6 +90,37 @@ impl LevelSource {
     }
 }
 
+/// Edge of the box a brick travels to the GPU in: its slot and one more voxel on every side, which
+/// the Sobel operator of the slot's edge texels reads.
+pub const UPLOAD: usize = SLOT + 2;
+
+/// A brick's voxels as they travel: normalised u16, or 8-bit as they are.
+#[derive(Clone, Debug, PartialEq)]
+pub enum BrickData {
+    U8(Vec<u8>),
+    U16(Vec<u16>),
+}
+
+impl BrickData {
+    /// The bytes that travel.
+    pub fn bytes(&self) -> &[u8] {
+        match self {
+            BrickData::U8(v) => v,
+            BrickData::U16(v) => bytemuck::cast_slice(v),
+        }
+    }
+}
+
+/// One brick as it travels to the GPU (x fastest, [`UPLOAD`]³ voxels), the range of its slot's
+/// normalised texels (every trilinear sample inside the brick lies in it), and whether every
+/// voxel of the upload has one value (the slot is then that value throughout, its gradient 0).
+#[derive(Clone, Debug)]
+pub struct BrickVoxels {
+    pub data: BrickData,
+    pub range: [u16; 2],
+    pub constant: bool,
+}
+
 /// The texels of one brick and its apron, as the pool's slot holds them (x fastest).
 pub struct BrickTexels {
     pub intensity: Vec<u16>,
@@ -104,7 +136,12 @@ pub struct BrickLevels {
     pub range: [f64; 2],
     /// Level 0's placement (origin; a store has no directions).
     pub geometry: crate::volume::geometry::Geometry,
+    /// The store's decoded chunks, shared by the threads that read bricks.
+    chunks: ChunkCache,
 }
+
+/// Bytes of decoded chunks a pyramid keeps by default (`--memory-budget` sets it).
+pub const DEFAULT_CHUNK_CACHE: u64 = 256 << 20;
 
 impl BrickLevels {
     /// The pyramid of a volume in memory: the volume, then 2×2×2 means down to one brick.
@@ -187,6 +224,7 @@ impl BrickLevels {
             sources,
             range,
             geometry,
+            chunks: ChunkCache::new(DEFAULT_CHUNK_CACHE),
         })
     }
 
@@ -250,26 +288,107 @@ impl BrickLevels {
         })
     }
 
-    /// The texels of brick `key` and its apron.
-    pub fn texels(&self, key: BrickKey) -> Result<BrickTexels> {
-        let level = &self.levels[key.level];
-        let src = self.sources[key.level].source()?;
-        // The slot's texels and one more voxel on every side, which the Sobel operator reads.
+    /// The voxels of brick `key` as they travel to the GPU: the slot's texels and one more
+    /// voxel on every side (which the GPU's Sobel operator reads), normalised to u16 over
+    /// [`BrickLevels::range`] or, for 8-bit data, as they are (the GPU maps them through
+    /// [`BrickLevels::u8_table`]). Voxels outside the level repeat its nearest edge voxel.
+    pub fn voxels(&self, key: BrickKey) -> Result<BrickVoxels> {
+        let dims = self.levels[key.level].dims;
         let lo: [i64; 3] =
             std::array::from_fn(|a| (key.brick[a] * BRICK) as i64 - APRON as i64 - 1);
-        let n = SLOT + 2;
-        let values = read_box_clamped(&*src, lo, [n; 3])?;
-        let [lo_v, hi_v] = self.range;
-        let scale = if hi_v > lo_v {
-            65535.0 / (hi_v - lo_v)
-        } else {
-            0.0
+        let clamp = |v: i64, a: usize| v.clamp(0, dims[a] as i64 - 1) as usize;
+        let inner_lo: [usize; 3] = std::array::from_fn(|a| clamp(lo[a], a));
+        let inner_hi: [usize; 3] = std::array::from_fn(|a| clamp(lo[a] + UPLOAD as i64 - 1, a) + 1);
+        let size: [usize; 3] = std::array::from_fn(|a| inner_hi[a] - inner_lo[a]);
+        let inner = match &self.sources[key.level] {
+            LevelSource::Store(ms, l) => self.read_chunked(ms, *l, inner_lo, size)?,
+            LevelSource::Memory(v) => v.read_box(inner_lo, size)?,
         };
-        let norm: Vec<u16> = values
-            .iter()
-            .map(|&v| ((v as f64 - lo_v) * scale).round().clamp(0.0, 65535.0) as u16)
-            .collect();
-        let dims = level.dims;
+        let map: [Vec<usize>; 3] = std::array::from_fn(|a| {
+            (0..UPLOAD as i64)
+                .map(|i| clamp(lo[a] + i, a) - inner_lo[a])
+                .collect()
+        });
+        Ok(to_upload(
+            &inner,
+            &map,
+            self.range,
+            self.u8_table().as_ref(),
+        ))
+    }
+
+    /// Voxels `lo .. lo + size` of level `level` of `ms`, copied from its decoded chunks, each
+    /// decoded once while it stays in [`BrickLevels::chunks`].
+    fn read_chunked(
+        &self,
+        ms: &Multiscale,
+        level: usize,
+        lo: [usize; 3],
+        size: [usize; 3],
+    ) -> Result<Volume> {
+        let l = &ms.levels[level];
+        let (chunk, dims) = (l.chunk, l.dims);
+        let first: [usize; 3] = std::array::from_fn(|a| lo[a] / chunk[a]);
+        let last: [usize; 3] = std::array::from_fn(|a| (lo[a] + size[a] - 1) / chunk[a]);
+        let mut out = Volume::new(
+            size,
+            l.spacing,
+            VoxelData::zeros(ms.voxel, size.iter().product()),
+        )?;
+        for cz in first[2]..=last[2] {
+            for cy in first[1]..=last[1] {
+                for cx in first[0]..=last[0] {
+                    let c = [cx, cy, cz];
+                    let clo: [usize; 3] = std::array::from_fn(|a| c[a] * chunk[a]);
+                    let csize: [usize; 3] = std::array::from_fn(|a| chunk[a].min(dims[a] - clo[a]));
+                    let bytes = (csize.iter().product::<usize>() * ms.voxel.size()) as u64;
+                    let got = self
+                        .chunks
+                        .get((level, c), bytes, || ms.read_box(level, clo, csize))?;
+                    copy_box(&got, clo, &mut out, lo);
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// For 8-bit data, the normalised value of each voxel value (what [`Volume::normalised_u16`]
+    /// gives it over [`BrickLevels::range`]); `None` for wider data, normalised on the host.
+    pub fn u8_table(&self) -> Option<[u16; 256]> {
+        let u8_data = match &self.sources[0] {
+            LevelSource::Store(ms, _) => ms.voxel == crate::volume::VoxelType::U8,
+            LevelSource::Memory(v) => v.voxel_type() == crate::volume::VoxelType::U8,
+        };
+        u8_data.then(|| std::array::from_fn(|v| normalise(v as f64, self.range)))
+    }
+
+    /// The decoded chunks the bricks are read from.
+    pub fn chunks(&self) -> &ChunkCache {
+        &self.chunks
+    }
+
+    /// Keeps about `bytes` of decoded chunks from now on (the cache starts empty again).
+    pub fn set_chunk_budget(&mut self, bytes: u64) {
+        self.chunks = ChunkCache::new(bytes);
+    }
+
+    /// The texels of brick `key` and its apron as the pool's slot holds them, with Sobel
+    /// gradients made here: the CPU reference of what the GPU makes of [`BrickLevels::voxels`]
+    /// (`passes::paging`).
+    pub fn texels(&self, key: BrickKey) -> Result<BrickTexels> {
+        let level = &self.levels[key.level];
+        let voxels = self.voxels(key)?;
+        let table = self.u8_table();
+        let norm: Vec<u16> = match &voxels.data {
+            BrickData::U16(v) => v.clone(),
+            BrickData::U8(v) => v
+                .iter()
+                .map(|&b| table.map_or(0, |t| t[b as usize]))
+                .collect(),
+        };
+        let lo: [i64; 3] =
+            std::array::from_fn(|a| (key.brick[a] * BRICK) as i64 - APRON as i64 - 1);
+        let (n, dims) = (UPLOAD, level.dims);
         // A texel outside the level takes the gradient of the edge voxel it repeats.
         let at = |g: [i64; 3]| -> f32 {
             let c: [i64; 3] = std::array::from_fn(|a| g[a].clamp(0, dims[a] as i64 - 1) - lo[a]);
@@ -297,6 +416,117 @@ impl BrickLevels {
     }
 }
 
+/// `v` normalised to 0..=65535 over `[lo, hi]`, as [`Volume::normalised_u16_in`] maps it.
+fn normalise(v: f64, [lo, hi]: [f64; 2]) -> u16 {
+    let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+    ((v - lo) * scale).round().clamp(0.0, 65535.0) as u16
+}
+
+/// Copies the part of `src` (placed at `src_lo` in the level) that overlaps `dst` (at `dst_lo`).
+fn copy_box(src: &Volume, src_lo: [usize; 3], dst: &mut Volume, dst_lo: [usize; 3]) {
+    let lo: [usize; 3] = std::array::from_fn(|a| src_lo[a].max(dst_lo[a]));
+    let hi: [usize; 3] =
+        std::array::from_fn(|a| (src_lo[a] + src.dims[a]).min(dst_lo[a] + dst.dims[a]));
+    if (0..3).any(|a| lo[a] >= hi[a]) {
+        return;
+    }
+    let w = hi[0] - lo[0];
+    let (sd, dd) = (src.dims, dst.dims);
+    fn rows<T: Copy>(
+        s: &[T],
+        d: &mut [T],
+        (lo, hi, w): ([usize; 3], [usize; 3], usize),
+        (src_lo, sd): ([usize; 3], [usize; 3]),
+        (dst_lo, dd): ([usize; 3], [usize; 3]),
+    ) {
+        for z in lo[2]..hi[2] {
+            for y in lo[1]..hi[1] {
+                let si = (lo[0] - src_lo[0]) + sd[0] * ((y - src_lo[1]) + sd[1] * (z - src_lo[2]));
+                let di = (lo[0] - dst_lo[0]) + dd[0] * ((y - dst_lo[1]) + dd[1] * (z - dst_lo[2]));
+                d[di..di + w].copy_from_slice(&s[si..si + w]);
+            }
+        }
+    }
+    let span = (lo, hi, w);
+    match (&src.data, &mut dst.data) {
+        (VoxelData::U8(s), VoxelData::U8(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
+        (VoxelData::U16(s), VoxelData::U16(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
+        (VoxelData::I16(s), VoxelData::I16(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
+        (VoxelData::F32(s), VoxelData::F32(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
+        // A store's levels share one type (`Multiscale::open` checks it).
+        _ => {}
+    }
+}
+
+/// The upload of a brick from its `inner` voxels (the box clamped into the level), `map` giving
+/// for each of the [`UPLOAD`] positions per axis its index in `inner`: normalised over `range`,
+/// or 8-bit as it is with `table`. Also the range of the slot's texels and whether all are one.
+fn to_upload(
+    inner: &Volume,
+    map: &[Vec<usize>; 3],
+    range: [f64; 2],
+    table: Option<&[u16; 256]>,
+) -> BrickVoxels {
+    let d = inner.dims;
+    let n = UPLOAD * UPLOAD * UPLOAD;
+    let index = |x: usize, y: usize, z: usize| map[0][x] + d[0] * (map[1][y] + d[1] * map[2][z]);
+    fn fill<T: Copy, U>(
+        n: usize,
+        index: &dyn Fn(usize, usize, usize) -> usize,
+        src: &[T],
+        f: impl Fn(T) -> U,
+    ) -> Vec<U> {
+        let mut out = Vec::with_capacity(n);
+        for z in 0..UPLOAD {
+            for y in 0..UPLOAD {
+                for x in 0..UPLOAD {
+                    out.push(f(src[index(x, y, z)]));
+                }
+            }
+        }
+        out
+    }
+    let data = match (&inner.data, table) {
+        (VoxelData::U8(s), Some(_)) => BrickData::U8(fill(n, &index, s, |v| v)),
+        (VoxelData::U8(s), None) => {
+            BrickData::U16(fill(n, &index, s, |v| normalise(v as f64, range)))
+        }
+        (VoxelData::U16(s), _) => {
+            BrickData::U16(fill(n, &index, s, |v| normalise(v as f64, range)))
+        }
+        (VoxelData::I16(s), _) => {
+            BrickData::U16(fill(n, &index, s, |v| normalise(v as f64, range)))
+        }
+        (VoxelData::F32(s), _) => {
+            BrickData::U16(fill(n, &index, s, |v| normalise(v as f64, range)))
+        }
+    };
+    let value = |i: usize| match (&data, table) {
+        (BrickData::U16(v), _) => v[i],
+        (BrickData::U8(v), Some(t)) => t[v[i] as usize],
+        (BrickData::U8(v), None) => v[i] as u16,
+    };
+    // The slot's texels are the upload less its outer layer.
+    let (mut mn, mut mx) = (u16::MAX, 0u16);
+    for z in 1..UPLOAD - 1 {
+        for y in 1..UPLOAD - 1 {
+            let row = UPLOAD * (y + UPLOAD * z);
+            for x in 1..UPLOAD - 1 {
+                let v = value(row + x);
+                mn = mn.min(v);
+                mx = mx.max(v);
+            }
+        }
+    }
+    let first = value(0);
+    let constant = mn == mx && mn == first && (0..n).all(|i| value(i) == first);
+    BrickVoxels {
+        data,
+        range: [mn, mx],
+        constant,
+    }
+}
+
 /// The 3D Sobel gradient at voxel `c` of `at` (neighbours clamped by `at`), per unit of spacing,
 /// and its length, as half-float bits: `render/sobel_normals.comp` on the host.
 fn sobel(at: &dyn Fn([i64; 3]) -> f32, c: [i64; 3], inv_spacing: [f32; 3]) -> [u16; 4] {
@@ -320,18 +550,67 @@ fn sobel(at: &dyn Fn([i64; 3]) -> f32, c: [i64; 3], inv_spacing: [f32; 3]) -> [u
 /// Which brick is in which pool slot, and the page table that says so to the shader.
 pub struct BrickCache {
     capacity: usize,
-    /// Slots held for good by the coarsest level.
+    /// Slots held for good by the coarsest level (slots 0 .. pinned).
     pinned: usize,
+    /// The coarsest level's first entry: entries from here on are pinned.
+    pinned_from: usize,
     slot_of: HashMap<usize, usize>,
     owner: Vec<Option<usize>>,
+    /// Per slot: it holds one constant value for every brick of that value ([`BrickVoxels`]'s
+    /// `constant`), and is never evicted.
+    shared: Vec<bool>,
+    /// The slot of each constant value that has one.
+    constant: HashMap<u16, usize>,
     last_used: Vec<u64>,
     clock: u64,
     /// Per page-table entry: its slot + 1, or 0 when the brick is not resident.
     pub page_table: Vec<u32>,
-    /// Bricks loaded since the cache was made.
+    /// Per page-table entry: the range of its slot's texels once it has been read, else
+    /// [`UNKNOWN_RANGE`]; kept when the brick leaves, so that a frame can skip a brick it knows
+    /// to be empty without reading it again.
+    pub ranges: Vec<[u16; 2]>,
+    /// Bricks placed since the cache was made (uploaded, or sharing a constant slot).
     pub loaded: u64,
+    /// Of those, bricks that shared a constant slot and uploaded nothing.
+    pub shared_loads: u64,
     /// Bricks evicted since the cache was made.
     pub evicted: u64,
+}
+
+/// The range of an entry whose brick has not been read yet.
+pub const UNKNOWN_RANGE: [u16; 2] = [1, 0];
+
+/// Constant slots at most, as a share of the pool: a slot per value beyond them would crowd out
+/// the bricks that vary.
+const CONSTANT_SHARE: usize = 8;
+
+/// A brick the loaders read: its page-table entry, the range of its slot's texels and, when every
+/// voxel of it has one value, that value.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Arrival {
+    pub entry: usize,
+    pub range: [u16; 2],
+    pub constant: Option<u16>,
+}
+
+impl Arrival {
+    /// What [`BrickCache::place`] needs of brick `entry`'s voxels.
+    pub fn of(entry: usize, v: &BrickVoxels) -> Self {
+        Arrival {
+            entry,
+            range: v.range,
+            constant: v.constant.then_some(v.range[0]),
+        }
+    }
+}
+
+/// Where [`BrickCache::place`] put a brick.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum Placement {
+    /// In this slot, to be uploaded.
+    Upload(usize),
+    /// Sharing the constant slot of its value, already uploaded: nothing to upload.
+    Shared(usize),
 }
 
 /// The smallest pool that works: the coarsest level and one more brick.
@@ -347,19 +626,25 @@ impl BrickCache {
         let need = min_slots(levels);
         if capacity < need {
             return Err(Error::Invalid(format!(
-                "a GPU budget of {budget_mib} MiB holds {capacity} bricks; this volume needs at least {need} ({:.1} MiB: its coarsest level and one more brick)",
-                (need * SLOT_BYTES) as f64 / (1 << 20) as f64
+                "a GPU budget of {budget_mib} MiB holds {capacity} bricks; this volume needs at least {need}, so give --gpu-budget {:.1} or more (its coarsest level and one more brick)",
+                // Rounded up, so that the budget named holds them.
+                ((need * SLOT_BYTES) as f64 / (1 << 20) as f64 * 10.0).ceil() / 10.0
             )));
         }
         Ok(BrickCache {
             capacity,
             pinned: need - 1,
+            pinned_from: levels.levels.last().map_or(0, |l| l.first),
             slot_of: HashMap::new(),
             owner: vec![None; capacity],
+            shared: vec![false; capacity],
+            constant: HashMap::new(),
             last_used: vec![0; capacity],
             clock: 1,
             page_table: vec![0; levels.entries()],
+            ranges: vec![UNKNOWN_RANGE; levels.entries()],
             loaded: 0,
+            shared_loads: 0,
             evicted: 0,
         })
     }
@@ -368,9 +653,14 @@ impl BrickCache {
         self.capacity
     }
 
-    /// Bricks resident now.
+    /// Bricks resident now (those sharing a constant slot included).
     pub fn resident(&self) -> usize {
         self.slot_of.len()
+    }
+
+    /// Whether brick `entry` is resident.
+    pub fn is_resident(&self, entry: usize) -> bool {
+        self.page_table.get(entry).is_some_and(|&w| w != 0)
     }
 
     /// The finest level of `levels` with a resident brick.
@@ -388,43 +678,59 @@ impl BrickCache {
         (l.first..l.first + l.bricks()).collect()
     }
 
-    /// Decides which of the `wanted` entries (with how many rays asked for each) to load now,
-    /// at most `max` of them, most asked first: into free slots, else in place of the least
-    /// recently used bricks nobody asked for this time. The page table is updated at once (the
-    /// caller uploads the bricks before the frame that reads it). Returns (entry, slot) pairs.
-    pub fn plan(&mut self, wanted: &[(usize, u32)], max: usize) -> Vec<(usize, usize)> {
+    /// Gives slots to the bricks of `batch` that the loaders read: a brick of one value shares
+    /// the slot of that value (uploaded once, never evicted; as many values as an eighth of the
+    /// pool), any other takes a free slot or the least recently used one, never one placed in
+    /// this batch nor a pinned one. The page table is updated at once (the caller uploads the
+    /// bricks before the frame that reads it). `None` for a brick that found no slot.
+    pub fn place(&mut self, batch: &[Arrival]) -> Vec<Option<Placement>> {
         self.clock += 1;
-        let mut order: Vec<(usize, u32)> = wanted.to_vec();
-        order.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
-        for (e, _) in &order {
-            if let Some(&s) = self.slot_of.get(e) {
-                self.last_used[s] = self.clock;
+        batch.iter().map(|a| self.place_one(a)).collect()
+    }
+
+    fn place_one(&mut self, a: &Arrival) -> Option<Placement> {
+        let e = a.entry;
+        if e >= self.page_table.len() {
+            return None;
+        }
+        self.ranges[e] = a.range;
+        if let Some(&s) = self.slot_of.get(&e) {
+            self.last_used[s] = self.clock;
+            return None;
+        }
+        let pinned = e >= self.pinned_from;
+        if let (Some(v), false) = (a.constant, pinned) {
+            if let Some(&s) = self.constant.get(&v) {
+                self.assign(e, s);
+                self.shared_loads += 1;
+                return Some(Placement::Shared(s));
             }
         }
-        let mut loads = Vec::new();
-        for (e, _) in order {
-            if loads.len() == max {
-                break;
-            }
-            if self.slot_of.contains_key(&e) || e >= self.page_table.len() {
-                continue;
-            }
-            let Some(slot) = self.free_or_victim() else {
-                break;
-            };
-            if let Some(old) = self.owner[slot].take() {
-                self.slot_of.remove(&old);
-                self.page_table[old] = 0;
-                self.evicted += 1;
-            }
-            self.owner[slot] = Some(e);
-            self.slot_of.insert(e, slot);
-            self.last_used[slot] = self.clock;
-            self.page_table[e] = slot as u32 + 1;
-            self.loaded += 1;
-            loads.push((e, slot));
+        let slot = self.free_or_victim(pinned)?;
+        if let Some(old) = self.owner[slot].take() {
+            self.slot_of.remove(&old);
+            self.page_table[old] = 0;
+            self.evicted += 1;
         }
-        loads
+        let share = a
+            .constant
+            .filter(|_| !pinned && self.constant.len() < self.capacity / CONSTANT_SHARE);
+        match share {
+            Some(v) => {
+                self.shared[slot] = true;
+                self.constant.insert(v, slot);
+            }
+            None => self.owner[slot] = Some(e),
+        }
+        self.assign(e, slot);
+        Some(Placement::Upload(slot))
+    }
+
+    fn assign(&mut self, e: usize, slot: usize) {
+        self.slot_of.insert(e, slot);
+        self.last_used[slot] = self.clock;
+        self.page_table[e] = slot as u32 + 1;
+        self.loaded += 1;
     }
 
     /// Marks the resident bricks of `entries` as used now: the last to be evicted.
@@ -437,20 +743,24 @@ impl BrickCache {
         }
     }
 
-    /// A free slot, or the least recently used one that was not asked for this time (never a
-    /// pinned one).
-    fn free_or_victim(&self) -> Option<usize> {
-        let range = if self.slot_of.len() < self.pinned {
-            0..self.pinned
-        } else {
-            self.pinned..self.capacity
+    /// A free slot, or the least recently used one that was not placed or used in this batch
+    /// (never a pinned one, nor one shared by a constant value).
+    fn free_or_victim(&self, pinned: bool) -> Option<usize> {
+        let range = match pinned {
+            true => 0..self.pinned,
+            false => self.pinned..self.capacity,
         };
-        let slots = || range.clone();
-        slots().find(|&s| self.owner[s].is_none()).or_else(|| {
-            slots()
-                .filter(|&s| self.last_used[s] < self.clock)
-                .min_by_key(|&s| self.last_used[s])
-        })
+        let open = |s: &usize| !self.shared[*s];
+        range
+            .clone()
+            .filter(open)
+            .find(|&s| self.owner[s].is_none())
+            .or_else(|| {
+                range
+                    .filter(open)
+                    .filter(|&s| self.last_used[s] < self.clock)
+                    .min_by_key(|&s| self.last_used[s])
+            })
     }
 }
 
@@ -500,32 +810,107 @@ mod tests {
         assert_ne!(b.gradient.iter().filter(|g| g[3] != 0).count(), 0);
     }
 
+    fn arrive(entry: usize) -> Arrival {
+        Arrival {
+            entry,
+            range: [0, 9],
+            constant: None,
+        }
+    }
+
     #[test]
     fn the_cache_pins_the_coarsest_level_and_evicts_the_least_recently_used() {
         let levels = BrickLevels::of_volume(shepp_logan(64)).unwrap();
         let refused = BrickCache::new(&levels, 1, 0.4)
             .err()
             .map(|e| e.to_string());
-        assert!(refused.is_some_and(|e| e.contains("at least 2")));
+        assert!(refused.is_some_and(|e| e.contains("at least 2") && e.contains("--gpu-budget 0.8")));
         let mut cache = BrickCache::new(&levels, 3, 1.2).unwrap();
         let pinned = BrickCache::pinned_entries(&levels);
         assert_eq!(pinned, vec![8]);
-        assert_eq!(cache.plan(&[(8, 1)], 8), vec![(8, 0)]);
-        assert_eq!(cache.plan(&[(0, 5), (1, 9)], 8), vec![(1, 1), (0, 2)]);
-        // Brick 1 asked for again, 2 new: 0 is the victim; then 3 replaces 1, never 8.
-        assert_eq!(cache.plan(&[(1, 1), (2, 1)], 8), vec![(2, 2)]);
-        assert_eq!(cache.plan(&[(3, 1)], 8), vec![(3, 1)]);
+        let up = |s| Some(Placement::Upload(s));
+        assert_eq!(cache.place(&[arrive(8)]), vec![up(0)]);
+        assert_eq!(cache.place(&[arrive(1), arrive(0)]), vec![up(1), up(2)]);
+        // Brick 1 used again, 2 new: 0 is the victim; then 3 replaces 1, never 8.
+        cache.touch(&[1]);
+        assert_eq!(cache.place(&[arrive(2)]), vec![up(2)]);
+        assert_eq!(cache.place(&[arrive(3)]), vec![up(1)]);
         assert_eq!(cache.page_table[8], 1);
         assert_eq!(cache.page_table[0], 0);
         assert_eq!(cache.page_table[3], 2);
         assert_eq!((cache.loaded, cache.evicted), (5, 2));
-        // Everything asked for at once: only what fits this time.
-        assert_eq!(cache.plan(&[(4, 1), (5, 1), (6, 1)], 8).len(), 2);
+        // Three at once into two evictable slots: the third finds none placed before it.
+        let got = cache.place(&[arrive(4), arrive(5), arrive(6)]);
+        assert_eq!(got.iter().filter(|p| p.is_some()).count(), 2);
         // A brick a frame read goes after one nobody read since.
         let (a, b) = (cache.page_table[4], cache.page_table[5]);
         assert!(a != 0 && b != 0);
         cache.touch(&[4]);
-        assert_eq!(cache.plan(&[(7, 1)], 8), vec![(7, b as usize - 1)]);
+        assert_eq!(cache.place(&[arrive(7)]), vec![up(b as usize - 1)]);
         assert_eq!(cache.page_table[4], a, "the touched brick stays");
+        assert_eq!(cache.ranges[7], [0, 9]);
+        assert_eq!(cache.ranges[5], [0, 9], "a range outlives its brick");
+        assert_eq!(
+            cache.ranges[6],
+            [0, 9],
+            "known once read, with or without a slot"
+        );
+        assert_eq!(
+            BrickCache::new(&levels, 3, 1.2).unwrap().ranges[0],
+            UNKNOWN_RANGE
+        );
+    }
+
+    #[test]
+    fn bricks_of_one_value_share_a_slot() {
+        let levels = BrickLevels::of_volume(shepp_logan(96)).unwrap();
+        let mut cache = BrickCache::new(&levels, 16, 6.0).unwrap();
+        let flat = |entry, v| Arrival {
+            entry,
+            range: [v, v],
+            constant: Some(v),
+        };
+        let got = cache.place(&[flat(0, 7), flat(1, 7), flat(2, 8), arrive(3), flat(4, 7)]);
+        let Some(Placement::Upload(s7)) = got[0] else {
+            panic!("the first brick of a value is uploaded: {got:?}")
+        };
+        assert_eq!(got[1], Some(Placement::Shared(s7)));
+        assert!(matches!(got[2], Some(Placement::Upload(s)) if s != s7));
+        assert_eq!(got[4], Some(Placement::Shared(s7)));
+        assert_eq!(cache.shared_loads, 2);
+        // Shared slots are never victims: fill the rest of the pool many times over.
+        for e in 5..60 {
+            cache.place(&[arrive(e)]);
+        }
+        assert_eq!(cache.page_table[1], s7 as u32 + 1);
+        assert_eq!(cache.page_table[0], s7 as u32 + 1);
+    }
+
+    #[test]
+    fn brick_voxels_of_a_store_are_those_of_the_volume() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.ome.zarr");
+        let v = shepp_logan(70);
+        let opts = crate::volume::io::ome_zarr::WriteOptions {
+            chunk: 24,
+            ..Default::default()
+        };
+        crate::volume::io::ome_zarr::write(&path, &v, &opts).unwrap();
+        let ms = Arc::new(Multiscale::open(&path).unwrap());
+        let from_store = BrickLevels::of_store(ms, 1 << 26).unwrap();
+        let in_memory = BrickLevels::of_volume(v).unwrap();
+        for brick in [[0, 0, 0], [1, 2, 1], [2, 2, 2]] {
+            let key = BrickKey { level: 0, brick };
+            let (a, b) = (
+                from_store.voxels(key).unwrap(),
+                in_memory.voxels(key).unwrap(),
+            );
+            assert_eq!(a.data, b.data, "{brick:?}");
+            assert_eq!(a.range, b.range);
+        }
+        // The 12 chunks of level 0 the three bricks touch (8, 4 more, none more), each decoded
+        // once however many bricks read it.
+        let st = from_store.chunks().stats();
+        assert_eq!((st.decoded, st.hits), (12, 1));
     }
 }

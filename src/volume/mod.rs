@@ -4,6 +4,7 @@
 //! Voxel order is x fastest, then y, then z, as in NRRD and NIfTI files on disk.
 
 pub mod bricks;
+pub mod chunks;
 pub mod feature;
 pub mod geometry;
 pub mod io;
@@ -14,6 +15,7 @@ pub mod resample;
 pub mod slices;
 pub mod source;
 pub mod stats;
+pub mod stream;
 
 use crate::error::{Error, Result};
 
@@ -71,6 +73,16 @@ pub enum VoxelData {
 }
 
 impl VoxelData {
+    /// `n` zero voxels of type `t`.
+    pub fn zeros(t: VoxelType, n: usize) -> Self {
+        match t {
+            VoxelType::U8 => VoxelData::U8(vec![0; n]),
+            VoxelType::U16 => VoxelData::U16(vec![0; n]),
+            VoxelType::I16 => VoxelData::I16(vec![0; n]),
+            VoxelType::F32 => VoxelData::F32(vec![0.0; n]),
+        }
+    }
+
     /// The type of the stored voxels.
     pub fn voxel_type(&self) -> VoxelType {
         match self {

@@ -225,6 +225,14 @@ pub(crate) struct RenderArgs {
     /// pixel at the sample) or finest (level 0 everywhere).
     #[arg(long, default_value = "auto", value_name = "auto|finest")]
     pub(crate) lod: String,
+    /// Brick cache: write each refinement of the frame into this folder (progress_000.png, ...):
+    /// the first frame drawn from the coarsest level, then one after each pass.
+    #[arg(long, value_name = "DIR")]
+    pub(crate) progress_frames: Option<PathBuf>,
+    /// Brick cache: host memory in MiB for decoded chunks and bricks waiting for the GPU
+    /// (default 320: 256 of chunks, 64 of bricks).
+    #[arg(long, value_name = "MiB")]
+    pub(crate) memory_budget: Option<f64>,
     /// Under mpirun: how the ranks' partial frames are composited, auto (direct send),
     /// direct-send or binary-swap (a power of two of ranks).
     #[arg(long, value_name = "auto|direct-send|binary-swap")]

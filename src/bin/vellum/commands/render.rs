@@ -5,6 +5,7 @@ use crate::commands::{context, inputs_key, passes_json, report_validation, toget
 use anyhow::Result;
 use serde_json::json;
 use vellum::render::scene::GpuScene;
+use vellum::render::session::{Opened, Session, SessionOptions};
 use vellum::team::Team;
 
 pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
@@ -136,10 +137,11 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
         .classification()
         .map_err(|e| from("classification", e))?;
     let ctx = together(team, context(cli))?;
+    let opts = session_options(a)?;
     let budget = vellum::render::bricked::gpu_budget_bytes(&ctx, a.gpu_budget)?;
     let input = together(
         team,
-        open_input(&scene, budget).map_err(|e| from("input", e)),
+        Opened::open(&scene, None, budget, opts.chunk_cache_bytes).map_err(|e| from("input", e)),
     )?;
     let grid = input.grid();
     team.same_inputs(inputs_key(&(&scene.input.path, grid.0)))?;
@@ -149,7 +151,7 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
     let shared = match team.size() {
         1 => None,
         _ => {
-            let weights = together(team, input.cell_weights().map_err(anyhow::Error::from))?;
+            let weights = together(team, cell_weights(&input, grid.0))?;
             Some(share(team, &mut view, (grid, &weights), a)?)
         }
     };
@@ -158,9 +160,9 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
         draw(
             &ctx,
             (&scene, &classification),
-            input,
+            &input,
             &mut view,
-            (a, budget),
+            (a, budget, &opts),
         ),
     );
     let (frame, prepare_passes, stream) = drawn?;
@@ -196,14 +198,25 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
         );
         if let Some(r) = &stream {
             println!(
-                "  brick cache: {} passes, {} bricks loaded ({:.1} MiB), {} evicted, {} of {} slots resident ({:.1} MiB pool), {:.0} ms",
+                "  brick cache: {} passes, {} bricks loaded for {} touched ({} of one value, sharing a slot), {:.1} MiB uploaded, {} evicted, {} of {} slots resident ({:.1} MiB pool)",
                 r.passes,
                 r.bricks_loaded,
+                r.bricks_touched,
+                r.bricks_shared,
                 r.bytes_streamed as f64 / (1 << 20) as f64,
                 r.bricks_evicted,
                 r.resident,
                 r.capacity,
                 r.pool_bytes as f64 / (1 << 20) as f64,
+            );
+            println!(
+                "  streaming: {} chunks decoded ({:.0} MiB/s of source voxels), loaders busy {:.0} ms, GPU {:.0} ms, both {:.0}% of the frame; first frame {:.0} ms, complete {:.0} ms",
+                r.chunks_decoded,
+                r.source_mib_per_s,
+                r.host_ms,
+                r.gpu_ms,
+                100.0 * r.both_share,
+                r.first_frame_ms,
                 r.total_ms
             );
         }
@@ -231,62 +244,82 @@ type Drawn = (
     Option<vellum::render::bricked::StreamReport>,
 );
 
-/// Draws the frame of `view`: in core, or through the brick cache (waiting for its bricks).
+/// The session's options from the flags: the GPU budget, the level of detail, and the host
+/// memory of the brick cache's streaming (four fifths for decoded chunks, the rest for bricks
+/// waiting for the GPU).
+fn session_options(a: &RenderArgs) -> Result<SessionOptions> {
+    let memory = match a.memory_budget {
+        None => 320u64 << 20,
+        Some(m) if m.is_finite() && m >= 1.0 => (m * (1u64 << 20) as f64) as u64,
+        Some(m) => anyhow::bail!("--memory-budget {m} is invalid; expected at least 1 MiB"),
+    };
+    Ok(SessionOptions {
+        gpu_budget_mib: a.gpu_budget,
+        lod: vellum::render::session::Lod::parse(&a.lod)?,
+        stream: vellum::render::stream::StreamOptions {
+            ready_bytes: memory / 5,
+            ..Default::default()
+        },
+        chunk_cache_bytes: Some(memory - memory / 5),
+    })
+}
+
+/// Draws the frame of `view` through the session: in core, or through the brick cache (waiting
+/// for its bricks, and writing the refinements when asked).
 fn draw(
     ctx: &std::sync::Arc<vellum::gpu::Context>,
     (scene, classification): (
         &vellum::render::scene::Scene,
         &vellum::classify::Classification,
     ),
-    input: Input,
+    input: &Opened,
     view: &mut vellum::render::view::View,
-    (a, budget): (&RenderArgs, u64),
+    (a, budget, opts): (&RenderArgs, u64, &SessionOptions),
 ) -> Result<Drawn> {
-    use vellum::render::frame::Renderer;
-    let modulation = scene.modulation.clone().unwrap_or_default();
-    match input {
-        Input::InCore(v) => {
-            let mut gpu = GpuScene::prepare(ctx, &v, classification, scene.focus, &modulation)?;
-            let frame =
-                Renderer::new(ctx)?.render_frame(&gpu.volume, &mut gpu.classify, view, true)?;
-            Ok((frame, gpu.passes, None))
-        }
-        Input::Bricked(levels) => {
-            let finest = match a.lod.as_str() {
-                "auto" => false,
-                "finest" => true,
-                other => anyhow::bail!("--lod {other:?} is unknown; expected auto or finest"),
-            };
-            let mut gpu = GpuScene::prepare_bricked(
-                ctx,
-                levels,
-                classification,
-                (scene.focus, &modulation),
-                budget,
-                finest,
-            )?;
-            if view.raycast.is_none() {
-                let mib = budget as f64 / (1 << 20) as f64;
-                eprintln!("the volume is larger than the GPU budget ({mib:.0} MiB): the ray caster draws it through the brick cache");
-                view.raycast = Some(Default::default());
-            }
-            let wait = a.max_wait_ms.map(std::time::Duration::from_millis);
-            let (frame, report) = Renderer::new(ctx)?.render_bricked(
-                &mut gpu.volume,
-                &mut gpu.classify,
-                view,
-                wait,
-            )?;
-            if !report.complete {
-                eprintln!(
-                    "the frame is not complete: --max-wait-ms {} ran out after {} passes, so bricks still missing were drawn from coarser levels",
-                    a.max_wait_ms.unwrap_or(0),
-                    report.passes
-                );
-            }
-            Ok((frame, Vec::new(), Some(report)))
-        }
+    use vellum::render::bricked::StillOptions;
+    let mut session = Session::prepare(ctx, scene, classification, input, (budget, opts))?;
+    let (drawn, note) = session.view(view.clone());
+    if let Some(note) = note {
+        eprintln!("{note}");
     }
+    *view = drawn;
+    if !session.prepared.is_paged()
+        && (a.lod != "auto" || a.max_wait_ms.is_some() || a.progress_frames.is_some())
+    {
+        eprintln!("note: --lod, --max-wait-ms and --progress-frames apply to a volume drawn through the brick cache; this one fits the GPU budget and is drawn whole");
+    }
+    let mut written = 0usize;
+    let background = scene.background;
+    let mut write = |image: &vellum::render::targets::FrameImage| -> vellum::Result<()> {
+        let Some(dir) = &a.progress_frames else {
+            return Ok(());
+        };
+        std::fs::create_dir_all(dir).map_err(|e| vellum::Error::Io {
+            path: dir.clone(),
+            cause: e,
+        })?;
+        let [w, h] = image.size;
+        let path = dir.join(format!("progress_{written:03}.png"));
+        written += 1;
+        let rgb = vellum::render::targets::to_rgb8(&image.composite, background);
+        vellum::output::write_png_rgb(&path, w, h, &rgb)
+    };
+    let still = StillOptions {
+        max_wait: a.max_wait_ms.map(std::time::Duration::from_millis),
+        progress: match a.progress_frames {
+            Some(_) => Some(&mut write),
+            None => None,
+        },
+    };
+    let (frame, report) = session.still(view, still)?;
+    if let Some(r) = report.as_ref().filter(|r| !r.complete) {
+        eprintln!(
+            "the frame is not complete: --max-wait-ms {} ran out after {} passes, so bricks still missing were drawn from coarser levels",
+            a.max_wait_ms.unwrap_or(0),
+            r.passes
+        );
+    }
+    Ok((frame, session.prepared.passes().to_vec(), report))
 }
 
 /// This rank's part of a shared frame: the style kept for rank 0, the ranks' order.
@@ -373,46 +406,9 @@ fn composite(
 /// Level 0's dims, spacing and placement.
 type Grid = ([usize; 3], [f64; 3], vellum::volume::geometry::Geometry);
 
-/// The input of a render: whole in memory and on the GPU, or through the brick cache.
-enum Input {
-    InCore(vellum::volume::Volume),
-    Bricked(vellum::volume::bricks::BrickLevels),
-}
-
-impl Input {
-    /// The weights the ranks' regions balance (`sortlast::cell_weights`): from the volume in
-    /// core, or from a level of at most 64³ voxels of the pyramid.
-    fn cell_weights(&self) -> vellum::Result<Vec<f64>> {
-        use vellum::render::sortlast::cell_weights;
-        let dims = self.grid().0;
-        match self {
-            Input::InCore(v) => Ok(cell_weights(v, dims)),
-            Input::Bricked(b) => Ok(cell_weights(&b.read_small_level(1 << 18)?, dims)),
-        }
-    }
-
-    /// Level 0's dims, spacing and placement.
-    fn grid(&self) -> Grid {
-        match self {
-            Input::InCore(v) => (v.dims, v.spacing, v.geometry),
-            Input::Bricked(b) => (b.levels()[0].dims, b.levels()[0].spacing, b.geometry),
-        }
-    }
-}
-
-/// Opens the scene's input: a store whose textures do not fit `budget` is never read whole;
-/// any other input is read and goes to the brick cache when its textures do not fit.
-fn open_input(scene: &vellum::render::scene::Scene, budget: u64) -> vellum::Result<Input> {
-    use vellum::volume::bricks::{in_core_bytes, BrickLevels};
-    let path = std::path::Path::new(&scene.input.path);
-    if scene.input.raw.is_none() {
-        if let Some(levels) = BrickLevels::of_store_beyond(path, budget)? {
-            return Ok(Input::Bricked(levels));
-        }
-    }
-    let v = scene.load_volume()?;
-    if in_core_bytes(v.dims) > budget {
-        return Ok(Input::Bricked(BrickLevels::of_volume(v)?));
-    }
-    Ok(Input::InCore(v))
+/// The weights the ranks' regions balance (`sortlast::cell_weights`): from the volume in core,
+/// or from a level of at most 64³ voxels of the pyramid.
+fn cell_weights(input: &Opened, dims: [usize; 3]) -> Result<Vec<f64>> {
+    let small = input.small(1 << 18)?;
+    Ok(vellum::render::sortlast::cell_weights(&small, dims))
 }
