@@ -47,10 +47,11 @@ const uint MODE_RESUME = 2u;
 uint last_wanted = 0xffffffffu;
 uint last_used = 0xffffffffu;
 const uint USED_BIT = 0x80000000u;
-// A page-table word: the slot + 1 in the low bits; KNOWN: the brick's range is known, and bits 24
-// and 25 say whether it may hold visible context (or one-pass) samples and focus.
-const uint SLOT_MASK = 0xffffffu;
+// A page-table word: RESIDENT, with the brick's slot along x, y and z of the pool in bits 0-7,
+// 8-15 and 16-23; KNOWN: the brick's range is known, and bits 24 and 25 say whether it may hold
+// visible context (or one-pass) samples and focus.
 const uint KNOWN = 0x4000000u;
+const uint RESIDENT = 0x8000000u;
 // What locate() found: a place to sample, a missing brick the ray waits for, or a brick that
 // holds nothing for the ray, which it walks past up to `skip_t`.
 const int FOUND = 0;
@@ -76,20 +77,36 @@ int pt_levels;
 float pt_brick;
 int pt_slot_edge;
 uint pt_mode;
-int pt_gx, pt_gy;
 float pt_cover_a, pt_cover_b;
-vec3 pool_size;
+vec3 pool_size, inv_pool;
 
 void read_header() {
     pt_levels = int(pt[0]);
     pt_brick = float(pt[1]);
     pt_slot_edge = int(pt[2]);
     pt_mode = pt[3];
-    pt_gx = int(pt[4]);
-    pt_gy = int(pt[5]);
     pt_cover_a = uintBitsToFloat(pt[6]);
     pt_cover_b = uintBitsToFloat(pt[7]);
     pool_size = vec3(textureSize(volume, 0));
+    inv_pool = 1.0 / pool_size;
+}
+
+// The texel of the pool where the brick of page-table word `w` starts (its slot's first texel is
+// its apron's).
+vec3 slot_origin(uint w) {
+    uvec3 s = uvec3(w, w >> 8u, w >> 16u) & 0xffu;
+    return vec3(s) * float(pt_slot_edge) + 1.0;
+}
+
+// A frame that does not wait says which resident bricks it read, so that the cache evicts the
+// ones no view uses (the top bit; a missing brick's word says 1). Plain stores, no atomics: every
+// ray writes the same value to a word, resident and missing bricks are different words, and a
+// CPU device runs an atomic lane by lane.
+void mark_used(uint e) {
+    if ((pt_mode & MODE_WAIT) == 0u && e != last_used) {
+        wanted[e] = USED_BIT;
+        last_used = e;
+    }
 }
 
 // The level the last sample wanted, with its header, and (V_BRICK_REUSE) the brick it read there
@@ -97,7 +114,7 @@ void read_header() {
 // the wanted level and the brick stay the same.
 int c_level = -1;
 ivec3 c_counts;
-vec3 c_scale;
+vec3 c_scale, c_inv_scale;
 uint c_first;
 float c_ratio;
 bool c_hit = false;
@@ -111,7 +128,7 @@ vec3 c_offset;
 // ray_tex0 + t ray_dtex, and its distance from the eye is sqrt(t² + 2 ray_k t + ray_q): ray_k and
 // ray_q are dir · (o − eye) and |o − eye|².
 float ray_t;
-vec3 ray_tex0, ray_dtex;
+vec3 ray_tex0, ray_dtex, ray_inv_dtex;
 float ray_k, ray_q;
 float c_from = INF, c_until = -INF;
 vec3 c_base, c_step;
@@ -122,35 +139,49 @@ float t_at_distance(float dist) {
     return -ray_k + sqrt(max(ray_k * ray_k - ray_q + dist * dist, 0.0));
 }
 
+// Per level L ≥ 1, the ray parameter from which its samples want level L or coarser: where the
+// footprint a·d + b reaches 2^L (the finest level below 2, the coarsest above its floor). Made once
+// per ray, so that a sample's level is a few compares and the stretch of a lookup ends exactly
+// where the next level begins. (With no distance term the level is the same all along the ray.)
+float level_from[16];
+
+void level_thresholds() {
+    for (int l = 1; l < pt_levels; ++l) {
+        float reach = exp2(float(l));
+        if (pt_cover_a > 0.0) {
+            float d = (reach - pt_cover_b) / pt_cover_a;
+            level_from[l] = d > 0.0 ? t_at_distance(d) : -INF;
+        } else {
+            level_from[l] = pt_cover_b >= reach ? -INF : INF;
+        }
+    }
+}
+
+// The level the sample at ray parameter t wants.
+int level_at(float t) {
+    int want = 0;
+    for (int l = 1; l < pt_levels; ++l) {
+        want += t >= level_from[l] ? 1 : 0;
+    }
+    return want;
+}
+
 // The stretch [from, until) of the ray parameter over which the samples stay in brick b of level
 // `want` (whose texture coordinates scale to its voxels by c_scale) and keep wanting that level.
 vec2 lookup_span(int want, ivec3 b) {
-    // The level: `want` holds while the footprint a·d + b stays in [2^want, 2^(want+1)), the
-    // finest level below 2 and the coarsest above its floor.
-    // (With no distance term the level is the same all along the ray.)
-    float from = pt_cover_a > 0.0 ? -ray_k : -INF, until = INF;
-    if (pt_cover_a > 0.0) {
-        // (A footprint whose constant term alone reaches 2^want leaves no lower bound.)
-        float near = (exp2(float(want)) - pt_cover_b) / pt_cover_a;
-        if (want > 0 && near > 0.0) {
-            from = max(from, t_at_distance(near));
-        }
-        if (want < pt_levels - 1) {
-            until = t_at_distance((exp2(float(want + 1)) - pt_cover_b) / pt_cover_a);
-        }
-    }
+    float from = want > 0 ? level_from[want] : -INF;
+    float until = want + 1 < pt_levels ? level_from[want + 1] : INF;
     // The brick: the slab of voxels [32 b, 32 (b + 1)) on each axis, open outwards at the
     // volume's faces, where the lookup clamps.
-    vec3 v0 = ray_tex0 * c_scale, dv = ray_dtex * c_scale;
+    vec3 v0 = ray_tex0 * c_scale, inv_dv = ray_inv_dtex * c_inv_scale;
     vec3 lo = mix(vec3(b) * pt_brick, vec3(-1e30), equal(b, ivec3(0)));
     vec3 hi = mix(vec3(b + 1) * pt_brick, vec3(1e30), equal(b, c_counts - 1));
-    for (int i = 0; i < 3; ++i) {
-        if (dv[i] != 0.0) {
-            float ta = (lo[i] - v0[i]) / dv[i], tb = (hi[i] - v0[i]) / dv[i];
-            from = max(from, min(ta, tb));
-            until = min(until, max(ta, tb));
-        }
-    }
+    vec3 ta = (lo - v0) * inv_dv, tb = (hi - v0) * inv_dv;
+    // An axis the ray does not move along bounds nothing.
+    bvec3 moves = notEqual(ray_dtex, vec3(0.0));
+    vec3 enter = mix(vec3(-INF), min(ta, tb), moves), leave = mix(vec3(INF), max(ta, tb), moves);
+    from = max(from, max(max(enter.x, enter.y), enter.z));
+    until = min(until, min(min(leave.x, leave.y), leave.z));
     return vec2(from, until);
 }
 
@@ -184,8 +215,7 @@ int locate(uint skip) {
         c_from = INF;
     }
     float brick = pt_brick;
-    float cover = pt_cover_a * length(world - u.eye.xyz) + pt_cover_b;
-    int want = clamp(int(floor(log2(max(cover, 1.0)))), 0, pt_levels - 1);
+    int want = level_at(ray_t);
     vec3 t = clamp(tex, 0.0, 1.0);
     if (want != c_level) {
         int h = 8 + 8 * want;
@@ -193,63 +223,58 @@ int locate(uint skip) {
         c_first = pt[h];
         c_counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
         c_scale = vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
+        c_inv_scale = 1.0 / c_scale;
         c_ratio = uintBitsToFloat(pt[h + 7]);
         c_hit = false;
     }
     vec3 v = t * c_scale;
-    ivec3 b = clamp(ivec3(floor(v / brick)), ivec3(0), c_counts - 1);
+    // (The brick edge is a power of two: its reciprocal is exact.)
+    ivec3 b = clamp(ivec3(floor(v * (1.0 / brick))), ivec3(0), c_counts - 1);
     // (With V_BRICK_SPAN every lookup goes on to set the stretch again.)
     if (V_BRICK_REUSE && !V_BRICK_SPAN && c_hit && b == c_brick) {
-        ptex = (c_offset + v) / pool_size;
+        ptex = (c_offset + v) * inv_pool;
         level_ratio = c_ratio;
         return FOUND;
     }
     c_hit = false;
-    for (int l = want; l < pt_levels; ++l) {
+    uint e = c_first + uint(b.x + c_counts.x * (b.y + c_counts.y * b.z));
+    uint word = pt[PT_HEADER + e];
+    if (skip != 0u && (word & KNOWN) != 0u && ((word >> 24u) & skip) == 0u) {
+        skip_t = lookup_span(want, b).y;
+        return EMPTY;
+    }
+    if ((word & RESIDENT) != 0u) {
+        mark_used(e);
+        vec3 offset = slot_origin(word) - vec3(b) * brick;
+        ptex = (offset + v) * inv_pool;
+        level_ratio = c_ratio;
+        c_hit = true;
+        c_brick = b;
+        c_offset = offset;
+        if (V_BRICK_SPAN) {
+            set_span(want, b, offset);
+        }
+        return FOUND;
+    }
+    if (e != last_wanted) {
+        wanted[e] = 1u;
+        last_wanted = e;
+    }
+    if ((pt_mode & MODE_WAIT) != 0u) {
+        return WAITS;
+    }
+    // The finest resident coarser level (the coarsest always is).
+    for (int l = want + 1; l < pt_levels; ++l) {
         int h = 8 + 8 * l;
-        ivec3 counts = l == want ? c_counts : ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
-        vec3 vl = l == want ? v : t * vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
-        ivec3 bl = l == want ? b : clamp(ivec3(floor(vl / brick)), ivec3(0), counts - 1);
-        uint e = (l == want ? c_first : pt[h]) + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
-        uint word = pt[PT_HEADER + e];
-        uint slot = word & SLOT_MASK;
-        if (l == want && skip != 0u && (word & KNOWN) != 0u && ((word >> 24u) & skip) == 0u) {
-            skip_t = lookup_span(want, b).y;
-            return EMPTY;
-        }
-        if (slot == 0u && l == want) {
-            if (e != last_wanted) {
-                atomicAdd(wanted[e], 1u);
-                last_wanted = e;
-            }
-            if ((pt_mode & MODE_WAIT) != 0u) {
-                return WAITS;
-            }
-        }
-        if (slot != 0u) {
-            // A frame that does not wait says which resident bricks it read, so that the cache
-            // evicts the ones no view uses (the top bit; the count of a missing brick is below).
-            // A plain read first: most rays find the bit already set, and an atomic on the
-            // same few words from every ray would serialise.
-            if ((pt_mode & MODE_WAIT) == 0u && e != last_used) {
-                if ((wanted[e] & USED_BIT) == 0u) {
-                    atomicOr(wanted[e], USED_BIT);
-                }
-                last_used = e;
-            }
-            int s = int(slot) - 1;
-            ivec3 at = ivec3(s % pt_gx, (s / pt_gx) % pt_gy, s / (pt_gx * pt_gy)) * pt_slot_edge;
-            vec3 offset = vec3(at) + 1.0 - vec3(bl) * brick;
-            ptex = (offset + vl) / pool_size;
+        ivec3 counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
+        vec3 vl = t * vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
+        ivec3 bl = clamp(ivec3(floor(vl / brick)), ivec3(0), counts - 1);
+        uint el = pt[h] + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
+        uint wl = pt[PT_HEADER + el];
+        if ((wl & RESIDENT) != 0u) {
+            mark_used(el);
+            ptex = (slot_origin(wl) - vec3(bl) * brick + vl) * inv_pool;
             level_ratio = uintBitsToFloat(pt[h + 7]);
-            if (l == want) {
-                c_hit = true;
-                c_brick = b;
-                c_offset = offset;
-                if (V_BRICK_SPAN) {
-                    set_span(want, b, offset);
-                }
-            }
             return FOUND;
         }
     }
@@ -318,9 +343,11 @@ void main() {
         read_header();
         ray_tex0 = o / (2.0 * u.half_extent.xyz) + 0.5;
         ray_dtex = dir / (2.0 * u.half_extent.xyz);
+        ray_inv_dtex = 1.0 / ray_dtex;
         vec3 eo = o - u.eye.xyz;
         ray_k = dot(dir, eo);
         ray_q = dot(eo, eo);
+        level_thresholds();
     }
     bool wait = V_BRICKED && (pt_mode & MODE_WAIT) != 0u;
     bool stopped = false;

@@ -11,10 +11,11 @@
 //! - words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its texture to
 //!   voxel scale along x, y, z, and level 0's voxel over its own (f32 bits): opacity is corrected
 //!   per voxel of the level sampled, so that a coarse level looks as that level rendered in core;
-//! - from word [`HEADER`]: per entry, its slot + 1 in the low 24 bits (0 when not resident), and
-//!   when the brick's range is known ([`KNOWN_BIT`]) what it may hold under this frame's
-//!   classification (bit 24: visible context or one-pass samples, bit 25: focus), so that a ray
-//!   walks past a brick that holds nothing for it, resident or not, without asking for it.
+//! - from word [`HEADER`]: per entry, when the brick is resident ([`RESIDENT_BIT`]) its slot's
+//!   place along x, y and z of the pool in bits 0-7, 8-15 and 16-23, and when the brick's range is
+//!   known ([`KNOWN_BIT`]) what it may hold under this frame's classification (bit 24: visible
+//!   context or one-pass samples, bit 25: focus), so that a ray walks past a brick that holds
+//!   nothing for it, resident or not, without asking for it.
 //!
 //! ## Uploads
 //! A brick travels as its slot's texels and one more voxel on every side, at 16 bits (8 for
@@ -42,20 +43,21 @@ pub const HEADER: usize = 8 + 8 * MAX_LEVELS;
 pub const MODE_WAIT: u32 = 1;
 /// Mode bit: rays continue from the state the previous pass of this frame saved.
 pub const MODE_RESUME: u32 = 2;
-/// Feedback flag: a resident brick was read (`USED_BIT` in raycast.comp); the bits below count
-/// the rays that asked for a missing one.
+/// Feedback flag: a resident brick was read (`USED_BIT` in raycast.comp); a missing brick some
+/// ray asked for reads 1. (Plain stores, not counts: a CPU device runs atomics lane by lane.)
 pub const USED_BIT: u32 = 1 << 31;
-/// Page-table word: the slot + 1 (0: not resident).
-pub const SLOT_MASK: u32 = (1 << 24) - 1;
 /// Page-table word: the brick's range is known, and bits 24 and 25 say what it may hold.
 pub const KNOWN_BIT: u32 = 1 << 26;
+/// Page-table word: the brick is resident, its slot along x, y, z of the pool in bits 0-7, 8-15
+/// and 16-23 (so that the shader finds its texels without dividing).
+pub const RESIDENT_BIT: u32 = 1 << 27;
 /// Bricks one dispatch of `brick_fill` writes at most (its workgroup rows).
 pub const FILL_BATCH: usize = 4096;
 
 /// What a frame's rays said about the bricks ([`Paged::take_feedback`]).
 #[derive(Clone, Debug, Default)]
 pub struct Feedback {
-    /// Missing bricks asked for, with how many rays asked.
+    /// Missing bricks asked for (each with 1: the shader stores, it does not count).
     pub wanted: Vec<(usize, u32)>,
     /// Resident bricks read (frames that do not wait only).
     pub used: Vec<usize>,
@@ -92,8 +94,8 @@ pub struct Paged {
     pub cache: BrickCache,
     /// Slots along x, y, z of the pool images.
     pub grid: [usize; 3],
-    /// Per page-table entry, how many rays asked for the brick in the last frame; the host reads
-    /// it once the frame has completed.
+    /// Per page-table entry, whether a ray asked for the brick in the last frame (or read it,
+    /// [`USED_BIT`]); the host reads it once the frame has completed.
     pub feedback: Buffer,
     /// Page-table mode bits for the next frame ([`MODE_WAIT`], [`MODE_RESUME`]).
     pub mode: u32,
@@ -129,7 +131,8 @@ pub fn brick_span() -> bool {
 
 /// Slots per axis for a pool of at most `capacity` slots, each axis within `max_texels`.
 pub fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
-    let m = (max_texels / SLOT).max(1);
+    // A page-table word holds a slot's place in 8 bits per axis.
+    let m = (max_texels / SLOT).clamp(1, 255);
     // The largest g with g^k <= n.
     let root = |n: usize, k: u32| (1..=n).take_while(|g| g.pow(k) <= n).last().unwrap_or(1);
     let gx = root(capacity, 3).clamp(1, m);
@@ -378,15 +381,25 @@ impl Paged {
         words
     }
 
-    /// The page table's entries for this frame into `dst` (one word each): the slot, and for a
-    /// brick whose range is known [`KNOWN_BIT`] and `flags(range)` (bit 0: may hold visible
-    /// context or one-pass samples, bit 1: may hold focus) in bits 24 and 25.
+    /// The page table's entries for this frame into `dst` (one word each): the slot's place for
+    /// a resident brick, and for a brick whose range is known [`KNOWN_BIT`] and `flags(range)`
+    /// (bit 0: may hold visible context or one-pass samples, bit 1: may hold focus) in bits 24
+    /// and 25.
     pub fn page_words(&self, dst: &mut [u32], flags: &dyn Fn([u16; 2]) -> u32) {
         let c = &self.cache;
+        let [gx, gy, _] = self.grid;
         for ((w, &slot), &range) in dst.iter_mut().zip(&c.page_table).zip(&c.ranges) {
+            let place = match slot {
+                0 => 0,
+                s => {
+                    let s = s as usize - 1;
+                    let at = [s % gx, (s / gx) % gy, s / (gx * gy)].map(|v| v as u32);
+                    RESIDENT_BIT | at[0] | at[1] << 8 | at[2] << 16
+                }
+            };
             *w = match range == UNKNOWN_RANGE {
-                true => slot,
-                false => slot | KNOWN_BIT | (flags(range) & 3) << 24,
+                true => place,
+                false => place | KNOWN_BIT | (flags(range) & 3) << 24,
             };
         }
     }

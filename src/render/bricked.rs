@@ -184,12 +184,13 @@ impl Renderer {
             if left.is_some_and(|l| l.is_zero()) {
                 break;
             }
-            arrived = self.next_batch(vol, stream, wanted.len(), left)?;
-            if arrived.is_empty() && stream.outstanding() == 0 {
+            let batch = self.next_batch(vol, stream, wanted.len(), left)?;
+            if batch.placed == 0 && stream.outstanding() == 0 {
                 // Nothing asked can be read (every brick asked for is resident already, or
                 // known to hold nothing): finish with what is resident rather than spin.
                 break;
             }
+            arrived = batch.uploads;
         }
         let image = self.last_frame(&mut s, vol, classify, evicted_before)?;
         let r = &mut s.report;
@@ -235,12 +236,13 @@ impl Renderer {
         let pinned = crate::volume::bricks::BrickCache::pinned_entries(&vol.paged.levels).len();
         let mut arrived = Vec::new();
         while stream.outstanding() > 0 {
-            arrived.extend(stream.arrivals(
+            let batch = stream.arrivals(
                 &mut vol.paged,
                 pinned,
                 Some((pinned, Duration::from_secs(3600))),
                 true,
-            )?);
+            )?;
+            arrived.extend(batch.uploads);
         }
         let ctx = s.ctx.clone();
         s.frames
@@ -262,7 +264,7 @@ impl Renderer {
         stream: &mut Streamer,
         asked: usize,
         left: Option<Duration>,
-    ) -> Result<Vec<Arrived>> {
+    ) -> Result<crate::render::stream::Batch> {
         let c = &vol.paged.cache;
         let room = (c.capacity() - crate::volume::bricks::min_slots(&vol.paged.levels) + 1).max(1);
         let max = room.min(LOADS_PER_PASS);

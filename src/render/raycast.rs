@@ -119,7 +119,8 @@ impl Variant {
     pub const OTF: u32 = 32;
     pub const MOD_OPACITY: u32 = 64;
     pub const MOD_SHADE: u32 = 128;
-    /// Samples through the brick cache's page table (and skips no empty space).
+    /// Samples through the brick cache's page table (skipping the bricks its words say are empty,
+    /// at the level each sample reads, instead of the in-core table's).
     pub const BRICKED: u32 = 256;
     /// With BRICKED: each ray reuses its last brick's place in the pool (`Paged::reuse`).
     pub const BRICK_REUSE: u32 = 512;
@@ -138,7 +139,7 @@ impl Variant {
     ) -> Self {
         let bits = [
             (two_level, Self::TWO_LEVEL),
-            (options.skip_empty && !bricked, Self::SKIP_EMPTY),
+            (options.skip_empty, Self::SKIP_EMPTY),
             (bricked, Self::BRICKED),
             (options.jitter.is_some(), Self::JITTER),
             (options.refine_iso && two_level, Self::REFINE_ISO),

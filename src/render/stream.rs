@@ -63,6 +63,14 @@ impl Arrived {
     }
 }
 
+/// What one call of [`Streamer::arrivals`] placed: the bricks to upload, and how many bricks were
+/// placed in all (those sharing the slot of their constant value upload nothing).
+#[derive(Default)]
+pub struct Batch {
+    pub uploads: Vec<Arrived>,
+    pub placed: usize,
+}
+
 /// The loaders of one volume and what they were asked.
 pub struct Streamer {
     loader: BrickLoader,
@@ -145,7 +153,7 @@ impl Streamer {
         max: usize,
         wait: Option<(usize, Duration)>,
         strict: bool,
-    ) -> Result<Vec<Arrived>> {
+    ) -> Result<Batch> {
         let got: Vec<Loaded> = match wait {
             Some((min, timeout)) => self.loader.take_at_least(min, max, timeout),
             None => self.loader.take(max),
@@ -163,13 +171,13 @@ impl Streamer {
         }
         let batch: Vec<Arrival> = ok.iter().map(|(e, v)| Arrival::of(*e, v)).collect();
         let placed = paged.cache.place(&batch);
-        let mut out = Vec::new();
+        let mut out = Batch::default();
         for ((entry, voxels), p) in ok.into_iter().zip(placed) {
             match p {
                 Some(Placement::Upload(slot)) => {
                     self.uploaded += 1;
                     self.uploaded_bytes += voxels.data.bytes().len() as u64;
-                    out.push(Arrived {
+                    out.uploads.push(Arrived {
                         slot,
                         entry,
                         voxels,
@@ -179,6 +187,7 @@ impl Streamer {
                 None => continue,
             }
             self.placed += 1;
+            out.placed += 1;
             if let Some(k) = paged.levels.key(entry) {
                 self.per_level[k.level] += 1;
             }

@@ -1340,11 +1340,12 @@ impl Running {
             Prepared::Paged(p, s) => {
                 s.arrivals(&mut p.volume.paged, UPLOADS_PER_FRAME, None, false)?
             }
-            Prepared::InCore(_) => Vec::new(),
+            Prepared::InCore(_) => Default::default(),
         };
-        if !loads.is_empty() {
+        if loads.placed > 0 {
             self.session.epoch += 1;
         }
+        let loads = loads.uploads;
         let Some(image) = self.gpu.swapchain.acquire(slot)? else {
             self.resize = true;
             self.window.request_redraw();

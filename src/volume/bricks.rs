@@ -153,18 +153,18 @@ impl BrickLevels {
 
     /// The pyramid of a store: its levels, continued down to one brick. The intensity range is
     /// the one vellum recorded when it wrote the store; a store written elsewhere has its range
-    /// taken from level 0 when that is at most `scan_limit` voxels, else from its coarsest level
-    /// (said once at run time: extremes thinner than that level's voxels are then clipped).
+    /// taken from its finest level of at most `scan_limit` voxels (said once at run time when
+    /// that is not level 0: extremes thinner than that level's voxels are then clipped).
     pub fn of_store(ms: Arc<Multiscale>, scan_limit: usize) -> Result<Self> {
         let range = match ms.range {
             Some(r) => r,
             None => {
-                let level0: usize = ms.levels[0].dims.iter().product();
-                let pick = if level0 <= scan_limit {
-                    0
-                } else {
-                    ms.levels.len() - 1
-                };
+                // The finest level small enough (level 0 when it is).
+                let pick = ms
+                    .levels
+                    .iter()
+                    .position(|l| l.dims.iter().product::<usize>() <= scan_limit)
+                    .unwrap_or(ms.levels.len() - 1);
                 if pick > 0 {
                     log::warn!(
                         "{} does not record its value range; taking it from level {pick}, so extremes finer than that level may be clipped",
@@ -239,8 +239,8 @@ impl BrickLevels {
         if in_core_bytes(ms.levels[0].dims) <= budget {
             return Ok(None);
         }
-        // Level 0 is read whole for the range only when it is small (64 Mi voxels).
-        Ok(Some(Self::of_store(Arc::new(ms), 1 << 26)?))
+        // A level is read whole for the range only when it is small (16 Mi voxels).
+        Ok(Some(Self::of_store(Arc::new(ms), 1 << 24)?))
     }
 
     pub fn levels(&self) -> &[PagedLevel] {
@@ -360,6 +360,29 @@ impl BrickLevels {
             LevelSource::Memory(v) => v.voxel_type() == crate::volume::VoxelType::U8,
         };
         u8_data.then(|| std::array::from_fn(|v| normalise(v as f64, self.range)))
+    }
+
+    /// The floor of reading bricks: `keys` (chunks of the store's levels) decoded again plainly,
+    /// in parallel on every core, and dropped. Seconds and voxel bytes; nothing for levels in
+    /// memory.
+    pub fn plain_decode(&self, keys: &[crate::volume::chunks::ChunkKey]) -> Result<(f64, u64)> {
+        use rayon::prelude::*;
+        let start = std::time::Instant::now();
+        let bytes = keys
+            .par_iter()
+            .map(|&(level, c)| -> Result<u64> {
+                let LevelSource::Store(ms, l) = &self.sources[level] else {
+                    return Ok(0);
+                };
+                let info = &ms.levels[*l];
+                let lo: [usize; 3] = std::array::from_fn(|a| c[a] * info.chunk[a]);
+                let size: [usize; 3] =
+                    std::array::from_fn(|a| info.chunk[a].min(info.dims[a] - lo[a]));
+                let v = ms.read_box(*l, lo, size)?;
+                Ok(v.data.as_bytes().len() as u64)
+            })
+            .sum::<Result<u64>>()?;
+        Ok((start.elapsed().as_secs_f64(), bytes))
     }
 
     /// The decoded chunks the bricks are read from.

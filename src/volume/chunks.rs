@@ -35,6 +35,8 @@ struct Inner {
     order: BTreeMap<u64, ChunkKey>,
     bytes: u64,
     tick: u64,
+    /// Every chunk decoded, in order (kept only when asked: `ChunkCache::record_keys`).
+    keys: Option<Vec<ChunkKey>>,
 }
 
 /// What the cache did: chunks decoded, their voxel bytes, the time spent decoding (summed over
@@ -117,6 +119,9 @@ impl ChunkCache {
             return (cell, false);
         }
         let cell: Cell = Arc::new(OnceLock::new());
+        if let Some(keys) = &mut inner.keys {
+            keys.push(key);
+        }
         inner.entries.insert(
             key,
             Entry {
@@ -146,6 +151,21 @@ impl ChunkCache {
             decode_ms: self.decode_ns.load(Ordering::Relaxed) as f64 / 1e6,
             hits: self.hits.load(Ordering::Relaxed),
         }
+    }
+
+    /// From now on, keeps the key of every chunk decoded (for a benchmark's floor: the same
+    /// chunks decoded again plainly, `volume::stream::plain_decode`).
+    pub fn record_keys(&self) {
+        let mut inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        inner.keys.get_or_insert_with(Vec::new);
+    }
+
+    /// The keys recorded since [`ChunkCache::record_keys`], distinct, in the order first decoded.
+    pub fn recorded_keys(&self) -> Vec<ChunkKey> {
+        let inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        let mut seen = std::collections::HashSet::new();
+        let keys = inner.keys.as_deref().unwrap_or_default();
+        keys.iter().copied().filter(|k| seen.insert(*k)).collect()
     }
 
     /// Chunks held now and their bytes.

@@ -112,9 +112,12 @@ impl BrickLoader {
         BrickLoader { shared, threads }
     }
 
-    /// Loader threads for this machine: one per core.
+    /// Loader threads for this machine: one per core, or `VELLUM_LOADERS` (for measuring).
     pub fn default_threads() -> usize {
-        std::thread::available_parallelism().map_or(2, |n| n.get())
+        std::env::var("VELLUM_LOADERS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| std::thread::available_parallelism().map_or(2, |n| n.get()))
     }
 
     /// The pyramid the loaders read.

@@ -50,10 +50,19 @@ pub(crate) fn devices(cli: &Cli, json: bool) -> Result<()> {
     Ok(())
 }
 
-/// A store too large to read whole: its levels, and the statistics of its coarsest level.
+/// Voxels of the finest level `info` reads whole for a store's statistics: 16 Mi (64 MiB of
+/// floats), so that a store of any size is described in bounded time and memory.
+const STATS_VOXELS: usize = 1 << 24;
+
+/// A store: its levels, and the statistics of its finest level of at most [`STATS_VOXELS`]
+/// voxels (level 0 itself when it is that small). Level 0 is never read whole otherwise.
 fn store_summary(ms: &vellum::volume::io::ome_zarr::Multiscale, json: bool) -> Result<()> {
-    let coarsest = ms.levels.len() - 1;
-    let v = ms.read_level(coarsest)?;
+    let level = ms
+        .levels
+        .iter()
+        .position(|l| l.dims.iter().product::<usize>() <= STATS_VOXELS)
+        .unwrap_or(ms.levels.len() - 1);
+    let v = ms.read_level(level)?;
     let s = vellum::volume::stats::stats(&v, 16);
     let levels: Vec<_> = ms
         .levels
@@ -63,7 +72,8 @@ fn store_summary(ms: &vellum::volume::io::ome_zarr::Multiscale, json: bool) -> R
     if json {
         let out = json!({
             "input": ms.root, "ngff": ms.version, "voxel_type": ms.voxel, "channels": ms.channels, "levels": levels,
-            "range": ms.range, "coarsest_level": {"min": s.min, "max": s.max, "mean": s.mean, "histogram": s.histogram},
+            "range": ms.range, "statistics_level": level,
+            "statistics": {"min": s.min, "max": s.max, "mean": s.mean, "histogram": s.histogram},
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
@@ -96,16 +106,17 @@ fn store_summary(ms: &vellum::volume::io::ome_zarr::Multiscale, json: bool) -> R
     if let Some([lo, hi]) = ms.range {
         println!("range:   {lo} .. {hi} (level 0, as recorded when written)");
     }
+    let of = match level {
+        0 => "level 0".to_string(),
+        l => format!("level {l}, the finest of at most {STATS_VOXELS} voxels: extremes finer than its voxels may not show"),
+    };
+    let channel = match ms.channels {
+        1 => "",
+        _ => ", channel 0",
+    };
     println!(
-        "level {} (coarsest): min {} max {} mean {:.4}{}",
-        coarsest,
-        s.min,
-        s.max,
-        s.mean,
-        match ms.channels {
-            1 => "; level 0 is too large to read whole here",
-            _ => "",
-        }
+        "statistics of {of}{channel}: min {} max {} mean {:.4}",
+        s.min, s.max, s.mean
     );
     Ok(())
 }
@@ -116,9 +127,7 @@ pub(crate) fn info(input: &InputArgs, json: bool) -> Result<()> {
     if ome_zarr::is_store(path) && input.raw.spec()?.is_none() {
         // A store of several channels (the normals') is described, channel 0's statistics.
         let ms = ome_zarr::Multiscale::open_channel(path, 0)?;
-        if ms.channels > 1 || !vellum::memory::fits_in_memory(ms.level_bytes(0)) {
-            return store_summary(&ms, json);
-        }
+        return store_summary(&ms, json);
     }
     let v = input.load()?;
     let s = vellum::volume::stats::stats(&v, 16);

@@ -312,10 +312,9 @@ fn draw(
         },
     };
     let (frame, report) = session.still(view, still)?;
-    if let Some(r) = report.as_ref().filter(|r| !r.complete) {
+    if let (Some(r), Some(ms)) = (report.as_ref().filter(|r| !r.complete), a.max_wait_ms) {
         eprintln!(
-            "the frame is not complete: --max-wait-ms {} ran out after {} passes, so bricks still missing were drawn from coarser levels",
-            a.max_wait_ms.unwrap_or(0),
+            "the frame is not complete: --max-wait-ms {ms} ran out after {} passes, so bricks still missing were drawn from coarser levels",
             r.passes
         );
     }
