@@ -393,6 +393,30 @@ fn a_store_renders_through_the_cache_as_it_renders_in_core() {
         .sum::<f64>()
         / x.len() as f64;
     assert!(mean <= 1.0, "mean {mean}/255");
+    // The refinements on the way: the first frame from the coarsest level, then one per pass.
+    let frames = dir.path().join("frames");
+    let mut progress = bricked_args.clone();
+    progress.extend(["--progress-frames", frames.to_str().unwrap()]);
+    let p = common::ok_json(&common::vellum(&progress));
+    let written = std::fs::read_dir(&frames).unwrap().count() as u64;
+    assert_eq!(p["bricks"]["progress_frames"].as_u64(), Some(written));
+    assert!(written >= 2, "{written} refinements");
+    let first = read(frames.join("progress_000.png").to_str().unwrap());
+    let lit = |img: &[u8]| img.iter().filter(|&&c| c > 20).count();
+    assert!(
+        lit(&first) > 1000,
+        "the first frame draws the coarsest level"
+    );
+    assert_ne!(first, x, "the first frame is coarser than the complete one");
+    // A chunk that cannot be decoded ends the frame with one sentence naming it; no image.
+    std::fs::write(store.join("0/c/2/2/2"), b"not zstd at all").unwrap();
+    let mut broken = args(&png("broken.png"));
+    broken.extend(["--gpu-budget", "3", "--lod", "finest"]);
+    common::fails_with_all(
+        &common::vellum(&broken),
+        &["head.ome.zarr", "chunk 0/c/2/2/2", "could not be read"],
+    );
+    assert!(!dir.path().join("broken.png").exists());
     // A budget that holds less than the coarsest level and one brick.
     let mut small = args(&png("small.png"));
     small.extend(["--gpu-budget", "0.5"]);

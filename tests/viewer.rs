@@ -689,31 +689,9 @@ fn a_bad_file_is_one_sentence_and_the_volume_stays() {
         "the volume on screen changed after a failed load"
     );
 
-    // A volume the device cannot hold: on lavapipe's 2 GiB heap the textures of a 640³ volume
-    // (10 bytes a voxel) are refused, and that too is a sentence in the window with the volume
-    // kept. A GPU with a larger heap would load it, so this part runs on lavapipe only.
-    let on_lavapipe = v.messages.borrow().iter().any(|m| m.contains("llvmpipe"));
-    if on_lavapipe {
-        let huge = "phantom:shepp-logan:640";
-        click("open-path");
-        xdotool(&x, &["key", "ctrl+a"]);
-        xdotool(&x, &["type", "--delay", "20", huge]);
-        std::thread::sleep(Duration::from_millis(300));
-        click("open-button");
-        let message = v.expect(&format!("message: {huge}"));
-        assert!(
-            message.contains("MiB") && !message.contains('\n') && message.len() < 400,
-            "{message}"
-        );
-        let after = rgb(&v.screenshot(&x));
-        assert_eq!(
-            difference(&before, &after),
-            (0.0, 0),
-            "the volume on screen changed after a refused load"
-        );
-    } else {
-        eprintln!("note: not on lavapipe; the refused-volume part is skipped");
-    }
+    // (A volume whose textures exceed the GPU budget is no longer refused: the session streams
+    // it through the brick cache, as a_store_larger_than_the_budget_streams_while_the_view_orbits
+    // shows.)
     v.close(&x);
 }
 

@@ -65,6 +65,8 @@ impl PyScene {
 pub struct PyImage {
     frame: FrameImage,
     rgb: Vec<u8>,
+    /// What streaming the frame through the brick cache did, when it did.
+    stream: Option<vellum::render::bricked::StreamReport>,
 }
 
 fn rgba_of(rgb: &[u8]) -> Vec<u8> {
@@ -114,6 +116,27 @@ impl PyImage {
             d.set_item(&p.name, p.ms)?;
         }
         Ok(d)
+    }
+
+    /// For a frame drawn through the brick cache, what its streaming did (passes, bricks loaded
+    /// and touched, complete, the time to the first and to the complete frame, ...: `vellum
+    /// render --json`'s `bricks`); None for a volume in core.
+    #[getter]
+    fn streaming<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(r) = &self.stream else {
+            return Ok(None);
+        };
+        let d = PyDict::new(py);
+        d.set_item("passes", r.passes)?;
+        d.set_item("bricks_loaded", r.bricks_loaded)?;
+        d.set_item("bricks_touched", r.bricks_touched)?;
+        d.set_item("bricks_evicted", r.bricks_evicted)?;
+        d.set_item("capacity", r.capacity)?;
+        d.set_item("complete", r.complete)?;
+        d.set_item("first_frame_ms", r.first_frame_ms)?;
+        d.set_item("total_ms", r.total_ms)?;
+        d.set_item("source_mib_per_s", r.source_mib_per_s)?;
+        Ok(Some(d))
     }
 
     #[getter]
@@ -327,9 +350,9 @@ impl PyRenderer {
         camera: Option<Vec<f32>>,
         size: Option<(u32, u32)>,
     ) -> PyResult<PyImage> {
-        let (frame, background) = self.frame(py, camera, size)?;
+        let (frame, background, stream) = self.frame(py, camera, size)?;
         let rgb = to_rgb8(&frame.composite, background);
-        Ok(PyImage { frame, rgb })
+        Ok(PyImage { frame, rgb, stream })
     }
 
     /// Releases the device memory the renderer holds; later `render` calls raise vellum.Error.
@@ -364,7 +387,7 @@ impl PyRenderer {
         py: Python<'_>,
         camera: Option<Vec<f32>>,
         size: Option<(u32, u32)>,
-    ) -> PyResult<(FrameImage, [f32; 3])> {
+    ) -> PyResult<(FrameImage, [f32; 3], Option<vellum::render::bricked::StreamReport>)> {
         let mut slot = self.kept.lock().unwrap_or_else(|p| p.into_inner());
         let kept = slot
             .as_mut()
@@ -386,13 +409,12 @@ impl PyRenderer {
             kept.view.size = [w, h];
         }
         let background = kept.background;
-        let frame = on_gpu(py, |_| {
+        let (frame, stream) = on_gpu(py, |_| {
             let k = &mut *kept;
             k.view.camera.validate()?;
-            let (frame, _) = k.session.still(&k.view, Default::default())?;
-            Ok(frame)
+            k.session.still(&k.view, Default::default())
         })?;
-        Ok((frame, background))
+        Ok((frame, background, stream))
     }
 }
 
@@ -436,7 +458,7 @@ pub fn lines<'py>(
         params,
     });
     let r = PyRenderer::prepare(py, (scene, vol, session))?;
-    let (frame, _) = r.frame(py, None, None)?;
+    let (frame, _, _) = r.frame(py, None, None)?;
     r.close();
     let (segments, _) = frame.segments.unwrap_or_default();
     let out = PyDict::new(py);

@@ -165,3 +165,41 @@ def test_otf_with_features_composes_as_the_command_line_does(tmp_path):
     np.testing.assert_array_equal(image.rgba[..., :3], theirs)
     alone = vellum.render(scene, otf=str(otf), camera=(0, 20), size=(64, 64))
     assert np.abs(alone.rgba.astype(int) - image.rgba.astype(int)).max() > 0, "the features add their colour"
+
+
+def test_a_store_beyond_its_budget_streams_through_the_session(tmp_path):
+    """Issue 39: a path is an input, opened as the command line opens it. A store whose textures
+    exceed gpu_budget goes through the brick cache and the ray caster, and its complete frame at
+    level 0 equals the command line's (pixel for pixel) and the in-core render (within a mean of
+    0.5/255)."""
+    from PIL import Image as PilImage
+
+    store = tmp_path / "s.ome.zarr"
+    subprocess.run([str(cli()), "convert", "phantom:shepp-logan:96", str(store), "--chunk", "32"],
+                   check=True, capture_output=True)
+    flags = ["--iso", "0.9", "--tf", "grey", "--camera", "30,20,2.5", "--size", "96x96", "--renderer", "raycast"]
+    png = tmp_path / "cli.png"
+    out = subprocess.run([str(cli()), "render", str(store), *flags, "--gpu-budget", "1", "--lod", "finest",
+                          "--out", str(png), "--json"], check=True, capture_output=True, text=True)
+    assert json.loads(out.stdout)["bricks"]["complete"] is True
+    theirs = np.asarray(PilImage.open(png).convert("RGB"))
+    options = dict(iso=0.9, tf="grey", camera=(30, 20, 2.5), size=(96, 96), renderer="raycast")
+    image = vellum.render(str(store), gpu_budget=1, lod="finest", **options)
+    streaming = image.streaming
+    assert streaming is not None and streaming["complete"]
+    assert streaming["bricks_loaded"] > streaming["capacity"], "a one-MiB pool is refilled"
+    np.testing.assert_array_equal(image.rgba[..., :3], theirs)
+    whole = vellum.render(str(store), **options)
+    assert whole.streaming is None, "96³ fits the default budget"
+    diff = np.abs(whole.rgba.astype(float) - image.rgba.astype(float))[..., :3]
+    assert diff.mean() <= 0.5, f"mean {diff.mean():.3f}/255"
+    # A Renderer keeps the pools and the bricks between frames.
+    r = vellum.Renderer(str(store), gpu_budget=1, lod="finest", **options)
+    np.testing.assert_array_equal(r.render().rgba, image.rgba)
+    assert r.render(camera=(60, 20, 2.5)).rgba[..., :3].max() > 0
+    r.close()
+    for bad, phrase in [(dict(gpu_budget=0), "gpu_budget"), (dict(lod="sharpest"), "lod"),
+                        (dict(gpu_budget=0.1), "gpu_budget. 0.8 or more")]:
+        with pytest.raises(vellum.Error, match=phrase) as raised:
+            vellum.render(str(store), **bad)
+        assert "\n" not in str(raised.value)

@@ -95,6 +95,9 @@ pub struct StreamReport {
     pub total_ms: f64,
     /// Refinements drawn on the way (progressive frames).
     pub progress_frames: usize,
+    /// The floor measured after the frame when asked (`render::stream::Floor`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub floor: Option<crate::render::stream::Floor>,
 }
 
 /// What a still frame may do besides waiting for its bricks.

@@ -300,7 +300,11 @@ mod tests {
         let mut u: SliceUniforms = bytemuck::Zeroable::zeroed();
         let o = RayOptions::default();
         assert_eq!(Variant::of(&o, false, &u, false).0, Variant::SKIP_EMPTY);
-        assert_eq!(Variant::of(&o, false, &u, true).0, Variant::BRICKED);
+        // Bricked frames skip through the page table's flags.
+        assert_eq!(
+            Variant::of(&o, false, &u, true).0,
+            Variant::BRICKED | Variant::SKIP_EMPTY
+        );
         u.focus[3] = 1.0;
         u.mod_flags = [1, 1, 0, 3];
         let o = RayOptions {

@@ -257,3 +257,58 @@ impl Placement3 {
 pub fn lost_bricks(failure: &str) -> Error {
     Error::Invalid(format!("bricks could not be read: {failure}"))
 }
+
+/// The floor a still frame's streaming is judged against, measured in the same run: the chunks
+/// it decoded, decoded again plainly in parallel on every core, and their bytes uploaded to the
+/// device (64 MiB at a time, host-visible memory to device-local).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct Floor {
+    pub chunks: usize,
+    pub bytes: u64,
+    pub decode_ms: f64,
+    pub upload_ms: f64,
+}
+
+impl Floor {
+    /// Measures the floor of the chunks `levels` recorded decoding
+    /// (`ChunkCache::record_keys`).
+    pub fn measure(ctx: &Arc<crate::gpu::Context>, levels: &BrickLevels) -> Result<Self> {
+        let keys = levels.chunks().recorded_keys();
+        let (decode_s, bytes) = levels.plain_decode(&keys)?;
+        Ok(Floor {
+            chunks: keys.len(),
+            bytes,
+            decode_ms: decode_s * 1e3,
+            upload_ms: upload_seconds(ctx, bytes)? * 1e3,
+        })
+    }
+}
+
+/// Seconds to copy `bytes` from host-visible to device-local memory, 64 MiB at a time, in one
+/// submission.
+fn upload_seconds(ctx: &Arc<crate::gpu::Context>, bytes: u64) -> Result<f64> {
+    use crate::gpu::{Buffer, BufferDesc};
+    let block = bytes.clamp(4, 64 << 20);
+    let host = Buffer::new(ctx, "floor staging", &BufferDesc::staging(block))?;
+    let device = Buffer::new(ctx, "floor device", &BufferDesc::storage(block))?;
+    let start = std::time::Instant::now();
+    crate::gpu::submit_once(ctx, "upload floor", |f| {
+        let region = ash::vk::BufferCopy::default().size(block);
+        for i in 0..bytes.div_ceil(block) {
+            if i > 0 {
+                use crate::gpu::Access::TransferWrite;
+                crate::gpu::commands::memory_transition(ctx, f.cmd, TransferWrite, TransferWrite);
+            }
+            unsafe {
+                ctx.device.cmd_copy_buffer(
+                    f.cmd,
+                    host.raw,
+                    device.raw,
+                    std::slice::from_ref(&region),
+                )
+            };
+        }
+        Ok(())
+    })?;
+    Ok(start.elapsed().as_secs_f64())
+}

@@ -649,7 +649,7 @@ impl BrickCache {
         let need = min_slots(levels);
         if capacity < need {
             return Err(Error::Invalid(format!(
-                "a GPU budget of {budget_mib} MiB holds {capacity} bricks; this volume needs at least {need}, so give --gpu-budget {:.1} or more (its coarsest level and one more brick)",
+                "a GPU budget of {budget_mib} MiB holds {capacity} bricks; this volume needs at least {need}, so give `gpu_budget` {:.1} or more (its coarsest level and one more brick)",
                 // Rounded up, so that the budget named holds them.
                 ((need * SLOT_BYTES) as f64 / (1 << 20) as f64 * 10.0).ceil() / 10.0
             )));
@@ -847,7 +847,7 @@ mod tests {
         let refused = BrickCache::new(&levels, 1, 0.4)
             .err()
             .map(|e| e.to_string());
-        assert!(refused.is_some_and(|e| e.contains("at least 2") && e.contains("--gpu-budget 0.8")));
+        assert!(refused.is_some_and(|e| e.contains("at least 2") && e.contains("`gpu_budget` 0.8")));
         let mut cache = BrickCache::new(&levels, 3, 1.2).unwrap();
         let pinned = BrickCache::pinned_entries(&levels);
         assert_eq!(pinned, vec![8]);

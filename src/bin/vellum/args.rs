@@ -1021,7 +1021,7 @@ pub(crate) fn parse_cli() -> Cli {
 
 /// The library's errors name the scene's keys and the passes' parameters in backticks
 /// (`one_pass`, `iso`, `method`); the command line names its flags for them.
-pub(crate) const KEY_FLAGS: [(&str, &str); 9] = [
+pub(crate) const KEY_FLAGS: [(&str, &str); 10] = [
     ("`one_pass`", "--one-pass"),
     ("`iso`", "--iso V"),
     ("`focus`", "--focus LO:HI"),
@@ -1031,6 +1031,7 @@ pub(crate) const KEY_FLAGS: [(&str, &str); 9] = [
     ("`radius`", "--radius"),
     ("`style`", "--style"),
     ("`gpu_budget`", "--gpu-budget"),
+    ("`lod`", "--lod"),
 ];
 
 /// `message` with each key the library names replaced by its flag.

@@ -311,7 +311,19 @@ fn draw(
             None => None,
         },
     };
-    let (frame, report) = session.still(view, still)?;
+    // `VELLUM_STREAM_FLOOR=1` (bench scale): the chunks the frame decodes are recorded, and
+    // decoded again plainly and uploaded after it, the floor its streaming is judged against.
+    let floor_of = match (input, std::env::var("VELLUM_STREAM_FLOOR").as_deref()) {
+        (Opened::Bricked(levels), Ok("1")) => {
+            levels.chunks().record_keys();
+            Some(levels)
+        }
+        _ => None,
+    };
+    let (frame, mut report) = session.still(view, still)?;
+    if let (Some(levels), Some(r)) = (floor_of, report.as_mut()) {
+        r.floor = Some(vellum::render::stream::Floor::measure(ctx, levels)?);
+    }
     if let (Some(r), Some(ms)) = (report.as_ref().filter(|r| !r.complete), a.max_wait_ms) {
         eprintln!(
             "the frame is not complete: --max-wait-ms {ms} ran out after {} passes, so bricks still missing were drawn from coarser levels",

@@ -13,6 +13,15 @@ fn child(args: &[&str]) -> Result<Value> {
     report_of(c, &format!("vellum {}", args.join(" ")))
 }
 
+/// A bricked render's step: its report with the floor of its streaming measured after the frame
+/// (the same chunks decoded plainly, and their bytes uploaded).
+fn bricked(args: &[&str]) -> Result<Value> {
+    let exe = std::env::current_exe().context("finding this binary")?;
+    let mut c = std::process::Command::new(exe);
+    c.args(args).arg("--json").env("VELLUM_STREAM_FLOOR", "1");
+    report_of(c, &format!("vellum {}", args.join(" ")))
+}
+
 /// Runs a bench step and parses the JSON it prints; its stderr in one sentence when it fails.
 pub(crate) fn report_of(mut step: std::process::Command, what: &str) -> Result<Value> {
     let out = step
@@ -45,8 +54,8 @@ pub(crate) fn render_args<'a>(store: &'a str, size: &'a str, png: &'a str) -> Ve
 
 /// One size: the store written, rendered through the cache (where it fits in core, at level 0
 /// everywhere through a pool just below (0.99×) the in-core need, against the in-core frame; above,
-/// at the default budget and level of detail), and the importance map chunked against in core
-/// where it fits.
+/// through 2 GiB (or half the level's need, when that is less) at level 0 everywhere and by the
+/// level-of-detail rule), and the importance map chunked against in core where it fits.
 fn row(n: usize, image: u32, dir: &Path) -> Result<Value> {
     let store = dir.join(format!("scale_{n}.ome.zarr"));
     let s = store.to_string_lossy().to_string();
@@ -69,7 +78,7 @@ fn row(n: usize, image: u32, dir: &Path) -> Result<Value> {
         let mut a = render_args(&s, &size, &png);
         let small = format!("{}", in_core_mib * 0.99);
         a.extend(["--gpu-budget", small.as_str(), "--lod", "finest"]);
-        row["bricked"] = child(&a)?;
+        row["bricked"] = bricked(&a)?;
         let dd = dir
             .join(format!("dd_{n}.ome.zarr"))
             .to_string_lossy()
@@ -86,7 +95,12 @@ fn row(n: usize, image: u32, dir: &Path) -> Result<Value> {
             "128",
         ])?;
     } else {
-        row["bricked"] = child(&render_args(&s, &size, &png))?;
+        let budget = format!("{}", (in_core_mib / 2.0).min(2048.0));
+        for (key, lod) in [("bricked", "finest"), ("bricked_auto", "auto")] {
+            let mut a = render_args(&s, &size, &png);
+            a.extend(["--gpu-budget", budget.as_str(), "--lod", lod]);
+            row[key] = bricked(&a)?;
+        }
     }
     Ok(row)
 }
@@ -104,9 +118,26 @@ fn line(r: &Value) -> String {
     let raycast = ms(b, &["passes", "raycast"]).filter(|_| whole);
     let core = ms(&r["in_core"], &["passes", "raycast"]);
     let ratio = raycast.zip(core).map(|(b, c)| b / c);
+    let stream = |b: &Value| {
+        let g = |k: &str| ms(b, &["bricks", k]);
+        let floor = g("floor").is_some().then(|| {
+            let f = |k: &str| ms(b, &["bricks", "floor", k]).unwrap_or(0.0);
+            f("decode_ms") + f("upload_ms")
+        });
+        format!(
+            "{} loads/touched {:>5}, {:>6} MiB/s, both busy {:>3}%, first {:>6} ms, complete {:>7} ms, floor {:>7} ms",
+            b["bricks"].get("passes").map_or("-".into(), |p| format!("{p:>4} passes")),
+            f(g("loads_per_touched"), 3),
+            f(g("source_mib_per_s"), 0),
+            f(g("both_share").map(|x| 100.0 * x), 0),
+            f(g("first_frame_ms"), 0),
+            f(g("total_ms"), 0),
+            f(floor, 0),
+        )
+    };
     let imp_core = ms(&r["importance_in_core"], &["total_ms"]);
     let imp_chunk = ms(&r["importance_chunked"], &["seconds"]).map(|s| s * 1e3);
-    format!(
+    let mut out = format!(
         "{:>5}³ | {:>7} MiB/s {:>6} s | {:>7} ms {:>8} ms {:>8} MiB | {:>6} {:>7} MiB | {:>7} ms {:>7} ms {:>5} | {:>5}\n",
         r["n"],
         f(ms(&r["write"], &["mib_per_s"]), 0),
@@ -120,7 +151,13 @@ fn line(r: &Value) -> String {
         f(core, 1),
         f(ratio, 2),
         f(imp_core.zip(imp_chunk).map(|(c, k)| c / k), 2),
-    )
+    );
+    for key in ["bricked", "bricked_auto"] {
+        if r[key].is_object() {
+            out.push_str(&format!("       {key}: {}\n", stream(&r[key])));
+        }
+    }
+    out
 }
 
 pub(crate) fn scale(sizes: &[usize], image: u32, dir: &Path, keep: bool, json: bool) -> Result<()> {
