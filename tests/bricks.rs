@@ -298,6 +298,7 @@ fn a_streamed_phantom_store_is_the_phantom_written_whole() {
     let opts = WriteOptions {
         chunk: 16,
         levels: None,
+        threads: None,
     };
     write(&whole, &phantom::shepp_logan(90), &opts).unwrap();
     let (a, b) = (
@@ -494,6 +495,7 @@ fn a_coarse_view_of_a_store_is_its_coarse_level_rendered_in_core() {
     let opts = WriteOptions {
         chunk: 64,
         levels: None,
+        threads: None,
     };
     write(&path, &phantom::shepp_logan(256), &opts).unwrap();
     let ms = std::sync::Arc::new(Multiscale::open(&path).unwrap());

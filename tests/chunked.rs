@@ -26,6 +26,12 @@ fn max_abs_diff(a: &Volume, b: &Volume) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// Chunks of edge `chunk`, two in flight at once: one thread prepares or writes a chunk while
+/// the other's passes run.
+fn plan(chunk: usize) -> vellum::passes::chunked::Plan {
+    vellum::passes::chunked::Plan { chunk, workers: 2 }
+}
+
 #[test]
 fn chunked_importance_is_the_in_core_importance() {
     let gpu = Gpu::new();
@@ -37,7 +43,7 @@ fn chunked_importance_is_the_in_core_importance() {
         .delta_d;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("dd.ome.zarr");
-    let report = importance_store((&Solo, &gpu.ctx), &v, 5, &out, 32, &|| {}).unwrap();
+    let report = importance_store((&Solo, &gpu.ctx), &v, 5, &out, plan(32), &|| {}).unwrap();
     let chunked = Multiscale::open(&out).unwrap().read_level(0).unwrap();
     let d = max_abs_diff(&whole, &chunked);
     println!("importance: max |Δ| {d:e}");
@@ -55,7 +61,7 @@ fn normals_match(gpu: &Gpu, v: &Volume, chunk: usize) {
     let whole = normals.gradients(v, range).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("n.ome.zarr");
-    let report = normals_store((&Solo, &gpu.ctx), v, range, &out, chunk, &|| {}).unwrap();
+    let report = normals_store((&Solo, &gpu.ctx), v, range, &out, plan(chunk), &|| {}).unwrap();
     assert_eq!(
         report.levels,
         vellum::volume::io::ome_zarr::auto_levels(v.dims)
@@ -112,7 +118,7 @@ fn chunked_occlusion_is_the_in_core_occlusion_with_its_spectrum() {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("o.ome.zarr");
         let (_, spectrum) =
-            occlusion_store((&Solo, &gpu.ctx), &v, &p, range, &out, 32, &|| {}).unwrap();
+            occlusion_store((&Solo, &gpu.ctx), &v, &p, range, &out, plan(32), &|| {}).unwrap();
         let chunked = Multiscale::open(&out).unwrap().read_level(0).unwrap();
         let d = max_abs_diff(&whole.occlusion, &chunked);
         println!("occlusion {}: max |Δ| {d:e}", method.name());
@@ -135,7 +141,15 @@ fn chunked_occlusion_is_the_in_core_occlusion_with_its_spectrum() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("s.ome.zarr");
-    let refused = occlusion_store((&Solo, &gpu.ctx), &v, &strided, range, &out, 32, &|| {});
+    let refused = occlusion_store(
+        (&Solo, &gpu.ctx),
+        &v,
+        &strided,
+        range,
+        &out,
+        plan(32),
+        &|| {},
+    );
     assert!(refused.unwrap_err().to_string().contains("stride 1"));
     assert!(!out.exists());
 }

@@ -41,6 +41,7 @@ fn a_written_store_reads_back_voxel_for_voxel_with_its_pyramid() {
         &WriteOptions {
             chunk: 16,
             levels: None,
+            threads: None,
         },
     )
     .unwrap();

@@ -9,9 +9,11 @@
 //! value range, as the in-core pass does, and the spectrum is summed over the kept voxels of
 //! every chunk. The output store's pyramid and value range (so max |ΔD|) come with it.
 //!
-//! Chunks are computed one at a time on the GPU (the passes sit behind a lock) while another
-//! is compressed and written, so host memory holds a few chunks with their halos whatever the
-//! grid's size. The ranks of a team (an MPI job) share the chunks, each its own boxes of the
+//! Chunks run as a pipeline on [`Plan::workers`] threads: each reads and decodes its box,
+//! prepares it for the GPU (normalising, packing, allocating), records its passes behind the one
+//! lock a context allows, and turns the result back into voxels, crops and compresses it while
+//! the others use the GPU; host memory holds that many chunks with their halos, whatever the
+//! grid's size, and the plan sizes them from the memory budget. The ranks of a team (an MPI job) share the chunks, each its own boxes of the
 //! grid, and reduce the spectrum; the store is the one a process alone writes.
 
 use crate::error::{Error, Result};
@@ -37,6 +39,51 @@ pub const IMPORTANCE_BYTES: u64 = 24;
 pub const OCCLUSION_BYTES: u64 = 40;
 pub const NORMALS_BYTES: u64 = 56;
 
+/// How a chunked pass runs: its chunk edge, and how many chunks are in flight at once.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct Plan {
+    pub chunk: usize,
+    pub workers: usize,
+}
+
+impl Plan {
+    /// `chunk` (or the largest edge of which as many boxes fit `budget` as there are cores, two
+    /// to eight: a large chunk wastes less on its halo, several keep the cores decoding and
+    /// compressing), with as many workers as boxes of that edge with `halo` at
+    /// `bytes_per_voxel` fit `budget`, at least one and at most one per core.
+    pub fn new(
+        dims: [usize; 3],
+        (halo, bytes_per_voxel): (usize, u64),
+        chunk: Option<usize>,
+        budget: u64,
+    ) -> Result<Self> {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let chunk = match chunk {
+            Some(c) => c,
+            None => {
+                let wanted = cores.clamp(2, 8) as u64;
+                let longest = dims.into_iter().max().unwrap_or(1);
+                let fits = |c: usize| wanted * box_bytes(dims, c, halo, bytes_per_voxel) <= budget;
+                match CHUNKS.iter().map(|&c| c.min(longest)).find(|&c| fits(c)) {
+                    Some(c) => c,
+                    None => chunk_for(dims, halo, bytes_per_voxel, budget)?,
+                }
+            }
+        };
+        let workers = (budget / box_bytes(dims, chunk, halo, bytes_per_voxel).max(1)) as usize;
+        Ok(Plan {
+            chunk,
+            workers: workers.clamp(1, cores),
+        })
+    }
+}
+
+/// Host bytes of one chunk's box of edge `c` with `halo` at `bytes_per_voxel`.
+fn box_bytes(dims: [usize; 3], c: usize, halo: usize, bytes_per_voxel: u64) -> u64 {
+    let edge: [u64; 3] = std::array::from_fn(|a| (c.min(dims[a]) + 2 * halo).min(dims[a]) as u64);
+    edge.iter().product::<u64>() * bytes_per_voxel
+}
+
 /// The largest chunk edge whose box with `halo`, at `bytes_per_voxel`, fits `budget` twice (one
 /// chunk in its pass, one being written), at most the grid's longest axis; one sentence when
 /// not even the smallest fits.
@@ -46,11 +93,7 @@ pub fn chunk_for(
     bytes_per_voxel: u64,
     budget: u64,
 ) -> Result<usize> {
-    let need = |c: usize| {
-        let edge: [u64; 3] =
-            std::array::from_fn(|a| (c.min(dims[a]) + 2 * halo).min(dims[a]) as u64);
-        2 * edge.iter().product::<u64>() * bytes_per_voxel
-    };
+    let need = |c: usize| 2 * box_bytes(dims, c, halo, bytes_per_voxel);
     let longest = dims.into_iter().max().unwrap_or(1);
     CHUNKS
         .iter()
@@ -77,24 +120,30 @@ pub fn importance_store(
     src: &dyn BoxSource,
     radius: u32,
     out: &Path,
-    chunk: usize,
+    plan: Plan,
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
     let map = Mutex::new(team.together(ImportanceMap::new(ctx))?);
     let f = |v: &Volume, offset: [usize; 3], size: [usize; 3]| -> Result<Volume> {
-        let r = locked(&map)?.compute(v, radius, false)?;
-        r.delta_d.read_box(offset, size)
+        let staged = ImportanceMap::stage(ctx, v)?;
+        locked(&map)?.run(&staged, radius)?;
+        staged.delta_d()?.read_box(offset, size)
     };
     let halo = Halo {
         src,
         halo: radius as usize,
         f: &f,
     };
-    let opts = WriteOptions {
-        chunk,
+    write_source_in(team, out, &halo, &options(plan), on_chunk)
+}
+
+/// The store's options for a pass run by `plan`.
+fn options(plan: Plan) -> WriteOptions {
+    WriteOptions {
+        chunk: plan.chunk,
         levels: None,
-    };
-    write_source_in(team, out, &halo, &opts, on_chunk)
+        threads: Some(plan.workers),
+    }
 }
 
 /// The occlusion volume of `src` under `p` (stride 1), chunk by chunk, into a new store at
@@ -106,7 +155,7 @@ pub fn occlusion_store(
     p: &OcclusionParams,
     range: [f64; 2],
     out: &Path,
-    chunk: usize,
+    plan: Plan,
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<(WriteReport, Option<Spectrum>)> {
     if p.stride != 1 {
@@ -123,11 +172,14 @@ pub fn occlusion_store(
     let bins = p.spectrum_bins.map(|b| b.map(|n| n as usize));
     let counts = Mutex::new(vec![0u64; bins.map_or(0, |[x, y]| x * y)]);
     let f = |v: &Volume, offset: [usize; 3], size: [usize; 3]| -> Result<Volume> {
-        // One recording at a time on the context: the upload goes under the lock too.
+        // One recording at a time on the context: the upload goes under the lock, its staging
+        // is made before.
+        let (input, staging) = OcclusionInput::stage_in_range(ctx, v, Some(range))?;
         let mut pass = locked(&occlusion)?;
-        let (input, _) = OcclusionInput::upload_in_range(ctx, v, Some(range))?;
+        input.upload_staged(ctx, &staging)?;
         let o = pass.compute_on(&input, &params)?.occlusion;
         drop(pass);
+        drop(staging);
         let kept = o.read_box(offset, size)?;
         if let (Some(b), Some(host)) = (bins, &input.host) {
             let s = Volume::new(v.dims, v.spacing, VoxelData::F32(host.to_vec()))?
@@ -141,11 +193,7 @@ pub fn occlusion_store(
         halo: p.radius as usize,
         f: &f,
     };
-    let opts = WriteOptions {
-        chunk,
-        levels: None,
-    };
-    let report = write_source_in(team, out, &halo, &opts, on_chunk)?;
+    let report = write_source_in(team, out, &halo, &options(plan), on_chunk)?;
     let mut counts = counts
         .into_inner()
         .map_err(|_| Error::Invalid("a chunk's pass failed on another thread".into()))?;
@@ -175,13 +223,15 @@ pub fn normals_store(
     src: &dyn BoxSource,
     range: [f64; 2],
     out: &Path,
-    chunk: usize,
+    plan: Plan,
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
     let normals = Mutex::new(team.together(Normals::new(ctx))?);
     let read = |lo: [usize; 3], size: [usize; 3]| -> Result<Vec<Volume>> {
         let (v, offset) = read_widened(src, NORMALS_HALO, lo, size)?;
-        let g = locked(&normals)?.gradients(&v, range)?;
+        let staged = Normals::stage(ctx, &v, range)?;
+        locked(&normals)?.run(&staged)?;
+        let g = staged.gradients()?;
         (0..4)
             .map(|c| {
                 let one = g.iter().map(|t| t[c]).collect();
@@ -190,11 +240,7 @@ pub fn normals_store(
             .collect()
     };
     let channels = Channels::over(src, (4, VoxelType::F32), &read);
-    let opts = WriteOptions {
-        chunk,
-        levels: None,
-    };
-    write_channels_in(team, out, &channels, &opts, on_chunk)
+    write_channels_in(team, out, &channels, &options(plan), on_chunk)
 }
 
 /// Adds the (intensity, occlusion) pairs of one chunk to the spectrum's counts, binned as
@@ -211,6 +257,27 @@ fn add_to_spectrum(counts: &mut [u64], [bx, by]: [usize; 2], s: &Volume, o: &Vol
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_plan_holds_as_many_chunks_as_the_budget() {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        // 276³ boxes of 24 bytes a voxel are 481 MiB: two fit 1 GiB; 148³ ones are 74 MiB,
+        // and eight of them fit.
+        let p = Plan::new([512; 3], (10, 24), None, 1 << 30).unwrap();
+        assert!(p.workers as u64 * box_bytes([512; 3], p.chunk, 10, 24) <= 1 << 30);
+        assert!(p.workers >= cores.min(8), "{p:?} on {cores} cores");
+        if cores <= 2 {
+            assert_eq!(p.chunk, 256);
+        }
+        // 84³ boxes of 64³ chunks: one per core.
+        let p = Plan::new([512; 3], (10, 24), Some(64), 1 << 30).unwrap();
+        assert_eq!((p.chunk, p.workers), (64, cores.min(75)));
+        // Never fewer than one.
+        assert_eq!(
+            Plan::new([512; 3], (10, 24), Some(256), 1).unwrap().workers,
+            1
+        );
+    }
 
     #[test]
     fn chunks_fit_the_budget_twice() {

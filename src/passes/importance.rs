@@ -134,6 +134,38 @@ pub struct ImportanceVolume {
     pub radius_voxels: u32,
 }
 
+/// A chunk staged for [`ImportanceMap::run`] by [`ImportanceMap::stage`]; its ΔD comes back by
+/// [`StagedImportance::delta_d`].
+pub struct StagedImportance {
+    images: ImportanceImages,
+    staging: Buffer,
+    dims: [usize; 3],
+    spacing: [f64; 3],
+    geometry: crate::volume::geometry::Geometry,
+}
+
+impl StagedImportance {
+    /// ΔD, once [`ImportanceMap::run`] has read it back (host work, beside other threads').
+    pub fn delta_d(&self) -> Result<Volume> {
+        Self::read(&self.staging, self.dims, self.spacing, self.geometry)
+    }
+
+    fn read(
+        staging: &Buffer,
+        dims: [usize; 3],
+        spacing: [f64; 3],
+        geometry: crate::volume::geometry::Geometry,
+    ) -> Result<Volume> {
+        let out = staging
+            .mapped()
+            .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
+        let packed: &[f32] = bytemuck::try_cast_slice(out)
+            .map_err(|e| Error::Invalid(format!("readback memory does not hold floats: {e}")))?;
+        let delta = unpack_rows(packed, dims);
+        Volume::new(dims, spacing, VoxelData::F32(delta))?.with_geometry(geometry)
+    }
+}
+
 /// Which shaders filter along each axis.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub enum GaussKernel {
@@ -642,8 +674,15 @@ impl ImportanceMap {
     /// texel (paper step 1, in parallel, straight into the staging memory). Fails early on a bad
     /// radius, before any allocation.
     fn staged(&mut self, v: &Volume, radius_voxels: u32) -> Result<(ImportanceImages, Buffer)> {
-        let ctx = &self.ctx.clone();
         self.gauss(radius_voxels)?;
+        let staged = Self::stage(&self.ctx, v)?;
+        Ok((staged.images, staged.staging))
+    }
+
+    /// The host's part before a chunk's passes (no recording, so it may run beside another
+    /// thread's passes): `v` checked, its images allocated and its voxels packed into a staging
+    /// buffer.
+    pub fn stage(ctx: &Arc<Context>, v: &Volume) -> Result<StagedImportance> {
         v.check_finite("the input volume")?;
         let images = ImportanceImages::new(ctx, v.dims)?;
         let mut staging = staging_buffer(ctx, "importance staging", images.src.byte_size())?;
@@ -653,7 +692,32 @@ impl ImportanceMap {
         let floats: &mut [f32] = bytemuck::try_cast_slice_mut(mapped)
             .map_err(|e| Error::Invalid(format!("staging memory cannot hold floats: {e}")))?;
         pack_rows_into(v, floats);
-        Ok((images, staging))
+        Ok(StagedImportance {
+            images,
+            staging,
+            dims: v.dims,
+            spacing: v.spacing,
+            geometry: v.geometry,
+        })
+    }
+
+    /// The passes of a staged chunk (upload, the filters, readback), in one submission: the
+    /// only part that records, for the caller to serialise.
+    pub fn run(&mut self, s: &StagedImportance, radius_voxels: u32) -> Result<Vec<PassTime>> {
+        self.gauss(radius_voxels)?;
+        let ctx = &self.ctx.clone();
+        let ((), passes) = submit_timed(ctx, "importance map", |f| {
+            let cmd = f.cmd;
+            f.profiler.pass(cmd, "upload", |cmd| {
+                record_upload(ctx, cmd, &s.staging, &s.images.src, Access::ComputeRead)
+            });
+            self.record(f, &s.images, radius_voxels)?;
+            f.profiler.pass(cmd, "readback", |cmd| {
+                record_readback(ctx, cmd, s.images.delta_d(), &s.staging)
+            });
+            Ok(())
+        })?;
+        Ok(passes)
     }
 
     /// Computes ΔD of `v` with radius `radius_voxels`: allocation, upload, the passes and
@@ -691,14 +755,7 @@ impl ImportanceMap {
             });
             Ok(())
         })?;
-        let out = staging
-            .mapped()
-            .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
-        let packed: &[f32] = bytemuck::try_cast_slice(out)
-            .map_err(|e| Error::Invalid(format!("readback memory does not hold floats: {e}")))?;
-        let delta = unpack_rows(packed, v.dims);
-        let delta_d =
-            Volume::new(v.dims, v.spacing, VoxelData::F32(delta))?.with_geometry(v.geometry)?;
+        let delta_d = StagedImportance::read(&staging, v.dims, v.spacing, v.geometry)?;
         Ok(ImportanceOutput {
             delta_d,
             passes,

@@ -204,6 +204,28 @@ impl VolumeTextures {
     }
 }
 
+/// A chunk staged for [`Normals::run`] by [`Normals::stage`].
+pub struct StagedNormals {
+    textures: VolumeTextures,
+    upload: crate::gpu::Buffer,
+    readback: crate::gpu::Buffer,
+}
+
+impl StagedNormals {
+    /// The gradients [`Normals::run`] read back, as floats (host work, beside other threads').
+    pub fn gradients(&self) -> Result<Vec<[f32; 4]>> {
+        let bytes = self.readback.mapped().ok_or_else(|| {
+            crate::error::Error::Invalid("the readback buffer is not host-visible".into())
+        })?;
+        Ok(bytes
+            .chunks_exact(8)
+            .map(|t| {
+                std::array::from_fn(|c| half::f16::from_le_bytes([t[2 * c], t[2 * c + 1]]).to_f32())
+            })
+            .collect())
+    }
+}
+
 /// The `sobel_normals` pipeline.
 pub struct Normals {
     ctx: Arc<Context>,
@@ -287,14 +309,41 @@ impl Normals {
     /// The gradients of `v` normalised over `range`, read back: per voxel (x fastest) the
     /// gradient in world units and its length, exactly the half floats the renderer samples.
     pub fn gradients(&self, v: &Volume, range: [f64; 2]) -> Result<Vec<[f32; 4]>> {
-        let (tex, _) = self.prepare_in_range(v, range)?;
-        let bytes = crate::gpu::transfer::readback(&self.ctx, &tex.gradient)?;
-        Ok(bytes
-            .chunks_exact(8)
-            .map(|t| {
-                std::array::from_fn(|c| half::f16::from_le_bytes([t[2 * c], t[2 * c + 1]]).to_f32())
-            })
-            .collect())
+        let staged = Self::stage(&self.ctx, v, range)?;
+        self.run(&staged)?;
+        staged.gradients()
+    }
+
+    /// The host's part before a chunk's gradients (no recording, so it may run beside another
+    /// thread's passes): `v` normalised over `range` into a staging buffer, its textures and a
+    /// readback buffer allocated.
+    pub fn stage(ctx: &Arc<Context>, v: &Volume, range: [f64; 2]) -> Result<StagedNormals> {
+        let (textures, upload) = VolumeTextures::new_in_range(ctx, v, range)?;
+        let readback = crate::gpu::transfer::staging_buffer(
+            ctx,
+            "normals readback",
+            textures.gradient.byte_size(),
+        )?;
+        Ok(StagedNormals {
+            textures,
+            upload,
+            readback,
+        })
+    }
+
+    /// The passes of a staged chunk (`upload`, `sobel_normals`, the readback) in one
+    /// submission: the only part that records, for the caller to serialise.
+    pub fn run(&self, s: &StagedNormals) -> Result<Vec<PassTime>> {
+        let ctx = &self.ctx;
+        let ((), times) = crate::gpu::submit_timed(ctx, "volume gradients", |f| {
+            s.textures.record_upload(ctx, f, &s.upload);
+            self.record(f, &s.textures)?;
+            f.profiler.pass(f.cmd, "readback", |cmd| {
+                crate::gpu::transfer::record_readback(ctx, cmd, &s.textures.gradient, &s.readback)
+            });
+            Ok(())
+        })?;
+        Ok(times)
     }
 
     /// The nearest-texel sampler the pass reads with (also right for `texelFetch` elsewhere).

@@ -918,6 +918,19 @@ impl OcclusionInput {
         v: &Volume,
         range: Option<[f64; 2]>,
     ) -> Result<(Self, Vec<PassTime>)> {
+        let (input, staging) = Self::stage_in_range(ctx, v, range)?;
+        let passes = input.upload_staged(ctx, &staging)?;
+        Ok((input, passes))
+    }
+
+    /// The host's part of [`OcclusionInput::upload_in_range`] (no recording, so it may run
+    /// beside another thread's passes): the normalised voxels in a staging buffer, the image
+    /// allocated; [`OcclusionInput::upload_staged`] then copies them.
+    pub fn stage_in_range(
+        ctx: &Arc<Context>,
+        v: &Volume,
+        range: Option<[f64; 2]>,
+    ) -> Result<(Self, crate::gpu::Buffer)> {
         let (intensity, range) = normalised_f32_in(v, range);
         let extent = extent_of(ctx, v.dims, 4, 4)?;
         let image = Image::new(
@@ -927,12 +940,6 @@ impl OcclusionInput {
         )?;
         let mut staging = staging_buffer(ctx, "occlusion staging", intensity.len() * 4)?;
         staging.write(bytemuck::cast_slice(&intensity))?;
-        let ((), passes) = submit_timed(ctx, "occlusion upload", |f| {
-            f.profiler.pass(f.cmd, "upload", |cmd| {
-                record_upload(ctx, cmd, &staging, &image, Access::ComputeRead)
-            });
-            Ok(())
-        })?;
         let input = OcclusionInput {
             intensity: image,
             dims: v.dims,
@@ -941,7 +948,22 @@ impl OcclusionInput {
             range,
             host: Some(Arc::new(intensity)),
         };
-        Ok((input, passes))
+        Ok((input, staging))
+    }
+
+    /// Pass `upload`: `staging` (from [`OcclusionInput::stage_in_range`]) into the image.
+    pub fn upload_staged(
+        &self,
+        ctx: &Arc<Context>,
+        staging: &crate::gpu::Buffer,
+    ) -> Result<Vec<PassTime>> {
+        let ((), passes) = submit_timed(ctx, "occlusion upload", |f| {
+            f.profiler.pass(f.cmd, "upload", |cmd| {
+                record_upload(ctx, cmd, staging, &self.intensity, Access::ComputeRead)
+            });
+            Ok(())
+        })?;
+        Ok(passes)
     }
 }
 

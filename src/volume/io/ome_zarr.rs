@@ -482,6 +482,9 @@ pub struct WriteOptions {
     pub chunk: usize,
     /// Levels to write; `None`: halve until the longest axis is at most 64 voxels.
     pub levels: Option<usize>,
+    /// Chunks made at once (each on its own thread, with its box in memory); `None`: one per
+    /// core.
+    pub threads: Option<usize>,
 }
 
 impl Default for WriteOptions {
@@ -489,6 +492,7 @@ impl Default for WriteOptions {
         WriteOptions {
             chunk: 64,
             levels: None,
+            threads: None,
         }
     }
 }
@@ -662,7 +666,15 @@ pub fn write_channels_in(
     let tmp = PathBuf::from(
         String::from_utf8_lossy(&team.broadcast(tmp.unwrap_or_default().into_bytes())).into_owned(),
     );
-    let report = write_levels(team, &tmp, &name, src, (opts.chunk, levels), on_chunk);
+    let threads = opts.threads.unwrap_or(usize::MAX).max(1);
+    let report = write_levels(
+        team,
+        &tmp,
+        &name,
+        src,
+        (opts.chunk, levels, threads),
+        on_chunk,
+    );
     match (folder, report) {
         (None, report) => report,
         (Some(f), Ok(r)) => f.finish(Ok(())).map(|()| r),
@@ -678,7 +690,7 @@ fn write_levels(
     path: &Path,
     name: &str,
     src: &Channels,
-    (chunk, levels): (usize, usize),
+    (chunk, levels, threads): (usize, usize, usize),
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<WriteReport> {
     let store = Arc::new(FilesystemStore::new(path).map_err(|e| invalid(path, e))?);
@@ -724,7 +736,13 @@ fn write_levels(
             .filter(|&c| owners[c] == team.rank())
             .collect();
         let written = match &previous {
-            None => store_chunks(&array, path, (dims, chunk, &mine), src.read, on_chunk),
+            None => store_chunks(
+                &array,
+                path,
+                (dims, chunk, &mine, threads),
+                src.read,
+                on_chunk,
+            ),
             Some(prev) => {
                 let read = |lo, size| {
                     halved_box(prev, channels, voxel, level_dims(dims0, i - 1), (lo, size))
@@ -737,7 +755,7 @@ fn write_levels(
                         )
                     })
                 };
-                store_chunks(&array, path, (dims, chunk, &mine), &read, on_chunk)
+                store_chunks(&array, path, (dims, chunk, &mine, threads), &read, on_chunk)
             }
         };
         // Every rank's chunks of this level are written before any rank reads them for the next.
@@ -888,7 +906,7 @@ fn make_array(
 fn store_chunks(
     array: &Array<FilesystemStore>,
     path: &Path,
-    (dims, chunk, mine): ([usize; 3], usize, &[usize]),
+    (dims, chunk, mine, most): ([usize; 3], usize, &[usize], usize),
     read: &(dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
     on_chunk: &(dyn Fn() + Sync),
 ) -> Result<[f64; 2]> {
@@ -949,6 +967,7 @@ fn store_chunks(
     };
     let threads = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
+        .min(most)
         .min(total.max(1));
     std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads).map(|_| s.spawn(worker)).collect();

@@ -19,35 +19,48 @@ pub(crate) fn open_shared(
     Ok((source, dims))
 }
 
-/// `--chunk`, or the largest edge whose chunks with their `halo` fit the memory budget twice.
-pub(crate) fn chunk_edge(
+/// Host memory a chunked pass works in by default: 1 GiB, whatever the grid's size.
+pub(crate) const CHUNKED_MEMORY: u64 = 1 << 30;
+
+/// How a chunked pass runs: `--chunk` (or the largest edge whose chunks with their `halo` fit
+/// the memory budget twice), and as many chunks in flight as the budget holds (one per core at
+/// most). The budget is `--memory-budget`, by default [`CHUNKED_MEMORY`].
+pub(crate) fn chunk_plan(
     c: &ChunkArgs,
     dims: [usize; 3],
     halo: usize,
     bytes_per_voxel: u64,
-) -> Result<usize> {
-    Ok(match c.chunk {
-        Some(0) => anyhow::bail!("--chunk 0 is invalid; expected a chunk edge of 1 voxel or more"),
-        Some(n) => n,
-        None => vellum::passes::chunked::chunk_for(dims, halo, bytes_per_voxel, memory_budget(c)?)?,
-    })
+) -> Result<vellum::passes::chunked::Plan> {
+    if c.chunk == Some(0) {
+        anyhow::bail!("--chunk 0 is invalid; expected a chunk edge of 1 voxel or more");
+    }
+    let budget = memory_budget(c, CHUNKED_MEMORY)?;
+    Ok(vellum::passes::chunked::Plan::new(
+        dims,
+        (halo, bytes_per_voxel),
+        c.chunk,
+        budget,
+    )?)
 }
 
-/// `--memory-budget` in bytes; by default half the machine's memory.
-pub(crate) fn memory_budget(c: &ChunkArgs) -> Result<u64> {
+/// `--memory-budget` in bytes, or `default`.
+pub(crate) fn memory_budget(c: &ChunkArgs, default: u64) -> Result<u64> {
     Ok(match c.memory_budget {
         Some(m) if m.is_finite() && m > 0.0 => (m * (1u64 << 20) as f64) as u64,
         Some(m) => {
             anyhow::bail!("--memory-budget {m} is invalid; expected a positive number of MiB")
         }
-        None => vellum::memory::total_kib().map_or(u64::MAX, |k| k * 1024 / 2),
+        None => default,
     })
 }
 
 /// How a pass runs: on the whole volume, or chunk by chunk from a source into a store.
 pub(crate) enum Plan {
     InCore(Volume),
-    Chunked { source: Source, chunk: usize },
+    Chunked {
+        source: Source,
+        plan: vellum::passes::chunked::Plan,
+    },
 }
 
 pub(crate) fn is_store_path(p: &Path) -> bool {
@@ -56,8 +69,9 @@ pub(crate) fn is_store_path(p: &Path) -> bool {
 }
 
 /// Chunk by chunk when the output is a store, the input is a store, or the in-core need
-/// (`bytes_per_voxel` per voxel) exceeds the memory budget; then `--out` must be a store and
-/// `--slices`-like whole-volume outputs (`whole_outputs`) are refused in one sentence.
+/// (`bytes_per_voxel` per voxel) exceeds the memory budget (by default half the machine's
+/// memory); then `--out` must be a store and `--slices`-like whole-volume outputs
+/// (`whole_outputs`) are refused in one sentence.
 pub(crate) fn plan(
     team: &dyn vellum::team::Team,
     input: &InputArgs,
@@ -67,7 +81,8 @@ pub(crate) fn plan(
     bytes_per_voxel: u64,
     whole_outputs: &[(&str, bool)],
 ) -> Result<Plan> {
-    let budget = memory_budget(c)?;
+    let half = vellum::memory::total_kib().map_or(u64::MAX, |k| k * 1024 / 2);
+    let budget = memory_budget(c, half)?;
     let (source, dims) = open_shared(team, input)?;
     let need = dims.iter().map(|&n| n as u64).product::<u64>() * bytes_per_voxel;
     let store_out = out.is_some_and(is_store_path);
@@ -95,8 +110,8 @@ pub(crate) fn plan(
             "{flag} needs the whole result in memory; a chunked pass writes only its store"
         );
     }
-    let chunk = chunk_edge(c, dims, halo, bytes_per_voxel)?;
-    Ok(Plan::Chunked { source, chunk })
+    let plan = chunk_plan(c, dims, halo, bytes_per_voxel)?;
+    Ok(Plan::Chunked { source, plan })
 }
 
 /// Runs a chunked pass, `run(on_chunk)`, over a grid of `dims` with a progress bar over its
@@ -111,6 +126,7 @@ pub(crate) fn run_with_bar<T>(
     let opts = vellum::volume::io::ome_zarr::WriteOptions {
         chunk,
         levels: None,
+        threads: None,
     };
     let count = vellum::volume::io::ome_zarr::chunk_count(dims, &opts) as u64;
     // Rank 0's bar counts its own chunks against the whole grid's; the others show none.
@@ -130,7 +146,7 @@ pub(crate) fn report(
     team: &dyn vellum::team::Team,
     ctx: &vellum::gpu::Context,
     store: &vellum::volume::io::ome_zarr::WriteReport,
-    chunk: usize,
+    plan: vellum::passes::chunked::Plan,
     halo: usize,
     secs: f64,
 ) -> serde_json::Value {
@@ -138,7 +154,8 @@ pub(crate) fn report(
     serde_json::json!({
         "chunked": true,
         "ranks": team.size(),
-        "chunk": chunk,
+        "chunk": plan.chunk,
+        "workers": plan.workers,
         "halo": halo,
         "levels": store.levels,
         "chunks": store.chunks,

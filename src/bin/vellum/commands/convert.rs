@@ -40,6 +40,7 @@ pub(crate) fn convert(
     let opts = WriteOptions {
         chunk: chunk.unwrap_or(64),
         levels: parse_levels(levels)?,
+        threads: None,
     };
     let source = Source::open(input)?;
     let boxes = source.boxes()?;

@@ -20,11 +20,11 @@ pub(crate) fn importance(
     let v = match plan(team, input, out, chunking, radius as usize, bytes, &whole)? {
         Plan::InCore(_) if !team.is_root() => return Ok(()),
         Plan::InCore(v) => v,
-        Plan::Chunked { source, chunk } => {
+        Plan::Chunked { source, plan } => {
             let ctx = together(team, context(cli))?;
             let out = out.ok_or_else(|| anyhow::anyhow!("a chunked pass needs --out"))?;
             let boxes = source.boxes()?;
-            let grid = (boxes.dims(), chunk);
+            let grid = (boxes.dims(), plan.chunk);
             let (store, secs) =
                 super::chunked::run_with_bar(team, &ctx, grid, "importance chunks", |on_chunk| {
                     vellum::passes::chunked::importance_store(
@@ -32,11 +32,11 @@ pub(crate) fn importance(
                         &*boxes,
                         radius,
                         out,
-                        chunk,
+                        plan,
                         on_chunk,
                     )
                 })?;
-            let mut r = super::chunked::report(team, &ctx, &store, chunk, radius as usize, secs);
+            let mut r = super::chunked::report(team, &ctx, &store, plan, radius as usize, secs);
             r["max_abs_delta_d"] = json!(store.range[0].abs().max(store.range[1].abs()));
             if !team.is_root() {
                 return Ok(());
@@ -111,18 +111,18 @@ pub(crate) fn normals(
     );
     let (source, dims) = super::chunked::open_shared(team, input)?;
     let boxes = source.boxes()?;
-    let chunk = super::chunked::chunk_edge(chunking, dims, NORMALS_HALO, NORMALS_BYTES)?;
+    let plan = super::chunked::chunk_plan(chunking, dims, NORMALS_HALO, NORMALS_BYTES)?;
     let ctx = together(team, context(cli))?;
     let range = together(team, source.range())?;
-    let grid = (dims, chunk);
+    let grid = (dims, plan.chunk);
     let (store, secs) =
         super::chunked::run_with_bar(team, &ctx, grid, "normal chunks", |on_chunk| {
-            normals_store((team, &ctx), &*boxes, range, out, chunk, on_chunk)
+            normals_store((team, &ctx), &*boxes, range, out, plan, on_chunk)
         })?;
     if !team.is_root() {
         return Ok(());
     }
-    let mut r = super::chunked::report(team, &ctx, &store, chunk, NORMALS_HALO, secs);
+    let mut r = super::chunked::report(team, &ctx, &store, plan, NORMALS_HALO, secs);
     r["voxels_per_second"] = json!(dims.iter().product::<usize>() as f64 / secs.max(1e-9));
     r["intensity_range"] = json!(range);
     if json {

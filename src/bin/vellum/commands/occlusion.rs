@@ -32,8 +32,8 @@ pub(crate) fn occlusion((cli, team): (&Cli, &dyn Team), a: &OcclusionArgs) -> Re
     let v = match plan(team, input, out, &a.chunking, radius as usize, bytes, &[])? {
         Plan::InCore(_) if !team.is_root() => return Ok(()),
         Plan::InCore(v) => v,
-        Plan::Chunked { source, chunk } => {
-            return occlusion_chunked((cli, team), a, &source, &params, chunk);
+        Plan::Chunked { source, plan } => {
+            return occlusion_chunked((cli, team), a, &source, &params, plan);
         }
     };
     let ctx = context(cli)?;
@@ -82,7 +82,7 @@ fn occlusion_chunked(
     a: &OcclusionArgs,
     source: &super::convert::Source,
     params: &vellum::passes::occlusion::OcclusionParams,
-    chunk: usize,
+    plan: vellum::passes::chunked::Plan,
 ) -> Result<()> {
     let ctx = together(team, context(cli))?;
     let out = a
@@ -91,7 +91,7 @@ fn occlusion_chunked(
         .ok_or_else(|| anyhow::anyhow!("a chunked pass needs --out"))?;
     let range = together(team, source.range())?;
     let boxes = source.boxes()?;
-    let grid = (boxes.dims(), chunk);
+    let grid = (boxes.dims(), plan.chunk);
     let ((store, spectrum), secs) =
         super::chunked::run_with_bar(team, &ctx, grid, "occlusion chunks", |on_chunk| {
             vellum::passes::chunked::occlusion_store(
@@ -100,7 +100,7 @@ fn occlusion_chunked(
                 params,
                 range,
                 out,
-                chunk,
+                plan,
                 on_chunk,
             )
         })?;
@@ -110,7 +110,7 @@ fn occlusion_chunked(
     if let Some(s) = &spectrum {
         write_spectrum(s, a.spectrum.as_deref(), a.spectrum_data.as_deref())?;
     }
-    let mut r = super::chunked::report(team, &ctx, &store, chunk, params.radius as usize, secs);
+    let mut r = super::chunked::report(team, &ctx, &store, plan, params.radius as usize, secs);
     r["intensity_range"] = json!(range);
     r["spectrum_total"] =
         json!(spectrum
