@@ -397,6 +397,10 @@ void main() {
             prev_s = r.walk.w;
             done = (r.flags.x & 2u) != 0u;
             first = (r.flags.x & 4u) != 0u;
+            if (wait && done) {
+                // Finished in an earlier pass; its state stands.
+                return;
+            }
         }
         // The brick of the last sample and its flags, looked up once per brick.
         ivec3 cur_brick = ivec3(-1);
@@ -548,6 +552,11 @@ void main() {
             uint flags = 1u | (stopped ? 0u : 2u) | (first ? 4u : 0u);
             rays[ray] = RayState(fp, fd, ctx, vec4(depth, m, prev_t, prev_s), uvec4(flags, 0u, 0u, 0u));
         }
+    }
+    // A pass that waits for bricks keeps its results in the rays' states; only the frame that
+    // ends the passes (or draws without waiting) writes the layers.
+    if (wait) {
+        return;
     }
     if (V_TWO_LEVEL) {
         imageStore(out_phong, px, fp);

@@ -490,64 +490,109 @@ fn to_upload(
     range: [f64; 2],
     table: Option<&[u16; 256]>,
 ) -> BrickVoxels {
-    let d = inner.dims;
-    let n = UPLOAD * UPLOAD * UPLOAD;
-    let index = |x: usize, y: usize, z: usize| map[0][x] + d[0] * (map[1][y] + d[1] * map[2][z]);
-    fn fill<T: Copy, U>(
-        n: usize,
-        index: &dyn Fn(usize, usize, usize) -> usize,
-        src: &[T],
-        f: impl Fn(T) -> U,
-    ) -> Vec<U> {
-        let mut out = Vec::with_capacity(n);
-        for z in 0..UPLOAD {
-            for y in 0..UPLOAD {
-                for x in 0..UPLOAD {
-                    out.push(f(src[index(x, y, z)]));
-                }
-            }
-        }
-        out
-    }
+    let [lo, hi] = range;
+    let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+    let norm = |v: f64| ((v - lo) * scale).round().clamp(0.0, 65535.0) as u16;
+    let mut stats = UploadStats::default();
     let data = match (&inner.data, table) {
-        (VoxelData::U8(s), Some(_)) => BrickData::U8(fill(n, &index, s, |v| v)),
-        (VoxelData::U8(s), None) => {
-            BrickData::U16(fill(n, &index, s, |v| normalise(v as f64, range)))
-        }
-        (VoxelData::U16(s), _) => {
-            BrickData::U16(fill(n, &index, s, |v| normalise(v as f64, range)))
-        }
-        (VoxelData::I16(s), _) => {
-            BrickData::U16(fill(n, &index, s, |v| normalise(v as f64, range)))
-        }
-        (VoxelData::F32(s), _) => {
-            BrickData::U16(fill(n, &index, s, |v| normalise(v as f64, range)))
-        }
+        (VoxelData::U8(s), Some(t)) => BrickData::U8(gather(
+            inner.dims,
+            map,
+            s,
+            |v| v,
+            |v| t[v as usize],
+            &mut stats,
+        )),
+        (VoxelData::U8(s), None) => BrickData::U16(gather(
+            inner.dims,
+            map,
+            s,
+            |v| norm(v as f64),
+            |v| v,
+            &mut stats,
+        )),
+        (VoxelData::U16(s), _) => BrickData::U16(gather(
+            inner.dims,
+            map,
+            s,
+            |v| norm(v as f64),
+            |v| v,
+            &mut stats,
+        )),
+        (VoxelData::I16(s), _) => BrickData::U16(gather(
+            inner.dims,
+            map,
+            s,
+            |v| norm(v as f64),
+            |v| v,
+            &mut stats,
+        )),
+        (VoxelData::F32(s), _) => BrickData::U16(gather(
+            inner.dims,
+            map,
+            s,
+            |v| norm(v as f64),
+            |v| v,
+            &mut stats,
+        )),
     };
-    let value = |i: usize| match (&data, table) {
-        (BrickData::U16(v), _) => v[i],
-        (BrickData::U8(v), Some(t)) => t[v[i] as usize],
-        (BrickData::U8(v), None) => v[i] as u16,
-    };
-    // The slot's texels are the upload less its outer layer.
-    let (mut mn, mut mx) = (u16::MAX, 0u16);
-    for z in 1..UPLOAD - 1 {
-        for y in 1..UPLOAD - 1 {
-            let row = UPLOAD * (y + UPLOAD * z);
-            for x in 1..UPLOAD - 1 {
-                let v = value(row + x);
-                mn = mn.min(v);
-                mx = mx.max(v);
-            }
-        }
-    }
-    let first = value(0);
-    let constant = mn == mx && mn == first && (0..n).all(|i| value(i) == first);
     BrickVoxels {
         data,
-        range: [mn, mx],
-        constant,
+        range: [stats.min, stats.max],
+        constant: stats.constant,
     }
+}
+
+/// What [`gather`] learns of a brick's normalised values on the way.
+struct UploadStats {
+    /// Over the slot's texels (the upload less its outer layer).
+    min: u16,
+    max: u16,
+    /// Whether every value of the upload is the first.
+    constant: bool,
+}
+
+impl Default for UploadStats {
+    fn default() -> Self {
+        UploadStats {
+            min: u16::MAX,
+            max: 0,
+            constant: true,
+        }
+    }
+}
+
+/// The [`UPLOAD`]³ voxels of `src` (of `dims`) at `map`'s indices, each turned by `convert` into
+/// what travels, and `value` of that its normalised value, for `stats`: one pass, row by row.
+fn gather<T: Copy, U: Copy>(
+    dims: [usize; 3],
+    map: &[Vec<usize>; 3],
+    src: &[T],
+    convert: impl Fn(T) -> U,
+    value: impl Fn(U) -> u16,
+    stats: &mut UploadStats,
+) -> Vec<U> {
+    let mut out = Vec::with_capacity(UPLOAD * UPLOAD * UPLOAD);
+    let first = value(convert(
+        src[map[0][0] + dims[0] * (map[1][0] + dims[1] * map[2][0])],
+    ));
+    for (z, &mz) in map[2].iter().enumerate() {
+        for (y, &my) in map[1].iter().enumerate() {
+            let row = &src[dims[0] * (my + dims[1] * mz)..];
+            let core = (1..UPLOAD - 1).contains(&y) && (1..UPLOAD - 1).contains(&z);
+            for (x, &mx) in map[0].iter().enumerate() {
+                let u = convert(row[mx]);
+                let v = value(u);
+                stats.constant &= v == first;
+                if core && (1..UPLOAD - 1).contains(&x) {
+                    stats.min = stats.min.min(v);
+                    stats.max = stats.max.max(v);
+                }
+                out.push(u);
+            }
+        }
+    }
+    out
 }
 
 /// The 3D Sobel gradient at voxel `c` of `at` (neighbours clamped by `at`), per unit of spacing,
