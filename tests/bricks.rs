@@ -385,6 +385,9 @@ fn a_store_renders_through_the_cache_as_it_renders_in_core() {
     let b = &bricked["bricks"];
     assert_eq!(b["complete"], true);
     assert!(b["bricks_evicted"].as_u64().unwrap() > 0);
+    // Read front to back, a brick is read about once even through eight slots (observed 1.09).
+    let per = b["loads_per_touched"].as_f64().unwrap();
+    assert!((1.0..=1.25).contains(&per), "{per} loads per brick touched");
     let read = |p: &str| image::open(p).unwrap().to_rgb8().into_raw();
     let (x, y) = (read(&png("core.png")), read(&png("bricked.png")));
     let mean = x

@@ -243,7 +243,8 @@ pub(crate) struct RenderArgs {
 #[derive(Args, Clone, Debug)]
 pub(crate) struct ChunkArgs {
     /// Host memory for the pass in MiB: above it (and for a store input) the pass runs chunk by
-    /// chunk into an OME-Zarr store (default: half the machine's memory).
+    /// chunk into an OME-Zarr store (default: half the machine's memory), and then works within
+    /// it (default 1024: the chunk edge and the chunks in flight fit).
     #[arg(long, value_name = "MiB")]
     pub(crate) memory_budget: Option<f64>,
     /// Chunk edge of a chunked pass (default: the largest that fits the budget, at most 256).
