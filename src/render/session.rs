@@ -24,6 +24,13 @@ use crate::volume::Volume;
 use std::path::Path;
 use std::sync::Arc;
 
+/// Host memory a streamed volume takes by default, besides its pools on the device: the decoded
+/// chunks (seven eighths, `volume::bricks::DEFAULT_CHUNK_CACHE`) and the bricks waiting for the
+/// GPU (an eighth, `render::stream::DEFAULT_READY_BYTES`). A frame's wavefront of chunks (with
+/// the neighbours its bricks' aprons read) fits it at 1024² on a 2048³ store, so a chunk is
+/// decoded about twice rather than eight times.
+pub const DEFAULT_MEMORY: u64 = 1 << 30;
+
 /// Which levels a bricked frame samples.
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
 pub enum Lod {

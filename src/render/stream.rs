@@ -9,7 +9,7 @@
 //! be evicted); the viewer asks coarse levels first, then front to back (a whole coarse picture
 //! before a sharp corner of it).
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::passes::paging::{Paged, PagedVolume, Upload};
 use crate::render::view::{FrameCamera, View, WorldBox};
 use crate::volume::bricks::{Arrival, BrickCache, BrickLevels, BrickVoxels, Placement};
@@ -43,8 +43,8 @@ impl Default for StreamOptions {
     }
 }
 
-/// Bytes of bricks that may wait ready to upload by default: about 700 bricks at 16 bits.
-pub const DEFAULT_READY_BYTES: u64 = 64 << 20;
+/// Bytes of bricks that may wait ready to upload by default: about 1,400 bricks at 16 bits.
+pub const DEFAULT_READY_BYTES: u64 = 128 << 20;
 
 /// A brick that arrived and has a slot: what to upload with the next frame.
 pub struct Arrived {
@@ -229,17 +229,21 @@ impl Placement3 {
         }
     }
 
-    /// The priority of brick `entry` (smaller first): its distance from the eye in the box
-    /// frame, after its level when coarse levels go first.
+    /// The priority of brick `entry` (smaller first): the distance from the eye in the box
+    /// frame of the centre of the store's chunk that holds the brick's centre, after its level
+    /// when coarse levels go first. The bricks of one chunk come one after another, so that the
+    /// chunk is decoded once for all of them.
     fn priority(&self, levels: &BrickLevels, entry: usize, order: Order) -> u64 {
         let Some(key) = levels.key(entry) else {
             return u64::MAX;
         };
         let all = levels.levels();
         let (l0, l) = (&all[0], &all[key.level]);
+        let grain = levels.grain(key.level);
         let centre = glam::Vec3::from_array(std::array::from_fn(|a| {
-            let voxel =
-                ((key.brick[a] * crate::volume::bricks::BRICK) as f64 + 16.0).min(l.dims[a] as f64);
+            let mid = key.brick[a] * crate::volume::bricks::BRICK + 16;
+            let cell = (mid / grain[a]) * grain[a];
+            let voxel = (cell as f64 + 0.5 * grain[a] as f64).min(l.dims[a] as f64);
             // The level's voxel in level 0's texture coordinates, then the box frame.
             let tex = voxel * l.spacing[a] / (l0.dims[a] as f64 * l0.spacing[a]);
             ((tex - 0.5) * 2.0) as f32
@@ -251,11 +255,6 @@ impl Placement3 {
             Order::CoarseFirst => ((all.len() - 1 - key.level) as u64) << 32 | near,
         }
     }
-}
-
-/// The sentence of a stream that lost bricks, for a caller that goes on without them.
-pub fn lost_bricks(failure: &str) -> Error {
-    Error::Invalid(format!("bricks could not be read: {failure}"))
 }
 
 /// The floor a still frame's streaming is judged against, measured in the same run: the chunks

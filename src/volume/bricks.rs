@@ -141,7 +141,7 @@ pub struct BrickLevels {
 }
 
 /// Bytes of decoded chunks a pyramid keeps by default (`--memory-budget` sets it).
-pub const DEFAULT_CHUNK_CACHE: u64 = 256 << 20;
+pub const DEFAULT_CHUNK_CACHE: u64 = 896 << 20;
 
 impl BrickLevels {
     /// The pyramid of a volume in memory: the volume, then 2×2×2 means down to one brick.
@@ -383,6 +383,15 @@ impl BrickLevels {
             })
             .sum::<Result<u64>>()?;
         Ok((start.elapsed().as_secs_f64(), bytes))
+    }
+
+    /// The edge along x, y, z of the cells level `level` is read in: its store's chunks, or a
+    /// brick for a level in memory.
+    pub fn grain(&self, level: usize) -> [usize; 3] {
+        match &self.sources[level] {
+            LevelSource::Store(ms, l) => ms.levels[*l].chunk.map(|c| c.max(1)),
+            LevelSource::Memory(_) => [BRICK; 3],
+        }
     }
 
     /// The decoded chunks the bricks are read from.

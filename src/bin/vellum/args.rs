@@ -230,7 +230,7 @@ pub(crate) struct RenderArgs {
     #[arg(long, value_name = "DIR")]
     pub(crate) progress_frames: Option<PathBuf>,
     /// Brick cache: host memory in MiB for decoded chunks and bricks waiting for the GPU
-    /// (default 320: 256 of chunks, 64 of bricks).
+    /// (default 1024: 896 of chunks, 128 of bricks).
     #[arg(long, value_name = "MiB")]
     pub(crate) memory_budget: Option<f64>,
     /// Under mpirun: how the ranks' partial frames are composited, auto (direct send),

@@ -245,11 +245,11 @@ type Drawn = (
 );
 
 /// The session's options from the flags: the GPU budget, the level of detail, and the host
-/// memory of the brick cache's streaming (four fifths for decoded chunks, the rest for bricks
+/// memory of the brick cache's streaming (seven eighths for decoded chunks, the rest for bricks
 /// waiting for the GPU).
 fn session_options(a: &RenderArgs) -> Result<SessionOptions> {
     let memory = match a.memory_budget {
-        None => 320u64 << 20,
+        None => vellum::render::session::DEFAULT_MEMORY,
         Some(m) if m.is_finite() && m >= 1.0 => (m * (1u64 << 20) as f64) as u64,
         Some(m) => anyhow::bail!("--memory-budget {m} is invalid; expected at least 1 MiB"),
     };
@@ -257,10 +257,10 @@ fn session_options(a: &RenderArgs) -> Result<SessionOptions> {
         gpu_budget_mib: a.gpu_budget,
         lod: vellum::render::session::Lod::parse(&a.lod)?,
         stream: vellum::render::stream::StreamOptions {
-            ready_bytes: memory / 5,
+            ready_bytes: memory / 8,
             ..Default::default()
         },
-        chunk_cache_bytes: Some(memory - memory / 5),
+        chunk_cache_bytes: Some(memory - memory / 8),
     })
 }
 
