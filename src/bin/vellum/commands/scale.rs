@@ -120,7 +120,7 @@ fn line(r: &Value) -> String {
     let ratio = raycast.zip(core).map(|(b, c)| b / c);
     let stream = |b: &Value| {
         let g = |k: &str| ms(b, &["bricks", k]);
-        let floor = g("floor").is_some().then(|| {
+        let floor = b["bricks"]["floor"].is_object().then(|| {
             let f = |k: &str| ms(b, &["bricks", "floor", k]).unwrap_or(0.0);
             f("decode_ms") + f("upload_ms")
         });
