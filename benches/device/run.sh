@@ -152,4 +152,50 @@ case " ${BENCHES:-all} " in *" all "* | *" validation "*)
     fi
     ;;
 esac
+# The streaming session (issue 39) at scale: 1024³ and 2048³ Shepp-Logan stores written, `info` on
+# the 2048³ one, the 2048³ store at 1024² through a 2 GiB budget by the level-of-detail rule and at
+# level 0 everywhere, each with the floor of its streaming (VELLUM_STREAM_FLOOR=1: the same chunks
+# decoded plainly and their bytes uploaded), the 1024³ one through 512 MiB, and the chunked passes
+# on the 1024³ store. Each command's wall seconds and peak resident set follow its output in
+# stream.log; the reports are stream_*.json.
+case " ${BENCHES:-all} " in *" all "* | *" stream "*)
+    S=/tmp/stream
+    rm -rf "$S" && mkdir -p "$S"
+    tm() {
+        python3 - "$@" <<'PY'
+import resource, subprocess, sys, time
+t = time.time()
+rc = subprocess.call(sys.argv[1:])
+kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+print(f"{time.time() - t:.2f}_s_wall_{kb}_KB_peak rc {rc}", flush=True)
+PY
+    }
+    L="$R/stream.log"
+    V_ARGS="--iso 0.9 --tf grey --camera 30,20,2.5 --size 1024x1024 --renderer raycast"
+    s() { echo "== $*" >>"$L"; }
+    big=${STREAM_BIG:-2048} small=${STREAM_SMALL:-1024}
+    for n in $big $small; do
+        s "convert $n"; tm timeout 90 "$V" convert "phantom:shepp-logan:$n" "$S/p$n.ome.zarr" >>"$L" 2>&1
+    done
+    s "info $big"; tm timeout 30 "$V" info "$S/p$big.ome.zarr" >>"$L" 2>&1
+    repack
+    for c in "big_auto|$big|2048|auto|60" "small_auto|$small|512|auto|60" "small_finest|$small|512|finest|90" \
+        "big_finest|$big|2048|finest|150"; do
+        IFS='|' read -r name n budget lod limit <<<"$c"
+        s "render $name"
+        VELLUM_STREAM_FLOOR=1 tm timeout "$limit" "$V" render "$S/p$n.ome.zarr" $V_ARGS \
+            --gpu-budget "$budget" --lod "$lod" --json --out "$S/$name.png" \
+            >"$R/stream_$name.json" 2>>"$L"
+        tail -1 "$R/stream_$name.json" >>"$L"
+        [ "$name" = big_auto ] && cp "$S/$name.png" "$R/stream_big_auto.png" 2>/dev/null
+        repack
+    done
+    for c in "importance --radius 10 --out $S/dd.ome.zarr --json" "occlusion --radius 16 --out $S/ao.ome.zarr --json" \
+        "normals --out $S/n.ome.zarr --json"; do
+        s "$c"; tm timeout 90 "$V" ${c%% *} "$S/p$small.ome.zarr" ${c#* } >>"$L" 2>&1
+        repack
+    done
+    ;;
+esac
+
 repack && tar -tvf "$OUT/results.tar"
