@@ -190,7 +190,8 @@ PY
         [ "$name" = big_auto ] && cp "$S/$name.png" "$R/stream_big_auto.png" 2>/dev/null
         repack
     done
-    for c in "importance --radius 10 --out $S/dd.ome.zarr --json" "occlusion --radius 16 --out $S/ao.ome.zarr --json" \
+    # STREAM_CHUNKED=0 leaves the chunked passes out (a rerun of the renders alone).
+    [ "${STREAM_CHUNKED:-1}" = 1 ] && for c in "importance --radius 10 --out $S/dd.ome.zarr --json" "occlusion --radius 16 --out $S/ao.ome.zarr --json" \
         "normals --out $S/n.ome.zarr --json"; do
         s "$c"; tm timeout 90 "$V" ${c%% *} "$S/p$small.ome.zarr" ${c#* } >>"$L" 2>&1
         repack

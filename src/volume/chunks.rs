@@ -8,10 +8,12 @@
 //! least recently used chunks leave once the decoded bytes exceed the budget (chunks in use by a
 //! loader stay alive until it drops them, so the bound is exceeded by at most the chunks the
 //! loaders hold at once). A chunk that fails to decode stays failed in the cache, with its
-//! sentence.
+//! sentence. Each chunk says whether it holds one value throughout (found once, at its decode),
+//! so that a brick inside such chunks is known without being read voxel by voxel: most of a
+//! scan's bricks are air.
 
 use crate::error::{Error, Result};
-use crate::volume::Volume;
+use crate::volume::{Volume, VoxelData};
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
@@ -20,7 +22,67 @@ use std::time::Instant;
 /// A chunk: its level and its index in that level's chunk grid (x, y, z).
 pub type ChunkKey = (usize, [usize; 3]);
 
-type Cell = Arc<OnceLock<std::result::Result<Arc<Volume>, String>>>;
+type Cell = Arc<OnceLock<std::result::Result<Arc<Chunk>, String>>>;
+
+/// A decoded chunk. A chunk whose voxels all hold one value keeps that value alone (one voxel),
+/// so that the cache holds thousands of them (a scan's air) in the room of one chunk.
+pub struct Chunk {
+    /// The voxels, or for a chunk of one value a single voxel holding it.
+    pub volume: Volume,
+    /// Voxels of the chunk along x, y, z.
+    pub dims: [usize; 3],
+    pub uniform: bool,
+}
+
+impl Chunk {
+    /// `volume`, its uniformity found (a scan that stops at the first voxel that differs).
+    pub fn new(volume: Volume) -> Self {
+        fn same<T: PartialEq + Copy>(s: &[T]) -> bool {
+            s.first().is_none_or(|&f| s.iter().all(|&v| v == f))
+        }
+        let uniform = !volume.data.is_empty()
+            && match &volume.data {
+                VoxelData::U8(s) => same(s),
+                VoxelData::U16(s) => same(s),
+                VoxelData::I16(s) => same(s),
+                VoxelData::F32(s) => same(s),
+            };
+        let dims = volume.dims;
+        if !uniform {
+            return Chunk {
+                volume,
+                dims,
+                uniform,
+            };
+        }
+        let one = match &volume.data {
+            VoxelData::U8(s) => VoxelData::U8(s[..1].to_vec()),
+            VoxelData::U16(s) => VoxelData::U16(s[..1].to_vec()),
+            VoxelData::I16(s) => VoxelData::I16(s[..1].to_vec()),
+            VoxelData::F32(s) => VoxelData::F32(s[..1].to_vec()),
+        };
+        let single = Volume {
+            dims: [1; 3],
+            data: one,
+            ..volume
+        };
+        Chunk {
+            volume: single,
+            dims,
+            uniform,
+        }
+    }
+
+    /// The value of every voxel, when there is one.
+    pub fn value(&self) -> Option<f64> {
+        self.uniform.then(|| self.volume.data.get_f64(0))
+    }
+
+    /// Bytes the chunk holds in memory.
+    pub fn bytes(&self) -> u64 {
+        self.volume.data.as_bytes().len() as u64
+    }
+}
 
 struct Entry {
     cell: Cell,
@@ -84,13 +146,15 @@ impl ChunkCache {
         key: ChunkKey,
         bytes: u64,
         decode: impl FnOnce() -> Result<Volume>,
-    ) -> Result<Arc<Volume>> {
+    ) -> Result<Arc<Chunk>> {
         let (cell, fresh) = self.cell(key, bytes);
         let mut ran = false;
         let got = cell.get_or_init(|| {
             ran = true;
             let start = Instant::now();
-            let r = decode().map(Arc::new).map_err(|e| e.to_string());
+            let r = decode()
+                .map(|v| Arc::new(Chunk::new(v)))
+                .map_err(|e| e.to_string());
             self.decode_ns
                 .fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
             if r.is_ok() {
@@ -102,7 +166,24 @@ impl ChunkCache {
         if !ran && !fresh {
             self.hits.fetch_add(1, Ordering::Relaxed);
         }
+        if let (true, Ok(c)) = (ran, got) {
+            self.settle(key, &cell, c.bytes());
+        }
         got.clone().map_err(Error::Invalid)
+    }
+
+    /// Counts `key`'s entry at the `bytes` its decode holds (a chunk of one value keeps one
+    /// voxel), if the entry is still the one holding `cell`.
+    fn settle(&self, key: ChunkKey, cell: &Cell, bytes: u64) {
+        let mut inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        let Some(e) = inner.entries.get_mut(&key) else {
+            return;
+        };
+        if !Arc::ptr_eq(&e.cell, cell) {
+            return;
+        }
+        let old = std::mem::replace(&mut e.bytes, bytes);
+        inner.bytes = inner.bytes - old + bytes;
     }
 
     /// The cell of `key`, made (and the cache trimmed to its budget) when it was missing; and
@@ -178,11 +259,16 @@ impl ChunkCache {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::volume::VoxelData;
     use std::sync::atomic::AtomicUsize;
 
+    /// A chunk of eight voxels, `v` first (not one value).
     fn chunk(v: u8) -> Result<Volume> {
-        Volume::new([2, 2, 2], [1.0; 3], VoxelData::U8(vec![v; 8]))
+        let d = (0..8).map(|i| v.wrapping_add(i)).collect();
+        Volume::new([2, 2, 2], [1.0; 3], VoxelData::U8(d))
+    }
+
+    fn first(c: &Chunk) -> f64 {
+        c.volume.data.get_f64(0)
     }
 
     #[test]
@@ -195,7 +281,7 @@ mod tests {
         };
         for _ in 0..3 {
             let c = cache.get((0, [1, 2, 3]), 8, || decode(7)).unwrap();
-            assert_eq!(c.data, VoxelData::U8(vec![7; 8]));
+            assert_eq!((first(&c), c.dims, c.uniform), (7.0, [2; 3], false));
         }
         assert_eq!(runs.load(Ordering::Relaxed), 1);
         assert_eq!(cache.stats().hits, 2);
@@ -213,13 +299,9 @@ mod tests {
         cache.get((0, [3, 0, 0]), 8, || chunk(3)).unwrap();
         assert_eq!(cache.held(), (3, 24));
         let again = cache.get((0, [1, 0, 0]), 8, || chunk(11)).unwrap();
-        assert_eq!(again.data, VoxelData::U8(vec![11; 8]), "decoded anew");
+        assert_eq!(first(&again), 11.0, "decoded anew");
         let kept = cache.get((0, [0, 0, 0]), 8, || chunk(12)).unwrap();
-        assert_eq!(
-            kept.data,
-            VoxelData::U8(vec![0; 8]),
-            "still the first decode"
-        );
+        assert_eq!(first(&kept), 0.0, "still the first decode");
     }
 
     #[test]
@@ -240,6 +322,33 @@ mod tests {
             }
         });
         assert_eq!(runs.load(Ordering::Relaxed), 1);
+    }
+
+    #[test]
+    fn chunks_of_one_value_are_held_as_one_voxel() {
+        let cache = ChunkCache::new(24);
+        let flat = |v: u8| Volume::new([2, 2, 2], [1.0; 3], VoxelData::U8(vec![v; 8]));
+        for i in 0..10 {
+            let c = cache.get((0, [i, 0, 0]), 8, || flat(i as u8)).unwrap();
+            assert_eq!((c.value(), c.dims, c.bytes()), (Some(i as f64), [2; 3], 1));
+        }
+        assert_eq!(cache.held(), (10, 10), "ten chunks in the room of three");
+        cache.get((0, [10, 0, 0]), 8, || chunk(1)).unwrap();
+        assert_eq!(cache.held(), (11, 18));
+    }
+
+    #[test]
+    fn a_chunk_knows_whether_it_holds_one_value() {
+        let one = Chunk::new(Volume::new([2, 2, 2], [1.0; 3], VoxelData::U8(vec![3; 8])).unwrap());
+        assert_eq!(one.value(), Some(3.0));
+        let mut v = vec![0.5f32; 8];
+        v[7] = 0.25;
+        let two = Chunk::new(Volume::new([2, 2, 2], [1.0; 3], VoxelData::F32(v)).unwrap());
+        assert_eq!((two.uniform, two.value()), (false, None));
+        // NaN equals nothing, itself included: never taken for one value.
+        let nan = vec![f32::NAN; 8];
+        let nan = Chunk::new(Volume::new([2, 2, 2], [1.0; 3], VoxelData::F32(nan)).unwrap());
+        assert_eq!(nan.value(), None);
     }
 
     #[test]

@@ -183,13 +183,15 @@ impl BrickLoader {
     }
 
     /// The bricks ready, at most `max`, waiting until at least `min` are (or everything asked
-    /// for is, or `timeout` has passed).
+    /// for is, or the ready queue is at its bound of bytes, or `timeout` has passed).
     pub fn take_at_least(&self, min: usize, max: usize, timeout: Duration) -> Vec<Loaded> {
         let until = Instant::now() + timeout;
         let mut st = self.shared.lock();
         loop {
             let outstanding = st.queue.len() + st.in_flight.len();
-            if st.ready.len() >= min.max(1) || outstanding == 0 {
+            // A full ready queue stops the loaders: waiting for more would wait for nothing.
+            let full = st.ready_bytes >= self.shared.ready_limit;
+            if st.ready.len() >= min.max(1) || outstanding == 0 || full {
                 break;
             }
             let now = Instant::now();
@@ -420,6 +422,22 @@ mod tests {
         entries.sort();
         assert_eq!(entries, vec![25, 26]);
         assert!(l.stats().bricks <= 4, "{} read", l.stats().bricks);
+    }
+
+    #[test]
+    fn waiting_for_more_than_the_ready_bound_holds_returns_once_it_is_full() {
+        // Room for about one brick ready: asking for ten at least must not wait for the timeout
+        // (the loaders stop at the bound, so ten never come).
+        let l = loader(2, 1);
+        l.request(&(0..27).map(|e| (e, e as u64)).collect::<Vec<_>>());
+        let start = Instant::now();
+        let got = l.take_at_least(10, 16, Duration::from_secs(600));
+        assert!(!got.is_empty() && got.len() < 10, "{} bricks", got.len());
+        assert!(
+            start.elapsed() < Duration::from_secs(300),
+            "waited {:?} for bricks that could not come",
+            start.elapsed()
+        );
     }
 
     #[test]
