@@ -121,6 +121,12 @@ pub struct BrickVoxels {
     pub constant: bool,
 }
 
+/// What a brick's box of a store reads as: its voxels, or the one value of every chunk it touches.
+enum Read {
+    Voxels(Volume),
+    Uniform(f64),
+}
+
 /// The texels of one brick and its apron, as the pool's slot holds them (x fastest).
 pub struct BrickTexels {
     pub intensity: Vec<u16>,
@@ -143,6 +149,40 @@ pub struct BrickLevels {
 /// Bytes of decoded chunks a pyramid keeps by default (`--memory-budget` sets it).
 pub const DEFAULT_CHUNK_CACHE: u64 = 896 << 20;
 
+/// Voxels of the level a recorded range is checked against at most (a 128³ level).
+const RANGE_CHECK_VOXELS: usize = 1 << 21;
+
+/// The range `ms` records (`vellum.range`), if its coarse level's values lie within it: a
+/// level's voxels are means of level 0's, so none may fall outside level 0's extremes. A range
+/// that is not finite, whose span is not, or that its own coarse level contradicts would draw a
+/// black or saturated picture through the cache: refused in one sentence.
+fn check_recorded_range(ms: &Multiscale, r: [f64; 2]) -> Result<[f64; 2]> {
+    let name = "its recorded range (attributes vellum.range)";
+    if !(r[0].is_finite() && r[1].is_finite() && (r[1] - r[0]).is_finite()) {
+        return Err(Error::format(
+            &ms.root,
+            format!("{name} {r:?} is not a finite span; expected the smallest and largest value of level 0"),
+        ));
+    }
+    let pick = ms
+        .levels
+        .iter()
+        .position(|l| l.dims.iter().product::<usize>() <= RANGE_CHECK_VOXELS)
+        .unwrap_or(ms.levels.len() - 1);
+    let seen = ms.read_level(pick)?.normalised_range();
+    let slack = 1e-6 * r[0].abs().max(r[1].abs()).max(1e-30);
+    if seen[0] < r[0] - slack || seen[1] > r[1] + slack {
+        return Err(Error::format(
+            &ms.root,
+            format!(
+                "{name} {r:?} does not hold the values of its level {} ({} .. {}); expected the smallest and largest value of level 0 (remove the attribute to have it measured)",
+                ms.levels[pick].path, seen[0], seen[1]
+            ),
+        ));
+    }
+    Ok(r)
+}
+
 impl BrickLevels {
     /// The pyramid of a volume in memory: the volume, then 2×2×2 means down to one brick.
     pub fn of_volume(v: Volume) -> Result<Self> {
@@ -157,7 +197,7 @@ impl BrickLevels {
     /// that is not level 0: extremes thinner than that level's voxels are then clipped).
     pub fn of_store(ms: Arc<Multiscale>, scan_limit: usize) -> Result<Self> {
         let range = match ms.range {
-            Some(r) => r,
+            Some(r) => check_recorded_range(&ms, r)?,
             None => {
                 // The finest level small enough (level 0 when it is).
                 let pick = ms
@@ -301,7 +341,10 @@ impl BrickLevels {
         let inner_hi: [usize; 3] = std::array::from_fn(|a| clamp(lo[a] + UPLOAD as i64 - 1, a) + 1);
         let size: [usize; 3] = std::array::from_fn(|a| inner_hi[a] - inner_lo[a]);
         let inner = match &self.sources[key.level] {
-            LevelSource::Store(ms, l) => self.read_chunked(ms, *l, inner_lo, size)?,
+            LevelSource::Store(ms, l) => match self.read_chunked(ms, *l, inner_lo, size)? {
+                Read::Voxels(v) => v,
+                Read::Uniform(value) => return Ok(self.uniform_brick(value, ms.voxel)),
+            },
             LevelSource::Memory(v) => v.read_box(inner_lo, size)?,
         };
         let map: [Vec<usize>; 3] = std::array::from_fn(|a| {
@@ -318,23 +361,20 @@ impl BrickLevels {
     }
 
     /// Voxels `lo .. lo + size` of level `level` of `ms`, copied from its decoded chunks, each
-    /// decoded once while it stays in [`BrickLevels::chunks`].
+    /// decoded once while it stays in [`BrickLevels::chunks`]; or, when every chunk the box
+    /// touches holds one and the same value, that value alone.
     fn read_chunked(
         &self,
         ms: &Multiscale,
         level: usize,
         lo: [usize; 3],
         size: [usize; 3],
-    ) -> Result<Volume> {
+    ) -> Result<Read> {
         let l = &ms.levels[level];
         let (chunk, dims) = (l.chunk, l.dims);
         let first: [usize; 3] = std::array::from_fn(|a| lo[a] / chunk[a]);
         let last: [usize; 3] = std::array::from_fn(|a| (lo[a] + size[a] - 1) / chunk[a]);
-        let mut out = Volume::new(
-            size,
-            l.spacing,
-            VoxelData::zeros(ms.voxel, size.iter().product()),
-        )?;
+        let mut got = Vec::with_capacity(8);
         for cz in first[2]..=last[2] {
             for cy in first[1]..=last[1] {
                 for cx in first[0]..=last[0] {
@@ -342,14 +382,55 @@ impl BrickLevels {
                     let clo: [usize; 3] = std::array::from_fn(|a| c[a] * chunk[a]);
                     let csize: [usize; 3] = std::array::from_fn(|a| chunk[a].min(dims[a] - clo[a]));
                     let bytes = (csize.iter().product::<usize>() * ms.voxel.size()) as u64;
-                    let got = self
+                    let one = self
                         .chunks
                         .get((level, c), bytes, || ms.read_box(level, clo, csize))?;
-                    copy_box(&got, clo, &mut out, lo);
+                    got.push((clo, one));
                 }
             }
         }
-        Ok(out)
+        if let Some(v) = got.first().and_then(|(_, c)| c.value()) {
+            if got.iter().all(|(_, c)| c.value() == Some(v)) {
+                return Ok(Read::Uniform(v));
+            }
+        }
+        let data = VoxelData::zeros(ms.voxel, size.iter().product());
+        let mut out = Volume::new(size, l.spacing, data)?;
+        for (clo, c) in &got {
+            match c.uniform {
+                false => copy_box(&c.volume, *clo, &mut out, lo),
+                // One voxel stands for the chunk: spread it over the chunk's part of the box.
+                true => fill_box(&c.volume.data, (*clo, c.dims), &mut out, lo),
+            }
+        }
+        Ok(Read::Voxels(out))
+    }
+
+    /// A brick whose voxels, apron included, all hold `value` (of a store of type `voxel`): what
+    /// [`BrickLevels::voxels`] would make of it voxel by voxel.
+    fn uniform_brick(&self, value: f64, voxel: crate::volume::VoxelType) -> BrickVoxels {
+        let n = UPLOAD * UPLOAD * UPLOAD;
+        match self.u8_table() {
+            Some(t) if voxel == crate::volume::VoxelType::U8 => {
+                let raw = value as u8;
+                let u = t[raw as usize];
+                BrickVoxels {
+                    data: BrickData::U8(vec![raw; n]),
+                    range: [u, u],
+                    constant: true,
+                }
+            }
+            _ => {
+                let [lo, hi] = self.range;
+                let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+                let u = normalise_scaled(value, lo, scale);
+                BrickVoxels {
+                    data: BrickData::U16(vec![u; n]),
+                    range: [u, u],
+                    constant: true,
+                }
+            }
+        }
     }
 
     /// For 8-bit data, the normalised value of each voxel value (what [`Volume::normalised_u16`]
@@ -461,6 +542,53 @@ fn normalise_scaled(v: f64, lo: f64, scale: f64) -> u16 {
 }
 
 /// Copies the part of `src` (placed at `src_lo` in the level) that overlaps `dst` (at `dst_lo`).
+/// Fills the part of `dst` (at `dst_lo`) that the region `src_lo .. src_lo + dims` covers with
+/// `value`'s one voxel (of `dst`'s type).
+fn fill_box(
+    value: &VoxelData,
+    (src_lo, dims): ([usize; 3], [usize; 3]),
+    dst: &mut Volume,
+    dst_lo: [usize; 3],
+) {
+    let lo: [usize; 3] = std::array::from_fn(|a| src_lo[a].max(dst_lo[a]));
+    let hi: [usize; 3] =
+        std::array::from_fn(|a| (src_lo[a] + dims[a]).min(dst_lo[a] + dst.dims[a]));
+    if (0..3).any(|a| lo[a] >= hi[a]) {
+        return;
+    }
+    let dd = dst.dims;
+    fn rows<T: Copy>(
+        v: T,
+        d: &mut [T],
+        (lo, hi): ([usize; 3], [usize; 3]),
+        dst_lo: [usize; 3],
+        dd: [usize; 3],
+    ) {
+        for z in lo[2]..hi[2] {
+            for y in lo[1]..hi[1] {
+                let di = (lo[0] - dst_lo[0]) + dd[0] * ((y - dst_lo[1]) + dd[1] * (z - dst_lo[2]));
+                d[di..di + (hi[0] - lo[0])].fill(v);
+            }
+        }
+    }
+    match (value, &mut dst.data) {
+        (VoxelData::U8(s), VoxelData::U8(d)) => {
+            s.first().map_or((), |&v| rows(v, d, (lo, hi), dst_lo, dd))
+        }
+        (VoxelData::U16(s), VoxelData::U16(d)) => {
+            s.first().map_or((), |&v| rows(v, d, (lo, hi), dst_lo, dd))
+        }
+        (VoxelData::I16(s), VoxelData::I16(d)) => {
+            s.first().map_or((), |&v| rows(v, d, (lo, hi), dst_lo, dd))
+        }
+        (VoxelData::F32(s), VoxelData::F32(d)) => {
+            s.first().map_or((), |&v| rows(v, d, (lo, hi), dst_lo, dd))
+        }
+        // A store's levels share one type (`Multiscale::open` checks it).
+        _ => {}
+    }
+}
+
 fn copy_box(src: &Volume, src_lo: [usize; 3], dst: &mut Volume, dst_lo: [usize; 3]) {
     let lo: [usize; 3] = std::array::from_fn(|a| src_lo[a].max(dst_lo[a]));
     let hi: [usize; 3] =
@@ -1030,5 +1158,65 @@ mod tests {
         // once however many bricks read it.
         let st = from_store.chunks().stats();
         assert_eq!((st.decoded, st.hits), (12, 1));
+    }
+
+    #[test]
+    fn bricks_inside_chunks_of_one_value_are_those_of_the_volume() {
+        // A volume of one value with a ball in a corner: most chunks hold one value, a brick's
+        // box touches several, and some bricks straddle the ball's chunks.
+        let n = 80usize;
+        let f: Vec<f32> = (0..n * n * n)
+            .map(|i| {
+                let p = [i % n, (i / n) % n, i / (n * n)].map(|c| c as f32 - 66.0);
+                if p.iter().map(|c| c * c).sum::<f32>() < 100.0 {
+                    0.9
+                } else {
+                    0.3
+                }
+            })
+            .collect();
+        let u: Vec<u8> = f.iter().map(|&v| (v * 200.0) as u8).collect();
+        for data in [VoxelData::F32(f), VoxelData::U8(u)] {
+            let v = Volume::new([n; 3], [1.0; 3], data).unwrap();
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("s.ome.zarr");
+            let opts = crate::volume::io::ome_zarr::WriteOptions {
+                chunk: 20,
+                ..Default::default()
+            };
+            crate::volume::io::ome_zarr::write(&path, &v, &opts).unwrap();
+            let ms = Arc::new(Multiscale::open(&path).unwrap());
+            let mut from_store = BrickLevels::of_store(ms, 1 << 26).unwrap();
+            let mut in_memory = BrickLevels::of_volume(v).unwrap();
+            // The same range for both (the store's comes from its scan), not starting at 0.
+            from_store.range = [0.1, 200.0 * 0.95];
+            in_memory.range = from_store.range;
+            let (mut uniform, mut varied) = (0, 0);
+            // Level 0: the coarser levels of a store are the writer's, not the pyramid's.
+            let counts = from_store.levels()[0].counts;
+            for i in 0..counts.iter().product::<usize>() {
+                let brick = [
+                    i % counts[0],
+                    (i / counts[0]) % counts[1],
+                    i / (counts[0] * counts[1]),
+                ];
+                let key = BrickKey { level: 0, brick };
+                let (a, b) = (
+                    from_store.voxels(key).unwrap(),
+                    in_memory.voxels(key).unwrap(),
+                );
+                assert_eq!(a.data, b.data, "{key:?}");
+                assert_eq!((a.range, a.constant), (b.range, b.constant), "{key:?}");
+                if a.constant {
+                    uniform += 1
+                } else {
+                    varied += 1
+                }
+            }
+            assert!(
+                uniform > 0 && varied > 0,
+                "{uniform} uniform, {varied} varied"
+            );
+        }
     }
 }
