@@ -57,6 +57,32 @@ pub enum Error {
     /// Any other input that does not make sense (bad flag values, malformed specs).
     #[error("{0}")]
     Invalid(String),
+
+    /// The command was interrupted (Ctrl-C or SIGTERM): work stopped at its next step.
+    #[error("interrupted")]
+    Interrupted,
+}
+
+static INTERRUPTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Asks every long loop that checks [`check_interrupt`] (the store writers' chunks, the chunked
+/// passes) to stop at its next step: a signal handler's first move, so that no thread writes
+/// into a temporary folder after it is removed.
+pub fn interrupt() {
+    INTERRUPTED.store(true, std::sync::atomic::Ordering::SeqCst);
+}
+
+/// Whether [`interrupt`] was called.
+pub fn interrupted() -> bool {
+    INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst)
+}
+
+/// `Err(Error::Interrupted)` once [`interrupt`] was called.
+pub fn check_interrupt() -> Result<()> {
+    match interrupted() {
+        true => Err(Error::Interrupted),
+        false => Ok(()),
+    }
 }
 
 /// The crate's result type.

@@ -1,6 +1,8 @@
 //! A stable-Rust fuzz harness for every reader of outside input: volumes (NRRD attached and
-//! detached, NIfTI-1 plain and gzipped, MetaImage attached and detached, DICOM) and the JSON files
-//! (transfer function, occlusion transfer function, feature map, scene).
+//! detached, NIfTI-1 plain and gzipped, MetaImage attached and detached, DICOM), the JSON files
+//! (transfer function, occlusion transfer function, feature map, scene), and OME-Zarr stores
+//! (issue 40: a small store on Zarr v3 as vellum writes it and one on Zarr v2 as another tool
+//! does, with one file mutated per target: the root metadata, an array's metadata, a chunk).
 //!
 //! Seeds are real files made small: real volumes from `../shared/data` cropped to a few hundred
 //! voxels, with their geometry, written by vellum's writers or with the real file's own header
@@ -38,6 +40,8 @@ enum Reader {
     OcclusionTf,
     FeatureMap,
     Scene,
+    /// The store holding the file, opened and read as `info` reads it.
+    Store,
 }
 
 /// One reader with its seeds.
@@ -378,8 +382,9 @@ pub fn targets(data: &Path, project: &Path, scratch: &Path) -> Result<Vec<Target
 
     let json = |p: &str| read(&project.join(p));
     let [tfs, scenes] = json_seeds(project)?;
+    let stores = store_targets(scratch, &engine)?;
 
-    Ok(vec![
+    let mut all = vec![
         Target {
             name: "nrrd",
             file: "input.nrrd",
@@ -467,7 +472,9 @@ pub fn targets(data: &Path, project: &Path, scratch: &Path) -> Result<Vec<Target
             companions: vec![],
             seeds: scenes,
         },
-    ])
+    ];
+    all.extend(stores);
+    Ok(all)
 }
 
 fn run_reader(reader: Reader, path: &Path) -> Result<()> {
@@ -480,7 +487,149 @@ fn run_reader(reader: Reader, path: &Path) -> Result<()> {
         Reader::OcclusionTf => crate::classify::otf::OcclusionTf::load(path).map(drop),
         Reader::FeatureMap => crate::volume::feature::FeatureMap::load(path).map(drop),
         Reader::Scene => crate::render::scene::Scene::load(path).map(drop),
+        Reader::Store => read_store(path),
     }
+}
+
+/// The store holding `path` opened, its finest level of at most 16 Mi voxels read whole (as
+/// `info` reads it) and a box of every level, and its bricked pyramid made (the recorded range
+/// checked).
+fn read_store(path: &Path) -> Result<()> {
+    use crate::volume::io::ome_zarr::Multiscale;
+    let root = path
+        .ancestors()
+        .find(|p| p.to_string_lossy().ends_with(".zarr"))
+        .unwrap_or(path);
+    let ms = Multiscale::open(root)?;
+    let pick = ms
+        .levels
+        .iter()
+        .position(|l| l.dims.iter().product::<usize>() <= 1 << 24);
+    if let Some(pick) = pick {
+        ms.read_level(pick)?;
+    }
+    for (i, l) in ms.levels.iter().enumerate() {
+        ms.read_box(i, [0; 3], l.dims.map(|n| n.min(16)))?;
+    }
+    crate::volume::bricks::BrickLevels::of_store(Arc::new(ms), 1 << 24).map(drop)
+}
+
+/// Every file under `root`, as (path relative to `under`, bytes), sorted.
+fn files_under(root: &Path, under: &Path) -> Result<Vec<(String, Vec<u8>)>> {
+    let mut out = Vec::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).map_err(|e| Error::io(&dir, e))? {
+            let p = entry.map_err(|e| Error::io(&dir, e))?.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p
+                    .strip_prefix(under)
+                    .unwrap_or(&p)
+                    .to_string_lossy()
+                    .into_owned();
+                out.push((rel, read(&p)?));
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Seeds of the store targets: `block` written by vellum (NGFF 0.5, Zarr v3, zstd, chunks of
+/// 8, two levels) as `v3.ome.zarr`, and as NGFF 0.4 on Zarr v2 with zstd chunks of 8 and `.`
+/// keys, as Python's ome-zarr writes it, as `v2.zarr`: every file of each.
+fn store_seeds(scratch: &Path, block: &Volume) -> Result<[Vec<(String, Vec<u8>)>; 2]> {
+    use crate::volume::io::ome_zarr;
+    let v3 = scratch.join("v3.ome.zarr");
+    let _ = std::fs::remove_dir_all(&v3);
+    let opts = ome_zarr::WriteOptions {
+        chunk: 8,
+        levels: Some(2),
+        threads: Some(1),
+    };
+    ome_zarr::write(&v3, block, &opts)?;
+    let v3 = files_under(&v3, scratch)?;
+    let [x, y, z] = block.dims;
+    let mut v2 = vec![
+        (
+            "v2.zarr/.zgroup".to_string(),
+            br#"{"zarr_format": 2}"#.to_vec(),
+        ),
+        (
+            "v2.zarr/.zattrs".to_string(),
+            br#"{"multiscales": [{"version": "0.4", "axes": [{"name": "z", "type": "space"},
+                {"name": "y", "type": "space"}, {"name": "x", "type": "space"}],
+                "datasets": [{"path": "0", "coordinateTransformations": [
+                    {"type": "scale", "scale": [2.0, 1.0, 1.0]}]}]}]}"#
+                .to_vec(),
+        ),
+        (
+            "v2.zarr/0/.zarray".to_string(),
+            format!(
+                r#"{{"zarr_format": 2, "shape": [{z}, {y}, {x}], "chunks": [8, 8, 8],
+                "dtype": "<f4", "compressor": {{"id": "zstd", "level": 3}}, "fill_value": 0.0,
+                "order": "C", "filters": null}}"#
+            )
+            .into_bytes(),
+        ),
+    ];
+    let f = block.data.to_f32();
+    for cz in 0..z.div_ceil(8) {
+        for cy in 0..y.div_ceil(8) {
+            for cx in 0..x.div_ceil(8) {
+                // A v2 chunk is whole: voxels past the edge are the fill value.
+                let mut bytes = Vec::with_capacity(8 * 8 * 8 * 4);
+                for k in 0..8 {
+                    for j in 0..8 {
+                        for i in 0..8 {
+                            let p = [cx * 8 + i, cy * 8 + j, cz * 8 + k];
+                            let inside = p[0] < x && p[1] < y && p[2] < z;
+                            let v = if inside {
+                                f[p[0] + x * (p[1] + y * p[2])]
+                            } else {
+                                0.0
+                            };
+                            bytes.extend_from_slice(&v.to_le_bytes());
+                        }
+                    }
+                }
+                let packed = zstd::bulk::compress(&bytes, 3).map_err(|e| Error::io(scratch, e))?;
+                v2.push((format!("v2.zarr/0/{cz}.{cy}.{cx}"), packed));
+            }
+        }
+    }
+    Ok([v3, v2])
+}
+
+/// The store targets: for each seed store, one target per kind of file mutated (its root
+/// metadata, level 0's array metadata, its first chunk), the store's other files beside it.
+fn store_targets(scratch: &Path, block: &Volume) -> Result<Vec<Target>> {
+    let [v3, v2] = store_seeds(scratch, block)?;
+    let cases: [(&'static str, &'static str, &[(String, Vec<u8>)]); 6] = [
+        ("store-v3-root", "v3.ome.zarr/zarr.json", &v3),
+        ("store-v3-array", "v3.ome.zarr/0/zarr.json", &v3),
+        ("store-v3-chunk", "v3.ome.zarr/0/c/0/0/0", &v3),
+        ("store-v2-attrs", "v2.zarr/.zattrs", &v2),
+        ("store-v2-array", "v2.zarr/0/.zarray", &v2),
+        ("store-v2-chunk", "v2.zarr/0/0.0.0", &v2),
+    ];
+    cases
+        .into_iter()
+        .map(|(name, file, all)| {
+            let seed = all.iter().find(|(p, _)| p == file).map(|(_, b)| b.clone());
+            let seed =
+                seed.ok_or_else(|| Error::Invalid(format!("the seed store has no {file}")))?;
+            Ok(Target {
+                name,
+                file,
+                reader: Reader::Store,
+                companions: all.iter().filter(|(p, _)| p != file).cloned().collect(),
+                seeds: vec![seed],
+            })
+        })
+        .collect()
 }
 
 /// Peak resident memory of this process in MiB (Linux), if known.
@@ -523,7 +672,11 @@ pub fn run(targets: &[Target], options: &FuzzOptions) -> Result<Vec<TargetReport
         let parent = input.parent().unwrap_or(dir);
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
         for (name, bytes) in &t.companions {
-            std::fs::write(dir.join(name), bytes).map_err(|e| Error::io(dir.join(name), e))?;
+            let at = dir.join(name);
+            if let Some(folder) = at.parent() {
+                std::fs::create_dir_all(folder).map_err(|e| Error::io(folder, e))?;
+            }
+            std::fs::write(&at, bytes).map_err(|e| Error::io(&at, e))?;
         }
     }
     // The watchdog: an input running past the bound is saved and the process ends with 3.

@@ -76,6 +76,29 @@ pub fn remove_pending() {
     abort();
 }
 
+/// [`remove_pending`], then ends the process with `code`, still holding the list of files
+/// being written: once interrupted, no thread can make a new temporary after the removal
+/// ([`begin_folder`] and [`write_atomic`] make theirs under that lock, after checking
+/// [`crate::error::check_interrupt`]).
+pub fn remove_pending_and_exit(code: i32) -> ! {
+    let writing = lock(&WRITING);
+    for tmp in writing.iter() {
+        remove(tmp);
+    }
+    abort();
+    std::process::exit(code)
+}
+
+/// Waits until no temporary file or folder is being written (the writers, told by
+/// [`crate::error::interrupt`], stop at their next chunk and remove their own), or `limit`
+/// has passed.
+pub fn wait_for_writers(limit: std::time::Duration) {
+    let until = std::time::Instant::now() + limit;
+    while !lock(&WRITING).is_empty() && std::time::Instant::now() < until {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}
+
 /// Removes a temporary file, or a temporary folder and what it holds.
 fn remove(tmp: &Path) {
     if tmp.is_dir() {
@@ -117,10 +140,22 @@ pub fn begin_folder(path: &Path) -> Result<FolderInProgress> {
         )));
     }
     let tmp = temporary_beside(path);
-    lock(&WRITING).push(tmp.clone());
-    if let Err(e) = std::fs::create_dir(&tmp) {
-        lock(&WRITING).retain(|t| t != &tmp);
-        return Err(Error::io(&tmp, e));
+    let mut writing = lock(&WRITING);
+    crate::error::check_interrupt()?;
+    let made = std::fs::create_dir(&tmp);
+    if made.is_ok() {
+        writing.push(tmp.clone());
+    }
+    drop(writing);
+    if let Err(e) = made {
+        // Named by the store the user asked for; the temporary name is ours.
+        let folder = path.parent().filter(|p| !p.as_os_str().is_empty());
+        let folder = folder.unwrap_or(Path::new("."));
+        return Err(Error::Invalid(format!(
+            "{} cannot be written: its folder {} refuses a new entry ({e})",
+            path.display(),
+            folder.display()
+        )));
     }
     Ok(FolderInProgress {
         tmp,
@@ -132,22 +167,65 @@ impl FolderInProgress {
     /// Renames the folder into place when `result` is `Ok` (at [`commit`] in a transaction), or
     /// removes it and returns the error.
     pub fn finish(self, result: Result<()>) -> Result<()> {
-        lock(&WRITING).retain(|t| t != &self.tmp);
-        if let Err(e) = result {
-            remove(&self.tmp);
-            return Err(e);
-        }
-        complete(self.tmp, &self.path)
+        // The folder leaves the list only once it is removed or handed to the transaction, both
+        // under the list's lock: a signal handler never sees it in neither place.
+        let mut writing = lock(&WRITING);
+        let done = match result {
+            Err(e) => {
+                remove(&self.tmp);
+                Err(e)
+            }
+            Ok(()) => complete(self.tmp.clone(), &self.path),
+        };
+        writing.retain(|t| t != &self.tmp);
+        done
     }
 }
 
 /// A temporary name beside `path` (short, so that a name near the file-system limit still fits).
 fn temporary_beside(path: &Path) -> PathBuf {
+    if let Some(folder) = path.parent() {
+        sweep_stale(if folder.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            folder
+        });
+    }
     path.with_file_name(format!(
         ".vellum.{}.{}.tmp",
         std::process::id(),
         COUNTER.fetch_add(1, Ordering::Relaxed)
     ))
+}
+
+/// Removes the temporary files and folders in `folder` that a vellum process left when it was
+/// killed outright (SIGKILL, a power cut: no handler ran): `.vellum.PID.N.tmp` whose process no
+/// longer runs. Only where /proc tells which processes run (Linux); a live process's are kept.
+fn sweep_stale(folder: &Path) {
+    let proc = Path::new("/proc");
+    if !proc.join("self").exists() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(folder) else {
+        return;
+    };
+    let own = std::process::id().to_string();
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(rest) = name
+            .strip_prefix(".vellum.")
+            .and_then(|r| r.strip_suffix(".tmp"))
+        else {
+            continue;
+        };
+        let Some((pid, n)) = rest.split_once('.') else {
+            continue;
+        };
+        let digits = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+        if digits(pid) && digits(n) && pid != own && !proc.join(pid).exists() {
+            remove(&e.path());
+        }
+    }
 }
 
 /// A complete temporary output: renamed into place now, or at [`commit`] in a transaction.
@@ -221,19 +299,29 @@ pub fn write_atomic(
         }
     }
     let tmp = temporary_beside(path);
-    lock(&WRITING).push(tmp.clone());
+    let file = {
+        let mut writing = lock(&WRITING);
+        crate::error::check_interrupt()?;
+        let file = File::create(&tmp);
+        writing.push(tmp.clone());
+        file
+    };
     let result = (|| {
-        let mut w = BufWriter::new(File::create(&tmp)?);
+        let mut w = BufWriter::new(file?);
         fill(&mut w)?;
         w.flush()?;
         w.into_inner().map_err(|e| e.into_error())?.sync_all()
     })();
-    lock(&WRITING).retain(|t| t != &tmp);
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(Error::io(path, e));
-    }
-    complete(tmp, path)
+    let mut writing = lock(&WRITING);
+    let done = match result {
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(Error::io(path, e))
+        }
+        Ok(()) => complete(tmp.clone(), path),
+    };
+    writing.retain(|t| t != &tmp);
+    done
 }
 
 /// Writes an 8-bit RGB image as PNG, atomically.
@@ -393,6 +481,22 @@ pub fn write_svg_lines(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_killed_processs_temporaries_are_swept_and_a_live_ones_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        // No process has this id (Linux's ids stop at 2^22).
+        let dead = d.join(".vellum.999999999.0.tmp");
+        std::fs::create_dir_all(dead.join("0/c")).unwrap();
+        let live = d.join(format!(".vellum.{}.77.tmp", std::process::id()));
+        std::fs::write(&live, b"mine").unwrap();
+        let other = d.join(".vellum.notes.tmp");
+        std::fs::write(&other, b"not ours").unwrap();
+        write_atomic(&d.join("x.txt"), |f| f.write_all(b"x")).unwrap();
+        assert!(!dead.exists(), "a dead process's folder stays");
+        assert!(live.exists() && other.exists());
+    }
 
     #[test]
     fn exr_layers_round_trip() {

@@ -286,3 +286,330 @@ fn stores_written_by_python_ome_zarr_are_read() {
         );
     }
 }
+
+// ---- Stores under hostile input (issue 40): each class the issue lists, as a user meets it on
+// the command line: one sentence, nothing written, no temporary folder left behind.
+
+/// `convert phantom:shepp-logan:32 NAME --chunk 16 --levels 2` into `dir`: 32³ and 16³ f32.
+fn phantom_store(dir: &Path, name: &str) -> std::path::PathBuf {
+    let root = dir.join(name);
+    let out = common::vellum(&[
+        "convert",
+        "phantom:shepp-logan:32",
+        root.to_str().unwrap(),
+        "--chunk",
+        "16",
+        "--levels",
+        "2",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    root
+}
+
+/// Rewrites the JSON document at `path` through `f`.
+fn edit_json(path: &Path, f: impl FnOnce(&mut serde_json::Value)) {
+    let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+    f(&mut v);
+    std::fs::write(path, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
+}
+
+/// The multiscale of a vellum store's root `zarr.json`.
+fn multiscale(v: &mut serde_json::Value) -> &mut serde_json::Value {
+    &mut v["attributes"]["ome"]["multiscales"][0]
+}
+
+/// Every command that reads `store` (info, render, importance and convert to a store) refuses
+/// it in one sentence holding `phrases`, and writes nothing.
+fn every_command_refuses(dir: &Path, store: &Path, phrases: &[&str]) {
+    let s = store.to_str().unwrap();
+    let out = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    let runs: [Vec<String>; 4] = [
+        vec!["info".into(), s.into()],
+        vec![
+            "render".into(),
+            s.into(),
+            "--size".into(),
+            "32x32".into(),
+            "--out".into(),
+            out("r.png"),
+        ],
+        vec![
+            "importance".into(),
+            s.into(),
+            "--radius".into(),
+            "2".into(),
+            "--out".into(),
+            out("dd.ome.zarr"),
+        ],
+        vec!["convert".into(), s.into(), out("c.ome.zarr")],
+    ];
+    for args in runs {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        common::fails_with_all(&common::vellum(&args), phrases);
+    }
+}
+
+#[test]
+fn declared_shapes_beyond_the_limits_are_one_sentence_before_anything_is_allocated() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for (name, shape0, phrase) in [
+        ("big.ome.zarr", 1u64 << 40, "expected at most 1048576"),
+        ("huge.ome.zarr", 1u64 << 63, "expected at most 1048576"),
+        ("empty.ome.zarr", 0, "empty along z"),
+    ] {
+        let root = phantom_store(d, name);
+        edit_json(&root.join("0/zarr.json"), |v| v["shape"][0] = shape0.into());
+        every_command_refuses(d, &root, &["level 0", phrase]);
+        common::only(d, &[name]);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+    // Zarr v2 alike.
+    let root = d.join("v2.zarr");
+    v2_store(&root, [4, 4, 4], 2, TCZYX, [1, 1]);
+    edit_json(&root.join("0/.zarray"), |v| {
+        v["shape"][2] = (1u64 << 40).into()
+    });
+    every_command_refuses(d, &root, &["level 0", "expected at most 1048576"]);
+    // A scene whose input is such a store says the same.
+    edit_json(&root.join("0/.zarray"), |v| v["shape"][2] = 0.into());
+    let scene = d.join("scene.json");
+    let text = format!(
+        r#"{{"version": 1, "input": {{"path": "{}"}}}}"#,
+        root.display()
+    );
+    std::fs::write(&scene, text).unwrap();
+    let png = d.join("s.png");
+    let out = common::vellum(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        png.to_str().unwrap(),
+    ]);
+    common::fails_with(&out, "empty along z");
+    common::only(d, &["v2.zarr", "scene.json"]);
+}
+
+/// Runs vellum with `args`, killing it after a minute: a read that blocks fails the test
+/// rather than hanging it.
+fn vellum_within_a_minute(args: &[&str]) -> std::process::Output {
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_vellum"))
+        .args(args)
+        .env("VELLUM_VALIDATION", "1")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > std::time::Duration::from_secs(60) {
+            child.kill().unwrap();
+            panic!("vellum {args:?} was still running after a minute");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+#[test]
+fn chunks_that_would_block_or_decode_beyond_their_size_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let root = phantom_store(d, "s.ome.zarr");
+    let s = root.to_str().unwrap();
+    let chunk = root.join("0/c/0/0/0");
+    // A zstd bomb: a few KB that would decode to 256 MiB, where the chunk holds 16 KiB.
+    let zeros = vec![0u8; 256 << 20];
+    std::fs::write(&chunk, zstd::bulk::compress(&zeros, 1).unwrap()).unwrap();
+    drop(zeros);
+    common::fails_with_all(
+        &vellum_within_a_minute(&["info", s]),
+        &["0/c/0/0/0", "decodes to more than 16384 bytes"],
+    );
+    // A FIFO as a chunk, and as the array's metadata: refused at once, never opened.
+    std::fs::remove_file(&chunk).unwrap();
+    let fifo = |p: &Path| {
+        assert!(std::process::Command::new("mkfifo")
+            .arg(p)
+            .status()
+            .unwrap()
+            .success());
+    };
+    fifo(&chunk);
+    common::fails_with_all(
+        &vellum_within_a_minute(&["info", s]),
+        &["0/c/0/0/0", "a FIFO"],
+    );
+    let meta = root.join("0/zarr.json");
+    std::fs::rename(&meta, d.join("zarr.json.kept")).unwrap();
+    common::mkfifo(&meta);
+    common::fails_with(&vellum_within_a_minute(&["info", s]), "a FIFO");
+    std::fs::remove_file(&meta).unwrap();
+    std::fs::rename(d.join("zarr.json.kept"), &meta).unwrap();
+    // A link to nothing is not read as a missing chunk (the fill value) without a word.
+    std::fs::remove_file(&chunk).unwrap();
+    std::os::unix::fs::symlink(d.join("nowhere"), &chunk).unwrap();
+    common::fails_with_all(
+        &vellum_within_a_minute(&["info", s]),
+        &["0/c/0/0/0", "link to nothing"],
+    );
+}
+
+#[test]
+fn scales_ranges_and_levels_that_do_not_hold_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scale_of = |level: usize| format!("/datasets/{level}/coordinateTransformations/0/scale");
+    for (i, (scale, phrase)) in [
+        ([-1.0, 1.0, 1.0], "expected voxel sizes"),
+        ([1e308, 1.0, 1.0], "expected voxel sizes"),
+        ([1e-308, 1.0, 1.0], "expected voxel sizes"),
+        ([1.0, 1.0, 1e5], "times longer"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let root = phantom_store(d, &format!("scale{i}.ome.zarr"));
+        edit_json(&root.join("zarr.json"), |v| {
+            *multiscale(v).pointer_mut(&scale_of(0)).unwrap() = serde_json::json!(scale);
+        });
+        common::fails_with_all(
+            &common::vellum(&["info", root.to_str().unwrap()]),
+            &["level 0's scale", phrase],
+        );
+    }
+    // The multiscale's own transformations apply to every level.
+    let root = phantom_store(d, "ms.ome.zarr");
+    edit_json(&root.join("zarr.json"), |v| {
+        multiscale(v)["coordinateTransformations"] =
+            serde_json::json!([{"type": "scale", "scale": [0.5, 2.0, 3.0]}]);
+    });
+    let m = Multiscale::open(&root).unwrap();
+    assert_eq!(m.levels[0].spacing, [3.0, 2.0, 0.5]);
+    assert_eq!(m.levels[1].spacing, [6.0, 4.0, 1.0]);
+    // Levels that are not what they say: level 0 listed again, an array at another scale.
+    let root = phantom_store(d, "levels.ome.zarr");
+    edit_json(&root.join("zarr.json"), |v| {
+        multiscale(v)["datasets"][1]["path"] = "0".into();
+    });
+    common::fails_with(
+        &common::vellum(&["info", root.to_str().unwrap()]),
+        "level 0 twice",
+    );
+    edit_json(&root.join("zarr.json"), |v| {
+        multiscale(v)["datasets"][1]["path"] = "1".into();
+        *multiscale(v).pointer_mut(&scale_of(1)).unwrap() = serde_json::json!([3.0, 3.0, 3.0]);
+    });
+    common::fails_with(
+        &common::vellum(&["info", root.to_str().unwrap()]),
+        "same extent",
+    );
+    // A recorded range the store's own values contradict, or not finite: refused where the
+    // bricked render would have drawn black.
+    for (i, range) in [[0.0, 0.0], [-1e308, 1e308]].into_iter().enumerate() {
+        let root = phantom_store(d, &format!("range{i}.ome.zarr"));
+        edit_json(&root.join("zarr.json"), |v| {
+            v["attributes"]["vellum"]["range"] = serde_json::json!(range);
+        });
+        let png = d.join("r.png");
+        let out = common::vellum(&[
+            "render",
+            root.to_str().unwrap(),
+            "--renderer",
+            "raycast",
+            "--gpu-budget",
+            "0.3",
+            "--size",
+            "32x32",
+            "--out",
+            png.to_str().unwrap(),
+        ]);
+        common::fails_with(&out, "recorded range");
+        assert!(!png.exists());
+    }
+}
+
+#[test]
+fn a_written_store_has_a_sane_number_of_levels_and_chunks() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = |name: &str| d.join(name).to_string_lossy().into_owned();
+    let o = out("o.ome.zarr");
+    let p = "phantom:shepp-logan:32";
+    common::fails_with(
+        &common::vellum(&["convert", p, &o, "--levels", "99"]),
+        "expected 1 to 6",
+    );
+    common::fails_with(
+        &common::vellum(&["convert", p, &o, "--chunk", "1"]),
+        "too small",
+    );
+    common::only(d, &[]);
+    let ok = common::vellum(&["convert", p, &o, "--levels", "6"]);
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    let m = Multiscale::open(Path::new(&o)).unwrap();
+    assert_eq!(m.levels.last().unwrap().dims, [1, 1, 1]);
+    assert_eq!(m.levels.last().unwrap().spacing, [32.0; 3]);
+}
+
+/// SIGINT or SIGTERM at 20 moments of a store's writing: each time the command ends with 130 and
+/// nothing (or, when it finished first, the whole store) is there, never a temporary folder.
+#[test]
+fn an_interrupted_store_write_leaves_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut interrupted = 0;
+    for i in 0..20u64 {
+        let store = d.join(format!("x{i}.ome.zarr"));
+        let child = std::process::Command::new(env!("CARGO_BIN_EXE_vellum"))
+            .args([
+                "convert",
+                "phantom:shepp-logan:160",
+                store.to_str().unwrap(),
+                "--chunk",
+                "16",
+            ])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Moments spread over the write (a few hundred milliseconds on two cores).
+        let wait = 20 + (i * 7919 % 20) * 25;
+        std::thread::sleep(std::time::Duration::from_millis(wait));
+        let signal = if i % 2 == 0 { "-INT" } else { "-TERM" };
+        let _ = std::process::Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status();
+        let out = child.wait_with_output().unwrap();
+        match out.status.code() {
+            Some(130) => {
+                interrupted += 1;
+                assert!(!store.exists(), "{} left after a signal", store.display());
+            }
+            Some(0) => {
+                Multiscale::open(&store).unwrap();
+                std::fs::remove_dir_all(&store).unwrap();
+            }
+            // Killed by the signal's default action: it came before the handler was set, so
+            // before anything was written.
+            None => assert!(!store.exists()),
+            other => panic!(
+                "exit {other:?} after {signal} at {wait} ms: {}",
+                String::from_utf8_lossy(&out.stderr)
+            ),
+        }
+        common::only(d, &[]);
+    }
+    assert!(
+        interrupted > 0,
+        "no write was interrupted: the moments are too late"
+    );
+}

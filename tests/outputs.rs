@@ -9,26 +9,9 @@
 
 mod common;
 
-use common::{fails_with, vellum};
+use common::{fails_with, mkfifo, only, vellum};
 use std::path::Path;
 use std::process::Command;
-
-/// Nothing in `dir` but `keep`.
-fn only(dir: &Path, keep: &[&str]) {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    names.sort();
-    let mut want: Vec<String> = keep.iter().map(|s| s.to_string()).collect();
-    want.sort();
-    assert_eq!(names, want, "files left in {}", dir.display());
-}
-
-fn mkfifo(path: &Path) {
-    let ok = Command::new("mkfifo").arg(path).status().unwrap().success();
-    assert!(ok, "mkfifo {}", path.display());
-}
 
 #[test]
 fn a_failing_output_leaves_no_other_output() {

@@ -101,12 +101,22 @@ pub fn chunk_for(
         .find(|&c| need(c) <= budget)
         .ok_or_else(|| {
             Error::Invalid(format!(
-                "a memory budget of {:.0} MiB is smaller than two chunks of {} voxels with their halo of {halo} ({:.0} MiB); raise --memory-budget",
-                budget as f64 / (1 << 20) as f64,
+                "a memory budget of {} MiB is smaller than two chunks of {} voxels with their halo of {halo} ({} MiB); raise --memory-budget",
+                mib(budget),
                 CHUNKS[CHUNKS.len() - 1],
-                need(CHUNKS[CHUNKS.len() - 1]) as f64 / (1 << 20) as f64
+                mib(need(CHUNKS[CHUNKS.len() - 1]))
             ))
         })
+}
+
+/// Bytes as MiB for a sentence: whole above 10, with significant digits below (a budget of
+/// half a MiB is not "0 MiB").
+fn mib(bytes: u64) -> String {
+    let m = bytes as f64 / (1 << 20) as f64;
+    match m >= 10.0 {
+        true => format!("{m:.0}"),
+        false => format!("{}", (m * 1000.0).round() / 1000.0),
+    }
 }
 
 fn locked<T>(m: &Mutex<T>) -> Result<std::sync::MutexGuard<'_, T>> {

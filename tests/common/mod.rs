@@ -202,3 +202,25 @@ pub fn python_with(modules: &str) -> bool {
     }
     have
 }
+
+/// Nothing in `dir` but `keep`: no other output, no `.vellum.*` temporary left behind.
+pub fn only(dir: &std::path::Path, keep: &[&str]) {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    let mut want: Vec<String> = keep.iter().map(|s| s.to_string()).collect();
+    want.sort();
+    assert_eq!(names, want, "files left in {}", dir.display());
+}
+
+/// Makes a FIFO at `path` (mkfifo).
+pub fn mkfifo(path: &std::path::Path) {
+    let ok = std::process::Command::new("mkfifo")
+        .arg(path)
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok, "mkfifo {}", path.display());
+}

@@ -1012,10 +1012,30 @@ pub(crate) fn parse_cli() -> Cli {
                 if value.starts_with('-') {
                     let name = arg.split_whitespace().next().unwrap_or(&arg);
                     eprintln!("error: {name} is {value}; expected a whole number of zero or more");
-                    std::process::exit(2);
+                    std::process::exit(1);
                 }
             }
-            e.exit()
+            // Help and version go out as clap writes them; any other mistake is one sentence
+            // and status 1, as every other bad input (docs/cli.md).
+            if matches!(
+                e.kind(),
+                ErrorKind::DisplayHelp
+                    | ErrorKind::DisplayVersion
+                    | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+            ) {
+                e.exit()
+            }
+            let text = e.render().to_string();
+            let first = text
+                .lines()
+                .find(|l| !l.trim().is_empty())
+                .unwrap_or("the command line could not be read");
+            let first = first.trim_start_matches("error: ");
+            eprintln!(
+                "error: {}",
+                vellum::error::one_line(&format!("{first} (see --help)"))
+            );
+            std::process::exit(1);
         }
     }
 }
@@ -1037,6 +1057,11 @@ pub(crate) const KEY_FLAGS: [(&str, &str); 10] = [
 
 /// `message` with each key the library names replaced by its flag.
 pub(crate) fn flags_for_keys(message: &str) -> String {
+    // A message about a file's fields (a scene, a transfer function: `PATH.json: unknown field
+    // `radius`…`) names the file's keys, not flags.
+    if message.contains(".json: ") {
+        return message.to_string();
+    }
     KEY_FLAGS
         .iter()
         .fold(message.to_string(), |m, (key, flag)| m.replace(key, flag))

@@ -39,9 +39,12 @@ fn main() -> ExitCode {
         .format_timestamp(None)
         .init();
     // Ctrl-C or SIGTERM removes the command's temporary files; nothing partial stays behind.
+    // The writers are told first and stop at their next chunk, removing their folders
+    // themselves; what is left after a few seconds is removed here, then the process ends.
     if let Err(e) = ctrlc::set_handler(|| {
-        vellum::output::remove_pending();
-        std::process::exit(130);
+        vellum::error::interrupt();
+        vellum::output::wait_for_writers(std::time::Duration::from_secs(5));
+        vellum::output::remove_pending_and_exit(130);
     }) {
         log::warn!("no Ctrl-C handler: {e}");
     }
@@ -55,6 +58,11 @@ fn main() -> ExitCode {
     let root = team.as_ref().map_or(true, |t| t.is_root());
     let code = match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(_) if vellum::error::interrupted() => {
+            // The handler says nothing more and ends the process with 130 once the writers
+            // are done; this thread got there first.
+            vellum::output::remove_pending_and_exit(130);
+        }
         Err(e) => {
             vellum::output::abort();
             // In a job, every rank ends with the same agreed sentence; rank 0 says it.

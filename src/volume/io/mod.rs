@@ -11,7 +11,9 @@
 //! cannot make us try to allocate terabytes.
 
 mod dicom;
+pub mod guarded_store;
 mod metaimage;
+mod ngff_checks;
 pub mod nifti;
 pub mod nrrd;
 pub mod ome_zarr;
@@ -121,11 +123,17 @@ pub fn load(path: &Path, raw: Option<&RawSpec>) -> Result<Volume> {
         match sniff(path)? {
             Some(Sniffed::Nrrd) => nrrd::read(path)?,
             Some(Sniffed::Nifti) => nifti::read(path)?,
+            None if has(".zarr") => {
+                return Err(Error::format(
+                    path,
+                    "is a file; expected an OME-Zarr store to be a folder (holding zarr.json or .zgroup)",
+                ))
+            }
             None => {
                 return Err(Error::format(
                     path,
-                    "unknown format; expected .nrrd, .nhdr, .nii, .nii.gz, .mhd, .mha, a DICOM folder, \
-                     or raw input with --raw-dims and --raw-type",
+                    "unknown format; expected .nrrd, .nhdr, .nii, .nii.gz, .mhd, .mha, an OME-Zarr \
+                     folder (.zarr), a DICOM folder, or raw input with --raw-dims and --raw-type",
                 ))
             }
         }

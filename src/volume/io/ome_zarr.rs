@@ -10,6 +10,8 @@
 //!
 //! Missing chunks read as the array's fill value, as the Zarr spec says.
 
+use super::guarded_store::GuardedStore;
+use super::ngff_checks::{self, Limits};
 use crate::error::{Error, Result};
 use crate::team::{Solo, Team};
 use crate::volume::geometry::Geometry;
@@ -49,8 +51,8 @@ pub struct Multiscale {
     pub channels: usize,
     /// The index on the leading axes (t, c) that is read: time point 0 and the channel chosen.
     lead: Vec<u64>,
-    /// The levels' arrays, opened once.
-    arrays: Vec<Array<FilesystemStore>>,
+    /// The levels' arrays, opened once, read through the store's guards.
+    arrays: Vec<Array<GuardedStore>>,
 }
 
 /// Whether `path` names an OME-Zarr store: a folder whose name ends in `.zarr`.
@@ -86,7 +88,7 @@ impl Multiscale {
     /// one): a multi-channel store such as the normals' reads as one scalar grid per channel.
     pub fn open_channel(path: &Path, channel: usize) -> Result<Self> {
         let store =
-            Arc::new(FilesystemStore::new(path).map_err(|e| {
+            Arc::new(GuardedStore::new(path).map_err(|e| {
                 invalid(path, format!("could not be opened as a Zarr store ({e})"))
             })?);
         let group = zarrs::group::Group::open(store.clone(), "/").map_err(|e| {
@@ -109,6 +111,7 @@ impl Multiscale {
                     "multiscales[0] lists no datasets; expected at least one level",
                 )
             })?;
+        ngff_checks::datasets(path, datasets)?;
         let mut levels = Vec::new();
         let mut arrays = Vec::new();
         let mut voxel = None;
@@ -118,6 +121,9 @@ impl Multiscale {
                 .ok_or_else(|| invalid(path, format!("dataset {i} has no path")))?;
             let array = Array::open(store.clone(), &format!("/{name}"))
                 .map_err(|e| invalid(path, format!("level {name} could not be opened ({e})")))?;
+            let (limits, chunk_bytes) = Limits::of_array(path, name, &array)?;
+            limits.check(path, name, leading)?;
+            store.bound_array(name, chunk_bytes);
             let t = voxel_type(path, name, &array)?;
             if voxel.is_some_and(|v| v != t) {
                 return Err(invalid(
@@ -129,7 +135,9 @@ impl Multiscale {
             levels.push(level(path, name, &array, d, (leading, c_axis))?);
             arrays.push(array);
         }
+        ngff_checks::multiscale_transforms(path, ms, leading, &mut levels)?;
         check_levels(path, &levels)?;
+        ngff_checks::consistent_levels(path, &levels)?;
         let channels = c_axis.map_or(1, |c| arrays[0].shape()[c] as usize);
         if arrays
             .iter()
@@ -249,8 +257,8 @@ impl Multiscale {
 }
 
 /// Voxels `lo .. lo + size` of `array` at index `lead` on its leading axes (t, c).
-fn retrieve(
-    array: &Array<FilesystemStore>,
+fn retrieve<S: zarrs::storage::ReadableStorageTraits + ?Sized + 'static>(
+    array: &Array<S>,
     lead: &[u64],
     voxel: VoxelType,
     lo: [usize; 3],
@@ -350,7 +358,7 @@ fn axis_names(path: &Path, ms: &Value) -> Result<Vec<String>> {
     Ok(names)
 }
 
-fn voxel_type(path: &Path, name: &str, array: &Array<FilesystemStore>) -> Result<VoxelType> {
+fn voxel_type(path: &Path, name: &str, array: &Array<GuardedStore>) -> Result<VoxelType> {
     let t = array.data_type();
     Ok(if *t == data_type::uint8() {
         VoxelType::U8
@@ -373,7 +381,7 @@ fn voxel_type(path: &Path, name: &str, array: &Array<FilesystemStore>) -> Result
 fn level(
     path: &Path,
     name: &str,
-    array: &Array<FilesystemStore>,
+    array: &Array<GuardedStore>,
     d: &Value,
     (leading, c_axis): (usize, Option<usize>),
 ) -> Result<Level> {
@@ -440,16 +448,12 @@ fn level(
         }
         let xyz = [v[leading + 2], v[leading + 1], v[leading]];
         match key {
-            "scale" => spacing = xyz.map(f64::abs),
+            "scale" => spacing = xyz,
             _ => origin = xyz,
         }
     }
-    if spacing.contains(&0.0) {
-        return Err(invalid(
-            path,
-            format!("level {name} has a zero scale; expected positive voxel sizes"),
-        ));
-    }
+    ngff_checks::spacing(path, &format!("level {name}'s scale"), spacing)?;
+    ngff_checks::origin(path, &format!("level {name}'s translation"), origin)?;
     Ok(Level {
         path: name.to_string(),
         dims: zyx(shape),
@@ -634,9 +638,7 @@ pub fn write_channels_in(
         ));
     }
     let levels = opts.levels.unwrap_or_else(|| auto_levels(src.dims));
-    if levels == 0 {
-        return Err(Error::Invalid("`levels` is 0; expected 1 or more".into()));
-    }
+    check_write_shape(src.dims, opts.chunk, levels)?;
     if src.geometry.direction != crate::volume::geometry::IDENTITY && team.is_root() {
         log::warn!(
             "OME-NGFF has no rotation: {} keeps the origin and spacing and drops the direction matrix",
@@ -683,6 +685,48 @@ pub fn write_channels_in(
             .err()
             .unwrap_or_else(|| Error::Invalid("the store failed and was removed".into()))),
     }
+}
+
+/// Levels, chunks and chunk counts a writer accepts: from 1 level to the number that halves the
+/// longest axis down to one voxel (each further level would be that voxel again), chunks of at
+/// most [`guarded_store::MAX_CHUNK_BYTES`] at 32 bits, and at most [`ngff_checks::MAX_CHUNKS`]
+/// of them in level 0 (what a reader accepts).
+pub fn check_write_shape(dims: [usize; 3], chunk: usize, levels: usize) -> Result<()> {
+    let longest = dims.into_iter().max().unwrap_or(1).max(1);
+    let most = (usize::BITS - (longest - 1).leading_zeros()) as usize + 1;
+    if levels == 0 || levels > most {
+        return Err(Error::Invalid(format!(
+            "`levels` {levels} is invalid for a {}x{}x{} volume; expected 1 to {most} (halving its longest axis down to one voxel)",
+            dims[0], dims[1], dims[2]
+        )));
+    }
+    if chunk < 8 && chunk < longest {
+        return Err(Error::Invalid(format!(
+            "`chunk` {chunk} is too small: a file for every {} voxels; expected 8 or more",
+            chunk.pow(3)
+        )));
+    }
+    let chunk_bytes = (chunk as u128).pow(3) * 4;
+    if chunk_bytes > super::guarded_store::MAX_CHUNK_BYTES as u128 {
+        return Err(Error::Invalid(format!(
+            "`chunk` {chunk} is too large: {chunk_bytes} bytes a chunk at 32 bits; expected at most {}",
+            super::guarded_store::MAX_CHUNK_BYTES
+        )));
+    }
+    let chunks: u128 = dims
+        .iter()
+        .map(|&n| n.div_ceil(chunk.max(1)) as u128)
+        .product();
+    if chunks > ngff_checks::MAX_CHUNKS {
+        return Err(Error::Invalid(format!(
+            "`chunk` {chunk} cuts a {}x{}x{} volume into {chunks} chunks; expected at most {} (a larger chunk)",
+            dims[0],
+            dims[1],
+            dims[2],
+            ngff_checks::MAX_CHUNKS
+        )));
+    }
+    Ok(())
 }
 
 fn write_levels(
@@ -914,6 +958,9 @@ fn store_chunks(
     let counts = dims.map(|n| n.div_ceil(chunk));
     let total = mine.len();
     let one = |k: usize| -> Result<[f64; 2]> {
+        // Ctrl-C: stop before the next chunk, so that nothing writes into the folder once it
+        // is removed.
+        crate::error::check_interrupt()?;
         let c = mine[k];
         let index = [
             c % counts[0],
