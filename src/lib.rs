@@ -27,6 +27,7 @@ pub mod progress;
 pub mod render;
 pub mod showcase;
 pub mod team;
+#[cfg(feature = "viewer")]
 pub mod viewer;
 pub mod volume;
 

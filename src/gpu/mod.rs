@@ -13,6 +13,7 @@ pub mod pipeline_cache;
 pub mod profiler;
 pub mod resources;
 pub mod shaders;
+#[cfg(feature = "viewer")]
 pub mod swapchain;
 pub mod transfer;
 pub mod validation;

@@ -90,6 +90,7 @@ pub(crate) struct SceneArgs {
 }
 
 /// What `vellum view` opens without an input or a scene file.
+#[cfg_attr(not(feature = "viewer"), allow(dead_code))]
 const DEFAULT_VIEW_INPUT: &str = "phantom:shepp-logan:128";
 
 impl SceneArgs {
@@ -118,6 +119,7 @@ impl SceneArgs {
     /// Shepp–Logan phantom without one). Without a scene file or `--renderer`, the window's
     /// default renderer: the ray caster (3–4× the slicer's speed, BENCHMARKS.md) with jitter
     /// against slicing rings. With the same flags `render` builds the same scene.
+    #[cfg_attr(not(feature = "viewer"), allow(dead_code))]
     pub(crate) fn view_scene(&self) -> Result<Scene> {
         let mut scene = self.apply(self.base(Some(DEFAULT_VIEW_INPUT), "view")?)?;
         if self.file.is_none() && self.renderer.is_none() {

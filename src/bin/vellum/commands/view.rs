@@ -2,8 +2,18 @@
 
 use crate::args::*;
 use anyhow::Result;
+#[cfg(feature = "viewer")]
 use std::path::PathBuf;
 
+/// Without the `viewer` feature (a build for a machine with no window): one sentence.
+#[cfg(not(feature = "viewer"))]
+pub(crate) fn view(_cli: &Cli, _a: &ViewArgs) -> Result<()> {
+    anyhow::bail!(
+        "this vellum was built without its viewer (cargo feature `viewer`); expected a build with default features for `vellum view`"
+    )
+}
+
+#[cfg(feature = "viewer")]
 pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
     let scene = a.scene.view_scene()?;
     let window_size = match &a.scene.size {
