@@ -613,3 +613,61 @@ fn an_interrupted_store_write_leaves_nothing_behind() {
         "no write was interrupted: the moments are too late"
     );
 }
+
+/// The issue's smaller items, each as a user meets it: a mistake on the command line is one
+/// sentence and status 1; a small memory budget is said as it is; a file named `.zarr` is not
+/// taken for an unknown format; a scene's unknown field is named as the scene's key.
+#[test]
+fn small_mistakes_are_one_clear_sentence() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let p = "phantom:shepp-logan:16";
+    let png = d.join("x.png");
+    let png = png.to_str().unwrap();
+    for bad in [
+        ["--gpu-budget", "abc"],
+        ["--max-wait-ms", "1e30"],
+        ["--slices", "x"],
+    ] {
+        let out = common::vellum(&["render", p, bad[0], bad[1], "--out", png]);
+        assert_eq!(out.status.code(), Some(1), "{bad:?}");
+        common::fails_with_all(&out, &[bad[0], "--help"]);
+    }
+    let dd = d.join("dd.ome.zarr");
+    let out = common::vellum(&[
+        "importance",
+        p,
+        "--radius",
+        "2",
+        "--memory-budget",
+        "0.001",
+        "--out",
+        dd.to_str().unwrap(),
+    ]);
+    common::fails_with(&out, "a memory budget of 0.001 MiB");
+    let file = d.join("plain.ome.zarr");
+    std::fs::write(&file, b"not a folder").unwrap();
+    common::fails_with(
+        &common::vellum(&["info", file.to_str().unwrap()]),
+        "expected an OME-Zarr store to be a folder",
+    );
+    let scene = d.join("s.json");
+    std::fs::write(&scene, r#"{"version": 1, "radius": 3}"#).unwrap();
+    let out = common::vellum(&["render", "--scene", scene.to_str().unwrap(), "--out", png]);
+    common::fails_with(&out, "`radius`");
+    // An occlusion TF whose radius the pass refuses is named, inside the scene that names it.
+    let otf = d.join("o.json");
+    std::fs::write(
+        &otf,
+        r#"{"radius": 0, "mapping": "ramp", "transfer": "grey"}"#,
+    )
+    .unwrap();
+    let text = format!(
+        r#"{{"version": 1, "input": {{"path": "{p}"}}, "classification": {{"occlusion": "{}"}}}}"#,
+        otf.display()
+    );
+    std::fs::write(&scene, text).unwrap();
+    let out = common::vellum(&["render", "--scene", scene.to_str().unwrap(), "--out", png]);
+    common::fails_with_all(&out, &["o.json", "`radius` 0"]);
+    common::only(d, &["plain.ome.zarr", "s.json", "o.json"]);
+}

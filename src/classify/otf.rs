@@ -22,6 +22,10 @@ use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// The largest occlusion radius in voxels, and output stride, the occlusion pass takes.
+pub const MAX_OCCLUSION_RADIUS: u32 = 1024;
+pub const MAX_OCCLUSION_STRIDE: u32 = 64;
+
 /// Table size along intensity and occlusion.
 pub const TABLE_SIZE: usize = 256;
 
@@ -108,6 +112,19 @@ impl OcclusionTf {
     }
 
     fn validate(&self) -> Result<()> {
+        // The occlusion pass's limits, checked here so that the error names the file.
+        if !(1..=MAX_OCCLUSION_RADIUS).contains(&self.radius) {
+            return Err(Error::Invalid(format!(
+                "`radius` {} is invalid; expected 1..={MAX_OCCLUSION_RADIUS} voxels",
+                self.radius
+            )));
+        }
+        if self.stride > MAX_OCCLUSION_STRIDE {
+            return Err(Error::Invalid(format!(
+                "`stride` {} is invalid; expected 0 (radius / 16) or 1..={MAX_OCCLUSION_STRIDE}",
+                self.stride
+            )));
+        }
         let unit = |v: f32| v.is_finite() && (0.0..=1.0).contains(&v);
         let interval = |i: [f32; 2]| unit(i[0]) && unit(i[1]) && i[0] <= i[1];
         if self.transfer.is_none() && self.regions.is_empty() {

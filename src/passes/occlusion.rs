@@ -995,14 +995,15 @@ fn check_bins([bx, by]: [u32; 2]) -> Result<()> {
 /// Checks an occlusion radius (1..=1024 voxels) and output stride (1..=64), the same rule for
 /// every command that takes them.
 pub fn check_radius_stride(radius: u32, stride: u32) -> Result<()> {
-    if radius == 0 || radius > 1024 {
+    use crate::classify::otf::{MAX_OCCLUSION_RADIUS, MAX_OCCLUSION_STRIDE};
+    if radius == 0 || radius > MAX_OCCLUSION_RADIUS {
         return Err(Error::Invalid(format!(
-            "occlusion radius {radius} is invalid; expected 1..=1024 voxels"
+            "occlusion radius {radius} is invalid; expected 1..={MAX_OCCLUSION_RADIUS} voxels"
         )));
     }
-    if stride == 0 || stride > 64 {
+    if stride == 0 || stride > MAX_OCCLUSION_STRIDE {
         return Err(Error::Invalid(format!(
-            "output stride {stride} is invalid; expected 1..=64"
+            "output stride {stride} is invalid; expected 1..={MAX_OCCLUSION_STRIDE}"
         )));
     }
     Ok(())
