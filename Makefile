@@ -91,7 +91,8 @@ test-python: deps-test
 		CARGO_TARGET_DIR=$(CURDIR)/target maturin develop --locked --quiet
 	VELLUM_SYNC_VALIDATION=1 $(PY_VENV)/bin/python -m pytest python/tests -q
 
-# The long fuzz run (see src/fuzz.rs): a million mutated inputs per reader, each under a 5 s
+# The long fuzz run (see src/fuzz.rs): a million mutated inputs per reader and store target (the
+# stores: v3 and v2, their root and array metadata and a chunk), each under a 5 s
 # watchdog; prints inputs, refusals, crashes, the slowest input and peak memory. INPUTS=N to change.
 INPUTS ?= 1000000
 fuzz: deps

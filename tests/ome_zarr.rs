@@ -669,5 +669,14 @@ fn small_mistakes_are_one_clear_sentence() {
     std::fs::write(&scene, text).unwrap();
     let out = common::vellum(&["render", "--scene", scene.to_str().unwrap(), "--out", png]);
     common::fails_with_all(&out, &["o.json", "`radius` 0"]);
+    // A store whose folder cannot take it is named, not its temporary (a file stands in for a
+    // read-only folder, which root may still write into).
+    let inside = file.join("x.ome.zarr");
+    let out = common::vellum(&["convert", p, inside.to_str().unwrap()]);
+    common::fails_with_all(&out, &["x.ome.zarr cannot be written", "plain.ome.zarr"]);
+    assert!(
+        !out.stderr.windows(8).any(|w| w == b".vellum."),
+        "names its temporary"
+    );
     common::only(d, &["plain.ome.zarr", "s.json", "o.json"]);
 }

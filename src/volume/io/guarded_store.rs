@@ -9,7 +9,8 @@
 //!   known, at [`MAX_CHUNK_BYTES`] before.
 //! - A compressed chunk may not decode to more than its declared size. Zstandard frames carry
 //!   their decoded size, which is read from their headers; a frame without it is decoded here
-//!   with a bound before `zarrs` decodes it. A Blosc chunk's header gives its decoded size too.
+//!   with a bound before `zarrs` decodes it. A Blosc chunk's header gives its decoded size too;
+//!   a gzip chunk (whose trailer gives its size only modulo 4 GiB) is decoded under the bound.
 //!   So a chunk of 33 KB that would decode to a gigabyte is refused after reading 33 KB.
 
 use std::io::Read as _;
@@ -157,6 +158,19 @@ pub fn check_decoded_size(value: &[u8], bound: u64) -> Result<(), String> {
     if value.starts_with(&ZSTD_MAGIC) {
         return check_zstd(value, bound);
     }
+    // Gzip records its size only modulo 4 GiB, and a member can hide behind another: decoded
+    // here under the bound (a gzip chunk is decoded twice; zstd and Blosc are the common codecs).
+    if value.starts_with(&[0x1f, 0x8b]) {
+        let mut d = flate2::read::MultiGzDecoder::new(value);
+        let n = std::io::copy(&mut (&mut d).take(bound + 1), &mut std::io::sink())
+            .map_err(|e| format!("could not be decoded (gzip: {e})"))?;
+        if n > bound {
+            return Err(format!(
+                "decodes to more than {bound} bytes (gzip); its array's chunks hold at most {bound}"
+            ));
+        }
+        return Ok(());
+    }
     // Blosc 1 and 2: version, versionlz, flags, typesize, then the decoded and compressed sizes
     // (u32, little-endian); the compressed size is the whole value's.
     if value.len() >= 16 && matches!(value[0], 1 | 2) {
@@ -280,6 +294,17 @@ mod tests {
         let two = [small.clone(), small].concat();
         assert!(check_decoded_size(&two, 3 << 19).is_err());
         assert!(check_decoded_size(&two, 2 << 20).is_ok());
+    }
+
+    #[test]
+    fn a_gzip_chunk_that_decodes_beyond_its_bound_is_refused() {
+        use std::io::Write as _;
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+        e.write_all(&vec![0u8; 1 << 20]).unwrap();
+        let gz = e.finish().unwrap();
+        assert!(check_decoded_size(&gz, 1 << 20).is_ok());
+        let err = check_decoded_size(&gz, 1000).unwrap_err();
+        assert!(err.contains("gzip"), "{err}");
     }
 
     #[test]
