@@ -501,11 +501,7 @@ fn read_store(path: &Path) -> Result<()> {
         .find(|p| p.to_string_lossy().ends_with(".zarr"))
         .unwrap_or(path);
     let ms = Multiscale::open(root)?;
-    let pick = ms
-        .levels
-        .iter()
-        .position(|l| l.dims.iter().product::<usize>() <= 1 << 24);
-    if let Some(pick) = pick {
+    if let Some(pick) = ms.finest_within(1 << 24) {
         ms.read_level(pick)?;
     }
     for (i, l) in ms.levels.iter().enumerate() {

@@ -149,6 +149,11 @@ pub struct BrickLevels {
 /// Bytes of decoded chunks a pyramid keeps by default (`--memory-budget` sets it).
 pub const DEFAULT_CHUNK_CACHE: u64 = 896 << 20;
 
+/// The finest level of `ms` of at most `voxels` voxels, or its coarsest when none is that small.
+fn small_level(ms: &Multiscale, voxels: usize) -> usize {
+    ms.finest_within(voxels).unwrap_or(ms.levels.len() - 1)
+}
+
 /// Voxels of the level a recorded range is checked against at most (a 128³ level).
 const RANGE_CHECK_VOXELS: usize = 1 << 21;
 
@@ -164,11 +169,7 @@ fn check_recorded_range(ms: &Multiscale, r: [f64; 2]) -> Result<[f64; 2]> {
             format!("{name} {r:?} is not a finite span; expected the smallest and largest value of level 0"),
         ));
     }
-    let pick = ms
-        .levels
-        .iter()
-        .position(|l| l.dims.iter().product::<usize>() <= RANGE_CHECK_VOXELS)
-        .unwrap_or(ms.levels.len() - 1);
+    let pick = small_level(ms, RANGE_CHECK_VOXELS);
     let seen = ms.read_level(pick)?.normalised_range();
     let slack = 1e-6 * r[0].abs().max(r[1].abs()).max(1e-30);
     if seen[0] < r[0] - slack || seen[1] > r[1] + slack {
@@ -200,11 +201,7 @@ impl BrickLevels {
             Some(r) => check_recorded_range(&ms, r)?,
             None => {
                 // The finest level small enough (level 0 when it is).
-                let pick = ms
-                    .levels
-                    .iter()
-                    .position(|l| l.dims.iter().product::<usize>() <= scan_limit)
-                    .unwrap_or(ms.levels.len() - 1);
+                let pick = small_level(&ms, scan_limit);
                 if pick > 0 {
                     log::warn!(
                         "{} does not record its value range; taking it from level {pick}, so extremes finer than that level may be clipped",

@@ -242,6 +242,14 @@ impl Multiscale {
         )
     }
 
+    /// The finest level of at most `voxels` voxels (level 0 when it is that small), read whole
+    /// for statistics and ranges; `None` when even the coarsest is larger.
+    pub fn finest_within(&self, voxels: usize) -> Option<usize> {
+        self.levels
+            .iter()
+            .position(|l| l.dims.iter().product::<usize>() <= voxels)
+    }
+
     /// Bytes of level `level` in memory (0 for a level the store does not have).
     pub fn level_bytes(&self, level: usize) -> u64 {
         self.levels.get(level).map_or(0, |l| {

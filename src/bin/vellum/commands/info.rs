@@ -58,9 +58,7 @@ const STATS_VOXELS: usize = 1 << 24;
 /// voxels (level 0 itself when it is that small). Level 0 is never read whole otherwise.
 fn store_summary(ms: &vellum::volume::io::ome_zarr::Multiscale, json: bool) -> Result<()> {
     let level = ms
-        .levels
-        .iter()
-        .position(|l| l.dims.iter().product::<usize>() <= STATS_VOXELS)
+        .finest_within(STATS_VOXELS)
         .unwrap_or(ms.levels.len() - 1);
     let v = ms.read_level(level)?;
     let s = vellum::volume::stats::stats(&v, 16);
