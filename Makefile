@@ -45,8 +45,10 @@ deps-test: deps
 		$(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $$missing; \
 	fi
 
+# The main job's binary leaves the windowed viewer out (the root package's default feature
+# `viewer`, crates/vellum-viewer, winit and egui): `make view` builds it with the viewer.
 build: deps
-	cargo build --release --locked
+	cargo build --release --locked --no-default-features
 
 # The main job: the figures of the device, the input's description, a GPU round trip, then the
 # showcase (examples/showcase.json): every technique on the shipped chest CT, composed in one
@@ -70,14 +72,15 @@ docs-images: build
 	cp target/docs-showcase/importance_color.png docs/images/importance.png
 
 # The windowed viewer on INPUT (needs a display; under no display: xvfb-run -a make view).
-view: build
+view: deps
+	cargo build --release --locked
 	$(VELLUM) view $(INPUT)
 
 # Every test, with the Khronos validation layer on (debug build), including its synchronization
 # validation: a missing or wrong barrier fails the test like any other validation message. The
 # `mpi` feature is on, so tests/mpi.rs runs jobs under Open MPI's mpirun.
 test: deps-test
-	VELLUM_SYNC_VALIDATION=1 cargo test --locked --features mpi
+	VELLUM_SYNC_VALIDATION=1 cargo test --locked --workspace --features vellum/mpi
 	$(MAKE) test-python
 
 # The Python package (python/, PyO3 built by maturin) in a venv make creates, then its pytest
@@ -91,7 +94,7 @@ test-python: deps-test
 		CARGO_TARGET_DIR=$(CURDIR)/target maturin develop --locked --quiet
 	VELLUM_SYNC_VALIDATION=1 $(PY_VENV)/bin/python -m pytest python/tests -q
 
-# The long fuzz run (see src/fuzz.rs): a million mutated inputs per reader and store target (the
+# The long fuzz run (see crates/vellum-tools/src/fuzz.rs): a million mutated inputs per reader and store target (the
 # stores: v3 and v2, their root and array metadata and a chunk), each under a 5 s
 # watchdog; prints inputs, refusals, crashes, the slowest input and peak memory. INPUTS=N to change.
 INPUTS ?= 1000000

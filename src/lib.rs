@@ -1,34 +1,27 @@
 //! vellum: illustrative volume rendering on Vulkan.
 //!
-//! Layers, bottom up (see ARCHITECTURE.md; `tests/layering.rs` checks them): [`gpu`] knows Vulkan
-//! and nothing about volumes; [`volume`] knows volumes and nothing about Vulkan; [`classify`]
-//! holds the transfer functions, occlusion and feature TFs, focus and modulation, with their GPU
-//! textures, shared by every renderer; [`passes`] joins them, one module per compute technique,
-//! recorded into a caller's frame, and never imports [`render`]; [`render`] assembles frames
-//! (`render::frame`), draws the levels (the slicer, the ray caster), runs the styles and holds
-//! the scene file; [`viewer`] is the window. [`imaging`] is 2D image processing on the CPU (the
-//! style passes' references); [`bench`] and [`figures`] sit on top, beside the binary.
+//! The library's front door. The layers are crates under `crates/` (ARCHITECTURE.md draws the
+//! graph; `tests/layering.rs` checks it), re-exported here under the names they always had:
+//! [`gpu`] knows Vulkan and nothing about volumes (`vellum-gpu`); [`volume`] knows volumes and
+//! nothing about Vulkan (`vellum-volume`, with [`input`], [`output`], [`team`] and [`memory`]);
+//! [`classify`], [`passes`], [`imaging`] and [`render`] are `vellum-render`; the window is
+//! `vellum-viewer`, behind the default feature `viewer`. The binary's tools (benchmarks, figures,
+//! fuzzing, the showcase, MPI) are `vellum-tools`, which this library does not re-export.
+//!
+//! # Example
+//!
+//! Open a volume, render it in one of the two-level paper's styles, save a PNG (README.md shows
+//! the same file, examples/render_png.rs; `cargo test` runs it here):
+//!
+#![doc = "```"]
+#![doc = include_str!("../examples/render_png.rs")]
+#![doc = "```"]
 
-pub mod bench;
-pub mod classify;
-#[cfg(feature = "mpi")]
-pub mod cluster;
-pub mod error;
-pub mod figures;
-pub mod fuzz;
-pub mod gpu;
-pub mod imaging;
-pub mod input;
-pub mod memory;
-pub mod output;
-pub mod passes;
-pub mod plot;
-pub mod progress;
-pub mod render;
-pub mod showcase;
-pub mod team;
+pub use vellum_error as error;
+pub use vellum_error::{Error, Result};
+pub use vellum_gpu as gpu;
+pub use vellum_render::{classify, imaging, passes, plot, progress, render};
 #[cfg(feature = "viewer")]
-pub mod viewer;
-pub mod volume;
-
-pub use error::{Error, Result};
+pub use vellum_viewer as viewer;
+pub use vellum_volume as volume;
+pub use vellum_volume::{input, memory, output, team};

@@ -2,7 +2,8 @@
 //! without a GPU:
 //! - the cut-down VTK keeps every wrapper module the VTK peer imports;
 //! - `tables.py` turns a results folder into BENCHMARKS.md's GPU section, the VTK goal judged from
-//!   the wall-clock ratio, and leaves the text outside its markers alone.
+//!   the wall-clock ratio, and leaves the text outside its markers alone, and the sections
+//!   written by hand between them too.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -88,6 +89,11 @@ fn peer_json(vtk_ms: [f64; 2], wall_ms: [f64; 2]) -> String {
 /// Runs tables.py on a folder holding these results (`vtk` → vtk.json, ...) and returns the
 /// Markdown it wrote.
 fn tables(results_json: &[(&str, &str)]) -> String {
+    tables_over(results_json, "# Benchmarks\n\nkept before\n")
+}
+
+/// [`tables`] over a BENCHMARKS.md that holds `markdown` first.
+fn tables_over(results_json: &[(&str, &str)], markdown: &str) -> String {
     let dir = tempfile::tempdir().unwrap();
     let results = dir.path().join("results");
     std::fs::create_dir(&results).unwrap();
@@ -96,7 +102,7 @@ fn tables(results_json: &[(&str, &str)]) -> String {
         std::fs::write(results.join(format!("{name}.json")), json).unwrap();
     }
     let md = dir.path().join("BENCHMARKS.md");
-    std::fs::write(&md, "# Benchmarks\n\nkept before\n").unwrap();
+    std::fs::write(&md, markdown).unwrap();
     // Twice: the second run replaces the section the first wrote.
     for _ in 0..2 {
         let out = Command::new("python3")
@@ -170,4 +176,29 @@ fn tables_judge_the_bricked_goal_by_the_fastest_lookup() {
         "{row}"
     );
     assert!(row.ends_with("| **met** |"), "{row}");
+}
+
+#[test]
+fn a_rewrite_keeps_the_sections_around_and_between_the_markers() {
+    let before = "# Benchmarks\n\n## Out of core\n\nstores\n\n<!-- bench-device:begin -->\n\
+        ## Many ranks on MPI\n\nranks\n\n## The first five minutes\n\nfirst\n\n\
+        ## On a GPU: every bench through `make bench-device` (issue 30)\n\nold figures\n\
+        <!-- bench-device:end -->\n\n## After the GPU\n\nafter\n";
+    let md = tables_over(&[], before);
+    for kept in [
+        "## Out of core\n\nstores",
+        "## Many ranks on MPI\n\nranks",
+        "## The first five minutes\n\nfirst",
+        "## After the GPU\n\nafter",
+    ] {
+        assert!(md.contains(kept), "{kept:?} is gone:\n{md}");
+    }
+    assert!(
+        !md.contains("old figures"),
+        "the old GPU section stays:\n{md}"
+    );
+    assert_eq!(md.matches("## On a GPU").count(), 1, "{md}");
+    // The kept sections now sit before the markers, which hold the generated section alone.
+    let inside = md.split("<!-- bench-device:begin -->").nth(1).unwrap();
+    assert!(inside.trim_start().starts_with("## On a GPU"), "{md}");
 }

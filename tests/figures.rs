@@ -13,7 +13,7 @@ fn importance_figures_match_their_references() {
         return;
     }
     let gpu = Gpu::new();
-    let sheets = vellum::figures::importance_sheets(&gpu.ctx, 96).unwrap();
+    let sheets = vellum_tools::figures::importance_sheets(&gpu.ctx, 96).unwrap();
     assert_eq!(sheets.len(), 7, "Figures 3 to 9");
     for (file, c) in sheets {
         common::check_reference(

@@ -3,7 +3,9 @@
 //!   well above the plain grey ramp's (the default is the `auto` window from the histogram);
 //! - a volume with no orientation is said to keep its axes, once, on stderr;
 //! - a long command shows progress on a terminal and nothing when piped;
-//! - the shipped scan is where the README says.
+//! - the shipped scan is where the README says;
+//! - the README's Rust example is examples/render_png.rs, word for word (the library's doctest
+//!   runs that file).
 
 mod common;
 
@@ -154,4 +156,17 @@ fn the_shipped_scan_and_its_licence_are_there() {
     );
     let source = std::fs::read_to_string(repo("data/ct_chest/SOURCE.md")).unwrap();
     assert!(source.contains("CC BY 3.0") && source.contains("doi:10.7937/K9/TCIA.2015.LO9QL9SX"));
+}
+
+#[test]
+fn the_readme_shows_the_rust_example_that_the_doctest_runs() {
+    let readme = std::fs::read_to_string(repo("README.md")).unwrap();
+    let example = std::fs::read_to_string(repo("examples/render_png.rs")).unwrap();
+    assert!(example.contains("Session::open") && example.contains("write_png_rgb"));
+    assert!(
+        readme.contains(&format!("```rust\n{example}```")),
+        "README.md's Rust example differs from examples/render_png.rs"
+    );
+    let lib = std::fs::read_to_string(repo("src/lib.rs")).unwrap();
+    assert!(lib.contains("include_str!(\"../examples/render_png.rs\")"));
 }

@@ -8,7 +8,7 @@ mod common;
 use std::path::Path;
 use std::time::Duration;
 
-use vellum::fuzz::{self, FuzzOptions};
+use vellum_tools::fuzz::{self, FuzzOptions};
 
 #[test]
 fn readers_survive_mutated_real_files() {

@@ -10,12 +10,15 @@ nothing else in the file is touched. Standard library only.
 """
 
 import json
+import re
 import pathlib
 import sys
 import tarfile
 import tempfile
 
 BEGIN, END = "<!-- bench-device:begin -->", "<!-- bench-device:end -->"
+# The heading of the one section this script writes between the markers.
+GENERATED = "## On a GPU: every bench through `make bench-device`"
 
 # Datasheet memory bandwidth by device name, the yardstick of the bandwidth-bound passes
 # (the bench's image copy is no bound on NVIDIA's driver: see the Table 1 section).
@@ -142,7 +145,7 @@ def section(d):
     lines, occ, occ512 = load(d, "lines"), load(d, "occlusion"), load(d, "occlusion512")
     styles_ray, scale, bricked = load(d, "styles_raycast"), load(d, "scale"), load(d, "bricked")
     dev = next((t["device"] for t in (t1, render, styles, lines, occ) if t), "unknown device")
-    out = [BEGIN, "## On a GPU: every bench through `make bench-device` (issue 30)", "",
+    out = [BEGIN, GENERATED + " (issue 30)", "",
            "Written by `benches/device/tables.py` from the JSON that `benches/device/run.sh` brought",
            "back from the lent machine; do not edit by hand. Command, on the lent machine:",
            "`bash benches/device/run.sh` (every bench with `--json`, `VELLUM_VALIDATION=0`).", "",
@@ -264,7 +267,14 @@ def main():
     text, new = md.read_text(), section(d)
     if BEGIN in text and END in text:
         head, rest = text.split(BEGIN, 1)
-        text = head + new + "\n" + rest.split(END, 1)[1].lstrip("\n")
+        inside, tail = rest.split(END, 1)
+        # Sections written by hand between the markers (a `## ` heading other than the generated
+        # one) are kept, in their order, before the new section: only the generated section is
+        # replaced (a misplaced marker once took the MPI and first-five-minutes sections with it).
+        kept = [b for b in re.split(r"(?m)^(?=## )", inside)
+                if b.startswith("## ") and not b.startswith(GENERATED)]
+        head = head + "".join(b.rstrip("\n") + "\n\n" for b in kept)
+        text = head + new + "\n" + tail.lstrip("\n")
     else:
         text = text.rstrip("\n") + "\n\n" + new
     md.write_text(text)

@@ -5,7 +5,7 @@
 use crate::{detached, refuse, to_py, PyVolume};
 use pyo3::prelude::*;
 use std::path::PathBuf;
-use vellum::volume::feature::{self, Connectivity, Feature, FeatureMap, MigrateParams, Roi};
+use vellum_volume::feature::{self, Connectivity, Feature, FeatureMap, MigrateParams, Roi};
 
 /// A feature as Python sees it: label, (lo, hi) private interval, (r, g, b) colour.
 type FeatureRow = (String, (f64, f64), (f32, f32, f32));
@@ -94,7 +94,7 @@ pub fn migrate(
                 Roi::grow(v, &seeds, [lo, hi], connectivity)?
             }
             _ => {
-                return Err(vellum::Error::Invalid(
+                return Err(vellum_error::Error::Invalid(
                     "no feature given; expected mask= or seeds= with window=(lo, hi)".into(),
                 ))
             }

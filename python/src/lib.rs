@@ -28,12 +28,12 @@ use pyo3::types::PyDict;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
-use vellum::error::one_line;
-use vellum::gpu::{Context, ContextDesc};
-use vellum::passes::importance::ImportanceMap;
-use vellum::passes::occlusion::{parse_mapping, Method, Occlusion, OcclusionParams};
-use vellum::volume::geometry::{Geometry, Space, IDENTITY};
-use vellum::volume::{VoxelData, VoxelType};
+use vellum_error::one_line;
+use vellum_gpu::{Context, ContextDesc};
+use vellum_render::passes::importance::ImportanceMap;
+use vellum_render::passes::occlusion::{parse_mapping, Method, Occlusion, OcclusionParams};
+use vellum_volume::geometry::{Geometry, Space, IDENTITY};
+use vellum_volume::{VoxelData, VoxelType};
 
 mod features;
 mod render;
@@ -49,7 +49,7 @@ pyo3::create_exception!(
 type Triple = (f64, f64, f64);
 
 /// The library's error as `vellum.Error`, on one line.
-pub(crate) fn to_py(e: vellum::Error) -> PyErr {
+pub(crate) fn to_py(e: vellum_error::Error) -> PyErr {
     Error::new_err(one_line(&e.to_string()))
 }
 
@@ -74,7 +74,7 @@ fn bug(panic: Box<dyn std::any::Any + Send>) -> PyErr {
 /// Runs `work` with the GIL released: its error becomes `vellum.Error`, a panic a `RuntimeError`.
 pub(crate) fn detached<T: Send>(
     py: Python<'_>,
-    work: impl FnOnce() -> vellum::Result<T> + Send,
+    work: impl FnOnce() -> vellum_error::Result<T> + Send,
 ) -> PyResult<T> {
     match py.detach(|| catch_unwind(AssertUnwindSafe(work))) {
         Ok(result) => result.map_err(to_py),
@@ -88,7 +88,7 @@ static DEVICE: Mutex<Option<Arc<Context>>> = Mutex::new(None);
 /// Runs `work` on the process's device with the GIL released, holding the device's lock.
 pub(crate) fn on_gpu<T: Send>(
     py: Python<'_>,
-    work: impl FnOnce(&Arc<Context>) -> vellum::Result<T> + Send,
+    work: impl FnOnce(&Arc<Context>) -> vellum_error::Result<T> + Send,
 ) -> PyResult<T> {
     detached(py, || {
         // After a panic the slot holds a whole context or none, so a poisoned lock is usable.
@@ -190,7 +190,7 @@ fn voxels_of(obj: &Bound<'_, PyAny>) -> PyResult<([usize; 3], VoxelData)> {
     }
     let [nz, ny, nx] = [untyped.shape()[0], untyped.shape()[1], untyped.shape()[2]];
     // Empty and absurd grids are refused before anything is copied.
-    vellum::volume::check_dims([nx, ny, nz]).map_err(to_py)?;
+    vellum_volume::check_dims([nx, ny, nz]).map_err(to_py)?;
     let voxel_type = voxel_type_for(&untyped.dtype())?;
     let kwargs = PyDict::new(py);
     kwargs.set_item("dtype", numpy_name(voxel_type))?;
@@ -251,7 +251,7 @@ fn view_of<'py, T: Element>(
 /// Bad input raises `vellum.Error` with one sentence.
 #[pyclass(name = "Volume", module = "vellum", frozen)]
 pub(crate) struct PyVolume {
-    pub(crate) inner: vellum::volume::Volume,
+    pub(crate) inner: vellum_volume::Volume,
 }
 
 #[pymethods]
@@ -271,7 +271,7 @@ impl PyVolume {
             direction: direction.map_or(Ok(IDENTITY), direction_matrix)?,
             space: Space::Unknown,
         };
-        let inner = vellum::volume::Volume::new(dims, spacing, data)
+        let inner = vellum_volume::Volume::new(dims, spacing, data)
             .and_then(|v| v.with_geometry(geometry))
             .map_err(to_py)?;
         inner.check_finite("the array").map_err(to_py)?;
@@ -347,7 +347,7 @@ impl PyVolume {
 /// resolution). The GIL is released while it reads.
 #[pyfunction]
 fn read(py: Python<'_>, path: PathBuf) -> PyResult<PyVolume> {
-    let inner = detached(py, move || vellum::volume::io::load(&path, None))?;
+    let inner = detached(py, move || vellum_volume::io::load(&path, None))?;
     Ok(PyVolume { inner })
 }
 
@@ -360,7 +360,7 @@ fn devices(py: Python<'_>) -> PyResult<Vec<Bound<'_, PyDict>>> {
         validation: Some(false),
         device: None,
     };
-    let (candidates, chosen) = detached(py, move || vellum::gpu::context::probe_devices(&desc))?;
+    let (candidates, chosen) = detached(py, move || vellum_gpu::context::probe_devices(&desc))?;
     candidates
         .into_iter()
         .map(|c| {
@@ -449,7 +449,7 @@ fn occlusion<'py>(
     let v = &volume.get().inner;
     let o = on_gpu(py, move |ctx| {
         let range = range.map(|(lo, hi)| [lo, hi]);
-        let (input, _) = vellum::passes::occlusion::OcclusionInput::upload_in_range(ctx, v, range)?;
+        let (input, _) = vellum_render::passes::occlusion::OcclusionInput::upload_in_range(ctx, v, range)?;
         Ok(Occlusion::new(ctx)?.compute_on(&input, &params)?.occlusion)
     })?;
     to_numpy(py, o.dims, o.data)
@@ -476,7 +476,7 @@ fn spectrum<'py>(
             .compute(v, &params)?
             .spectrum
             .ok_or_else(|| {
-                vellum::Error::Invalid(
+                vellum_error::Error::Invalid(
                 "the occlusion pass returned no spectrum though bins were given (a bug in vellum)"
                     .into(),
             )

@@ -9,10 +9,10 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 use std::path::PathBuf;
 use std::sync::Mutex;
-use vellum::render::scene::Scene;
-use vellum::render::session::{Lod, Session, SessionOptions};
-use vellum::render::targets::{to_rgb8, FrameImage};
-use vellum::render::view::View;
+use vellum_render::render::scene::Scene;
+use vellum_render::render::session::{Lod, Session, SessionOptions};
+use vellum_render::render::targets::{to_rgb8, FrameImage};
+use vellum_render::render::view::View;
 
 /// A scene: the input, classification, focus, camera, size, style and the rest, as the JSON
 /// scene file holds them (`vellum render --save-scene`).
@@ -66,7 +66,7 @@ pub struct PyImage {
     frame: FrameImage,
     rgb: Vec<u8>,
     /// What streaming the frame through the brick cache did, when it did.
-    stream: Option<vellum::render::bricked::StreamReport>,
+    stream: Option<vellum_render::render::bricked::StreamReport>,
 }
 
 fn rgba_of(rgb: &[u8]) -> Vec<u8> {
@@ -166,8 +166,8 @@ fn apply(
     mut scene: Scene,
     options: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<(Scene, SessionOptions)> {
-    use vellum::classify::Focus;
-    use vellum::render::scene::{ClassificationSpec, StyleSpec};
+    use vellum_render::classify::Focus;
+    use vellum_render::render::scene::{ClassificationSpec, StyleSpec};
     let mut session = SessionOptions::default();
     let Some(options) = options else {
         return Ok((scene, session));
@@ -277,14 +277,14 @@ fn given(options: &Bound<'_, PyDict>, key: &str) -> bool {
 
 /// What a renderer draws: the scene, the volume given in place of its input (an array), and
 /// how the session opens it.
-type Source = (Scene, Option<vellum::volume::Volume>, SessionOptions);
+type Source = (Scene, Option<vellum_volume::Volume>, SessionOptions);
 
 /// The scene and, for an array, the volume a renderer draws: a `vellum.Scene`, a scene file's
 /// path (`.json`), an input's path or spec (a volume file, a DICOM folder, an OME-Zarr store,
 /// `phantom:NAME:N`), or a `vellum.Volume` (the scene of the last two otherwise at the
 /// defaults), with `options` over it.
 fn source(what: &Bound<'_, PyAny>, options: Option<&Bound<'_, PyDict>>) -> PyResult<Source> {
-    let input = |path: String| vellum::render::scene::InputSpec { path, raw: None };
+    let input = |path: String| vellum_render::render::scene::InputSpec { path, raw: None };
     if let Ok(v) = what.cast::<crate::PyVolume>() {
         let (scene, session) = apply(Scene::new(input("a numpy array".into())), options)?;
         return Ok((scene, Some(v.get().inner.clone()), session));
@@ -387,7 +387,7 @@ impl PyRenderer {
         py: Python<'_>,
         camera: Option<Vec<f32>>,
         size: Option<(u32, u32)>,
-    ) -> PyResult<(FrameImage, [f32; 3], Option<vellum::render::bricked::StreamReport>)> {
+    ) -> PyResult<(FrameImage, [f32; 3], Option<vellum_render::render::bricked::StreamReport>)> {
         let mut slot = self.kept.lock().unwrap_or_else(|p| p.into_inner());
         let kept = slot
             .as_mut()
@@ -443,17 +443,17 @@ pub fn lines<'py>(
         })
         .collect::<PyResult<_>>()?;
     let (mut scene, vol, session) = source(volume, options)?;
-    scene.focus = vellum::classify::Focus::Iso(iso);
+    scene.focus = vellum_render::classify::Focus::Iso(iso);
     let style = if wanted.contains(&0.0) {
         "silhouettes"
     } else {
         "suggestive"
     };
-    let params = vellum::render::style::StyleParams {
+    let params = vellum_render::render::style::StyleParams {
         line_both: wanted.len() > 1,
         ..Default::default()
     };
-    scene.style = Some(vellum::render::scene::StyleSpec {
+    scene.style = Some(vellum_render::render::scene::StyleSpec {
         style: serde_json::json!(style),
         params,
     });

@@ -5,6 +5,7 @@
 mod args;
 mod commands;
 mod features;
+mod flags;
 mod scene_args;
 
 use args::{flags_for_keys, parse_cli};
@@ -86,7 +87,7 @@ fn start_team() -> anyhow::Result<Box<dyn vellum::team::Team>> {
     if vellum::team::launched_ranks().is_none() {
         return Ok(Box::new(vellum::team::Solo));
     }
-    Ok(match vellum::cluster::start()? {
+    Ok(match vellum_tools::cluster::start()? {
         Some(team) => Box::new(team),
         None => Box::new(vellum::team::Solo),
     })

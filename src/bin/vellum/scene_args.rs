@@ -1,6 +1,6 @@
 //! The flags that describe a scene, turned into a [`Scene`] over a base one.
 
-use crate::args::*;
+use crate::flags::*;
 use anyhow::Result;
 use clap::Args;
 use std::path::PathBuf;
@@ -265,83 +265,5 @@ impl SceneArgs {
         (None, false) => {}
     }
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use clap::Parser;
-
-    /// The scenes `render` and `view` build from the same flags.
-    fn both(flags: &[&str]) -> (Scene, Scene) {
-        let parse = |command: &str| {
-            let words: Vec<&str> = ["vellum", command]
-                .into_iter()
-                .chain(flags.iter().copied())
-                .collect();
-            Cli::try_parse_from(words).unwrap().command
-        };
-        match (parse("render"), parse("view")) {
-            (Command::Render(r), Command::View(v)) => (
-                r.scene.scene("render").unwrap(),
-                v.scene.view_scene().unwrap(),
-            ),
-            _ => unreachable!("render and view parse to their commands"),
-        }
-    }
-
-    #[test]
-    fn render_and_view_build_the_same_scene_from_the_same_flags() {
-        let cases: [&[&str]; 4] = [
-            &["phantom:sphere:32", "--iso", "0.5", "--renderer", "raycast"],
-            &[
-                "phantom:sphere:32",
-                "--tf",
-                "ct-bone",
-                "--camera",
-                "10,20",
-                "--size",
-                "300x200",
-                "--renderer",
-                "raycast",
-                "--jitter",
-                "3",
-                "--refine-iso",
-                "--iso",
-                "0.4",
-            ],
-            &[
-                "phantom:sphere:32",
-                "--renderer",
-                "slicer",
-                "--focus",
-                "0.2:0.6",
-                "--style",
-                "3",
-                "--background",
-                "1,1,1",
-            ],
-            &[
-                "phantom:torus:32",
-                "--renderer",
-                "slicer",
-                "--ortho",
-                "--one-pass",
-            ],
-        ];
-        for flags in cases {
-            let (render, view) = both(flags);
-            assert_eq!(render, view, "{flags:?}");
-        }
-        // `--renderer raycast` means the same ray caster in both: the default options.
-        let (render, _) = both(cases[0]);
-        assert_eq!(
-            render.raycast,
-            Some(vellum::render::view::RayOptions::default())
-        );
-        // Without the flag, the viewer's default differs from render's, as documented.
-        let (render, view) = both(&["phantom:sphere:32"]);
-        assert!(render.raycast.is_none() && view.raycast.is_some_and(|r| r.jitter.is_some()));
     }
 }

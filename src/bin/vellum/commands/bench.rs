@@ -43,7 +43,7 @@ fn frames_and_table1(cli: &Cli, which: &BenchCommand) -> Result<()> {
             peer,
         } => {
             let ctx = context(cli)?;
-            let opts = vellum::bench::render::Options {
+            let opts = vellum_tools::bench::render::Options {
                 repeat: (*repeat).max(1),
                 sizes: sizes.clone(),
                 orbit_frames: (*orbit_frames).max(1),
@@ -52,9 +52,9 @@ fn frames_and_table1(cli: &Cli, which: &BenchCommand) -> Result<()> {
             if let Some(other) = peer.as_deref().filter(|p| *p != "vtk") {
                 anyhow::bail!("--peer {other:?} is unknown; expected vtk");
             }
-            let mut table = vellum::bench::render::run(&ctx, &opts)?;
+            let mut table = vellum_tools::bench::render::run(&ctx, &opts)?;
             if peer.is_some() {
-                table.peer = Some(vellum::bench::render::vtk_peer(
+                table.peer = Some(vellum_tools::bench::render::vtk_peer(
                     &ctx,
                     &opts.sizes,
                     opts.orbit_frames,
@@ -72,13 +72,13 @@ fn frames_and_table1(cli: &Cli, which: &BenchCommand) -> Result<()> {
             renderer,
         } => {
             let ctx = context(cli)?;
-            let opts = vellum::bench::render::Options {
+            let opts = vellum_tools::bench::render::Options {
                 repeat: (*repeat).max(1),
                 sizes: sizes.clone(),
                 orbit_frames: 0,
                 raycast: renderer == "raycast",
             };
-            let table = vellum::bench::render::run_styles(&ctx, &opts)?;
+            let table = vellum_tools::bench::render::run_styles(&ctx, &opts)?;
             report_validation(&ctx);
             print_report(*json, &table, || table.to_text())
         }
@@ -90,13 +90,13 @@ fn frames_and_table1(cli: &Cli, which: &BenchCommand) -> Result<()> {
             sustained,
         } => {
             let ctx = context(cli)?;
-            let opts = vellum::bench::table1::Options {
+            let opts = vellum_tools::bench::table1::Options {
                 repeat: (*repeat).max(1),
                 scipy: !no_scipy,
                 cases: cases.clone(),
                 sustained: *sustained,
             };
-            let table = vellum::bench::table1::run(&ctx, &opts)?;
+            let table = vellum_tools::bench::table1::run(&ctx, &opts)?;
             report_validation(&ctx);
             print_report(*json, &table, || table.to_text())
         }
@@ -125,9 +125,9 @@ fn lines_and_occlusion(cli: &Cli, which: &BenchCommand) -> Result<()> {
                 );
             }
             let ctx = context(cli)?;
-            let table = vellum::bench::lines::run(
+            let table = vellum_tools::bench::lines::run(
                 &ctx,
-                &vellum::bench::lines::Options {
+                &vellum_tools::bench::lines::Options {
                     input,
                     resample: *resample,
                 },
@@ -164,14 +164,14 @@ fn lines_and_occlusion(cli: &Cli, which: &BenchCommand) -> Result<()> {
                 "--max-seconds {max_seconds} is invalid; expected a positive number"
             );
             let ctx = context(cli)?;
-            let opts = vellum::bench::occlusion::Options {
+            let opts = vellum_tools::bench::occlusion::Options {
                 input: input.clone(),
                 radii: radii.clone(),
                 methods,
                 max_seconds: *max_seconds,
                 scipy: peer.is_some(),
             };
-            let table = vellum::bench::occlusion::run(&ctx, &opts)?;
+            let table = vellum_tools::bench::occlusion::run(&ctx, &opts)?;
             report_validation(&ctx);
             print_report(*json, &table, || table.to_text())
         }
@@ -183,7 +183,7 @@ pub(crate) fn figures(cli: &Cli, which: &FiguresCommand) -> Result<()> {
     match which {
         FiguresCommand::Importance { out_dir, size } => {
             let ctx = context(cli)?;
-            let files = vellum::figures::importance(&ctx, out_dir, *size)?;
+            let files = vellum_tools::figures::importance(&ctx, out_dir, *size)?;
             report_validation(&ctx);
             for f in files {
                 println!("wrote {}", f.display());

@@ -2,6 +2,7 @@
 
 use crate::args::*;
 use crate::commands::{context, passes_json, report_validation, together};
+use crate::flags::*;
 use anyhow::{Context as _, Result};
 use serde_json::json;
 use vellum::team::Team;

@@ -5,7 +5,7 @@ use crate::args::ShowcaseArgs;
 use anyhow::{bail, Context as _, Result};
 use std::process::{Command, Stdio};
 use std::time::Instant;
-use vellum::showcase::{html, Manifest, Outcome, Run, Vars};
+use vellum_tools::showcase::{html, Manifest, Outcome, Run, Vars};
 
 pub(crate) fn showcase(a: &ShowcaseArgs) -> Result<()> {
     let text = std::fs::read_to_string(&a.manifest).with_context(|| {

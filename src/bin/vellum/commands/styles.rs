@@ -2,6 +2,7 @@
 
 use crate::args::*;
 use crate::commands::{context, report_validation};
+use crate::flags::*;
 use anyhow::{Context as _, Result};
 use serde_json::json;
 use vellum::classify::modulation::Modulation;
@@ -48,7 +49,7 @@ pub(crate) fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
     let v = a.input.load()?;
     let ctx = context(cli)?;
     let mut scene = GpuScene::prepare(&ctx, &v, &classification, focus, &Modulation::default())?;
-    let (sheet, tiles) = vellum::figures::style_gallery(
+    let (sheet, tiles) = vellum_tools::figures::style_gallery(
         &ctx,
         &mut scene,
         &view,

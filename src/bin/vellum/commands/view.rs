@@ -1,6 +1,7 @@
 //! `vellum view`.
 
 use crate::args::*;
+use crate::flags::*;
 use anyhow::Result;
 #[cfg(feature = "viewer")]
 use std::path::PathBuf;

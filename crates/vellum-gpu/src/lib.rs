@@ -1,0 +1,33 @@
+//! The Vulkan layer: context, memory, commands, barriers, pipelines and timing. It knows nothing
+//! about volumes or rendering techniques; `vellum-render`'s passes and renderers build on it.
+//! Beneath it is only `vellum-error`.
+
+/// The workspace's glsl/ folder, whose files build.rs compiled into [`shaders`].
+pub const GLSL_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../glsl");
+
+pub mod barrier;
+pub mod commands;
+pub mod context;
+pub mod frame;
+pub mod graphics;
+pub mod interface;
+pub mod lifetime;
+pub mod pipeline;
+pub mod pipeline_cache;
+pub mod profiler;
+pub mod resources;
+pub mod shaders;
+pub mod transfer;
+pub mod validation;
+mod vk_context;
+
+pub use barrier::Access;
+pub use context::{Context, ContextDesc, DeviceCandidate, DeviceInfo, Presentation};
+pub use frame::{submit_once, submit_timed};
+pub use frame::{Frame, FrameResult, Frames, FramesDesc, HostTimes, StagingRing, SubmitSync};
+pub use lifetime::TransferCount;
+pub use pipeline::{Bind, BindingKind, ComputePipeline};
+pub use pipeline_cache::{PipelineCache, PipelineDesc};
+pub use profiler::{PassTime, Profiler};
+pub use resources::{Buffer, BufferDesc, BufferSlice, Image, ImageDesc, Sampler};
+pub use vk_context::VkContext;

@@ -1,0 +1,155 @@
+//! The default transfer function, `auto`: the grey ramp over the window where the data's content
+//! lies, found from its histogram. The plain `grey` ramp spans the whole data range, so a CT whose
+//! air fills most of the volume and whose bone is a few bright voxels renders dim: nearly every
+//! voxel sits low on the ramp. `auto` spans instead the 1st to the 99.5th percentile of the voxels
+//! above the background, the way a radiology viewer's first window-level does.
+//!
+//! **Background** is the bottom [`BACKGROUND`] of the data range (air in CT, noise outside the head
+//! in MRI). The percentiles are taken over the remaining voxels, from a 4096-bin histogram.
+//! A volume with no voxel above its background (a constant, or a mask of zeros) gets the whole
+//! range.
+
+use crate::classify::transfer::{ControlPoint, TransferFunction};
+use rayon::prelude::*;
+use vellum_error::Result;
+use vellum_volume::Volume;
+
+/// The name of the default transfer function.
+pub const AUTO: &str = "auto";
+/// The fraction of the data range, from its minimum up, that counts as background.
+pub const BACKGROUND: f64 = 0.02;
+/// The percentiles of the content that bound the window.
+pub const PERCENTILES: [f64; 2] = [0.01, 0.995];
+const BINS: usize = 4096;
+
+/// The window [lo, hi] on the normalised range of `range` = [min, max]: the [`PERCENTILES`] of
+/// the voxels of `v` above the background.
+pub fn auto_window(v: &Volume, range: [f64; 2]) -> [f32; 2] {
+    let width = range[1] - range[0];
+    if width.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return [0.0, 1.0];
+    }
+    let floor = BACKGROUND * BINS as f64;
+    let histogram = (0..v.len())
+        .into_par_iter()
+        .fold(
+            || vec![0u64; BINS],
+            |mut h, i| {
+                let x = (v.data.get_f64(i) - range[0]) / width * BINS as f64;
+                if x.is_finite() && x >= floor {
+                    h[(x as usize).min(BINS - 1)] += 1;
+                }
+                h
+            },
+        )
+        .reduce(
+            || vec![0u64; BINS],
+            |mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
+                a
+            },
+        );
+    let total: u64 = histogram.iter().sum();
+    if total == 0 {
+        return [0.0, 1.0];
+    }
+    let at = |p: f64| {
+        let target = (p * total as f64).ceil().max(1.0) as u64;
+        let mut seen = 0;
+        for (i, &c) in histogram.iter().enumerate() {
+            seen += c;
+            if seen >= target {
+                return i;
+            }
+        }
+        BINS - 1
+    };
+    let (lo, hi) = (at(PERCENTILES[0]), at(PERCENTILES[1]) + 1);
+    [
+        lo as f32 / BINS as f32,
+        (hi as f32 / BINS as f32).max(lo as f32 / BINS as f32 + 1e-3),
+    ]
+}
+
+/// Control points of the ramp across the window.
+const RAMP_POINTS: usize = 16;
+
+/// The grey ramp over [lo, hi] of the normalised range: transparent below `lo`; across the
+/// window the opacity rises linearly, t = (x − lo) / (hi − lo), and the grey as √t, so that the
+/// soft tissue low in the window is lit rather than dark (on three real volumes the content's
+/// mean luminance is 2.2–3.6 times that of the plain `grey` ramp, BENCHMARKS.md); opaque white
+/// above `hi`.
+pub fn grey_window([lo, hi]: [f32; 2]) -> Result<TransferFunction> {
+    let hi = hi.min(1.0);
+    // No point twice at one x (the viewer's editor drags one point at a time): the ends of the
+    // range get points of their own only outside the window.
+    let mut points = Vec::with_capacity(RAMP_POINTS + 3);
+    if lo > 0.0 {
+        points.push(ControlPoint {
+            x: 0.0,
+            rgba: [0.0; 4],
+        });
+    }
+    points.extend((0..=RAMP_POINTS).map(|i| {
+        let t = i as f32 / RAMP_POINTS as f32;
+        let g = t.sqrt();
+        ControlPoint {
+            x: lo + t * (hi - lo),
+            rgba: [g, g, g, t],
+        }
+    }));
+    if hi < 1.0 {
+        points.push(ControlPoint {
+            x: 1.0,
+            rgba: [1.0; 4],
+        });
+    }
+    TransferFunction::new(AUTO, points)
+}
+
+/// `auto` for `v`, whose intensities are normalised over `range`.
+pub fn auto(v: &Volume, range: [f64; 2]) -> Result<TransferFunction> {
+    grey_window(auto_window(v, range))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vellum_volume::VoxelData;
+
+    fn volume(values: Vec<u8>) -> Volume {
+        Volume::new([values.len(), 1, 1], [1.0; 3], VoxelData::U8(values)).unwrap()
+    }
+
+    #[test]
+    fn window_skips_the_background_and_the_outliers() {
+        // 90 % air at 0, content spread over 50..150, 0.1 % bright outliers at 255.
+        let mut v = vec![0u8; 9000];
+        v.extend((0..999).map(|i| 50 + (i % 101) as u8));
+        v.push(255);
+        let [lo, hi] = auto_window(&volume(v), [0.0, 255.0]);
+        assert!((lo * 255.0 - 50.0).abs() < 1.0, "{}", lo * 255.0);
+        assert!((hi * 255.0 - 150.0).abs() < 1.0, "{}", hi * 255.0);
+        let tf = grey_window([lo, hi]).unwrap();
+        let whole = grey_window([0.0, 1.0]).unwrap();
+        let xs: Vec<f32> = whole.points.iter().map(|p| p.x).collect();
+        assert!(
+            xs.windows(2).all(|w| w[0] < w[1]),
+            "one point per x: {xs:?}"
+        );
+        assert_eq!(tf.sample(0.1)[3], 0.0);
+        assert!((tf.sample(hi)[3] - 1.0).abs() < 1e-6);
+        let mid = tf.sample(0.5 * (lo + hi));
+        assert!(
+            (mid[3] - 0.5).abs() < 1e-3 && (mid[0] - 0.5f32.sqrt()).abs() < 0.01,
+            "{mid:?}"
+        );
+    }
+
+    #[test]
+    fn constant_and_empty_volumes_get_the_whole_range() {
+        assert_eq!(auto_window(&volume(vec![7; 10]), [7.0, 7.0]), [0.0, 1.0]);
+        assert_eq!(auto_window(&volume(vec![0; 10]), [0.0, 255.0]), [0.0, 1.0]);
+        assert!(auto(&volume(vec![0; 10]), [0.0, 255.0]).is_ok());
+    }
+}

@@ -1,0 +1,388 @@
+//! Sobel normals on compute (SPEC TL1, pass `sobel_normals`): reads the normalised volume texture
+//! and writes an RGBA16F 3D texture of gradients (xyz in world units, w = length), computed once per
+//! volume and sampled by the slice renderer for Phong shading.
+
+use crate::passes::volume_image::extent_of;
+use ash::vk;
+use std::sync::Arc;
+use vellum_error::Result;
+use vellum_gpu::pipeline::group_count;
+use vellum_gpu::{
+    Access, Bind, BindingKind, ComputePipeline, Context, Frame, Image, ImageDesc, PassTime, Sampler,
+};
+use vellum_volume::Volume;
+
+/// Push constants of `render/sobel_normals.comp` (GLSL twin: `NormalsPush` in render.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct NormalsPush {
+    pub dims: [i32; 3],
+    pub pad: i32,
+    pub inv_spacing: [f32; 4],
+}
+
+/// Workgroup shape (NORMALS_LOCAL_* in render.glsl).
+pub const LOCAL_SIZE: [u32; 3] = [8, 8, 4];
+
+/// The volume as the renderer sees it: a normalised R16_UNORM 3D texture and its gradients.
+pub struct VolumeTextures {
+    /// Intensity mapped from `[range[0], range[1]]` to `[0, 1]`.
+    pub intensity: Image,
+    /// RGBA16F gradient (world units) and its length.
+    pub gradient: Image,
+    /// Data values that map to 0 and 1.
+    pub range: [f64; 2],
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+    /// Origin and directions of the volume (see `volume::geometry`).
+    pub geometry: vellum_volume::geometry::Geometry,
+    /// Ambient occlusion in [0, 1] for occlusion transfer functions (R32F, possibly coarser).
+    pub occlusion: Option<Image>,
+    /// Min and max of the normalised intensity per brick, for skipping bricks in a pass.
+    pub bricks: Bricks,
+    /// ΔD of the normalised volume, for importance modulation.
+    pub importance: Option<crate::passes::importance::ImportanceVolume>,
+    /// A number no other `VolumeTextures` of this process has: what a view keeps for a volume
+    /// (its smoothed copy) is keyed by it, so a new volume is never mistaken for the old one.
+    pub id: u64,
+    /// The smoothing radius `--line-smooth auto` gives this volume's object-space lines
+    /// (`volume::lines::auto_smooth_radius`).
+    pub auto_line_smooth: u32,
+}
+
+/// Edge of a brick in voxels.
+pub const BRICK: usize = 16;
+
+/// Per-brick range of the normalised intensity (0..=65535), widened by one voxel on every side:
+/// a trilinear sample anywhere in a brick blends only voxels of that widened region, so it can
+/// only take values within the brick's range.
+#[derive(Clone, Debug)]
+pub struct Bricks {
+    /// Bricks along x, y, z.
+    pub counts: [usize; 3],
+    /// (min, max) per brick, x fastest.
+    pub range: Vec<[u16; 2]>,
+}
+
+impl Bricks {
+    /// The brick ranges of `texels` (normalised intensity, x fastest) of size `dims`.
+    pub fn new(texels: &[u16], dims: [usize; 3]) -> Self {
+        use rayon::prelude::*;
+        let counts = dims.map(|d| d.div_ceil(BRICK));
+        let range = (0..counts[0] * counts[1] * counts[2])
+            .into_par_iter()
+            .map(|b| {
+                let c = [
+                    b % counts[0],
+                    (b / counts[0]) % counts[1],
+                    b / (counts[0] * counts[1]),
+                ];
+                let lo: [usize; 3] = std::array::from_fn(|a| (c[a] * BRICK).saturating_sub(1));
+                let hi: [usize; 3] = std::array::from_fn(|a| ((c[a] + 1) * BRICK + 1).min(dims[a]));
+                let (mut mn, mut mx) = (u16::MAX, 0u16);
+                for z in lo[2]..hi[2] {
+                    for y in lo[1]..hi[1] {
+                        let row = &texels[dims[0] * (y + dims[1] * z)..][lo[0]..hi[0]];
+                        for &t in row {
+                            mn = mn.min(t);
+                            mx = mx.max(t);
+                        }
+                    }
+                }
+                [mn, mx]
+            })
+            .collect();
+        Bricks { counts, range }
+    }
+
+    /// Voxel bounds [lo, hi) of brick `b` along each axis, clamped to `dims`.
+    pub fn voxel_bounds(&self, b: usize, dims: [usize; 3]) -> ([usize; 3], [usize; 3]) {
+        let c = [
+            b % self.counts[0],
+            (b / self.counts[0]) % self.counts[1],
+            b / (self.counts[0] * self.counts[1]),
+        ];
+        (
+            std::array::from_fn(|a| c[a] * BRICK),
+            std::array::from_fn(|a| ((c[a] + 1) * BRICK).min(dims[a])),
+        )
+    }
+}
+
+/// A number no other `VolumeTextures` of this process has (`VolumeTextures::id`).
+pub fn next_volume_id() -> u64 {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
+impl VolumeTextures {
+    /// Allocates the textures of `v` (no GPU work yet) and a staging buffer holding its voxels
+    /// normalised to R16; record the copy with [`VolumeTextures::record_upload`].
+    /// A whole volume, which a renderer may draw lines of: its `auto` line smoothing is measured
+    /// here (a chunk of [`VolumeTextures::new_in_range`] is never drawn, and skips it).
+    pub fn new(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, vellum_gpu::Buffer)> {
+        let (mut textures, staging) = Self::new_in_range(ctx, v, v.normalised_range())?;
+        textures.auto_line_smooth = vellum_volume::lines::auto_smooth_radius(v);
+        Ok((textures, staging))
+    }
+
+    /// [`VolumeTextures::new`] with intensities normalised over `range`, not `v`'s own: a
+    /// chunk of a larger grid takes the grid's range. Its `auto_line_smooth` is 0.
+    pub fn new_in_range(
+        ctx: &Arc<Context>,
+        v: &Volume,
+        range: [f64; 2],
+    ) -> Result<(Self, vellum_gpu::Buffer)> {
+        let extent = extent_of(ctx, v.dims, 2 + 8, 1)?;
+        let intensity = Image::new(
+            ctx,
+            "volume intensity",
+            &ImageDesc::new_3d(vk::Format::R16_UNORM, extent),
+        )?;
+        let gradient = Image::new(
+            ctx,
+            "volume gradient",
+            &ImageDesc::new_3d(vk::Format::R16G16B16A16_SFLOAT, extent),
+        )?;
+        let (texels, range) = v.normalised_u16_in(range);
+        let bricks = Bricks::new(&texels, v.dims);
+        let mut staging =
+            vellum_gpu::transfer::staging_buffer(ctx, "volume staging", texels.len() * 2)?;
+        staging.write(bytemuck::cast_slice(&texels))?;
+        Ok((
+            VolumeTextures {
+                intensity,
+                gradient,
+                range,
+                dims: v.dims,
+                spacing: v.spacing,
+                geometry: v.geometry,
+                occlusion: None,
+                bricks,
+                importance: None,
+                id: next_volume_id(),
+                auto_line_smooth: 0,
+            },
+            staging,
+        ))
+    }
+
+    /// Records pass `upload`: `staging` (from [`VolumeTextures::new`]) into the intensity texture.
+    pub fn record_upload(&self, ctx: &Context, frame: &mut Frame, staging: &vellum_gpu::Buffer) {
+        frame.profiler.pass(frame.cmd, "upload", |cmd| {
+            vellum_gpu::transfer::record_upload(
+                ctx,
+                cmd,
+                staging,
+                &self.intensity,
+                Access::ComputeSampled,
+            )
+        });
+    }
+
+    /// Uploads an occlusion volume (from `passes::occlusion`) for occlusion transfer functions.
+    pub fn attach_occlusion(&mut self, ctx: &Arc<Context>, occlusion: &Volume) -> Result<()> {
+        let vellum_volume::VoxelData::F32(o) = &occlusion.data else {
+            return Err(vellum_error::Error::Invalid(
+                "an occlusion volume must be float".into(),
+            ));
+        };
+        let extent = extent_of(ctx, occlusion.dims, 4, 1)?;
+        let image = Image::new(
+            ctx,
+            "occlusion texture",
+            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent),
+        )?;
+        vellum_gpu::transfer::upload(
+            ctx,
+            &image,
+            bytemuck::cast_slice(o),
+            Access::FragmentSampled,
+        )?;
+        self.occlusion = Some(image);
+        Ok(())
+    }
+}
+
+/// A chunk staged for [`Normals::run`] by [`Normals::stage`].
+pub struct StagedNormals {
+    textures: VolumeTextures,
+    upload: vellum_gpu::Buffer,
+    readback: vellum_gpu::Buffer,
+}
+
+impl StagedNormals {
+    /// The gradients [`Normals::run`] read back, as floats (host work, beside other threads').
+    pub fn gradients(&self) -> Result<Vec<[f32; 4]>> {
+        let bytes = self.readback.mapped().ok_or_else(|| {
+            vellum_error::Error::Invalid("the readback buffer is not host-visible".into())
+        })?;
+        Ok(bytes
+            .chunks_exact(8)
+            .map(|t| {
+                std::array::from_fn(|c| half::f16::from_le_bytes([t[2 * c], t[2 * c + 1]]).to_f32())
+            })
+            .collect())
+    }
+}
+
+/// The `sobel_normals` pipeline.
+pub struct Normals {
+    ctx: Arc<Context>,
+    pipeline: ComputePipeline,
+    nearest: Sampler,
+}
+
+impl Normals {
+    /// Builds the pipeline.
+    pub fn new(ctx: &Arc<Context>) -> Result<Self> {
+        let pipeline = ComputePipeline::new(
+            ctx,
+            "render/sobel_normals.comp",
+            &[BindingKind::SampledImage, BindingKind::StorageImage],
+            std::mem::size_of::<NormalsPush>() as u32,
+        )?;
+        Ok(Normals {
+            ctx: ctx.clone(),
+            pipeline,
+            nearest: Sampler::new(ctx, false)?,
+        })
+    }
+
+    /// Uploads `v` normalised (pass `upload`) and computes its gradients (pass `sobel_normals`) in
+    /// one submission. Both images end sampled by fragment shaders. Returns the passes' times too.
+    pub fn prepare(&self, v: &Volume) -> Result<(VolumeTextures, Vec<PassTime>)> {
+        self.prepare_in_range(v, v.normalised_range())
+    }
+
+    /// [`Normals::prepare`] with intensities normalised over `range`.
+    pub fn prepare_in_range(
+        &self,
+        v: &Volume,
+        range: [f64; 2],
+    ) -> Result<(VolumeTextures, Vec<PassTime>)> {
+        let ctx = &self.ctx;
+        let (textures, staging) = VolumeTextures::new_in_range(ctx, v, range)?;
+        let ((), times) = vellum_gpu::submit_timed(ctx, "volume textures", |f| {
+            textures.record_upload(ctx, f, &staging);
+            self.record(f, &textures)?;
+            textures
+                .intensity
+                .transition(f.cmd, Access::FragmentSampled);
+            textures.gradient.transition(f.cmd, Access::FragmentSampled);
+            Ok(())
+        })?;
+        Ok((textures, times))
+    }
+
+    /// Records pass `sobel_normals`: the gradients of `tex.intensity` into `tex.gradient`, which is
+    /// left writable-then-readable by later passes (they transition it to their own access).
+    pub fn record(&self, frame: &mut Frame, tex: &VolumeTextures) -> Result<()> {
+        let (cmd, profiler) = (frame.cmd, &mut *frame.profiler);
+        let push = NormalsPush {
+            dims: tex.dims.map(|d| d as i32),
+            pad: 0,
+            inv_spacing: [
+                (1.0 / tex.spacing[0]) as f32,
+                (1.0 / tex.spacing[1]) as f32,
+                (1.0 / tex.spacing[2]) as f32,
+                0.0,
+            ],
+        };
+        profiler.begin(cmd, "sobel_normals");
+        tex.intensity.transition(cmd, Access::ComputeSampled);
+        tex.gradient.discard();
+        tex.gradient.transition(cmd, Access::ComputeWrite);
+        self.pipeline.dispatch(
+            cmd,
+            &[
+                Bind::Sampled(&tex.intensity, &self.nearest),
+                Bind::StorageImage(&tex.gradient),
+            ],
+            &push,
+            group_count(tex.intensity.desc.extent, LOCAL_SIZE),
+        )?;
+        profiler.end(cmd);
+        Ok(())
+    }
+
+    /// The gradients of `v` normalised over `range`, read back: per voxel (x fastest) the
+    /// gradient in world units and its length, exactly the half floats the renderer samples.
+    pub fn gradients(&self, v: &Volume, range: [f64; 2]) -> Result<Vec<[f32; 4]>> {
+        let staged = Self::stage(&self.ctx, v, range)?;
+        self.run(&staged)?;
+        staged.gradients()
+    }
+
+    /// The host's part before a chunk's gradients (no recording, so it may run beside another
+    /// thread's passes): `v` normalised over `range` into a staging buffer, its textures and a
+    /// readback buffer allocated.
+    pub fn stage(ctx: &Arc<Context>, v: &Volume, range: [f64; 2]) -> Result<StagedNormals> {
+        let (textures, upload) = VolumeTextures::new_in_range(ctx, v, range)?;
+        let readback = vellum_gpu::transfer::staging_buffer(
+            ctx,
+            "normals readback",
+            textures.gradient.byte_size(),
+        )?;
+        Ok(StagedNormals {
+            textures,
+            upload,
+            readback,
+        })
+    }
+
+    /// The passes of a staged chunk (`upload`, `sobel_normals`, the readback) in one
+    /// submission: the only part that records, for the caller to serialise.
+    pub fn run(&self, s: &StagedNormals) -> Result<Vec<PassTime>> {
+        let ctx = &self.ctx;
+        let ((), times) = vellum_gpu::submit_timed(ctx, "volume gradients", |f| {
+            s.textures.record_upload(ctx, f, &s.upload);
+            self.record(f, &s.textures)?;
+            f.profiler.pass(f.cmd, "readback", |cmd| {
+                vellum_gpu::transfer::record_readback(ctx, cmd, &s.textures.gradient, &s.readback)
+            });
+            Ok(())
+        })?;
+        Ok(times)
+    }
+
+    /// The nearest-texel sampler the pass reads with (also right for `texelFetch` elsewhere).
+    pub fn nearest(&self) -> &Sampler {
+        &self.nearest
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vellum_gpu::interface::assert_glsl_layout;
+
+    #[test]
+    fn brick_ranges_include_the_one_voxel_border() {
+        // 20×3×3 ramp along x: brick 0 covers x 0..16 and, widened, reads x 16; brick 1 reads 15..20.
+        let dims = [20, 3, 3];
+        let texels: Vec<u16> = (0..180).map(|i| (i % 20) as u16 * 100).collect();
+        let b = Bricks::new(&texels, dims);
+        assert_eq!(b.counts, [2, 1, 1]);
+        assert_eq!(b.range, vec![[0, 1600], [1500, 1900]]);
+        assert_eq!(b.voxel_bounds(1, dims), ([16, 0, 0], [20, 3, 3]));
+    }
+
+    #[test]
+    fn push_constants_match_glsl() {
+        assert_glsl_layout!(
+            NormalsPush,
+            "render.glsl",
+            "NormalsPush",
+            [dims, pad, inv_spacing]
+        );
+        let src = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../glsl/common/render.glsl"
+        ))
+        .unwrap();
+        for (axis, n) in ["X", "Y", "Z"].iter().zip(LOCAL_SIZE) {
+            assert!(src.contains(&format!("#define NORMALS_LOCAL_{axis} {n}")));
+        }
+    }
+}

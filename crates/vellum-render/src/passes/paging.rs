@@ -1,0 +1,472 @@
+//! The GPU side of the brick cache (issues 26 and 39): the pool images, the feedback buffer, and
+//! the uploads of bricks into their slots. Which brick goes where is decided on the host
+//! (`volume::bricks`); the ray caster reads the page table, staged with each frame, and writes
+//! what it missed into the feedback buffer.
+//!
+//! ## Page table (what `raycast.comp` reads, one u32 array staged per frame)
+//! - words 0..8: levels, brick edge, slot edge, mode (bit 0: rays stop at a missing brick and
+//!   wait for it, bit 1: rays continue from the state the previous pass saved), pool slots along
+//!   x and y, and the level-of-detail line (a, b as f32 bits: a sample at distance d from the eye
+//!   covers a·d + b level-0 voxels; its level is ⌊log2⌋ of that, clamped);
+//! - words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its texture to
+//!   voxel scale along x, y, z, and level 0's voxel over its own (f32 bits): opacity is corrected
+//!   per voxel of the level sampled, so that a coarse level looks as that level rendered in core;
+//! - from word [`HEADER`]: per entry, when the brick is resident ([`RESIDENT_BIT`]) its slot's
+//!   place along x, y and z of the pool in bits 0-7, 8-15 and 16-23, and when the brick's range is
+//!   known ([`KNOWN_BIT`]) what it may hold under this frame's classification (bit 24: visible
+//!   context or one-pass samples, bit 25: focus), so that a ray walks past a brick that holds
+//!   nothing for it, resident or not, without asking for it.
+//!
+//! ## Uploads
+//! A brick travels as its slot's texels and one more voxel on every side, at 16 bits (8 for
+//! 8-bit data), and `render/brick_fill.comp` writes the slot's intensity and Sobel gradients on
+//! the GPU: a quarter of the bytes the host once made and sent (intensity and four half-floats
+//! of gradient per texel), and no per-voxel arithmetic on the host but the type's conversion.
+
+use crate::passes::normals::Bricks;
+use ash::vk;
+use std::sync::Arc;
+use vellum_error::{Error, Result};
+use vellum_gpu::resources::BufferLocation;
+use vellum_gpu::{
+    Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Frame, Image,
+    ImageDesc,
+};
+use vellum_volume::bricks::{
+    BrickCache, BrickData, BrickLevels, BrickVoxels, MAX_LEVELS, SLOT, SLOT_BYTES, UNKNOWN_RANGE,
+    UPLOAD,
+};
+
+/// Words before the first page-table entry.
+pub const HEADER: usize = 8 + 8 * MAX_LEVELS;
+/// Mode bit: rays stop at a missing brick (and ask for it) instead of sampling a coarser level.
+pub const MODE_WAIT: u32 = 1;
+/// Mode bit: rays continue from the state the previous pass of this frame saved.
+pub const MODE_RESUME: u32 = 2;
+/// Feedback flag: a resident brick was read (`USED_BIT` in raycast.comp); a missing brick some
+/// ray asked for reads 1. (Plain stores, not counts: a CPU device runs atomics lane by lane.)
+pub const USED_BIT: u32 = 1 << 31;
+/// Page-table word: the brick's range is known, and bits 24 and 25 say what it may hold.
+pub const KNOWN_BIT: u32 = 1 << 26;
+/// Page-table word: the brick is resident, its slot along x, y, z of the pool in bits 0-7, 8-15
+/// and 16-23 (so that the shader finds its texels without dividing).
+pub const RESIDENT_BIT: u32 = 1 << 27;
+/// Bricks one dispatch of `brick_fill` writes at most (its workgroup rows).
+pub const FILL_BATCH: usize = 4096;
+
+/// What a frame's rays said about the bricks ([`Paged::take_feedback`]).
+#[derive(Clone, Debug, Default)]
+pub struct Feedback {
+    /// Missing bricks asked for (each with 1: the shader stores, it does not count).
+    pub wanted: Vec<(usize, u32)>,
+    /// Resident bricks read (frames that do not wait only).
+    pub used: Vec<usize>,
+}
+
+/// Bytes of one ray's saved state (`RayState` in raycast.comp).
+pub const RAY_STATE_BYTES: u64 = 80;
+
+/// A volume in the brick cache, on the GPU: the pools (sampled as the in-core textures are), the
+/// cache and the upload pass.
+pub struct PagedVolume {
+    /// The intensity pool: R16_UNORM, slots of [`SLOT`]³ texels.
+    pub intensity: Image,
+    /// The gradient pool: RGBA16F, the same slots.
+    pub gradient: Image,
+    /// Data values that map to normalised 0 and 1.
+    pub range: [f64; 2],
+    /// Level 0's voxels, spacing and placement.
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+    pub geometry: vellum_volume::geometry::Geometry,
+    /// One brick of the full range: the in-core table of brick flags skips nothing here, since
+    /// the page table carries the bricks' flags.
+    pub whole: Bricks,
+    /// A number no other GPU volume of the process has.
+    pub id: u64,
+    pub paged: Paged,
+    fill: ComputePipeline,
+}
+
+/// The brick cache's state between frames.
+pub struct Paged {
+    pub levels: Arc<BrickLevels>,
+    pub cache: BrickCache,
+    /// Slots along x, y, z of the pool images.
+    pub grid: [usize; 3],
+    /// Per page-table entry, whether a ray asked for the brick in the last frame (or read it,
+    /// [`USED_BIT`]); the host reads it once the frame has completed.
+    pub feedback: Buffer,
+    /// Page-table mode bits for the next frame ([`MODE_WAIT`], [`MODE_RESUME`]).
+    pub mode: u32,
+    /// Sample level 0 everywhere instead of choosing the level by projected voxel size.
+    pub finest: bool,
+    /// Bytes the pool images take.
+    pub pool_bytes: u64,
+    /// Each ray keeps its last brick's place in the pool and reuses it while its samples stay in
+    /// that brick (the ray caster's `BRICK_REUSE` variant). On by default on a GPU, where it
+    /// halves the bricked frame (H100, BENCHMARKS.md); off on lavapipe, whose lanes run both
+    /// sides of the test and come out slower. `VELLUM_BRICK_REUSE=0|1` overrides, for measuring.
+    pub reuse: bool,
+    /// Each ray keeps the stretch of its path over which its last lookup holds (the brick, and
+    /// the level its distance from the eye wants) and places the samples there by one
+    /// multiply-add, without choosing a level or finding a brick (the ray caster's `BRICK_SPAN`
+    /// variant). Off by default until a GPU has measured it; `VELLUM_BRICK_SPAN=0|1` overrides.
+    pub span: bool,
+}
+
+/// The default of [`Paged::reuse`] on a device of `device_type`.
+pub fn brick_reuse(device_type: &str) -> bool {
+    match std::env::var("VELLUM_BRICK_REUSE").ok().as_deref() {
+        Some("0") => false,
+        Some("1") => true,
+        _ => device_type != "CPU",
+    }
+}
+
+/// The default of [`Paged::span`].
+pub fn brick_span() -> bool {
+    std::env::var("VELLUM_BRICK_SPAN").ok().as_deref() == Some("1")
+}
+
+/// Slots per axis for a pool of at most `capacity` slots, each axis within `max_texels`.
+pub fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
+    // A page-table word holds a slot's place in 8 bits per axis.
+    let m = (max_texels / SLOT).clamp(1, 255);
+    // The largest g with g^k <= n.
+    let root = |n: usize, k: u32| (1..=n).take_while(|g| g.pow(k) <= n).last().unwrap_or(1);
+    let gx = root(capacity, 3).clamp(1, m);
+    let gy = root(capacity / gx, 2).clamp(1, m);
+    let gz = (capacity / (gx * gy)).clamp(1, m);
+    [gx, gy, gz]
+}
+
+/// Push constants of `render/brick_fill.comp` (GLSL twin: `FillPush` in render.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct FillPush {
+    pub grid: [i32; 4],
+}
+
+/// One brick of an upload (GLSL twin: `BrickFill` in render.glsl).
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct BrickFill {
+    pub lo_slot: [i32; 4],
+    pub dims_offset: [i32; 4],
+    pub inv_spacing: [f32; 4],
+}
+
+/// A brick to upload: its slot, its page-table entry and its voxels.
+#[derive(Copy, Clone)]
+pub struct Upload<'a> {
+    pub slot: usize,
+    pub entry: usize,
+    pub voxels: &'a BrickVoxels,
+}
+
+impl PagedVolume {
+    /// A volume for the brick cache: pool images of as many slots as `budget_bytes` holds, nothing
+    /// resident yet. `finest` samples level 0 everywhere.
+    pub fn new(
+        ctx: &Arc<Context>,
+        levels: Arc<BrickLevels>,
+        budget_bytes: u64,
+        finest: bool,
+    ) -> Result<Self> {
+        check_pool_formats(ctx)?;
+        let max = ctx.info.max_image_dimension_3d as usize;
+        let grid = pool_grid((budget_bytes / SLOT_BYTES as u64) as usize, max);
+        let capacity = grid
+            .iter()
+            .product::<usize>()
+            .min((budget_bytes / SLOT_BYTES as u64) as usize);
+        let mib = budget_bytes as f64 / (1 << 20) as f64;
+        let cache = BrickCache::new(&levels, capacity, mib)?;
+        let extent = grid.map(|g| (g * SLOT) as u32);
+        let image = |name: &str, format| Image::new(ctx, name, &ImageDesc::new_3d(format, extent));
+        let intensity = image("brick pool intensity", vk::Format::R16_UNORM)?;
+        let gradient = image("brick pool gradient", vk::Format::R16G16B16A16_SFLOAT)?;
+        let feedback = Buffer::new(
+            ctx,
+            "brick feedback",
+            &BufferDesc {
+                size: (levels.entries().max(1) * 4) as u64,
+                usage: vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST,
+                location: BufferLocation::Readback,
+            },
+        )?;
+        let fill = ComputePipeline::new(
+            ctx,
+            "render/brick_fill.comp",
+            &[
+                BindingKind::StorageBuffer,
+                BindingKind::StorageBuffer,
+                BindingKind::StorageImage,
+                BindingKind::StorageImage,
+            ],
+            std::mem::size_of::<FillPush>() as u32,
+        )?;
+        let level0 = levels.levels()[0].clone();
+        Ok(PagedVolume {
+            intensity,
+            gradient,
+            range: levels.range,
+            dims: level0.dims,
+            spacing: level0.spacing,
+            geometry: levels.geometry,
+            whole: Bricks {
+                counts: [1; 3],
+                range: vec![[0, u16::MAX]],
+            },
+            id: crate::passes::normals::next_volume_id(),
+            paged: Paged {
+                levels,
+                cache,
+                grid,
+                feedback,
+                mode: 0,
+                finest,
+                pool_bytes: (capacity * SLOT_BYTES) as u64,
+                reuse: brick_reuse(&ctx.info.device_type),
+                span: brick_span(),
+            },
+            fill,
+        })
+    }
+
+    /// Records the upload of `loads` through the frame's staging ring (pass `brick_upload`):
+    /// their voxels and a table of where each goes, then `brick_fill`, which writes each slot's
+    /// intensity and gradients. The pools end ready for sampling in compute.
+    pub fn record_loads(&self, ctx: &Context, frame: &mut Frame, loads: &[Upload]) -> Result<()> {
+        if loads.is_empty() {
+            return Ok(());
+        }
+        frame.profiler.begin(frame.cmd, "brick_upload");
+        self.intensity.transition(frame.cmd, Access::ComputeWrite);
+        self.gradient.transition(frame.cmd, Access::ComputeWrite);
+        // 8-bit bricks and normalised ones in separate dispatches (a pyramid has one kind).
+        for wide in [false, true] {
+            let batch: Vec<&Upload> = loads
+                .iter()
+                .filter(|u| matches!(u.voxels.data, BrickData::U16(_)) == wide)
+                .collect();
+            for part in batch.chunks(FILL_BATCH) {
+                self.record_fill(ctx, frame, part, wide)?;
+            }
+        }
+        self.intensity.transition(frame.cmd, Access::ComputeSampled);
+        self.gradient.transition(frame.cmd, Access::ComputeSampled);
+        frame.profiler.end(frame.cmd);
+        Ok(())
+    }
+
+    /// One `brick_fill` dispatch over `part`, all of one width.
+    fn record_fill(
+        &self,
+        ctx: &Context,
+        frame: &mut Frame,
+        part: &[&Upload],
+        wide: bool,
+    ) -> Result<()> {
+        let levels = self.paged.levels.levels();
+        let per = (UPLOAD * UPLOAD * UPLOAD) as i32;
+        let mut fills = Vec::with_capacity(part.len());
+        for (i, u) in part.iter().enumerate() {
+            let key = self.paged.levels.key(u.entry).ok_or_else(|| {
+                Error::Invalid(format!("page-table entry {} names no brick", u.entry))
+            })?;
+            let l = &levels[key.level];
+            let lo = key
+                .brick
+                .map(|b| (b * vellum_volume::bricks::BRICK) as i32 - 2);
+            let dims = l.dims.map(|d| d as i32);
+            let inv = l.spacing.map(|s| (1.0 / s) as f32);
+            fills.push(BrickFill {
+                lo_slot: [lo[0], lo[1], lo[2], u.slot as i32],
+                dims_offset: [dims[0], dims[1], dims[2], per * i as i32],
+                inv_spacing: [inv[0], inv[1], inv[2], 0.0],
+            });
+        }
+        let table: [u32; 128] = match self.paged.levels.u8_table() {
+            Some(t) => std::array::from_fn(|i| t[2 * i] as u32 | (t[2 * i + 1] as u32) << 16),
+            None => [0; 128],
+        };
+        let voxels: Vec<&[u8]> = part.iter().map(|u| u.voxels.data.bytes()).collect();
+        let voxels = frame.staging.push_parts(&voxels, 16)?;
+        let fills = frame.staging.push_parts(
+            &[bytemuck::cast_slice(&table), bytemuck::cast_slice(&fills)],
+            16,
+        )?;
+        ctx.count_transfer(&self.intensity.name, true, voxels.size);
+        let slot_texels = (SLOT * SLOT * SLOT) as u32;
+        let push = FillPush {
+            grid: [
+                self.paged.grid[0] as i32,
+                self.paged.grid[1] as i32,
+                (!wide) as i32,
+                part.len() as i32,
+            ],
+        };
+        self.fill.dispatch(
+            frame.cmd,
+            &[
+                Bind::StorageSlice(voxels),
+                Bind::StorageSlice(fills),
+                Bind::StorageImage(&self.intensity),
+                Bind::StorageImage(&self.gradient),
+            ],
+            &push,
+            [slot_texels.div_ceil(64), part.len() as u32, 1],
+        )
+    }
+}
+
+/// The pools are written as storage images: R16_UNORM needs the extended storage formats.
+fn check_pool_formats(ctx: &Context) -> Result<()> {
+    let props = unsafe {
+        ctx.instance
+            .get_physical_device_format_properties(ctx.physical, vk::Format::R16_UNORM)
+    };
+    let storage = props
+        .optimal_tiling_features
+        .contains(vk::FormatFeatureFlags::STORAGE_IMAGE);
+    if !(ctx.info.storage_image_extended_formats && storage) {
+        return Err(Error::Invalid(format!(
+            "{} cannot write R16 storage images, which the brick cache fills; raise --gpu-budget so that the volume fits in core",
+            ctx.info.name
+        )));
+    }
+    Ok(())
+}
+
+impl Paged {
+    /// The page table's header for a frame whose samples at distance d from the eye cover
+    /// `lod.0 · d + lod.1` level-0 voxels (see the module's documentation); the entries,
+    /// [`Paged::page_words`], follow it.
+    pub fn header(&self, lod: (f32, f32)) -> [u32; HEADER] {
+        let levels = self.levels.levels();
+        let (a, b) = if self.finest { (0.0, 0.0) } else { lod };
+        let mut words = [0u32; HEADER];
+        let dims0 = levels[0].dims;
+        let s0 = levels[0].spacing;
+        words[..8].copy_from_slice(&[
+            levels.len() as u32,
+            vellum_volume::bricks::BRICK as u32,
+            SLOT as u32,
+            self.mode,
+            self.grid[0] as u32,
+            self.grid[1] as u32,
+            a.to_bits(),
+            b.to_bits(),
+        ]);
+        for (i, l) in levels.iter().enumerate() {
+            // Texture coordinate (0..1 over level 0's box) to this level's voxel units.
+            let scale: [f32; 3] =
+                std::array::from_fn(|k| (dims0[k] as f64 * s0[k] / l.spacing[k]) as f32);
+            let w = &mut words[8 + 8 * i..16 + 8 * i];
+            w[..4].copy_from_slice(&[
+                l.first as u32,
+                l.counts[0] as u32,
+                l.counts[1] as u32,
+                l.counts[2] as u32,
+            ]);
+            w[4..7].copy_from_slice(&scale.map(f32::to_bits));
+            // Level 0's voxel over this level's: the opacity correction's unit.
+            let ratio = (0..3)
+                .map(|k| s0[k] / l.spacing[k])
+                .fold(f64::INFINITY, f64::min);
+            w[7] = (ratio as f32).to_bits();
+        }
+        words
+    }
+
+    /// The page table's entries for this frame into `dst` (one word each): the slot's place for
+    /// a resident brick, and for a brick whose range is known [`KNOWN_BIT`] and `flags(range)`
+    /// (bit 0: may hold visible context or one-pass samples, bit 1: may hold focus) in bits 24
+    /// and 25.
+    pub fn page_words(&self, dst: &mut [u32], flags: &dyn Fn([u16; 2]) -> u32) {
+        let c = &self.cache;
+        let [gx, gy, _] = self.grid;
+        for ((w, &slot), &range) in dst.iter_mut().zip(&c.page_table).zip(&c.ranges) {
+            let place = match slot {
+                0 => 0,
+                s => {
+                    let s = s as usize - 1;
+                    let at = [s % gx, (s / gx) % gy, s / (gx * gy)].map(|v| v as u32);
+                    RESIDENT_BIT | at[0] | at[1] << 8 | at[2] << 16
+                }
+            };
+            *w = match range == UNKNOWN_RANGE {
+                true => place,
+                false => place | KNOWN_BIT | (flags(range) & 3) << 24,
+            };
+        }
+    }
+
+    /// What the rays of the last completed frame said: the missing bricks they asked for (with
+    /// how many asked) and, in a frame that does not wait, the resident ones they read.
+    pub fn take_feedback(&mut self) -> Result<Feedback> {
+        let counts: &[u32] = bytemuck::cast_slice(self.feedback.mapped().ok_or_else(|| {
+            Error::Invalid("the brick feedback buffer is not host-visible".into())
+        })?);
+        let mut f = Feedback::default();
+        for (e, &c) in counts.iter().enumerate() {
+            if c & USED_BIT != 0 {
+                f.used.push(e);
+            }
+            if c & !USED_BIT != 0 {
+                f.wanted.push((e, c & !USED_BIT));
+            }
+        }
+        Ok(f)
+    }
+
+    /// Records the clearing of the feedback buffer, before the frame's ray casting writes it.
+    pub fn record_clear_feedback(&self, ctx: &Context, frame: &mut Frame) {
+        vellum_gpu::commands::memory_transition(
+            ctx,
+            frame.cmd,
+            Access::HostRead,
+            Access::TransferWrite,
+        );
+        unsafe {
+            ctx.device
+                .cmd_fill_buffer(frame.cmd, self.feedback.raw, 0, vk::WHOLE_SIZE, 0)
+        };
+        vellum_gpu::commands::memory_transition(
+            ctx,
+            frame.cmd,
+            Access::TransferWrite,
+            Access::ComputeReadWrite,
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vellum_gpu::interface::assert_glsl_layout;
+
+    #[test]
+    fn pool_grids_stay_within_the_budget_and_the_device() {
+        assert_eq!(pool_grid(5, 2048), [1, 2, 2]);
+        for capacity in [2usize, 7, 64, 1000, 1331, 52_000] {
+            let g = pool_grid(capacity, 2048);
+            let n: usize = g.iter().product();
+            assert!(n <= capacity && n * 2 > capacity, "{capacity}: {g:?}");
+            assert!(g.iter().all(|&s| s * SLOT <= 2048));
+        }
+    }
+
+    #[test]
+    fn fill_interfaces_match_glsl() {
+        assert_glsl_layout!(FillPush, "render.glsl", "FillPush", [grid]);
+        assert_glsl_layout!(
+            BrickFill,
+            "render.glsl",
+            "BrickFill",
+            [lo_slot, dims_offset, inv_spacing]
+        );
+    }
+}

@@ -1,0 +1,1287 @@
+//! Frame assembly: what one frame of a volume becomes, from the [`View`] to the recorded passes.
+//!
+//! 1. [`FrameSetup::new`] decides everything the host decides, with no Vulkan: it validates the
+//!    view against the volume and its classification, builds the [`WorldBox`] and the
+//!    [`FrameCamera`] (once), culls the 16³ bricks per level, cuts the slicer's proxy planes to
+//!    them, and fills the uniforms and the ray caster's tables. A unit test can look at all of it.
+//! 2. [`Renderer::record`] stages those into the frame's ring, re-uploads changed classification
+//!    tables, makes sure the persistent layers exist at this size, and hands the frame to one
+//!    draw step: [`Slicer::record_two_level`], [`Slicer::record_one_pass`] or
+//!    [`RayCaster::record`]. All of them write the same named layers.
+//! 3. With a style, the lines-draw step (`Renderer::record_style`) prepares the object-space
+//!    lines the style asks for and [`Post::record`] runs the style passes over the layers.
+//! 4. [`Recorded`] returns what a caller needs afterwards (the planes drawn, the lines' raster
+//!    view); [`Renderer::render_frame`] is the one-shot form that also reads the layers back.
+
+use crate::classify::modulation::Modulation;
+use crate::classify::textures::GpuClassification;
+use crate::classify::Focus;
+use crate::passes::gpu_volume::VolumeRef;
+use crate::passes::lines::{LineExtractor, RasterView, DEFAULT_CAPACITY};
+use crate::passes::normals::{Bricks, VolumeTextures};
+use crate::passes::paging::HEADER;
+use crate::render::post::{LinesDraw, Post};
+use crate::render::proxy::{depth_span, view_aligned_slices_in, ProxySlices};
+use crate::render::raycast::{
+    opacity_bounds, RayCaster, RayPush, RayRequest, BRICK_FOCUS, BRICK_VISIBLE,
+};
+use crate::render::shading::SliceUniforms;
+use crate::render::slicer::{SliceDraw, Slicer};
+use crate::render::style::{LineKind, Style};
+use crate::render::targets::{
+    FrameImage, FrameTargets, Layers, PostTargets, TargetImages, TargetsReadback, ViewState,
+};
+use crate::render::view::{FrameCamera, RayOptions, View, WorldBox, MAX_SLICES};
+use ash::vk;
+use glam::Vec3;
+use std::sync::Arc;
+use vellum_error::{Error, Result};
+use vellum_gpu::{
+    Access, Bind, BufferSlice, Context, Frames, FramesDesc, Image, ImageDesc, PipelineCache,
+    Sampler,
+};
+use vellum_volume::geometry::Geometry;
+
+/// What [`FrameSetup`] needs of the volume and its classification: host data only.
+pub struct SetupInput<'a> {
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+    pub geometry: Geometry,
+    /// Data values that map to normalised intensity 0 and 1.
+    pub range: [f64; 2],
+    pub bricks: &'a Bricks,
+    /// The 1D transfer function's table (256 RGBA entries).
+    pub table: &'a [[f32; 4]],
+    pub focus: Focus,
+    pub modulation: &'a Modulation,
+    /// Whether an occlusion transfer function classifies the volume, and whether the volume
+    /// carries the occlusion volume it reads.
+    pub uses_occlusion: bool,
+    pub has_occlusion: bool,
+    /// Whether the volume carries its importance map (ΔD), which modulation reads.
+    pub has_importance: bool,
+    /// The device's largest 2D image side.
+    pub max_image_size: u32,
+}
+
+impl<'a> SetupInput<'a> {
+    /// The host side of a volume and classification that are on the GPU.
+    pub fn of(vol: VolumeRef<'a>, classify: &'a GpuClassification, max: u32) -> Self {
+        SetupInput {
+            dims: vol.dims(),
+            spacing: vol.spacing(),
+            geometry: vol.geometry(),
+            range: vol.range(),
+            bricks: vol.bricks(),
+            table: classify.transfer_table(),
+            focus: classify.focus,
+            modulation: &classify.modulation,
+            uses_occlusion: classify.uses_occlusion(),
+            has_occlusion: vol.occlusion().is_some(),
+            has_importance: vol.importance().is_some(),
+            max_image_size: max,
+        }
+    }
+}
+
+/// Everything the host decides for one frame, before anything is recorded.
+#[derive(Clone, Debug)]
+pub struct FrameSetup {
+    pub size: [u32; 2],
+    pub world: WorldBox,
+    pub camera: FrameCamera,
+    /// The focus in normalised intensity: low, high, mode ([`Focus::normalised`]).
+    pub focus: [f32; 3],
+    /// Per brick: whether it may hold visible context (or one-pass) samples.
+    pub visible: Vec<bool>,
+    /// The context's (or the one pass's) planes, cut to its bricks; for a ray-cast frame only
+    /// their spacing and count, which the rays share.
+    pub proxy: ProxySlices,
+    /// The focus level's planes, cut to the bricks that may hold focus (slicing, two levels).
+    pub focus_proxy: Option<ProxySlices>,
+    /// Depth of the nearest and the farthest box corner along the view direction.
+    pub depth_span: (f32, f32),
+    pub uniforms: SliceUniforms,
+    /// The ray caster's table for a ray-cast frame: the transfer function's opacity bounds, then
+    /// the bricks' flags ([`BRICK_VISIBLE`], [`BRICK_FOCUS`]).
+    pub ray_tables: Option<Vec<u32>>,
+}
+
+impl FrameSetup {
+    /// The frame of the volume and classification `input` describes, seen by `view`; errors name
+    /// the view's or the scene's keys (`size`, `one_pass`, `focus`, `slices`, ...).
+    pub fn new(input: &SetupInput, view: &View) -> Result<Self> {
+        validate(input, view)?;
+        let world = WorldBox::new(input.dims, input.spacing, &input.geometry);
+        let camera = FrameCamera::new(&world, view);
+        let slices = plane_count(input.dims, view)?;
+        let focus = input.focus.normalised(input.range);
+        let visible: Vec<bool> = input
+            .bricks
+            .range
+            .iter()
+            .map(|r| input.uses_occlusion || any_opacity(input.table, r))
+            .collect();
+        let span = depth_span(world.half, camera.view_dir.normalize());
+        let (proxy, focus_proxy) = match view.raycast {
+            Some(_) => (
+                ProxySlices {
+                    spacing: (span.1 - span.0) / slices as f32,
+                    slices,
+                    ..ProxySlices::default()
+                },
+                None,
+            ),
+            None => proxies(
+                input,
+                view,
+                &world,
+                camera.view_dir,
+                slices,
+                &visible,
+                focus,
+            ),
+        };
+        let mut uniforms = shading_uniforms(input, view, &world, &camera, &proxy, focus);
+        uniforms.set_modulation(input.modulation, input.dims);
+        let ray_tables = view
+            .raycast
+            .map(|_| ray_tables(input.table, input.bricks, &visible, focus));
+        Ok(FrameSetup {
+            size: view.size,
+            world,
+            camera,
+            focus,
+            visible,
+            proxy,
+            focus_proxy,
+            depth_span: span,
+            uniforms,
+            ray_tables,
+        })
+    }
+
+    /// The ray caster's push constants for `options` on a volume of `bricks`.
+    pub fn ray_push(&self, options: &RayOptions, bricks: [usize; 3], two_level: bool) -> RayPush {
+        let c = bricks.map(|n| n as i32);
+        RayPush {
+            inv_view_proj: self.camera.view_proj.inverse().to_cols_array_2d(),
+            planes: [
+                self.depth_span.1,
+                self.proxy.spacing,
+                self.proxy.slices as f32,
+                options.ert,
+            ],
+            bricks: [c[0], c[1], c[2], crate::passes::normals::BRICK as i32],
+            flags: [
+                two_level as i32,
+                options.skip_empty as i32,
+                options.jitter.map_or(0, |j| j.max(1) as i32),
+                options.refine_iso as i32
+                    | ((options.sampling == crate::render::view::Sampling::WorldSteps) as i32) << 1,
+            ],
+        }
+    }
+}
+
+/// Checks the view against the volume and classification before anything is computed.
+fn validate(input: &SetupInput, view: &View) -> Result<()> {
+    let [w, h] = view.size;
+    let max = input.max_image_size;
+    if w == 0 || h == 0 || w > max || h > max {
+        return Err(Error::Invalid(format!(
+            "image `size` {w}x{h} is invalid; expected 1..={max} pixels per side"
+        )));
+    }
+    if input.uses_occlusion && !input.has_occlusion {
+        return Err(Error::Invalid("an occlusion transfer function needs an occlusion volume attached to the volume textures".into()));
+    }
+    view.lighting.validate()?;
+    if let Some(style) = &view.style {
+        if view.one_pass {
+            return Err(Error::Invalid(format!(
+                "style {} ({}) works on the two levels; drop `one_pass`",
+                style.def.number, style.def.name
+            )));
+        }
+        if style.def.needs_focus() && input.focus == Focus::None {
+            return Err(Error::Invalid(format!(
+                "style {} ({}) works on the focus layer; give a focus with `iso` or `focus`",
+                style.def.number, style.def.name
+            )));
+        }
+    }
+    input.modulation.validate()?;
+    if input.modulation.is_active() && !input.has_importance {
+        return Err(Error::Invalid(
+            "importance modulation needs the importance map attached to the volume textures".into(),
+        ));
+    }
+    if let Some(r) = &view.raycast {
+        r.validate()?;
+    }
+    Ok(())
+}
+
+/// The number of planes: the view's, or two per voxel along the longest axis.
+fn plane_count(dims: [usize; 3], view: &View) -> Result<u32> {
+    let n = view
+        .slices
+        .unwrap_or_else(|| 2 * *dims.iter().max().unwrap_or(&1) as u32)
+        .max(1);
+    if n > MAX_SLICES {
+        return Err(Error::Invalid(format!(
+            "{n} `slices` are too many; expected at most {MAX_SLICES}"
+        )));
+    }
+    Ok(n)
+}
+
+/// The slicer's planes per level. Every level draws the same planes, cut only by the bricks that
+/// can contribute to it, so each fragment it draws is one the whole-box planes would draw and the
+/// skipped ones would all have been discarded. One pass and context: bricks whose intensities
+/// meet a non-zero opacity (all bricks with an occlusion TF); the context also drops bricks that
+/// are focus throughout. Focus: bricks that can hold focus samples.
+fn proxies(
+    input: &SetupInput,
+    view: &View,
+    world: &WorldBox,
+    view_dir: Vec3,
+    slices: u32,
+    visible: &[bool],
+    focus: [f32; 3],
+) -> (ProxySlices, Option<ProxySlices>) {
+    let (bricks, dims, half) = (input.bricks, input.dims, world.half);
+    let planes = |keep: &dyn Fn(usize) -> bool| {
+        view_aligned_slices_in(
+            half,
+            view_dir,
+            slices,
+            &brick_boxes(bricks, dims, half, keep),
+        )
+    };
+    let context = || match view.one_pass {
+        true => planes(&|b| visible[b]),
+        false => planes(&|b| visible[b] && !all_focus(&bricks.range[b], focus)),
+    };
+    let focus_level = || (!view.one_pass).then(|| planes(&|b| may_focus(&bricks.range[b], focus)));
+    rayon::join(context, focus_level)
+}
+
+/// The shaders' uniforms: camera, box, headlight, material, plane spacing in voxels, focus.
+fn shading_uniforms(
+    input: &SetupInput,
+    view: &View,
+    world: &WorldBox,
+    camera: &FrameCamera,
+    proxy: &ProxySlices,
+    focus: [f32; 3],
+) -> SliceUniforms {
+    let (half, eye, view_dir) = (world.half, camera.eye, camera.view_dir);
+    let region = view.raycast.and_then(|r| r.region);
+    let light = -view_dir; // a headlight
+    let l = &view.lighting;
+    SliceUniforms {
+        view_proj: camera.view_proj.to_cols_array_2d(),
+        half_extent: [half.x, half.y, half.z, 0.0],
+        eye: [eye.x, eye.y, eye.z, 0.0],
+        view_dir: [
+            view_dir.x,
+            view_dir.y,
+            view_dir.z,
+            if camera.camera.ortho { 1.0 } else { 0.0 },
+        ],
+        light: [light.x, light.y, light.z, l.shininess],
+        material: [
+            l.ambient,
+            l.diffuse,
+            l.specular,
+            (proxy.spacing as f64 / world.voxel) as f32,
+        ],
+        focus: [
+            focus[0],
+            focus[1],
+            focus[2],
+            if input.uses_occlusion { 1.0 } else { 0.0 },
+        ],
+        region_lo: region.map_or([0.0; 4], |r| [r[0][0], r[0][1], r[0][2], 0.0]),
+        region_hi: region.map_or([0.0; 4], |r| [r[1][0], r[1][1], r[1][2], 1.0]),
+        ..bytemuck::Zeroable::zeroed()
+    }
+}
+
+/// The ray caster's tables: opacity bounds per TF texel pair, then per-brick flags for
+/// empty-space skipping (`raycast.comp`, `RayTables`).
+fn ray_tables(table: &[[f32; 4]], bricks: &Bricks, visible: &[bool], focus: [f32; 3]) -> Vec<u32> {
+    let flags = bricks.range.iter().zip(visible).map(|(r, &v)| {
+        let v = if v { BRICK_VISIBLE } else { 0 };
+        v | if may_focus(r, focus) { BRICK_FOCUS } else { 0 }
+    });
+    opacity_bounds(table)
+        .into_iter()
+        .map(f32::to_bits)
+        .chain(flags)
+        .collect()
+}
+
+/// Brick range in normalised units with one u16 step of margin for rounding between the CPU
+/// ranges and the GPU's filtering.
+fn widened(r: &[u16; 2]) -> (f32, f32) {
+    ((r[0] as f32 - 1.0) / 65535.0, (r[1] as f32 + 1.0) / 65535.0)
+}
+
+/// Whether some sample of a brick with range `r` can be in `focus` (normalised lo, hi, mode).
+fn may_focus(r: &[u16; 2], focus: [f32; 3]) -> bool {
+    let (mn, mx) = widened(r);
+    match focus[2] as i32 {
+        1 => mx >= focus[0] && mn <= focus[1],
+        2 => mx >= focus[0],
+        _ => false,
+    }
+}
+
+/// Whether every sample of a brick with range `r` is in `focus`.
+fn all_focus(r: &[u16; 2], focus: [f32; 3]) -> bool {
+    let (mn, mx) = widened(r);
+    match focus[2] as i32 {
+        1 => mn >= focus[0] && mx <= focus[1],
+        2 => mn >= focus[0],
+        _ => false,
+    }
+}
+
+/// Whether the 1D transfer function gives any opacity to intensities in range `r`: the table
+/// entries that linear filtering blends for samples in the range.
+fn any_opacity(table: &[[f32; 4]], r: &[u16; 2]) -> bool {
+    let (mn, mx) = widened(r);
+    let n = table.len() as f32;
+    let first = ((mn * n - 0.5).floor().max(0.0)) as usize;
+    let last = ((mx * n + 0.5).ceil() as usize).min(table.len() - 1);
+    table[first.min(last)..=last].iter().any(|c| c[3] > 0.0)
+}
+
+/// Bricks kept above this fraction are drawn as the whole box instead: rasterising many small
+/// polygons costs more on lavapipe than the skipped fragments save (measured on the engine, whose
+/// haze keeps every brick: the single pass took 2.5× longer as bricks).
+const BRICK_FRACTION: f64 = 0.5;
+
+/// World boxes of the bricks for which `keep` holds, or the whole volume box when more than
+/// [`BRICK_FRACTION`] of them do. Faces come from integer voxel coordinates through one formula, so
+/// neighbouring boxes share their corners exactly (no T-junctions: bricks are never merged).
+fn brick_boxes(
+    bricks: &Bricks,
+    dims: [usize; 3],
+    half: Vec3,
+    keep: &dyn Fn(usize) -> bool,
+) -> Vec<(Vec3, Vec3)> {
+    let n = bricks.range.len();
+    let kept: Vec<usize> = (0..n).filter(|&b| keep(b)).collect();
+    if kept.len() as f64 > BRICK_FRACTION * n as f64 {
+        return vec![(-half, half)];
+    }
+    let world = |v: usize, a: usize| (v as f32 / dims[a] as f32) * 2.0 * half[a] - half[a];
+    kept.into_iter()
+        .map(|b| {
+            let (l, h) = bricks.voxel_bounds(b, dims);
+            (
+                Vec3::new(world(l[0], 0), world(l[1], 1), world(l[2], 2)),
+                Vec3::new(world(h[0], 0), world(h[1], 1), world(h[2], 2)),
+            )
+        })
+        .collect()
+}
+
+/// What recording a frame decided, for the caller to use once the frame has completed.
+#[derive(Copy, Clone, Debug)]
+pub struct Recorded {
+    /// Planes drawn (or sampled by the rays).
+    pub slices: u32,
+    /// The geometry the frame's object-space lines were drawn with, when its style has lines:
+    /// with the segments in the targets' `ViewState`, what vector output needs.
+    pub lines: Option<RasterView>,
+}
+
+impl Recorded {
+    /// The frame image of this frame, with what came back from it.
+    pub fn image(
+        self,
+        size: [u32; 2],
+        (composite, layers): (Vec<[f32; 4]>, Option<crate::render::targets::Layers>),
+        passes: Vec<vellum_gpu::PassTime>,
+        segments: Option<(Vec<vellum_volume::lines::Segment>, u64)>,
+    ) -> FrameImage {
+        FrameImage {
+            size,
+            composite,
+            layers,
+            passes,
+            slices: self.slices,
+            lines: self.lines,
+            segments,
+        }
+    }
+}
+
+/// The frame's staged data: uniforms, proxy vertices and the ray caster's table.
+struct Staged {
+    ubo: BufferSlice,
+    vertices: (BufferSlice, u32),
+    focus_vertices: Option<(BufferSlice, u32)>,
+    ray_tables: Option<BufferSlice>,
+}
+
+impl Staged {
+    /// Pushes the setup's data into the frame's staging ring (nothing is allocated).
+    fn push(frame: &mut vellum_gpu::Frame, setup: &FrameSetup) -> Result<Self> {
+        let staging = &mut *frame.staging;
+        let ubo = staging.push_pod(&setup.uniforms)?;
+        let mut vertices = |p: &ProxySlices| -> Result<(BufferSlice, u32)> {
+            let slice = staging.push(bytemuck::cast_slice(&p.vertices), 16)?;
+            Ok((slice, p.vertices.len() as u32))
+        };
+        let proxy = vertices(&setup.proxy)?;
+        let focus_vertices = setup.focus_proxy.as_ref().map(&mut vertices).transpose()?;
+        let ray_tables = match &setup.ray_tables {
+            Some(t) => Some(staging.push(bytemuck::cast_slice(t), 256)?),
+            None => None,
+        };
+        Ok(Staged {
+            ubo,
+            vertices: proxy,
+            focus_vertices,
+            ray_tables,
+        })
+    }
+}
+
+/// The renderer: the slicer, the ray caster and the style passes, with the samplers and stand-in
+/// images their shared bindings need, and the one pipeline cache they build their lazily made
+/// pipelines in. What a view keeps between frames is in its [`FrameTargets`], not here.
+pub struct Renderer {
+    ctx: Arc<Context>,
+    slicer: Slicer,
+    linear: Sampler,
+    stand_ins: StandIns,
+    /// The ray caster's variants, line extraction's per-kind pipelines and the style passes'.
+    pipelines: PipelineCache,
+    /// The style passes, built on the first styled frame.
+    post: Option<Post>,
+    /// Object-space line extraction, built on the first frame of a style with lines.
+    lines: Option<LineExtractor>,
+}
+
+/// 1×1 stand-ins bound when a frame uses no occlusion or importance volume, or no brick cache.
+struct StandIns {
+    /// For the occlusion volume and ΔD.
+    volume: Image,
+    /// For the max |ΔD| buffer.
+    max: vellum_gpu::Buffer,
+    /// For the brick cache's feedback and ray states.
+    paging: vellum_gpu::Buffer,
+}
+
+impl StandIns {
+    fn new(ctx: &Arc<Context>) -> Result<Self> {
+        let volume = Image::new(
+            ctx,
+            "dummy occlusion",
+            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, [1, 1, 1]),
+        )?;
+        vellum_gpu::transfer::upload(ctx, &volume, &[0u8; 4], Access::FragmentSampled)?;
+        let max = vellum_gpu::Buffer::from_bytes(
+            ctx,
+            "dummy importance max",
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+            &[0u8; 4],
+        )?;
+        let paging = vellum_gpu::Buffer::new(
+            ctx,
+            "dummy paging",
+            &vellum_gpu::BufferDesc::storage(crate::passes::paging::RAY_STATE_BYTES),
+        )?;
+        Ok(StandIns {
+            volume,
+            max,
+            paging,
+        })
+    }
+
+    /// The occlusion volume, ΔD and max |ΔD| the shaders bind (or 1×1 stand-ins when the frame
+    /// uses none), moved with the volume's textures to `sampled`.
+    fn shading_inputs<'a>(
+        &'a self,
+        ctx: &Context,
+        cmd: vk::CommandBuffer,
+        vol: VolumeRef<'a>,
+        classify: &GpuClassification,
+        sampled: Access,
+    ) -> (&'a Image, &'a Image, &'a vellum_gpu::Buffer) {
+        let occlusion = match (classify.uses_occlusion(), vol.occlusion()) {
+            (true, Some(o)) => o,
+            _ => &self.volume,
+        };
+        vol.intensity().transition(cmd, sampled);
+        vol.gradient().transition(cmd, sampled);
+        occlusion.transition(cmd, sampled);
+        let importance = vol.importance().filter(|_| classify.modulation.is_active());
+        let Some(i) = importance else {
+            return (occlusion, &self.volume, &self.max);
+        };
+        i.delta_d.transition(cmd, sampled);
+        // The reduction's atomics must be visible to the shaders' reads.
+        let read = match sampled {
+            Access::ComputeSampled => Access::ComputeRead,
+            _ => Access::FragmentStorageRead,
+        };
+        vellum_gpu::commands::memory_transition(ctx, cmd, Access::ComputeReadWrite, read);
+        (occlusion, &i.delta_d, &i.max_abs)
+    }
+}
+
+/// Parameters of one frame for the one-shot [`Renderer::render`].
+#[derive(Clone, Debug)]
+pub struct RenderParams {
+    pub camera: crate::render::camera::Camera,
+    pub size: [u32; 2],
+    /// Number of slice planes; `None` picks about two per voxel along the longest axis.
+    pub slices: Option<u32>,
+    pub focus: Focus,
+    pub one_pass: bool,
+    pub transfer: crate::classify::transfer::TransferFunction,
+    /// An occlusion transfer function table (256×256, `table[o * 256 + s]`), which replaces
+    /// `transfer`; the volume textures must then hold an occlusion volume.
+    pub occlusion_tf: Option<Vec<[f32; 4]>>,
+}
+
+impl Renderer {
+    /// Builds the slicer's pipelines; the ray caster's and the styles' are built on first use.
+    pub fn new(ctx: &Arc<Context>) -> Result<Self> {
+        Ok(Renderer {
+            ctx: ctx.clone(),
+            slicer: Slicer::new(ctx)?,
+            linear: Sampler::new(ctx, true)?,
+            stand_ins: StandIns::new(ctx)?,
+            pipelines: PipelineCache::new(ctx),
+            post: None,
+            lines: None,
+        })
+    }
+
+    /// The context the pipelines were built on.
+    pub fn context(&self) -> &Arc<Context> {
+        &self.ctx
+    }
+
+    /// Records one frame of `vol`, classified by `classify` (transfer functions, focus,
+    /// modulation), as seen by `view`, into `frame`; the layers land in `targets` (resized if
+    /// needed). Passes: `focus`, `context`, `composite`; or `one_pass`; or `raycast`; then the
+    /// style's.
+    pub fn record<'v>(
+        &mut self,
+        frame: &mut vellum_gpu::Frame,
+        vol: impl Into<VolumeRef<'v>>,
+        classify: &mut GpuClassification,
+        view: &View,
+        targets: &mut FrameTargets,
+    ) -> Result<Recorded> {
+        let vol = vol.into();
+        let max = self.ctx.info.max_image_dimension_2d;
+        check_paged(vol, view)?;
+        let paged_view = paged_planes(vol, view);
+        let view = paged_view.as_ref().unwrap_or(view);
+        let setup = FrameSetup::new(&SetupInput::of(vol, classify, max), view)?;
+        self.build_style_passes(view)?;
+        let staged = Staged::push(frame, &setup)?;
+        let sampled = match view.raycast {
+            Some(_) => Access::ComputeSampled,
+            None => Access::FragmentSampled,
+        };
+        classify.record(frame, sampled)?;
+        let (t, state) = targets.ensure(view.size, !view.one_pass, view.style.is_some())?;
+        let (occlusion, delta_d, delta_max) = self
+            .stand_ins
+            .shading_inputs(&self.ctx, frame.cmd, vol, classify, sampled);
+        let binds = [
+            Bind::UniformSlice(staged.ubo),
+            Bind::Sampled(vol.intensity(), &self.linear),
+            Bind::Sampled(vol.gradient(), &self.linear),
+            Bind::Sampled(classify.transfer_image(), &self.linear),
+            Bind::Sampled(occlusion, &self.linear),
+            Bind::Sampled(classify.occlusion_image(), &self.linear),
+            Bind::Sampled(delta_d, &self.linear),
+            Bind::StorageBuffer(delta_max),
+        ];
+        let draw = SliceDraw {
+            shading: &binds,
+            size: view.size,
+            vertices: staged.vertices,
+            focus_vertices: staged.focus_vertices,
+        };
+        match (view.raycast, &t.layers, view.one_pass, staged.ray_tables) {
+            (Some(options), layers, one_pass, Some(tables)) => {
+                let two_level = !one_pass;
+                let rays = RayFrame {
+                    setup: &setup,
+                    options,
+                    binds: &binds,
+                    layers: layers.as_ref().filter(|_| two_level),
+                    composite: &t.composite,
+                    tables,
+                    stand_in: &self.stand_ins.paging,
+                    flags: BrickFlags::new(
+                        classify.transfer_table(),
+                        setup.focus,
+                        classify.uses_occlusion(),
+                    ),
+                };
+                record_rays(&self.ctx, &mut self.pipelines, frame, vol, &rays, state)?;
+            }
+            (None, Some(layers), false, _) => {
+                self.slicer
+                    .record_two_level(frame, &draw, layers, &t.composite)?
+            }
+            _ => self.slicer.record_one_pass(frame, &draw, &t.composite)?,
+        }
+        let lines = match (&view.style, &t.post, view.one_pass) {
+            (Some(style), Some(post), false) => {
+                let style_frame = StyleFrame {
+                    setup: &setup,
+                    style,
+                    images: t,
+                    post,
+                };
+                self.record_style(frame, vol, &style_frame, state)?
+            }
+            _ => None,
+        };
+        Ok(Recorded {
+            slices: setup.proxy.slices,
+            lines,
+        })
+    }
+
+    /// Builds the style passes, and the line extractor for a style with lines, on the first
+    /// frame that needs them.
+    fn build_style_passes(&mut self, view: &View) -> Result<()> {
+        let Some(style) = &view.style else {
+            return Ok(());
+        };
+        if style.def.lines.is_some() && self.lines.is_none() {
+            self.lines = Some(LineExtractor::new(&self.ctx)?);
+        }
+        if self.post.is_none() {
+            self.post = Some(Post::new(&mut self.pipelines)?);
+        }
+        Ok(())
+    }
+
+    /// The lines-draw step and the style passes: extracts the object-space lines the style asks
+    /// for (from the volume, or from its smoothed copy, made once per volume and radius and kept
+    /// in the view's `state`) and records [`Post::record`]. Returns the lines' raster view.
+    fn record_style(
+        &mut self,
+        frame: &mut vellum_gpu::Frame,
+        vol: VolumeRef,
+        f: &StyleFrame,
+        state: &mut ViewState,
+    ) -> Result<Option<RasterView>> {
+        let passes = self
+            .post
+            .as_ref()
+            .ok_or_else(|| Error::Invalid("the style passes were not built".into()))?;
+        // Lines are drawn from a volume in core only (`check_paged` refuses them otherwise).
+        let Some(vol) = vol.in_core().filter(|_| f.style.def.lines.is_some()) else {
+            passes.record(frame, f.style, f.images, f.post, None)?;
+            return Ok(None);
+        };
+        let radius = f.style.params.line_smooth.radius(vol.auto_line_smooth);
+        if let (Some(_), Some(extractor)) = (f.style.def.lines, self.lines.as_mut()) {
+            if radius > 0 && !state.has_smoothed(vol.id, radius) {
+                let image = extractor.record_smoothing(frame, &vol.intensity, vol.dims, radius)?;
+                state.keep_smoothed(vol.id, radius, image);
+            }
+        }
+        let draw = match (f.style.def.lines, &self.lines) {
+            (Some(kind), Some(extractor)) => {
+                let (line_state, smoothed) =
+                    state.lines_and_smoothed(&self.ctx, DEFAULT_CAPACITY, (vol.id, radius))?;
+                let g = line_geometry(vol, f, kind);
+                Some(LinesDraw {
+                    extractor,
+                    pipelines: &mut self.pipelines,
+                    state: line_state,
+                    volume: smoothed.unwrap_or(&vol.intensity),
+                    dims: vol.dims,
+                    spacing: g.spacing,
+                    eye: g.eye,
+                    params: g.params,
+                    view: g.view,
+                })
+            }
+            _ => None,
+        };
+        let raster = draw.as_ref().map(|d| d.view);
+        passes.record(frame, f.style, f.images, f.post, draw)?;
+        Ok(raster)
+    }
+
+    /// Renders one frame in one submission (the tools' path): the persistent-state types, used
+    /// once. With `readback`, the composite (and the layers of a two-level frame) come back to
+    /// the host.
+    pub fn render<'v>(
+        &mut self,
+        vol: impl Into<VolumeRef<'v>>,
+        params: &RenderParams,
+        readback: bool,
+    ) -> Result<FrameImage> {
+        let mut classify = GpuClassification::new(&self.ctx, &params.transfer, params.focus)?;
+        classify.set_occlusion_table(params.occlusion_tf.clone())?;
+        let view = View {
+            camera: params.camera,
+            size: params.size,
+            slices: params.slices,
+            one_pass: params.one_pass,
+            lighting: Default::default(),
+            style: None,
+            fit: false,
+            raycast: None,
+        };
+        self.render_frame(vol, &mut classify, &view, readback)
+    }
+
+    /// [`Renderer::render`] for a volume and classification that are already on the GPU. A
+    /// frame read back brings its object-space lines' segments too.
+    pub fn render_frame<'v>(
+        &mut self,
+        vol: impl Into<VolumeRef<'v>>,
+        classify: &mut GpuClassification,
+        view: &View,
+        readback: bool,
+    ) -> Result<FrameImage> {
+        let vol = vol.into();
+        let ctx = &self.ctx.clone();
+        let mut targets = FrameTargets::new(ctx);
+        let mut frames = Frames::new(ctx, &FramesDesc::one_shot("render frame", 32))?;
+        let mut host = None;
+        let (recorded, _) = frames.frame(|f| {
+            let r = self.record(f, vol, classify, view, &mut targets)?;
+            if readback {
+                let rb = TargetsReadback::new(ctx, &targets)?;
+                rb.record(f, &targets);
+                host = Some(rb);
+            }
+            Ok(r)
+        })?;
+        let passes = frames.finish()?;
+        let (composite, layers) = match &host {
+            Some(rb) => rb.read()?,
+            None => (Vec::new(), None),
+        };
+        let segments = match (&targets.state().lines, readback && recorded.lines.is_some()) {
+            (Some(lines), true) => Some(lines.buffer.read()?),
+            _ => None,
+        };
+        Ok(recorded.image(view.size, (composite, layers), passes, segments))
+    }
+}
+
+impl Renderer {
+    /// Styles a two-level frame whose layers were made elsewhere (composited from the ranks of a
+    /// job by `render::sortlast`): uploads `layers` and `composite` into targets of `size`,
+    /// records `style`'s passes over them and reads the frame back. A style with object-space
+    /// lines is refused: they are drawn from the volume, which no one rank holds.
+    pub fn style_layers(
+        &mut self,
+        (layers, composite): (&Layers, &[[f32; 4]]),
+        size: [u32; 2],
+        style: &Style,
+    ) -> Result<FrameImage> {
+        if style.def.lines.is_some() {
+            return Err(Error::Invalid(format!(
+                "style {} draws object-space lines, which need the whole volume on one rank; choose an image-space style",
+                style.def.name
+            )));
+        }
+        if self.post.is_none() {
+            self.post = Some(Post::new(&mut self.pipelines)?);
+        }
+        let ctx = &self.ctx.clone();
+        let mut targets = FrameTargets::new(ctx);
+        targets.ensure(size, true, true)?;
+        let t = targets
+            .images()
+            .ok_or_else(|| Error::Invalid("no targets".into()))?;
+        let (l, post) = match (&t.layers, &t.post, &self.post) {
+            (Some(l), Some(p), Some(post)) => ((l, p), post),
+            _ => return Err(Error::Invalid("the styled targets were not made".into())),
+        };
+        let uploads: [(&Image, &[u8]); 5] = [
+            (&l.0.focus_phong, bytemuck::cast_slice(&layers.focus_phong)),
+            (
+                &l.0.focus_diffuse,
+                bytemuck::cast_slice(&layers.focus_diffuse),
+            ),
+            (&l.0.focus_depth, bytemuck::cast_slice(&layers.focus_depth)),
+            (&l.0.context, bytemuck::cast_slice(&layers.context)),
+            (&t.composite, bytemuck::cast_slice(composite)),
+        ];
+        let mut desc = FramesDesc::one_shot("styled layers", 32);
+        desc.staging_bytes = uploads.iter().map(|(_, b)| b.len() as u64 + 256).sum();
+        let mut frames = Frames::new(ctx, &desc)?;
+        let rb = TargetsReadback::new(ctx, &targets)?;
+        frames.frame(|f| {
+            for (image, bytes) in uploads {
+                let src = f.staging.push(bytes, 16)?;
+                vellum_gpu::transfer::record_upload_from(
+                    ctx,
+                    f.cmd,
+                    src,
+                    image,
+                    Access::ComputeRead,
+                );
+            }
+            post.record(f, style, t, l.1, None)?;
+            rb.record(f, &targets);
+            Ok(())
+        })?;
+        let passes = frames.finish()?;
+        let recorded = Recorded {
+            slices: 0,
+            lines: None,
+        };
+        Ok(recorded.image(size, rb.read()?, passes, None))
+    }
+}
+
+/// The ray-casting step: of a volume in core, or through the brick cache's page table (staged
+/// here), with its feedback cleared before and made visible to the host after.
+fn record_rays(
+    ctx: &Arc<Context>,
+    pipelines: &mut PipelineCache,
+    frame: &mut vellum_gpu::Frame,
+    vol: VolumeRef,
+    r: &RayFrame,
+    state: &mut ViewState,
+) -> Result<()> {
+    let two_level = r.layers.is_some();
+    let size = r.setup.size;
+    let paging = match vol.paged() {
+        Some(p) => {
+            // The header, then the entries with the flags of the bricks whose range is known,
+            // written into the frame's ring in place.
+            let header = p.header(lod_line(r.setup, vol.dims()));
+            let entries = p.cache.page_table.len();
+            let table = frame.staging.push_with(4 * (HEADER + entries), 16, |dst| {
+                let words: &mut [u32] = bytemuck::cast_slice_mut(dst);
+                words[..HEADER].copy_from_slice(&header);
+                p.page_words(&mut words[HEADER..], &|range| r.flags.of(range));
+            })?;
+            p.record_clear_feedback(ctx, frame);
+            let rays = state.ray_states(ctx, size[0] as u64 * size[1] as u64)?;
+            [
+                Bind::StorageSlice(table),
+                Bind::StorageBuffer(&p.feedback),
+                Bind::StorageBuffer(rays),
+            ]
+        }
+        None => [
+            Bind::StorageSlice(r.tables),
+            Bind::StorageBuffer(r.stand_in),
+            Bind::StorageBuffer(r.stand_in),
+        ],
+    };
+    // The ray states (and the stand-ins) are written by every frame's dispatch.
+    vellum_gpu::commands::memory_transition(
+        ctx,
+        frame.cmd,
+        Access::ComputeReadWrite,
+        Access::ComputeReadWrite,
+    );
+    RayCaster.record(
+        frame,
+        pipelines,
+        &RayRequest {
+            shading: r.binds,
+            uniforms: &r.setup.uniforms,
+            options: r.options,
+            layers: r.layers,
+            composite: r.composite,
+            tables: r.tables,
+            paging,
+            bricked: vol.paged().is_some(),
+            brick_reuse: vol.paged().is_some_and(|p| p.reuse),
+            brick_span: vol.paged().is_some_and(|p| p.span),
+            push: r.setup.ray_push(&r.options, vol.bricks().counts, two_level),
+            size,
+        },
+    )?;
+    if vol.paged().is_some() {
+        vellum_gpu::commands::memory_transition(
+            ctx,
+            frame.cmd,
+            Access::ComputeReadWrite,
+            Access::HostRead,
+        );
+    }
+    Ok(())
+}
+
+/// What the ray-casting step of one frame works on.
+struct RayFrame<'a> {
+    setup: &'a FrameSetup,
+    options: RayOptions,
+    binds: &'a [Bind<'a>; 8],
+    layers: Option<&'a crate::render::targets::TargetLayers>,
+    composite: &'a Image,
+    tables: BufferSlice,
+    /// Bound for the brick cache's buffers in core.
+    stand_in: &'a vellum_gpu::Buffer,
+    /// What a brick of a known range may hold under this frame's classification (the page
+    /// table's flags of a volume in the brick cache).
+    flags: BrickFlags,
+}
+
+/// What a brick of a given range may hold under a classification: [`BRICK_VISIBLE`] when the
+/// transfer function gives some of its samples opacity (always under an occlusion transfer
+/// function), [`BRICK_FOCUS`] when some of them may be in focus. The in-core table's tests
+/// (`any_opacity`, `may_focus`) in constant time, for the page table's entries of every frame.
+struct BrickFlags {
+    /// Per TF entry i, the entries before it that have opacity.
+    opaque_before: Vec<u32>,
+    focus: [f32; 3],
+    uses_occlusion: bool,
+}
+
+impl BrickFlags {
+    fn new(table: &[[f32; 4]], focus: [f32; 3], uses_occlusion: bool) -> Self {
+        let mut opaque_before = Vec::with_capacity(table.len() + 1);
+        let mut n = 0;
+        opaque_before.push(0);
+        for c in table {
+            n += (c[3] > 0.0) as u32;
+            opaque_before.push(n);
+        }
+        BrickFlags {
+            opaque_before,
+            focus,
+            uses_occlusion,
+        }
+    }
+
+    fn of(&self, r: [u16; 2]) -> u32 {
+        let n = self.opaque_before.len() - 1;
+        let (mn, mx) = widened(&r);
+        let first = ((mn * n as f32 - 0.5).floor().max(0.0)) as usize;
+        let last = ((mx * n as f32 + 0.5).ceil() as usize).min(n - 1);
+        let first = first.min(last);
+        let visible =
+            self.uses_occlusion || self.opaque_before[last + 1] > self.opaque_before[first];
+        (if visible { BRICK_VISIBLE } else { 0 })
+            | (if may_focus(&r, self.focus) {
+                BRICK_FOCUS
+            } else {
+                0
+            })
+    }
+}
+
+/// A volume in the brick cache is drawn by the ray caster, without object-space lines (their
+/// extraction reads the whole volume); say so in one sentence.
+fn check_paged(vol: VolumeRef, view: &View) -> Result<()> {
+    let Some(p) = vol.paged() else {
+        return Ok(());
+    };
+    let budget = p.pool_bytes as f64 / (1 << 20) as f64;
+    if view.raycast.is_none() {
+        return Err(Error::Invalid(format!(
+            "the volume is larger than the GPU budget ({budget:.0} MiB of bricks), so only the ray caster draws it; use `renderer: raycast`"
+        )));
+    }
+    if let Some(style) = view.style.as_ref().filter(|s| s.def.lines.is_some()) {
+        return Err(Error::Invalid(format!(
+            "style {} ({}) draws object-space lines, which need the whole volume on the GPU; it is larger than the GPU budget ({budget:.0} MiB of bricks)",
+            style.def.number, style.def.name
+        )));
+    }
+    Ok(())
+}
+
+/// The level-of-detail line of a bricked frame: a sample at distance d from the eye covers
+/// a·d + b level-0 voxels (its pixel's footprint there over the longest level-0 voxel edge).
+fn lod_line(setup: &FrameSetup, dims: [usize; 3]) -> (f32, f32) {
+    lod_of(&setup.camera, &setup.world, setup.size, dims)
+}
+
+fn lod_of(camera: &FrameCamera, world: &WorldBox, size: [u32; 2], dims: [usize; 3]) -> (f32, f32) {
+    let cam = &camera.camera;
+    let half = world.half;
+    let voxel = (0..3)
+        .map(|a| 2.0 * half[a] / dims[a] as f32)
+        .fold(0.0f32, f32::max);
+    let tan = (cam.fov_y_deg.to_radians() * 0.5).tan();
+    let pixels = size[1].max(1) as f32;
+    match cam.ortho {
+        true => (
+            0.0,
+            2.0 * world.radius() * cam.distance * tan / pixels / voxel,
+        ),
+        false => (2.0 * tan / pixels / voxel, 0.0),
+    }
+}
+
+/// A bricked frame that chooses levels by projected voxel size samples no finer than the finest
+/// level any of its samples reads (the one at the box's point nearest the eye): two planes per
+/// voxel of that level instead of level 0's, unless the view sets its planes. A frame that does
+/// not wait for its bricks nor resume rays (the viewer's) reads nothing finer than what is resident, so it takes
+/// no more planes than that either: the first frames of a store, with its coarsest level only,
+/// are quick, and the planes follow the bricks in. `None`: the view as it is.
+fn paged_planes(vol: VolumeRef, view: &View) -> Option<View> {
+    let p = vol.paged().filter(|p| !p.finest)?;
+    if view.slices.is_some() || view.raycast.is_none() {
+        return None;
+    }
+    let world = WorldBox::new(vol.dims(), vol.spacing(), &vol.geometry());
+    let camera = FrameCamera::new(&world, view);
+    let (a, b) = lod_of(&camera, &world, view.size, vol.dims());
+    let nearest = (camera.eye - camera.eye.clamp(-world.half, world.half)).length();
+    let cover = (a * nearest + b).max(1.0);
+    let levels = p.levels.levels();
+    let mut level = (cover.log2().floor() as usize).min(levels.len() - 1);
+    // Waiting or resumed rays keep the planes their passes began with.
+    let waits = crate::passes::paging::MODE_WAIT | crate::passes::paging::MODE_RESUME;
+    if p.mode & waits == 0 {
+        level = level.max(
+            p.cache
+                .finest_resident(&p.levels)
+                .unwrap_or(levels.len() - 1),
+        );
+    }
+    let longest = levels[level].dims.into_iter().max().unwrap_or(1);
+    Some(View {
+        slices: Some(2 * longest as u32),
+        ..view.clone()
+    })
+}
+
+/// What the style passes of one frame work on: the frame's setup, the style, the layers and the
+/// style passes' images.
+struct StyleFrame<'a> {
+    setup: &'a FrameSetup,
+    style: &'a Style,
+    images: &'a TargetImages,
+    post: &'a PostTargets,
+}
+
+/// The geometry of one frame's object-space lines: the extraction's frame and parameters, and
+/// the raster view that draws them into the edge layer.
+struct LineGeometry {
+    spacing: [f32; 3],
+    eye: vellum_volume::lines::Eye,
+    params: vellum_volume::lines::LineParams,
+    view: RasterView,
+}
+
+/// The lines of the frame's style (of `kind`): what to extract and how to draw it.
+fn line_geometry(vol: &VolumeTextures, f: &StyleFrame, kind: LineKind) -> LineGeometry {
+    use vellum_volume::lines::{Eye, LineParams};
+    let (setup, p) = (f.setup, &f.style.params);
+    let (eye, view_dir) = (setup.camera.eye, setup.camera.view_dir);
+    let spacing = vol.spacing.map(|s| s as f32);
+    let longest = setup.world.longest as f32;
+    let scale = spacing.map(|s| s / longest);
+    let offset: [f32; 3] =
+        std::array::from_fn(|a| (0.5 - 0.5 * vol.dims[a] as f32) * spacing[a] / longest);
+    // The eye in the extraction's frame (index × spacing): box · longest plus the box centre's
+    // position there.
+    let eye_line = match setup.camera.camera.ortho {
+        true => Eye::Direction((-view_dir).to_array()),
+        false => Eye::Point(std::array::from_fn(|a| {
+            eye[a] * longest + (0.5 * vol.dims[a] as f32 - 0.5) * spacing[a]
+        })),
+    };
+    let min_spacing = spacing.iter().copied().fold(f32::INFINITY, f32::min);
+    LineGeometry {
+        spacing,
+        eye: eye_line,
+        params: LineParams {
+            // The focus surface: the isovalue, or a range's lower bound.
+            iso: setup.focus[0],
+            silhouettes: p.line_both || kind == LineKind::Silhouettes,
+            suggestive: p.line_both || kind == LineKind::SuggestiveContours,
+            min_angle_deg: p.line_angle,
+            derivative_threshold: p.line_derivative_threshold,
+            stride: p.line_stride,
+            smooth: p.line_smooth.radius(vol.auto_line_smooth),
+            seeded: p.line_seeded,
+        },
+        view: RasterView {
+            view_proj: setup.uniforms.view_proj,
+            index_scale: scale,
+            index_offset: offset,
+            eye: eye.to_array(),
+            view_dir: view_dir.to_array(),
+            bias: p.line_depth_bias * min_spacing / longest,
+            value: 1.0,
+            floor: 0.0,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::classify::transfer::TransferFunction;
+    use crate::render::camera::Camera;
+    use crate::render::view::Lighting;
+
+    /// The host side of Shepp–Logan at 64³ under the grey ramp, with an isosurface focus.
+    struct Host {
+        bricks: Bricks,
+        range: [f64; 2],
+        table: Vec<[f32; 4]>,
+        modulation: Modulation,
+    }
+
+    fn host() -> Host {
+        let v = vellum_volume::phantom::shepp_logan(64);
+        let (texels, range) = v.normalised_u16();
+        Host {
+            bricks: Bricks::new(&texels, v.dims),
+            range,
+            table: TransferFunction::preset("grey").unwrap().table(256),
+            modulation: Modulation::default(),
+        }
+    }
+
+    fn input(h: &Host) -> SetupInput<'_> {
+        SetupInput {
+            dims: [64; 3],
+            spacing: [1.0; 3],
+            geometry: Geometry::default(),
+            range: h.range,
+            bricks: &h.bricks,
+            table: &h.table,
+            focus: Focus::Iso(0.9),
+            modulation: &h.modulation,
+            uses_occlusion: false,
+            has_occlusion: false,
+            has_importance: false,
+            max_image_size: 4096,
+        }
+    }
+
+    fn view() -> View {
+        View {
+            camera: Camera::default(),
+            size: [64, 48],
+            slices: None,
+            one_pass: false,
+            lighting: Lighting::default(),
+            style: None,
+            fit: true,
+            raycast: None,
+        }
+    }
+
+    #[test]
+    fn a_two_level_frame_is_set_up_without_a_device() {
+        let h = host();
+        let s = FrameSetup::new(&input(&h), &view()).unwrap();
+        assert_eq!(s.proxy.slices, 128, "two planes per voxel");
+        assert_eq!(s.visible.len(), h.bricks.range.len());
+        let focus = s
+            .focus_proxy
+            .as_ref()
+            .expect("two levels have a focus level");
+        // The skull's bricks are a part of the volume, and the focus level is cut to them.
+        let kept = h
+            .bricks
+            .range
+            .iter()
+            .filter(|r| may_focus(r, s.focus))
+            .count();
+        assert!(kept > 0 && kept < h.bricks.range.len(), "{kept} bricks");
+        assert!(!focus.vertices.is_empty());
+        assert!(s.ray_tables.is_none());
+        assert_eq!(s.uniforms.focus[2], 2.0, "an isosurface focus");
+        // The camera was fitted once and is what the uniforms carry.
+        assert_eq!(s.uniforms.view_proj, s.camera.view_proj.to_cols_array_2d());
+        assert_ne!(s.camera.camera.distance, Camera::default().distance);
+    }
+
+    #[test]
+    fn a_ray_cast_frame_has_tables_and_no_planes() {
+        let h = host();
+        let v = View {
+            raycast: Some(RayOptions::default()),
+            ..view()
+        };
+        let s = FrameSetup::new(&input(&h), &v).unwrap();
+        assert!(s.proxy.vertices.is_empty() && s.focus_proxy.is_none());
+        let tables = s.ray_tables.as_ref().unwrap();
+        assert_eq!(tables.len(), 256 + h.bricks.range.len());
+        let focus_bricks = tables[256..]
+            .iter()
+            .filter(|f| *f & BRICK_FOCUS != 0)
+            .count();
+        assert!(focus_bricks > 0 && focus_bricks < h.bricks.range.len());
+        let span = s.depth_span.1 - s.depth_span.0;
+        assert!((s.proxy.spacing * s.proxy.slices as f32 - span).abs() < 1e-5);
+        let push = s.ray_push(&RayOptions::default(), h.bricks.counts, true);
+        assert_eq!(push.planes[0], s.depth_span.1);
+        assert_eq!(push.bricks[..3], [4, 4, 4]);
+    }
+
+    #[test]
+    fn errors_name_the_keys() {
+        let h = host();
+        let refused = |v: View, i: &SetupInput| FrameSetup::new(i, &v).unwrap_err().to_string();
+        let styled = Style::new("canny", Default::default()).unwrap();
+        let one_pass = View {
+            style: Some(styled),
+            one_pass: true,
+            ..view()
+        };
+        assert!(refused(one_pass, &input(&h)).contains("drop `one_pass`"));
+        let no_focus = SetupInput {
+            focus: Focus::None,
+            ..input(&h)
+        };
+        let styled_view = View {
+            style: Some(styled),
+            ..view()
+        };
+        assert!(refused(styled_view, &no_focus).contains("`iso` or `focus`"));
+        let empty = View {
+            size: [0, 10],
+            ..view()
+        };
+        assert!(refused(empty, &input(&h)).contains("`size`"));
+        let planes = View {
+            slices: Some(MAX_SLICES + 1),
+            ..view()
+        };
+        assert!(refused(planes, &input(&h)).contains("`slices`"));
+        let otf = SetupInput {
+            uses_occlusion: true,
+            ..input(&h)
+        };
+        assert!(refused(view(), &otf).contains("occlusion volume"));
+    }
+
+    #[test]
+    fn brick_classification() {
+        let iso = [0.5, f32::INFINITY, 2.0];
+        assert!(may_focus(&[0, 40000], iso) && !all_focus(&[0, 40000], iso));
+        assert!(all_focus(&[40000, 60000], iso) && !may_focus(&[0, 30000], iso));
+        let range = [0.2, 0.4, 1.0];
+        assert!(may_focus(&[0, 20000], range) && !may_focus(&[30000, 65535], range));
+        assert!(!may_focus(&[0, 65535], [0.0, 0.0, 0.0]));
+        // Opacity only above 0.5 of the range: a brick of low intensities is empty.
+        let table: Vec<[f32; 4]> = (0..256)
+            .map(|i| [1.0, 1.0, 1.0, if i >= 128 { 1.0 } else { 0.0 }])
+            .collect();
+        assert!(!any_opacity(&table, &[0, 30000]));
+        assert!(any_opacity(&table, &[0, 33000]));
+    }
+}

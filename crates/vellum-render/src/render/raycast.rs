@@ -1,0 +1,323 @@
+//! The compute-shader ray caster (SPEC §6), beside the slicer: `glsl/render/raycast.comp`.
+//!
+//! It shares everything but the sampling loop with the slicer ([`crate::render::slicer`]): the
+//! uniforms, the classification and shading code (`shade.glsl` with `RAYCAST` defined), the brick
+//! ranges and the named layers, so styles, importance modulation, occlusion transfer functions and
+//! feature maps work on it unchanged.
+//!
+//! ## Sampling
+//! A ray samples where the slicer's view-aligned planes cross it: steps of `spacing` in depth
+//! along the view direction (so `spacing / cos θ` along an off-axis ray), with the slicer's
+//! opacity correction. At the same number of planes the two renderers therefore sample the same
+//! points, which is what makes their images comparable pixel for pixel; the ray caster composites
+//! front to back in registers, the slicer back to front in a float target.
+//!
+//! With `sampling: world-steps`, samples are instead one spacing apart along each ray from the box
+//! entry, which is what the opacity correction assumes on every ray; images then differ from the
+//! slicer's off the image centre (a test bounds by how much).
+//!
+//! ## Speed-ups that keep the image
+//! - Empty-space skipping: bricks (16³ voxels with a one-voxel apron) that hold nothing visible
+//!   under the current transfer function and focus are stepped over to the first plane behind
+//!   them. Samples are never moved, so the image is the same as without skipping.
+//! - Early ray termination once the accumulated opacity reaches `ert` (default 0.99): what is
+//!   left behind can change a pixel by at most `1 − ert` of its value.
+//!
+//! ## Isosurfaces
+//! With `refine_iso` and an isosurface focus, the first focus sample is moved onto the surface:
+//! regula falsi between it and the previous plane's sample (which is below the isovalue). The
+//! depth layer then holds the surface's depth to a small fraction of a voxel, and shading is taken
+//! on the surface.
+//!
+//! ## Jitter
+//! An optional per-pixel offset of the planes, in (−½, ½) of a spacing from a seeded hash, turns
+//! the wood-grain rings that regular slicing leaves on opaque surfaces into fine noise. Off by
+//! default, so that images match the slicer.
+
+use crate::render::shading::{SliceUniforms, SHADE_BINDINGS};
+use crate::render::targets::TargetLayers;
+pub use crate::render::view::{RayOptions, Sampling};
+use std::sync::Arc;
+use vellum_error::Result;
+use vellum_gpu::{
+    Access, Bind, BindingKind, BufferSlice, ComputePipeline, Image, PipelineCache, PipelineDesc,
+};
+
+/// Push constants of `raycast.comp`.
+#[repr(C)]
+#[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct RayPush {
+    /// Clip space to the box frame.
+    pub inv_view_proj: [[f32; 4]; 4],
+    /// Depth of the farthest plane's reference along the view direction, spacing, planes, ert.
+    pub planes: [f32; 4],
+    /// Brick counts along x, y, z, and the brick size in voxels.
+    pub bricks: [i32; 4],
+    /// Two levels, skip empty bricks, jitter seed (0 off), bit 0 refine isosurface hits | bit 1
+    /// equal world steps. The modes (two levels, world steps) are selected by the pipeline's
+    /// [`Variant`]; the shader reads only y, z and bit 0 of w, each behind its variant bit.
+    pub flags: [i32; 4],
+}
+
+/// Brick flag: may hold visible context (or one-pass) samples.
+pub const BRICK_VISIBLE: u32 = 1;
+/// Brick flag: may hold focus samples.
+pub const BRICK_FOCUS: u32 = 2;
+
+/// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images, the
+/// brick flags, and the brick cache's page table, feedback and ray states (`passes::paging`).
+pub const RAY_BINDINGS: [BindingKind; 17] = {
+    let slicer = SHADE_BINDINGS;
+    let mut all = [BindingKind::StorageBuffer; 17];
+    let mut i = 0;
+    while i < slicer.len() {
+        all[i] = slicer[i];
+        i += 1;
+    }
+    while i < 13 {
+        all[i] = BindingKind::StorageImage;
+        i += 1;
+    }
+    all
+};
+
+/// Workgroup size of `raycast.comp`.
+pub const LOCAL: [u32; 3] = [8, 8, 1];
+
+/// Per texel i of a 256-texel transfer function, the larger opacity of texels i and i + 1: a
+/// bound on every opacity linear filtering returns for intensities between their centres (and
+/// below the first centre or above the last, where it clamps). The ray caster's walk tests samples
+/// against it before classifying them.
+pub fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
+    let mut out = [0.0f32; 256];
+    let n = table.len();
+    for (i, o) in out.iter_mut().enumerate() {
+        let a = |j: usize| table.get(j.min(n.saturating_sub(1))).map_or(0.0, |t| t[3]);
+        *o = a(i).max(a(i + 1));
+    }
+    out
+}
+
+/// The bits of `raycast.comp`'s specialisation constant `VARIANT` (`shade.glsl`).
+///
+/// A CPU rasteriser such as lavapipe runs both sides of every branch its SIMD lanes could diverge
+/// on, and does not skip a block whose condition is a uniform that happens to be false: a frame
+/// without occlusion TFs still paid for their two texture fetches at every sample. So the ray
+/// caster is compiled per set-up, with what a frame does not use left out. Modes (two levels,
+/// world steps) select code; the other bits enable code that still tests its uniform, so setting
+/// one is never wrong, only slower.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct Variant(pub u32);
+
+impl Variant {
+    pub const TWO_LEVEL: u32 = 1;
+    pub const SKIP_EMPTY: u32 = 2;
+    pub const JITTER: u32 = 4;
+    pub const REFINE_ISO: u32 = 8;
+    pub const WORLD_STEPS: u32 = 16;
+    pub const OTF: u32 = 32;
+    pub const MOD_OPACITY: u32 = 64;
+    pub const MOD_SHADE: u32 = 128;
+    /// Samples through the brick cache's page table (skipping the bricks its words say are empty,
+    /// at the level each sample reads, instead of the in-core table's).
+    pub const BRICKED: u32 = 256;
+    /// With BRICKED: each ray reuses its last brick's place in the pool (`Paged::reuse`).
+    pub const BRICK_REUSE: u32 = 512;
+    /// With BRICKED: each ray keeps the stretch of its path over which its last lookup holds
+    /// (its brick, and its level by distance) and places the samples there by one multiply-add
+    /// (`Paged::span`).
+    pub const BRICK_SPAN: u32 = 1024;
+
+    /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
+    /// or one in core.
+    pub fn of(
+        options: &RayOptions,
+        two_level: bool,
+        uniforms: &SliceUniforms,
+        bricked: bool,
+    ) -> Self {
+        let bits = [
+            (two_level, Self::TWO_LEVEL),
+            (options.skip_empty, Self::SKIP_EMPTY),
+            (bricked, Self::BRICKED),
+            (options.jitter.is_some(), Self::JITTER),
+            (options.refine_iso && two_level, Self::REFINE_ISO),
+            (options.sampling == Sampling::WorldSteps, Self::WORLD_STEPS),
+            (uniforms.focus[3] > 0.5, Self::OTF),
+            (uniforms.mod_flags[1] != 0, Self::MOD_OPACITY),
+            (uniforms.mod_flags[3] != 0, Self::MOD_SHADE),
+        ];
+        Variant(bits.iter().filter(|(on, _)| *on).map(|(_, b)| b).sum())
+    }
+}
+
+/// What the ray caster draws in one frame.
+pub struct RayRequest<'a> {
+    /// The eight bindings of `shade.glsl` (`render::shading::SHADE_BINDINGS`).
+    pub shading: &'a [Bind<'a>; 8],
+    /// The frame's uniforms, from which the pipeline variant is chosen.
+    pub uniforms: &'a SliceUniforms,
+    pub options: RayOptions,
+    /// The two-level layers; `None` draws one pass into `composite`.
+    pub layers: Option<&'a TargetLayers>,
+    pub composite: &'a Image,
+    /// The opacity bounds and brick flags staged for this frame (`RayTables`).
+    pub tables: BufferSlice,
+    /// The page table, feedback and ray states of a bricked volume (stand-ins in core).
+    pub paging: [Bind<'a>; 3],
+    pub bricked: bool,
+    /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
+    pub brick_reuse: bool,
+    /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
+    pub brick_span: bool,
+    pub push: RayPush,
+    pub size: [u32; 2],
+}
+
+/// The ray caster. Its pipelines, one per variant, live in the caller's [`PipelineCache`]: built
+/// when a frame first needs one and kept. At most 1,024 exist; a session uses a handful.
+#[derive(Copy, Clone, Debug, Default)]
+pub struct RayCaster;
+
+impl RayCaster {
+    /// The pipeline of `variant`, built on first use.
+    pub fn pipeline(
+        pipelines: &mut PipelineCache,
+        variant: Variant,
+    ) -> Result<Arc<ComputePipeline>> {
+        pipelines.get(
+            &PipelineDesc::new(
+                "render/raycast.comp",
+                &RAY_BINDINGS,
+                std::mem::size_of::<RayPush>() as u32,
+            )
+            .constants(&[variant.0]),
+        )
+    }
+
+    /// Pass `raycast`: one dispatch writing every layer (or the one-pass composite) as storage
+    /// images.
+    pub fn record(
+        &self,
+        frame: &mut vellum_gpu::Frame,
+        pipelines: &mut PipelineCache,
+        r: &RayRequest,
+    ) -> Result<()> {
+        let cmd = frame.cmd;
+        let out = |pick: fn(&TargetLayers) -> &Image| r.layers.map_or(r.composite, pick);
+        let images = [
+            out(|l| &l.focus_phong),
+            out(|l| &l.focus_diffuse),
+            out(|l| &l.focus_depth),
+            out(|l| &l.context),
+            r.composite,
+        ];
+        for image in images {
+            image.transition(cmd, Access::ComputeWrite);
+        }
+        // On the stack: a steady frame allocates nothing here.
+        let s = r.shading;
+        let [i0, i1, i2, i3, i4] = images.map(Bind::StorageImage);
+        let [p0, p1, p2] = r.paging;
+        let binds: [Bind; 17] = [
+            s[0],
+            s[1],
+            s[2],
+            s[3],
+            s[4],
+            s[5],
+            s[6],
+            s[7],
+            i0,
+            i1,
+            i2,
+            i3,
+            i4,
+            Bind::StorageSlice(r.tables),
+            p0,
+            p1,
+            p2,
+        ];
+        let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
+        if r.bricked && r.brick_reuse {
+            variant.0 |= Variant::BRICK_REUSE;
+        }
+        if r.bricked && r.brick_span {
+            variant.0 |= Variant::BRICK_SPAN;
+        }
+        let pipeline = Self::pipeline(pipelines, variant)?;
+        let groups = vellum_gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
+        frame.profiler.begin(cmd, "raycast");
+        pipeline.dispatch(cmd, &binds, &r.push, groups)?;
+        frame.profiler.end(cmd);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn push_constants_fit_the_guaranteed_minimum() {
+        assert!(std::mem::size_of::<RayPush>() <= 128);
+    }
+
+    #[test]
+    fn opacity_bounds_cover_linear_filtering() {
+        // A ramp from texel 100 to 110 and one spike at 200.
+        let table: Vec<[f32; 4]> = (0..256)
+            .map(|i| {
+                let a = match i {
+                    100..=110 => (i - 99) as f32 / 11.0,
+                    111..=199 => 1.0,
+                    200 => 0.5,
+                    _ => 0.0,
+                };
+                [1.0, 1.0, 1.0, a]
+            })
+            .collect();
+        let b = opacity_bounds(&table);
+        // Every value filtering can return between texel centres i and i + 1 is at most b[i].
+        for i in 0..256usize {
+            for k in 0..=8 {
+                let w = k as f32 / 8.0;
+                let j = (i + 1).min(255);
+                let filtered = table[i][3] * (1.0 - w) + table[j][3] * w;
+                assert!(filtered <= b[i], "texel {i}, weight {w}");
+            }
+        }
+        assert_eq!(b[98], 0.0);
+        assert_eq!(b[99], table[100][3]);
+        assert_eq!(b[199], 1.0);
+        assert_eq!(b[201], 0.0);
+        assert_eq!(b[255], 0.0);
+    }
+
+    #[test]
+    fn variants_follow_the_frame() {
+        let mut u: SliceUniforms = bytemuck::Zeroable::zeroed();
+        let o = RayOptions::default();
+        assert_eq!(Variant::of(&o, false, &u, false).0, Variant::SKIP_EMPTY);
+        // Bricked frames skip through the page table's flags.
+        assert_eq!(
+            Variant::of(&o, false, &u, true).0,
+            Variant::BRICKED | Variant::SKIP_EMPTY
+        );
+        u.focus[3] = 1.0;
+        u.mod_flags = [1, 1, 0, 3];
+        let o = RayOptions {
+            jitter: Some(3),
+            refine_iso: true,
+            sampling: Sampling::WorldSteps,
+            skip_empty: false,
+            ..Default::default()
+        };
+        assert_eq!(
+            Variant::of(&o, true, &u, false).0,
+            0xff & !Variant::SKIP_EMPTY
+        );
+        // Refinement only exists in two levels.
+        assert_eq!(Variant::of(&o, false, &u, false).0 & Variant::REFINE_ISO, 0);
+    }
+}

@@ -1,0 +1,300 @@
+//! The library session (issue 39): the one place an input becomes something to render. A
+//! [`Session`] opens any input (a file, a DICOM folder, a store, a phantom, or a volume already in
+//! memory, such as Python's) with a GPU budget, decides alone whether it goes to the GPU whole or
+//! through the brick cache, holds the rule that the ray caster draws a bricked volume, and draws
+//! still frames. `render`, `view`, the ranks of an MPI job and Python all open their inputs here.
+//!
+//! The decision: a store whose in-core textures exceed the budget is never read whole (its
+//! pyramid goes to the brick cache as it is on disk); any other input is read, and goes to the
+//! brick cache when its textures exceed the budget (its pyramid is made in memory).
+
+use crate::classify::Classification;
+use crate::passes::gpu_volume::VolumeRef;
+use crate::render::bricked::{StillOptions, StreamReport};
+use crate::render::frame::Renderer;
+use crate::render::scene::{GpuScene, PagedScene, Scene};
+use crate::render::stream::{StreamOptions, Streamer};
+use crate::render::targets::FrameImage;
+use crate::render::view::View;
+use std::path::Path;
+use std::sync::Arc;
+use vellum_error::{Error, Result};
+use vellum_gpu::{Context, PassTime};
+use vellum_volume::bricks::{in_core_bytes, BrickLevels};
+use vellum_volume::geometry::Geometry;
+use vellum_volume::Volume;
+
+/// Host memory a streamed volume takes by default, besides its pools on the device: the decoded
+/// chunks (seven eighths, `volume::bricks::DEFAULT_CHUNK_CACHE`) and the bricks waiting for the
+/// GPU (an eighth, `render::stream::DEFAULT_READY_BYTES`). A frame's wavefront of chunks (with
+/// the neighbours its bricks' aprons read) fits it at 1024² on a 2048³ store, so a chunk is
+/// decoded about twice rather than eight times.
+pub const DEFAULT_MEMORY: u64 = 1 << 30;
+
+/// Which levels a bricked frame samples.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub enum Lod {
+    /// The level each sample's projected voxel size asks for.
+    #[default]
+    Auto,
+    /// Level 0 everywhere.
+    Finest,
+}
+
+impl Lod {
+    /// `auto` or `finest`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "auto" => Ok(Lod::Auto),
+            "finest" => Ok(Lod::Finest),
+            other => Err(Error::Invalid(format!(
+                "`lod` {other:?} is unknown; expected auto or finest"
+            ))),
+        }
+    }
+}
+
+/// How a session opens its input.
+#[derive(Clone, Debug, Default)]
+pub struct SessionOptions {
+    /// MiB of GPU memory the volume's textures may take; `None`: half the device's largest heap.
+    pub gpu_budget_mib: Option<f64>,
+    pub lod: Lod,
+    pub stream: StreamOptions,
+    /// Bytes of decoded chunks kept for the bricks (`None`: the default).
+    pub chunk_cache_bytes: Option<u64>,
+}
+
+/// An input opened on the host: whole, or as the pyramid the brick cache reads.
+pub enum Opened {
+    InCore(Volume),
+    Bricked(Arc<BrickLevels>),
+}
+
+impl Opened {
+    /// Opens the `scene`'s input (or `volume`, given in its place) for a GPU budget of `budget`
+    /// bytes; see the module's documentation for the rule. A pyramid keeps `chunk_cache` bytes
+    /// of decoded chunks (`None`: the default).
+    pub fn open(
+        scene: &Scene,
+        volume: Option<Volume>,
+        budget: u64,
+        chunk_cache: Option<u64>,
+    ) -> Result<Self> {
+        let bricked = |mut levels: BrickLevels| {
+            if let Some(bytes) = chunk_cache {
+                levels.set_chunk_budget(bytes);
+            }
+            Opened::Bricked(Arc::new(levels))
+        };
+        let v = match volume {
+            Some(v) => v,
+            None => {
+                let path = Path::new(&scene.input.path);
+                if scene.input.raw.is_none() {
+                    if let Some(levels) = BrickLevels::of_store_beyond(path, budget)? {
+                        return Ok(bricked(levels));
+                    }
+                }
+                scene.load_volume()?
+            }
+        };
+        if in_core_bytes(v.dims) > budget {
+            return Ok(bricked(BrickLevels::of_volume(v)?));
+        }
+        Ok(Opened::InCore(v))
+    }
+
+    /// Level 0's dims, spacing and placement.
+    pub fn grid(&self) -> ([usize; 3], [f64; 3], Geometry) {
+        match self {
+            Opened::InCore(v) => (v.dims, v.spacing, v.geometry),
+            Opened::Bricked(b) => (b.levels()[0].dims, b.levels()[0].spacing, b.geometry),
+        }
+    }
+
+    /// The volume, or the finest level of the pyramid of at most `voxels` voxels, read whole
+    /// (for statistics, a histogram or the regions of a job).
+    pub fn small(&self, voxels: usize) -> Result<std::borrow::Cow<'_, Volume>> {
+        match self {
+            Opened::InCore(v) => Ok(std::borrow::Cow::Borrowed(v)),
+            Opened::Bricked(b) => Ok(std::borrow::Cow::Owned(b.read_small_level(voxels)?)),
+        }
+    }
+}
+
+/// A volume on the GPU with its classification: in core, or through the brick cache with the
+/// streamer that fills it.
+pub enum Prepared {
+    InCore(GpuScene),
+    Paged(PagedScene, Box<Streamer>),
+}
+
+impl Prepared {
+    /// `opened` on the GPU, classified by `classification` with the scene's focus and
+    /// modulation; a pyramid goes to pools of `budget` bytes with loaders started on its
+    /// coarsest level.
+    pub fn new(
+        ctx: &Arc<Context>,
+        scene: &Scene,
+        classification: &Classification,
+        opened: &Opened,
+        (budget, opts): (u64, &SessionOptions),
+    ) -> Result<Self> {
+        let modulation = scene.modulation.clone().unwrap_or_default();
+        Ok(match opened {
+            Opened::InCore(v) => Prepared::InCore(GpuScene::prepare(
+                ctx,
+                v,
+                classification,
+                scene.focus,
+                &modulation,
+            )?),
+            Opened::Bricked(levels) => {
+                let finest = opts.lod == Lod::Finest;
+                let focus = (scene.focus, &modulation);
+                let paged = PagedScene::prepare(
+                    ctx,
+                    levels.clone(),
+                    classification,
+                    focus,
+                    budget,
+                    finest,
+                )?;
+                let mut stream = Streamer::new(levels.clone(), opts.stream);
+                stream.start(&paged.volume.paged);
+                Prepared::Paged(paged, Box::new(stream))
+            }
+        })
+    }
+
+    /// The volume as the renderer draws it.
+    pub fn volume(&self) -> VolumeRef<'_> {
+        match self {
+            Prepared::InCore(g) => (&g.volume).into(),
+            Prepared::Paged(p, _) => (&p.volume).into(),
+        }
+    }
+
+    /// The volume and its classification, for recording a frame.
+    pub fn parts(
+        &mut self,
+    ) -> (
+        VolumeRef<'_>,
+        &mut crate::classify::textures::GpuClassification,
+    ) {
+        match self {
+            Prepared::InCore(g) => ((&g.volume).into(), &mut g.classify),
+            Prepared::Paged(p, _) => ((&p.volume).into(), &mut p.classify),
+        }
+    }
+
+    /// The classification on the GPU.
+    pub fn classify(&mut self) -> &mut crate::classify::textures::GpuClassification {
+        match self {
+            Prepared::InCore(g) => &mut g.classify,
+            Prepared::Paged(p, _) => &mut p.classify,
+        }
+    }
+
+    /// GPU ms of the passes that prepared a volume in core (none for the brick cache).
+    pub fn passes(&self) -> &[PassTime] {
+        match self {
+            Prepared::InCore(g) => &g.passes,
+            Prepared::Paged(..) => &[],
+        }
+    }
+
+    /// Whether the volume goes through the brick cache.
+    pub fn is_paged(&self) -> bool {
+        matches!(self, Prepared::Paged(..))
+    }
+}
+
+/// The ray caster draws a volume in the brick cache: `view` made so, with the sentence that says
+/// so when it was not (`budget` bytes, for the sentence).
+pub fn bricked_view(view: &mut View, budget: u64) -> Option<String> {
+    if view.raycast.is_some() {
+        return None;
+    }
+    view.raycast = Some(Default::default());
+    let mib = budget as f64 / (1 << 20) as f64;
+    Some(format!(
+        "the volume is larger than the GPU budget ({mib:.0} MiB): the ray caster draws it through the brick cache"
+    ))
+}
+
+/// One input opened for rendering: its volume on the GPU, and a renderer.
+pub struct Session {
+    pub prepared: Prepared,
+    pub renderer: Renderer,
+    /// The GPU budget in bytes.
+    pub budget: u64,
+}
+
+impl Session {
+    /// Opens the `scene`'s input (or `volume` in its place) on `ctx` within `opts`'s budget.
+    pub fn open(
+        ctx: &Arc<Context>,
+        scene: &Scene,
+        volume: Option<Volume>,
+        opts: &SessionOptions,
+    ) -> Result<Self> {
+        let classification = scene.classification()?;
+        let budget = crate::render::bricked::gpu_budget_bytes(ctx, opts.gpu_budget_mib)?;
+        let opened = Opened::open(scene, volume, budget, opts.chunk_cache_bytes)?;
+        Self::prepare(ctx, scene, &classification, &opened, (budget, opts))
+    }
+
+    /// A session on an input already opened (`Opened::open`, e.g. on another thread).
+    pub fn prepare(
+        ctx: &Arc<Context>,
+        scene: &Scene,
+        classification: &Classification,
+        opened: &Opened,
+        (budget, opts): (u64, &SessionOptions),
+    ) -> Result<Self> {
+        Ok(Session {
+            prepared: Prepared::new(ctx, scene, classification, opened, (budget, opts))?,
+            renderer: Renderer::new(ctx)?,
+            budget,
+        })
+    }
+
+    /// `view` as this session draws it, and the sentence to say when the brick cache made it a
+    /// ray-cast view.
+    pub fn view(&self, mut view: View) -> (View, Option<String>) {
+        let note = match self.prepared.is_paged() {
+            true => bricked_view(&mut view, self.budget),
+            false => None,
+        };
+        (view, note)
+    }
+
+    /// One frame of `view` read back: in core at once, or through the brick cache once it is
+    /// complete (see `render::bricked`), with what the streaming did.
+    pub fn still(
+        &mut self,
+        view: &View,
+        opts: StillOptions,
+    ) -> Result<(FrameImage, Option<StreamReport>)> {
+        match &mut self.prepared {
+            Prepared::InCore(g) => {
+                let frame = self
+                    .renderer
+                    .render_frame(&g.volume, &mut g.classify, view, true)?;
+                Ok((frame, None))
+            }
+            Prepared::Paged(p, stream) => {
+                let (frame, report) = self.renderer.render_bricked(
+                    &mut p.volume,
+                    &mut p.classify,
+                    stream,
+                    view,
+                    opts,
+                )?;
+                Ok((frame, Some(report)))
+            }
+        }
+    }
+}

@@ -1,0 +1,217 @@
+//! The `--bench` orbit's bookkeeping: frame times, per-pass GPU times and the process's resident
+//! memory. It is bounded whatever the number of frames: times are kept for the last [`WINDOW`]
+//! frames, pass names once, and one memory sample every [`RSS_EVERY`] frames. That is what lets
+//! a 20,000-frame soak show that the viewer itself holds its memory flat.
+
+use std::collections::VecDeque;
+
+/// Frames whose times a report is taken over (the last ones).
+pub const WINDOW: usize = 4096;
+/// The first frames compile pipelines and fill caches: their times are left out.
+const WARM_UP: u64 = 5;
+/// The resident memory is sampled every this many presented frames.
+pub const RSS_EVERY: u64 = 1000;
+
+/// Frame times of a `--bench` orbit.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct BenchReport {
+    pub device: String,
+    pub input: String,
+    pub size: [u32; 2],
+    /// "interactive" (adaptive quality while the camera moves) or "full".
+    pub quality: &'static str,
+    /// The size the volume was rendered at (the view's, or half of it while interacting).
+    pub render_size: [u32; 2],
+    /// Frames the figures below are taken over: the last 4,096 (`WINDOW`) after the warm-up.
+    pub frames: usize,
+    /// Frames presented in all.
+    pub frames_presented: u64,
+    pub fps: f64,
+    pub p50_ms: f64,
+    pub p95_ms: f64,
+    pub p99_ms: f64,
+    /// Median GPU ms per pass over the same frames.
+    pub gpu_ms: Vec<(String, f64)>,
+    /// (frames presented, resident set in KiB), every 1,000 frames (Linux only).
+    pub rss_kib: Vec<(u64, u64)>,
+    /// (frames presented, bytes of Rust heap live), every 1,000 frames, where the binary counts
+    /// them (`memory::Counting`): what vellum keeps, without the driver's and the layer's.
+    pub heap_bytes: Vec<(u64, u64)>,
+    /// Milliseconds from opening the window's context to the first frame presented.
+    pub first_frame_ms: Option<f64>,
+    /// The brick cache's line at the end, when the volume is streamed.
+    pub streaming: Option<String>,
+}
+
+/// What the report is made of, gathered frame by frame.
+pub struct BenchLog {
+    /// Orbit steps still to take.
+    pub left: u32,
+    /// Whether the orbit renders at full resolution.
+    pub full: bool,
+    presented: u64,
+    completed: u64,
+    frame_ms: VecDeque<f64>,
+    /// Per pass name, its times over the last frames that ran it: a steady frame allocates
+    /// nothing here.
+    gpu: Vec<(String, VecDeque<f64>)>,
+    rss_kib: Vec<(u64, u64)>,
+    heap_bytes: Vec<(u64, u64)>,
+}
+
+impl BenchLog {
+    /// A log for an orbit of `frames` steps.
+    pub fn new(frames: u32, full: bool) -> Self {
+        BenchLog {
+            left: frames,
+            full,
+            presented: 0,
+            completed: 0,
+            frame_ms: VecDeque::with_capacity(WINDOW),
+            gpu: Vec::new(),
+            rss_kib: Vec::new(),
+            heap_bytes: Vec::new(),
+        }
+    }
+
+    /// A frame was presented `ms` after the one before it.
+    pub fn presented(&mut self, ms: f64) {
+        self.presented += 1;
+        if self.presented > WARM_UP {
+            push_bounded(&mut self.frame_ms, ms);
+        }
+        if self.presented.is_multiple_of(RSS_EVERY) {
+            if let Some(kib) = resident_kib() {
+                self.rss_kib.push((self.presented, kib));
+            }
+            if let Some(bytes) = vellum_volume::memory::live_heap_bytes() {
+                self.heap_bytes.push((self.presented, bytes));
+            }
+        }
+    }
+
+    /// A frame completed on the GPU with these pass times.
+    pub fn completed(&mut self, passes: &[vellum_gpu::PassTime]) {
+        self.completed += 1;
+        if self.completed <= WARM_UP {
+            return;
+        }
+        for p in passes {
+            let i = match self.gpu.iter().position(|(n, _)| *n == p.name) {
+                Some(i) => i,
+                None => {
+                    self.gpu
+                        .push((p.name.clone(), VecDeque::with_capacity(WINDOW)));
+                    self.gpu.len() - 1
+                }
+            };
+            push_bounded(&mut self.gpu[i].1, p.ms);
+        }
+    }
+
+    /// The frame-time percentiles and median pass times; the caller fills in what the log does
+    /// not know (device, input, sizes).
+    pub fn report(&self, base: BenchReport) -> BenchReport {
+        let mut ms: Vec<f64> = self.frame_ms.iter().copied().collect();
+        ms.sort_by(f64::total_cmp);
+        let pct = |p: f64| match ms.len() {
+            0 => f64::NAN,
+            n => ms[((p * (n - 1) as f64).round() as usize).min(n - 1)],
+        };
+        // Passes of the warm-up frames only (a one-off smoothing) have no figure to report.
+        let gpu_ms = self
+            .gpu
+            .iter()
+            .filter_map(|(name, times)| {
+                let mut v: Vec<f64> = times.iter().copied().collect();
+                v.sort_by(f64::total_cmp);
+                v.get(v.len() / 2).map(|&med| (name.clone(), med))
+            })
+            .collect();
+        let mean = ms.iter().sum::<f64>() / ms.len().max(1) as f64;
+        BenchReport {
+            frames: ms.len(),
+            frames_presented: self.presented,
+            fps: 1e3 / mean,
+            p50_ms: pct(0.5),
+            p95_ms: pct(0.95),
+            p99_ms: pct(0.99),
+            gpu_ms,
+            rss_kib: self.rss_kib.clone(),
+            heap_bytes: self.heap_bytes.clone(),
+            ..base
+        }
+    }
+}
+
+/// Appends `value`, dropping the oldest once [`WINDOW`] are kept.
+fn push_bounded<T>(q: &mut VecDeque<T>, value: T) {
+    if q.len() == WINDOW {
+        q.pop_front();
+    }
+    q.push_back(value);
+}
+
+/// The process's resident set in KiB (`VmRSS` of /proc/self/status), where the system has one.
+pub fn resident_kib() -> Option<u64> {
+    vellum_volume::memory::resident_kib()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn base() -> BenchReport {
+        BenchReport {
+            device: String::new(),
+            input: String::new(),
+            size: [0, 0],
+            quality: "full",
+            render_size: [0, 0],
+            frames: 0,
+            frames_presented: 0,
+            fps: 0.0,
+            p50_ms: 0.0,
+            p95_ms: 0.0,
+            p99_ms: 0.0,
+            gpu_ms: Vec::new(),
+            rss_kib: Vec::new(),
+            heap_bytes: Vec::new(),
+            first_frame_ms: None,
+            streaming: None,
+        }
+    }
+
+    #[test]
+    fn the_log_keeps_a_window_and_skips_the_warm_up() {
+        let mut log = BenchLog::new(10, false);
+        let pass = |ms: f64| {
+            vec![vellum_gpu::PassTime {
+                name: "raycast".into(),
+                ms,
+            }]
+        };
+        // Warm-up frames are slow and must not show.
+        for _ in 0..WARM_UP {
+            log.presented(1000.0);
+            log.completed(&pass(500.0));
+        }
+        for i in 0..(WINDOW + 100) {
+            let ms = if i < 100 { 50.0 } else { 10.0 };
+            log.presented(ms);
+            log.completed(&pass(ms / 10.0));
+        }
+        let r = log.report(base());
+        assert_eq!(r.frames, WINDOW);
+        assert_eq!(r.frames_presented, WARM_UP + WINDOW as u64 + 100);
+        // Only the last WINDOW frames count: the 100 slow ones have left the window.
+        assert_eq!((r.p50_ms, r.p99_ms), (10.0, 10.0));
+        assert_eq!(r.gpu_ms, vec![("raycast".to_string(), 1.0)]);
+        assert!(log.frame_ms.len() <= WINDOW && log.gpu[0].1.len() <= WINDOW);
+        assert_eq!(log.gpu.len(), 1);
+        if resident_kib().is_some() {
+            assert_eq!(r.rss_kib.len() as u64, r.frames_presented / RSS_EVERY);
+            assert_eq!(r.rss_kib[0].0, RSS_EVERY);
+        }
+    }
+}

@@ -1,0 +1,1217 @@
+//! The host side of the brick cache (issue 26): a volume as a pyramid of fixed-size bricks, the
+//! bricks' texels as the renderer samples them, and which brick sits in which slot of the GPU's
+//! pool. Nothing here knows about Vulkan; `passes::paging` owns the pool images and records the
+//! uploads.
+//!
+//! ## Layout
+//! Every level is cut into bricks of [`BRICK`]³ voxels. A pool slot holds a brick with a one-voxel
+//! apron on every side ([`SLOT`]³ texels), so trilinear filtering anywhere inside the brick reads
+//! only its own slot. Voxels outside the level repeat its nearest edge voxel, as a clamp-to-edge
+//! sampler does, so a bricked sample equals the in-core sample at every position.
+//!
+//! The pyramid is the store's levels (or, for a volume in memory, the volume itself), continued by
+//! 2×2×2 means in memory until the coarsest level is one brick: that level is always resident, so
+//! every sample has something to fall back to.
+//!
+//! ## Texels
+//! Intensities are normalised to u16 over level 0's value range, exactly as
+//! [`Volume::normalised_u16`] does for the in-core texture, and gradients are the in-core
+//! `sobel_normals` pass's Sobel operator (borders clamp) on those normalised values, as
+//! half-floats: the pool holds what the in-core textures hold, brick by brick.
+//!
+//! ## Slots
+//! [`BrickCache`] hands out slots: the coarsest level's first and for good, then the bricks a
+//! frame asks for most, evicting the least recently used bricks no ray asked for this time
+//! (used: loaded, or read by a frame that said so, [`BrickCache::touch`]).
+
+use crate::chunks::ChunkCache;
+use crate::io::ome_zarr::Multiscale;
+use crate::source::BoxSource;
+use crate::{Volume, VoxelData};
+use std::collections::HashMap;
+use std::sync::Arc;
+use vellum_error::{Error, Result};
+
+/// Edge of a brick in voxels.
+pub const BRICK: usize = 32;
+/// Apron voxels on each side of a brick in its slot.
+pub const APRON: usize = 1;
+/// Edge of a pool slot in texels.
+pub const SLOT: usize = BRICK + 2 * APRON;
+/// Bytes a voxel takes in the renderer's textures: R16 intensity and RGBA16F gradient.
+pub const TEXTURE_BYTES_PER_VOXEL: u64 = 2 + 8;
+/// Bytes of one slot.
+pub const SLOT_BYTES: usize = SLOT * SLOT * SLOT * TEXTURE_BYTES_PER_VOXEL as usize;
+
+/// Bytes the renderer's textures of a volume of `dims` take in core.
+pub fn in_core_bytes(dims: [usize; 3]) -> u64 {
+    dims.iter().map(|&n| n as u64).product::<u64>() * TEXTURE_BYTES_PER_VOXEL
+}
+/// Most levels a pyramid may have (the page table's header has room for this many).
+pub const MAX_LEVELS: usize = 16;
+
+/// One level as the cache sees it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PagedLevel {
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+    /// Bricks along x, y, z.
+    pub counts: [usize; 3],
+    /// The level's first page-table entry.
+    pub first: usize,
+}
+
+impl PagedLevel {
+    /// Bricks in the level.
+    pub fn bricks(&self) -> usize {
+        self.counts.iter().product()
+    }
+}
+
+/// A brick: its level and position in that level's brick grid, and its page-table entry.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct BrickKey {
+    pub level: usize,
+    pub brick: [usize; 3],
+}
+
+/// Where a level's voxels come from.
+enum LevelSource {
+    Store(Arc<Multiscale>, usize),
+    Memory(Volume),
+}
+
+impl LevelSource {
+    fn source(&self) -> Result<Box<dyn BoxSource + '_>> {
+        Ok(match self {
+            LevelSource::Store(ms, l) => Box::new(ms.level(*l)?),
+            LevelSource::Memory(v) => Box::new(v),
+        })
+    }
+}
+
+/// Edge of the box a brick travels to the GPU in: its slot and one more voxel on every side, which
+/// the Sobel operator of the slot's edge texels reads.
+pub const UPLOAD: usize = SLOT + 2;
+
+/// A brick's voxels as they travel: normalised u16, or 8-bit as they are.
+#[derive(Clone, Debug, PartialEq)]
+pub enum BrickData {
+    U8(Vec<u8>),
+    U16(Vec<u16>),
+}
+
+impl BrickData {
+    /// The bytes that travel.
+    pub fn bytes(&self) -> &[u8] {
+        match self {
+            BrickData::U8(v) => v,
+            BrickData::U16(v) => bytemuck::cast_slice(v),
+        }
+    }
+}
+
+/// One brick as it travels to the GPU (x fastest, [`UPLOAD`]³ voxels), the range of its slot's
+/// normalised texels (every trilinear sample inside the brick lies in it), and whether every
+/// voxel of the upload has one value (the slot is then that value throughout, its gradient 0).
+#[derive(Clone, Debug)]
+pub struct BrickVoxels {
+    pub data: BrickData,
+    pub range: [u16; 2],
+    pub constant: bool,
+}
+
+/// What a brick's box of a store reads as: its voxels, or the one value of every chunk it touches.
+enum Read {
+    Voxels(Volume),
+    Uniform(f64),
+}
+
+/// The texels of one brick and its apron, as the pool's slot holds them (x fastest).
+pub struct BrickTexels {
+    pub intensity: Vec<u16>,
+    /// Gradient xyz and its length, as half-float bits.
+    pub gradient: Vec<[u16; 4]>,
+}
+
+/// A volume as a pyramid of bricks, read brick by brick.
+pub struct BrickLevels {
+    levels: Vec<PagedLevel>,
+    sources: Vec<LevelSource>,
+    /// Data values that map to normalised 0 and 1.
+    pub range: [f64; 2],
+    /// Level 0's placement (origin; a store has no directions).
+    pub geometry: crate::geometry::Geometry,
+    /// The store's decoded chunks, shared by the threads that read bricks.
+    chunks: ChunkCache,
+}
+
+/// Bytes of decoded chunks a pyramid keeps by default (`--memory-budget` sets it).
+pub const DEFAULT_CHUNK_CACHE: u64 = 896 << 20;
+
+/// The finest level of `ms` of at most `voxels` voxels, or its coarsest when none is that small.
+fn small_level(ms: &Multiscale, voxels: usize) -> usize {
+    ms.finest_within(voxels).unwrap_or(ms.levels.len() - 1)
+}
+
+/// Voxels of the level a recorded range is checked against at most (a 128³ level).
+const RANGE_CHECK_VOXELS: usize = 1 << 21;
+
+/// The range `ms` records (`vellum.range`), if its coarse level's values lie within it: a
+/// level's voxels are means of level 0's, so none may fall outside level 0's extremes. A range
+/// that is not finite, whose span is not, or that its own coarse level contradicts would draw a
+/// black or saturated picture through the cache: refused in one sentence.
+fn check_recorded_range(ms: &Multiscale, r: [f64; 2]) -> Result<[f64; 2]> {
+    let name = "its recorded range (attributes vellum.range)";
+    if !(r[0].is_finite() && r[1].is_finite() && (r[1] - r[0]).is_finite()) {
+        return Err(Error::format(
+            &ms.root,
+            format!("{name} {r:?} is not a finite span; expected the smallest and largest value of level 0"),
+        ));
+    }
+    let pick = small_level(ms, RANGE_CHECK_VOXELS);
+    let seen = ms.read_level(pick)?.normalised_range();
+    let slack = 1e-6 * r[0].abs().max(r[1].abs()).max(1e-30);
+    if seen[0] < r[0] - slack || seen[1] > r[1] + slack {
+        return Err(Error::format(
+            &ms.root,
+            format!(
+                "{name} {r:?} does not hold the values of its level {} ({} .. {}); expected the smallest and largest value of level 0 (remove the attribute to have it measured)",
+                ms.levels[pick].path, seen[0], seen[1]
+            ),
+        ));
+    }
+    Ok(r)
+}
+
+impl BrickLevels {
+    /// The pyramid of a volume in memory: the volume, then 2×2×2 means down to one brick.
+    pub fn of_volume(v: Volume) -> Result<Self> {
+        let range = v.normalised_range();
+        let geometry = v.geometry;
+        Self::build(vec![LevelSource::Memory(v)], range, geometry)
+    }
+
+    /// The pyramid of a store: its levels, continued down to one brick. The intensity range is
+    /// the one vellum recorded when it wrote the store; a store written elsewhere has its range
+    /// taken from its finest level of at most `scan_limit` voxels (said once at run time when
+    /// that is not level 0: extremes thinner than that level's voxels are then clipped).
+    pub fn of_store(ms: Arc<Multiscale>, scan_limit: usize) -> Result<Self> {
+        let range = match ms.range {
+            Some(r) => check_recorded_range(&ms, r)?,
+            None => {
+                // The finest level small enough (level 0 when it is).
+                let pick = small_level(&ms, scan_limit);
+                if pick > 0 {
+                    log::warn!(
+                        "{} does not record its value range; taking it from level {pick}, so extremes finer than that level may be clipped",
+                        ms.root.display()
+                    );
+                }
+                ms.read_level(pick)?.normalised_range()
+            }
+        };
+        let geometry = crate::geometry::Geometry {
+            origin: ms.levels[0].origin,
+            ..Default::default()
+        };
+        let sources = (0..ms.levels.len())
+            .map(|l| LevelSource::Store(ms.clone(), l))
+            .collect();
+        Self::build(sources, range, geometry)
+    }
+
+    fn build(
+        mut sources: Vec<LevelSource>,
+        range: [f64; 2],
+        geometry: crate::geometry::Geometry,
+    ) -> Result<Self> {
+        let mut levels: Vec<PagedLevel> = Vec::new();
+        loop {
+            let i = levels.len();
+            let Some(src) = sources.get(i) else { break };
+            let s = src.source()?;
+            let dims = s.dims();
+            let counts = dims.map(|n| n.div_ceil(BRICK));
+            let first = levels.last().map_or(0, |l| l.first + l.bricks());
+            levels.push(PagedLevel {
+                dims,
+                spacing: s.spacing(),
+                counts,
+                first,
+            });
+            let coarsest = i + 1 == sources.len();
+            if coarsest && counts.iter().any(|&c| c > 1) {
+                // Continue the pyramid in memory: this level is small enough to read whole
+                // once it is the store's coarsest (at most a few bricks per axis).
+                let whole = s.read_box([0; 3], dims)?;
+                drop(s);
+                sources.push(LevelSource::Memory(crate::io::ome_zarr::halve(&whole)?));
+            }
+            if levels.len() > MAX_LEVELS {
+                return Err(Error::Invalid(format!(
+                    "the volume needs more than {MAX_LEVELS} levels to reach one brick"
+                )));
+            }
+        }
+        Ok(BrickLevels {
+            levels,
+            sources,
+            range,
+            geometry,
+            chunks: ChunkCache::new(DEFAULT_CHUNK_CACHE),
+        })
+    }
+
+    /// The pyramid of the store at `path` when `path` is a store whose in-core textures exceed
+    /// `budget` bytes; `None` when it is not a store or fits (level 0 is never read here).
+    pub fn of_store_beyond(path: &std::path::Path, budget: u64) -> Result<Option<Self>> {
+        use crate::io::ome_zarr;
+        if !ome_zarr::is_store(path) {
+            return Ok(None);
+        }
+        let ms = ome_zarr::Multiscale::open(path)?;
+        if in_core_bytes(ms.levels[0].dims) <= budget {
+            return Ok(None);
+        }
+        // A level is read whole for the range only when it is small (16 Mi voxels).
+        Ok(Some(Self::of_store(Arc::new(ms), 1 << 24)?))
+    }
+
+    pub fn levels(&self) -> &[PagedLevel] {
+        &self.levels
+    }
+
+    /// The finest level of at most `voxels` voxels, read whole (for a histogram or a preview).
+    pub fn read_small_level(&self, voxels: usize) -> Result<Volume> {
+        let i = self
+            .levels
+            .iter()
+            .position(|l| l.dims.iter().product::<usize>() <= voxels)
+            .unwrap_or(self.levels.len() - 1);
+        let dims = self.levels[i].dims;
+        self.sources[i].source()?.read_box([0; 3], dims)
+    }
+
+    /// Page-table entries over all levels.
+    pub fn entries(&self) -> usize {
+        self.levels.last().map_or(0, |l| l.first + l.bricks())
+    }
+
+    /// The page-table entry of `key`.
+    pub fn entry(&self, key: BrickKey) -> usize {
+        let l = &self.levels[key.level];
+        let [x, y, z] = key.brick;
+        l.first + x + l.counts[0] * (y + l.counts[1] * z)
+    }
+
+    /// The brick of page-table entry `entry`.
+    pub fn key(&self, entry: usize) -> Option<BrickKey> {
+        let level = self
+            .levels
+            .iter()
+            .position(|l| entry >= l.first && entry < l.first + l.bricks())?;
+        let l = &self.levels[level];
+        let i = entry - l.first;
+        Some(BrickKey {
+            level,
+            brick: [
+                i % l.counts[0],
+                (i / l.counts[0]) % l.counts[1],
+                i / (l.counts[0] * l.counts[1]),
+            ],
+        })
+    }
+
+    /// The voxels of brick `key` as they travel to the GPU: the slot's texels and one more
+    /// voxel on every side (which the GPU's Sobel operator reads), normalised to u16 over
+    /// [`BrickLevels::range`] or, for 8-bit data, as they are (the GPU maps them through
+    /// [`BrickLevels::u8_table`]). Voxels outside the level repeat its nearest edge voxel.
+    pub fn voxels(&self, key: BrickKey) -> Result<BrickVoxels> {
+        let dims = self.levels[key.level].dims;
+        let lo: [i64; 3] =
+            std::array::from_fn(|a| (key.brick[a] * BRICK) as i64 - APRON as i64 - 1);
+        let clamp = |v: i64, a: usize| v.clamp(0, dims[a] as i64 - 1) as usize;
+        let inner_lo: [usize; 3] = std::array::from_fn(|a| clamp(lo[a], a));
+        let inner_hi: [usize; 3] = std::array::from_fn(|a| clamp(lo[a] + UPLOAD as i64 - 1, a) + 1);
+        let size: [usize; 3] = std::array::from_fn(|a| inner_hi[a] - inner_lo[a]);
+        let inner = match &self.sources[key.level] {
+            LevelSource::Store(ms, l) => match self.read_chunked(ms, *l, inner_lo, size)? {
+                Read::Voxels(v) => v,
+                Read::Uniform(value) => return Ok(self.uniform_brick(value, ms.voxel)),
+            },
+            LevelSource::Memory(v) => v.read_box(inner_lo, size)?,
+        };
+        let map: [Vec<usize>; 3] = std::array::from_fn(|a| {
+            (0..UPLOAD as i64)
+                .map(|i| clamp(lo[a] + i, a) - inner_lo[a])
+                .collect()
+        });
+        Ok(to_upload(
+            &inner,
+            &map,
+            self.range,
+            self.u8_table().as_ref(),
+        ))
+    }
+
+    /// Voxels `lo .. lo + size` of level `level` of `ms`, copied from its decoded chunks, each
+    /// decoded once while it stays in [`BrickLevels::chunks`]; or, when every chunk the box
+    /// touches holds one and the same value, that value alone.
+    fn read_chunked(
+        &self,
+        ms: &Multiscale,
+        level: usize,
+        lo: [usize; 3],
+        size: [usize; 3],
+    ) -> Result<Read> {
+        let l = &ms.levels[level];
+        let (chunk, dims) = (l.chunk, l.dims);
+        let first: [usize; 3] = std::array::from_fn(|a| lo[a] / chunk[a]);
+        let last: [usize; 3] = std::array::from_fn(|a| (lo[a] + size[a] - 1) / chunk[a]);
+        let mut got = Vec::with_capacity(8);
+        for cz in first[2]..=last[2] {
+            for cy in first[1]..=last[1] {
+                for cx in first[0]..=last[0] {
+                    let c = [cx, cy, cz];
+                    let clo: [usize; 3] = std::array::from_fn(|a| c[a] * chunk[a]);
+                    let csize: [usize; 3] = std::array::from_fn(|a| chunk[a].min(dims[a] - clo[a]));
+                    let bytes = (csize.iter().product::<usize>() * ms.voxel.size()) as u64;
+                    let one = self
+                        .chunks
+                        .get((level, c), bytes, || ms.read_box(level, clo, csize))?;
+                    got.push((clo, one));
+                }
+            }
+        }
+        if let Some(v) = got.first().and_then(|(_, c)| c.value()) {
+            if got.iter().all(|(_, c)| c.value() == Some(v)) {
+                return Ok(Read::Uniform(v));
+            }
+        }
+        let data = VoxelData::zeros(ms.voxel, size.iter().product());
+        let mut out = Volume::new(size, l.spacing, data)?;
+        for (clo, c) in &got {
+            match c.uniform {
+                false => copy_box(&c.volume, *clo, &mut out, lo),
+                // One voxel stands for the chunk: spread it over the chunk's part of the box.
+                true => fill_box(&c.volume.data, (*clo, c.dims), &mut out, lo),
+            }
+        }
+        Ok(Read::Voxels(out))
+    }
+
+    /// A brick whose voxels, apron included, all hold `value` (of a store of type `voxel`): what
+    /// [`BrickLevels::voxels`] would make of it voxel by voxel.
+    fn uniform_brick(&self, value: f64, voxel: crate::VoxelType) -> BrickVoxels {
+        let n = UPLOAD * UPLOAD * UPLOAD;
+        match self.u8_table() {
+            Some(t) if voxel == crate::VoxelType::U8 => {
+                let raw = value as u8;
+                let u = t[raw as usize];
+                BrickVoxels {
+                    data: BrickData::U8(vec![raw; n]),
+                    range: [u, u],
+                    constant: true,
+                }
+            }
+            _ => {
+                let [lo, hi] = self.range;
+                let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+                let u = normalise_scaled(value, lo, scale);
+                BrickVoxels {
+                    data: BrickData::U16(vec![u; n]),
+                    range: [u, u],
+                    constant: true,
+                }
+            }
+        }
+    }
+
+    /// For 8-bit data, the normalised value of each voxel value (what [`Volume::normalised_u16`]
+    /// gives it over [`BrickLevels::range`]); `None` for wider data, normalised on the host.
+    pub fn u8_table(&self) -> Option<[u16; 256]> {
+        let u8_data = match &self.sources[0] {
+            LevelSource::Store(ms, _) => ms.voxel == crate::VoxelType::U8,
+            LevelSource::Memory(v) => v.voxel_type() == crate::VoxelType::U8,
+        };
+        u8_data.then(|| std::array::from_fn(|v| normalise(v as f64, self.range)))
+    }
+
+    /// The floor of reading bricks: `keys` (chunks of the store's levels) decoded again plainly,
+    /// in parallel on every core, and dropped. Seconds and voxel bytes; nothing for levels in
+    /// memory.
+    pub fn plain_decode(&self, keys: &[crate::chunks::ChunkKey]) -> Result<(f64, u64)> {
+        use rayon::prelude::*;
+        let start = std::time::Instant::now();
+        let bytes = keys
+            .par_iter()
+            .map(|&(level, c)| -> Result<u64> {
+                let LevelSource::Store(ms, l) = &self.sources[level] else {
+                    return Ok(0);
+                };
+                let info = &ms.levels[*l];
+                let lo: [usize; 3] = std::array::from_fn(|a| c[a] * info.chunk[a]);
+                let size: [usize; 3] =
+                    std::array::from_fn(|a| info.chunk[a].min(info.dims[a] - lo[a]));
+                let v = ms.read_box(*l, lo, size)?;
+                Ok(v.data.as_bytes().len() as u64)
+            })
+            .sum::<Result<u64>>()?;
+        Ok((start.elapsed().as_secs_f64(), bytes))
+    }
+
+    /// The edge along x, y, z of the cells level `level` is read in: its store's chunks, or a
+    /// brick for a level in memory.
+    pub fn grain(&self, level: usize) -> [usize; 3] {
+        match &self.sources[level] {
+            LevelSource::Store(ms, l) => ms.levels[*l].chunk.map(|c| c.max(1)),
+            LevelSource::Memory(_) => [BRICK; 3],
+        }
+    }
+
+    /// The decoded chunks the bricks are read from.
+    pub fn chunks(&self) -> &ChunkCache {
+        &self.chunks
+    }
+
+    /// Keeps about `bytes` of decoded chunks from now on (the cache starts empty again).
+    pub fn set_chunk_budget(&mut self, bytes: u64) {
+        self.chunks = ChunkCache::new(bytes);
+    }
+
+    /// The texels of brick `key` and its apron as the pool's slot holds them, with Sobel
+    /// gradients made here: the CPU reference of what the GPU makes of [`BrickLevels::voxels`]
+    /// (`passes::paging`).
+    pub fn texels(&self, key: BrickKey) -> Result<BrickTexels> {
+        let level = &self.levels[key.level];
+        let voxels = self.voxels(key)?;
+        let table = self.u8_table();
+        let norm: Vec<u16> = match &voxels.data {
+            BrickData::U16(v) => v.clone(),
+            BrickData::U8(v) => v
+                .iter()
+                .map(|&b| table.map_or(0, |t| t[b as usize]))
+                .collect(),
+        };
+        let lo: [i64; 3] =
+            std::array::from_fn(|a| (key.brick[a] * BRICK) as i64 - APRON as i64 - 1);
+        let (n, dims) = (UPLOAD, level.dims);
+        // A texel outside the level takes the gradient of the edge voxel it repeats.
+        let at = |g: [i64; 3]| -> f32 {
+            let c: [i64; 3] = std::array::from_fn(|a| g[a].clamp(0, dims[a] as i64 - 1) - lo[a]);
+            norm[c[0] as usize + n * (c[1] as usize + n * c[2] as usize)] as f32 / 65535.0
+        };
+        let inv = level.spacing.map(|s| (1.0 / s) as f32);
+        let mut intensity = Vec::with_capacity(SLOT * SLOT * SLOT);
+        let mut gradient = Vec::with_capacity(SLOT * SLOT * SLOT);
+        for z in 0..SLOT {
+            for y in 0..SLOT {
+                for x in 0..SLOT {
+                    let g = [x, y, z].map(|v| v as i64 + 1);
+                    let global: [i64; 3] = std::array::from_fn(|a| lo[a] + g[a]);
+                    intensity.push(norm[(g[0] + n as i64 * (g[1] + n as i64 * g[2])) as usize]);
+                    let c: [i64; 3] =
+                        std::array::from_fn(|a| global[a].clamp(0, dims[a] as i64 - 1));
+                    gradient.push(sobel(&at, c, inv));
+                }
+            }
+        }
+        Ok(BrickTexels {
+            intensity,
+            gradient,
+        })
+    }
+}
+
+/// `v` normalised to 0..=65535 over `[lo, hi]`, as [`Volume::normalised_u16_in`] maps it.
+fn normalise(v: f64, [lo, hi]: [f64; 2]) -> u16 {
+    let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+    ((v - lo) * scale).round().clamp(0.0, 65535.0) as u16
+}
+
+/// [`normalise`] with its scale made once, and without a call to `round` per voxel: for values
+/// clamped to 0..=65535, adding a half and truncating rounds them as `round` does.
+fn normalise_scaled(v: f64, lo: f64, scale: f64) -> u16 {
+    (((v - lo) * scale).clamp(0.0, 65535.0) + 0.5) as u16
+}
+
+/// Copies the part of `src` (placed at `src_lo` in the level) that overlaps `dst` (at `dst_lo`).
+/// Fills the part of `dst` (at `dst_lo`) that the region `src_lo .. src_lo + dims` covers with
+/// `value`'s one voxel (of `dst`'s type).
+fn fill_box(
+    value: &VoxelData,
+    (src_lo, dims): ([usize; 3], [usize; 3]),
+    dst: &mut Volume,
+    dst_lo: [usize; 3],
+) {
+    let lo: [usize; 3] = std::array::from_fn(|a| src_lo[a].max(dst_lo[a]));
+    let hi: [usize; 3] =
+        std::array::from_fn(|a| (src_lo[a] + dims[a]).min(dst_lo[a] + dst.dims[a]));
+    if (0..3).any(|a| lo[a] >= hi[a]) {
+        return;
+    }
+    let dd = dst.dims;
+    fn rows<T: Copy>(
+        v: T,
+        d: &mut [T],
+        (lo, hi): ([usize; 3], [usize; 3]),
+        dst_lo: [usize; 3],
+        dd: [usize; 3],
+    ) {
+        for z in lo[2]..hi[2] {
+            for y in lo[1]..hi[1] {
+                let di = (lo[0] - dst_lo[0]) + dd[0] * ((y - dst_lo[1]) + dd[1] * (z - dst_lo[2]));
+                d[di..di + (hi[0] - lo[0])].fill(v);
+            }
+        }
+    }
+    match (value, &mut dst.data) {
+        (VoxelData::U8(s), VoxelData::U8(d)) => {
+            s.first().map_or((), |&v| rows(v, d, (lo, hi), dst_lo, dd))
+        }
+        (VoxelData::U16(s), VoxelData::U16(d)) => {
+            s.first().map_or((), |&v| rows(v, d, (lo, hi), dst_lo, dd))
+        }
+        (VoxelData::I16(s), VoxelData::I16(d)) => {
+            s.first().map_or((), |&v| rows(v, d, (lo, hi), dst_lo, dd))
+        }
+        (VoxelData::F32(s), VoxelData::F32(d)) => {
+            s.first().map_or((), |&v| rows(v, d, (lo, hi), dst_lo, dd))
+        }
+        // A store's levels share one type (`Multiscale::open` checks it).
+        _ => {}
+    }
+}
+
+fn copy_box(src: &Volume, src_lo: [usize; 3], dst: &mut Volume, dst_lo: [usize; 3]) {
+    let lo: [usize; 3] = std::array::from_fn(|a| src_lo[a].max(dst_lo[a]));
+    let hi: [usize; 3] =
+        std::array::from_fn(|a| (src_lo[a] + src.dims[a]).min(dst_lo[a] + dst.dims[a]));
+    if (0..3).any(|a| lo[a] >= hi[a]) {
+        return;
+    }
+    let w = hi[0] - lo[0];
+    let (sd, dd) = (src.dims, dst.dims);
+    fn rows<T: Copy>(
+        s: &[T],
+        d: &mut [T],
+        (lo, hi, w): ([usize; 3], [usize; 3], usize),
+        (src_lo, sd): ([usize; 3], [usize; 3]),
+        (dst_lo, dd): ([usize; 3], [usize; 3]),
+    ) {
+        for z in lo[2]..hi[2] {
+            for y in lo[1]..hi[1] {
+                let si = (lo[0] - src_lo[0]) + sd[0] * ((y - src_lo[1]) + sd[1] * (z - src_lo[2]));
+                let di = (lo[0] - dst_lo[0]) + dd[0] * ((y - dst_lo[1]) + dd[1] * (z - dst_lo[2]));
+                d[di..di + w].copy_from_slice(&s[si..si + w]);
+            }
+        }
+    }
+    let span = (lo, hi, w);
+    match (&src.data, &mut dst.data) {
+        (VoxelData::U8(s), VoxelData::U8(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
+        (VoxelData::U16(s), VoxelData::U16(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
+        (VoxelData::I16(s), VoxelData::I16(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
+        (VoxelData::F32(s), VoxelData::F32(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
+        // A store's levels share one type (`Multiscale::open` checks it).
+        _ => {}
+    }
+}
+
+/// The upload of a brick from its `inner` voxels (the box clamped into the level), `map` giving
+/// for each of the [`UPLOAD`] positions per axis its index in `inner`: normalised over `range`,
+/// or 8-bit as it is with `table`. Also the range of the slot's texels and whether all are one.
+fn to_upload(
+    inner: &Volume,
+    map: &[Vec<usize>; 3],
+    range: [f64; 2],
+    table: Option<&[u16; 256]>,
+) -> BrickVoxels {
+    let [lo, hi] = range;
+    let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+    let norm = |v: f64| normalise_scaled(v, lo, scale);
+    let mut stats = UploadStats::default();
+    let data = match (&inner.data, table) {
+        (VoxelData::U8(s), Some(t)) => BrickData::U8(gather(
+            inner.dims,
+            map,
+            s,
+            |v| v,
+            |v| t[v as usize],
+            &mut stats,
+        )),
+        (VoxelData::U8(s), None) => BrickData::U16(gather(
+            inner.dims,
+            map,
+            s,
+            |v| norm(v as f64),
+            |v| v,
+            &mut stats,
+        )),
+        (VoxelData::U16(s), _) => BrickData::U16(gather(
+            inner.dims,
+            map,
+            s,
+            |v| norm(v as f64),
+            |v| v,
+            &mut stats,
+        )),
+        (VoxelData::I16(s), _) => BrickData::U16(gather(
+            inner.dims,
+            map,
+            s,
+            |v| norm(v as f64),
+            |v| v,
+            &mut stats,
+        )),
+        (VoxelData::F32(s), _) => BrickData::U16(gather(
+            inner.dims,
+            map,
+            s,
+            |v| norm(v as f64),
+            |v| v,
+            &mut stats,
+        )),
+    };
+    BrickVoxels {
+        data,
+        range: [stats.min, stats.max],
+        constant: stats.constant,
+    }
+}
+
+/// What [`gather`] learns of a brick's normalised values on the way.
+struct UploadStats {
+    /// Over the slot's texels (the upload less its outer layer).
+    min: u16,
+    max: u16,
+    /// Whether every value of the upload is the first.
+    constant: bool,
+}
+
+impl Default for UploadStats {
+    fn default() -> Self {
+        UploadStats {
+            min: u16::MAX,
+            max: 0,
+            constant: true,
+        }
+    }
+}
+
+/// The [`UPLOAD`]³ voxels of `src` (of `dims`) at `map`'s indices, each turned by `convert` into
+/// what travels, and `value` of that its normalised value, for `stats`: one pass, row by row.
+fn gather<T: Copy, U: Copy>(
+    dims: [usize; 3],
+    map: &[Vec<usize>; 3],
+    src: &[T],
+    convert: impl Fn(T) -> U,
+    value: impl Fn(U) -> u16,
+    stats: &mut UploadStats,
+) -> Vec<U> {
+    let mut out = Vec::with_capacity(UPLOAD * UPLOAD * UPLOAD);
+    let first = value(convert(
+        src[map[0][0] + dims[0] * (map[1][0] + dims[1] * map[2][0])],
+    ));
+    for (z, &mz) in map[2].iter().enumerate() {
+        for (y, &my) in map[1].iter().enumerate() {
+            let row = &src[dims[0] * (my + dims[1] * mz)..];
+            let core = (1..UPLOAD - 1).contains(&y) && (1..UPLOAD - 1).contains(&z);
+            for (x, &mx) in map[0].iter().enumerate() {
+                let u = convert(row[mx]);
+                let v = value(u);
+                stats.constant &= v == first;
+                if core && (1..UPLOAD - 1).contains(&x) {
+                    stats.min = stats.min.min(v);
+                    stats.max = stats.max.max(v);
+                }
+                out.push(u);
+            }
+        }
+    }
+    out
+}
+
+/// The 3D Sobel gradient at voxel `c` of `at` (neighbours clamped by `at`), per unit of spacing,
+/// and its length, as half-float bits: `render/sobel_normals.comp` on the host.
+fn sobel(at: &dyn Fn([i64; 3]) -> f32, c: [i64; 3], inv_spacing: [f32; 3]) -> [u16; 4] {
+    let mut g = [0f32; 3];
+    for dz in -1i64..=1 {
+        for dy in -1i64..=1 {
+            for dx in -1i64..=1 {
+                let v = at([c[0] + dx, c[1] + dy, c[2] + dz]);
+                let w = [2 - dx.abs(), 2 - dy.abs(), 2 - dz.abs()].map(|w| w as f32);
+                g[0] += v * dx as f32 * w[1] * w[2];
+                g[1] += v * dy as f32 * w[0] * w[2];
+                g[2] += v * dz as f32 * w[0] * w[1];
+            }
+        }
+    }
+    let g: [f32; 3] = std::array::from_fn(|a| g[a] * inv_spacing[a] / 32.0);
+    let len = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+    [g[0], g[1], g[2], len].map(|v| half::f16::from_f32(v).to_bits())
+}
+
+/// Which brick is in which pool slot, and the page table that says so to the shader.
+pub struct BrickCache {
+    capacity: usize,
+    /// Slots held for good by the coarsest level (slots 0 .. pinned).
+    pinned: usize,
+    /// The coarsest level's first entry: entries from here on are pinned.
+    pinned_from: usize,
+    slot_of: HashMap<usize, usize>,
+    owner: Vec<Option<usize>>,
+    /// Per slot: it holds one constant value for every brick of that value ([`BrickVoxels`]'s
+    /// `constant`), and is never evicted.
+    shared: Vec<bool>,
+    /// The slot of each constant value that has one.
+    constant: HashMap<u16, usize>,
+    last_used: Vec<u64>,
+    clock: u64,
+    /// Per page-table entry: its slot + 1, or 0 when the brick is not resident.
+    pub page_table: Vec<u32>,
+    /// Per page-table entry: the range of its slot's texels once it has been read, else
+    /// [`UNKNOWN_RANGE`]; kept when the brick leaves, so that a frame can skip a brick it knows
+    /// to be empty without reading it again.
+    pub ranges: Vec<[u16; 2]>,
+    /// Bricks placed since the cache was made (uploaded, or sharing a constant slot).
+    pub loaded: u64,
+    /// Of those, bricks that shared a constant slot and uploaded nothing.
+    pub shared_loads: u64,
+    /// Bricks evicted since the cache was made.
+    pub evicted: u64,
+}
+
+/// The range of an entry whose brick has not been read yet.
+pub const UNKNOWN_RANGE: [u16; 2] = [1, 0];
+
+/// Constant slots at most, as a share of the pool: a slot per value beyond them would crowd out
+/// the bricks that vary.
+const CONSTANT_SHARE: usize = 8;
+
+/// A brick the loaders read: its page-table entry, the range of its slot's texels and, when every
+/// voxel of it has one value, that value.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Arrival {
+    pub entry: usize,
+    pub range: [u16; 2],
+    pub constant: Option<u16>,
+}
+
+impl Arrival {
+    /// What [`BrickCache::place`] needs of brick `entry`'s voxels.
+    pub fn of(entry: usize, v: &BrickVoxels) -> Self {
+        Arrival {
+            entry,
+            range: v.range,
+            constant: v.constant.then_some(v.range[0]),
+        }
+    }
+}
+
+/// Where [`BrickCache::place`] put a brick.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum Placement {
+    /// In this slot, to be uploaded.
+    Upload(usize),
+    /// Sharing the constant slot of its value, already uploaded: nothing to upload.
+    Shared(usize),
+}
+
+/// The smallest pool that works: the coarsest level and one more brick.
+pub fn min_slots(levels: &BrickLevels) -> usize {
+    levels.levels.last().map_or(0, PagedLevel::bricks) + 1
+}
+
+impl BrickCache {
+    /// A cache of `capacity` slots for `levels`; refused in one sentence when that cannot hold
+    /// the coarsest level and one more brick. The coarsest level's bricks are the first to load
+    /// (see [`BrickCache::pinned_entries`]).
+    pub fn new(levels: &BrickLevels, capacity: usize, budget_mib: f64) -> Result<Self> {
+        let need = min_slots(levels);
+        if capacity < need {
+            return Err(Error::Invalid(format!(
+                "a GPU budget of {budget_mib} MiB holds {capacity} bricks; this volume needs at least {need}, so give `gpu_budget` {:.1} or more (its coarsest level and one more brick)",
+                // Rounded up, so that the budget named holds them.
+                ((need * SLOT_BYTES) as f64 / (1 << 20) as f64 * 10.0).ceil() / 10.0
+            )));
+        }
+        Ok(BrickCache {
+            capacity,
+            pinned: need - 1,
+            pinned_from: levels.levels.last().map_or(0, |l| l.first),
+            slot_of: HashMap::new(),
+            owner: vec![None; capacity],
+            shared: vec![false; capacity],
+            constant: HashMap::new(),
+            last_used: vec![0; capacity],
+            clock: 1,
+            page_table: vec![0; levels.entries()],
+            ranges: vec![UNKNOWN_RANGE; levels.entries()],
+            loaded: 0,
+            shared_loads: 0,
+            evicted: 0,
+        })
+    }
+
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Bricks resident now (those sharing a constant slot included).
+    pub fn resident(&self) -> usize {
+        self.slot_of.len()
+    }
+
+    /// Whether brick `entry` is resident.
+    pub fn is_resident(&self, entry: usize) -> bool {
+        self.page_table.get(entry).is_some_and(|&w| w != 0)
+    }
+
+    /// The finest level of `levels` with a resident brick.
+    pub fn finest_resident(&self, levels: &BrickLevels) -> Option<usize> {
+        self.slot_of
+            .keys()
+            .filter_map(|&e| levels.key(e))
+            .map(|k| k.level)
+            .min()
+    }
+
+    /// The coarsest level's entries: load these first; they are never evicted.
+    pub fn pinned_entries(levels: &BrickLevels) -> Vec<usize> {
+        let l = levels.levels.last().expect("a pyramid has a level");
+        (l.first..l.first + l.bricks()).collect()
+    }
+
+    /// Gives slots to the bricks of `batch` that the loaders read: a brick of one value shares
+    /// the slot of that value (uploaded once, never evicted; as many values as an eighth of the
+    /// pool), any other takes a free slot or the least recently used one, never one placed in
+    /// this batch nor a pinned one. The page table is updated at once (the caller uploads the
+    /// bricks before the frame that reads it). `None` for a brick that found no slot.
+    pub fn place(&mut self, batch: &[Arrival]) -> Vec<Option<Placement>> {
+        self.clock += 1;
+        batch.iter().map(|a| self.place_one(a)).collect()
+    }
+
+    fn place_one(&mut self, a: &Arrival) -> Option<Placement> {
+        let e = a.entry;
+        if e >= self.page_table.len() {
+            return None;
+        }
+        self.ranges[e] = a.range;
+        if let Some(&s) = self.slot_of.get(&e) {
+            self.last_used[s] = self.clock;
+            return None;
+        }
+        let pinned = e >= self.pinned_from;
+        if let (Some(v), false) = (a.constant, pinned) {
+            if let Some(&s) = self.constant.get(&v) {
+                self.assign(e, s);
+                self.shared_loads += 1;
+                return Some(Placement::Shared(s));
+            }
+        }
+        let slot = self.free_or_victim(pinned)?;
+        if let Some(old) = self.owner[slot].take() {
+            self.slot_of.remove(&old);
+            self.page_table[old] = 0;
+            self.evicted += 1;
+        }
+        let share = a
+            .constant
+            .filter(|_| !pinned && self.constant.len() < self.capacity / CONSTANT_SHARE);
+        match share {
+            Some(v) => {
+                self.shared[slot] = true;
+                self.constant.insert(v, slot);
+            }
+            None => self.owner[slot] = Some(e),
+        }
+        self.assign(e, slot);
+        Some(Placement::Upload(slot))
+    }
+
+    fn assign(&mut self, e: usize, slot: usize) {
+        self.slot_of.insert(e, slot);
+        self.last_used[slot] = self.clock;
+        self.page_table[e] = slot as u32 + 1;
+        self.loaded += 1;
+    }
+
+    /// Marks the resident bricks of `entries` as used now: the last to be evicted.
+    pub fn touch(&mut self, entries: &[usize]) {
+        self.clock += 1;
+        for e in entries {
+            if let Some(&s) = self.slot_of.get(e) {
+                self.last_used[s] = self.clock;
+            }
+        }
+    }
+
+    /// A free slot, or the least recently used one that was not placed or used in this batch
+    /// (never a pinned one, nor one shared by a constant value).
+    fn free_or_victim(&self, pinned: bool) -> Option<usize> {
+        let range = match pinned {
+            true => 0..self.pinned,
+            false => self.pinned..self.capacity,
+        };
+        let open = |s: &usize| !self.shared[*s];
+        range
+            .clone()
+            .filter(open)
+            .find(|&s| self.owner[s].is_none())
+            .or_else(|| {
+                range
+                    .filter(open)
+                    .filter(|&s| self.last_used[s] < self.clock)
+                    .min_by_key(|&s| self.last_used[s])
+            })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::phantom::shepp_logan;
+
+    #[test]
+    fn the_pyramid_ends_in_one_brick() {
+        let levels = BrickLevels::of_volume(shepp_logan(100)).unwrap();
+        let dims: Vec<[usize; 3]> = levels.levels().iter().map(|l| l.dims).collect();
+        assert_eq!(dims, vec![[100; 3], [50; 3], [25; 3]]);
+        assert_eq!(levels.levels()[0].counts, [4; 3]);
+        assert_eq!(levels.entries(), 64 + 8 + 1);
+        let key = BrickKey {
+            level: 1,
+            brick: [1, 0, 1],
+        };
+        assert_eq!(levels.key(levels.entry(key)), Some(key));
+    }
+
+    #[test]
+    fn brick_texels_are_the_in_core_texels() {
+        let v = shepp_logan(40);
+        let (texels, _) = v.normalised_u16();
+        let levels = BrickLevels::of_volume(v).unwrap();
+        let b = levels
+            .texels(BrickKey {
+                level: 0,
+                brick: [1, 0, 0],
+            })
+            .unwrap();
+        // Slot texel (x, y, z) is voxel (32 - 1 + x, y - 1, z - 1), clamped into the grid.
+        let at = |x: usize, y: usize, z: usize| b.intensity[x + SLOT * (y + SLOT * z)];
+        let voxel = |x: usize, y: usize, z: usize| texels[x + 40 * (y + 40 * z)];
+        assert_eq!(at(1, 5, 9), voxel(32, 4, 8));
+        assert_eq!(at(0, 0, 0), voxel(31, 0, 0));
+        assert_eq!(
+            at(SLOT - 1, 20, 20),
+            voxel(39, 19, 19),
+            "past the edge repeats it"
+        );
+        // The gradient of a voxel past the edge is the edge voxel's.
+        let g = |x: usize| b.gradient[x + SLOT * (20 + SLOT * 20)];
+        assert_eq!(g(8), g(SLOT - 1));
+        assert_ne!(b.gradient.iter().filter(|g| g[3] != 0).count(), 0);
+    }
+
+    #[test]
+    fn normalising_without_round_rounds_as_round_does() {
+        for range in [
+            [0.0, 1.0],
+            [-1024.0, 3071.0],
+            [0.0, 255.0],
+            [0.25, 0.75],
+            [7.0, 7.0],
+        ] {
+            let scale = if range[1] > range[0] {
+                65535.0 / (range[1] - range[0])
+            } else {
+                0.0
+            };
+            let span = range[1] - range[0];
+            for i in -1000..=1_001_000 {
+                let v = range[0] + span * i as f64 / 1e6;
+                assert_eq!(
+                    normalise_scaled(v, range[0], scale),
+                    normalise(v, range),
+                    "{v} in {range:?}"
+                );
+            }
+            // Exact halves of a step.
+            for k in 0..65535 {
+                let v = range[0] + (k as f64 + 0.5) / scale.max(1e-300);
+                assert_eq!(
+                    normalise_scaled(v, range[0], scale),
+                    normalise(v, range),
+                    "{v}"
+                );
+            }
+        }
+    }
+
+    fn arrive(entry: usize) -> Arrival {
+        Arrival {
+            entry,
+            range: [0, 9],
+            constant: None,
+        }
+    }
+
+    #[test]
+    fn the_cache_pins_the_coarsest_level_and_evicts_the_least_recently_used() {
+        let levels = BrickLevels::of_volume(shepp_logan(64)).unwrap();
+        let refused = BrickCache::new(&levels, 1, 0.4)
+            .err()
+            .map(|e| e.to_string());
+        assert!(refused.is_some_and(|e| e.contains("at least 2") && e.contains("`gpu_budget` 0.8")));
+        let mut cache = BrickCache::new(&levels, 3, 1.2).unwrap();
+        let pinned = BrickCache::pinned_entries(&levels);
+        assert_eq!(pinned, vec![8]);
+        let up = |s| Some(Placement::Upload(s));
+        assert_eq!(cache.place(&[arrive(8)]), vec![up(0)]);
+        assert_eq!(cache.place(&[arrive(1), arrive(0)]), vec![up(1), up(2)]);
+        // Brick 1 used again, 2 new: 0 is the victim; then 3 replaces 1, never 8.
+        cache.touch(&[1]);
+        assert_eq!(cache.place(&[arrive(2)]), vec![up(2)]);
+        assert_eq!(cache.place(&[arrive(3)]), vec![up(1)]);
+        assert_eq!(cache.page_table[8], 1);
+        assert_eq!(cache.page_table[0], 0);
+        assert_eq!(cache.page_table[3], 2);
+        assert_eq!((cache.loaded, cache.evicted), (5, 2));
+        // Three at once into two evictable slots: the third finds none placed before it.
+        let got = cache.place(&[arrive(4), arrive(5), arrive(6)]);
+        assert_eq!(got.iter().filter(|p| p.is_some()).count(), 2);
+        // A brick a frame read goes after one nobody read since.
+        let (a, b) = (cache.page_table[4], cache.page_table[5]);
+        assert!(a != 0 && b != 0);
+        cache.touch(&[4]);
+        assert_eq!(cache.place(&[arrive(7)]), vec![up(b as usize - 1)]);
+        assert_eq!(cache.page_table[4], a, "the touched brick stays");
+        assert_eq!(cache.ranges[7], [0, 9]);
+        assert_eq!(cache.ranges[5], [0, 9], "a range outlives its brick");
+        assert_eq!(
+            cache.ranges[6],
+            [0, 9],
+            "known once read, with or without a slot"
+        );
+        assert_eq!(
+            BrickCache::new(&levels, 3, 1.2).unwrap().ranges[0],
+            UNKNOWN_RANGE
+        );
+    }
+
+    #[test]
+    fn bricks_of_one_value_share_a_slot() {
+        let levels = BrickLevels::of_volume(shepp_logan(96)).unwrap();
+        let mut cache = BrickCache::new(&levels, 16, 6.0).unwrap();
+        let flat = |entry, v| Arrival {
+            entry,
+            range: [v, v],
+            constant: Some(v),
+        };
+        let got = cache.place(&[flat(0, 7), flat(1, 7), flat(2, 8), arrive(3), flat(4, 7)]);
+        let Some(Placement::Upload(s7)) = got[0] else {
+            panic!("the first brick of a value is uploaded: {got:?}")
+        };
+        assert_eq!(got[1], Some(Placement::Shared(s7)));
+        assert!(matches!(got[2], Some(Placement::Upload(s)) if s != s7));
+        assert_eq!(got[4], Some(Placement::Shared(s7)));
+        assert_eq!(cache.shared_loads, 2);
+        // Shared slots are never victims: fill the rest of the pool many times over.
+        for e in 5..60 {
+            cache.place(&[arrive(e)]);
+        }
+        assert_eq!(cache.page_table[1], s7 as u32 + 1);
+        assert_eq!(cache.page_table[0], s7 as u32 + 1);
+    }
+
+    #[test]
+    fn brick_voxels_of_a_store_are_those_of_the_volume() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.ome.zarr");
+        let v = shepp_logan(70);
+        let opts = crate::io::ome_zarr::WriteOptions {
+            chunk: 24,
+            ..Default::default()
+        };
+        crate::io::ome_zarr::write(&path, &v, &opts).unwrap();
+        let ms = Arc::new(Multiscale::open(&path).unwrap());
+        let from_store = BrickLevels::of_store(ms, 1 << 26).unwrap();
+        let in_memory = BrickLevels::of_volume(v).unwrap();
+        for brick in [[0, 0, 0], [1, 2, 1], [2, 2, 2]] {
+            let key = BrickKey { level: 0, brick };
+            let (a, b) = (
+                from_store.voxels(key).unwrap(),
+                in_memory.voxels(key).unwrap(),
+            );
+            assert_eq!(a.data, b.data, "{brick:?}");
+            assert_eq!(a.range, b.range);
+        }
+        // The 12 chunks of level 0 the three bricks touch (8, 4 more, none more), each decoded
+        // once however many bricks read it.
+        let st = from_store.chunks().stats();
+        assert_eq!((st.decoded, st.hits), (12, 1));
+    }
+
+    #[test]
+    fn bricks_inside_chunks_of_one_value_are_those_of_the_volume() {
+        // A volume of one value with a ball in a corner: most chunks hold one value, a brick's
+        // box touches several, and some bricks straddle the ball's chunks.
+        let n = 80usize;
+        let f: Vec<f32> = (0..n * n * n)
+            .map(|i| {
+                let p = [i % n, (i / n) % n, i / (n * n)].map(|c| c as f32 - 66.0);
+                if p.iter().map(|c| c * c).sum::<f32>() < 100.0 {
+                    0.9
+                } else {
+                    0.3
+                }
+            })
+            .collect();
+        let u: Vec<u8> = f.iter().map(|&v| (v * 200.0) as u8).collect();
+        for data in [VoxelData::F32(f), VoxelData::U8(u)] {
+            let v = Volume::new([n; 3], [1.0; 3], data).unwrap();
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("s.ome.zarr");
+            let opts = crate::io::ome_zarr::WriteOptions {
+                chunk: 20,
+                ..Default::default()
+            };
+            crate::io::ome_zarr::write(&path, &v, &opts).unwrap();
+            let ms = Arc::new(Multiscale::open(&path).unwrap());
+            let mut from_store = BrickLevels::of_store(ms, 1 << 26).unwrap();
+            let mut in_memory = BrickLevels::of_volume(v).unwrap();
+            // The same range for both (the store's comes from its scan), not starting at 0.
+            from_store.range = [0.1, 200.0 * 0.95];
+            in_memory.range = from_store.range;
+            let (mut uniform, mut varied) = (0, 0);
+            // Level 0: the coarser levels of a store are the writer's, not the pyramid's.
+            let counts = from_store.levels()[0].counts;
+            for i in 0..counts.iter().product::<usize>() {
+                let brick = [
+                    i % counts[0],
+                    (i / counts[0]) % counts[1],
+                    i / (counts[0] * counts[1]),
+                ];
+                let key = BrickKey { level: 0, brick };
+                let (a, b) = (
+                    from_store.voxels(key).unwrap(),
+                    in_memory.voxels(key).unwrap(),
+                );
+                assert_eq!(a.data, b.data, "{key:?}");
+                assert_eq!((a.range, a.constant), (b.range, b.constant), "{key:?}");
+                if a.constant {
+                    uniform += 1
+                } else {
+                    varied += 1
+                }
+            }
+            assert!(
+                uniform > 0 && varied > 0,
+                "{uniform} uniform, {varied} varied"
+            );
+        }
+    }
+}

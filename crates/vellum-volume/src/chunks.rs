@@ -1,0 +1,363 @@
+//! Decoded chunks of a store, kept in a cache of bounded size that the brick loaders share
+//! (issue 39).
+//!
+//! A brick and its apron (36³ voxels) straddle up to eight chunks of a store, and a chunk of 64³
+//! holds eight bricks: read box by box, every chunk was decoded about eight times. Here each chunk
+//! is decoded once while it stays in the cache, however many bricks and threads ask for it: the
+//! first thread to ask decodes it, the others wait for that decode instead of repeating it. The
+//! least recently used chunks leave once the decoded bytes exceed the budget (chunks in use by a
+//! loader stay alive until it drops them, so the bound is exceeded by at most the chunks the
+//! loaders hold at once). A chunk that fails to decode stays failed in the cache, with its
+//! sentence. Each chunk says whether it holds one value throughout (found once, at its decode),
+//! so that a brick inside such chunks is known without being read voxel by voxel: most of a
+//! scan's bricks are air.
+
+use crate::{Volume, VoxelData};
+use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::Instant;
+use vellum_error::{Error, Result};
+
+/// A chunk: its level and its index in that level's chunk grid (x, y, z).
+pub type ChunkKey = (usize, [usize; 3]);
+
+type Cell = Arc<OnceLock<std::result::Result<Arc<Chunk>, String>>>;
+
+/// A decoded chunk. A chunk whose voxels all hold one value keeps that value alone (one voxel),
+/// so that the cache holds thousands of them (a scan's air) in the room of one chunk.
+pub struct Chunk {
+    /// The voxels, or for a chunk of one value a single voxel holding it.
+    pub volume: Volume,
+    /// Voxels of the chunk along x, y, z.
+    pub dims: [usize; 3],
+    pub uniform: bool,
+}
+
+impl Chunk {
+    /// `volume`, its uniformity found (a scan that stops at the first voxel that differs).
+    pub fn new(volume: Volume) -> Self {
+        fn same<T: PartialEq + Copy>(s: &[T]) -> bool {
+            s.first().is_none_or(|&f| s.iter().all(|&v| v == f))
+        }
+        let uniform = !volume.data.is_empty()
+            && match &volume.data {
+                VoxelData::U8(s) => same(s),
+                VoxelData::U16(s) => same(s),
+                VoxelData::I16(s) => same(s),
+                VoxelData::F32(s) => same(s),
+            };
+        let dims = volume.dims;
+        if !uniform {
+            return Chunk {
+                volume,
+                dims,
+                uniform,
+            };
+        }
+        let one = match &volume.data {
+            VoxelData::U8(s) => VoxelData::U8(s[..1].to_vec()),
+            VoxelData::U16(s) => VoxelData::U16(s[..1].to_vec()),
+            VoxelData::I16(s) => VoxelData::I16(s[..1].to_vec()),
+            VoxelData::F32(s) => VoxelData::F32(s[..1].to_vec()),
+        };
+        let single = Volume {
+            dims: [1; 3],
+            data: one,
+            ..volume
+        };
+        Chunk {
+            volume: single,
+            dims,
+            uniform,
+        }
+    }
+
+    /// The value of every voxel, when there is one.
+    pub fn value(&self) -> Option<f64> {
+        self.uniform.then(|| self.volume.data.get_f64(0))
+    }
+
+    /// Bytes the chunk holds in memory.
+    pub fn bytes(&self) -> u64 {
+        self.volume.data.as_bytes().len() as u64
+    }
+}
+
+struct Entry {
+    cell: Cell,
+    tick: u64,
+    bytes: u64,
+}
+
+#[derive(Default)]
+struct Inner {
+    entries: HashMap<ChunkKey, Entry>,
+    /// Entries by last use, oldest first.
+    order: BTreeMap<u64, ChunkKey>,
+    bytes: u64,
+    tick: u64,
+    /// Every chunk decoded, in order (kept only when asked: `ChunkCache::record_keys`).
+    keys: Option<Vec<ChunkKey>>,
+}
+
+/// What the cache did: chunks decoded, their voxel bytes, the time spent decoding (summed over
+/// the threads), and lookups answered from the cache.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct ChunkStats {
+    pub decoded: u64,
+    pub decoded_bytes: u64,
+    pub decode_ms: f64,
+    pub hits: u64,
+}
+
+/// Decoded chunks, at most about `budget` bytes of them.
+pub struct ChunkCache {
+    budget: u64,
+    inner: Mutex<Inner>,
+    decoded: AtomicU64,
+    decoded_bytes: AtomicU64,
+    decode_ns: AtomicU64,
+    hits: AtomicU64,
+}
+
+impl ChunkCache {
+    /// An empty cache that keeps about `budget` bytes of decoded voxels.
+    pub fn new(budget: u64) -> Self {
+        ChunkCache {
+            budget,
+            inner: Mutex::new(Inner::default()),
+            decoded: AtomicU64::new(0),
+            decoded_bytes: AtomicU64::new(0),
+            decode_ns: AtomicU64::new(0),
+            hits: AtomicU64::new(0),
+        }
+    }
+
+    /// The bytes of decoded voxels the cache keeps at most.
+    pub fn budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// Chunk `key` (of about `bytes` bytes decoded): from the cache, or from `decode`, run once
+    /// however many threads ask for the chunk at the same time.
+    pub fn get(
+        &self,
+        key: ChunkKey,
+        bytes: u64,
+        decode: impl FnOnce() -> Result<Volume>,
+    ) -> Result<Arc<Chunk>> {
+        let (cell, fresh) = self.cell(key, bytes);
+        let mut ran = false;
+        let got = cell.get_or_init(|| {
+            ran = true;
+            let start = Instant::now();
+            let r = decode()
+                .map(|v| Arc::new(Chunk::new(v)))
+                .map_err(|e| e.to_string());
+            self.decode_ns
+                .fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
+            if r.is_ok() {
+                self.decoded.fetch_add(1, Ordering::Relaxed);
+                self.decoded_bytes.fetch_add(bytes, Ordering::Relaxed);
+            }
+            r
+        });
+        if !ran && !fresh {
+            self.hits.fetch_add(1, Ordering::Relaxed);
+        }
+        if let (true, Ok(c)) = (ran, got) {
+            self.settle(key, &cell, c.bytes());
+        }
+        got.clone().map_err(Error::Invalid)
+    }
+
+    /// Counts `key`'s entry at the `bytes` its decode holds (a chunk of one value keeps one
+    /// voxel), if the entry is still the one holding `cell`.
+    fn settle(&self, key: ChunkKey, cell: &Cell, bytes: u64) {
+        let mut inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        let Some(e) = inner.entries.get_mut(&key) else {
+            return;
+        };
+        if !Arc::ptr_eq(&e.cell, cell) {
+            return;
+        }
+        let old = std::mem::replace(&mut e.bytes, bytes);
+        inner.bytes = inner.bytes - old + bytes;
+    }
+
+    /// The cell of `key`, made (and the cache trimmed to its budget) when it was missing; and
+    /// whether it was.
+    fn cell(&self, key: ChunkKey, bytes: u64) -> (Cell, bool) {
+        let mut inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        inner.tick += 1;
+        let tick = inner.tick;
+        if let Some(e) = inner.entries.get_mut(&key) {
+            let old = std::mem::replace(&mut e.tick, tick);
+            let cell = e.cell.clone();
+            inner.order.remove(&old);
+            inner.order.insert(tick, key);
+            return (cell, false);
+        }
+        let cell: Cell = Arc::new(OnceLock::new());
+        if let Some(keys) = &mut inner.keys {
+            keys.push(key);
+        }
+        inner.entries.insert(
+            key,
+            Entry {
+                cell: cell.clone(),
+                tick,
+                bytes,
+            },
+        );
+        inner.order.insert(tick, key);
+        inner.bytes += bytes;
+        while inner.bytes > self.budget && inner.order.len() > 1 {
+            let Some((_, oldest)) = inner.order.pop_first() else {
+                break;
+            };
+            if let Some(e) = inner.entries.remove(&oldest) {
+                inner.bytes -= e.bytes;
+            }
+        }
+        (cell, true)
+    }
+
+    /// What the cache has done so far.
+    pub fn stats(&self) -> ChunkStats {
+        ChunkStats {
+            decoded: self.decoded.load(Ordering::Relaxed),
+            decoded_bytes: self.decoded_bytes.load(Ordering::Relaxed),
+            decode_ms: self.decode_ns.load(Ordering::Relaxed) as f64 / 1e6,
+            hits: self.hits.load(Ordering::Relaxed),
+        }
+    }
+
+    /// From now on, keeps the key of every chunk decoded (for a benchmark's floor: the same
+    /// chunks decoded again plainly, `volume::stream::plain_decode`).
+    pub fn record_keys(&self) {
+        let mut inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        inner.keys.get_or_insert_with(Vec::new);
+    }
+
+    /// The keys recorded since [`ChunkCache::record_keys`], distinct, in the order first decoded.
+    pub fn recorded_keys(&self) -> Vec<ChunkKey> {
+        let inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        let mut seen = std::collections::HashSet::new();
+        let keys = inner.keys.as_deref().unwrap_or_default();
+        keys.iter().copied().filter(|k| seen.insert(*k)).collect()
+    }
+
+    /// Chunks held now and their bytes.
+    pub fn held(&self) -> (usize, u64) {
+        let inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        (inner.entries.len(), inner.bytes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::AtomicUsize;
+
+    /// A chunk of eight voxels, `v` first (not one value).
+    fn chunk(v: u8) -> Result<Volume> {
+        let d = (0..8).map(|i| v.wrapping_add(i)).collect();
+        Volume::new([2, 2, 2], [1.0; 3], VoxelData::U8(d))
+    }
+
+    fn first(c: &Chunk) -> f64 {
+        c.volume.data.get_f64(0)
+    }
+
+    #[test]
+    fn a_chunk_is_decoded_once_while_it_stays() {
+        let cache = ChunkCache::new(64);
+        let runs = AtomicUsize::new(0);
+        let decode = |v| {
+            runs.fetch_add(1, Ordering::Relaxed);
+            chunk(v)
+        };
+        for _ in 0..3 {
+            let c = cache.get((0, [1, 2, 3]), 8, || decode(7)).unwrap();
+            assert_eq!((first(&c), c.dims, c.uniform), (7.0, [2; 3], false));
+        }
+        assert_eq!(runs.load(Ordering::Relaxed), 1);
+        assert_eq!(cache.stats().hits, 2);
+        assert_eq!(cache.stats().decoded_bytes, 8);
+    }
+
+    #[test]
+    fn the_least_recently_used_chunks_leave_beyond_the_budget() {
+        let cache = ChunkCache::new(24);
+        for i in 0..3 {
+            cache.get((0, [i, 0, 0]), 8, || chunk(i as u8)).unwrap();
+        }
+        // Chunk 0 used again: chunk 1 is now the oldest, and the fourth pushes it out.
+        cache.get((0, [0, 0, 0]), 8, || chunk(9)).unwrap();
+        cache.get((0, [3, 0, 0]), 8, || chunk(3)).unwrap();
+        assert_eq!(cache.held(), (3, 24));
+        let again = cache.get((0, [1, 0, 0]), 8, || chunk(11)).unwrap();
+        assert_eq!(first(&again), 11.0, "decoded anew");
+        let kept = cache.get((0, [0, 0, 0]), 8, || chunk(12)).unwrap();
+        assert_eq!(first(&kept), 0.0, "still the first decode");
+    }
+
+    #[test]
+    fn threads_asking_for_one_chunk_share_one_decode() {
+        let cache = ChunkCache::new(1 << 20);
+        let runs = AtomicUsize::new(0);
+        std::thread::scope(|s| {
+            for _ in 0..8 {
+                s.spawn(|| {
+                    cache
+                        .get((2, [0, 0, 0]), 8, || {
+                            runs.fetch_add(1, Ordering::Relaxed);
+                            std::thread::sleep(std::time::Duration::from_millis(20));
+                            chunk(1)
+                        })
+                        .unwrap();
+                });
+            }
+        });
+        assert_eq!(runs.load(Ordering::Relaxed), 1);
+    }
+
+    #[test]
+    fn chunks_of_one_value_are_held_as_one_voxel() {
+        let cache = ChunkCache::new(24);
+        let flat = |v: u8| Volume::new([2, 2, 2], [1.0; 3], VoxelData::U8(vec![v; 8]));
+        for i in 0..10 {
+            let c = cache.get((0, [i, 0, 0]), 8, || flat(i as u8)).unwrap();
+            assert_eq!((c.value(), c.dims, c.bytes()), (Some(i as f64), [2; 3], 1));
+        }
+        assert_eq!(cache.held(), (10, 10), "ten chunks in the room of three");
+        cache.get((0, [10, 0, 0]), 8, || chunk(1)).unwrap();
+        assert_eq!(cache.held(), (11, 18));
+    }
+
+    #[test]
+    fn a_chunk_knows_whether_it_holds_one_value() {
+        let one = Chunk::new(Volume::new([2, 2, 2], [1.0; 3], VoxelData::U8(vec![3; 8])).unwrap());
+        assert_eq!(one.value(), Some(3.0));
+        let mut v = vec![0.5f32; 8];
+        v[7] = 0.25;
+        let two = Chunk::new(Volume::new([2, 2, 2], [1.0; 3], VoxelData::F32(v)).unwrap());
+        assert_eq!((two.uniform, two.value()), (false, None));
+        // NaN equals nothing, itself included: never taken for one value.
+        let nan = vec![f32::NAN; 8];
+        let nan = Chunk::new(Volume::new([2, 2, 2], [1.0; 3], VoxelData::F32(nan)).unwrap());
+        assert_eq!(nan.value(), None);
+    }
+
+    #[test]
+    fn a_failed_chunk_keeps_its_sentence() {
+        let cache = ChunkCache::new(64);
+        let bad = || Err(Error::Invalid("chunk 0/c/0/0/1 could not be read".into()));
+        let e = cache.get((0, [1, 0, 0]), 8, bad).err().unwrap();
+        assert!(e.to_string().contains("0/c/0/0/1"));
+        let e = cache.get((0, [1, 0, 0]), 8, || chunk(1)).err().unwrap();
+        assert!(e.to_string().contains("0/c/0/0/1"), "not decoded again");
+    }
+}

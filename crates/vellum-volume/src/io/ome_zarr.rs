@@ -1,0 +1,1057 @@
+//! OME-Zarr multiscale images (issue 26): NGFF 0.4 on Zarr v2 and NGFF 0.5 on Zarr v3, read and
+//! written through `zarrs`. The NGFF layer here is small: the `multiscales` metadata (axes, the
+//! datasets' paths and their scale and translation) in the root group's attributes, under `ome`
+//! for 0.5. The arrays hold (z, y, x), or (t, c, z, y, x) with one time point and one channel; C
+//! order with x fastest is our voxel order, so a level's bytes are a `Volume`'s as they come.
+//!
+//! NGFF has no rotation: a volume written with a direction matrix keeps its origin and spacing
+//! and loses its directions (`write` says so once), and a store read back has no anatomical
+//! orientation.
+//!
+//! Missing chunks read as the array's fill value, as the Zarr spec says.
+
+use super::guarded_store::GuardedStore;
+use super::ngff_checks::{self, Limits};
+use crate::geometry::Geometry;
+use crate::source::BoxSource;
+use crate::team::{Solo, Team};
+use crate::{Volume, VoxelData, VoxelType};
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use vellum_error::{Error, Result};
+use zarrs::array::{data_type, Array, ArrayBuilder, ArraySubset};
+use zarrs::filesystem::FilesystemStore;
+
+pub use super::ngff_checks::Level;
+
+/// An opened OME-Zarr multiscale image: its levels, finest first.
+pub struct Multiscale {
+    pub root: PathBuf,
+    /// The NGFF version, "0.4" or "0.5".
+    pub version: String,
+    pub voxel: VoxelType,
+    pub levels: Vec<Level>,
+    /// Level 0's value range when the writer recorded it (`vellum.range`, written by vellum).
+    pub range: Option<[f64; 2]>,
+    /// Values per voxel: the c axis's size (1 without one).
+    pub channels: usize,
+    /// The index on the leading axes (t, c) that is read: time point 0 and the channel chosen.
+    lead: Vec<u64>,
+    /// The levels' arrays, opened once, read through the store's guards.
+    arrays: Vec<Array<GuardedStore>>,
+}
+
+/// Whether `path` names an OME-Zarr store: a folder whose name ends in `.zarr`.
+pub fn is_store(path: &Path) -> bool {
+    path.is_dir()
+        && path
+            .file_name()
+            .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"))
+}
+
+fn invalid(path: &Path, what: impl std::fmt::Display) -> Error {
+    Error::format(path, what.to_string())
+}
+
+impl Multiscale {
+    /// Opens the store at `path` and reads its multiscale metadata (no voxels yet). A store of
+    /// more than one channel is refused in one sentence; see [`Multiscale::open_channel`].
+    pub fn open(path: &Path) -> Result<Self> {
+        let ms = Self::open_channel(path, 0)?;
+        if ms.channels > 1 {
+            return Err(invalid(
+                path,
+                format!(
+                    "holds {} channels; expected one (a vector store such as `vellum normals` writes is read one channel at a time)",
+                    ms.channels
+                ),
+            ));
+        }
+        Ok(ms)
+    }
+
+    /// Opens the store at `path` to read channel `channel` of its c axis (0 for a store without
+    /// one): a multi-channel store such as the normals' reads as one scalar grid per channel.
+    pub fn open_channel(path: &Path, channel: usize) -> Result<Self> {
+        let store =
+            Arc::new(GuardedStore::new(path).map_err(|e| {
+                invalid(path, format!("could not be opened as a Zarr store ({e})"))
+            })?);
+        let group = zarrs::group::Group::open(store.clone(), "/").map_err(|e| {
+            invalid(
+                path,
+                format!("has no readable Zarr group at its root ({e}); expected an OME-Zarr image"),
+            )
+        })?;
+        let attrs = Value::Object(group.attributes().clone());
+        let (version, ms) = multiscales(path, &attrs)?;
+        let axes = axis_names(path, ms)?;
+        let leading = axes.len() - 3;
+        let c_axis = axes.iter().position(|a| a == "c");
+        let datasets = ms["datasets"]
+            .as_array()
+            .filter(|d| !d.is_empty())
+            .ok_or_else(|| {
+                invalid(
+                    path,
+                    "multiscales[0] lists no datasets; expected at least one level",
+                )
+            })?;
+        ngff_checks::datasets(path, datasets)?;
+        let mut levels = Vec::new();
+        let mut arrays = Vec::new();
+        let mut voxel = None;
+        for (i, d) in datasets.iter().enumerate() {
+            let name = d["path"]
+                .as_str()
+                .ok_or_else(|| invalid(path, format!("dataset {i} has no path")))?;
+            let array = Array::open(store.clone(), &format!("/{name}"))
+                .map_err(|e| invalid(path, format!("level {name} could not be opened ({e})")))?;
+            let (limits, chunk_bytes) = Limits::of_array(path, name, &array)?;
+            limits.check(path, name, leading)?;
+            store.bound_array(name, chunk_bytes);
+            let t = voxel_type(path, name, &array)?;
+            if voxel.is_some_and(|v| v != t) {
+                return Err(invalid(
+                    path,
+                    format!("level {name} holds another data type than level 0; expected one type for every level"),
+                ));
+            }
+            voxel = Some(t);
+            levels.push(level(path, name, &array, d, (leading, c_axis))?);
+            arrays.push(array);
+        }
+        ngff_checks::multiscale_transforms(path, ms, leading, &mut levels)?;
+        check_levels(path, &levels)?;
+        ngff_checks::consistent_levels(path, &levels)?;
+        let channels = c_axis.map_or(1, |c| arrays[0].shape()[c] as usize);
+        if arrays
+            .iter()
+            .any(|a| c_axis.is_some_and(|c| a.shape()[c] as usize != channels))
+        {
+            return Err(invalid(
+                path,
+                "levels hold different numbers of channels; expected the same in every level",
+            ));
+        }
+        if channel >= channels {
+            return Err(invalid(
+                path,
+                format!("has {channels} channel(s); channel {channel} does not exist"),
+            ));
+        }
+        let mut lead = vec![0u64; leading];
+        if let Some(c) = c_axis {
+            lead[c] = channel as u64;
+        }
+        let range = attrs["vellum"]["range"]
+            .as_array()
+            .and_then(|r| Some([r.first()?.as_f64()?, r.get(1)?.as_f64()?]))
+            .filter(|r| r[0] <= r[1]);
+        Ok(Multiscale {
+            range,
+            root: path.to_path_buf(),
+            version,
+            voxel: voxel.expect("at least one level"),
+            levels,
+            channels,
+            lead,
+            arrays,
+        })
+    }
+
+    /// Reads level `level` whole, as a volume with the level's spacing and origin.
+    pub fn read_level(&self, level: usize) -> Result<Volume> {
+        let l = self.level_info(level)?;
+        let v = self.read_box(level, [0; 3], l.dims)?;
+        let geometry = Geometry {
+            origin: l.origin,
+            ..Geometry::default()
+        };
+        v.with_geometry(geometry)
+    }
+
+    fn level_info(&self, level: usize) -> Result<&Level> {
+        self.levels.get(level).ok_or_else(|| {
+            invalid(
+                &self.root,
+                format!("has no level {level}; it has {}", self.levels.len()),
+            )
+        })
+    }
+
+    /// Voxels `lo .. lo + size` of level `level` (inside its dims), with the level's spacing.
+    /// Missing chunks read as the fill value; a corrupt one is named by its key.
+    pub fn read_box(&self, level: usize, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
+        let l = self.level_info(level)?;
+        let data = retrieve(&self.arrays[level], &self.lead, self.voxel, lo, size)
+            .map_err(|e| self.read_error(level, lo, size, e))?;
+        Volume::new(size, l.spacing, data)
+    }
+
+    /// The error of a box that could not be read, naming the first chunk of the box that fails
+    /// to decode (by its key in the store) when one does.
+    fn read_error(
+        &self,
+        level: usize,
+        lo: [usize; 3],
+        size: [usize; 3],
+        cause: Box<dyn std::error::Error>,
+    ) -> Error {
+        let (l, array) = (&self.levels[level], &self.arrays[level]);
+        let range = |a: usize| lo[a] / l.chunk[a]..=(lo[a] + size[a] - 1) / l.chunk[a];
+        for z in range(2) {
+            for y in range(1) {
+                for x in range(0) {
+                    let mut index = self.lead.clone();
+                    index.extend([z, y, x].map(|i| i as u64));
+                    let chunk = array.retrieve_chunk::<zarrs::array::ArrayBytes<'static>>(&index);
+                    if let Err(e) = chunk {
+                        // The key in the store, from its root.
+                        let key = array.chunk_key(&index);
+                        let key = key.as_str().trim_start_matches('/');
+                        let key = match key.starts_with(&format!("{}/", l.path)) {
+                            true => key.to_string(),
+                            false => format!("{}/{key}", l.path),
+                        };
+                        return invalid(
+                            &self.root,
+                            format!("chunk {key} of level {} could not be read ({e})", l.path),
+                        );
+                    }
+                }
+            }
+        }
+        invalid(
+            &self.root,
+            format!("level {} could not be read ({cause})", l.path),
+        )
+    }
+
+    /// The finest level of at most `voxels` voxels (level 0 when it is that small), read whole
+    /// for statistics and ranges; `None` when even the coarsest is larger.
+    pub fn finest_within(&self, voxels: usize) -> Option<usize> {
+        self.levels
+            .iter()
+            .position(|l| l.dims.iter().product::<usize>() <= voxels)
+    }
+
+    /// Bytes of level `level` in memory (0 for a level the store does not have).
+    pub fn level_bytes(&self, level: usize) -> u64 {
+        self.levels.get(level).map_or(0, |l| {
+            l.dims.iter().map(|&n| n as u64).product::<u64>() * self.voxel.size() as u64
+        })
+    }
+
+    /// Level `level` as a [`BoxSource`].
+    pub fn level(&self, level: usize) -> Result<StoreLevel<'_>> {
+        self.level_info(level)?;
+        Ok(StoreLevel { ms: self, level })
+    }
+}
+
+/// Voxels `lo .. lo + size` of `array` at index `lead` on its leading axes (t, c).
+fn retrieve<S: zarrs::storage::ReadableStorageTraits + ?Sized + 'static>(
+    array: &Array<S>,
+    lead: &[u64],
+    voxel: VoxelType,
+    lo: [usize; 3],
+    size: [usize; 3],
+) -> std::result::Result<VoxelData, Box<dyn std::error::Error>> {
+    let mut ranges: Vec<std::ops::Range<u64>> = lead.iter().map(|&i| i..i + 1).collect();
+    ranges.extend([2, 1, 0].map(|a| lo[a] as u64..(lo[a] + size[a]) as u64));
+    let subset = ArraySubset::new_with_ranges(&ranges);
+    Ok(match voxel {
+        VoxelType::U8 => VoxelData::U8(array.retrieve_array_subset(&subset)?),
+        VoxelType::U16 => VoxelData::U16(array.retrieve_array_subset(&subset)?),
+        VoxelType::I16 => VoxelData::I16(array.retrieve_array_subset(&subset)?),
+        VoxelType::F32 => VoxelData::F32(array.retrieve_array_subset(&subset)?),
+    })
+}
+
+/// One level of a store, read a box at a time.
+pub struct StoreLevel<'a> {
+    ms: &'a Multiscale,
+    level: usize,
+}
+
+impl BoxSource for StoreLevel<'_> {
+    fn dims(&self) -> [usize; 3] {
+        self.ms.levels[self.level].dims
+    }
+    fn spacing(&self) -> [f64; 3] {
+        self.ms.levels[self.level].spacing
+    }
+    fn geometry(&self) -> Geometry {
+        Geometry {
+            origin: self.ms.levels[self.level].origin,
+            ..Geometry::default()
+        }
+    }
+    fn voxel(&self) -> VoxelType {
+        self.ms.voxel
+    }
+    fn read_box(&self, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
+        self.ms.read_box(self.level, lo, size)
+    }
+}
+
+/// The NGFF version and the first multiscale of the root attributes: under `ome` for 0.5, at the
+/// top for 0.4.
+fn multiscales<'a>(path: &Path, attrs: &'a Value) -> Result<(String, &'a Value)> {
+    let (version, list) = match attrs.get("ome") {
+        Some(ome) => (
+            ome["version"].as_str().map(str::to_string),
+            &ome["multiscales"],
+        ),
+        None => (None, &attrs["multiscales"]),
+    };
+    let ms = list.as_array().and_then(|l| l.first()).ok_or_else(|| {
+        invalid(
+            path,
+            "has no OME-NGFF multiscales metadata; expected an OME-Zarr image",
+        )
+    })?;
+    let version = version
+        .or_else(|| ms["version"].as_str().map(str::to_string))
+        .unwrap_or_default();
+    if version != "0.4" && version != "0.5" {
+        return Err(invalid(
+            path,
+            format!("is OME-NGFF version {version:?}; expected 0.4 or 0.5"),
+        ));
+    }
+    Ok((version, ms))
+}
+
+/// The axes' names: (z, y, x), or (t, c, z, y, x).
+fn axis_names(path: &Path, ms: &Value) -> Result<Vec<String>> {
+    let names: Vec<String> = ms["axes"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .map(|x| {
+                    x["name"]
+                        .as_str()
+                        .or(x.as_str())
+                        .unwrap_or("")
+                        .to_lowercase()
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let ok = names == ["z", "y", "x"]
+        || names == ["c", "z", "y", "x"]
+        || names == ["t", "c", "z", "y", "x"];
+    if !ok {
+        return Err(invalid(
+            path,
+            format!("has axes {names:?}; expected (z, y, x), (c, z, y, x) or (t, c, z, y, x)"),
+        ));
+    }
+    Ok(names)
+}
+
+fn voxel_type(path: &Path, name: &str, array: &Array<GuardedStore>) -> Result<VoxelType> {
+    let t = array.data_type();
+    Ok(if *t == data_type::uint8() {
+        VoxelType::U8
+    } else if *t == data_type::uint16() {
+        VoxelType::U16
+    } else if *t == data_type::int16() {
+        VoxelType::I16
+    } else if *t == data_type::float32() {
+        VoxelType::F32
+    } else {
+        return Err(invalid(
+            path,
+            format!("level {name} holds an unsupported data type; expected uint8, uint16, int16 or float32"),
+        ));
+    })
+}
+
+/// One level from its array and its dataset entry (scale and translation, z y x order);
+/// `leading` axes come before z, y, x, the c axis among them at `c_axis`.
+fn level(
+    path: &Path,
+    name: &str,
+    array: &Array<GuardedStore>,
+    d: &Value,
+    (leading, c_axis): (usize, Option<usize>),
+) -> Result<Level> {
+    let shape = array.shape();
+    if shape.len() != leading + 3 {
+        return Err(invalid(
+            path,
+            format!(
+                "level {name} has {} dimensions; the axes name {}",
+                shape.len(),
+                leading + 3
+            ),
+        ));
+    }
+    let times = if leading == 2 { shape[0] } else { 1 };
+    if times != 1 {
+        let channels = c_axis.map_or(1, |c| shape[c]);
+        return Err(invalid(
+            path,
+            format!(
+                "level {name} holds {times} time points and {channels} channels; expected one time point"
+            ),
+        ));
+    }
+    let chunk = array.chunk_shape(&vec![0; shape.len()]).map_err(|e| {
+        invalid(
+            path,
+            format!("level {name} has no regular chunk grid ({e})"),
+        )
+    })?;
+    let zyx = |v: &[u64]| -> [usize; 3] {
+        [
+            v[leading + 2] as usize,
+            v[leading + 1] as usize,
+            v[leading] as usize,
+        ]
+    };
+    let chunk: Vec<u64> = chunk.iter().map(|c| c.get()).collect();
+    let mut spacing = [1.0; 3];
+    let mut origin = [0.0; 3];
+    for t in d["coordinateTransformations"]
+        .as_array()
+        .into_iter()
+        .flatten()
+    {
+        let key = match t["type"].as_str() {
+            Some("scale") => "scale",
+            Some("translation") => "translation",
+            _ => continue,
+        };
+        let v: Vec<f64> = t[key]
+            .as_array()
+            .map(|a| a.iter().filter_map(Value::as_f64).collect())
+            .unwrap_or_default();
+        if v.len() != leading + 3 || v.iter().any(|x| !x.is_finite()) {
+            return Err(invalid(
+                path,
+                format!(
+                    "level {name}'s {key} is {:?}; expected {} finite numbers",
+                    t[key],
+                    leading + 3
+                ),
+            ));
+        }
+        let xyz = [v[leading + 2], v[leading + 1], v[leading]];
+        match key {
+            "scale" => spacing = xyz,
+            _ => origin = xyz,
+        }
+    }
+    ngff_checks::spacing(path, &format!("level {name}'s scale"), spacing)?;
+    ngff_checks::origin(path, &format!("level {name}'s translation"), origin)?;
+    Ok(Level {
+        path: name.to_string(),
+        dims: zyx(shape),
+        chunk: zyx(&chunk),
+        spacing,
+        origin,
+    })
+}
+
+/// Each level no larger than the one before it, and level 0 not empty.
+fn check_levels(path: &Path, levels: &[Level]) -> Result<()> {
+    for w in levels.windows(2) {
+        if (0..3).any(|a| w[1].dims[a] > w[0].dims[a]) {
+            return Err(invalid(
+                path,
+                format!(
+                    "level {} ({:?}) is larger than level {} ({:?}); expected levels from finest to coarsest",
+                    w[1].path, w[1].dims, w[0].path, w[0].dims
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// How to write a store.
+#[derive(Clone, Debug)]
+pub struct WriteOptions {
+    /// Chunk edge in voxels.
+    pub chunk: usize,
+    /// Levels to write; `None`: halve until the longest axis is at most 64 voxels.
+    pub levels: Option<usize>,
+    /// Chunks made at once (each on its own thread, with its box in memory); `None`: one per
+    /// core.
+    pub threads: Option<usize>,
+}
+
+impl Default for WriteOptions {
+    fn default() -> Self {
+        WriteOptions {
+            chunk: 64,
+            levels: None,
+            threads: None,
+        }
+    }
+}
+
+/// The number of levels `auto` gives for `dims`: halve until the longest axis is ≤ 64.
+pub fn auto_levels(dims: [usize; 3]) -> usize {
+    let mut longest = dims.into_iter().max().unwrap_or(1);
+    let mut n = 1;
+    while longest > 64 {
+        longest = longest.div_ceil(2);
+        n += 1;
+    }
+    n
+}
+
+/// Writes `v` as an NGFF 0.5 (Zarr v3) multiscale image at `path`; see [`write_source`].
+pub fn write(path: &Path, v: &Volume, opts: &WriteOptions) -> Result<WriteReport> {
+    write_source(path, v, opts, &|| {})
+}
+
+/// What writing a store did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WriteReport {
+    pub levels: usize,
+    /// Chunks written, over all levels (chunks that hold only the fill value are not stored).
+    pub chunks: usize,
+    /// Uncompressed bytes of every level.
+    pub bytes: u64,
+    /// Smallest and largest value of level 0.
+    pub range: [f64; 2],
+}
+
+/// The number of chunks `write_source` makes for a grid of `dims`: `on_chunk`'s count.
+pub fn chunk_count(dims: [usize; 3], opts: &WriteOptions) -> usize {
+    let levels = opts.levels.unwrap_or_else(|| auto_levels(dims));
+    (0..levels)
+        .map(|i| {
+            let d = level_dims(dims, i);
+            (0..3)
+                .map(|a| d[a].div_ceil(opts.chunk.max(1)))
+                .product::<usize>()
+        })
+        .sum()
+}
+
+/// Dims of pyramid level `i` of a grid of `dims`.
+fn level_dims(dims: [usize; 3], i: usize) -> [usize; 3] {
+    dims.map(|n| (0..i).fold(n, |n, _| n.div_ceil(2)))
+}
+
+/// Writes `src` as an NGFF 0.5 (Zarr v3) multiscale image at `path` (a folder that must not exist
+/// yet), zstd-compressed, each level the 2×2×2 mean of the one before it, one chunk at a time:
+/// level 0 from boxes of `src`, each coarser level from boxes of the level just written, so memory
+/// holds a few chunks whatever the grid's size. `on_chunk` is called after each chunk (a progress
+/// bar). The store is written under a temporary name and renamed into place once complete, so no
+/// partial store is left. Level 0's value range goes in the root attributes (`vellum.range`), so
+/// that a reader can normalise intensities without reading every voxel.
+pub fn write_source(
+    path: &Path,
+    src: &dyn BoxSource,
+    opts: &WriteOptions,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
+    write_source_in(&Solo, path, src, opts, on_chunk)
+}
+
+/// [`write_source`] by the ranks of `team` together (see [`write_channels_in`]).
+pub fn write_source_in(
+    team: &dyn Team,
+    path: &Path,
+    src: &dyn BoxSource,
+    opts: &WriteOptions,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
+    let read = |lo, size| Ok(vec![src.read_box(lo, size)?]);
+    let channels = Channels::over(src, (1, src.voxel()), &read);
+    write_channels_in(team, path, &channels, opts, on_chunk)
+}
+
+/// A grid of `count` values per voxel, read a box at a time as one volume per channel.
+pub struct Channels<'a> {
+    pub dims: [usize; 3],
+    pub spacing: [f64; 3],
+    pub geometry: Geometry,
+    pub voxel: VoxelType,
+    pub count: usize,
+    #[allow(clippy::type_complexity)]
+    pub read: &'a (dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
+}
+
+impl<'a> Channels<'a> {
+    /// `count` channels of `voxel` over the grid of `src` (its dims, spacing and placement),
+    /// read by `read`.
+    #[allow(clippy::type_complexity)]
+    pub fn over(
+        src: &dyn BoxSource,
+        (count, voxel): (usize, VoxelType),
+        read: &'a (dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
+    ) -> Self {
+        Channels {
+            dims: src.dims(),
+            spacing: src.spacing(),
+            geometry: src.geometry(),
+            voxel,
+            count,
+            read,
+        }
+    }
+}
+
+/// [`write_source`] for a grid of several channels: the arrays get a leading c axis (`channel`
+/// in the axes) when `src.count` is above 1, each channel's pyramid is made as a scalar one's,
+/// and the recorded range spans every channel.
+pub fn write_channels(
+    path: &Path,
+    src: &Channels,
+    opts: &WriteOptions,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
+    write_channels_in(&Solo, path, src, opts, on_chunk)
+}
+
+/// [`write_channels`] by the ranks of `team` together: rank 0 makes the temporary folder and
+/// writes the metadata, every rank writes the chunks of its own boxes of each level (a k-d
+/// split of the chunk grid; chunks are separate objects, so no two ranks write one), the ranks
+/// agree after each level (one failed rank ends every rank with its sentence, and rank 0
+/// removes the folder), and level 0's range is reduced over the ranks. The store is the one a
+/// process alone writes, byte for byte.
+pub fn write_channels_in(
+    team: &dyn Team,
+    path: &Path,
+    src: &Channels,
+    opts: &WriteOptions,
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
+    if opts.chunk == 0 {
+        return Err(Error::Invalid(
+            "`chunk` is 0; expected a chunk edge of 1 voxel or more".into(),
+        ));
+    }
+    let levels = opts.levels.unwrap_or_else(|| auto_levels(src.dims));
+    check_write_shape(src.dims, opts.chunk, levels)?;
+    if src.geometry.direction != crate::geometry::IDENTITY && team.is_root() {
+        log::warn!(
+            "OME-NGFF has no rotation: {} keeps the origin and spacing and drops the direction matrix",
+            path.display()
+        );
+    }
+    let name = path
+        .file_name()
+        .map(|n| {
+            n.to_string_lossy()
+                .trim_end_matches(".zarr")
+                .trim_end_matches(".ome")
+                .to_string()
+        })
+        .unwrap_or_default();
+    // Rank 0 makes the temporary folder; every rank learns its name, or rank 0's sentence.
+    let folder = team.is_root().then(|| crate::output::begin_folder(path));
+    let made = match &folder {
+        Some(Err(e)) => Err(Error::Invalid(e.to_string())),
+        _ => Ok(()),
+    };
+    team.agree(made)?;
+    let folder = folder.transpose()?;
+    let tmp = folder
+        .as_ref()
+        .map(|f| f.tmp.to_string_lossy().into_owned());
+    let tmp = PathBuf::from(
+        String::from_utf8_lossy(&team.broadcast(tmp.unwrap_or_default().into_bytes())).into_owned(),
+    );
+    let threads = opts.threads.unwrap_or(usize::MAX).max(1);
+    let report = write_levels(
+        team,
+        &tmp,
+        &name,
+        src,
+        (opts.chunk, levels, threads),
+        on_chunk,
+    );
+    match (folder, report) {
+        (None, report) => report,
+        (Some(f), Ok(r)) => f.finish(Ok(())).map(|()| r),
+        (Some(f), Err(e)) => Err(f
+            .finish(Err(e))
+            .err()
+            .unwrap_or_else(|| Error::Invalid("the store failed and was removed".into()))),
+    }
+}
+
+/// Levels, chunks and chunk counts a writer accepts: from 1 level to the number that halves the
+/// longest axis down to one voxel (each further level would be that voxel again), chunks of at
+/// most `guarded_store::MAX_CHUNK_BYTES` at 32 bits, and at most `ngff_checks::MAX_CHUNKS`
+/// of them in level 0 (what a reader accepts).
+pub fn check_write_shape(dims: [usize; 3], chunk: usize, levels: usize) -> Result<()> {
+    let longest = dims.into_iter().max().unwrap_or(1).max(1);
+    let most = (usize::BITS - (longest - 1).leading_zeros()) as usize + 1;
+    if levels == 0 || levels > most {
+        return Err(Error::Invalid(format!(
+            "`levels` {levels} is invalid for a {}x{}x{} volume; expected 1 to {most} (halving its longest axis down to one voxel)",
+            dims[0], dims[1], dims[2]
+        )));
+    }
+    if chunk < 8 && chunk < longest {
+        return Err(Error::Invalid(format!(
+            "`chunk` {chunk} is too small: a file for every {} voxels; expected 8 or more",
+            chunk.pow(3)
+        )));
+    }
+    let chunk_bytes = (chunk as u128).pow(3) * 4;
+    if chunk_bytes > super::guarded_store::MAX_CHUNK_BYTES as u128 {
+        return Err(Error::Invalid(format!(
+            "`chunk` {chunk} is too large: {chunk_bytes} bytes a chunk at 32 bits; expected at most {}",
+            super::guarded_store::MAX_CHUNK_BYTES
+        )));
+    }
+    let chunks: u128 = dims
+        .iter()
+        .map(|&n| n.div_ceil(chunk.max(1)) as u128)
+        .product();
+    if chunks > ngff_checks::MAX_CHUNKS {
+        return Err(Error::Invalid(format!(
+            "`chunk` {chunk} cuts a {}x{}x{} volume into {chunks} chunks; expected at most {} (a larger chunk)",
+            dims[0],
+            dims[1],
+            dims[2],
+            ngff_checks::MAX_CHUNKS
+        )));
+    }
+    Ok(())
+}
+
+fn write_levels(
+    team: &dyn Team,
+    path: &Path,
+    name: &str,
+    src: &Channels,
+    (chunk, levels, threads): (usize, usize, usize),
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<WriteReport> {
+    let store = Arc::new(FilesystemStore::new(path).map_err(|e| invalid(path, e))?);
+    let mut datasets = Vec::new();
+    let (voxel, dims0, base) = (src.voxel, src.dims, src.spacing);
+    let channels = src.count;
+    let mut report = WriteReport {
+        levels,
+        chunks: 0,
+        bytes: 0,
+        range: [f64::INFINITY, f64::NEG_INFINITY],
+    };
+    // A c axis only for more than one channel: (c, z, y, x); its scale is 1 and translation 0.
+    let with_c = |zyx: [f64; 3], c: f64| -> Vec<f64> {
+        let mut v = if channels > 1 { vec![c] } else { vec![] };
+        v.extend([zyx[2], zyx[1], zyx[0]]);
+        v
+    };
+    let mut previous: Option<Array<FilesystemStore>> = None;
+    for i in 0..levels {
+        let dims = level_dims(dims0, i);
+        let spacing = base.map(|s| s * (1u64 << i) as f64);
+        let origin: [f64; 3] =
+            std::array::from_fn(|a| src.geometry.origin[a] + 0.5 * (spacing[a] - base[a]));
+        let meta = team.is_root();
+        let made = make_array(
+            &store,
+            path,
+            &i.to_string(),
+            (dims, channels, meta),
+            chunk,
+            voxel,
+        );
+        team.agree(
+            made.as_ref()
+                .map(|_| ())
+                .map_err(|e| Error::Invalid(e.to_string())),
+        )?;
+        let array = made?;
+        let grid = dims.map(|n| n.div_ceil(chunk));
+        let owners = crate::team::kd_owners(grid, &[], team.size());
+        let mine: Vec<usize> = (0..owners.len())
+            .filter(|&c| owners[c] == team.rank())
+            .collect();
+        let written = match &previous {
+            None => store_chunks(
+                &array,
+                path,
+                (dims, chunk, &mine, threads),
+                src.read,
+                on_chunk,
+            ),
+            Some(prev) => {
+                let read = |lo, size| {
+                    halved_box(prev, channels, voxel, level_dims(dims0, i - 1), (lo, size))
+                };
+                let read = |lo, size| {
+                    read(lo, size).map_err(|e| {
+                        invalid(
+                            path,
+                            format!("level {} could not be read back ({e})", i - 1),
+                        )
+                    })
+                };
+                store_chunks(&array, path, (dims, chunk, &mine, threads), &read, on_chunk)
+            }
+        };
+        // Every rank's chunks of this level are written before any rank reads them for the next.
+        let local = match written {
+            Ok(r) => {
+                team.agree(Ok(()))?;
+                r
+            }
+            Err(e) => {
+                return Err(team
+                    .agree(Err(e))
+                    .err()
+                    .unwrap_or_else(|| Error::Invalid("a chunk failed".into())))
+            }
+        };
+        let range = team.min_max(local);
+        if i == 0 {
+            report.range = range;
+        }
+        let count = (0..3).map(|a| dims[a].div_ceil(chunk)).product::<usize>();
+        report.chunks += count * channels;
+        report.bytes += (dims[0] * dims[1] * dims[2] * voxel.size() * channels) as u64;
+        previous = Some(array);
+        datasets.push(json!({
+            "path": i.to_string(),
+            "coordinateTransformations": [
+                {"type": "scale", "scale": with_c(spacing, 1.0)},
+                {"type": "translation", "translation": with_c(origin, 0.0)},
+            ],
+        }));
+    }
+    let mut axes = vec![];
+    if channels > 1 {
+        axes.push(json!({"name": "c", "type": "channel"}));
+    }
+    axes.extend(["z", "y", "x"].map(|n| json!({"name": n, "type": "space"})));
+    if !team.is_root() {
+        return Ok(report);
+    }
+    let mut group = zarrs::group::GroupBuilder::new()
+        .build(store, "/")
+        .map_err(|e| invalid(path, e))?;
+    let attrs = group.attributes_mut();
+    attrs.insert(
+        "ome".into(),
+        json!({
+            "version": "0.5",
+            "multiscales": [{ "name": name, "axes": axes, "datasets": datasets }],
+        }),
+    );
+    attrs.insert("vellum".into(), json!({ "range": report.range }));
+    group.store_metadata().map_err(|e| invalid(path, e))?;
+    Ok(report)
+}
+
+/// The box `lo .. lo + size` of the level after `prev` (a level of `prev_dims`): the 2×2×2 mean
+/// of `prev`'s box under it, channel by channel.
+fn halved_box(
+    prev: &Array<FilesystemStore>,
+    channels: usize,
+    voxel: VoxelType,
+    prev_dims: [usize; 3],
+    (lo, size): ([usize; 3], [usize; 3]),
+) -> std::result::Result<Vec<Volume>, Box<dyn std::error::Error>> {
+    let plo = lo.map(|v| 2 * v);
+    let psize: [usize; 3] = std::array::from_fn(|a| (2 * size[a]).min(prev_dims[a] - plo[a]));
+    (0..channels)
+        .map(|c| {
+            let lead = lead_of(channels, c);
+            let data = retrieve(prev, &lead, voxel, plo, psize)?;
+            Ok(halve(&Volume::new(psize, [1.0; 3], data)?)?)
+        })
+        .collect()
+}
+
+/// The leading index of channel `c` in a written store: none for one channel, (c) otherwise.
+fn lead_of(channels: usize, c: usize) -> Vec<u64> {
+    if channels > 1 {
+        vec![c as u64]
+    } else {
+        vec![]
+    }
+}
+
+/// An empty level of `dims` and `channels` in `voxel`, chunked by `chunk` (one channel a chunk),
+/// zstd-compressed, its metadata stored when `meta` (rank 0's part in a team).
+fn make_array(
+    store: &Arc<FilesystemStore>,
+    path: &Path,
+    name: &str,
+    (dims, channels, meta): ([usize; 3], usize, bool),
+    chunk: usize,
+    voxel: VoxelType,
+) -> Result<Array<FilesystemStore>> {
+    // (c, z, y, x) for several channels, (z, y, x) for one.
+    let mut shape: Vec<u64> = if channels > 1 {
+        vec![channels as u64]
+    } else {
+        vec![]
+    };
+    shape.extend([dims[2], dims[1], dims[0]].map(|n| n as u64));
+    let chunks: Vec<u64> = shape
+        .iter()
+        .enumerate()
+        .map(|(k, &n)| match k + 3 < shape.len() {
+            true => 1,
+            false => (chunk as u64).min(n).max(1),
+        })
+        .collect();
+    let (dtype, fill): (zarrs::array::DataType, zarrs::array::FillValue) = match voxel {
+        VoxelType::U8 => (data_type::uint8(), 0u8.into()),
+        VoxelType::U16 => (data_type::uint16(), 0u16.into()),
+        VoxelType::I16 => (data_type::int16(), 0i16.into()),
+        VoxelType::F32 => (data_type::float32(), 0f32.into()),
+    };
+    let names: &[&str] = if channels > 1 {
+        &["c", "z", "y", "x"]
+    } else {
+        &["z", "y", "x"]
+    };
+    let array = ArrayBuilder::new(shape, chunks, dtype, fill)
+        .bytes_to_bytes_codecs(vec![Arc::new(zarrs::array::codec::ZstdCodec::new(
+            3, false,
+        ))])
+        .dimension_names(Some(names.to_vec()))
+        .build(store.clone(), &format!("/{name}"))
+        .map_err(|e| invalid(path, format!("level {name} could not be made ({e})")))?;
+    if meta {
+        array.store_metadata().map_err(|e| {
+            invalid(
+                path,
+                format!("level {name}'s metadata could not be written ({e})"),
+            )
+        })?;
+    }
+    Ok(array)
+}
+
+/// Fills chunks `mine` (indices, x fastest) of `array` (a level of `dims`) from `read(lo, size)`
+/// (one volume per channel), chunks in parallel; returns the smallest and largest value written.
+///
+/// The chunks run on plain threads, one per core, not as rayon tasks: `read` may hold a lock
+/// while it calls into rayon (the chunked passes share one GPU pipeline behind a mutex, and its
+/// packing is parallel), and a rayon worker waiting for that inner work steals other tasks,
+/// which can be another chunk that waits for the lock its own thread holds. That deadlocked a
+/// 512³ chunked importance map on a 16-core machine.
+#[allow(clippy::type_complexity)]
+fn store_chunks(
+    array: &Array<FilesystemStore>,
+    path: &Path,
+    (dims, chunk, mine, most): ([usize; 3], usize, &[usize], usize),
+    read: &(dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
+    on_chunk: &(dyn Fn() + Sync),
+) -> Result<[f64; 2]> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let counts = dims.map(|n| n.div_ceil(chunk));
+    let total = mine.len();
+    let one = |k: usize| -> Result<[f64; 2]> {
+        // Ctrl-C: stop before the next chunk, so that nothing writes into the folder once it
+        // is removed.
+        vellum_error::check_interrupt()?;
+        let c = mine[k];
+        let index = [
+            c % counts[0],
+            (c / counts[0]) % counts[1],
+            c / (counts[0] * counts[1]),
+        ];
+        let lo = index.map(|i| i * chunk);
+        let size: [usize; 3] = std::array::from_fn(|a| chunk.min(dims[a] - lo[a]));
+        let channels = read(lo, size)?;
+        let mut range = [f64::INFINITY, f64::NEG_INFINITY];
+        for (k, v) in channels.iter().enumerate() {
+            let r = crate::stats::value_range(v);
+            range = [range[0].min(r[0]), range[1].max(r[1])];
+            let mut ranges: Vec<std::ops::Range<u64>> = lead_of(channels.len(), k)
+                .into_iter()
+                .map(|i| i..i + 1)
+                .collect();
+            ranges.extend([2, 1, 0].map(|a| lo[a] as u64..(lo[a] + size[a]) as u64));
+            let subset = ArraySubset::new_with_ranges(&ranges);
+            let stored = match &v.data {
+                VoxelData::U8(d) => array.store_array_subset(&subset, d.as_slice()),
+                VoxelData::U16(d) => array.store_array_subset(&subset, d.as_slice()),
+                VoxelData::I16(d) => array.store_array_subset(&subset, d.as_slice()),
+                VoxelData::F32(d) => array.store_array_subset(&subset, d.as_slice()),
+            };
+            stored.map_err(|e| {
+                invalid(path, format!("chunk {index:?} could not be written ({e})"))
+            })?;
+        }
+        on_chunk();
+        Ok(range)
+    };
+    let next = AtomicUsize::new(0);
+    // Each thread takes the next chunk until none is left or one has failed (then every thread
+    // stops at its next chunk).
+    let worker = || -> Result<[f64; 2]> {
+        let mut acc = [f64::INFINITY, f64::NEG_INFINITY];
+        loop {
+            let c = next.fetch_add(1, Ordering::Relaxed);
+            if c >= total {
+                return Ok(acc);
+            }
+            match one(c) {
+                Ok(r) => acc = [acc[0].min(r[0]), acc[1].max(r[1])],
+                Err(e) => {
+                    next.store(total, Ordering::Relaxed);
+                    return Err(e);
+                }
+            }
+        }
+    };
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(most)
+        .min(total.max(1));
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads).map(|_| s.spawn(worker)).collect();
+        let mut acc = [f64::INFINITY, f64::NEG_INFINITY];
+        for h in handles {
+            let r = h
+                .join()
+                .map_err(|_| invalid(path, "a chunk's thread failed".to_string()))??;
+            acc = [acc[0].min(r[0]), acc[1].max(r[1])];
+        }
+        Ok(acc)
+    })
+}
+
+/// The 2×2×2 mean of `v` (odd edges average what they have), in the same voxel type, with
+/// doubled spacing and the origin moved to the first output voxel's centre.
+pub fn halve(v: &Volume) -> Result<Volume> {
+    let d = v.dims;
+    let out = d.map(|n| n.div_ceil(2));
+    let mut sums = vec![0f64; out[0] * out[1] * out[2]];
+    let mut counts = vec![0u32; sums.len()];
+    for z in 0..d[2] {
+        for y in 0..d[1] {
+            for x in 0..d[0] {
+                let o = x / 2 + out[0] * (y / 2 + out[1] * (z / 2));
+                sums[o] += v.data.get_f64(x + d[0] * (y + d[1] * z));
+                counts[o] += 1;
+            }
+        }
+    }
+    let mean = |i: usize| sums[i] / counts[i] as f64;
+    let n = sums.len();
+    let data = match &v.data {
+        VoxelData::U8(_) => VoxelData::U8((0..n).map(|i| mean(i).round() as u8).collect()),
+        VoxelData::U16(_) => VoxelData::U16((0..n).map(|i| mean(i).round() as u16).collect()),
+        VoxelData::I16(_) => VoxelData::I16((0..n).map(|i| mean(i).round() as i16).collect()),
+        VoxelData::F32(_) => VoxelData::F32((0..n).map(|i| mean(i) as f32).collect()),
+    };
+    let spacing = v.spacing.map(|s| 2.0 * s);
+    let geometry = Geometry {
+        origin: std::array::from_fn(|a| v.geometry.origin[a] + 0.5 * v.spacing[a]),
+        ..v.geometry
+    };
+    Volume::new(out, spacing, data)?.with_geometry(geometry)
+}
