@@ -12,6 +12,7 @@
 //! change, one frame at full resolution follows and the loop goes idle until the next event.
 
 mod bench;
+mod session;
 pub mod swapchain;
 mod ui;
 
@@ -19,26 +20,23 @@ use crate::swapchain::Swapchain;
 use ash::vk;
 use bench::BenchLog;
 pub use bench::BenchReport;
-use std::path::{Path, PathBuf};
-use std::sync::{mpsc, Arc};
+use session::{Drag, DrawnKey, Edit, KeyPress, Loaded, Session, SessionSetup};
+use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
-use ui::Model;
 use vellum_error::{Error, Result};
 use vellum_gpu::graphics::{begin_rendering_view, end_rendering, GraphicsDesc, GraphicsPipeline};
 use vellum_gpu::{
     Access, Bind, BindingKind, Context, ContextDesc, Frames, FramesDesc, Presentation, Sampler,
     SubmitSync,
 };
-use vellum_render::classify::transfer::TransferFunction;
-use vellum_render::classify::Classification;
 use vellum_render::render::frame::Renderer;
-use vellum_render::render::scene::{ClassificationSpec, GpuScene, InputSpec, NamedView, Scene};
+use vellum_render::render::scene::{GpuScene, Scene};
 use vellum_render::render::session::{Opened, Prepared, SessionOptions};
 use vellum_render::render::stream::{Order, Streamer};
 use vellum_render::render::targets::to_rgb8;
 use vellum_render::render::targets::{FrameTargets, TargetsReadback};
 use vellum_render::render::view::{frame_camera, View, WorldBox};
-use vellum_volume::Volume;
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
@@ -190,16 +188,6 @@ impl PresentPass<'_> {
     }
 }
 
-/// What a rendered frame depended on (see `Running::last_drawn`).
-#[derive(Clone, PartialEq)]
-struct DrawnKey {
-    view: vellum_render::render::view::View,
-    scene: Scene,
-    tf: TransferFunction,
-    otf: Option<vellum_render::classify::otf::OcclusionTf>,
-    epoch: u64,
-}
-
 /// How a rendered frame's key differs from the last one's (see `Running::last_drawn`).
 enum DrawnState {
     /// No view: nothing is remembered.
@@ -210,79 +198,6 @@ enum DrawnState {
     View(Box<vellum_render::render::view::View>),
     /// A new key.
     All(Box<DrawnKey>),
-}
-
-/// An occlusion volume being recomputed on a worker thread. The worker opens its own Vulkan
-/// device (a second queue on the same GPU) and hands back the volume and spectrum on the host;
-/// this thread uploads them in one short submission. The window keeps rendering meanwhile, and
-/// no submission of the window's context ever happens off its thread, which the deferred release
-/// of gpu/lifetime.rs relies on.
-struct PendingOcclusion {
-    rx: mpsc::Receiver<Result<vellum_render::passes::occlusion::OcclusionOutput>>,
-    radius: u32,
-    started: Instant,
-    generation: u64,
-    /// Frames presented while it ran, and the longest time between two of them.
-    frames: u32,
-    longest_ms: f64,
-}
-
-/// A volume loaded on a worker thread.
-struct Loaded {
-    scene: Scene,
-    /// The volume, or for a store streamed through the brick cache its coarsest level (which the
-    /// histogram and range come from), with the pyramid in `levels`.
-    volume: Volume,
-    levels: Option<Arc<vellum_volume::bricks::BrickLevels>>,
-    classification: Classification,
-    tf: TransferFunction,
-    histogram: Vec<u64>,
-    range: [f64; 2],
-    features: Option<vellum_volume::feature::FeatureMap>,
-    otf: Option<vellum_render::classify::otf::OcclusionTf>,
-}
-
-fn load(scene: Scene, budget: u64) -> Result<Loaded> {
-    let classification = scene.classification()?;
-    // The session's rule: a store beyond the budget is never read whole, and the level of at
-    // most 64³ voxels stands in for it on the host (histogram, range); a volume beyond it is
-    // drawn through the brick cache too.
-    let (levels, volume) = match Opened::open(&scene, None, budget, None)? {
-        Opened::Bricked(levels) => {
-            let small = levels.read_small_level(64 * 64 * 64)?;
-            (Some(levels), small)
-        }
-        Opened::InCore(v) => (None, v),
-    };
-    let s = vellum_volume::stats::stats(&volume, 256);
-    let range = levels.as_ref().map_or([s.min, s.max], |l| l.range);
-    let tf = match &classification {
-        Classification::Transfer(tf) => tf.clone(),
-        Classification::Auto => vellum_render::classify::window::auto(&volume, range)?,
-        _ => TransferFunction::preset("grey")?,
-    };
-    let (tf, features) = match &classification {
-        Classification::Features(map) => (
-            vellum_render::classify::features::feature_transfer_function(map, [s.min, s.max])?,
-            Some(map.clone()),
-        ),
-        _ => (tf, None),
-    };
-    let otf = match &classification {
-        Classification::Occlusion(o) => Some(o.clone()),
-        _ => None,
-    };
-    Ok(Loaded {
-        otf,
-        scene,
-        classification,
-        tf,
-        histogram: s.histogram,
-        range,
-        volume,
-        levels,
-        features,
-    })
 }
 
 /// The GPU state of a loaded volume: in core, or the brick cache's pools with the streamer
@@ -327,13 +242,6 @@ fn stream_status(s: &Streamer, paged: &vellum_render::passes::paging::Paged) -> 
         Some(f) => format!("{line}; drawn from coarser levels where bricks are missing: {f}"),
         None => line,
     }
-}
-
-/// Camera drag in progress.
-#[derive(Copy, Clone, Debug)]
-enum Drag {
-    Orbit,
-    Pan,
 }
 
 /// Everything that exists while the window is open: the GPU state, the session and the input,
@@ -385,38 +293,6 @@ struct GpuState {
     last_view: Option<View>,
     /// GPU memory for a volume's textures; a store that needs more is streamed.
     budget: u64,
-}
-
-/// The session: the model the panels edit (with the scene), what of it is applied to the GPU,
-/// the volume on the host, the work in flight on worker threads, and the files it writes.
-struct Session {
-    model: Model,
-    /// The scene as last applied to the GPU state, to see what changed.
-    applied: Scene,
-    applied_tf: TransferFunction,
-    applied_otf: Option<vellum_render::classify::otf::OcclusionTf>,
-    /// The volume on the host, for recomputing what depends on it (the occlusion volume).
-    volume: Volume,
-    /// The camera of the loaded scene, for reset.
-    home: vellum_render::render::scene::CameraSpec,
-    pending_load: Option<mpsc::Receiver<Result<Loaded>>>,
-    /// The occlusion volume being recomputed on a worker thread.
-    pending_occlusion: Option<PendingOcclusion>,
-    /// Counts the volumes loaded, so that an occlusion volume computed for an earlier one is
-    /// dropped.
-    generation: u64,
-    /// The device the window renders on, for the worker's own context.
-    device: Option<String>,
-    /// What the targets hold: the view and the applied state of the last frame rendered, and the
-    /// volume generation. A frame that would render the same again only presents them (idle
-    /// redraws for a spinner, hover or a screenshot cost no volume rendering).
-    last_drawn: Option<DrawnKey>,
-    /// Counts replacements of GPU volume state (loads, occlusion volumes).
-    epoch: u64,
-    screenshot: Option<PathBuf>,
-    screenshot_dir: PathBuf,
-    /// The `--bench` orbit's bookkeeping, in bench mode.
-    bench: Option<BenchLog>,
 }
 
 /// The pointer and keyboard: a drag in progress, modifiers, the last click (for the double
@@ -478,7 +354,9 @@ impl ApplicationHandler for App {
                 r.changed();
             }
             WindowEvent::DroppedFile(path) => {
-                r.start_load_input(path.to_string_lossy().into_owned());
+                r.session
+                    .start_load_input(path.to_string_lossy().into_owned());
+                r.changed();
             }
             WindowEvent::ModifiersChanged(m) => {
                 r.input.shift = m.state().shift_key();
@@ -567,13 +445,12 @@ impl ApplicationHandler for App {
             r.egui_repaint_at = None;
             r.window.request_redraw();
         }
-        if r.session.model.scene != r.session.applied || r.session.model.tf != r.session.applied_tf
-        {
+        if r.session.edited() {
             r.changed();
         }
         let busy = r.session.bench.is_some()
             || r.streaming()
-            || r.session.pending_load.is_some()
+            || r.session.loading()
             || r.session.pending_occlusion.is_some();
         let refine_at = r.input.last_change + REFINE_AFTER;
         if busy
@@ -690,34 +567,6 @@ fn egui_renderer(
     Ok((egui_renderer, egui_pool))
 }
 
-/// The panels' model for the first volume: its histogram, features, occlusion TF, spectrum and
-/// geometry, and the scene and TF files beside the screenshots.
-fn initial_model(loaded: &Loaded, gpu: &mut Prepared, ctx: &Context, opts: &ViewOptions) -> Model {
-    let mut model = Model::new(loaded.scene.clone(), loaded.tf.clone());
-    model.histogram = loaded.histogram.clone();
-    model.features = loaded.features.clone();
-    model.otf = loaded.otf.clone();
-    model.spectrum = match gpu {
-        Prepared::InCore(g) => g.spectrum.take(),
-        Prepared::Paged(..) => None,
-    };
-    model.range = loaded.range;
-    model.dims = gpu.volume().dims();
-    model.oriented = loaded.volume.geometry.is_oriented();
-    model.message = format!("{} on {}", loaded.scene.input.path, ctx.info.name);
-    model.scene_path = opts
-        .screenshot_dir
-        .join("vellum.scene.json")
-        .to_string_lossy()
-        .into_owned();
-    model.tf_path = opts
-        .screenshot_dir
-        .join("vellum.tf.json")
-        .to_string_lossy()
-        .into_owned();
-    model
-}
-
 impl Running {
     fn new(event_loop: &ActiveEventLoop, opts: &ViewOptions) -> Result<Self> {
         let (window, display, handle, present) = open_window(event_loop, opts)?;
@@ -730,7 +579,7 @@ impl Running {
         )?;
         let opened = Instant::now();
         let budget = vellum_render::render::bricked::gpu_budget_bytes(&ctx, opts.gpu_budget)?;
-        let mut loaded = load(opts.scene.clone(), budget)?;
+        let mut loaded = session::load(opts.scene.clone(), budget)?;
         let size = window.inner_size();
         let frames = Frames::new(&ctx, &FramesDesc::interactive("view"))?;
         // SAFETY: the window (held in `Running` after the swapchain) outlives it.
@@ -771,8 +620,23 @@ impl Running {
         );
         let renderer = Renderer::new(&ctx)?;
         let mut gpu = prepare_gpu(&ctx, &mut loaded, budget)?;
-        let model = initial_model(&loaded, &mut gpu, &ctx, opts);
-        let home = loaded.scene.camera.clone();
+        let spectrum = match &mut gpu {
+            Prepared::InCore(g) => g.spectrum.take(),
+            Prepared::Paged(..) => None,
+        };
+        let dims = gpu.volume().dims();
+        let session = Session::new(
+            loaded,
+            spectrum,
+            dims,
+            SessionSetup {
+                device: opts.device.clone(),
+                device_name: ctx.info.name.clone(),
+                screenshot_dir: opts.screenshot_dir.clone(),
+                bench: opts.bench_frames.map(|n| BenchLog::new(n, opts.bench_full)),
+                budget,
+            },
+        );
         Ok(Running {
             gpu: GpuState {
                 frames,
@@ -787,23 +651,7 @@ impl Running {
                 last_view: None,
                 budget,
             },
-            session: Session {
-                applied: loaded.scene,
-                applied_tf: loaded.tf,
-                applied_otf: loaded.otf,
-                volume: loaded.volume,
-                home,
-                model,
-                pending_load: None,
-                pending_occlusion: None,
-                generation: 0,
-                device: opts.device.clone(),
-                last_drawn: None,
-                epoch: 0,
-                screenshot: None,
-                screenshot_dir: opts.screenshot_dir.clone(),
-                bench: opts.bench_frames.map(|n| BenchLog::new(n, opts.bench_full)),
-            },
+            session,
             input: Input {
                 drag: None,
                 cursor: [0.0; 2],
@@ -856,40 +704,16 @@ impl Running {
         self.input.drag = kind.map(|k| (k, self.input.cursor));
     }
 
-    /// A key pressed outside egui: quit, screenshot, save the scene, orthographic, reset, the
-    /// panel, and the six named views.
+    /// A key pressed outside egui: the session's keys, and the panel's.
     fn key(&mut self, key: &Key) {
-        match key {
-            Key::Named(NamedKey::Escape) => self.session.model.requests.quit = true,
-            Key::Character(c) => match c.as_str() {
-                "q" | "Q" => self.session.model.requests.quit = true,
-                "s" | "S" if self.input.ctrl => {
-                    self.session.model.requests.save_scene =
-                        Some(self.session.model.scene_path.clone());
-                }
-                "s" | "S" => self.session.model.requests.screenshot = true,
-                "o" | "O" => {
-                    self.session.model.scene.camera.ortho = !self.session.model.scene.camera.ortho;
-                }
-                "r" | "R" => self.reset_camera(),
-                "h" | "H" => {
-                    self.show_panel = !self.show_panel;
-                    self.changed();
-                }
-                d @ ("1" | "2" | "3" | "4" | "5" | "6") => {
-                    let v = [
-                        NamedView::Anterior,
-                        NamedView::Posterior,
-                        NamedView::Left,
-                        NamedView::Right,
-                        NamedView::Superior,
-                        NamedView::Inferior,
-                    ][d.parse::<usize>().unwrap_or(1) - 1];
-                    ui::set_view(&mut self.session.model.scene, v);
-                }
-                _ => {}
-            },
-            _ => {}
+        let press = match key {
+            Key::Named(NamedKey::Escape) => KeyPress::Escape,
+            Key::Character(c) => KeyPress::Char(c.to_string()),
+            _ => return,
+        };
+        if self.session.key(&press, self.input.ctrl) {
+            self.show_panel = !self.show_panel;
+            self.changed();
         }
     }
 
@@ -921,96 +745,34 @@ impl Running {
         Ok(frame_camera(&WorldBox::of(self.gpu.scene.volume()), &view))
     }
 
-    /// Makes the scene's camera explicit (angles and distance) so that a drag can change it.
-    fn explicit_camera(&mut self) -> Option<vellum_render::render::camera::Camera> {
-        let cam = self.resolved_camera().ok()?;
-        let c = &mut self.session.model.scene.camera;
-        c.view = None;
-        c.azimuth = Some(cam.azimuth_deg);
-        c.elevation = Some(cam.elevation_deg);
-        c.distance = Some(cam.distance);
-        Some(cam)
-    }
-
     fn camera_drag(&mut self, kind: Drag, d: [f64; 2]) {
-        let Some(cam) = self.explicit_camera() else {
+        let Ok(cam) = self.resolved_camera() else {
             return;
         };
-        let view_h = self.view_size()[1].max(1) as f32;
-        let c = &mut self.session.model.scene.camera;
-        match kind {
-            Drag::Orbit => {
-                c.azimuth = Some((cam.azimuth_deg - 0.4 * d[0] as f32).rem_euclid(360.0));
-                c.elevation = Some((cam.elevation_deg + 0.4 * d[1] as f32).clamp(-90.0, 90.0));
-            }
-            Drag::Pan => {
-                // The visible height at the target, in bounding-sphere radii.
-                let h = view_h;
-                let span = 2.0 * cam.distance * (0.5 * cam.fov_y_deg.to_radians()).tan();
-                c.pan[0] -= d[0] as f32 * span / h;
-                c.pan[1] += d[1] as f32 * span / h;
-            }
-        }
+        let view_h = self.view_size()[1];
+        self.session.drag(&cam, kind, d, view_h);
         self.changed();
     }
 
     fn zoom(&mut self, steps: f64) {
-        let Some(cam) = self.explicit_camera() else {
+        let Ok(cam) = self.resolved_camera() else {
             return;
         };
-        let min = if cam.ortho { 0.05 } else { 1.05 };
-        self.session.model.scene.camera.distance =
-            Some((cam.distance * 0.9f32.powf(steps as f32)).clamp(min, 100.0));
+        self.session.zoom(&cam, steps);
         self.changed();
     }
 
     fn reset_camera(&mut self) {
-        self.session.model.scene.camera = self.session.home.clone();
+        self.session.reset_camera();
         self.changed();
-    }
-
-    /// Starts loading `input` on a worker thread, keeping the rest of the scene.
-    fn start_load_input(&mut self, input: String) {
-        let mut scene = self.session.model.scene.clone();
-        scene.input = InputSpec {
-            path: input.clone(),
-            raw: None,
-        };
-        // Presets carry over to a new volume; files made for the old one (features, OTFs) do not.
-        if !matches!(scene.classification, ClassificationSpec::Transfer(_)) {
-            scene.classification = ClassificationSpec::default();
-        }
-        scene.focus = vellum_render::classify::Focus::None;
-        scene.style = None;
-        scene.camera = Default::default();
-        self.start_load(input, scene);
-    }
-
-    fn start_load(&mut self, what: String, scene: Scene) {
-        let (tx, rx) = mpsc::channel();
-        let budget = self.gpu.budget;
-        std::thread::spawn(move || {
-            let _ = tx.send(load(scene, budget));
-        });
-        self.session.model.loading = Some(what);
-        self.session.pending_load = Some(rx);
     }
 
     /// Takes a finished load: the new volume goes to the GPU and replaces the old one. A failed
     /// load keeps the old volume and says why.
     fn poll_load(&mut self) {
-        let Some(rx) = &self.session.pending_load else {
+        let Some((what, got)) = self.session.take_load() else {
             return;
         };
-        let got = match rx.try_recv() {
-            Ok(got) => got,
-            Err(mpsc::TryRecvError::Empty) => return,
-            Err(mpsc::TryRecvError::Disconnected) => Err(Error::Invalid(
-                "the loader stopped without an answer".into(),
-            )),
-        };
-        self.session.pending_load = None;
-        let what = self.session.model.loading.take().unwrap_or_default();
         let budget = self.gpu.budget;
         let result = got.and_then(|mut l| {
             let gpu = prepare_gpu(&self.ctx, &mut l, budget)?;
@@ -1020,94 +782,27 @@ impl Running {
             Ok((l, mut gpu)) => {
                 // The old loaders and pools go with the old volume.
                 self.gpu.frames.wait_idle().ok();
-                self.session.generation += 1;
-                self.session.epoch += 1;
-                self.session.model.reopen(l.scene.clone(), l.tf.clone());
-                self.session.model.spectrum = match &mut gpu {
+                let spectrum = match &mut gpu {
                     Prepared::InCore(g) => g.spectrum.take(),
                     Prepared::Paged(..) => None,
                 };
-                self.session.model.otf = l.otf.clone();
-                self.session.applied_otf = l.otf.clone();
+                let dims = gpu.volume().dims();
                 self.gpu.scene = gpu;
-                self.session.model.histogram = l.histogram;
-                self.session.model.features = l.features;
-                self.session.model.range = l.range;
-                self.session.model.dims = self.gpu.scene.volume().dims();
-                self.session.model.oriented = l.volume.geometry.is_oriented();
-                self.session.model.message = format!("opened {what}");
-                self.session.home = l.scene.camera.clone();
-                self.session.applied = l.scene;
-                self.session.applied_tf = l.tf;
+                self.session.opened(l, &what, spectrum, dims);
                 self.window
                     .set_title(&format!("vellum: {}", self.session.model.scene.input.path));
-                self.session.volume = l.volume;
             }
             Err(e) => self.session.model.message = format!("{what}: {e}"),
         }
         self.changed();
     }
 
-    /// Starts computing the occlusion volume of the host volume on a worker thread, on a context
-    /// of its own.
-    fn start_occlusion(&mut self, params: vellum_render::passes::occlusion::OcclusionParams) {
-        let (tx, rx) = mpsc::channel();
-        let volume = self.session.volume.clone();
-        let device = self.session.device.clone();
-        let radius = params.radius;
-        // A test hook: hold the worker back this long, so that a test can show frames arriving
-        // while it is busy whatever the machine's speed.
-        let hold = std::env::var("VELLUM_VIEW_OCCLUSION_DELAY_MS")
-            .ok()
-            .and_then(|v| v.trim().parse::<u64>().ok())
-            .map(Duration::from_millis);
-        std::thread::spawn(move || {
-            if let Some(d) = hold {
-                std::thread::sleep(d);
-            }
-            let result = (|| {
-                let ctx = Context::new(&ContextDesc {
-                    validation: None,
-                    device,
-                })?;
-                let out = vellum_render::passes::occlusion::Occlusion::new(&ctx)?
-                    .compute(&volume, &params);
-                ctx.report_validation();
-                out
-            })();
-            let _ = tx.send(result);
-        });
-        self.session.model.occlusion_busy = Some(radius);
-        self.session.pending_occlusion = Some(PendingOcclusion {
-            rx,
-            radius,
-            started: Instant::now(),
-            generation: self.session.generation,
-            frames: 0,
-            longest_ms: 0.0,
-        });
-    }
-
     /// Takes a finished occlusion volume: it replaces the one the renderer samples, and its
-    /// spectrum the editor's. A result for a volume since replaced is dropped.
+    /// spectrum the editor's.
     fn poll_occlusion(&mut self) {
-        let Some(p) = &self.session.pending_occlusion else {
+        let Some((p, got)) = self.session.take_occlusion() else {
             return;
         };
-        let got = match p.rx.try_recv() {
-            Ok(got) => got,
-            Err(mpsc::TryRecvError::Empty) => return,
-            Err(mpsc::TryRecvError::Disconnected) => Err(Error::Invalid(
-                "the occlusion worker stopped without an answer".into(),
-            )),
-        };
-        let Some(p) = self.session.pending_occlusion.take() else {
-            return;
-        };
-        self.session.model.occlusion_busy = None;
-        if p.generation != self.session.generation {
-            return;
-        }
         let attached = got.and_then(|out| {
             let image = vellum_render::passes::volume_image::create(
                 &self.ctx,
@@ -1128,91 +823,25 @@ impl Running {
                 if let Prepared::InCore(g) = &mut self.gpu.scene {
                     g.volume.occlusion = Some(image);
                 }
-                self.session.epoch += 1;
-                self.session.model.spectrum = spectrum;
-                self.session.model.spectrum_texture = None;
-                // Upload the OTF as it is now (it may have been edited meanwhile).
-                self.session.applied_otf = None;
-                self.session.model.message = format!(
-                    "occlusion at R = {} recomputed in {:.0} ms on a second device; {} frames drawn meanwhile, at most {:.0} ms apart",
-                    p.radius,
-                    p.started.elapsed().as_secs_f64() * 1e3,
-                    p.frames,
-                    p.longest_ms
-                );
+                self.session.occlusion_attached(&p, spectrum);
             }
             Err(e) => self.session.model.message = format!("recomputing the occlusion: {e}"),
         }
         self.changed();
     }
 
-    /// Turns the scene's edits into GPU state. Edits that need the volume prepared again (new
-    /// classification kind, importance radius) reload it from the file on the worker thread.
+    /// Applies the scene's edits (the session's [`Edit`]s) to the GPU state.
     fn apply(&mut self) -> Result<()> {
-        let s = &self.session.model.scene;
-        let a = &self.session.applied;
-        let radius = |x: &Scene| {
-            x.modulation
-                .as_ref()
-                .filter(|m| m.is_active())
-                .map(|m| m.importance_radius)
-        };
-        let needs_prepare = s.input != a.input
-            || (!matches!(s.classification, ClassificationSpec::Transfer(_))
-                && s.classification != a.classification)
-            || radius(s) != radius(a) && radius(s).is_some();
-        if needs_prepare && self.session.pending_load.is_none() {
-            let scene = s.clone();
-            self.start_load(scene.input.path.clone(), scene);
-            self.session.applied = self.session.model.scene.clone();
-            return Ok(());
-        }
-        if let Err(e) = s
-            .focus
-            .check_in(self.gpu.scene.volume().range())
-            .and(s.focus.validate())
-        {
-            self.session.model.message = e.to_string();
-            self.session.model.scene.focus = self.session.applied.focus;
-        }
-        self.gpu.scene.classify().focus = self.session.model.scene.focus;
-        self.apply_occlusion()?;
-        if self.session.model.tf != self.session.applied_tf {
-            self.gpu
-                .scene
-                .classify()
-                .set_transfer(&self.session.model.tf);
-            self.session.applied_tf = self.session.model.tf.clone();
-        }
-        let modulation = match &self.session.model.scene.modulation {
-            Some(m) if self.gpu.scene.volume().importance().is_some() => m.clone(),
-            _ => Default::default(),
-        };
-        self.gpu.scene.classify().modulation = modulation;
-        self.session.applied = self.session.model.scene.clone();
-        Ok(())
-    }
-
-    /// Uploads an edited OTF's table; starts recomputing the occlusion volume (and the spectrum)
-    /// on a worker thread when asked.
-    fn apply_occlusion(&mut self) -> Result<()> {
-        let Some(otf) = self.session.model.otf.clone() else {
-            return Ok(());
-        };
-        if std::mem::take(&mut self.session.model.recompute_occlusion)
-            && self.session.pending_occlusion.is_none()
-        {
-            match vellum_render::render::scene::occlusion_params(&otf) {
-                Ok(params) => self.start_occlusion(params),
-                Err(e) => self.session.model.message = e.to_string(),
+        let volume = self.gpu.scene.volume();
+        let (range, has_importance) = (volume.range(), volume.importance().is_some());
+        for edit in self.session.apply(range, has_importance) {
+            let classify = self.gpu.scene.classify();
+            match edit {
+                Edit::Focus(f) => classify.focus = f,
+                Edit::Transfer(tf) => classify.set_transfer(&tf),
+                Edit::OcclusionTable(table) => classify.set_occlusion_table(Some(table))?,
+                Edit::Modulation(m) => classify.modulation = m,
             }
-        }
-        if self.session.applied_otf.as_ref() != Some(&otf) {
-            match otf.table() {
-                Ok(table) => self.gpu.scene.classify().set_occlusion_table(Some(table))?,
-                Err(e) => self.session.model.message = e.to_string(),
-            }
-            self.session.applied_otf = Some(otf);
         }
         Ok(())
     }
@@ -1290,20 +919,16 @@ impl Running {
     /// (refined) one.
     fn apply_frame(&mut self, ui: &UiFrame) -> Result<(Result<View>, bool)> {
         if self.session.model.requests.screenshot && self.session.screenshot.is_none() {
-            self.session.screenshot = Some(next_screenshot_path(&self.session.screenshot_dir)?);
+            self.session.screenshot =
+                Some(session::next_screenshot_path(&self.session.screenshot_dir)?);
         }
         self.session.model.requests.screenshot = false;
-        self.handle_requests();
-        if let Some(left) = self.session.bench.as_mut().map(|b| &mut b.left) {
-            let c = &mut self.session.model.scene.camera;
-            if c.azimuth.is_none() {
-                c.view = None;
-                c.azimuth = Some(0.0);
-                c.elevation = Some(20.0);
-            }
-            c.azimuth = Some((c.azimuth.unwrap_or(0.0) + 3.0).rem_euclid(360.0));
-            *left = left.saturating_sub(1);
+        let reset = self.session.model.requests.reset_camera;
+        self.session.handle_requests(self.view_size());
+        if reset {
+            self.changed();
         }
+        self.session.bench_step();
         self.apply()?;
         let full = self.session.screenshot.is_some()
             || match &self.session.bench {
@@ -1524,13 +1149,7 @@ impl Running {
             (None, DrawnState::All(k), last) => *last = Some(*k),
         }
         match drawn.render_error {
-            Some(e) => {
-                // A setting the renderer refuses: say why, and go back to what rendered.
-                self.session.model.message = e.to_string();
-                if self.session.model.scene != self.session.applied {
-                    self.session.model.scene = self.session.applied.clone();
-                }
-            }
+            Some(e) => self.session.refused(&e),
             None if full => self.input.refined = true,
             None => {}
         }
@@ -1549,77 +1168,6 @@ impl Running {
             self.window.request_redraw();
         }
         Ok(())
-    }
-
-    /// Open, load and save requests from the panels.
-    fn handle_requests(&mut self) {
-        let req = std::mem::take(&mut self.session.model.requests);
-        self.session.model.requests.screenshot = req.screenshot;
-        self.session.model.requests.quit = req.quit;
-        if req.reset_camera {
-            self.reset_camera();
-        }
-        if let Some(input) = req.open {
-            self.start_load_input(input);
-        }
-        if let Some(path) = req.load_scene {
-            match Scene::load(Path::new(&path)) {
-                Ok(scene) => self.start_load(path, scene),
-                Err(e) => self.session.model.message = e.to_string(),
-            }
-        }
-        if let Some(path) = req.save_scene {
-            self.session.model.message = match self.save_scene(Path::new(&path)) {
-                Ok(()) => format!("saved the scene to {path}"),
-                Err(e) => e.to_string(),
-            };
-        }
-    }
-
-    /// Saves the scene at the window's size; an edited transfer function goes beside it as
-    /// `NAME.tf.json`, which the scene names.
-    fn save_scene(&mut self, path: &Path) -> Result<()> {
-        let mut scene = self.session.model.scene.clone();
-        scene.size = self.view_size();
-        if let (Some(map), true) = (
-            &self.session.model.features,
-            self.session.model.features_edited,
-        ) {
-            // Hidden features are saved as shown: left out of the saved map.
-            let map = ui::visible_map(map, &self.session.model.hidden);
-            let map_path = path.with_extension("features.json");
-            map.save(&map_path)?;
-            scene.classification =
-                ClassificationSpec::Features(map_path.to_string_lossy().into_owned());
-        } else if let (Some(otf), true) = (&self.session.model.otf, self.session.model.otf_edited) {
-            let mut otf = otf.clone();
-            if let Some(t) = &otf.transfer {
-                if Path::new(t).is_file() {
-                    otf.transfer = std::path::absolute(t)
-                        .ok()
-                        .map(|p| p.to_string_lossy().into_owned());
-                }
-            }
-            let otf_path = path.with_extension("otf.json");
-            let json = serde_json::to_string_pretty(&otf)
-                .map_err(|e| Error::Invalid(format!("the OTF cannot be written as JSON: {e}")))?;
-            vellum_volume::output::write_atomic(&otf_path, |w| {
-                use std::io::Write;
-                writeln!(w, "{json}")
-            })?;
-            scene.classification =
-                ClassificationSpec::Occlusion(otf_path.to_string_lossy().into_owned());
-        } else if self.session.model.tf_edited {
-            let tf_path = path.with_extension("tf.json");
-            let json = self.session.model.tf.to_json();
-            vellum_volume::output::write_atomic(&tf_path, |w| {
-                use std::io::Write;
-                writeln!(w, "{json}")
-            })?;
-            scene.classification =
-                ClassificationSpec::Transfer(tf_path.to_string_lossy().into_owned());
-        }
-        scene.save(path)
     }
 
     /// With `VELLUM_VIEW_LAYOUT=1`, prints where the volume view and the named widgets
@@ -1702,18 +1250,4 @@ fn set_gpu_ms(shown: &mut Vec<(String, f64)>, passes: &[vellum_gpu::PassTime]) {
     } else {
         *shown = passes.iter().map(|p| (p.name.clone(), p.ms)).collect();
     }
-}
-
-/// The first free `vellum-NNNN.png` in `dir`.
-fn next_screenshot_path(dir: &Path) -> Result<PathBuf> {
-    for i in 1..10000 {
-        let p = dir.join(format!("vellum-{i:04}.png"));
-        if !p.exists() {
-            return Ok(p);
-        }
-    }
-    Err(Error::Invalid(format!(
-        "{} already holds 9999 screenshots; expected a folder with room for one more",
-        dir.display()
-    )))
 }

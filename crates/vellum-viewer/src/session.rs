@@ -1,0 +1,826 @@
+//! The viewer's session, apart from the window: the model the panels edit (with its scene), what
+//! of it the GPU state holds, the volume on the host, the work in flight on worker threads
+//! (loading a volume, recomputing the occlusion volume) and the files it writes. It opens no
+//! window and records no GPU work: an edit becomes an [`Edit`] that the shell (`lib.rs`) applies
+//! to the GPU state, and a camera gesture changes the scene's camera given the camera the shell
+//! resolved. Its unit tests run without a window or a device.
+
+use crate::bench::BenchLog;
+use crate::ui::{self, Model};
+use std::path::{Path, PathBuf};
+use std::sync::{mpsc, Arc};
+use std::time::Instant;
+use vellum_error::{Error, Result};
+use vellum_render::classify::modulation::Modulation;
+use vellum_render::classify::otf::OcclusionTf;
+use vellum_render::classify::transfer::TransferFunction;
+use vellum_render::classify::{Classification, Focus};
+use vellum_render::passes::occlusion::{OcclusionOutput, OcclusionParams, Spectrum};
+use vellum_render::render::camera::Camera;
+use vellum_render::render::scene::{CameraSpec, ClassificationSpec, InputSpec, NamedView, Scene};
+use vellum_render::render::session::Opened;
+use vellum_render::render::view::View;
+use vellum_volume::Volume;
+
+/// A volume loaded on a worker thread.
+pub(crate) struct Loaded {
+    pub(crate) scene: Scene,
+    /// The volume, or for a store streamed through the brick cache its coarsest level (which the
+    /// histogram and range come from), with the pyramid in `levels`.
+    pub(crate) volume: Volume,
+    pub(crate) levels: Option<Arc<vellum_volume::bricks::BrickLevels>>,
+    pub(crate) classification: Classification,
+    pub(crate) tf: TransferFunction,
+    pub(crate) histogram: Vec<u64>,
+    pub(crate) range: [f64; 2],
+    pub(crate) features: Option<vellum_volume::feature::FeatureMap>,
+    pub(crate) otf: Option<OcclusionTf>,
+}
+
+/// Opens `scene`'s input by the session's rule within `budget` bytes of GPU memory: a store
+/// beyond the budget is never read whole, and its level of at most 64³ voxels stands in for it
+/// on the host (histogram, range); a volume beyond it is drawn through the brick cache too.
+pub(crate) fn load(scene: Scene, budget: u64) -> Result<Loaded> {
+    let classification = scene.classification()?;
+    let (levels, volume) = match Opened::open(&scene, None, budget, None)? {
+        Opened::Bricked(levels) => {
+            let small = levels.read_small_level(64 * 64 * 64)?;
+            (Some(levels), small)
+        }
+        Opened::InCore(v) => (None, v),
+    };
+    let s = vellum_volume::stats::stats(&volume, 256);
+    let range = levels.as_ref().map_or([s.min, s.max], |l| l.range);
+    let tf = match &classification {
+        Classification::Transfer(tf) => tf.clone(),
+        Classification::Auto => vellum_render::classify::window::auto(&volume, range)?,
+        _ => TransferFunction::preset("grey")?,
+    };
+    let (tf, features) = match &classification {
+        Classification::Features(map) => (
+            vellum_render::classify::features::feature_transfer_function(map, [s.min, s.max])?,
+            Some(map.clone()),
+        ),
+        _ => (tf, None),
+    };
+    let otf = match &classification {
+        Classification::Occlusion(o) => Some(o.clone()),
+        _ => None,
+    };
+    Ok(Loaded {
+        otf,
+        scene,
+        classification,
+        tf,
+        histogram: s.histogram,
+        range,
+        volume,
+        levels,
+        features,
+    })
+}
+
+/// An occlusion volume being recomputed on a worker thread. The worker opens its own Vulkan
+/// device (a second queue on the same GPU) and hands back the volume and spectrum on the host;
+/// the shell uploads them in one short submission. The window keeps rendering meanwhile, and no
+/// submission of the window's context ever happens off its thread, which the deferred release
+/// of vellum-gpu's lifetime.rs relies on.
+pub(crate) struct PendingOcclusion {
+    rx: mpsc::Receiver<Result<OcclusionOutput>>,
+    pub(crate) radius: u32,
+    pub(crate) started: Instant,
+    generation: u64,
+    /// Frames presented while it ran, and the longest time between two of them.
+    pub(crate) frames: u32,
+    pub(crate) longest_ms: f64,
+}
+
+/// What the targets hold: the view and the applied state of the last frame rendered, and the
+/// volume's epoch.
+#[derive(Clone, PartialEq)]
+pub(crate) struct DrawnKey {
+    pub(crate) view: View,
+    pub(crate) scene: Scene,
+    pub(crate) tf: TransferFunction,
+    pub(crate) otf: Option<OcclusionTf>,
+    pub(crate) epoch: u64,
+}
+
+/// Camera drag in progress.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub(crate) enum Drag {
+    Orbit,
+    Pan,
+}
+
+/// A key the session acts on, from the window's keyboard.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) enum KeyPress {
+    Escape,
+    Char(String),
+}
+
+/// A change of the GPU state that an edit of the scene asks for, applied by the shell.
+#[derive(Debug, PartialEq)]
+pub(crate) enum Edit {
+    Focus(Focus),
+    Transfer(TransferFunction),
+    OcclusionTable(Vec<[f32; 4]>),
+    Modulation(Modulation),
+}
+
+/// What the shell tells a new session besides the first volume.
+pub(crate) struct SessionSetup {
+    /// The device the window renders on, for the occlusion worker's own context.
+    pub(crate) device: Option<String>,
+    /// The device's name, for the first message.
+    pub(crate) device_name: String,
+    pub(crate) screenshot_dir: PathBuf,
+    pub(crate) bench: Option<BenchLog>,
+    /// GPU memory for a volume's textures; a store that needs more is streamed.
+    pub(crate) budget: u64,
+}
+
+/// The session: the model the panels edit (with the scene), what of it is applied to the GPU
+/// state, the volume on the host, the work in flight on worker threads, and the files it writes.
+pub(crate) struct Session {
+    pub(crate) model: Model,
+    /// The scene as last applied to the GPU state, to see what changed.
+    pub(crate) applied: Scene,
+    pub(crate) applied_tf: TransferFunction,
+    pub(crate) applied_otf: Option<OcclusionTf>,
+    /// The volume on the host, for recomputing what depends on it (the occlusion volume).
+    pub(crate) volume: Volume,
+    /// The camera of the loaded scene, for reset.
+    home: CameraSpec,
+    pending_load: Option<mpsc::Receiver<Result<Loaded>>>,
+    /// The occlusion volume being recomputed on a worker thread.
+    pub(crate) pending_occlusion: Option<PendingOcclusion>,
+    /// Counts the volumes loaded, so that an occlusion volume computed for an earlier one is
+    /// dropped.
+    generation: u64,
+    device: Option<String>,
+    /// What the targets hold. A frame that would render the same again only presents them (idle
+    /// redraws for a spinner, hover or a screenshot cost no volume rendering).
+    pub(crate) last_drawn: Option<DrawnKey>,
+    /// Counts replacements of GPU volume state (loads, occlusion volumes).
+    pub(crate) epoch: u64,
+    pub(crate) screenshot: Option<PathBuf>,
+    pub(crate) screenshot_dir: PathBuf,
+    /// The `--bench` orbit's bookkeeping, in bench mode.
+    pub(crate) bench: Option<BenchLog>,
+    pub(crate) budget: u64,
+}
+
+impl Session {
+    /// The session of the first volume, `loaded`, whose GPU state has `dims` voxels (a streamed
+    /// store's level 0) and made the occlusion `spectrum` if it has one.
+    pub(crate) fn new(
+        loaded: Loaded,
+        spectrum: Option<Spectrum>,
+        dims: [usize; 3],
+        setup: SessionSetup,
+    ) -> Self {
+        let mut model = Model::new(loaded.scene.clone(), loaded.tf.clone());
+        model.histogram = loaded.histogram;
+        model.features = loaded.features;
+        model.otf = loaded.otf.clone();
+        model.spectrum = spectrum;
+        model.range = loaded.range;
+        model.dims = dims;
+        model.oriented = loaded.volume.geometry.is_oriented();
+        model.message = format!("{} on {}", loaded.scene.input.path, setup.device_name);
+        let beside = |name: &str| {
+            setup
+                .screenshot_dir
+                .join(name)
+                .to_string_lossy()
+                .into_owned()
+        };
+        model.scene_path = beside("vellum.scene.json");
+        model.tf_path = beside("vellum.tf.json");
+        Session {
+            home: loaded.scene.camera.clone(),
+            applied: loaded.scene,
+            applied_tf: loaded.tf,
+            applied_otf: loaded.otf,
+            volume: loaded.volume,
+            model,
+            pending_load: None,
+            pending_occlusion: None,
+            generation: 0,
+            device: setup.device,
+            last_drawn: None,
+            epoch: 0,
+            screenshot: None,
+            screenshot_dir: setup.screenshot_dir,
+            bench: setup.bench,
+            budget: setup.budget,
+        }
+    }
+
+    /// Makes the scene's camera explicit (angles and distance) from `cam`, the camera resolved
+    /// for the volume and window, so that a gesture can change it.
+    fn make_explicit(&mut self, cam: &Camera) {
+        let c = &mut self.model.scene.camera;
+        c.view = None;
+        c.azimuth = Some(cam.azimuth_deg);
+        c.elevation = Some(cam.elevation_deg);
+        c.distance = Some(cam.distance);
+    }
+
+    /// A drag of `d` window pixels from `cam` in a view `view_h` pixels high: an orbit turns
+    /// 0.4° a pixel (the elevation held within ±90°); a pan moves the target with the pointer.
+    pub(crate) fn drag(&mut self, cam: &Camera, kind: Drag, d: [f64; 2], view_h: u32) {
+        self.make_explicit(cam);
+        let h = view_h.max(1) as f32;
+        let c = &mut self.model.scene.camera;
+        match kind {
+            Drag::Orbit => {
+                c.azimuth = Some((cam.azimuth_deg - 0.4 * d[0] as f32).rem_euclid(360.0));
+                c.elevation = Some((cam.elevation_deg + 0.4 * d[1] as f32).clamp(-90.0, 90.0));
+            }
+            Drag::Pan => {
+                // The visible height at the target, in bounding-sphere radii.
+                let span = 2.0 * cam.distance * (0.5 * cam.fov_y_deg.to_radians()).tan();
+                c.pan[0] -= d[0] as f32 * span / h;
+                c.pan[1] += d[1] as f32 * span / h;
+            }
+        }
+    }
+
+    /// `steps` wheel steps from `cam`: each brings the eye 10 % closer, within the volume's
+    /// bounding sphere (perspective) and 100 radii.
+    pub(crate) fn zoom(&mut self, cam: &Camera, steps: f64) {
+        self.make_explicit(cam);
+        let min = if cam.ortho { 0.05 } else { 1.05 };
+        self.model.scene.camera.distance =
+            Some((cam.distance * 0.9f32.powf(steps as f32)).clamp(min, 100.0));
+    }
+
+    /// The loaded scene's camera again.
+    pub(crate) fn reset_camera(&mut self) {
+        self.model.scene.camera = self.home.clone();
+    }
+
+    /// A key pressed outside the panels: quit, screenshot, save the scene (with ctrl),
+    /// orthographic, reset, and the six named views. Returns true for the key that shows or
+    /// hides the panel, which is the shell's.
+    pub(crate) fn key(&mut self, key: &KeyPress, ctrl: bool) -> bool {
+        let c = match key {
+            KeyPress::Escape => {
+                self.model.requests.quit = true;
+                return false;
+            }
+            KeyPress::Char(c) => c.to_lowercase(),
+        };
+        match c.as_str() {
+            "q" => self.model.requests.quit = true,
+            "s" if ctrl => self.model.requests.save_scene = Some(self.model.scene_path.clone()),
+            "s" => self.model.requests.screenshot = true,
+            "o" => self.model.scene.camera.ortho = !self.model.scene.camera.ortho,
+            "r" => self.reset_camera(),
+            "h" => return true,
+            d @ ("1" | "2" | "3" | "4" | "5" | "6") => {
+                let v = [
+                    NamedView::Anterior,
+                    NamedView::Posterior,
+                    NamedView::Left,
+                    NamedView::Right,
+                    NamedView::Superior,
+                    NamedView::Inferior,
+                ][d.parse::<usize>().unwrap_or(1) - 1];
+                ui::set_view(&mut self.model.scene, v);
+            }
+            _ => {}
+        }
+        false
+    }
+
+    /// Starts loading `input` on a worker thread, keeping the rest of the scene: presets carry
+    /// over to a new volume; files made for the old one (features, OTFs), the focus, the style
+    /// and the camera do not.
+    pub(crate) fn start_load_input(&mut self, input: String) {
+        let mut scene = self.model.scene.clone();
+        scene.input = InputSpec {
+            path: input.clone(),
+            raw: None,
+        };
+        if !matches!(scene.classification, ClassificationSpec::Transfer(_)) {
+            scene.classification = ClassificationSpec::default();
+        }
+        scene.focus = Focus::None;
+        scene.style = None;
+        scene.camera = Default::default();
+        self.start_load(input, scene);
+    }
+
+    /// Starts loading `scene` on a worker thread; `what` names it in the messages.
+    pub(crate) fn start_load(&mut self, what: String, scene: Scene) {
+        let (tx, rx) = mpsc::channel();
+        let budget = self.budget;
+        std::thread::spawn(move || {
+            let _ = tx.send(load(scene, budget));
+        });
+        self.model.loading = Some(what);
+        self.pending_load = Some(rx);
+    }
+
+    /// Whether a volume is loading.
+    pub(crate) fn loading(&self) -> bool {
+        self.pending_load.is_some()
+    }
+
+    /// A finished load, with what it was called: `None` while the worker is busy.
+    pub(crate) fn take_load(&mut self) -> Option<(String, Result<Loaded>)> {
+        let got = match self.pending_load.as_ref()?.try_recv() {
+            Ok(got) => got,
+            Err(mpsc::TryRecvError::Empty) => return None,
+            Err(mpsc::TryRecvError::Disconnected) => Err(Error::Invalid(
+                "the loader stopped without an answer".into(),
+            )),
+        };
+        self.pending_load = None;
+        Some((self.model.loading.take().unwrap_or_default(), got))
+    }
+
+    /// The volume `l` (called `what`) now drawn in place of the old one, with the GPU state's
+    /// `dims` and occlusion `spectrum`: the panels start over on it.
+    pub(crate) fn opened(
+        &mut self,
+        l: Loaded,
+        what: &str,
+        spectrum: Option<Spectrum>,
+        dims: [usize; 3],
+    ) {
+        self.generation += 1;
+        self.epoch += 1;
+        self.model.reopen(l.scene.clone(), l.tf.clone());
+        self.model.spectrum = spectrum;
+        self.model.otf = l.otf.clone();
+        self.applied_otf = l.otf;
+        self.model.histogram = l.histogram;
+        self.model.features = l.features;
+        self.model.range = l.range;
+        self.model.dims = dims;
+        self.model.oriented = l.volume.geometry.is_oriented();
+        self.model.message = format!("opened {what}");
+        self.home = l.scene.camera.clone();
+        self.applied = l.scene;
+        self.applied_tf = l.tf;
+        self.volume = l.volume;
+    }
+
+    /// Starts computing the occlusion volume of the host volume on a worker thread, on a
+    /// context of its own.
+    pub(crate) fn start_occlusion(&mut self, params: OcclusionParams) {
+        let (tx, rx) = mpsc::channel();
+        let volume = self.volume.clone();
+        let device = self.device.clone();
+        let radius = params.radius;
+        // A test hook: hold the worker back this long, so that a test can show frames arriving
+        // while it is busy whatever the machine's speed.
+        let hold = std::env::var("VELLUM_VIEW_OCCLUSION_DELAY_MS")
+            .ok()
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .map(std::time::Duration::from_millis);
+        std::thread::spawn(move || {
+            if let Some(d) = hold {
+                std::thread::sleep(d);
+            }
+            let result = (|| {
+                let ctx = vellum_gpu::Context::new(&vellum_gpu::ContextDesc {
+                    validation: None,
+                    device,
+                })?;
+                let out = vellum_render::passes::occlusion::Occlusion::new(&ctx)?
+                    .compute(&volume, &params);
+                ctx.report_validation();
+                out
+            })();
+            let _ = tx.send(result);
+        });
+        self.model.occlusion_busy = Some(radius);
+        self.pending_occlusion = Some(PendingOcclusion {
+            rx,
+            radius,
+            started: Instant::now(),
+            generation: self.generation,
+            frames: 0,
+            longest_ms: 0.0,
+        });
+    }
+
+    /// A finished occlusion volume for the volume still shown: `None` while the worker is busy,
+    /// or when the result was for a volume since replaced (it is dropped).
+    pub(crate) fn take_occlusion(&mut self) -> Option<(PendingOcclusion, Result<OcclusionOutput>)> {
+        let got = match self.pending_occlusion.as_ref()?.rx.try_recv() {
+            Ok(got) => got,
+            Err(mpsc::TryRecvError::Empty) => return None,
+            Err(mpsc::TryRecvError::Disconnected) => Err(Error::Invalid(
+                "the occlusion worker stopped without an answer".into(),
+            )),
+        };
+        let p = self.pending_occlusion.take()?;
+        self.model.occlusion_busy = None;
+        (p.generation == self.generation).then_some((p, got))
+    }
+
+    /// The occlusion volume of `p` now sampled, with its `spectrum` in the editor.
+    pub(crate) fn occlusion_attached(&mut self, p: &PendingOcclusion, spectrum: Option<Spectrum>) {
+        self.epoch += 1;
+        self.model.spectrum = spectrum;
+        self.model.spectrum_texture = None;
+        // Upload the OTF as it is now (it may have been edited meanwhile).
+        self.applied_otf = None;
+        self.model.message = format!(
+            "occlusion at R = {} recomputed in {:.0} ms on a second device; {} frames drawn meanwhile, at most {:.0} ms apart",
+            p.radius,
+            p.started.elapsed().as_secs_f64() * 1e3,
+            p.frames,
+            p.longest_ms
+        );
+    }
+
+    /// Whether the scene or the transfer function was edited since the last [`Session::apply`].
+    pub(crate) fn edited(&self) -> bool {
+        self.model.scene != self.applied || self.model.tf != self.applied_tf
+    }
+
+    /// Turns the scene's edits into the GPU state's [`Edit`]s, for a volume whose values span
+    /// `range` and which has an importance map or not. Edits that need the volume prepared
+    /// again (a new input or classification kind, another importance radius) load it again on
+    /// the worker thread instead. A focus outside the volume's values is refused with its
+    /// sentence and set back.
+    pub(crate) fn apply(&mut self, range: [f64; 2], has_importance: bool) -> Vec<Edit> {
+        let (s, a) = (&self.model.scene, &self.applied);
+        let radius = |x: &Scene| {
+            x.modulation
+                .as_ref()
+                .filter(|m| m.is_active())
+                .map(|m| m.importance_radius)
+        };
+        let needs_prepare = s.input != a.input
+            || (!matches!(s.classification, ClassificationSpec::Transfer(_))
+                && s.classification != a.classification)
+            || radius(s) != radius(a) && radius(s).is_some();
+        if needs_prepare && self.pending_load.is_none() {
+            let scene = s.clone();
+            self.start_load(scene.input.path.clone(), scene);
+            self.applied = self.model.scene.clone();
+            return Vec::new();
+        }
+        if let Err(e) = s.focus.check_in(range).and(s.focus.validate()) {
+            self.model.message = e.to_string();
+            self.model.scene.focus = self.applied.focus;
+        }
+        let mut edits = vec![Edit::Focus(self.model.scene.focus)];
+        self.apply_occlusion(&mut edits);
+        if self.model.tf != self.applied_tf {
+            edits.push(Edit::Transfer(self.model.tf.clone()));
+            self.applied_tf = self.model.tf.clone();
+        }
+        edits.push(Edit::Modulation(match &self.model.scene.modulation {
+            Some(m) if has_importance => m.clone(),
+            _ => Default::default(),
+        }));
+        self.applied = self.model.scene.clone();
+        edits
+    }
+
+    /// An edited OTF's table; starts recomputing the occlusion volume (and the spectrum) on a
+    /// worker thread when asked.
+    fn apply_occlusion(&mut self, edits: &mut Vec<Edit>) {
+        let Some(otf) = self.model.otf.clone() else {
+            return;
+        };
+        if std::mem::take(&mut self.model.recompute_occlusion) && self.pending_occlusion.is_none() {
+            match vellum_render::render::scene::occlusion_params(&otf) {
+                Ok(params) => self.start_occlusion(params),
+                Err(e) => self.model.message = e.to_string(),
+            }
+        }
+        if self.applied_otf.as_ref() != Some(&otf) {
+            match otf.table() {
+                Ok(table) => edits.push(Edit::OcclusionTable(table)),
+                Err(e) => self.model.message = e.to_string(),
+            }
+            self.applied_otf = Some(otf);
+        }
+    }
+
+    /// The `--bench` orbit's next step: 3° further round, from an explicit camera.
+    pub(crate) fn bench_step(&mut self) {
+        let Some(left) = self.bench.as_mut().map(|b| &mut b.left) else {
+            return;
+        };
+        let c = &mut self.model.scene.camera;
+        if c.azimuth.is_none() {
+            c.view = None;
+            c.azimuth = Some(0.0);
+            c.elevation = Some(20.0);
+        }
+        c.azimuth = Some((c.azimuth.unwrap_or(0.0) + 3.0).rem_euclid(360.0));
+        *left = left.saturating_sub(1);
+    }
+
+    /// A setting the renderer refused: say why, and go back to what rendered.
+    pub(crate) fn refused(&mut self, e: &Error) {
+        self.model.message = e.to_string();
+        if self.model.scene != self.applied {
+            self.model.scene = self.applied.clone();
+        }
+    }
+
+    /// Open, load and save requests from the panels; a saved scene has the view's `size`.
+    pub(crate) fn handle_requests(&mut self, size: [u32; 2]) {
+        let req = std::mem::take(&mut self.model.requests);
+        self.model.requests.screenshot = req.screenshot;
+        self.model.requests.quit = req.quit;
+        if req.reset_camera {
+            self.reset_camera();
+        }
+        if let Some(input) = req.open {
+            self.start_load_input(input);
+        }
+        if let Some(path) = req.load_scene {
+            match Scene::load(Path::new(&path)) {
+                Ok(scene) => self.start_load(path, scene),
+                Err(e) => self.model.message = e.to_string(),
+            }
+        }
+        if let Some(path) = req.save_scene {
+            self.model.message = match self.save_scene(Path::new(&path), size) {
+                Ok(()) => format!("saved the scene to {path}"),
+                Err(e) => e.to_string(),
+            };
+        }
+    }
+
+    /// Saves the scene at `size`; an edited feature map, OTF or transfer function goes beside
+    /// it (`NAME.features.json`, `NAME.otf.json`, `NAME.tf.json`), which the scene names.
+    pub(crate) fn save_scene(&self, path: &Path, size: [u32; 2]) -> Result<()> {
+        let mut scene = self.model.scene.clone();
+        scene.size = size;
+        let m = &self.model;
+        let beside = |ext: &str, json: String| -> Result<String> {
+            let p = path.with_extension(ext);
+            vellum_volume::output::write_atomic(&p, |w| {
+                use std::io::Write;
+                writeln!(w, "{json}")
+            })?;
+            Ok(p.to_string_lossy().into_owned())
+        };
+        if let (Some(map), true) = (&m.features, m.features_edited) {
+            // Hidden features are saved as shown: left out of the saved map.
+            let map_path = path.with_extension("features.json");
+            ui::visible_map(map, &m.hidden).save(&map_path)?;
+            scene.classification =
+                ClassificationSpec::Features(map_path.to_string_lossy().into_owned());
+        } else if let (Some(otf), true) = (&m.otf, m.otf_edited) {
+            let mut otf = otf.clone();
+            if let Some(t) = &otf.transfer {
+                if Path::new(t).is_file() {
+                    otf.transfer = std::path::absolute(t)
+                        .ok()
+                        .map(|p| p.to_string_lossy().into_owned());
+                }
+            }
+            let json = serde_json::to_string_pretty(&otf)
+                .map_err(|e| Error::Invalid(format!("the OTF cannot be written as JSON: {e}")))?;
+            scene.classification = ClassificationSpec::Occlusion(beside("otf.json", json)?);
+        } else if m.tf_edited {
+            scene.classification = ClassificationSpec::Transfer(beside("tf.json", m.tf.to_json())?);
+        }
+        scene.save(path)
+    }
+}
+
+/// The first free `vellum-NNNN.png` in `dir`.
+pub(crate) fn next_screenshot_path(dir: &Path) -> Result<PathBuf> {
+    for i in 1..10000 {
+        let p = dir.join(format!("vellum-{i:04}.png"));
+        if !p.exists() {
+            return Ok(p);
+        }
+    }
+    Err(Error::Invalid(format!(
+        "{} already holds 9999 screenshots; expected a folder with room for one more",
+        dir.display()
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A session on `input` (a phantom), as the shell makes one, without a window or device.
+    fn session(input: &str) -> Session {
+        let loaded = load(
+            Scene::new(InputSpec {
+                path: input.into(),
+                raw: None,
+            }),
+            1 << 30,
+        )
+        .unwrap();
+        let dims = loaded.volume.dims;
+        Session::new(
+            loaded,
+            None,
+            dims,
+            SessionSetup {
+                device: None,
+                device_name: "no device".into(),
+                screenshot_dir: std::env::temp_dir(),
+                bench: None,
+                budget: 1 << 30,
+            },
+        )
+    }
+
+    /// The load started last, once the worker has answered.
+    fn wait_for_load(s: &mut Session) -> (String, Result<Loaded>) {
+        let deadline = Instant::now() + std::time::Duration::from_secs(60);
+        loop {
+            if let Some(done) = s.take_load() {
+                return done;
+            }
+            assert!(Instant::now() < deadline, "the loader did not answer");
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+    }
+
+    fn camera(azimuth: f32, elevation: f32, distance: f32) -> Camera {
+        Camera {
+            azimuth_deg: azimuth,
+            elevation_deg: elevation,
+            distance,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn the_first_apply_sets_focus_and_modulation_and_an_edit_is_applied_once() {
+        let mut s = session("phantom:sphere:16");
+        let range = s.model.range;
+        let edits = s.apply(range, false);
+        assert_eq!(
+            edits,
+            vec![
+                Edit::Focus(Focus::None),
+                Edit::Modulation(Default::default())
+            ]
+        );
+        s.model.tf = TransferFunction::preset("ct-bone").unwrap();
+        let edits = s.apply(range, false);
+        assert!(
+            edits.contains(&Edit::Transfer(s.model.tf.clone())),
+            "{edits:?}"
+        );
+        assert!(!s.edited());
+        let again = s.apply(range, false);
+        assert!(
+            !again.iter().any(|e| matches!(e, Edit::Transfer(_))),
+            "{again:?}"
+        );
+    }
+
+    #[test]
+    fn a_focus_outside_the_volume_is_refused_and_set_back() {
+        let mut s = session("phantom:sphere:16");
+        let range = s.model.range;
+        s.model.scene.focus = Focus::Iso(range[1] + 1000.0);
+        let edits = s.apply(range, false);
+        assert_eq!(s.model.scene.focus, Focus::None);
+        assert!(edits.contains(&Edit::Focus(Focus::None)));
+        assert!(!s.model.message.is_empty());
+        // A focus inside the values stands.
+        let mid = 0.5 * (range[0] + range[1]);
+        s.model.scene.focus = Focus::Iso(mid);
+        assert!(s
+            .apply(range, false)
+            .contains(&Edit::Focus(Focus::Iso(mid))));
+    }
+
+    #[test]
+    fn a_new_input_is_loaded_again_and_replaces_the_volume() {
+        let mut s = session("phantom:sphere:16");
+        s.model.scene.input.path = "phantom:torus:24".into();
+        let range = s.model.range;
+        assert!(
+            s.apply(range, false).is_empty(),
+            "nothing to edit: it loads"
+        );
+        assert!(s.loading());
+        let (what, got) = wait_for_load(&mut s);
+        let l = got.unwrap();
+        assert_eq!(what, "phantom:torus:24");
+        assert_eq!(l.volume.dims, [24, 24, 24]);
+        let dims = l.volume.dims;
+        s.opened(l, &what, None, dims);
+        assert_eq!(s.model.dims, [24, 24, 24]);
+        assert_eq!(s.volume.dims, [24, 24, 24]);
+        assert_eq!(s.model.message, "opened phantom:torus:24");
+        assert!(!s.edited() && !s.loading());
+    }
+
+    #[test]
+    fn a_failed_load_says_why_and_keeps_the_volume() {
+        let mut s = session("phantom:sphere:16");
+        s.start_load_input("/nonexistent/volume.nrrd".into());
+        let (what, got) = wait_for_load(&mut s);
+        assert_eq!(what, "/nonexistent/volume.nrrd");
+        let e = got.err().expect("a missing file is refused");
+        assert!(e.to_string().contains("/nonexistent/volume.nrrd"), "{e}");
+        assert_eq!(s.volume.dims, [16, 16, 16]);
+    }
+
+    #[test]
+    fn gestures_turn_pan_and_zoom_the_camera_within_bounds_and_reset_goes_home() {
+        let mut s = session("phantom:sphere:16");
+        let home = s.model.scene.camera.clone();
+        let cam = camera(10.0, 20.0, 3.0);
+        s.drag(&cam, Drag::Orbit, [10.0, 25.0], 400);
+        let c = &s.model.scene.camera;
+        assert_eq!(
+            (c.azimuth, c.elevation, c.distance),
+            (Some(6.0), Some(30.0), Some(3.0))
+        );
+        assert_eq!(c.view, None);
+        s.drag(&cam, Drag::Orbit, [-50.0, 1000.0], 400);
+        assert_eq!(s.model.scene.camera.azimuth, Some(30.0));
+        assert_eq!(
+            s.model.scene.camera.elevation,
+            Some(90.0),
+            "held at the pole"
+        );
+        s.drag(&cam, Drag::Pan, [40.0, 0.0], 400);
+        assert!(s.model.scene.camera.pan[0] < 0.0 && s.model.scene.camera.pan[1] == 0.0);
+        s.zoom(&cam, 1.0);
+        assert!((s.model.scene.camera.distance.unwrap() - 2.7).abs() < 1e-5);
+        s.zoom(&cam, 100.0);
+        assert_eq!(
+            s.model.scene.camera.distance,
+            Some(1.05),
+            "outside the bounding sphere"
+        );
+        s.reset_camera();
+        assert_eq!(s.model.scene.camera, home);
+    }
+
+    #[test]
+    fn keys_quit_shoot_save_and_pick_views_and_the_panel_key_is_the_shells() {
+        let mut s = session("phantom:sphere:16");
+        let key = |c: &str| KeyPress::Char(c.into());
+        assert!(!s.key(&key("o"), false));
+        assert!(s.model.scene.camera.ortho);
+        assert!(!s.key(&key("3"), false));
+        assert_eq!(s.model.scene.camera.view, Some(NamedView::Left));
+        assert!(!s.key(&key("s"), false));
+        assert!(s.model.requests.screenshot && s.model.requests.save_scene.is_none());
+        assert!(!s.key(&key("S"), true));
+        assert_eq!(
+            s.model.requests.save_scene,
+            Some(s.model.scene_path.clone())
+        );
+        assert!(s.key(&key("h"), false), "the panel is the shell's");
+        assert!(!s.model.requests.quit);
+        s.key(&KeyPress::Escape, false);
+        assert!(s.model.requests.quit);
+    }
+
+    #[test]
+    fn the_bench_orbit_steps_three_degrees_and_counts_down() {
+        let mut s = session("phantom:sphere:16");
+        s.bench = Some(BenchLog::new(2, false));
+        s.bench_step();
+        s.bench_step();
+        s.bench_step();
+        assert_eq!(s.model.scene.camera.azimuth, Some(9.0));
+        assert_eq!(s.bench.as_ref().map(|b| b.left), Some(0));
+    }
+
+    #[test]
+    fn a_saved_scene_names_the_edited_transfer_function_beside_it() {
+        let mut s = session("phantom:sphere:16");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("view.json");
+        s.model.tf = TransferFunction::preset("ct-bone").unwrap();
+        s.model.tf_edited = true;
+        s.save_scene(&path, [300, 200]).unwrap();
+        let saved = Scene::load(&path).unwrap();
+        assert_eq!(saved.size, [300, 200]);
+        let tf_path = path.with_extension("tf.json");
+        assert_eq!(
+            saved.classification,
+            ClassificationSpec::Transfer(tf_path.to_string_lossy().into_owned())
+        );
+        assert!(tf_path.is_file());
+        // A refused setting goes back to what rendered.
+        s.model.scene.slices = Some(3);
+        s.refused(&Error::Invalid("too few slices".into()));
+        assert_eq!(s.model.scene, s.applied);
+        assert_eq!(s.model.message, "too few slices");
+    }
+}
