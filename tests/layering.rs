@@ -389,3 +389,13 @@ fn inside_the_render_crate_no_module_imports_one_above_it() {
     }
     assert!(checked > 20, "{checked} files checked");
 }
+
+#[test]
+fn no_file_of_the_viewer_is_over_600_lines() {
+    let files = rust_files(&root().join("crates/vellum-viewer/src"));
+    assert!(files.len() >= 8, "{} files read", files.len());
+    for file in files {
+        let lines = std::fs::read_to_string(&file).unwrap().lines().count();
+        assert!(lines <= 600, "{} has {lines} lines", file.display());
+    }
+}

@@ -1,6 +1,7 @@
 //! `vellum view`.
 
 use crate::args::*;
+#[cfg(feature = "viewer")]
 use crate::flags::*;
 use anyhow::Result;
 #[cfg(feature = "viewer")]
@@ -10,7 +11,7 @@ use std::path::PathBuf;
 #[cfg(not(feature = "viewer"))]
 pub(crate) fn view(_cli: &Cli, _a: &ViewArgs) -> Result<()> {
     anyhow::bail!(
-        "this vellum was built without its viewer (cargo feature `viewer`); expected a build with default features for `vellum view`"
+        "this vellum was built without its viewer (cargo feature `viewer`, which `make run` leaves out); expected a build with the default features for `vellum view`: `make view` or `cargo build --release`"
     )
 }
 

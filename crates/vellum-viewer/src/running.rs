@@ -1,0 +1,388 @@
+//! The window's state coming up and going on: the window, its surface's extensions and egui's
+//! renderer, the first volume's GPU state, the pointer's and keyboard's gestures handed to the
+//! session, and the session's finished work (a load, an occlusion volume) and edits applied to
+//! the GPU state.
+
+use super::*;
+
+/// The window and what Vulkan needs of it: its display and window handles, and the instance
+/// extensions presenting to it takes.
+pub(crate) fn open_window(
+    event_loop: &ActiveEventLoop,
+    opts: &ViewOptions,
+) -> Result<(
+    Arc<Window>,
+    winit::raw_window_handle::RawDisplayHandle,
+    winit::raw_window_handle::RawWindowHandle,
+    Presentation,
+)> {
+    let attrs = Window::default_attributes()
+        .with_title(format!("vellum: {}", opts.scene.input.path))
+        .with_inner_size(winit::dpi::PhysicalSize::new(
+            opts.window_size[0],
+            opts.window_size[1],
+        ));
+    let window = Arc::new(
+        event_loop
+            .create_window(attrs)
+            .map_err(|e| Error::Invalid(format!("cannot create a window: {e}")))?,
+    );
+    let display = window
+        .display_handle()
+        .map_err(|e| Error::Invalid(format!("the window has no display handle: {e}")))?
+        .as_raw();
+    let handle = window
+        .window_handle()
+        .map_err(|e| Error::Invalid(format!("the window has no handle: {e}")))?
+        .as_raw();
+    let exts = ash_window::enumerate_required_extensions(display)
+        .map_err(|e| Error::Invalid(format!("no Vulkan surface for this display: {e}")))?;
+    let present = Presentation {
+        instance_extensions: exts
+            .iter()
+            // SAFETY: ash-window returns pointers to static NUL-terminated extension names.
+            .map(|&p| unsafe { std::ffi::CStr::from_ptr(p) })
+            .collect(),
+        swapchain: true,
+    };
+    Ok((window, display, handle, present))
+}
+
+/// egui's renderer, drawing into the swapchain's format with our device and allocator, and the
+/// command pool it uploads its textures through.
+pub(crate) fn egui_renderer(
+    ctx: &Arc<Context>,
+    format: vk::Format,
+    in_flight: usize,
+) -> Result<(
+    egui_ash_renderer::Renderer<egui_ash_renderer::allocator::GpuAllocator>,
+    CommandPool,
+)> {
+    let egui_renderer = egui_ash_renderer::Renderer::with_gpu_allocator(
+        ctx.shared_allocator(),
+        ctx.device.clone(),
+        egui_ash_renderer::RenderMode::DynamicRendering(egui_ash_renderer::DynamicRendering {
+            color_attachment_format: format,
+            depth_attachment_format: None,
+            stencil_attachment_format: None,
+        }),
+        egui_ash_renderer::Options {
+            in_flight_frames: in_flight,
+            ..Default::default()
+        },
+    )
+    .map_err(|e| Error::Invalid(format!("egui's renderer: {e}")))?;
+    let pool_info = vk::CommandPoolCreateInfo::default()
+        .queue_family_index(ctx.queue_family)
+        .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
+    let egui_pool = CommandPool {
+        ctx: ctx.clone(),
+        raw: unsafe { ctx.device.create_command_pool(&pool_info, None) }
+            .map_err(|e| Error::Invalid(format!("creating egui's command pool: {e}")))?,
+    };
+    Ok((egui_renderer, egui_pool))
+}
+
+impl Running {
+    pub(crate) fn new(event_loop: &ActiveEventLoop, opts: &ViewOptions) -> Result<Self> {
+        let (window, display, handle, present) = open_window(event_loop, opts)?;
+        let ctx = Context::with_presentation(
+            &ContextDesc {
+                validation: None,
+                device: opts.device.clone(),
+            },
+            &present,
+        )?;
+        let opened = Instant::now();
+        let budget = vellum_render::render::bricked::gpu_budget_bytes(&ctx, opts.gpu_budget)?;
+        let mut loaded = session::load(opts.scene.clone(), budget)?;
+        let size = window.inner_size();
+        let frames = Frames::new(&ctx, &FramesDesc::interactive("view"))?;
+        // SAFETY: the window (held in `Running` after the swapchain) outlives it.
+        let swapchain = unsafe {
+            Swapchain::new(
+                &ctx,
+                display,
+                handle,
+                [size.width.max(1), size.height.max(1)],
+                frames.len(),
+                opts.vsync,
+            )?
+        };
+        let present = GraphicsPipeline::new(
+            &ctx,
+            &GraphicsDesc {
+                name: "present",
+                vertex_shader: "render/fullscreen.vert",
+                fragment_shader: "viewer/present.frag",
+                bindings: &[BindingKind::SampledImage],
+                push_constant_bytes: 32,
+                vertex_stride: 0,
+                color_formats: &[swapchain.format],
+                blend: &[vellum_gpu::graphics::Blend::Replace],
+                depth: None,
+                fragment_constants: &[],
+            },
+        )?;
+        let (egui_renderer, egui_pool) = egui_renderer(&ctx, swapchain.format, frames.len())?;
+        let egui_ctx = egui::Context::default();
+        let egui_state = egui_winit::State::new(
+            egui_ctx.clone(),
+            egui::ViewportId::ROOT,
+            &window,
+            Some(window.scale_factor() as f32),
+            None,
+            Some(ctx.info.max_image_dimension_2d as usize),
+        );
+        let renderer = Renderer::new(&ctx)?;
+        let mut gpu = prepare_gpu(&ctx, &mut loaded, budget)?;
+        let spectrum = match &mut gpu {
+            Prepared::InCore(g) => g.spectrum.take(),
+            Prepared::Paged(..) => None,
+        };
+        let dims = gpu.volume().dims();
+        let session = Session::new(
+            loaded,
+            spectrum,
+            dims,
+            SessionSetup {
+                device: opts.device.clone(),
+                device_name: ctx.info.name.clone(),
+                screenshot_dir: opts.screenshot_dir.clone(),
+                bench: opts.bench_frames.map(|n| BenchLog::new(n, opts.bench_full)),
+                budget,
+            },
+        );
+        Ok(Running {
+            gpu: GpuState {
+                frames,
+                egui_renderer,
+                egui_pool,
+                swapchain,
+                present,
+                sampler: Sampler::new(&ctx, true)?,
+                targets: FrameTargets::new(&ctx),
+                renderer,
+                scene: gpu,
+                last_view: None,
+                budget,
+            },
+            session,
+            input: Input {
+                drag: None,
+                cursor: [0.0; 2],
+                shift: false,
+                ctrl: false,
+                last_click: None,
+                last_change: Instant::now() - REFINE_AFTER,
+                refined: false,
+            },
+            egui_ctx,
+            egui_state,
+            resize: false,
+            pending_free: Vec::new(),
+            view_rect: [0; 4],
+            show_panel: opts.bench_frames.is_none(),
+            last_layout: String::new(),
+            last_message: String::new(),
+            last_present: None,
+            last_rendered: None,
+            timings_of: None,
+            egui_repaint_at: None,
+            errors_in_a_row: 0,
+            opened,
+            first_frame_ms: None,
+            window,
+            ctx,
+        })
+    }
+
+    /// A mouse button pressed over the view: left orbits (with shift, pans), right and middle
+    /// pan; a second left click within 350 ms resets the camera.
+    pub(crate) fn press(&mut self, button: MouseButton) {
+        let kind = match button {
+            MouseButton::Left if self.input.shift => Some(Drag::Pan),
+            MouseButton::Left => Some(Drag::Orbit),
+            MouseButton::Right | MouseButton::Middle => Some(Drag::Pan),
+            _ => None,
+        };
+        if button == MouseButton::Left {
+            let now = Instant::now();
+            if self
+                .input
+                .last_click
+                .is_some_and(|t| now - t < Duration::from_millis(350))
+            {
+                self.reset_camera();
+            }
+            self.input.last_click = Some(now);
+        }
+        self.input.drag = kind.map(|k| (k, self.input.cursor));
+    }
+
+    /// A key pressed outside egui: the session's keys, and the panel's.
+    pub(crate) fn key(&mut self, key: &Key) {
+        let press = match key {
+            Key::Named(NamedKey::Escape) => KeyPress::Escape,
+            Key::Character(c) => KeyPress::Char(c.to_string()),
+            _ => return,
+        };
+        if self.session.key(&press, self.input.ctrl) {
+            self.show_panel = !self.show_panel;
+            self.changed();
+        }
+    }
+
+    /// Something changed: render at reduced resolution until [`REFINE_AFTER`] has passed.
+    pub(crate) fn changed(&mut self) {
+        self.input.last_change = Instant::now();
+        self.input.refined = false;
+        self.window.request_redraw();
+    }
+
+    /// Whether a window position (pixels) lies in the volume view.
+    pub(crate) fn in_view(&self, p: [f64; 2]) -> bool {
+        let [x, y, w, h] = self.view_rect.map(f64::from);
+        w == 0.0 || (p[0] >= x && p[0] < x + w && p[1] >= y && p[1] < y + h)
+    }
+
+    /// The volume view's size in pixels.
+    pub(crate) fn view_size(&self) -> [u32; 2] {
+        match self.view_rect {
+            [_, _, 0, _] | [_, _, _, 0] => self.gpu.swapchain.extent,
+            [_, _, w, h] => [w, h],
+        }
+    }
+
+    /// The camera as resolved for the current volume and window (the fitted distance filled in).
+    pub(crate) fn resolved_camera(&self) -> Result<vellum_render::render::camera::Camera> {
+        let mut view = self.session.model.scene.view(self.session.model.oriented)?;
+        view.size = self.view_size();
+        Ok(frame_camera(&WorldBox::of(self.gpu.scene.volume()), &view))
+    }
+
+    pub(crate) fn camera_drag(&mut self, kind: Drag, d: [f64; 2]) {
+        let Ok(cam) = self.resolved_camera() else {
+            return;
+        };
+        let view_h = self.view_size()[1];
+        self.session.drag(&cam, kind, d, view_h);
+        self.changed();
+    }
+
+    pub(crate) fn zoom(&mut self, steps: f64) {
+        let Ok(cam) = self.resolved_camera() else {
+            return;
+        };
+        self.session.zoom(&cam, steps);
+        self.changed();
+    }
+
+    pub(crate) fn reset_camera(&mut self) {
+        self.session.reset_camera();
+        self.changed();
+    }
+
+    /// Takes a finished load: the new volume goes to the GPU and replaces the old one. A failed
+    /// load keeps the old volume and says why.
+    pub(crate) fn poll_load(&mut self) {
+        let Some((what, got)) = self.session.take_load() else {
+            return;
+        };
+        let budget = self.gpu.budget;
+        let result = got.and_then(|mut l| {
+            let gpu = prepare_gpu(&self.ctx, &mut l, budget)?;
+            Ok((l, gpu))
+        });
+        match result {
+            Ok((l, mut gpu)) => {
+                // The old loaders and pools go with the old volume.
+                self.gpu.frames.wait_idle().ok();
+                let spectrum = match &mut gpu {
+                    Prepared::InCore(g) => g.spectrum.take(),
+                    Prepared::Paged(..) => None,
+                };
+                let dims = gpu.volume().dims();
+                self.gpu.scene = gpu;
+                self.session.opened(l, &what, spectrum, dims);
+                self.window
+                    .set_title(&format!("vellum: {}", self.session.model.scene.input.path));
+            }
+            Err(e) => self.session.model.message = format!("{what}: {e}"),
+        }
+        self.changed();
+    }
+
+    /// Takes a finished occlusion volume: it replaces the one the renderer samples, and its
+    /// spectrum the editor's.
+    pub(crate) fn poll_occlusion(&mut self) {
+        let Some((p, got)) = self.session.take_occlusion() else {
+            return;
+        };
+        let attached = got.and_then(|out| {
+            let image = vellum_render::passes::volume_image::create(
+                &self.ctx,
+                "occlusion",
+                &out.occlusion,
+            )?;
+            vellum_gpu::transfer::upload(
+                &self.ctx,
+                &image,
+                out.occlusion.data.as_bytes(),
+                Access::FragmentSampled,
+            )?;
+            Ok((image, out.spectrum))
+        });
+        match attached {
+            Ok((image, spectrum)) => {
+                // The old image may be in use by frames in flight: its release is deferred.
+                if let Prepared::InCore(g) = &mut self.gpu.scene {
+                    g.volume.occlusion = Some(image);
+                }
+                self.session.occlusion_attached(&p, spectrum);
+            }
+            Err(e) => self.session.model.message = format!("recomputing the occlusion: {e}"),
+        }
+        self.changed();
+    }
+
+    /// Applies the scene's edits (the session's [`Edit`]s) to the GPU state.
+    pub(crate) fn apply(&mut self) -> Result<()> {
+        let volume = self.gpu.scene.volume();
+        let (range, has_importance) = (volume.range(), volume.importance().is_some());
+        for edit in self.session.apply(range, has_importance) {
+            let classify = self.gpu.scene.classify();
+            match edit {
+                Edit::Focus(f) => classify.focus = f,
+                Edit::Transfer(tf) => classify.set_transfer(&tf),
+                Edit::OcclusionTable(table) => classify.set_occlusion_table(Some(table))?,
+                Edit::Modulation(m) => classify.modulation = m,
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The GPU state of a loaded volume: in core, or the brick cache's pools with the streamer
+/// started on the coarsest level (and the scene made to ray-cast it).
+pub(crate) fn prepare_gpu(ctx: &Arc<Context>, l: &mut Loaded, budget: u64) -> Result<Prepared> {
+    let modulation = l.scene.modulation.clone().unwrap_or_default();
+    let Some(levels) = l.levels.take() else {
+        let gpu = GpuScene::prepare(
+            ctx,
+            &l.volume,
+            &l.classification,
+            l.scene.focus,
+            &modulation,
+        )?;
+        return Ok(Prepared::InCore(gpu));
+    };
+    let opts = SessionOptions::default();
+    let opened = Opened::Bricked(levels);
+    let prepared = Prepared::new(ctx, &l.scene, &l.classification, &opened, (budget, &opts))?;
+    // The ray caster draws bricked volumes.
+    if l.scene.raycast.is_none() {
+        l.scene.raycast = Some(Default::default());
+    }
+    Ok(prepared)
+}

@@ -1,0 +1,213 @@
+//! The session driven without a window or a device.
+
+use super::*;
+
+/// A session on `input` (a phantom), as the shell makes one, without a window or device.
+fn session(input: &str) -> Session {
+    let loaded = load(
+        Scene::new(InputSpec {
+            path: input.into(),
+            raw: None,
+        }),
+        1 << 30,
+    )
+    .unwrap();
+    let dims = loaded.volume.dims;
+    Session::new(
+        loaded,
+        None,
+        dims,
+        SessionSetup {
+            device: None,
+            device_name: "no device".into(),
+            screenshot_dir: std::env::temp_dir(),
+            bench: None,
+            budget: 1 << 30,
+        },
+    )
+}
+
+/// The load started last, once the worker has answered.
+fn wait_for_load(s: &mut Session) -> (String, Result<Loaded>) {
+    let deadline = Instant::now() + std::time::Duration::from_secs(60);
+    loop {
+        if let Some(done) = s.take_load() {
+            return done;
+        }
+        assert!(Instant::now() < deadline, "the loader did not answer");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+}
+
+fn camera(azimuth: f32, elevation: f32, distance: f32) -> Camera {
+    Camera {
+        azimuth_deg: azimuth,
+        elevation_deg: elevation,
+        distance,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn the_first_apply_sets_focus_and_modulation_and_an_edit_is_applied_once() {
+    let mut s = session("phantom:sphere:16");
+    let range = s.model.range;
+    let edits = s.apply(range, false);
+    assert_eq!(
+        edits,
+        vec![
+            Edit::Focus(Focus::None),
+            Edit::Modulation(Default::default())
+        ]
+    );
+    s.model.tf = TransferFunction::preset("ct-bone").unwrap();
+    let edits = s.apply(range, false);
+    assert!(
+        edits.contains(&Edit::Transfer(s.model.tf.clone())),
+        "{edits:?}"
+    );
+    assert!(!s.edited());
+    let again = s.apply(range, false);
+    assert!(
+        !again.iter().any(|e| matches!(e, Edit::Transfer(_))),
+        "{again:?}"
+    );
+}
+
+#[test]
+fn a_focus_outside_the_volume_is_refused_and_set_back() {
+    let mut s = session("phantom:sphere:16");
+    let range = s.model.range;
+    s.model.scene.focus = Focus::Iso(range[1] + 1000.0);
+    let edits = s.apply(range, false);
+    assert_eq!(s.model.scene.focus, Focus::None);
+    assert!(edits.contains(&Edit::Focus(Focus::None)));
+    assert!(!s.model.message.is_empty());
+    // A focus inside the values stands.
+    let mid = 0.5 * (range[0] + range[1]);
+    s.model.scene.focus = Focus::Iso(mid);
+    assert!(s
+        .apply(range, false)
+        .contains(&Edit::Focus(Focus::Iso(mid))));
+}
+
+#[test]
+fn a_new_input_is_loaded_again_and_replaces_the_volume() {
+    let mut s = session("phantom:sphere:16");
+    s.model.scene.input.path = "phantom:torus:24".into();
+    let range = s.model.range;
+    assert!(
+        s.apply(range, false).is_empty(),
+        "nothing to edit: it loads"
+    );
+    assert!(s.loading());
+    let (what, got) = wait_for_load(&mut s);
+    let l = got.unwrap();
+    assert_eq!(what, "phantom:torus:24");
+    assert_eq!(l.volume.dims, [24, 24, 24]);
+    let dims = l.volume.dims;
+    s.opened(l, &what, None, dims);
+    assert_eq!(s.model.dims, [24, 24, 24]);
+    assert_eq!(s.volume.dims, [24, 24, 24]);
+    assert_eq!(s.model.message, "opened phantom:torus:24");
+    assert!(!s.edited() && !s.loading());
+}
+
+#[test]
+fn a_failed_load_says_why_and_keeps_the_volume() {
+    let mut s = session("phantom:sphere:16");
+    s.start_load_input("/nonexistent/volume.nrrd".into());
+    let (what, got) = wait_for_load(&mut s);
+    assert_eq!(what, "/nonexistent/volume.nrrd");
+    let e = got.err().expect("a missing file is refused");
+    assert!(e.to_string().contains("/nonexistent/volume.nrrd"), "{e}");
+    assert_eq!(s.volume.dims, [16, 16, 16]);
+}
+
+#[test]
+fn gestures_turn_pan_and_zoom_the_camera_within_bounds_and_reset_goes_home() {
+    let mut s = session("phantom:sphere:16");
+    let home = s.model.scene.camera.clone();
+    let cam = camera(10.0, 20.0, 3.0);
+    s.drag(&cam, Drag::Orbit, [10.0, 25.0], 400);
+    let c = &s.model.scene.camera;
+    assert_eq!(
+        (c.azimuth, c.elevation, c.distance),
+        (Some(6.0), Some(30.0), Some(3.0))
+    );
+    assert_eq!(c.view, None);
+    s.drag(&cam, Drag::Orbit, [-50.0, 1000.0], 400);
+    assert_eq!(s.model.scene.camera.azimuth, Some(30.0));
+    assert_eq!(
+        s.model.scene.camera.elevation,
+        Some(90.0),
+        "held at the pole"
+    );
+    s.drag(&cam, Drag::Pan, [40.0, 0.0], 400);
+    assert!(s.model.scene.camera.pan[0] < 0.0 && s.model.scene.camera.pan[1] == 0.0);
+    s.zoom(&cam, 1.0);
+    assert!((s.model.scene.camera.distance.unwrap() - 2.7).abs() < 1e-5);
+    s.zoom(&cam, 100.0);
+    assert_eq!(
+        s.model.scene.camera.distance,
+        Some(1.05),
+        "outside the bounding sphere"
+    );
+    s.reset_camera();
+    assert_eq!(s.model.scene.camera, home);
+}
+
+#[test]
+fn keys_quit_shoot_save_and_pick_views_and_the_panel_key_is_the_shells() {
+    let mut s = session("phantom:sphere:16");
+    let key = |c: &str| KeyPress::Char(c.into());
+    assert!(!s.key(&key("o"), false));
+    assert!(s.model.scene.camera.ortho);
+    assert!(!s.key(&key("3"), false));
+    assert_eq!(s.model.scene.camera.view, Some(NamedView::Left));
+    assert!(!s.key(&key("s"), false));
+    assert!(s.model.requests.screenshot && s.model.requests.save_scene.is_none());
+    assert!(!s.key(&key("S"), true));
+    assert_eq!(
+        s.model.requests.save_scene,
+        Some(s.model.scene_path.clone())
+    );
+    assert!(s.key(&key("h"), false), "the panel is the shell's");
+    assert!(!s.model.requests.quit);
+    s.key(&KeyPress::Escape, false);
+    assert!(s.model.requests.quit);
+}
+
+#[test]
+fn the_bench_orbit_steps_three_degrees_and_counts_down() {
+    let mut s = session("phantom:sphere:16");
+    s.bench = Some(BenchLog::new(2, false));
+    s.bench_step();
+    s.bench_step();
+    s.bench_step();
+    assert_eq!(s.model.scene.camera.azimuth, Some(9.0));
+    assert_eq!(s.bench.as_ref().map(|b| b.left), Some(0));
+}
+
+#[test]
+fn a_saved_scene_names_the_edited_transfer_function_beside_it() {
+    let mut s = session("phantom:sphere:16");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("view.json");
+    s.model.tf = TransferFunction::preset("ct-bone").unwrap();
+    s.model.tf_edited = true;
+    s.save_scene(&path, [300, 200]).unwrap();
+    let saved = Scene::load(&path).unwrap();
+    assert_eq!(saved.size, [300, 200]);
+    let tf_path = path.with_extension("tf.json");
+    assert_eq!(
+        saved.classification,
+        ClassificationSpec::Transfer(tf_path.to_string_lossy().into_owned())
+    );
+    assert!(tf_path.is_file());
+    // A refused setting goes back to what rendered.
+    s.model.scene.slices = Some(3);
+    s.refused(&Error::Invalid("too few slices".into()));
+    assert_eq!(s.model.scene, s.applied);
+    assert_eq!(s.model.message, "too few slices");
+}
