@@ -8,8 +8,10 @@
 // (equal world steps, which that correction then fits exactly). A per-pixel jitter moves them.
 // Front to back: a focus sample composites into the focus layers and the first one sets the
 // depth; a context sample counts only in front of the first focus sample (the slicer's depth
-// test). Rays stop once their opacity reaches `ert` (early termination), and skip bricks that
-// hold nothing under the current classification (empty-space skipping) without moving any sample.
+// test). Rays stop once their opacity reaches `ert` (early termination), and sample only the
+// stretch between the first and the last brick that holds something under the current
+// classification (empty-space skipping, found by a walk over the bricks before the samples)
+// without moving any sample.
 #define RAYCAST
 #include "shade.glsl"
 
@@ -300,6 +302,35 @@ float brick_exit(ivec3 b, vec3 o, vec3 dir) {
     return min(min(tmax.x, tmax.y), tmax.z);
 }
 
+// The stretch [first, last] of the ray, within [t0, t1], over bricks that hold something it
+// needs (flags & need): the walk before the samples, one lookup per brick crossed, so that the
+// sample loop carries no test of its own (a test there cost more than skipping saved wherever
+// little is empty: issue 43). (INF, -INF) when no brick does. Empty bricks between occupied
+// ones are sampled: their samples add nothing, as without skipping.
+vec2 occupied_span(vec3 o, vec3 dir, float t0, float t1, uint need, float hair) {
+    float first = INF, last = -INF;
+    float t = t0;
+    int steps = p.bricks.x + p.bricks.y + p.bricks.z + 3;
+    for (int i = 0; i < steps && t < t1; i++) {
+        vec3 tx = (o + t * dir) / (2.0 * u.half_extent.xyz) + 0.5;
+        ivec3 bk = brick_of(tx);
+        float te = brick_exit(bk, o, dir);
+        // A ray along a face, or rounding, can put the exit at t: step on by a hair.
+        te = te > t ? te : t + hair;
+        if ((ray_tables[BRICKS_AT + bk.x + p.bricks.x * (bk.y + p.bricks.y * bk.z)] & need) != 0u) {
+            first = min(first, t);
+            last = te;
+        }
+        t = te + hair;
+    }
+    // A walk cut short by its step count leaves the rest of the ray to the samples.
+    if (t < t1) {
+        first = min(first, t);
+        last = t1;
+    }
+    return vec2(first, last);
+}
+
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = imageSize(out_composite);
@@ -377,6 +408,14 @@ void main() {
         bool first = true;
         float ert = p.planes.w;
         bool skip = V_SKIP_EMPTY && p.flags.y != 0;
+        if (skip && !V_BRICKED) {
+            // Only the stretch over bricks one pass (or two levels, context or focus) needs is
+            // sampled; the samples keep their places, so the image is the one without skipping.
+            float hair = 1e-4 * b;
+            vec2 span = occupied_span(o, dir, t_in, t_out, V_TWO_LEVEL ? 3u : 1u, hair);
+            m = max(m, ceil((span.x - hair - a) / b));
+            m_last = min(m_last, floor((span.y + hair - a) / b));
+        }
         bool refine_on = V_TWO_LEVEL && V_REFINE_ISO && (p.flags.w & 1) != 0 && int(u.focus.z) == FOCUS_ISO;
         // Without an occlusion TF or opacity modulation, the walk tests a sample's bound from the
         // table instead of classifying it: a raw opacity below a_min stays below MIN_ALPHA after
@@ -402,9 +441,6 @@ void main() {
                 return;
             }
         }
-        // The brick of the last sample and its flags, looked up once per brick.
-        ivec3 cur_brick = ivec3(-1);
-        uint cur_flags = 0u;
         // Two loops: the inner one walks to the next sample that adds to a layer, paying only for
         // its intensity and class; the outer one shades and composites it. A CPU rasteriser runs
         // a loop body for all its lanes while any is active, so shading in the walk would be paid
@@ -428,22 +464,6 @@ void main() {
                 // One pass needs visible bricks; two levels need visible context in front of
                 // the first focus sample, or focus.
                 uint need = V_TWO_LEVEL ? (first && ctx.a < ert ? 3u : 2u) : 1u;
-                if (skip && !V_BRICKED) {
-                    ivec3 bk = brick_of(tex);
-                    if (bk != cur_brick) {
-                        cur_brick = bk;
-                        cur_flags = ray_tables[BRICKS_AT + bk.x + p.bricks.x * (bk.y + p.bricks.y * bk.z)];
-                    }
-                    if ((cur_flags & need) == 0u) {
-                        // Resume at the first sample at or behind the brick's exit (less a hair,
-                        // so that rounding can only revisit this brick, never skip a sample of
-                        // the next), and always at least one sample further.
-                        float te = brick_exit(bk, o, dir) - 1e-4 * b;
-                        m = max(ceil((te - a) / b), m + 1.0) - 1.0;
-                        prev_t = -1.0;
-                        continue;
-                    }
-                }
                 int found = locate(skip ? need : 0u);
                 if (found == EMPTY) {
                     // As above, from the end of the brick's stretch.
