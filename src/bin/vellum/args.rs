@@ -559,13 +559,8 @@ pub(crate) enum BenchCommand {
 
 impl InputArgs {
     pub(crate) fn load(&self) -> Result<Volume> {
-        let raw = self.raw.spec()?;
-        if let Some(o) = self.raw.origin()? {
-            let v = vellum::input::load(&self.input, raw.as_ref())?;
-            let g = vellum::volume::geometry::Geometry::lps(o, vellum::volume::geometry::IDENTITY)?;
-            return Ok(v.with_geometry(g)?);
-        }
-        Ok(vellum::input::load(&self.input, raw.as_ref())?)
+        let (raw, origin) = (self.raw.spec()?, self.raw.origin()?);
+        Ok(vellum::input::open(&self.input, raw.as_ref(), origin)?)
     }
 }
 

@@ -459,16 +459,10 @@ impl Scene {
             .transpose()
     }
 
-    /// Loads the input volume.
+    /// Loads the input volume whole, through the one opener (`vellum_volume::input::open`).
     pub fn load_volume(&self) -> Result<Volume> {
-        let v = vellum_volume::input::load(&self.input.path, self.raw_spec()?.as_ref())?;
-        match self.input.raw.as_ref().and_then(|r| r.origin) {
-            Some(o) => v.with_geometry(vellum_volume::geometry::Geometry::lps(
-                o,
-                vellum_volume::geometry::IDENTITY,
-            )?),
-            None => Ok(v),
-        }
+        let origin = self.input.raw.as_ref().and_then(|r| r.origin);
+        vellum_volume::input::open(&self.input.path, self.raw_spec()?.as_ref(), origin)
     }
 
     /// Loads the files the classification names.
