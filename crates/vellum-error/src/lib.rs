@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! The one error type of vellum's crates. Every variant names what failed, so a message that reaches the
 //! user says which object, pass or file was involved and what was expected.
 
@@ -7,10 +8,15 @@ use std::path::PathBuf;
 /// was expected; broken internal invariants are bugs and panic instead.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A Vulkan call returned an error. `what` names the object or pass; `result` is the
-    /// `VkResult`'s name (this crate names no Vulkan type, so the layers without Vulkan use it).
+    /// A Vulkan call returned an error.
     #[error("Vulkan call failed while {what}: {result}")]
-    Vulkan { what: String, result: String },
+    Vulkan {
+        /// The object or pass, as "creating the sampler".
+        what: String,
+        /// The `VkResult`'s name (this crate names no Vulkan type, so the layers without Vulkan
+        /// use it).
+        result: String,
+    },
 
     /// The Vulkan loader library could not be opened.
     #[error(
@@ -24,30 +30,57 @@ pub enum Error {
 
     /// Device memory could not be allocated.
     #[error("GPU memory allocation for {what} failed: {cause}")]
-    Alloc { what: String, cause: String },
+    Alloc {
+        /// The resource, by its debug name.
+        what: String,
+        /// The allocator's own message.
+        cause: String,
+    },
 
     /// A shader interface or pipeline was inconsistent (a bug in vellum, reported rather than panicking).
     #[error("pipeline {name}: {msg}")]
-    Pipeline { name: String, msg: String },
+    Pipeline {
+        /// The shader or pipeline, as "render/raycast.comp".
+        name: String,
+        /// What was inconsistent.
+        msg: String,
+    },
 
     /// A file could not be opened, read or written.
     #[error("{}: {cause}", path.display())]
     Io {
+        /// The file.
         path: PathBuf,
+        /// The operating system's error.
         cause: std::io::Error,
     },
 
     /// A file was read but its content is not what its format requires.
     #[error("{}: {msg}", path.display())]
-    Format { path: PathBuf, msg: String },
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong and what was expected.
+        msg: String,
+    },
 
     /// Float voxels that are NaN or infinite.
     #[error("{what} has {count} NaN or infinite voxels (64-bit values beyond ±3.4e38 do not fit the 32-bit floats vellum computes in); expected finite values")]
-    NonFinite { what: String, count: usize },
+    NonFinite {
+        /// The volume, by its file or role.
+        what: String,
+        /// How many voxels are not finite.
+        count: usize,
+    },
 
     /// The volume does not fit what the device supports.
     #[error("a volume of {}x{}x{} voxels exceeds the device: {limit}", dims[0], dims[1], dims[2])]
-    TooLarge { dims: [usize; 3], limit: String },
+    TooLarge {
+        /// Voxels along x, y, z.
+        dims: [usize; 3],
+        /// The device's limit that the volume exceeds.
+        limit: String,
+    },
 
     /// Any other input that does not make sense (bad flag values, malformed specs).
     #[error("{0}")]

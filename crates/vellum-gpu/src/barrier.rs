@@ -42,8 +42,11 @@ pub enum Access {
 /// The synchronization2 view of an [`Access`].
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub struct AccessInfo {
+    /// The pipeline stages that wait or are waited for.
     pub stage: vk::PipelineStageFlags2,
+    /// The memory accesses made available or visible.
     pub access: vk::AccessFlags2,
+    /// The layout an image is in for this access (`UNDEFINED` for buffers).
     pub layout: vk::ImageLayout,
 }
 

@@ -91,10 +91,15 @@ pub struct Presentation {
 /// A physical device as seen during selection.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct DeviceCandidate {
+    /// Index among the physical devices, as `--device` takes it.
     pub index: usize,
+    /// The device's name, as the driver reports it.
     pub name: String,
+    /// Discrete, integrated, virtual or CPU.
     pub device_type: String,
+    /// The Vulkan version the device supports, as "1.3.280".
     pub api_version: String,
+    /// The driver's name and version.
     pub driver: String,
     /// Why the device cannot be used, or `None` when it meets every requirement.
     pub rejected: Option<String>,
@@ -103,13 +108,21 @@ pub struct DeviceCandidate {
 /// Properties and limits of the chosen device that passes need.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct DeviceInfo {
+    /// The device's name, as the driver reports it.
     pub name: String,
+    /// Discrete, integrated, virtual or CPU.
     pub device_type: String,
+    /// The Vulkan version the device supports.
     pub api_version: String,
+    /// The driver's name and version.
     pub driver: String,
+    /// The largest 3D image edge in texels.
     pub max_image_dimension_3d: u32,
+    /// The largest 2D image edge in texels.
     pub max_image_dimension_2d: u32,
+    /// The largest storage buffer range in bytes.
     pub max_storage_buffer_range: u32,
+    /// The largest dispatch along x, y, z in workgroups.
     pub max_compute_work_group_count: [u32; 3],
     /// Nanoseconds per timestamp tick.
     pub timestamp_period_ns: f32,
@@ -125,25 +138,33 @@ pub struct DeviceInfo {
 
 /// The instance, device, queue and allocator. Create once, share as `Arc<Context>`.
 pub struct Context {
+    /// The Vulkan loader.
     pub entry: ash::Entry,
+    /// The instance.
     pub instance: ash::Instance,
     debug_instance: Option<ash::ext::debug_utils::Instance>,
     messenger: vk::DebugUtilsMessengerEXT,
     /// Present when debug utils are available: object names and command-buffer labels.
     pub debug_utils: Option<ash::ext::debug_utils::Device>,
+    /// The chosen physical device.
     pub physical: vk::PhysicalDevice,
+    /// The logical device.
     pub device: ash::Device,
+    /// The push-descriptor functions every pipeline binds its resources with.
     pub push_descriptor: ash::khr::push_descriptor::Device,
+    /// The family of the one queue.
     pub queue_family: u32,
     queue: Mutex<vk::Queue>,
     /// Shared (an `Arc`) so that egui's renderer can allocate through it; every holder is dropped
     /// before the context (the viewer drops its egui renderer first).
     allocator: ManuallyDrop<Arc<Mutex<Allocator>>>,
+    /// Properties and limits of the chosen device.
     pub info: DeviceInfo,
     /// Every physical device, with the reason it was rejected where it was.
     pub candidates: Vec<DeviceCandidate>,
     /// Index into `candidates` of the chosen device.
     pub chosen: usize,
+    /// Whether the Khronos validation layer is on.
     pub validation: bool,
     // Boxed so that the pointer handed to the messenger stays put; dropped after the messenger.
     messages: Box<MessageCounts>,

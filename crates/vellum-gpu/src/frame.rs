@@ -194,6 +194,7 @@ impl StagingRing {
 pub struct FrameResult {
     /// The frame's number in this ring, from 0.
     pub index: u64,
+    /// GPU milliseconds of each pass, in recording order.
     pub passes: Vec<PassTime>,
 }
 
@@ -210,8 +211,11 @@ struct Slot {
 
 /// The frame being recorded: its command buffer, profiler and staging ring.
 pub struct Frame<'a> {
+    /// The command buffer being recorded.
     pub cmd: vk::CommandBuffer,
+    /// The frame's timestamp profiler: passes open and close their names on it.
     pub profiler: &'a mut Profiler,
+    /// The frame's staging ring: bump-allocated host memory for uniforms, vertices and texels.
     pub staging: &'a mut StagingRing,
     keep: &'a mut Vec<Box<dyn Any>>,
     /// The frame's number in its ring, from 0.

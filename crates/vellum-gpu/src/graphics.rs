@@ -24,24 +24,35 @@ pub enum Blend {
 /// Depth testing of a pipeline.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub struct DepthState {
+    /// The depth attachment's format.
     pub format: vk::Format,
+    /// The depth test.
     pub compare: vk::CompareOp,
+    /// Whether fragments write depth.
     pub write: bool,
 }
 
 /// Everything that defines a graphics pipeline.
 #[derive(Clone, Debug)]
 pub struct GraphicsDesc<'a> {
+    /// The name in messages, labels and the pipeline cache.
     pub name: &'a str,
+    /// The vertex shader, by its path under glsl/.
     pub vertex_shader: &'a str,
+    /// The fragment shader, by its path under glsl/.
     pub fragment_shader: &'a str,
+    /// The bindings of set 0, in binding order.
     pub bindings: &'a [BindingKind],
+    /// Bytes of push constants, shared by both stages.
     pub push_constant_bytes: u32,
     /// Bytes per vertex of the single vertex buffer, whose one attribute (location 0) is a vec3;
     /// 0 for pipelines that make their vertices from `gl_VertexIndex`.
     pub vertex_stride: u32,
+    /// The formats of the colour attachments, in location order.
     pub color_formats: &'a [vk::Format],
+    /// The blending of each colour attachment.
     pub blend: &'a [Blend],
+    /// Depth testing, or none.
     pub depth: Option<DepthState>,
     /// Fragment-shader specialisation constants, `constant_id = i`.
     pub fragment_constants: &'a [u32],
@@ -50,8 +61,11 @@ pub struct GraphicsDesc<'a> {
 /// A graphics pipeline with its layout.
 pub struct GraphicsPipeline {
     ctx: Arc<Context>,
+    /// The pipeline.
     pub raw: vk::Pipeline,
+    /// Its layout (set 0 and the push constants).
     pub layout: PipelineLayout,
+    /// The name in messages and labels.
     pub name: String,
 }
 
@@ -252,7 +266,9 @@ impl Drop for GraphicsPipeline {
 /// How an attachment starts: cleared to a value, or loaded as it is.
 #[derive(Copy, Clone, Debug)]
 pub enum Load {
+    /// Cleared to this colour (or depth in the first component).
     Clear([f32; 4]),
+    /// Loaded as it is.
     Keep,
 }
 

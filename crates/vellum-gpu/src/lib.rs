@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! The Vulkan layer: context, memory, commands, barriers, pipelines and timing. It knows nothing
 //! about volumes or rendering techniques; `vellum-render`'s passes and renderers build on it.
 //! Beneath it is only `vellum-error`.

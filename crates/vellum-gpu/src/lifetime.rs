@@ -30,9 +30,13 @@ use std::sync::Mutex;
 /// Host transfers of one named resource.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct TransferCount {
+    /// Uploads recorded.
     pub uploads: u64,
+    /// Bytes uploaded.
     pub upload_bytes: u64,
+    /// Readbacks recorded.
     pub readbacks: u64,
+    /// Bytes read back.
     pub readback_bytes: u64,
 }
 

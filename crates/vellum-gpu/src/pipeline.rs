@@ -14,9 +14,13 @@ use vellum_error::{Error, Result};
 /// The kind of one binding in set 0.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub enum BindingKind {
+    /// A storage image (`image3D`, `image2D`, read and written).
     StorageImage,
+    /// A combined image sampler.
     SampledImage,
+    /// A storage buffer.
     StorageBuffer,
+    /// A uniform buffer.
     UniformBuffer,
 }
 
@@ -37,11 +41,15 @@ pub const MAX_BINDINGS: usize = 32;
 /// A resource bound at dispatch time; its position in the slice is its binding number.
 #[derive(Copy, Clone)]
 pub enum Bind<'a> {
+    /// An image as a storage image.
     StorageImage(&'a Image),
     /// The image's second view (`ImageDesc::alias`), as a storage image.
     StorageImageAlias(&'a Image),
+    /// An image with its sampler.
     Sampled(&'a Image, &'a Sampler),
+    /// A whole buffer as a storage buffer.
     StorageBuffer(&'a Buffer),
+    /// A whole buffer as uniforms.
     Uniform(&'a Buffer),
     /// Uniforms at a range of a buffer, e.g. a frame's staging ring.
     UniformSlice(BufferSlice),
@@ -64,10 +72,15 @@ impl Bind<'_> {
 /// by compute and graphics pipelines.
 pub struct PipelineLayout {
     ctx: Arc<Context>,
+    /// The layout of set 0 (push descriptors).
     pub set_layout: vk::DescriptorSetLayout,
+    /// The pipeline layout.
     pub raw: vk::PipelineLayout,
+    /// The bindings of set 0, in binding order.
     pub bindings: Vec<BindingKind>,
+    /// Bytes of push constants.
     pub push_constant_bytes: u32,
+    /// The stages the push constants and bindings are visible to.
     pub stages: vk::ShaderStageFlags,
 }
 
@@ -275,8 +288,11 @@ pub fn shader_module(ctx: &Context, shader: &str) -> Result<vk::ShaderModule> {
 /// A compute pipeline.
 pub struct ComputePipeline {
     ctx: Arc<Context>,
+    /// The pipeline.
     pub raw: vk::Pipeline,
+    /// Its layout (set 0 and the push constants).
     pub layout: PipelineLayout,
+    /// The name in messages and labels.
     pub name: String,
 }
 

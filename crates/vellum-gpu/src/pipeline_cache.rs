@@ -19,7 +19,9 @@ use vellum_error::{Error, Result};
 pub struct PipelineDesc<'a> {
     /// Path under glsl/.
     pub shader: &'a str,
+    /// The bindings of set 0, in binding order; a shader asked for with others is refused.
     pub bindings: &'a [BindingKind],
+    /// Bytes of push constants.
     pub push_bytes: u32,
     /// Specialisation constants: `constants[i]` is `constant_id = i`.
     pub constants: &'a [u32],

@@ -14,7 +14,9 @@ use vellum_error::Result;
 /// One timed pass.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct PassTime {
+    /// The pass, as its debug label names it.
     pub name: String,
+    /// GPU milliseconds from its first to its last command.
     pub ms: f64,
 }
 

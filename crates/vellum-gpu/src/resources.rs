@@ -25,8 +25,11 @@ pub enum BufferLocation {
 /// Description of a buffer to create.
 #[derive(Clone, Debug)]
 pub struct BufferDesc {
+    /// Size in bytes.
     pub size: u64,
+    /// What the buffer is used for.
     pub usage: vk::BufferUsageFlags,
+    /// Device-local, or host-visible for uploads or readbacks.
     pub location: BufferLocation,
 }
 
@@ -103,9 +106,12 @@ fn free(ctx: &Context, allocation: Option<Allocation>) {
 /// A buffer with its memory.
 pub struct Buffer {
     ctx: Arc<Context>,
+    /// The buffer.
     pub raw: vk::Buffer,
     allocation: Option<Allocation>,
+    /// Its size in bytes.
     pub size: u64,
+    /// The name in messages, labels and the transfer counts.
     pub name: String,
 }
 
@@ -210,8 +216,11 @@ impl Drop for Buffer {
 /// long as the buffer, which the ring keeps alive until the frame that used it has completed.
 #[derive(Copy, Clone, Debug)]
 pub struct BufferSlice {
+    /// The buffer.
     pub raw: vk::Buffer,
+    /// Where the slice starts, in bytes.
     pub offset: u64,
+    /// Its size in bytes.
     pub size: u64,
 }
 
@@ -229,9 +238,13 @@ impl Buffer {
 /// Description of an image to create (`ImageDesc::new_3d(format, extent)`).
 #[derive(Clone, Debug)]
 pub struct ImageDesc {
+    /// The texel format.
     pub format: vk::Format,
+    /// Texels along x, y, z (z is 1 for a 2D image).
     pub extent: [u32; 3],
+    /// 2D or 3D.
     pub image_type: vk::ImageType,
+    /// What the image is used for.
     pub usage: vk::ImageUsageFlags,
     /// A second view in this format of the same texels (`Image::alias_view`, bound with
     /// `Bind::StorageImageAlias`), e.g. R32_UINT over R32_SFLOAT for atomics; the image is then
@@ -316,12 +329,16 @@ pub fn format_size(format: vk::Format) -> usize {
 /// An image, its view and its memory. It remembers its last [`Access`] for barriers.
 pub struct Image {
     ctx: Arc<Context>,
+    /// The image.
     pub raw: vk::Image,
+    /// Its view in its own format.
     pub view: vk::ImageView,
     /// The view in `desc.alias`'s format; null without one.
     pub alias_view: vk::ImageView,
     allocation: Option<Allocation>,
+    /// What it was made from.
     pub desc: ImageDesc,
+    /// The name in messages, labels and the transfer counts.
     pub name: String,
     access: Cell<Access>,
     /// The next transition may drop the contents (old layout UNDEFINED); it still waits for
@@ -481,6 +498,7 @@ impl Drop for Image {
 /// A sampler.
 pub struct Sampler {
     ctx: Arc<Context>,
+    /// The sampler.
     pub raw: vk::Sampler,
 }
 

@@ -20,9 +20,13 @@ pub struct MessageCounts {
 /// A copy of [`MessageCounts`] at one moment.
 #[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct MessageSnapshot {
+    /// Errors reported.
     pub errors: usize,
+    /// Warnings reported.
     pub warnings: usize,
+    /// Informational messages.
     pub infos: usize,
+    /// Verbose messages.
     pub verbose: usize,
     /// The text of the first errors and warnings (at most 16).
     pub messages: Vec<String>,
