@@ -53,7 +53,9 @@ pub const MAX_LEVELS: usize = 16;
 /// One level as the cache sees it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PagedLevel {
+    /// Voxels along x, y, z.
     pub dims: [usize; 3],
+    /// Voxel size along x, y, z.
     pub spacing: [f64; 3],
     /// Bricks along x, y, z.
     pub counts: [usize; 3],
@@ -71,7 +73,9 @@ impl PagedLevel {
 /// A brick: its level and position in that level's brick grid, and its page-table entry.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
 pub struct BrickKey {
+    /// The level, 0 the finest.
     pub level: usize,
+    /// The brick's position in the level's brick grid.
     pub brick: [usize; 3],
 }
 
@@ -97,7 +101,9 @@ pub const UPLOAD: usize = SLOT + 2;
 /// A brick's voxels as they travel: normalised u16, or 8-bit as they are.
 #[derive(Clone, Debug, PartialEq)]
 pub enum BrickData {
+    /// 8-bit voxels as they are (the shader maps them through a table).
     U8(Vec<u8>),
+    /// Voxels normalised to 16 bits.
     U16(Vec<u16>),
 }
 
@@ -116,8 +122,11 @@ impl BrickData {
 /// voxel of the upload has one value (the slot is then that value throughout, its gradient 0).
 #[derive(Clone, Debug)]
 pub struct BrickVoxels {
+    /// The voxels.
     pub data: BrickData,
+    /// The range of the slot's normalised texels.
     pub range: [u16; 2],
+    /// Whether every voxel of the upload has one value.
     pub constant: bool,
 }
 
@@ -129,6 +138,7 @@ enum Read {
 
 /// The texels of one brick and its apron, as the pool's slot holds them (x fastest).
 pub struct BrickTexels {
+    /// Normalised intensity, 16 bits.
     pub intensity: Vec<u16>,
     /// Gradient xyz and its length, as half-float bits.
     pub gradient: Vec<[u16; 4]>,
@@ -278,6 +288,7 @@ impl BrickLevels {
         Ok(Some(Self::of_store(Arc::new(ms), 1 << 24)?))
     }
 
+    /// The levels, finest first.
     pub fn levels(&self) -> &[PagedLevel] {
         &self.levels
     }
@@ -794,8 +805,11 @@ const CONSTANT_SHARE: usize = 8;
 /// voxel of it has one value, that value.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct Arrival {
+    /// The brick's page-table entry.
     pub entry: usize,
+    /// The range of its slot's normalised texels.
     pub range: [u16; 2],
+    /// The value of every voxel, when the brick has one.
     pub constant: Option<u16>,
 }
 
@@ -855,6 +869,7 @@ impl BrickCache {
         })
     }
 
+    /// Slots in the pool.
     pub fn capacity(&self) -> usize {
         self.capacity
     }

@@ -31,6 +31,7 @@ pub struct Chunk {
     pub volume: Volume,
     /// Voxels of the chunk along x, y, z.
     pub dims: [usize; 3],
+    /// Whether every voxel of the chunk has one value (then `volume` holds it once).
     pub uniform: bool,
 }
 
@@ -105,9 +106,13 @@ struct Inner {
 /// the threads), and lookups answered from the cache.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct ChunkStats {
+    /// Chunks decoded.
     pub decoded: u64,
+    /// Their voxel bytes.
     pub decoded_bytes: u64,
+    /// Milliseconds spent decoding, summed over the threads.
     pub decode_ms: f64,
+    /// Lookups answered from the cache.
     pub hits: u64,
 }
 

@@ -31,6 +31,7 @@ pub struct Geometry {
     pub origin: [f64; 3],
     /// Row-major 3×3; column c is the unit direction of index axis c.
     pub direction: [[f64; 3]; 3],
+    /// The space the origin and directions are in (LPS, or unknown).
     pub space: Space,
 }
 

@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! Volumes: the voxel grid, its readers and writers, procedural phantoms and the CPU reference
 //! algorithms that every GPU pass is checked against. Nothing here knows about Vulkan: the crate
 //! depends on no Vulkan crate, and only `vellum-error` of ours.
@@ -31,9 +32,13 @@ use vellum_error::{Error, Result};
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum VoxelType {
+    /// Unsigned 8-bit.
     U8,
+    /// Unsigned 16-bit.
     U16,
+    /// Signed 16-bit.
     I16,
+    /// 32-bit float.
     F32,
 }
 
@@ -74,9 +79,13 @@ impl VoxelType {
 /// Voxel storage, one variant per [`VoxelType`].
 #[derive(Clone, Debug, PartialEq)]
 pub enum VoxelData {
+    /// Unsigned 8-bit voxels.
     U8(Vec<u8>),
+    /// Unsigned 16-bit voxels.
     U16(Vec<u16>),
+    /// Signed 16-bit voxels.
     I16(Vec<i16>),
+    /// 32-bit float voxels.
     F32(Vec<f32>),
 }
 

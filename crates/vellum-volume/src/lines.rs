@@ -35,7 +35,9 @@ pub enum Eye {
 pub struct LineParams {
     /// τ, on the same scale as the values.
     pub iso: f32,
+    /// Find silhouettes (n · v = 0).
     pub silhouettes: bool,
+    /// Find suggestive contours.
     pub suggestive: bool,
     /// θ_c in degrees: suggestive contours closer than this to facing the viewer are dropped.
     pub min_angle_deg: f32,
@@ -152,20 +154,25 @@ impl Default for LineParams {
 
 /// Kind of a segment (the w of its first endpoint).
 pub const SILHOUETTE: f32 = 0.0;
+/// Kind of a suggestive-contour segment.
 pub const SUGGESTIVE: f32 = 1.0;
 
 /// One segment in voxel index coordinates; `a[3]` is its kind.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Segment {
+    /// The first endpoint; its w is the kind.
     pub a: [f32; 4],
+    /// The second endpoint.
     pub b: [f32; 4],
 }
 
 impl Segment {
+    /// The kind: [`SILHOUETTE`] or [`SUGGESTIVE`].
     pub fn kind(&self) -> f32 {
         self.a[3]
     }
+    /// Length in voxels.
     pub fn length(&self) -> f32 {
         let d: [f32; 3] = std::array::from_fn(|i| self.b[i] - self.a[i]);
         (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()

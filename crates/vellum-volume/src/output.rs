@@ -121,6 +121,7 @@ pub fn write_folder_atomic(path: &Path, fill: impl FnOnce(&Path) -> Result<()>) 
 /// is [`begin_folder`], filling [`FolderInProgress::tmp`], then [`FolderInProgress::finish`]).
 /// The split lets the ranks of a job fill one folder that rank 0 made and renames.
 pub struct FolderInProgress {
+    /// The temporary folder to fill; renamed to the output by `finish`.
     pub tmp: PathBuf,
     path: PathBuf,
 }
@@ -430,9 +431,13 @@ pub fn write_exr_layers(path: &Path, width: u32, height: u32, layers: &[ExrLayer
 /// One group of polylines in an SVG file: an id, a stroke colour (RGB in 0..1) and width in
 /// pixels, and the polylines in pixel coordinates.
 pub struct SvgGroup<'a> {
+    /// The group's id in the SVG.
     pub id: &'a str,
+    /// Stroke colour, RGB in 0..1.
     pub colour: [f32; 3],
+    /// Stroke width in pixels.
     pub width: u32,
+    /// The polylines, in pixel coordinates.
     pub paths: &'a [Vec<[f32; 2]>],
 }
 

@@ -27,10 +27,15 @@ pub const MAX_STREAMED_SIZE: usize = 16384;
 /// The analytic phantoms.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub enum Kind {
+    /// The 3D Shepp–Logan head.
     SheppLogan,
+    /// Nested shells of different values.
     Nested,
+    /// A ball.
     Sphere,
+    /// A torus.
     Torus,
+    /// An ellipsoid.
     Ellipsoid,
 }
 
@@ -38,6 +43,7 @@ pub enum Kind {
 /// it ([`Phantom::sample_box`]) gives the same voxels.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub struct Phantom {
+    /// Which phantom.
     pub kind: Kind,
     /// Voxels per axis.
     pub n: usize,

@@ -12,8 +12,11 @@ use vellum_error::Result;
 pub trait BoxSource: Sync {
     /// Voxels along x, y, z.
     fn dims(&self) -> [usize; 3];
+    /// Voxel size along x, y, z.
     fn spacing(&self) -> [f64; 3];
+    /// Origin and directions.
     fn geometry(&self) -> Geometry;
+    /// The values' type.
     fn voxel(&self) -> VoxelType;
     /// Voxels `lo .. lo + size`, which must lie inside [`BoxSource::dims`], as a volume of that
     /// size (the source's spacing; the geometry is not moved).
@@ -97,9 +100,12 @@ impl BoxSource for Phantom {
 /// offset + size`, the box asked for. What the chunked passes (importance, occlusion) write: a
 /// filter whose reach is at most `halo` gives every kept voxel exactly as on the whole grid.
 pub struct Halo<'a> {
+    /// The grid.
     pub src: &'a dyn BoxSource,
+    /// Voxels read beyond each box on every side.
     pub halo: usize,
     #[allow(clippy::type_complexity)]
+    /// The filter: given the box read with its halo, the offset and size of the part to keep.
     pub f: &'a (dyn Fn(&Volume, [usize; 3], [usize; 3]) -> Result<Volume> + Sync),
 }
 

@@ -19,7 +19,9 @@ use vellum_error::Result;
 /// A brick read by a loader: its page-table entry and its voxels, or the sentence of why it
 /// could not be read (naming the chunk).
 pub struct Loaded {
+    /// The brick's page-table entry.
     pub entry: usize,
+    /// Its voxels, or why they could not be read.
     pub voxels: Result<BrickVoxels>,
 }
 
@@ -31,6 +33,7 @@ pub type Timeline = Vec<(f64, f64)>;
 pub struct LoaderStats {
     /// Bricks read (failed ones included) and the bytes that travel for them.
     pub bricks: u64,
+    /// Bytes that travel for them.
     pub bytes: u64,
     /// Bricks read and then dropped, no longer asked for when they were ready.
     pub dropped: u64,

@@ -9,7 +9,9 @@ use vellum_error::{Error, Result};
 /// The ranks of a job, as the passes see them. Every method but `rank` and `size` is collective:
 /// every rank calls it, in the same order.
 pub trait Team {
+    /// This rank's number, from 0.
     fn rank(&self) -> usize;
+    /// Ranks in the job.
     fn size(&self) -> usize;
     /// Every rank's outcome of a step: `Ok` when all succeeded, else the sentence of the lowest
     /// failed rank, as `rank R: …` when the team has more than one.
@@ -121,11 +123,14 @@ pub fn launched_ranks() -> Option<usize> {
 /// A box of cells of a grid: `lo .. hi` along x, y, z.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CellBox {
+    /// The first cell along x, y, z.
     pub lo: [usize; 3],
+    /// One past the last cell along x, y, z.
     pub hi: [usize; 3],
 }
 
 impl CellBox {
+    /// Whether cell `c` lies in the box.
     pub fn contains(&self, c: [usize; 3]) -> bool {
         (0..3).all(|a| self.lo[a] <= c[a] && c[a] < self.hi[a])
     }
@@ -142,6 +147,7 @@ pub fn kd_split(counts: [usize; 3], weights: &[f64], parts: usize) -> Vec<CellBo
 /// A k-d split of a grid among ranks: their boxes (rank order), and the cuts that made them,
 /// which give the boxes' order along any ray from an eye.
 pub struct KdTree {
+    /// The ranks' boxes, in rank order.
     pub boxes: Vec<CellBox>,
     root: Node,
 }

@@ -27,10 +27,13 @@ pub use super::ngff_checks::Level;
 
 /// An opened OME-Zarr multiscale image: its levels, finest first.
 pub struct Multiscale {
+    /// The store's folder.
     pub root: PathBuf,
     /// The NGFF version, "0.4" or "0.5".
     pub version: String,
+    /// The voxels' type in every level.
     pub voxel: VoxelType,
+    /// The levels, finest first.
     pub levels: Vec<Level>,
     /// Level 0's value range when the writer recorded it (`vellum.range`, written by vellum).
     pub range: Option<[f64; 2]>,
@@ -515,6 +518,7 @@ pub fn write(path: &Path, v: &Volume, opts: &WriteOptions) -> Result<WriteReport
 /// What writing a store did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WriteReport {
+    /// Levels written.
     pub levels: usize,
     /// Chunks written, over all levels (chunks that hold only the fill value are not stored).
     pub chunks: usize,
@@ -573,12 +577,18 @@ pub fn write_source_in(
 
 /// A grid of `count` values per voxel, read a box at a time as one volume per channel.
 pub struct Channels<'a> {
+    /// Voxels along x, y, z.
     pub dims: [usize; 3],
+    /// Voxel size along x, y, z.
     pub spacing: [f64; 3],
+    /// Origin and directions.
     pub geometry: Geometry,
+    /// The values' type.
     pub voxel: VoxelType,
+    /// Values per voxel.
     pub count: usize,
     #[allow(clippy::type_complexity)]
+    /// Reads voxels `lo .. lo + size` of every channel.
     pub read: &'a (dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
 }
 

@@ -10,7 +10,12 @@ pub enum Visibility {
     /// M(s) = s.
     Ramp,
     /// M(s) = clamp((s − t0) / (t1 − t0), 0, 1), cut-offs on the normalised range.
-    Truncated { t0: f32, t1: f32 },
+    Truncated {
+        /// The lower cut-off.
+        t0: f32,
+        /// The upper cut-off.
+        t1: f32,
+    },
     /// M(s) = opacity of a transfer function, 256 entries over [0, 1].
     Table(Vec<f32>),
 }
