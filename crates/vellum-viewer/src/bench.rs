@@ -15,8 +15,11 @@ pub const RSS_EVERY: u64 = 1000;
 /// Frame times of a `--bench` orbit.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct BenchReport {
+    /// The device the window rendered on.
     pub device: String,
+    /// The input viewed.
     pub input: String,
+    /// The volume view in window pixels.
     pub size: [u32; 2],
     /// "interactive" (adaptive quality while the camera moves) or "full".
     pub quality: &'static str,
@@ -26,9 +29,13 @@ pub struct BenchReport {
     pub frames: usize,
     /// Frames presented in all.
     pub frames_presented: u64,
+    /// Frames presented per second of wall time.
     pub fps: f64,
+    /// The median frame time in milliseconds.
     pub p50_ms: f64,
+    /// The 95th percentile of the frame times.
     pub p95_ms: f64,
+    /// The 99th percentile of the frame times.
     pub p99_ms: f64,
     /// Median GPU ms per pass over the same frames.
     pub gpu_ms: Vec<(String, f64)>,

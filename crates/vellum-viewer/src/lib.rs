@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! `vellum view`: the windowed viewer. A winit window, a swapchain, our renderer drawing the
 //! volume into its persistent layers, a present pass that lays the composite over the background
 //! into the swapchain image, and egui's panels over it, all in one frame of a two-slot ring
@@ -16,7 +17,7 @@ mod files;
 mod frame;
 mod running;
 mod session;
-pub mod swapchain;
+mod swapchain;
 mod ui;
 
 use crate::swapchain::Swapchain;

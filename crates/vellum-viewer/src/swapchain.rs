@@ -33,8 +33,11 @@ pub struct Swapchain {
 /// An acquired image: record into it, then [`Swapchain::present`] it.
 #[derive(Copy, Clone, Debug)]
 pub struct Acquired {
+    /// The image's index in the swapchain.
     pub index: u32,
+    /// The image.
     pub image: vk::Image,
+    /// Its view.
     pub view: vk::ImageView,
     /// Signalled when the image may be written: the frame's submission waits on it.
     pub acquired: vk::Semaphore,
