@@ -270,7 +270,7 @@ fn objects_dropped_mid_frame_are_released_when_it_completes() {
     .unwrap();
     frames
         .frame(|f| {
-            vellum::passes::importance::clear_image(ctx, f.cmd, &image);
+            vellum::gpu::commands::clear_image(ctx, f.cmd, &image);
             Ok(())
         })
         .unwrap();
@@ -291,7 +291,7 @@ fn objects_dropped_mid_frame_are_released_when_it_completes() {
                 "scratch",
                 &ImageDesc::new_3d(ash::vk::Format::R32_SFLOAT, [8, 8, 8]),
             )?;
-            vellum::passes::importance::clear_image(ctx, f.cmd, &scratch);
+            vellum::gpu::commands::clear_image(ctx, f.cmd, &scratch);
             Ok(())
         })
         .unwrap();

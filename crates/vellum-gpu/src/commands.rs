@@ -1,7 +1,10 @@
-//! Small command helpers. One-shot submission lives in `gpu/frame.rs` (`submit_once`), built on
-//! the same frame type as frames in flight.
+//! Small command helpers, so that the layers above record transfers and draws without naming
+//! Vulkan's structures. One-shot submission lives in `frame.rs` (`submit_once`), built on the
+//! same frame type as frames in flight.
 
 use crate::context::Context;
+use crate::resources::{Buffer, Image};
+use crate::Access;
 use ash::vk;
 
 /// Records a global memory barrier from `prev` to `next` (the barrier table decides stages and
@@ -18,4 +21,104 @@ pub fn memory_transition(
                 .cmd_pipeline_barrier2(cmd, &vk::DependencyInfo::default().memory_barriers(&[b]))
         };
     }
+}
+
+/// Records a clear of `image` to zero (leaves it in TransferWrite).
+pub fn clear_image(ctx: &Context, cmd: vk::CommandBuffer, image: &Image) {
+    image.discard();
+    image.transition(cmd, Access::TransferWrite);
+    let range = vk::ImageSubresourceRange {
+        aspect_mask: image.aspect(),
+        base_mip_level: 0,
+        level_count: 1,
+        base_array_layer: 0,
+        layer_count: 1,
+    };
+    unsafe {
+        ctx.device.cmd_clear_color_image(
+            cmd,
+            image.raw,
+            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+            &vk::ClearColorValue { float32: [0.0; 4] },
+            &[range],
+        );
+    }
+}
+
+/// Records a whole-image copy of `src` into `dst` (same extent and format): the bandwidth reference.
+pub fn copy_image(ctx: &Context, cmd: vk::CommandBuffer, src: &Image, dst: &Image) {
+    src.transition(cmd, Access::TransferRead);
+    dst.discard();
+    dst.transition(cmd, Access::TransferWrite);
+    let [w, h, d] = src.desc.extent;
+    let layers = vk::ImageSubresourceLayers {
+        aspect_mask: src.aspect(),
+        mip_level: 0,
+        base_array_layer: 0,
+        layer_count: 1,
+    };
+    let region = vk::ImageCopy::default()
+        .src_subresource(layers)
+        .dst_subresource(layers)
+        .extent(vk::Extent3D {
+            width: w,
+            height: h,
+            depth: d,
+        });
+    unsafe {
+        ctx.device.cmd_copy_image(
+            cmd,
+            src.raw,
+            vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+            dst.raw,
+            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+            &[region],
+        );
+    }
+}
+
+/// Records a copy of the first `size` bytes of `src` into the start of `dst`.
+pub fn copy_buffer(ctx: &Context, cmd: vk::CommandBuffer, src: &Buffer, dst: &Buffer, size: u64) {
+    let region = vk::BufferCopy::default().size(size);
+    unsafe {
+        ctx.device
+            .cmd_copy_buffer(cmd, src.raw, dst.raw, std::slice::from_ref(&region))
+    };
+}
+
+/// Records a write of `bytes` (at most 65,536, a multiple of 4) at the start of `buffer`, in
+/// the command buffer itself; the caller orders it with [`memory_transition`].
+pub fn update_buffer(ctx: &Context, cmd: vk::CommandBuffer, buffer: &Buffer, bytes: &[u8]) {
+    unsafe { ctx.device.cmd_update_buffer(cmd, buffer.raw, 0, bytes) };
+}
+
+/// Records a draw of `vertices` vertices, from `vertex_buffer` (its offset) when given.
+pub fn draw(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    vertex_buffer: Option<&crate::resources::BufferSlice>,
+    vertices: u32,
+) {
+    unsafe {
+        if let Some(b) = vertex_buffer {
+            ctx.device
+                .cmd_bind_vertex_buffers(cmd, 0, &[b.raw], &[b.offset]);
+        }
+        ctx.device.cmd_draw(cmd, vertices, 1, 0, 0);
+    }
+}
+
+/// Records a scissor of `rect` (x, y, width, height in pixels) for the draws that follow.
+pub fn set_scissor(ctx: &Context, cmd: vk::CommandBuffer, rect: [u32; 4]) {
+    let scissor = vk::Rect2D {
+        offset: vk::Offset2D {
+            x: rect[0] as i32,
+            y: rect[1] as i32,
+        },
+        extent: vk::Extent2D {
+            width: rect[2],
+            height: rect[3],
+        },
+    };
+    unsafe { ctx.device.cmd_set_scissor(cmd, 0, &[scissor]) };
 }

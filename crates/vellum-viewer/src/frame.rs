@@ -32,20 +32,8 @@ impl PresentPass<'_> {
             ];
             self.present
                 .bind(cmd, &[Bind::Sampled(c, self.sampler)], &push, extent)?;
-            let scissor = vk::Rect2D {
-                offset: vk::Offset2D {
-                    x: rect[0] as i32,
-                    y: rect[1] as i32,
-                },
-                extent: vk::Extent2D {
-                    width: rect[2],
-                    height: rect[3],
-                },
-            };
-            unsafe {
-                ctx.device.cmd_set_scissor(cmd, 0, &[scissor]);
-                ctx.device.cmd_draw(cmd, 3, 1, 0, 0);
-            }
+            vellum_gpu::commands::set_scissor(ctx, cmd, rect);
+            vellum_gpu::commands::draw(ctx, cmd, None, 3);
         }
         let size = vk::Extent2D {
             width: extent[0],

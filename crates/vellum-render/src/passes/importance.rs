@@ -12,6 +12,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Instant;
 use vellum_error::{Error, Result};
+use vellum_gpu::commands::{clear_image, copy_image};
 use vellum_gpu::pipeline::group_count;
 use vellum_gpu::profiler::PassTime;
 use vellum_gpu::transfer::{record_readback, record_upload, staging_buffer};
@@ -894,60 +895,6 @@ pub fn gauss_groups(extent: [u32; 3], axis: usize, segments: Segments) -> [u32; 
             extent[2].div_ceil(segments.yz),
             1,
         ],
-    }
-}
-
-/// Records a clear of `image` to zero (leaves it in TransferWrite).
-pub fn clear_image(ctx: &Context, cmd: vk::CommandBuffer, image: &Image) {
-    image.discard();
-    image.transition(cmd, Access::TransferWrite);
-    let range = vk::ImageSubresourceRange {
-        aspect_mask: image.aspect(),
-        base_mip_level: 0,
-        level_count: 1,
-        base_array_layer: 0,
-        layer_count: 1,
-    };
-    unsafe {
-        ctx.device.cmd_clear_color_image(
-            cmd,
-            image.raw,
-            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-            &vk::ClearColorValue { float32: [0.0; 4] },
-            &[range],
-        );
-    }
-}
-
-/// Records a whole-image copy of `src` into `dst` (same extent and format): the bandwidth reference.
-pub fn copy_image(ctx: &Context, cmd: vk::CommandBuffer, src: &Image, dst: &Image) {
-    src.transition(cmd, Access::TransferRead);
-    dst.discard();
-    dst.transition(cmd, Access::TransferWrite);
-    let [w, h, d] = src.desc.extent;
-    let layers = vk::ImageSubresourceLayers {
-        aspect_mask: src.aspect(),
-        mip_level: 0,
-        base_array_layer: 0,
-        layer_count: 1,
-    };
-    let region = vk::ImageCopy::default()
-        .src_subresource(layers)
-        .dst_subresource(layers)
-        .extent(vk::Extent3D {
-            width: w,
-            height: h,
-            depth: d,
-        });
-    unsafe {
-        ctx.device.cmd_copy_image(
-            cmd,
-            src.raw,
-            vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-            dst.raw,
-            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-            &[region],
-        );
     }
 }
 

@@ -18,7 +18,7 @@ use crate::passes::occlusion::OcclusionInput;
 use ash::vk;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
-use vellum_gpu::commands::memory_transition;
+use vellum_gpu::commands::{memory_transition, update_buffer};
 use vellum_gpu::pipeline::group_count;
 use vellum_gpu::resources::BufferLocation;
 use vellum_gpu::{
@@ -821,7 +821,7 @@ impl LineExtractor {
         )?;
         // The seeds are read; the buffer starts over for this frame's segments.
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferWrite);
-        unsafe { ctx.device.cmd_update_buffer(cmd, out.buffer.raw, 0, header) };
+        update_buffer(ctx, cmd, &out.buffer, header);
         memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
         push.stride = 1;
         push.seed_mode = 0;
@@ -830,7 +830,7 @@ impl LineExtractor {
             // The round before last read `next` (as its frontier and indirect arguments).
             memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferWrite);
             memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
-            unsafe { ctx.device.cmd_update_buffer(cmd, next.raw, 0, header) };
+            update_buffer(ctx, cmd, next, header);
             memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
             memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::IndirectRead);
             round.dispatch_indirect(

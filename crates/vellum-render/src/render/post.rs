@@ -279,23 +279,7 @@ impl Post {
         let (cmd, post) = (s.cmd, s.post);
         if alone {
             // Lines alone: start from an empty edge image.
-            post.edges.discard();
-            post.edges.transition(cmd, Access::TransferWrite);
-            unsafe {
-                self.ctx.device.cmd_clear_color_image(
-                    cmd,
-                    post.edges.raw,
-                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                    &vk::ClearColorValue::default(),
-                    &[vk::ImageSubresourceRange {
-                        aspect_mask: vk::ImageAspectFlags::COLOR,
-                        base_mip_level: 0,
-                        level_count: 1,
-                        base_array_layer: 0,
-                        layer_count: 1,
-                    }],
-                )
-            };
+            vellum_gpu::commands::clear_image(&self.ctx, cmd, &post.edges);
         }
         let request = LineRequest {
             values: d.volume,

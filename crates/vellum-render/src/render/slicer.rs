@@ -136,12 +136,7 @@ impl Slicer {
     ) -> Result<()> {
         pipeline.bind(cmd, d.shading, &(), d.size)?;
         if count > 0 {
-            unsafe {
-                self.ctx
-                    .device
-                    .cmd_bind_vertex_buffers(cmd, 0, &[buffer.raw], &[buffer.offset]);
-                self.ctx.device.cmd_draw(cmd, count, 1, 0, 0);
-            }
+            vellum_gpu::commands::draw(&self.ctx, cmd, Some(&buffer), count);
         }
         Ok(())
     }
@@ -197,7 +192,7 @@ impl Slicer {
             &(),
             d.size,
         )?;
-        unsafe { ctx.device.cmd_draw(cmd, 3, 1, 0, 0) };
+        vellum_gpu::commands::draw(ctx, cmd, None, 3);
         end_rendering(ctx, cmd);
         profiler.end(cmd);
         Ok(())

@@ -292,20 +292,12 @@ fn upload_seconds(ctx: &Arc<vellum_gpu::Context>, bytes: u64) -> Result<f64> {
     let device = Buffer::new(ctx, "floor device", &BufferDesc::storage(block))?;
     let start = std::time::Instant::now();
     vellum_gpu::submit_once(ctx, "upload floor", |f| {
-        let region = ash::vk::BufferCopy::default().size(block);
         for i in 0..bytes.div_ceil(block) {
             if i > 0 {
                 use vellum_gpu::Access::TransferWrite;
                 vellum_gpu::commands::memory_transition(ctx, f.cmd, TransferWrite, TransferWrite);
             }
-            unsafe {
-                ctx.device.cmd_copy_buffer(
-                    f.cmd,
-                    host.raw,
-                    device.raw,
-                    std::slice::from_ref(&region),
-                )
-            };
+            vellum_gpu::commands::copy_buffer(ctx, f.cmd, &host, &device, block);
         }
         Ok(())
     })?;
