@@ -18,6 +18,7 @@ pub mod pipeline_cache;
 pub mod profiler;
 pub mod resources;
 pub mod shaders;
+pub mod swapchain;
 pub mod transfer;
 pub mod validation;
 mod vk_context;

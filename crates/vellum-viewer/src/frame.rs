@@ -9,7 +9,7 @@ impl PresentPass<'_> {
         &self,
         ctx: &Context,
         cmd: vk::CommandBuffer,
-        image: &crate::swapchain::Acquired,
+        image: &vellum_gpu::swapchain::Acquired,
         composite: Option<&vellum_gpu::Image>,
         egui_renderer: &mut egui_ash_renderer::Renderer<egui_ash_renderer::allocator::GpuAllocator>,
     ) -> Result<()> {

@@ -17,10 +17,8 @@ mod files;
 mod frame;
 mod running;
 mod session;
-mod swapchain;
 mod ui;
 
-use crate::swapchain::Swapchain;
 use ash::vk;
 use bench::BenchLog;
 pub use bench::BenchReport;
@@ -31,6 +29,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use vellum_error::{Error, Result};
 use vellum_gpu::graphics::{begin_rendering_view, end_rendering, GraphicsDesc, GraphicsPipeline};
+use vellum_gpu::swapchain::Swapchain;
 use vellum_gpu::{
     Access, Bind, BindingKind, Context, ContextDesc, Frames, FramesDesc, Presentation, Sampler,
     SubmitSync,

@@ -35,16 +35,7 @@ pub(crate) fn open_window(
         .window_handle()
         .map_err(|e| Error::Invalid(format!("the window has no handle: {e}")))?
         .as_raw();
-    let exts = ash_window::enumerate_required_extensions(display)
-        .map_err(|e| Error::Invalid(format!("no Vulkan surface for this display: {e}")))?;
-    let present = Presentation {
-        instance_extensions: exts
-            .iter()
-            // SAFETY: ash-window returns pointers to static NUL-terminated extension names.
-            .map(|&p| unsafe { std::ffi::CStr::from_ptr(p) })
-            .collect(),
-        swapchain: true,
-    };
+    let present = vellum_gpu::swapchain::presentation(display)?;
     Ok((window, display, handle, present))
 }
 

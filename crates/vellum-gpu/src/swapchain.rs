@@ -2,15 +2,15 @@
 //! acquire and present, and the two layout transitions a frame needs around its drawing.
 //!
 //! Semaphores: one "acquired" per frame slot (reused only after the slot's fence has signalled,
-//! see [`vellum_gpu::Frames::next_slot`]) and one "rendered" per swapchain image (an image is
+//! see [`crate::Frames::next_slot`]) and one "rendered" per swapchain image (an image is
 //! acquired again only after its previous presentation has consumed the semaphore).
 
+use crate::Context;
+use crate::VkContext;
 use ash::vk;
 use raw_window_handle::{RawDisplayHandle, RawWindowHandle};
 use std::sync::Arc;
 use vellum_error::{Error, Result};
-use vellum_gpu::Context;
-use vellum_gpu::VkContext;
 
 /// A surface and its swapchain.
 pub struct Swapchain {
@@ -318,4 +318,21 @@ impl Drop for Swapchain {
             self.surface_fn.destroy_surface(self.surface, None);
         }
     }
+}
+
+/// What a context must be created with to present to windows on `display`: the instance
+/// extensions of its surface, and the swapchain extension.
+pub fn presentation(
+    display: raw_window_handle::RawDisplayHandle,
+) -> Result<crate::context::Presentation> {
+    let exts = ash_window::enumerate_required_extensions(display)
+        .map_err(|e| Error::Invalid(format!("no Vulkan surface for this display: {e}")))?;
+    Ok(crate::context::Presentation {
+        instance_extensions: exts
+            .iter()
+            // SAFETY: ash-window returns pointers to static NUL-terminated extension names.
+            .map(|&p| unsafe { std::ffi::CStr::from_ptr(p) })
+            .collect(),
+        swapchain: true,
+    })
 }
