@@ -535,10 +535,13 @@ fn files_under(root: &Path, under: &Path) -> Result<Vec<(String, Vec<u8>)>> {
     Ok(out)
 }
 
+/// Every file of a store: its key (path inside the store's folder) and its bytes.
+type StoreFiles = Vec<(String, Vec<u8>)>;
+
 /// Seeds of the store targets: `block` written by vellum (NGFF 0.5, Zarr v3, zstd, chunks of
 /// 8, two levels) as `v3.ome.zarr`, and as NGFF 0.4 on Zarr v2 with zstd chunks of 8 and `.`
 /// keys, as Python's ome-zarr writes it, as `v2.zarr`: every file of each.
-fn store_seeds(scratch: &Path, block: &Volume) -> Result<[Vec<(String, Vec<u8>)>; 2]> {
+fn store_seeds(scratch: &Path, block: &Volume) -> Result<[StoreFiles; 2]> {
     use vellum_volume::io::ome_zarr;
     let v3 = scratch.join("v3.ome.zarr");
     let _ = std::fs::remove_dir_all(&v3);
@@ -605,7 +608,7 @@ fn store_seeds(scratch: &Path, block: &Volume) -> Result<[Vec<(String, Vec<u8>)>
 /// metadata, level 0's array metadata, its first chunk), the store's other files beside it.
 fn store_targets(scratch: &Path, block: &Volume) -> Result<Vec<Target>> {
     let [v3, v2] = store_seeds(scratch, block)?;
-    let cases: [(&'static str, &'static str, &[(String, Vec<u8>)]); 6] = [
+    let cases: [(&'static str, &'static str, &StoreFiles); 6] = [
         ("store-v3-root", "v3.ome.zarr/zarr.json", &v3),
         ("store-v3-array", "v3.ome.zarr/0/zarr.json", &v3),
         ("store-v3-chunk", "v3.ome.zarr/0/c/0/0/0", &v3),
