@@ -127,10 +127,7 @@ impl Running {
         );
         let renderer = Renderer::new(&ctx)?;
         let mut gpu = prepare_gpu(&ctx, &mut loaded, budget)?;
-        let spectrum = match &mut gpu {
-            Prepared::InCore(g) => g.spectrum.take(),
-            Prepared::Paged(..) => None,
-        };
+        let spectrum = gpu.take_spectrum();
         let dims = gpu.volume().dims();
         let session = Session::new(
             loaded,
@@ -289,10 +286,7 @@ impl Running {
             Ok((l, mut gpu)) => {
                 // The old loaders and pools go with the old volume.
                 self.gpu.frames.wait_idle().ok();
-                let spectrum = match &mut gpu {
-                    Prepared::InCore(g) => g.spectrum.take(),
-                    Prepared::Paged(..) => None,
-                };
+                let spectrum = gpu.take_spectrum();
                 let dims = gpu.volume().dims();
                 self.gpu.scene = gpu;
                 self.session.opened(l, &what, spectrum, dims);

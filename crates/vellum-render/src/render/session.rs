@@ -209,6 +209,14 @@ impl Prepared {
     pub fn is_paged(&self) -> bool {
         matches!(self, Prepared::Paged(..))
     }
+
+    /// The occlusion spectrum made while preparing, taken out (an occlusion TF in core only).
+    pub fn take_spectrum(&mut self) -> Option<crate::passes::occlusion::Spectrum> {
+        match self {
+            Prepared::InCore(g) => g.spectrum.take(),
+            Prepared::Paged(..) => None,
+        }
+    }
 }
 
 /// The ray caster draws a volume in the brick cache: `view` made so, with the sentence that says
