@@ -385,9 +385,13 @@ fn a_store_renders_through_the_cache_as_it_renders_in_core() {
     let b = &bricked["bricks"];
     assert_eq!(b["complete"], true);
     assert!(b["bricks_evicted"].as_u64().unwrap() > 0);
-    // Read front to back, a brick is read about once even through eight slots (observed 1.09).
+    // Read front to back, a brick is read about once even through eight slots. How many
+    // bricks land in each pass depends on when the decode threads finish, so the count varies
+    // from run to run: 1.03-1.20 over six runs here, 1.28 once on CI's two cores. The
+    // bound leaves room above the worst seen while still failing a cache that reads half its
+    // bricks twice.
     let per = b["loads_per_touched"].as_f64().unwrap();
-    assert!((1.0..=1.25).contains(&per), "{per} loads per brick touched");
+    assert!((1.0..=1.5).contains(&per), "{per} loads per brick touched");
     let read = |p: &str| image::open(p).unwrap().to_rgb8().into_raw();
     let (x, y) = (read(&png("core.png")), read(&png("bricked.png")));
     let mean = x
