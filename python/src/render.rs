@@ -9,8 +9,12 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 use std::path::PathBuf;
 use std::sync::Mutex;
-use vellum_render::render::scene::Scene;
+use vellum_render::render::overrides::{
+    CameraAngles, Front, ModulationOverrides, SceneOverrides, StyleOverrides,
+};
+use vellum_render::render::scene::{NamedView, Scene};
 use vellum_render::render::session::{Lod, Session, SessionOptions};
+use vellum_render::render::style::LineSmooth;
 use vellum_render::render::targets::{to_rgb8, FrameImage};
 use vellum_render::render::view::View;
 
@@ -157,122 +161,179 @@ impl PyImage {
 
 use image::ImageEncoder;
 
-/// The keyword options of `render` and `Renderer`, named as the command line's flags.
-const OPTIONS: &str = "iso, focus, tf, otf, features, camera, size, slices, one_pass, background, style, renderer, jitter, gpu_budget, lod";
+/// The keyword options of `render` and `Renderer`: the command line's scene flags in snake case,
+/// each filling the field of [`SceneOverrides`] its flag fills, and the session's two.
+const OPTIONS: &str = "iso, focus, tf, otf, features, camera, view, ortho, pan, size, slices, one_pass, renderer, jitter, ert, no_skip_empty, refine_iso, sampling, background, style, edge_color, edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation, line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, color_mod, gamma, opacity_mod, stipple, seed, stipple_white, stipple_black, importance_radius, modulate, modulate_lighting, gpu_budget, lod";
 
-/// `scene` with the keyword `options` applied over it, each named as on the command line, and
-/// the session's options among them (`gpu_budget` in MiB, `lod`).
-fn apply(
-    mut scene: Scene,
-    options: Option<&Bound<'_, PyDict>>,
-) -> PyResult<(Scene, SessionOptions)> {
-    use vellum_render::classify::Focus;
-    use vellum_render::render::scene::{ClassificationSpec, StyleSpec};
-    let mut session = SessionOptions::default();
-    let Some(options) = options else {
-        return Ok((scene, session));
+/// `scene` with the keyword `options` applied over it by the overrides the command line's flags
+/// fill too, and the session's options among them (`gpu_budget` in MiB, `lod`).
+fn apply(scene: Scene, options: Option<&Bound<'_, PyDict>>) -> PyResult<(Scene, SessionOptions)> {
+    let mut o = SceneOverrides {
+        front: Front::Python,
+        ..Default::default()
     };
-    for (key, value) in options.iter() {
+    let mut session = SessionOptions::default();
+    for (key, value) in options.into_iter().flat_map(|d| d.iter()) {
         let key: String = key.extract()?;
-        let bad = |what: &str| refuse(format!("{key}={value} is invalid; expected {what}"));
-        match key.as_str() {
+        let v = Value { key: &key, value };
+        let known = v.session(&mut session)?
+            || v.scene(&mut o)?
+            || v.style(&mut o.style)?
+            || v.modulation(&mut o.modulation)?;
+        if !known {
+            return Err(refuse(format!(
+                "render has no option {key:?}; expected one of {OPTIONS}"
+            )));
+        }
+    }
+    Ok((o.apply(scene).map_err(to_py)?, session))
+}
+
+/// One keyword option and its value.
+struct Value<'a, 'py> {
+    key: &'a str,
+    value: Bound<'py, PyAny>,
+}
+
+impl<'py> Value<'_, 'py> {
+    /// The value as a `T`, or a sentence saying what was expected.
+    fn get<T: for<'a> FromPyObject<'a, 'py>>(&self, what: &str) -> PyResult<T> {
+        self.value.extract::<T>().map_err(|_| self.bad(what))
+    }
+
+    fn bad(&self, what: &str) -> PyErr {
+        refuse(format!(
+            "{}={} is invalid; expected {what}",
+            self.key, self.value
+        ))
+    }
+
+    /// A tuple of `N` numbers.
+    fn floats<const N: usize>(&self, what: &str) -> PyResult<[f32; N]> {
+        let v: Vec<f32> = self.get(what)?;
+        v.try_into().map_err(|_| self.bad(what))
+    }
+
+    /// `gpu_budget` and `lod`; whether the key is one of them.
+    fn session(&self, session: &mut SessionOptions) -> PyResult<bool> {
+        match self.key {
             "gpu_budget" => {
-                let mib: f64 = value.extract().map_err(|_| bad("a number of MiB"))?;
+                let mib: f64 = self.get("a number of MiB")?;
                 if !(mib.is_finite() && mib > 0.0) {
-                    return Err(bad("a positive number of MiB"));
+                    return Err(self.bad("a positive number of MiB"));
                 }
                 session.gpu_budget_mib = Some(mib);
             }
             "lod" => {
-                let lod: String = value.extract().map_err(|_| bad("\"auto\" or \"finest\""))?;
-                session.lod = Lod::parse(&lod).map_err(|_| bad("\"auto\" or \"finest\""))?;
+                let lod: String = self.get("\"auto\" or \"finest\"")?;
+                session.lod = Lod::parse(&lod).map_err(|_| self.bad("\"auto\" or \"finest\""))?;
             }
-            "iso" => scene.focus = Focus::Iso(value.extract().map_err(|_| bad("a number"))?),
-            "focus" => {
-                let (lo, hi): (f64, f64) = value.extract().map_err(|_| bad("(lo, hi)"))?;
-                scene.focus = Focus::Range { lo, hi };
-            }
-            "tf" | "otf" | "features" => {
-                let name: String = value.extract().map_err(|_| bad("a name or a path"))?;
-                // otf= and features= together compose the two (as --otf and --features do).
-                scene.classification = match (key.as_str(), &scene.classification) {
-                    ("tf", _) => ClassificationSpec::Transfer(name),
-                    ("otf", ClassificationSpec::Features(f)) if given(options, "features") => {
-                        ClassificationSpec::Composed {
-                            features: f.clone(),
-                            occlusion: name,
-                        }
-                    }
-                    ("otf", _) => ClassificationSpec::Occlusion(name),
-                    (_, ClassificationSpec::Occlusion(o)) if given(options, "otf") => {
-                        ClassificationSpec::Composed {
-                            features: name,
-                            occlusion: o.clone(),
-                        }
-                    }
-                    _ => ClassificationSpec::Features(name),
-                };
-            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// The scene's own options; whether the key is one of them.
+    fn scene(&self, o: &mut SceneOverrides) -> PyResult<bool> {
+        let name = "a name or a path";
+        match self.key {
+            "iso" => o.iso = Some(self.get("a number")?),
+            "focus" => o.focus = Some(self.get::<(f64, f64)>("(lo, hi)").map(|(a, b)| [a, b])?),
+            "tf" => o.tf = Some(self.get(name)?),
+            "otf" => o.otf = Some(self.get(name)?),
+            "features" => o.features = Some(self.get(name)?),
             "camera" => {
-                let c: Vec<f32> = value
-                    .extract()
-                    .map_err(|_| bad("(azimuth, elevation[, distance])"))?;
+                let what = "(azimuth, elevation[, distance])";
+                let c: Vec<f32> = self.get(what)?;
                 if !(2..=3).contains(&c.len()) {
-                    return Err(bad("(azimuth, elevation[, distance])"));
+                    return Err(self.bad(what));
                 }
-                scene.camera.azimuth = Some(c[0]);
-                scene.camera.elevation = Some(c[1]);
-                scene.camera.distance = c.get(2).copied().or(scene.camera.distance);
-            }
-            "size" => {
-                let (w, h): (u32, u32) = value.extract().map_err(|_| bad("(width, height)"))?;
-                scene.size = [w, h];
-            }
-            "slices" => scene.slices = Some(value.extract().map_err(|_| bad("a whole number"))?),
-            "one_pass" => scene.one_pass = value.extract().map_err(|_| bad("True or False"))?,
-            "background" => {
-                let (r, g, b): (f32, f32, f32) = value.extract().map_err(|_| bad("(r, g, b)"))?;
-                scene.background = [r, g, b];
-            }
-            "style" => {
-                let style = match value.extract::<u32>() {
-                    Ok(n) => serde_json::json!(n),
-                    Err(_) => serde_json::json!(value
-                        .extract::<String>()
-                        .map_err(|_| bad("a style name or number"))?),
-                };
-                scene.style = Some(StyleSpec {
-                    style,
-                    params: Default::default(),
+                o.camera = Some(CameraAngles {
+                    azimuth: c[0],
+                    elevation: c[1],
+                    distance: c.get(2).copied(),
                 });
             }
-            "renderer" => {
-                scene.raycast = match value.extract::<String>().as_deref() {
-                    Ok("raycast") => Some(scene.raycast.unwrap_or_default()),
-                    Ok("slicer") => None,
-                    _ => return Err(bad("\"slicer\" or \"raycast\"")),
-                }
+            "view" => {
+                o.view = Some(NamedView::parse(&self.get::<String>("a view name")?).map_err(to_py)?)
             }
-            "jitter" => {
-                let seed: u32 = value.extract().map_err(|_| bad("a whole number"))?;
-                let mut r = scene.raycast.unwrap_or_default();
-                r.jitter = Some(seed);
-                scene.raycast = Some(r);
+            "ortho" => o.ortho = self.get("True or False")?,
+            "pan" => o.pan = Some(self.floats("(x, y)")?),
+            "size" => {
+                o.size = Some(
+                    self.get::<(u32, u32)>("(width, height)")
+                        .map(|(w, h)| [w, h])?,
+                )
             }
-            other => {
-                return Err(refuse(format!(
-                    "render has no option {other:?}; expected one of {OPTIONS}"
-                )))
-            }
+            "slices" => o.slices = Some(self.get("a whole number")?),
+            "one_pass" => o.one_pass = Some(self.get("True or False")?),
+            "renderer" => o.renderer = Some(self.get("\"slicer\" or \"raycast\"")?),
+            "jitter" => o.jitter = Some(self.get("a whole number")?),
+            "ert" => o.ert = Some(self.get("a number in (0, 1]")?),
+            "no_skip_empty" => o.no_skip_empty = self.get("True or False")?,
+            "refine_iso" => o.refine_iso = self.get("True or False")?,
+            "sampling" => o.sampling = Some(self.get("\"planes\" or \"world-steps\"")?),
+            "background" => o.background = Some(self.floats("(r, g, b)")?),
+            _ => return Ok(false),
         }
+        Ok(true)
     }
-    scene.validate().map_err(to_py)?;
-    Ok((scene, session))
-}
 
-/// Whether the keyword `key` is among `options`.
-fn given(options: &Bound<'_, PyDict>, key: &str) -> bool {
-    options.contains(key).unwrap_or(false)
+    /// The style and its parameters; whether the key is one of them.
+    fn style(&self, s: &mut StyleOverrides) -> PyResult<bool> {
+        let num = "a number";
+        let whole = "a whole number";
+        match self.key {
+            "style" => {
+                s.style = Some(match self.value.extract::<u32>() {
+                    Ok(n) => n.to_string(),
+                    Err(_) => self.get("a style name or number")?,
+                })
+            }
+            "edge_color" => s.edge_color = Some(self.floats("(r, g, b)")?),
+            "edge_opacity" => s.edge_opacity = Some(self.get(num)?),
+            "edge_width" => s.edge_width = Some(self.get(whole)?),
+            "edge_threshold" => s.edge_threshold = Some(self.get(num)?),
+            "sigma" => s.sigma = Some(self.get(num)?),
+            "dog_k" => s.dog_k = Some(self.get(num)?),
+            "kuwahara_radius" => s.kuwahara_radius = Some(self.get(whole)?),
+            "saturation" => s.saturation = Some(self.get(num)?),
+            "line_angle" => s.line_angle = Some(self.get(num)?),
+            "line_threshold" => s.line_threshold = Some(self.get(num)?),
+            "line_bias" => s.line_bias = Some(self.get(num)?),
+            "line_stride" => s.line_stride = Some(self.get(whole)?),
+            "line_smooth" => {
+                let text = match self.value.extract::<f64>() {
+                    Ok(r) => r.to_string(),
+                    Err(_) => self.get("\"auto\" or a radius in voxels")?,
+                };
+                s.line_smooth = Some(LineSmooth::parse(&text).map_err(to_py)?);
+            }
+            "line_seeded" => s.line_seeded = self.get("True or False")?,
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// Importance modulation; whether the key is one of its options.
+    fn modulation(&self, m: &mut ModulationOverrides) -> PyResult<bool> {
+        match self.key {
+            "color_mod" => m.color_mod = Some(self.get("\"raw\" or \"abs\"")?),
+            "gamma" => m.gamma = Some(self.get("a number")?),
+            "opacity_mod" => m.opacity_mod = Some(self.floats("(t_low, t_high, k_low, k_high)")?),
+            "stipple" => m.stipple = Some(self.floats("(t, f)")?),
+            "seed" => m.seed = Some(self.get("a whole number")?),
+            "stipple_white" => m.stipple_white = Some(self.floats("(r, g, b)")?),
+            "stipple_black" => m.stipple_black = Some(self.floats("(r, g, b)")?),
+            "importance_radius" => m.importance_radius = Some(self.get("a whole number")?),
+            "modulate" => m.modulate = Some(self.get("\"focus\", \"context\" or \"both\"")?),
+            "modulate_lighting" => {
+                m.modulate_lighting = Some(self.get("\"ambient\" or \"phong\"")?)
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
 }
 
 /// What a renderer draws: the scene, the volume given in place of its input (an array), and
@@ -327,9 +388,9 @@ pub struct PyRenderer {
 impl PyRenderer {
     /// `Renderer(scene_or_volume, **options)`: a `vellum.Scene`, a scene file's path, an
     /// input's path (a volume file, a DICOM folder, an OME-Zarr store, `phantom:NAME:N`) or a
-    /// `vellum.Volume`, with options named as the command line's flags (iso, focus, tf, otf,
-    /// features, camera, size, slices, one_pass, background, style, renderer, jitter,
-    /// gpu_budget in MiB, lod). A volume whose textures exceed `gpu_budget` is ray-cast through
+    /// `vellum.Volume`, with options named as the command line's scene flags in snake case
+    /// (iso, focus, tf, ..., edge_threshold, ..., stipple, ...: every one `vellum render` takes
+    /// but those of its output, and gpu_budget in MiB, lod). A volume whose textures exceed `gpu_budget` is ray-cast through
     /// the brick cache, a store beyond it without reading it whole.
     #[new]
     #[pyo3(signature = (scene, **options))]
@@ -387,7 +448,11 @@ impl PyRenderer {
         py: Python<'_>,
         camera: Option<Vec<f32>>,
         size: Option<(u32, u32)>,
-    ) -> PyResult<(FrameImage, [f32; 3], Option<vellum_render::render::bricked::StreamReport>)> {
+    ) -> PyResult<(
+        FrameImage,
+        [f32; 3],
+        Option<vellum_render::render::bricked::StreamReport>,
+    )> {
         let mut slot = self.kept.lock().unwrap_or_else(|p| p.into_inner());
         let kept = slot
             .as_mut()

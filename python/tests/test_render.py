@@ -113,6 +113,58 @@ def test_options_named_as_the_flags_render_a_volume_as_the_command_line_does(tmp
     assert ray.rgba[..., :3].max() > 0
 
 
+def test_every_scene_flag_of_the_command_line_is_a_keyword():
+    """The flags and the keywords fill one type of overrides: each scene flag `vellum render
+    --help` lists is a keyword, spelled in snake case, and a bad value for it is refused in one
+    sentence that names it, never as an unknown option."""
+    import re
+
+    help_text = subprocess.run([str(cli()), "render", "--help"], check=True, capture_output=True,
+                               text=True).stdout
+    flags = set(re.findall(r"^\s+(?:-\w, )?--([a-z][a-z0-9-]*)", help_text, re.M))
+    # Not scene options: where the frame goes, what to report, the scene file itself, how to
+    # read a headerless input (Python passes arrays), and the flags of the command's own run.
+    not_scene = {"out", "exr", "json", "composite", "scene", "save-scene", "help", "verbose",
+                 "device", "raw-dims", "raw-type", "big-endian", "offset", "raw-spacing",
+                 "raw-origin", "max-wait-ms", "progress-frames", "memory-budget"}
+    keywords = sorted(f.replace("-", "_") for f in flags - not_scene)
+    assert {"iso", "style", "edge_threshold", "stipple", "gpu_budget", "ert", "pan"} <= set(keywords)
+    v = vellum.Volume(np.zeros((8, 8, 8), np.float32))
+    for key in keywords:
+        with pytest.raises(vellum.Error) as raised:
+            vellum.render(v, **{key: object()})
+        message = str(raised.value)
+        assert "has no option" not in message, f"--{key} has no keyword: {message}"
+        assert key in message and "\n" not in message, message
+
+
+def test_the_ray_options_say_how_to_ask_for_the_ray_caster_in_python_terms():
+    v = vellum.Volume(np.zeros((8, 8, 8), np.float32))
+    with pytest.raises(vellum.Error, match='add renderer="raycast"'):
+        vellum.render(v, jitter=1)
+    with pytest.raises(vellum.Error, match="edge_threshold has no effect on style 4"):
+        vellum.render(v, iso=0.5, style=4, edge_threshold=0.2)
+
+
+def test_style_modulation_and_camera_keywords_render_as_their_flags(tmp_path):
+    from PIL import Image as PilImage
+
+    nrrd = tmp_path / "phantom.nrrd"
+    subprocess.run([str(cli()), "convert", "phantom:shepp-logan:48", str(nrrd)], check=True,
+                   capture_output=True)
+    flags = ["--iso", "0.9", "--camera", "40,25", "--pan", "0.1,0", "--ortho", "--size", "72x64",
+             "--style", "dog", "--edge-threshold", "0.01", "--edge-color", "0.2,0,0",
+             "--renderer", "raycast", "--ert", "0.9", "--color-mod", "abs", "--gamma", "2"]
+    png = tmp_path / "cli.png"
+    subprocess.run([str(cli()), "render", str(nrrd), *flags, "--out", str(png)], check=True,
+                   capture_output=True)
+    theirs = np.asarray(PilImage.open(png).convert("RGB"))
+    ours = vellum.render(str(nrrd), iso=0.9, camera=(40, 25), pan=(0.1, 0), ortho=True,
+                         size=(72, 64), style="dog", edge_threshold=0.01, edge_color=(0.2, 0, 0),
+                         renderer="raycast", ert=0.9, color_mod="abs", gamma=2)
+    np.testing.assert_array_equal(ours.rgba[..., :3], theirs)
+
+
 def test_an_unknown_or_bad_option_is_one_sentence():
     v = vellum.Volume(np.zeros((8, 8, 8), np.float32))
     with pytest.raises(vellum.Error, match='has no option "colour"') as raised:

@@ -146,9 +146,16 @@ class Renderer:
     def __init__(self, scene: Scene | Volume | str | os.PathLike[str], **options: object) -> None:
         """A scene, a scene file's path (.json), an input's path (a volume file, a DICOM folder,
         an OME-Zarr store, "phantom:NAME:N") or a Volume, with options named as `vellum
-        render`'s flags: iso, focus=(lo, hi), tf (default "auto": the grey ramp over the
-        histogram's window), otf, features (with otf: the two composed), camera=(az, el[, dist]),
-        size=(w, h), slices, one_pass, background=(r, g, b), style, renderer, jitter,
+        render`'s scene flags in snake case, each meaning what its flag means (docs/cli.md):
+        iso, focus=(lo, hi), tf (default "auto": the grey ramp over the histogram's window), otf,
+        features (with otf: the two composed), camera=(az, el[, dist]) (without dist the volume
+        is framed), view, ortho, pan=(x, y), size=(w, h), slices, one_pass, renderer, and the ray
+        caster's jitter, ert, no_skip_empty, refine_iso, sampling (these need
+        renderer="raycast"), background=(r, g, b), style and its edge_color=(r, g, b),
+        edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation,
+        line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, the
+        modulation's color_mod, gamma, opacity_mod=(t_l, t_h, k_l, k_h), stipple=(t, f), seed,
+        stipple_white, stipple_black, importance_radius, modulate, modulate_lighting; and
         gpu_budget (MiB of GPU memory for the volume's textures; a volume that needs more is
         ray-cast through the brick cache, a store without reading it whole; default: half the
         device's largest heap), lod ("auto" or "finest": the levels a bricked frame samples)."""

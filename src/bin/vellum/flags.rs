@@ -4,8 +4,8 @@
 
 use anyhow::Result;
 use clap::Args;
-use vellum::classify::modulation::Modulation;
 use vellum::classify::Focus;
+use vellum::render::overrides::{ModulationOverrides, StyleOverrides};
 use vellum::render::style::LineSmooth;
 use vellum::volume::io::RawSpec;
 use vellum::volume::VoxelType;
@@ -91,104 +91,29 @@ pub(crate) struct StyleArgs {
 }
 
 impl StyleArgs {
-    /// Applies the flags over the scene file's style, if any.
-    pub(crate) fn apply(
-        &self,
-        spec: Option<vellum::render::scene::StyleSpec>,
-    ) -> Result<Option<vellum::render::scene::StyleSpec>> {
-        use vellum::render::style::StyleDef;
-        let params_given = self.edge_color.is_some()
-            || self.edge_opacity.is_some()
-            || self.edge_width.is_some()
-            || self.edge_threshold.is_some()
-            || self.sigma.is_some()
-            || self.dog_k.is_some()
-            || self.kuwahara_radius.is_some()
-            || self.saturation.is_some()
-            || self.line_angle.is_some()
-            || self.line_threshold.is_some()
-            || self.line_bias.is_some()
-            || self.line_stride.is_some()
-            || self.line_seeded
-            || self.line_smooth.is_some();
-        let mut spec = match (&self.style, spec) {
-            (Some(s), old) => vellum::render::scene::StyleSpec {
-                style: serde_json::Value::String(s.clone()),
-                params: old.map(|o| o.params).unwrap_or_default(),
-            },
-            // Checked with the scene file's name when the view is made.
-            (None, Some(old)) if !params_given => return Ok(Some(old)),
-            (None, Some(old)) => old,
-            (None, None) if params_given => {
-                anyhow::bail!("the style flags need --style N|NAME")
-            }
-            (None, None) => return Ok(None),
-        };
-        let p = &mut spec.params;
-        if let Some(c) = &self.edge_color {
-            p.edge_color = parse_rgb("--edge-color", c)?;
-        }
-        if let Some(v) = self.edge_opacity {
-            p.edge_opacity = v;
-        }
-        if let Some(v) = self.edge_width {
-            p.edge_width = v;
-        }
-        let name = match &spec.style {
-            serde_json::Value::String(s) => s.clone(),
-            other => other.to_string(),
-        };
-        let def = StyleDef::find(&name)?;
-        if let Some(t) = self.edge_threshold {
-            use vellum::render::style::EdgeKind;
-            match def.edges {
-                Some(EdgeKind::Sobel) => p.sobel_threshold = t,
-                Some(EdgeKind::Dog) => p.dog_threshold = t,
-                Some(EdgeKind::Canny) => p.canny_high = t,
-                None => anyhow::bail!(
-                    "--edge-threshold has no effect on style {} ({}), which draws no image-space edges",
-                    def.number,
-                    def.name
-                ),
-            }
-        }
-        if let Some(v) = self.sigma {
-            p.dog_sigma = v;
-            p.canny_sigma = v;
-        }
-        if let Some(v) = self.dog_k {
-            p.dog_k = v;
-        }
-        if let Some(r) = self.kuwahara_radius {
-            anyhow::ensure!(
-                (1..=16).contains(&r),
-                "Kuwahara radius {r} is invalid; expected 1..=16 pixels"
-            );
-            p.kuwahara_radius = r as u32;
-        }
-        if let Some(v) = self.saturation {
-            p.saturation = v;
-        }
-        if let Some(v) = self.line_angle {
-            p.line_angle = v;
-        }
-        if let Some(v) = self.line_threshold {
-            p.line_derivative_threshold = v;
-        }
-        if let Some(v) = self.line_bias {
-            p.line_depth_bias = v;
-        }
-        if let Some(v) = self.line_stride {
-            p.line_stride = v;
-        }
-        if let Some(v) = self.line_smooth {
-            p.line_smooth = v;
-        }
-        if self.line_seeded {
-            p.line_seeded = true;
-        }
-        spec.resolve()?;
-        Ok(Some(spec))
+    /// The flags read as values; [`StyleOverrides::apply`] puts them over the scene's style.
+    pub(crate) fn overrides(&self) -> Result<StyleOverrides> {
+        Ok(StyleOverrides {
+            style: self.style.clone(),
+            edge_color: self
+                .edge_color
+                .as_deref()
+                .map(|c| parse_rgb("--edge-color", c))
+                .transpose()?,
+            edge_opacity: self.edge_opacity,
+            edge_width: self.edge_width,
+            edge_threshold: self.edge_threshold,
+            sigma: self.sigma,
+            dog_k: self.dog_k,
+            kuwahara_radius: self.kuwahara_radius,
+            saturation: self.saturation,
+            line_angle: self.line_angle,
+            line_threshold: self.line_threshold,
+            line_bias: self.line_bias,
+            line_stride: self.line_stride,
+            line_smooth: self.line_smooth,
+            line_seeded: self.line_seeded,
+        })
     }
 }
 
@@ -227,108 +152,39 @@ pub(crate) struct ModulationArgs {
 }
 
 impl ModulationArgs {
-    /// Applies the flags over `m` (the scene file's modulation, or none).
-    pub(crate) fn apply(&self, m: Option<Modulation>) -> Result<Option<Modulation>> {
-        use vellum::classify::modulation::{
-            ApplyTo, ColorMode, ColorModulation, ModulateLighting, OpacityModulation, Stipple,
+    /// The flags read as values; [`ModulationOverrides::apply`] puts them over the scene's.
+    pub(crate) fn overrides(&self) -> Result<ModulationOverrides> {
+        let floats = |v: &Option<String>, flag: &str, n: usize, what: &str| {
+            v.as_deref()
+                .map(|s| parse_floats(s, flag, n, what))
+                .transpose()
         };
-        let given = self.color_mod.is_some()
-            || self.gamma.is_some()
-            || self.opacity_mod.is_some()
-            || self.stipple.is_some()
-            || self.seed.is_some()
-            || self.stipple_white.is_some()
-            || self.stipple_black.is_some()
-            || self.importance_radius.is_some()
-            || self.modulate.is_some()
-            || self.modulate_lighting.is_some();
-        if !given {
-            return Ok(m);
-        }
-        let mut m = m.unwrap_or_default();
-        match (&self.color_mod, self.gamma) {
-            (Some(mode), Some(gamma)) => {
-                let mode = match mode.as_str() {
-                    "raw" => ColorMode::Raw,
-                    "abs" => ColorMode::Abs,
-                    other => anyhow::bail!("--color-mod '{other}' is unknown; expected raw or abs"),
-                };
-                m.color = Some(ColorModulation { mode, gamma });
-            }
-            (Some(_), None) => anyhow::bail!("--color-mod needs --gamma G"),
-            (None, Some(gamma)) => match &mut m.color {
-                Some(c) => c.gamma = gamma,
-                None => anyhow::bail!("--gamma needs --color-mod raw|abs"),
-            },
-            (None, None) => {}
-        }
-        if let Some(o) = &self.opacity_mod {
-            let v = parse_floats(o, "--opacity-mod", 4, "TL,TH,KL,KH (t_l, t_h, k_l, k_h)")?;
-            m.opacity = Some(OpacityModulation {
-                t_low: v[0],
-                t_high: v[1],
-                k_low: v[2],
-                k_high: v[3],
-            });
-        }
-        if let Some(st) = &self.stipple {
-            let v = parse_floats(st, "--stipple", 2, "T,F (threshold t and factor f)")?;
-            let old = m.stipple;
-            m.stipple = Some(Stipple {
-                t: v[0],
-                f: v[1],
-                seed: old.map_or(0, |s| s.seed),
-                white: old.map_or([1.0; 3], |s| s.white),
-                black: old.map_or([0.0; 3], |s| s.black),
-            });
-        }
-        let stipple_only = |flag: &str| anyhow::anyhow!("{flag} needs --stipple T,F");
-        if let Some(seed) = self.seed {
-            m.stipple
-                .as_mut()
-                .ok_or_else(|| stipple_only("--seed"))?
-                .seed = seed;
-        }
-        if let Some(c) = &self.stipple_white {
-            m.stipple
-                .as_mut()
-                .ok_or_else(|| stipple_only("--stipple-white"))?
-                .white = parse_rgb("--stipple-white", c)?;
-        }
-        if let Some(c) = &self.stipple_black {
-            m.stipple
-                .as_mut()
-                .ok_or_else(|| stipple_only("--stipple-black"))?
-                .black = parse_rgb("--stipple-black", c)?;
-        }
-        if let Some(r) = self.importance_radius {
-            m.importance_radius = r;
-        }
-        if let Some(a) = &self.modulate {
-            m.apply_to = match a.as_str() {
-                "focus" => ApplyTo::Focus,
-                "context" => ApplyTo::Context,
-                "both" => ApplyTo::Both,
-                other => anyhow::bail!(
-                    "--modulate '{other}' is unknown; expected focus, context or both"
-                ),
-            };
-        }
-        if let Some(l) = &self.modulate_lighting {
-            m.lighting = match l.as_str() {
-                "ambient" => ModulateLighting::Ambient,
-                "phong" => ModulateLighting::Phong,
-                other => anyhow::bail!(
-                    "--modulate-lighting '{other}' is unknown; expected ambient or phong"
-                ),
-            };
-        }
-        anyhow::ensure!(
-            m.is_active(),
-            "the modulation flags need an effect: --color-mod with --gamma, --opacity-mod or --stipple"
-        );
-        m.validate()?;
-        Ok(Some(m))
+        let rgb =
+            |v: &Option<String>, flag: &str| v.as_deref().map(|c| parse_rgb(flag, c)).transpose();
+        let opacity = floats(
+            &self.opacity_mod,
+            "--opacity-mod",
+            4,
+            "TL,TH,KL,KH (t_l, t_h, k_l, k_h)",
+        )?;
+        let stipple = floats(
+            &self.stipple,
+            "--stipple",
+            2,
+            "T,F (threshold t and factor f)",
+        )?;
+        Ok(ModulationOverrides {
+            color_mod: self.color_mod.clone(),
+            gamma: self.gamma,
+            opacity_mod: opacity.map(|v| [v[0], v[1], v[2], v[3]]),
+            stipple: stipple.map(|v| [v[0], v[1]]),
+            seed: self.seed,
+            stipple_white: rgb(&self.stipple_white, "--stipple-white")?,
+            stipple_black: rgb(&self.stipple_black, "--stipple-black")?,
+            importance_radius: self.importance_radius,
+            modulate: self.modulate.clone(),
+            modulate_lighting: self.modulate_lighting.clone(),
+        })
     }
 }
 

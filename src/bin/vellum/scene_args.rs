@@ -4,8 +4,8 @@ use crate::flags::*;
 use anyhow::Result;
 use clap::Args;
 use std::path::PathBuf;
-use vellum::classify::Focus;
-use vellum::render::scene::{ClassificationSpec, InputSpec, RawInput, Scene};
+use vellum::render::overrides::{CameraAngles, Front, SceneOverrides};
+use vellum::render::scene::{InputSpec, NamedView, RawInput, Scene};
 
 /// The scene a `render` command line describes: the scene file (or defaults) with every given
 /// flag applied over it.
@@ -132,138 +132,88 @@ impl SceneArgs {
     }
 
     /// `scene` with every flag given applied over it, checked.
-    pub(crate) fn apply(&self, mut scene: Scene) -> Result<Scene> {
+    pub(crate) fn apply(&self, scene: Scene) -> Result<Scene> {
+        Ok(self.overrides()?.apply(scene)?)
+    }
+
+    /// The flags read as values: the one type of overrides the Python keywords fill too.
+    pub(crate) fn overrides(&self) -> Result<SceneOverrides> {
         let a = self;
-        if let Some(input) = &a.input {
-            scene.input = InputSpec {
-                path: input.clone(),
-                raw: None,
-            };
-        }
-        if let Some(raw) = a.raw.spec()? {
-            scene.input.raw = Some(RawInput {
-                dims: raw.dims,
-                voxel_type: raw.voxel_type.name().to_string(),
-                big_endian: raw.big_endian,
-                offset: raw.offset,
-                spacing: raw.spacing,
-                origin: a.raw.origin()?,
-            });
-        }
-        let path_arg = |p: &std::path::Path| p.to_string_lossy().into_owned();
-        if let Some(tf) = &a.tf {
-            scene.classification = ClassificationSpec::Transfer(tf.clone());
-        }
-        scene.classification = match (&a.otf, &a.features) {
-            (Some(o), Some(f)) => ClassificationSpec::Composed {
-                features: path_arg(f),
-                occlusion: path_arg(o),
-            },
-            (Some(o), None) => ClassificationSpec::Occlusion(path_arg(o)),
-            (None, Some(f)) => ClassificationSpec::Features(path_arg(f)),
-            (None, None) => scene.classification,
+        let path_arg = |p: &Option<PathBuf>| p.as_ref().map(|p| p.to_string_lossy().into_owned());
+        Ok(SceneOverrides {
+            front: Front::Cli,
+            input: a.input.clone(),
+            raw: a.raw_input()?,
+            tf: a.tf.clone(),
+            otf: path_arg(&a.otf),
+            features: path_arg(&a.features),
+            focus: a
+                .focus
+                .as_deref()
+                .map(|r| {
+                    parse_interval(r).map_err(|_| {
+                        anyhow::anyhow!(
+                            "--focus '{r}' is not an interval LO:HI of data values with LO <= HI"
+                        )
+                    })
+                })
+                .transpose()?,
+            iso: a.iso,
+            camera: a.camera.as_deref().map(parse_camera).transpose()?,
+            view: a.view.as_deref().map(NamedView::parse).transpose()?,
+            ortho: a.ortho,
+            pan: a.pan.as_deref().map(parse_pan).transpose()?,
+            size: a.size.as_deref().map(parse_size).transpose()?,
+            slices: a.slices,
+            one_pass: a.one_pass.then_some(true),
+            renderer: a.renderer.clone(),
+            jitter: a.jitter,
+            ert: a.ert,
+            no_skip_empty: a.no_skip_empty,
+            refine_iso: a.refine_iso,
+            sampling: a.sampling.clone(),
+            background: a
+                .background
+                .as_deref()
+                .map(|b| parse_rgb("--background", b))
+                .transpose()?,
+            modulation: a.modulation.overrides()?,
+            style: a.style.overrides()?,
+        })
+    }
+
+    /// How to read a headerless input, when the flags say.
+    fn raw_input(&self) -> Result<Option<RawInput>> {
+        let Some(raw) = self.raw.spec()? else {
+            return Ok(None);
         };
-        if a.focus.is_some() || a.iso.is_some() {
-            scene.focus = parse_focus(a.focus.as_deref(), a.iso)?;
-        }
-        a.apply_camera(&mut scene)?;
-        if let Some(size) = &a.size {
-            scene.size = parse_size(size)?;
-        }
-        if let Some(n) = a.slices {
-            scene.slices = Some(n);
-        }
-        if a.one_pass {
-            scene.one_pass = true;
-        }
-        a.apply_renderer(&mut scene)?;
-        if let Some(b) = &a.background {
-            scene.background = parse_rgb("--background", b)?;
-        }
-        if scene.one_pass && matches!(scene.focus, Focus::Range { .. }) {
-            anyhow::bail!(
-            "--one-pass draws a single level, which a --focus LO:HI interval would not change; drop one of them (--iso V does work in one pass: it makes the surface opaque)"
-        );
-        }
-        scene.modulation = a.modulation.apply(scene.modulation.take())?;
-        scene.style = a.style.apply(scene.style.take())?;
-        scene.validate()?;
-        Ok(scene)
+        Ok(Some(RawInput {
+            dims: raw.dims,
+            voxel_type: raw.voxel_type.name().to_string(),
+            big_endian: raw.big_endian,
+            offset: raw.offset,
+            spacing: raw.spacing,
+            origin: self.raw.origin()?,
+        }))
     }
+}
 
-    /// The camera flags: `--camera`, `--view`, `--ortho`, `--pan`.
-    fn apply_camera(&self, scene: &mut Scene) -> Result<()> {
-        let a = self;
-        if a.camera.is_some() && a.view.is_some() {
-            anyhow::bail!("give either --camera AZ,EL[,DIST] or --view NAME, not both");
-        }
-        if let Some(c) = &a.camera {
-            let parsed = vellum::render::camera::Camera::parse(c)?;
-            scene.camera.view = None;
-            scene.camera.azimuth = Some(parsed.azimuth_deg);
-            scene.camera.elevation = Some(parsed.elevation_deg);
-            // Without DIST the volume is framed.
-            scene.camera.distance = (c.split(',').count() == 3).then_some(parsed.distance);
-        }
-        if let Some(v) = &a.view {
-            scene.camera.view = Some(vellum::render::scene::NamedView::parse(v)?);
-            scene.camera.azimuth = None;
-            scene.camera.elevation = None;
-        }
-        if a.ortho {
-            scene.camera.ortho = true;
-        }
-        if let Some(p) = &a.pan {
-            let v: Vec<f32> = p.split(',').filter_map(|c| c.trim().parse().ok()).collect();
-            anyhow::ensure!(
-                v.len() == 2 && v.iter().all(|c| c.is_finite()),
-                "--pan '{p}' is not X,Y in bounding-sphere radii"
-            );
-            scene.camera.pan = [v[0], v[1]];
-        }
-        Ok(())
-    }
+/// `--camera AZ,EL[,DIST]`: without DIST the volume is framed.
+fn parse_camera(c: &str) -> Result<CameraAngles> {
+    let parsed = vellum::render::camera::Camera::parse(c)?;
+    Ok(CameraAngles {
+        azimuth: parsed.azimuth_deg,
+        elevation: parsed.elevation_deg,
+        distance: (c.split(',').count() == 3).then_some(parsed.distance),
+    })
+}
 
-    /// The renderer flags: `--renderer` and the ray caster's options.
-    fn apply_renderer(&self, scene: &mut Scene) -> Result<()> {
-        let a = self;
-        match a.renderer.as_deref() {
-            None => {}
-            Some("slicer") => scene.raycast = None,
-            Some("raycast") => scene.raycast = Some(scene.raycast.unwrap_or_default()),
-            Some(other) => {
-                anyhow::bail!("--renderer {other:?} is unknown; expected slicer or raycast")
-            }
-        }
-        let ray_flags = a.jitter.is_some()
-            || a.ert.is_some()
-            || a.no_skip_empty
-            || a.refine_iso
-            || a.sampling.is_some();
-        match (&mut scene.raycast, ray_flags) {
-        (Some(r), _) => {
-            if let Some(seed) = a.jitter {
-                r.jitter = Some(seed);
-            }
-            if let Some(ert) = a.ert {
-                r.ert = ert;
-            }
-            if a.no_skip_empty {
-                r.skip_empty = false;
-            }
-            if a.refine_iso {
-                r.refine_iso = true;
-            }
-            if let Some(s) = &a.sampling {
-                r.sampling = vellum::render::raycast::Sampling::parse(s)?;
-            }
-            r.validate()?;
-        }
-        (None, true) => anyhow::bail!(
-            "--jitter, --ert, --no-skip-empty, --refine-iso and --sampling set the ray caster; add --renderer raycast"
-        ),
-        (None, false) => {}
-    }
-        Ok(())
-    }
+/// `--pan X,Y` in bounding-sphere radii.
+fn parse_pan(p: &str) -> Result<[f32; 2]> {
+    let v: Vec<f32> = p.split(',').filter_map(|c| c.trim().parse().ok()).collect();
+    anyhow::ensure!(
+        v.len() == 2 && v.iter().all(|c| c.is_finite()),
+        "--pan '{p}' is not X,Y in bounding-sphere radii"
+    );
+    Ok([v[0], v[1]])
 }

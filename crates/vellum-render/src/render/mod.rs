@@ -7,6 +7,7 @@
 pub mod bricked;
 pub mod camera;
 pub mod frame;
+pub mod overrides;
 pub mod post;
 pub mod proxy;
 pub mod raycast;
