@@ -449,7 +449,8 @@ fn occlusion<'py>(
     let v = &volume.get().inner;
     let o = on_gpu(py, move |ctx| {
         let range = range.map(|(lo, hi)| [lo, hi]);
-        let (input, _) = vellum_render::passes::occlusion::OcclusionInput::upload_in_range(ctx, v, range)?;
+        let (input, _) =
+            vellum_render::passes::occlusion::OcclusionInput::upload_in_range(ctx, v, range)?;
         Ok(Occlusion::new(ctx)?.compute_on(&input, &params)?.occlusion)
     })?;
     to_numpy(py, o.dims, o.data)

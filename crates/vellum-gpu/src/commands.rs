@@ -5,7 +5,10 @@
 use crate::context::Context;
 use crate::resources::{Buffer, Image};
 use crate::Access;
+use crate::VkContext;
 use ash::vk;
+use std::sync::Arc;
+use vellum_error::Result;
 
 /// Records a global memory barrier from `prev` to `next` (the barrier table decides stages and
 /// access masks); used for buffers, which do not track their accesses like images do.
@@ -92,6 +95,15 @@ pub fn update_buffer(ctx: &Context, cmd: vk::CommandBuffer, buffer: &Buffer, byt
     unsafe { ctx.device.cmd_update_buffer(cmd, buffer.raw, 0, bytes) };
 }
 
+/// Records a fill of the whole of `buffer` with the 32-bit word `value`; the caller orders it
+/// with [`memory_transition`].
+pub fn fill_buffer(ctx: &Context, cmd: vk::CommandBuffer, buffer: &Buffer, value: u32) {
+    unsafe {
+        ctx.device
+            .cmd_fill_buffer(cmd, buffer.raw, 0, vk::WHOLE_SIZE, value)
+    };
+}
+
 /// Records a draw of `vertices` vertices, from `vertex_buffer` (its offset) when given.
 pub fn draw(
     ctx: &Context,
@@ -121,4 +133,37 @@ pub fn set_scissor(ctx: &Context, cmd: vk::CommandBuffer, rect: [u32; 4]) {
         },
     };
     unsafe { ctx.device.cmd_set_scissor(cmd, 0, &[scissor]) };
+}
+
+/// A command pool of its own for a library that records and submits its own commands (egui's
+/// renderer uploads its textures through one); its buffers may be reset one by one. Dropped, it
+/// waits for the device to go idle and is destroyed.
+pub struct CommandPool {
+    ctx: Arc<Context>,
+    /// The Vulkan pool, for the library that takes it.
+    pub raw: vk::CommandPool,
+}
+
+impl CommandPool {
+    /// A pool on the context's queue family; `name` says whose it is in an error.
+    pub fn new(ctx: &Arc<Context>, name: &str) -> Result<Self> {
+        let info = vk::CommandPoolCreateInfo::default()
+            .queue_family_index(ctx.queue_family)
+            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
+        let raw = unsafe { ctx.device.create_command_pool(&info, None) }
+            .vk(format!("creating {name}'s command pool"))?;
+        Ok(CommandPool {
+            ctx: ctx.clone(),
+            raw,
+        })
+    }
+}
+
+impl Drop for CommandPool {
+    fn drop(&mut self) {
+        unsafe {
+            let _ = self.ctx.device.device_wait_idle();
+            self.ctx.device.destroy_command_pool(self.raw, None);
+        }
+    }
 }

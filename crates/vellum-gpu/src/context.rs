@@ -722,6 +722,18 @@ impl Context {
         }
     }
 
+    /// Whether compute shaders may write images of `format` as storage images with optimal
+    /// tiling on this device.
+    pub fn can_write_storage(&self, format: vk::Format) -> bool {
+        let props = unsafe {
+            self.instance
+                .get_physical_device_format_properties(self.physical, format)
+        };
+        props
+            .optimal_tiling_features
+            .contains(vk::FormatFeatureFlags::STORAGE_IMAGE)
+    }
+
     /// Checks that a 3D image of `dims` with `bytes_per_voxel` fits the device's limits. `copies` is
     /// how many such images the caller will hold at once (for the memory estimate).
     pub fn check_image_3d(

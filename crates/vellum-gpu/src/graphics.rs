@@ -21,13 +21,31 @@ pub enum Blend {
     PremultipliedOver,
 }
 
+/// Which fragments pass the depth test, against the depth already in the attachment.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum DepthTest {
+    /// Nearer fragments only.
+    Less,
+    /// Nearer fragments and those at the same depth.
+    LessOrEqual,
+}
+
+impl DepthTest {
+    fn op(self) -> vk::CompareOp {
+        match self {
+            DepthTest::Less => vk::CompareOp::LESS,
+            DepthTest::LessOrEqual => vk::CompareOp::LESS_OR_EQUAL,
+        }
+    }
+}
+
 /// Depth testing of a pipeline.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub struct DepthState {
     /// The depth attachment's format.
     pub format: vk::Format,
     /// The depth test.
-    pub compare: vk::CompareOp,
+    pub compare: DepthTest,
     /// Whether fragments write depth.
     pub write: bool,
 }
@@ -167,7 +185,7 @@ impl GraphicsPipeline {
             Some(d) => vk::PipelineDepthStencilStateCreateInfo::default()
                 .depth_test_enable(true)
                 .depth_write_enable(d.write)
-                .depth_compare_op(d.compare),
+                .depth_compare_op(d.compare.op()),
             None => vk::PipelineDepthStencilStateCreateInfo::default(),
         };
         let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];

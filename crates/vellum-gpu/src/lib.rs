@@ -23,6 +23,11 @@ pub mod transfer;
 pub mod validation;
 mod vk_context;
 
+/// The two Vulkan names the crates above still say: the texel format of an image they create
+/// (a pass decides what its images hold) and the command buffer a pass records into (a handle
+/// it passes on to this crate's recording functions, never calls Vulkan with). Everything
+/// else of Vulkan stays in this crate.
+pub use ash::vk::{CommandBuffer, Format};
 pub use barrier::Access;
 pub use context::{Context, ContextDesc, DeviceCandidate, DeviceInfo, Presentation};
 pub use frame::{submit_once, submit_timed};

@@ -60,6 +60,18 @@ impl BufferDesc {
             location: BufferLocation::Gpu,
         }
     }
+    /// Adds use as the arguments of an indirect dispatch or draw.
+    pub fn indirect(mut self) -> Self {
+        self.usage |= vk::BufferUsageFlags::INDIRECT_BUFFER;
+        self
+    }
+
+    /// Places the buffer in host-visible memory the host reads after the GPU has written it.
+    pub fn host_read(mut self) -> Self {
+        self.location = BufferLocation::Readback;
+        self
+    }
+
     /// A host-written uniform buffer.
     pub fn uniform(size: u64) -> Self {
         BufferDesc {
@@ -172,6 +184,12 @@ impl Buffer {
         Ok(b)
     }
 
+    /// A host-written storage buffer holding `bytes` (tables, kernels, weights that shaders
+    /// read).
+    pub fn storage_from_bytes(ctx: &Arc<Context>, name: &str, bytes: &[u8]) -> Result<Self> {
+        Self::from_bytes(ctx, name, vk::BufferUsageFlags::STORAGE_BUFFER, bytes)
+    }
+
     /// The mapped bytes of a host-visible buffer.
     pub fn mapped(&self) -> Option<&[u8]> {
         self.allocation
@@ -278,6 +296,33 @@ impl ImageDesc {
                 | vk::ImageUsageFlags::TRANSFER_DST,
             alias: None,
         }
+    }
+
+    /// A 2D colour attachment that shaders also sample, write as storage and copy from (the
+    /// render targets).
+    pub fn color_target(format: vk::Format, extent: [u32; 2]) -> Self {
+        Self::new_2d(format, extent).usage(
+            vk::ImageUsageFlags::COLOR_ATTACHMENT
+                | vk::ImageUsageFlags::SAMPLED
+                | vk::ImageUsageFlags::STORAGE
+                | vk::ImageUsageFlags::TRANSFER_SRC,
+        )
+    }
+
+    /// A 2D depth attachment.
+    pub fn depth_target(format: vk::Format, extent: [u32; 2]) -> Self {
+        Self::new_2d(format, extent).usage(vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT)
+    }
+
+    /// A 2D image that compute shaders write and sample, copied to and from (image-space
+    /// passes).
+    pub fn storage_2d(format: vk::Format, extent: [u32; 2]) -> Self {
+        Self::new_2d(format, extent).usage(
+            vk::ImageUsageFlags::STORAGE
+                | vk::ImageUsageFlags::SAMPLED
+                | vk::ImageUsageFlags::TRANSFER_SRC
+                | vk::ImageUsageFlags::TRANSFER_DST,
+        )
     }
 
     /// Replaces the usage flags.
@@ -433,6 +478,13 @@ impl Image {
         } else {
             vk::ImageAspectFlags::COLOR
         }
+    }
+
+    /// A number that names this image while it lives (its Vulkan handle), to tell whether a
+    /// cached result was computed from it.
+    pub fn id(&self) -> u64 {
+        use vk::Handle;
+        self.raw.as_raw()
     }
 
     /// Number of texels.

@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! vellum's techniques and renderers, on top of `vellum-gpu` (Vulkan) and `vellum-volume`
 //! (volumes without Vulkan).
 //!

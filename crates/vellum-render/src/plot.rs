@@ -4,8 +4,11 @@
 
 /// An RGB image being drawn on.
 pub struct Canvas {
+    /// Width in pixels.
     pub width: usize,
+    /// Height in pixels.
     pub height: usize,
+    /// The pixels as 8-bit RGB triples, rows top to bottom, x fastest (`width`×`height`×3 bytes).
     pub rgb: Vec<u8>,
 }
 

@@ -19,6 +19,7 @@ pub fn bar(len: u64, what: &str) -> ProgressBar {
 pub struct Spinner(ProgressBar);
 
 impl Spinner {
+    /// Starts a spinner labelled `what`; a hidden one when stderr is not a terminal.
     pub fn new(what: &str) -> Spinner {
         use std::io::IsTerminal;
         if !std::io::stderr().is_terminal() {

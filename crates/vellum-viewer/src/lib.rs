@@ -19,6 +19,8 @@ mod running;
 mod session;
 mod ui;
 
+// The viewer speaks Vulkan where it hands egui-ash-renderer what its API takes: the swapchain's
+// format, the command buffer of the frame and its extent, and the stage the present waits at.
 use ash::vk;
 use bench::BenchLog;
 pub use bench::BenchReport;
@@ -28,6 +30,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use vellum_error::{Error, Result};
+use vellum_gpu::commands::CommandPool;
 use vellum_gpu::graphics::{begin_rendering_view, end_rendering, GraphicsDesc, GraphicsPipeline};
 use vellum_gpu::swapchain::Swapchain;
 use vellum_gpu::{
@@ -210,21 +213,6 @@ struct Input {
     last_change: Instant,
     /// Whether the full-resolution frame has been drawn since the last change.
     refined: bool,
-}
-
-/// egui uploads its textures through a command pool of its own.
-struct CommandPool {
-    ctx: Arc<Context>,
-    raw: vk::CommandPool,
-}
-
-impl Drop for CommandPool {
-    fn drop(&mut self) {
-        unsafe {
-            let _ = self.ctx.device.device_wait_idle();
-            self.ctx.device.destroy_command_pool(self.raw, None);
-        }
-    }
 }
 
 impl ApplicationHandler for App {

@@ -63,14 +63,7 @@ pub(crate) fn egui_renderer(
         },
     )
     .map_err(|e| Error::Invalid(format!("egui's renderer: {e}")))?;
-    let pool_info = vk::CommandPoolCreateInfo::default()
-        .queue_family_index(ctx.queue_family)
-        .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
-    let egui_pool = CommandPool {
-        ctx: ctx.clone(),
-        raw: unsafe { ctx.device.create_command_pool(&pool_info, None) }
-            .map_err(|e| Error::Invalid(format!("creating egui's command pool: {e}")))?,
-    };
+    let egui_pool = CommandPool::new(ctx, "egui")?;
     Ok((egui_renderer, egui_pool))
 }
 

@@ -38,7 +38,12 @@ pub enum Focus {
     #[default]
     None,
     /// Samples whose data value lies in [lo, hi] (data units), with the transfer function's opacity.
-    Range { lo: f64, hi: f64 },
+    Range {
+        /// Lower end of the interval, in data units.
+        lo: f64,
+        /// Upper end of the interval, in data units; at least `lo`.
+        hi: f64,
+    },
     /// Samples at or above the data value: an opaque isosurface.
     Iso(f64),
 }

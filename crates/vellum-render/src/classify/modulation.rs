@@ -25,7 +25,9 @@ use vellum_error::{Error, Result};
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ColorMode {
+    /// Eq. 3: add ΔD·γ, so positive and negative ΔD shift the colour in opposite directions.
     Raw,
+    /// Eq. 4: add |ΔD|·γ, the same shift whichever the sign of ΔD.
     Abs,
 }
 
@@ -44,8 +46,11 @@ pub enum ModulateLighting {
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum ApplyTo {
+    /// Only the focus level.
     Focus,
+    /// Only the context level (and every sample of a one-pass frame).
     Context,
+    /// Both levels; the default.
     #[default]
     Both,
 }
@@ -54,6 +59,7 @@ pub enum ApplyTo {
 #[derive(Copy, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ColorModulation {
+    /// Whether ΔD enters with its sign (eq. 3) or as |ΔD| (eq. 4).
     pub mode: ColorMode,
     /// γ, in colour units per normalised-intensity unit of ΔD; may be negative.
     pub gamma: f32,
@@ -63,9 +69,13 @@ pub struct ColorModulation {
 #[derive(Copy, Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OpacityModulation {
+    /// Lower threshold t_l on n in [0, 1]: below it the opacity becomes A·k_l·n.
     pub t_low: f32,
+    /// Upper threshold t_h on n in [0, 1], at least t_l: above it the opacity becomes A·k_h·n.
     pub t_high: f32,
+    /// Factor k_l ≥ 0 applied to samples with n < t_l.
     pub k_low: f32,
+    /// Factor k_h ≥ 0 applied to samples with n > t_h.
     pub k_high: f32,
 }
 
@@ -83,6 +93,7 @@ pub struct Stipple {
     /// The two colours; the paper's white and black by default.
     #[serde(default = "white")]
     pub white: [f32; 3],
+    /// The RGB colour, in [0, 1], of a sample that eq. 6 does not make white; black by default.
     #[serde(default)]
     pub black: [f32; 3],
 }
@@ -102,17 +113,22 @@ fn default_radius() -> u32 {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Modulation {
+    /// Colour modulation (eq. 3, 4), or none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub color: Option<ColorModulation>,
+    /// Opacity modulation (eq. 5), or none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub opacity: Option<OpacityModulation>,
+    /// Stippling (eq. 6), or none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stipple: Option<Stipple>,
     /// Radius R of the Gaussian behind ΔD, in voxels (σ = R/3).
     #[serde(default = "default_radius")]
     pub importance_radius: u32,
+    /// Which level of a two-level frame the effects apply to; both by default.
     #[serde(default)]
     pub apply_to: ApplyTo,
+    /// The base colour that colour modulation adds to; the Phong-lit one by default.
     #[serde(default)]
     pub lighting: ModulateLighting,
 }

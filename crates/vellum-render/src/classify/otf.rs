@@ -24,6 +24,7 @@ use vellum_error::{Error, Result};
 
 /// The largest occlusion radius in voxels, and output stride, the occlusion pass takes.
 pub const MAX_OCCLUSION_RADIUS: u32 = 1024;
+/// The largest output stride of the occlusion volume, in voxels.
 pub const MAX_OCCLUSION_STRIDE: u32 = 64;
 
 /// Table size along intensity and occlusion.
@@ -37,6 +38,7 @@ pub struct Curve {
     pub intensity: [f32; 2],
     /// Mean and standard deviation over occlusion.
     pub mean: f32,
+    /// Standard deviation of the curve over normalised occlusion; greater than 0.
     pub width: f32,
 }
 
@@ -44,20 +46,31 @@ pub struct Curve {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase", deny_unknown_fields)]
 pub enum Shape {
+    /// A rectangle of the spectrum: weight 1 inside it (edges included), 0 outside.
     Rect {
+        /// Normalised intensity interval [lo, hi] within [0, 1].
         intensity: [f32; 2],
+        /// Normalised occlusion interval [lo, hi] within [0, 1].
         occlusion: [f32; 2],
     },
     /// A Gaussian blob: centre (intensity, occlusion) and standard deviations.
-    Blob { centre: [f32; 2], sigma: [f32; 2] },
+    Blob {
+        /// Centre (intensity, occlusion), normalised to [0, 1].
+        centre: [f32; 2],
+        /// Standard deviations along normalised intensity and occlusion; greater than 0.
+        sigma: [f32; 2],
+    },
 }
 
 /// A tagged region.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Region {
+    /// Where on the spectrum the region lies (JSON: a `rect` or `blob` key beside `rgba`).
     #[serde(flatten)]
     pub shape: Shape,
+    /// Straight RGBA in [0, 1]; its alpha is scaled by the shape's weight (1 inside a rect, the
+    /// Gaussian of a blob).
     pub rgba: [f32; 4],
 }
 
@@ -65,6 +78,7 @@ pub struct Region {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OcclusionTf {
+    /// A name for the function; optional, empty by default.
     #[serde(default)]
     pub name: String,
     /// Occlusion radius in voxels.
@@ -80,8 +94,10 @@ pub struct OcclusionTf {
     /// only the regions define the table.
     #[serde(default)]
     pub transfer: Option<String>,
+    /// The occlusion curves that make α_o of eq. 7; none means α_o = 1 everywhere.
     #[serde(default)]
     pub curves: Vec<Curve>,
+    /// Tagged regions, composited over the decoupled table where their alpha is higher.
     #[serde(default)]
     pub regions: Vec<Region>,
 }

@@ -8,10 +8,10 @@
 use crate::classify::modulation::Modulation;
 use crate::classify::transfer::TransferFunction;
 use crate::classify::Focus;
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::transfer::record_upload_from;
+use vellum_gpu::Format;
 use vellum_gpu::{Access, Context, Frame, Image, ImageDesc};
 
 /// Entries of the 1D transfer-function table.
@@ -19,7 +19,8 @@ pub const TF_SIZE: usize = 256;
 /// Entries along each axis of the occlusion transfer-function table.
 pub const OTF_SIZE: usize = crate::classify::otf::TABLE_SIZE;
 
-const FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+// RGBA32F: the tables' float RGBA as computed on the host; 8 bits would flatten low opacities.
+const FORMAT: Format = Format::R32G32B32A32_SFLOAT;
 
 /// A table and the image it is uploaded to.
 struct Table {

@@ -13,8 +13,11 @@ pub mod stylise;
 /// A single-channel float image.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plane {
+    /// Width in pixels.
     pub width: usize,
+    /// Height in pixels.
     pub height: usize,
+    /// The `width`×`height` values, rows top to bottom, x fastest.
     pub data: Vec<f32>,
 }
 

@@ -58,7 +58,9 @@ pub const LUMA_SUM: f32 = LUMA[0] + LUMA[1] + LUMA[2];
 /// How edges are drawn.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct EdgeLook {
+    /// Straight RGB of the edge lines, in [0, 1].
     pub color: [f32; 3],
+    /// Scales edge strength; the product, clamped to [0, 1], is the line's alpha over the focus.
     pub opacity: f32,
     /// Line width in pixels: a pixel takes the strongest edge within (width − 1) / 2 pixels.
     pub width: u32,

@@ -36,13 +36,17 @@ const CHUNKS: [usize; 6] = [256, 192, 128, 96, 64, 32];
 /// Host bytes per voxel of a chunk's box while its pass runs (input, staging, work and output
 /// copies): importance, occlusion and normals.
 pub const IMPORTANCE_BYTES: u64 = 24;
+/// Host bytes per voxel of a chunk's box while the occlusion pass runs.
 pub const OCCLUSION_BYTES: u64 = 40;
+/// Host bytes per voxel of a chunk's box while the normals pass runs.
 pub const NORMALS_BYTES: u64 = 56;
 
 /// How a chunked pass runs: its chunk edge, and how many chunks are in flight at once.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub struct Plan {
+    /// Edge of an output chunk in voxels, the same along every axis.
     pub chunk: usize,
+    /// How many chunks are in flight at once: at least one, at most one per core.
     pub workers: usize,
 }
 

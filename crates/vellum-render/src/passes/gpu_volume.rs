@@ -10,18 +10,23 @@ use vellum_volume::geometry::Geometry;
 
 /// A volume on the GPU, owned.
 pub enum GpuVolume {
+    /// The whole volume in GPU memory.
     InCore(VolumeTextures),
+    /// A volume drawn through the brick cache.
     Paged(PagedVolume),
 }
 
 /// A volume on the GPU, borrowed: what a renderer draws.
 #[derive(Copy, Clone)]
 pub enum VolumeRef<'a> {
+    /// The whole volume in GPU memory.
     InCore(&'a VolumeTextures),
+    /// A volume drawn through the brick cache.
     Paged(&'a PagedVolume),
 }
 
 impl GpuVolume {
+    /// Borrows it as the [`VolumeRef`] a renderer takes.
     pub fn as_ref(&self) -> VolumeRef<'_> {
         match self {
             GpuVolume::InCore(v) => VolumeRef::InCore(v),
@@ -57,6 +62,7 @@ impl<'a> VolumeRef<'a> {
         }
     }
 
+    /// Level 0's physical voxel size along x, y, z (millimetres for medical data).
     pub fn spacing(self) -> [f64; 3] {
         match self {
             VolumeRef::InCore(v) => v.spacing,
@@ -64,6 +70,7 @@ impl<'a> VolumeRef<'a> {
         }
     }
 
+    /// Level 0's origin and axis directions in physical space.
     pub fn geometry(self) -> Geometry {
         match self {
             VolumeRef::InCore(v) => v.geometry,

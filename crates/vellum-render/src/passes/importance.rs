@@ -3,10 +3,9 @@
 //! Reads a volume, writes ΔD = G∗V − V as float. Passes: `upload`, `gauss_x`, `gauss_y`, `gauss_z`,
 //! `subtract`, `readback`, each timed. The volume lives in R32F 3D storage images rather than
 //! buffers: lavapipe caps a storage-buffer binding at 128 MiB, and the paper's CT head is 312 MB in
-//! float. Three images suffice: src → A (x), A → B (y), B → A (z), then B = A − src.
+//! float. Three images suffice: src → A (x), A → B (y), B → A (z), then A = A − src in place.
 
 use crate::passes::volume_image::extent_of;
-use ash::vk;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -16,6 +15,7 @@ use vellum_gpu::commands::{clear_image, copy_image};
 use vellum_gpu::pipeline::group_count;
 use vellum_gpu::profiler::PassTime;
 use vellum_gpu::transfer::{record_readback, record_upload, staging_buffer};
+use vellum_gpu::Format;
 use vellum_gpu::{
     submit_timed, Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Frame, Frames,
     FramesDesc, Image, ImageDesc,
@@ -27,9 +27,13 @@ use vellum_volume::{Volume, VoxelData};
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct GaussPush {
+    /// Volume size in voxels.
     pub dims: [i32; 3],
+    /// The pass's axis: 0 x, 1 y, 2 z.
     pub axis: i32,
+    /// R: taps −R..R.
     pub radius: i32,
+    /// Padding to a multiple of 16 bytes, the block's std430 alignment (from its ivec3).
     pub pad: [i32; 3],
 }
 
@@ -37,7 +41,9 @@ pub struct GaussPush {
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct SubtractPush {
+    /// Volume size in voxels.
     pub dims: [i32; 3],
+    /// Padding to 16 bytes, the block's std430 alignment.
     pub pad: i32,
 }
 
@@ -59,7 +65,9 @@ pub fn segment(radius_voxels: u32) -> u32 {
 /// Texels per Gaussian invocation: `yz` along y and z (SEGMENT), `x` along x (SEGMENT_X).
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
 pub struct Segments {
+    /// Texels each invocation filters along y or z (SEGMENT).
     pub yz: u32,
+    /// Texels each invocation filters along x (SEGMENT_X).
     pub x: u32,
 }
 
@@ -130,8 +138,12 @@ pub struct ImportanceMap {
 /// ΔD where the renderer samples it: an R32F volume in normalised intensity units, and max |ΔD|
 /// over the volume as the bits of a non-negative float in a storage buffer (never read back).
 pub struct ImportanceVolume {
+    /// ΔD = G∗V − V, R32F, one float per voxel.
     pub delta_d: Image,
+    /// Max |ΔD| over the volume: one u32 holding the bits of a non-negative float, so that an
+    /// atomic max finds it. The shaders read it; the host never does.
     pub max_abs: Buffer,
+    /// R of the Gaussian G, in voxels.
     pub radius_voxels: u32,
 }
 
@@ -177,16 +189,27 @@ pub enum GaussKernel {
     /// the y pass's and the z pass's (see [`Tile`]). GPUs': a warp's loads are contiguous and the
     /// halo is read once per tile.
     /// `x` is the x pass's tile width in texels.
-    Tiled { x: u32, y: Tile, z: Tile },
+    Tiled {
+        /// The x pass's tile width in texels.
+        x: u32,
+        /// The y pass's tile.
+        y: Tile,
+        /// The z pass's tile.
+        z: Tile,
+    },
 }
 
 /// The y and z passes' tile in `gauss_tile_yz.comp`: `tx` texels along x by `depth` lines across,
 /// `length` outputs along the axis, filtered by `lanes` lanes per line.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
 pub struct Tile {
+    /// Texels along x the tile spans.
     pub tx: u32,
+    /// Lines across the axis, side by side.
     pub depth: u32,
+    /// Lanes that filter each line.
     pub lanes: u32,
+    /// Outputs along the axis; a multiple of `lanes`.
     pub length: u32,
 }
 
@@ -250,7 +273,9 @@ fn gpu_tiles(axis: usize, radius_voxels: u32) -> [Tile; 3] {
 pub enum KernelChoice {
     /// Tiles on a GPU where they fit in its shared memory, segments on a CPU.
     Auto,
+    /// [`GaussKernel::Segments`] on any device.
     Segments,
+    /// [`GaussKernel::Tiled`] where a tile fits the device's shared memory, segments elsewhere.
     Tiled,
     /// This tile (segments where it does not fit).
     Tile(Tile),
@@ -339,9 +364,13 @@ struct Gauss {
 /// as float, four x-neighbours per RGBA32F texel (see [`pack_rows`]); after
 /// [`ImportanceMap::record`], `a` holds ΔD in the same packing and `b` is scratch.
 pub struct ImportanceImages {
+    /// The volume as float, four x-neighbours per texel.
     pub src: Image,
+    /// ΔD after [`ImportanceMap::record`], packed as `src`; a work image before.
     pub a: Image,
+    /// Scratch for the filter passes.
     pub b: Image,
+    /// The volume's size in voxels (the images are a quarter as wide, rounded up).
     pub dims: [usize; 3],
 }
 
@@ -352,7 +381,8 @@ impl ImportanceImages {
         ctx.check_image_3d(dims, 4, 3)?;
         // They hold four voxels per texel along x.
         let extent = extent_of(ctx, [dims[0].div_ceil(4), dims[1], dims[2]], 16, 3)?;
-        let desc = ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent);
+        // RGBA32F: four x-neighbours in float per texel, so that one fetch reads four voxels.
+        let desc = ImageDesc::new_3d(Format::R32G32B32A32_SFLOAT, extent);
         Ok(ImportanceImages {
             src: Image::new(ctx, "importance src", &desc)?,
             a: Image::new(ctx, "importance a", &desc)?,
@@ -477,10 +507,9 @@ impl ImportanceMap {
         let g = Gauss {
             axes,
             kernel,
-            weights: Arc::new(Buffer::from_bytes(
+            weights: Arc::new(Buffer::storage_from_bytes(
                 &self.ctx,
                 "gaussian weights",
-                vk::BufferUsageFlags::STORAGE_BUFFER,
                 bytemuck::cast_slice(&taps),
             )?),
         };
@@ -642,14 +671,12 @@ impl ImportanceMap {
             } else {
                 "smoothed volume"
             },
-            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent_of(ctx, dims_in, 4, 1)?),
+            // R32F: ΔD is signed, and G∗V keeps the volume's scale; one float per voxel, unpacked.
+            &ImageDesc::new_3d(Format::R32_SFLOAT, extent_of(ctx, dims_in, 4, 1)?),
         )?;
         let max_abs = Buffer::new(ctx, "importance max", &vellum_gpu::BufferDesc::storage(4))?;
         frame.profiler.begin(cmd, "unpack");
-        unsafe {
-            ctx.device
-                .cmd_fill_buffer(cmd, max_abs.raw, 0, vk::WHOLE_SIZE, 0)
-        };
+        vellum_gpu::commands::fill_buffer(ctx, cmd, &max_abs, 0);
         vellum_gpu::commands::memory_transition(
             ctx,
             cmd,

@@ -15,12 +15,11 @@
 //! overflow is reported with the number of segments lost, and memory is never overrun.
 
 use crate::passes::occlusion::OcclusionInput;
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::commands::{memory_transition, update_buffer};
 use vellum_gpu::pipeline::group_count;
-use vellum_gpu::resources::BufferLocation;
+use vellum_gpu::Format;
 use vellum_gpu::{
     submit_once, submit_timed, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline,
     Context, Frame, Image, ImageDesc, PipelineCache, PipelineDesc, Sampler,
@@ -32,20 +31,32 @@ use vellum_volume::Volume;
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct LinesPush {
+    /// Volume size in voxels along x, y, z.
     pub dims: [i32; 3],
+    /// Visit every `stride`-th cell along each axis (1 all, 2 the interactive mode).
     pub stride: i32,
+    /// Physical size of a voxel along x, y, z.
     pub spacing: [f32; 3],
+    /// τ, on the normalised [0, 1] scale of the volume texture.
     pub iso: f32,
+    /// w = 0: the unit direction towards the eye; w = 1: the eye's position. Both in the
+    /// physical frame (index × spacing), as [`Eye`].
     pub eye: [f32; 4],
+    /// Which lines: bit 0 silhouettes, bit 1 suggestive contours.
     pub kinds: i32,
+    /// cos θ_c: suggestive contours closer than θ_c to facing the viewer are dropped.
     pub cos_c: f32,
+    /// t_d: the least D_w κ_r (per physical unit²) a suggestive contour needs.
     pub derivative_threshold: f32,
+    /// Segments the line buffer holds; the counter goes on past it.
     pub capacity: u32,
     /// Cells the straddling-cell list holds.
     pub cell_capacity: u32,
     /// seed.comp: 0 the previous segments, 1 the strided scan.
     pub seed_mode: u32,
+    /// Padding to a multiple of 16 bytes, the block's std430 alignment.
     pub pad1: u32,
+    /// Padding, as `pad1`.
     pub pad2: u32,
 }
 
@@ -86,9 +97,14 @@ impl LinesPush {
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RasterPush {
+    /// Voxel index → clip, column-major ([`RasterView::index_to_clip`]).
     pub index_to_clip: [[f32; 4]; 4],
+    /// Linear depth of voxel index p: dot(p, xyz) + w, in box units ([`RasterView::depth_terms`]).
     pub depth: [f32; 4],
+    /// x: depth bias in box units; y: the value of full coverage; z: the value of zero coverage;
+    /// w unused ([`RasterView`]'s `bias`, `value` and `floor`).
     pub params: [f32; 4],
+    /// x: segments the buffer holds; y, z: the edge image's width and height in pixels; w unused.
     pub capacity_size: [u32; 4],
 }
 
@@ -139,25 +155,14 @@ impl SeedState {
                 Buffer::new(
                     ctx,
                     name,
-                    &BufferDesc {
-                        size: HEADER + 4 * cells,
-                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                            | vk::BufferUsageFlags::INDIRECT_BUFFER
-                            | vk::BufferUsageFlags::TRANSFER_DST,
-                        location: BufferLocation::Gpu,
-                    },
+                    &BufferDesc::storage(HEADER + 4 * cells).indirect(),
                 )
             };
             *slot = Some(SeedState {
                 visited: Buffer::new(
                     ctx,
                     "line seeds visited",
-                    &BufferDesc {
-                        size: 4 * voxels.div_ceil(32),
-                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                            | vk::BufferUsageFlags::TRANSFER_DST,
-                        location: BufferLocation::Gpu,
-                    },
+                    &BufferDesc::storage(4 * voxels.div_ceil(32)),
                 )?,
                 frontier: [list("line frontier even")?, list("line frontier odd")?],
                 capacity: cells as u32,
@@ -172,7 +177,8 @@ impl SeedState {
 /// only when its own extraction matches.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct SeedKey {
-    values: vk::Image,
+    /// The source image, by [`Image::id`].
+    values: u64,
     dims: [usize; 3],
     iso: u32,
     kinds: u32,
@@ -211,14 +217,7 @@ impl LineState {
             *slot = Some(Buffer::new(
                 ctx,
                 "line cells",
-                &BufferDesc {
-                    size: needed,
-                    usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                        | vk::BufferUsageFlags::INDIRECT_BUFFER
-                        | vk::BufferUsageFlags::TRANSFER_DST
-                        | vk::BufferUsageFlags::TRANSFER_SRC,
-                    location: BufferLocation::Gpu,
-                },
+                &BufferDesc::storage(needed).indirect(),
             )?);
         }
         Ok(slot.as_ref().expect("allocated above"))
@@ -228,15 +227,18 @@ impl LineState {
 /// The extracted lines.
 #[derive(Clone, Debug)]
 pub struct LineSet {
+    /// The segments the buffer kept, in voxel index coordinates (at most its capacity).
     pub segments: Vec<Segment>,
     /// Segments found, including those the buffer could not hold.
     pub found: u64,
+    /// GPU milliseconds of the smoothing and the extraction (the Hessian's precomputation apart).
     pub ms: f64,
     /// The Hessian's precomputation (0 when taken on the fly).
     pub hessian_ms: f64,
 }
 
 impl LineSet {
+    /// Whether more segments were found than the buffer could keep.
     pub fn overflowed(&self) -> bool {
         self.found > self.segments.len() as u64
     }
@@ -244,11 +246,16 @@ impl LineSet {
 
 /// The segment buffer: a counter and `capacity` segments, readable by the host.
 pub struct LineBuffer {
+    /// Host-readable storage: the 16-byte header (the raster's indirect dispatch, the counter),
+    /// then the segments.
     pub buffer: Buffer,
+    /// Segments the buffer holds after its header.
     pub capacity: u32,
 }
 
 impl LineBuffer {
+    /// A buffer of `capacity` segments; refused when `capacity` is 0 or the buffer would exceed
+    /// one storage binding's reach on this device.
     pub fn new(ctx: &Arc<Context>, capacity: u32) -> Result<Self> {
         let bytes = HEADER + capacity as u64 * std::mem::size_of::<Segment>() as u64;
         if capacity == 0 || bytes > ctx.info.max_storage_buffer_range as u64 {
@@ -263,13 +270,7 @@ impl LineBuffer {
             buffer: Buffer::new(
                 ctx,
                 "line segments",
-                &BufferDesc {
-                    size: bytes,
-                    usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                        | vk::BufferUsageFlags::TRANSFER_DST
-                        | vk::BufferUsageFlags::INDIRECT_BUFFER,
-                    location: BufferLocation::Readback,
-                },
+                &BufferDesc::storage(bytes).indirect().host_read(),
             )?,
             capacity,
         })
@@ -355,6 +356,7 @@ pub enum HessianSource {
 }
 
 impl HessianSource {
+    /// Parses `on-the-fly` or `precomputed`.
     pub fn parse(s: &str) -> Result<Self> {
         match s {
             "on-the-fly" => Ok(HessianSource::OnTheFly),
@@ -365,6 +367,7 @@ impl HessianSource {
         }
     }
 
+    /// The name [`HessianSource::parse`] takes.
     pub fn name(self) -> &'static str {
         match self {
             HessianSource::OnTheFly => "on-the-fly",
@@ -377,7 +380,9 @@ impl HessianSource {
 /// hxy) in `a` and (hxz, hyz, 0, 0) in `b`, both RGBA32F (RG32F storage would need an optional
 /// device feature).
 pub struct HessianVolume {
+    /// (hxx, hyy, hzz, hxy) per voxel.
     pub a: Image,
+    /// (hxz, hyz, 0, 0) per voxel.
     pub b: Image,
 }
 
@@ -388,8 +393,11 @@ pub struct RasterView {
     pub view_proj: [[f32; 4]; 4],
     /// box = index · scale + offset, per axis.
     pub index_scale: [f32; 3],
+    /// The offset of index → box per axis, in box units.
     pub index_offset: [f32; 3],
+    /// The eye in the box frame; linear depth is measured from it.
     pub eye: [f32; 3],
+    /// The unit view direction in the box frame, along which linear depth is measured.
     pub view_dir: [f32; 3],
     /// Depth bias in box units: a line pixel is drawn up to this far behind the focus.
     pub bias: f32,
@@ -397,6 +405,7 @@ pub struct RasterView {
     /// coverage is worth there: a pixel of coverage c gets floor + c · (value − floor), unless
     /// it already holds more.
     pub value: f32,
+    /// The value of zero coverage (see `value`): 0 on a plain edge image, 1 on Canny's classes.
     pub floor: f32,
 }
 
@@ -480,15 +489,24 @@ impl RasterView {
 /// `spacing` apart, the eye, what to extract, and the precomputed Hessian when measured that way.
 #[derive(Copy, Clone)]
 pub struct LineRequest<'a> {
+    /// The normalised volume texture (R16 or R32F), or its smoothed copy, read texel by texel.
     pub values: &'a Image,
+    /// Voxels along x, y, z.
     pub dims: [usize; 3],
+    /// Physical size of a voxel along x, y, z.
     pub spacing: [f32; 3],
+    /// Where the eye is, in the physical frame (index × spacing).
     pub eye: Eye,
+    /// What to extract; `params.iso` on the normalised scale of `values`.
     pub params: LineParams,
+    /// The precomputed Hessian of `values` ([`HessianSource::Precomputed`]); `None` takes it by
+    /// central differences at every cell corner.
     pub hessian: Option<&'a HessianVolume>,
 }
 
 impl LineExtractor {
+    /// Builds the cell and raster pipelines and the smoothing passes; the extraction's own
+    /// pipelines are built on first use in the caller's [`PipelineCache`].
     pub fn new(ctx: &Arc<Context>) -> Result<Self> {
         Ok(LineExtractor {
             ctx: ctx.clone(),
@@ -544,7 +562,9 @@ impl LineExtractor {
             LINES_PUSH,
         ))?;
         let extent = dims.map(|d| d as u32);
-        let desc = ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent);
+        // RGBA32F: second derivatives in physical units need float; four a texel, since RG32F
+        // storage is an optional feature (see `HessianVolume`).
+        let desc = ImageDesc::new_3d(Format::R32G32B32A32_SFLOAT, extent);
         let h = HessianVolume {
             a: Image::new(ctx, "line hessian a", &desc)?,
             b: Image::new(ctx, "line hessian b", &desc)?,
@@ -639,7 +659,7 @@ impl LineExtractor {
         let (ctx, cmd) = (&self.ctx, frame.cmd);
         let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
         let key = SeedKey {
-            values: values.raw,
+            values: values.id(),
             dims,
             iso: params.iso.to_bits(),
             kinds,
@@ -664,10 +684,7 @@ impl LineExtractor {
         frame.profiler.begin(cmd, "lines");
         // The previous frame's readers (the rasteriser's indirect read) are done before this write.
         memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
-        unsafe {
-            ctx.device
-                .cmd_update_buffer(cmd, out.buffer.raw, 0, bytemuck::cast_slice(&HEADER_INIT))
-        };
+        update_buffer(ctx, cmd, &out.buffer, bytemuck::cast_slice(&HEADER_INIT));
         memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
         values.transition(cmd, Access::ComputeSampled);
         let s = params.stride.max(1);
@@ -684,10 +701,7 @@ impl LineExtractor {
         let max_cells = (ctx.info.max_storage_buffer_range as u64 - HEADER) / 4;
         let cell_capacity = visited.clamp(1, max_cells) as u32;
         let cell_list = LineState::cells(ctx, cell_slot, HEADER + 4 * cell_capacity as u64)?;
-        unsafe {
-            ctx.device
-                .cmd_update_buffer(cmd, cell_list.raw, 0, bytemuck::cast_slice(&HEADER_INIT))
-        };
+        update_buffer(ctx, cmd, cell_list, bytemuck::cast_slice(&HEADER_INIT));
         memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
         let push = LinesPush::new(dims, spacing, eye, params, s, out.capacity, cell_capacity);
         self.cells_pass.dispatch(
@@ -789,12 +803,8 @@ impl LineExtractor {
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferWrite);
         memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
         memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::ComputeReadWrite);
-        unsafe {
-            ctx.device
-                .cmd_fill_buffer(cmd, state.visited.raw, 0, vk::WHOLE_SIZE, 0);
-            ctx.device
-                .cmd_update_buffer(cmd, state.frontier[0].raw, 0, header);
-        }
+        vellum_gpu::commands::fill_buffer(ctx, cmd, &state.visited, 0);
+        update_buffer(ctx, cmd, &state.frontier[0], header);
         memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
         values.transition(cmd, Access::ComputeSampled);
         let seed_binds = [

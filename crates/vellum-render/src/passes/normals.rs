@@ -3,10 +3,10 @@
 //! volume and sampled by the slice renderer for Phong shading.
 
 use crate::passes::volume_image::extent_of;
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::Result;
 use vellum_gpu::pipeline::group_count;
+use vellum_gpu::Format;
 use vellum_gpu::{
     Access, Bind, BindingKind, ComputePipeline, Context, Frame, Image, ImageDesc, PassTime, Sampler,
 };
@@ -16,8 +16,11 @@ use vellum_volume::Volume;
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct NormalsPush {
+    /// Volume size in voxels.
     pub dims: [i32; 3],
+    /// Padding: `inv_spacing` starts at byte 16, a vec4's std430 alignment.
     pub pad: i32,
+    /// 1 / voxel spacing along x, y, z, which scales the Sobel sums to world units; w unused.
     pub inv_spacing: [f32; 4],
 }
 
@@ -32,7 +35,9 @@ pub struct VolumeTextures {
     pub gradient: Image,
     /// Data values that map to 0 and 1.
     pub range: [f64; 2],
+    /// Voxels along x, y, z.
     pub dims: [usize; 3],
+    /// Physical size of a voxel along x, y, z.
     pub spacing: [f64; 3],
     /// Origin and directions of the volume (see `volume::geometry`).
     pub geometry: vellum_volume::geometry::Geometry,
@@ -134,15 +139,19 @@ impl VolumeTextures {
         range: [f64; 2],
     ) -> Result<(Self, vellum_gpu::Buffer)> {
         let extent = extent_of(ctx, v.dims, 2 + 8, 1)?;
+        // R16_UNORM: intensity normalised to 65536 levels (more than 12-bit CT needs) at half the
+        // bytes of float, sampled with trilinear filtering.
         let intensity = Image::new(
             ctx,
             "volume intensity",
-            &ImageDesc::new_3d(vk::Format::R16_UNORM, extent),
+            &ImageDesc::new_3d(Format::R16_UNORM, extent),
         )?;
+        // RGBA16F: the gradient's xyz and length in half floats; shading needs no more, at half the
+        // bytes of RGBA32F.
         let gradient = Image::new(
             ctx,
             "volume gradient",
-            &ImageDesc::new_3d(vk::Format::R16G16B16A16_SFLOAT, extent),
+            &ImageDesc::new_3d(Format::R16G16B16A16_SFLOAT, extent),
         )?;
         let (texels, range) = v.normalised_u16_in(range);
         let bricks = Bricks::new(&texels, v.dims);
@@ -188,10 +197,11 @@ impl VolumeTextures {
             ));
         };
         let extent = extent_of(ctx, occlusion.dims, 4, 1)?;
+        // R32F: the occlusion volume arrives from the host as f32 in [0, 1] and is kept so.
         let image = Image::new(
             ctx,
             "occlusion texture",
-            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent),
+            &ImageDesc::new_3d(Format::R32_SFLOAT, extent),
         )?;
         vellum_gpu::transfer::upload(
             ctx,

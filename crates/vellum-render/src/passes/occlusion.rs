@@ -22,14 +22,13 @@ use crate::passes::occlusion_fft::{
     Denominator, Kernel,
 };
 use crate::passes::volume_image::extent_of;
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::commands::memory_transition;
 use vellum_gpu::pipeline::group_count;
 use vellum_gpu::profiler::PassTime;
-use vellum_gpu::resources::BufferLocation;
 use vellum_gpu::transfer::{record_readback, record_upload, staging_buffer};
+use vellum_gpu::Format;
 use vellum_gpu::{
     submit_timed, Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Frame,
     Image, ImageDesc,
@@ -41,13 +40,22 @@ use vellum_volume::{Volume, VoxelData};
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct OcclusionPush {
+    /// Input volume size in voxels.
     pub dims: [i32; 3],
+    /// R in voxels.
     pub radius: i32,
+    /// Output size: `dims` / `stride`, rounded up.
     pub out_dims: [i32; 3],
+    /// Output voxel o covers input voxel o · stride.
     pub stride: i32,
+    /// The visibility mapping M (SPEC OS2): 0 linear ramp, 1 truncated ramp, 2 a transfer
+    /// function's opacity (the visibility table).
     pub mapping: i32,
+    /// The Gaussian pass's axis: 0 x, 1 y, 2 z.
     pub axis: i32,
+    /// The truncated ramp's lower cut-off, in normalised intensity.
     pub t0: f32,
+    /// The truncated ramp's upper cut-off, in normalised intensity.
     pub t1: f32,
 }
 
@@ -55,11 +63,17 @@ pub struct OcclusionPush {
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct SpectrumPush {
+    /// Intensity volume size in voxels.
     pub dims: [i32; 3],
+    /// The occlusion volume's stride: voxel p reads occlusion voxel p / stride.
     pub stride: i32,
+    /// Intensity bins.
     pub bins_x: i32,
+    /// Occlusion bins.
     pub bins_y: i32,
+    /// Padding to a multiple of 16 bytes, the block's std430 alignment (from its ivec3).
     pub pad0: i32,
+    /// Padding, as `pad0`.
     pub pad1: i32,
 }
 
@@ -83,8 +97,10 @@ pub enum Method {
 }
 
 impl Method {
+    /// The names [`Method::parse`] takes, as error messages list them.
     pub const NAMES: &'static str = "auto, runs, fft-gpu or fft-cpu";
 
+    /// Parses a method name ([`Method::NAMES`]).
     pub fn parse(s: &str) -> Result<Self> {
         Ok(match s {
             "auto" => Method::Auto,
@@ -100,6 +116,7 @@ impl Method {
         })
     }
 
+    /// The name [`Method::parse`] takes (kebab-case, as serialised).
     pub fn name(self) -> &'static str {
         match self {
             Method::Auto => "auto",
@@ -191,13 +208,17 @@ pub fn estimate_ms(
 /// What to compute.
 #[derive(Clone, Debug)]
 pub struct OcclusionParams {
+    /// R, the neighbourhood's radius in voxels (1..=1024, [`check_radius_stride`]).
     pub radius: u32,
+    /// The visibility mapping M applied to normalised intensity (SPEC OS2).
     pub visibility: Visibility,
+    /// Ball or Gaussian weights over the neighbourhood (SPEC OS2).
     pub neighbourhood: Neighbourhood,
     /// Output voxel o samples input voxel o · stride (1 = full resolution).
     pub stride: u32,
     /// Spectrum bins (intensity, occlusion), or `None` for no spectrum.
     pub spectrum_bins: Option<[u32; 2]>,
+    /// How the neighbourhood sum is computed; `Auto` picks by [`estimate_ms`].
     pub method: Method,
     /// The FFT's padded size, when a sweep shares one larger than this radius needs.
     pub pad: Option<[usize; 3]>,
@@ -222,7 +243,9 @@ impl OcclusionParams {
 /// The 2D histogram of (intensity, occlusion): `counts[o * bins[0] + i]`.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Spectrum {
+    /// Bins along intensity and along occlusion.
     pub bins: [u32; 2],
+    /// Voxels per bin, `bins[0] × bins[1]` of them, intensity fastest.
     pub counts: Vec<u32>,
     /// The data values at intensity 0 and 1.
     pub intensity_range: [f64; 2],
@@ -264,8 +287,12 @@ impl Spectrum {
 pub struct OcclusionOutput {
     /// O in [0, 1], at the output resolution (spacing scaled by the stride).
     pub occlusion: Volume,
+    /// The (intensity, occlusion) histogram, when [`OcclusionParams::spectrum_bins`] asks for one.
     pub spectrum: Option<Spectrum>,
+    /// Milliseconds of each pass in order: the GPU passes as the profiler timed them, or the CPU
+    /// FFT's steps by wall clock.
     pub passes: Vec<PassTime>,
+    /// The data values at normalised intensity 0 and 1.
     pub intensity_range: [f64; 2],
     /// The method that ran (never `Auto`).
     pub method: Method,
@@ -614,16 +641,20 @@ impl Occlusion {
             }
             _ => None,
         };
+        // R32F: one float per voxel for M, its prefix sums along x and O; a prefix sum runs over a
+        // whole row, beyond what 16 bits resolve.
         let r32 = |name: &str, e: [u32; 3]| {
-            Image::new(ctx, name, &ImageDesc::new_3d(vk::Format::R32_SFLOAT, e))
+            Image::new(ctx, name, &ImageDesc::new_3d(Format::R32_SFLOAT, e))
         };
         let gauss = if fft.is_none() && p.neighbourhood == Neighbourhood::Gaussian {
             extent_of(ctx, input.dims, 16, 2)?;
+            // RGBA32F: the Gaussian passes carry (weighted M, weight) in r and g; RG32F
+            // storage would need an optional device feature.
             let rgba = |name: &str| {
                 Image::new(
                     ctx,
                     name,
-                    &ImageDesc::new_3d(vk::Format::R32G32B32A32_SFLOAT, extent),
+                    &ImageDesc::new_3d(Format::R32G32B32A32_SFLOAT, extent),
                 )
             };
             Some((rgba("occlusion gauss a")?, rgba("occlusion gauss b")?))
@@ -639,25 +670,15 @@ impl Occlusion {
                 "a transfer-function visibility table needs 256 entries".into(),
             ));
         }
-        let visibility = Buffer::from_bytes(
-            ctx,
-            "visibility table",
-            vk::BufferUsageFlags::STORAGE_BUFFER,
-            bytemuck::cast_slice(&table),
-        )?;
+        let visibility =
+            Buffer::storage_from_bytes(ctx, "visibility table", bytemuck::cast_slice(&table))?;
         let spectrum = match p.spectrum_bins {
             Some([bx, by]) => {
                 check_bins([bx, by])?;
                 Some(Buffer::new(
                     ctx,
                     "spectrum",
-                    &BufferDesc {
-                        size: bx as u64 * by as u64 * 4,
-                        usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                            | vk::BufferUsageFlags::TRANSFER_DST
-                            | vk::BufferUsageFlags::TRANSFER_SRC,
-                        location: BufferLocation::Readback,
-                    },
+                    &BufferDesc::storage(bx as u64 * by as u64 * 4).host_read(),
                 )?)
             }
             None => None,
@@ -813,10 +834,7 @@ impl Occlusion {
         if let (Some(hist), Some([bx, by])) = (&targets.spectrum, p.spectrum_bins) {
             frame.profiler.begin(cmd, "spectrum");
             occlusion.transition(cmd, Access::ComputeRead);
-            unsafe {
-                ctx.device
-                    .cmd_fill_buffer(cmd, hist.raw, 0, vk::WHOLE_SIZE, 0)
-            };
+            vellum_gpu::commands::fill_buffer(ctx, cmd, hist, 0);
             memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
             let sp = SpectrumPush {
                 dims,
@@ -853,10 +871,11 @@ impl Occlusion {
         let (normalised, dims, spacing, range) = (&tex.intensity, tex.dims, tex.spacing, tex.range);
         let cmd = frame.cmd;
         let extent = extent_of(&self.ctx, dims, 4, 4)?;
+        // R32F: the passes bind their input as an r32f storage image, one float per voxel.
         let intensity = Image::new(
             &self.ctx,
             "occlusion intensity",
-            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent),
+            &ImageDesc::new_3d(Format::R32_SFLOAT, extent),
         )?;
         frame.profiler.begin(cmd, "to_float");
         normalised.transition(cmd, Access::ComputeSampled);
@@ -889,9 +908,13 @@ impl Occlusion {
 
 /// The occlusion pass's input on the GPU: intensity normalised to [0, 1] as an R32F 3D image.
 pub struct OcclusionInput {
+    /// The normalised intensity, R32F, `dims` voxels.
     pub intensity: Image,
+    /// Voxels along x, y, z.
     pub dims: [usize; 3],
+    /// Physical size of a voxel along x, y, z.
     pub spacing: [f64; 3],
+    /// Origin and directions of the volume, which the occlusion volume keeps.
     pub geometry: vellum_volume::geometry::Geometry,
     /// The data values at 0 and 1.
     pub range: [f64; 2],
@@ -933,10 +956,11 @@ impl OcclusionInput {
     ) -> Result<(Self, vellum_gpu::Buffer)> {
         let (intensity, range) = normalised_f32_in(v, range);
         let extent = extent_of(ctx, v.dims, 4, 4)?;
+        // R32F: the passes bind their input as an r32f storage image, one float per voxel.
         let image = Image::new(
             ctx,
             "occlusion intensity",
-            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, extent),
+            &ImageDesc::new_3d(Format::R32_SFLOAT, extent),
         )?;
         let mut staging = staging_buffer(ctx, "occlusion staging", intensity.len() * 4)?;
         staging.write(bytemuck::cast_slice(&intensity))?;
@@ -979,6 +1003,7 @@ pub struct OcclusionTargets {
     visibility: Buffer,
     /// The spectrum's histogram (host-visible), when asked for.
     pub spectrum: Option<Buffer>,
+    /// Size of the occlusion volume: the input's dims over the stride, rounded up.
     pub out_dims: [usize; 3],
 }
 

@@ -26,12 +26,15 @@ use vellum_volume::{Volume, VoxelData};
 pub struct Candidate {
     /// Cut-offs as fractions of the data range.
     pub t0: f64,
+    /// Upper cut-off as a fraction of the data range, above `t0`: the ramp reaches 1 there.
     pub t1: f64,
     /// The same in data units.
     pub t0_value: f64,
+    /// `t1` in data units.
     pub t1_value: f64,
     /// Largest variance of cluster means over k = 2..4, and the k that gave it.
     pub score: f64,
+    /// The number of clusters, 2..=4, that gave `score`.
     pub k: usize,
     /// Cluster means (occlusion) for that k, ascending.
     pub means: Vec<f64>,
@@ -40,12 +43,19 @@ pub struct Candidate {
 /// The result of `occlusion-select`.
 #[derive(Clone, Debug, Serialize)]
 pub struct Selection {
+    /// The intensity interval of interest [lo, hi], in data units.
     pub interval: [f64; 2],
+    /// Occlusion radius in voxels.
     pub radius: u32,
+    /// Output stride of the occlusion passes: only every `stride`-th voxel per axis is scored.
     pub stride: u32,
+    /// K, the number of intensity bins of the local histograms (one occlusion pass each).
     pub histogram_bins: usize,
+    /// How many voxels of the output grid lie in `interval`: the values that were clustered.
     pub voxels_in_interval: usize,
+    /// The highest-scoring candidate.
     pub best: Candidate,
+    /// Every candidate ramp (cut-offs on a 1/8 grid of the range), highest score first.
     pub candidates: Vec<Candidate>,
 }
 
@@ -266,11 +276,17 @@ pub fn select(
 /// One point of the sensitivity plot.
 #[derive(Clone, Debug, Serialize)]
 pub struct SensitivityRow {
+    /// Occlusion radius in voxels.
     pub radius: u32,
+    /// Index of the intensity band, from 0 at the low end of the data range.
     pub band: usize,
+    /// Lower edge of the band, in data units.
     pub band_lo: f64,
+    /// Upper edge of the band, in data units.
     pub band_hi: f64,
+    /// How many voxels of the output grid fall in the band.
     pub voxels: usize,
+    /// Sample variance of their occlusion (ramp mapping, ball); 0 with fewer than 2 voxels.
     pub variance: f64,
 }
 

@@ -24,10 +24,9 @@
 //! of gradient per texel), and no per-voxel arithmetic on the host but the type's conversion.
 
 use crate::passes::normals::Bricks;
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
-use vellum_gpu::resources::BufferLocation;
+use vellum_gpu::Format;
 use vellum_gpu::{
     Access, Bind, BindingKind, Buffer, BufferDesc, ComputePipeline, Context, Frame, Image,
     ImageDesc,
@@ -77,20 +76,25 @@ pub struct PagedVolume {
     pub range: [f64; 2],
     /// Level 0's voxels, spacing and placement.
     pub dims: [usize; 3],
+    /// Level 0's physical voxel size along x, y, z.
     pub spacing: [f64; 3],
+    /// Level 0's origin and directions.
     pub geometry: vellum_volume::geometry::Geometry,
     /// One brick of the full range: the in-core table of brick flags skips nothing here, since
     /// the page table carries the bricks' flags.
     pub whole: Bricks,
     /// A number no other GPU volume of the process has.
     pub id: u64,
+    /// The cache's state between frames.
     pub paged: Paged,
     fill: ComputePipeline,
 }
 
 /// The brick cache's state between frames.
 pub struct Paged {
+    /// The volume as a pyramid of bricks, level 0 the finest.
     pub levels: Arc<BrickLevels>,
+    /// Which brick sits in which pool slot; it writes the page table's entries.
     pub cache: BrickCache,
     /// Slots along x, y, z of the pool images.
     pub grid: [usize; 3],
@@ -145,6 +149,8 @@ pub fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct FillPush {
+    /// x, y: pool slots along x and y; z: 1 for 8-bit voxels, 0 for 16-bit; w: bricks in this
+    /// dispatch.
     pub grid: [i32; 4],
 }
 
@@ -152,16 +158,23 @@ pub struct FillPush {
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct BrickFill {
+    /// xyz: the level's voxel at the upload's first voxel (the brick's corner − 2); w: the pool
+    /// slot.
     pub lo_slot: [i32; 4],
+    /// xyz: the level's size in voxels; w: the upload's first voxel in the batch's voxel buffer.
     pub dims_offset: [i32; 4],
+    /// 1 / the level's voxel spacing along x, y, z, for the Sobel gradient; w unused.
     pub inv_spacing: [f32; 4],
 }
 
 /// A brick to upload: its slot, its page-table entry and its voxels.
 #[derive(Copy, Clone)]
 pub struct Upload<'a> {
+    /// The pool slot the brick goes to.
     pub slot: usize,
+    /// The brick's page-table entry.
     pub entry: usize,
+    /// The brick's voxels as they travel: [`UPLOAD`]³, x fastest.
     pub voxels: &'a BrickVoxels,
 }
 
@@ -185,16 +198,14 @@ impl PagedVolume {
         let cache = BrickCache::new(&levels, capacity, mib)?;
         let extent = grid.map(|g| (g * SLOT) as u32);
         let image = |name: &str, format| Image::new(ctx, name, &ImageDesc::new_3d(format, extent));
-        let intensity = image("brick pool intensity", vk::Format::R16_UNORM)?;
-        let gradient = image("brick pool gradient", vk::Format::R16G16B16A16_SFLOAT)?;
+        // The in-core textures' formats, so that the shaders sample both alike: R16_UNORM intensity
+        // and RGBA16F gradient (xyz and length).
+        let intensity = image("brick pool intensity", Format::R16_UNORM)?;
+        let gradient = image("brick pool gradient", Format::R16G16B16A16_SFLOAT)?;
         let feedback = Buffer::new(
             ctx,
             "brick feedback",
-            &BufferDesc {
-                size: (levels.entries().max(1) * 4) as u64,
-                usage: vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST,
-                location: BufferLocation::Readback,
-            },
+            &BufferDesc::storage((levels.entries().max(1) * 4) as u64).host_read(),
         )?;
         let fill = ComputePipeline::new(
             ctx,
@@ -324,13 +335,8 @@ impl PagedVolume {
 
 /// The pools are written as storage images: R16_UNORM needs the extended storage formats.
 fn check_pool_formats(ctx: &Context) -> Result<()> {
-    let props = unsafe {
-        ctx.instance
-            .get_physical_device_format_properties(ctx.physical, vk::Format::R16_UNORM)
-    };
-    let storage = props
-        .optimal_tiling_features
-        .contains(vk::FormatFeatureFlags::STORAGE_IMAGE);
+    // R16 unorm: the pool keeps each intensity in 16 bits (`Pools::new`).
+    let storage = ctx.can_write_storage(Format::R16_UNORM);
     if !(ctx.info.storage_image_extended_formats && storage) {
         return Err(Error::Invalid(format!(
             "{} cannot write R16 storage images, which the brick cache fills; raise --gpu-budget so that the volume fits in core",
@@ -430,10 +436,7 @@ impl Paged {
             Access::HostRead,
             Access::TransferWrite,
         );
-        unsafe {
-            ctx.device
-                .cmd_fill_buffer(frame.cmd, self.feedback.raw, 0, vk::WHOLE_SIZE, 0)
-        };
+        vellum_gpu::commands::fill_buffer(ctx, frame.cmd, &self.feedback, 0);
         vellum_gpu::commands::memory_transition(
             ctx,
             frame.cmd,

@@ -1,31 +1,32 @@
 //! Volumes as 3D images. Each voxel type keeps its bits exactly (integer formats for integer
 //! voxels), so a round trip is bit-exact and the compute passes see the stored values.
 
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::profiler::PassTime;
 use vellum_gpu::transfer::{record_readback, record_upload, staging_buffer};
+use vellum_gpu::Format;
 use vellum_gpu::{submit_timed, Access, Context, Image, ImageDesc};
 use vellum_volume::{Volume, VoxelData, VoxelType};
 
 /// The image format that stores `ty` bit for bit.
-pub fn format_of(ty: VoxelType) -> vk::Format {
+pub fn format_of(ty: VoxelType) -> Format {
     match ty {
-        VoxelType::U8 => vk::Format::R8_UINT,
-        VoxelType::U16 => vk::Format::R16_UINT,
-        VoxelType::I16 => vk::Format::R16_SINT,
-        VoxelType::F32 => vk::Format::R32_SFLOAT,
+        VoxelType::U8 => Format::R8_UINT,
+        VoxelType::U16 => Format::R16_UINT,
+        VoxelType::I16 => Format::R16_SINT,
+        VoxelType::F32 => Format::R32_SFLOAT,
     }
 }
 
 /// The voxel type stored by `format`, for readback.
-pub fn voxel_type_of(format: vk::Format) -> Option<VoxelType> {
+pub fn voxel_type_of(format: Format) -> Option<VoxelType> {
+    // The inverse of `format_of`: only formats that hold a voxel type bit for bit.
     match format {
-        vk::Format::R8_UINT => Some(VoxelType::U8),
-        vk::Format::R16_UINT => Some(VoxelType::U16),
-        vk::Format::R16_SINT => Some(VoxelType::I16),
-        vk::Format::R32_SFLOAT => Some(VoxelType::F32),
+        Format::R8_UINT => Some(VoxelType::U8),
+        Format::R16_UINT => Some(VoxelType::U16),
+        Format::R16_SINT => Some(VoxelType::I16),
+        Format::R32_SFLOAT => Some(VoxelType::F32),
         _ => None,
     }
 }
@@ -50,7 +51,7 @@ pub fn create(ctx: &Arc<Context>, name: &str, v: &Volume) -> Result<Image> {
 
 /// Turns image bytes read back from the GPU into a volume with the given dims and spacing.
 pub fn volume_from_bytes(
-    format: vk::Format,
+    format: Format,
     dims: [usize; 3],
     spacing: [f64; 3],
     bytes: &[u8],
@@ -63,8 +64,11 @@ pub fn volume_from_bytes(
 /// Timings of a round trip.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct RoundTrip {
+    /// Whether the bytes read back equal those uploaded.
     pub bit_exact: bool,
+    /// Bytes of voxel data each way.
     pub bytes: usize,
+    /// GPU time of `upload` and `readback`.
     pub passes: Vec<PassTime>,
 }
 

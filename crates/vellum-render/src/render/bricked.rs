@@ -61,23 +61,30 @@ pub struct StreamReport {
     pub loaded_per_level: Vec<u64>,
     /// Of the bricks loaded, those of one value that shared a slot and uploaded nothing.
     pub bricks_shared: u64,
+    /// Bricks evicted during the frame to make room for others (the least recently used).
     pub bricks_evicted: u64,
     /// Bytes uploaded into the pool (each brick's voxels with a border, at 8 or 16 bits).
     pub bytes_streamed: u64,
     /// Chunks of the store decoded, their bytes of voxels, and those bytes per second of the frame.
     pub chunks_decoded: u64,
+    /// Bytes of voxels those chunks decoded to.
     pub source_bytes: u64,
+    /// `source_bytes` in MiB per second of the whole frame (`total_ms`).
     pub source_mib_per_s: f64,
     /// Milliseconds the loaders spent decoding chunks, summed over the loaders.
     pub decode_ms: f64,
     /// Milliseconds the loaders were reading (at least one of them), the GPU was busy, and both
     /// at once; the share of the frame during which both were busy.
     pub host_ms: f64,
+    /// Milliseconds the GPU was busy with the frame's passes.
     pub gpu_ms: f64,
+    /// Milliseconds during which the loaders and the GPU were both busy.
     pub both_ms: f64,
+    /// `both_ms` over `total_ms`, in [0, 1].
     pub both_share: f64,
     /// Per pass: GPU ms, and bricks uploaded before it.
     pub pass_gpu_ms: Vec<f64>,
+    /// Per pass: bricks uploaded before it.
     pub pass_bricks: Vec<usize>,
     /// Whether every ray reached its end with the bricks it asked for (false: the wait was cut
     /// short and missing bricks were sampled from coarser levels).
@@ -87,13 +94,16 @@ pub struct StreamReport {
     pub whole_frame: bool,
     /// Slots in the pool, and bricks resident at the end.
     pub capacity: usize,
+    /// Bricks resident in the pool at the end of the frame.
     pub resident: usize,
     /// Bytes of the pool images.
     pub pool_bytes: u64,
     /// Milliseconds until the first pass had run, until the first (coarse) frame was drawn,
     /// and until the complete frame was.
     pub first_pass_ms: f64,
+    /// Milliseconds until the first (coarse) frame was drawn.
     pub first_frame_ms: f64,
+    /// Milliseconds until the complete frame was drawn: the whole frame's time.
     pub total_ms: f64,
     /// Refinements drawn on the way (progressive frames).
     pub progress_frames: usize,

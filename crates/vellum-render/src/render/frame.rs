@@ -32,7 +32,6 @@ use crate::render::targets::{
     FrameImage, FrameTargets, Layers, PostTargets, TargetImages, TargetsReadback, ViewState,
 };
 use crate::render::view::{FrameCamera, RayOptions, View, WorldBox, MAX_SLICES};
-use ash::vk;
 use glam::Vec3;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
@@ -40,23 +39,32 @@ use vellum_gpu::{
     Access, Bind, BufferSlice, Context, Frames, FramesDesc, Image, ImageDesc, PipelineCache,
     Sampler,
 };
+use vellum_gpu::{CommandBuffer, Format};
 use vellum_volume::geometry::Geometry;
 
 /// What [`FrameSetup`] needs of the volume and its classification: host data only.
 pub struct SetupInput<'a> {
+    /// Voxels along x, y, z.
     pub dims: [usize; 3],
+    /// Physical size of a voxel along x, y, z.
     pub spacing: [f64; 3],
+    /// Origin and directions of the volume, which place its box in the world.
     pub geometry: Geometry,
     /// Data values that map to normalised intensity 0 and 1.
     pub range: [f64; 2],
+    /// Per-brick range of the normalised intensity, for culling bricks with nothing to draw.
     pub bricks: &'a Bricks,
     /// The 1D transfer function's table (256 RGBA entries).
     pub table: &'a [[f32; 4]],
+    /// The focus, in data units.
     pub focus: Focus,
+    /// Importance modulation (SPEC IM3–IM5), written into the uniforms; when active, the volume
+    /// must carry ΔD.
     pub modulation: &'a Modulation,
     /// Whether an occlusion transfer function classifies the volume, and whether the volume
     /// carries the occlusion volume it reads.
     pub uses_occlusion: bool,
+    /// Whether the volume carries its occlusion volume.
     pub has_occlusion: bool,
     /// Whether the volume carries its importance map (ΔD), which modulation reads.
     pub has_importance: bool,
@@ -87,8 +95,11 @@ impl<'a> SetupInput<'a> {
 /// Everything the host decides for one frame, before anything is recorded.
 #[derive(Clone, Debug)]
 pub struct FrameSetup {
+    /// Image width and height in pixels.
     pub size: [u32; 2],
+    /// The volume's box in the world.
     pub world: WorldBox,
+    /// The camera in the box frame, computed once.
     pub camera: FrameCamera,
     /// The focus in normalised intensity: low, high, mode ([`Focus::normalised`]).
     pub focus: [f32; 3],
@@ -101,6 +112,7 @@ pub struct FrameSetup {
     pub focus_proxy: Option<ProxySlices>,
     /// Depth of the nearest and the farthest box corner along the view direction.
     pub depth_span: (f32, f32),
+    /// The shaders' per-frame uniforms, staged into the frame's ring.
     pub uniforms: SliceUniforms,
     /// The ray caster's table for a ray-cast frame: the transfer function's opacity bounds, then
     /// the bricks' flags ([`BRICK_VISIBLE`], [`BRICK_FOCUS`]).
@@ -482,18 +494,14 @@ struct StandIns {
 
 impl StandIns {
     fn new(ctx: &Arc<Context>) -> Result<Self> {
+        // R32F: the format of the occlusion volume and ΔD it stands in for; one voxel of 0.
         let volume = Image::new(
             ctx,
             "dummy occlusion",
-            &ImageDesc::new_3d(vk::Format::R32_SFLOAT, [1, 1, 1]),
+            &ImageDesc::new_3d(Format::R32_SFLOAT, [1, 1, 1]),
         )?;
         vellum_gpu::transfer::upload(ctx, &volume, &[0u8; 4], Access::FragmentSampled)?;
-        let max = vellum_gpu::Buffer::from_bytes(
-            ctx,
-            "dummy importance max",
-            vk::BufferUsageFlags::STORAGE_BUFFER,
-            &[0u8; 4],
-        )?;
+        let max = vellum_gpu::Buffer::storage_from_bytes(ctx, "dummy importance max", &[0u8; 4])?;
         let paging = vellum_gpu::Buffer::new(
             ctx,
             "dummy paging",
@@ -511,7 +519,7 @@ impl StandIns {
     fn shading_inputs<'a>(
         &'a self,
         ctx: &Context,
-        cmd: vk::CommandBuffer,
+        cmd: CommandBuffer,
         vol: VolumeRef<'a>,
         classify: &GpuClassification,
         sampled: Access,
@@ -541,12 +549,17 @@ impl StandIns {
 /// Parameters of one frame for the one-shot [`Renderer::render`].
 #[derive(Clone, Debug)]
 pub struct RenderParams {
+    /// The camera around the volume's box.
     pub camera: crate::render::camera::Camera,
+    /// Image width and height in pixels.
     pub size: [u32; 2],
     /// Number of slice planes; `None` picks about two per voxel along the longest axis.
     pub slices: Option<u32>,
+    /// The focus, in data units.
     pub focus: Focus,
+    /// Draw one level, all context, instead of the two levels.
     pub one_pass: bool,
+    /// The 1D transfer function.
     pub transfer: crate::classify::transfer::TransferFunction,
     /// An occlusion transfer function table (256×256, `table[o * 256 + s]`), which replaces
     /// `transfer`; the volume textures must then hold an occlusion volume.

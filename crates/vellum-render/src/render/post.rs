@@ -16,11 +16,11 @@
 use crate::passes::lines::{LineExtractor, LineRequest, LineState, RasterView};
 use crate::render::style::{Abstraction, EdgeKind, Style, StyleParams};
 use crate::render::targets::{PostTargets, TargetImages, TargetLayers};
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::commands::memory_transition;
 use vellum_gpu::pipeline::group_count;
+use vellum_gpu::CommandBuffer;
 use vellum_gpu::{
     Access, Bind, BindingKind, ComputePipeline, Context, Frame, Image, PipelineCache, PipelineDesc,
 };
@@ -30,6 +30,7 @@ use vellum_volume::lines::{Eye, LineParams};
 /// to draw it. The renderer fills it in; [`Post::record`] extracts and draws the lines into the
 /// edge image before the style composite.
 pub struct LinesDraw<'a> {
+    /// The extraction and raster passes.
     pub extractor: &'a LineExtractor,
     /// Where the extraction's per-kind pipelines are built and kept.
     pub pipelines: &'a mut PipelineCache,
@@ -37,16 +38,21 @@ pub struct LinesDraw<'a> {
     pub state: &'a mut LineState,
     /// The normalised volume texture.
     pub volume: &'a Image,
+    /// Voxels along x, y, z of `volume`.
     pub dims: [usize; 3],
+    /// Physical size of a voxel along x, y, z.
     pub spacing: [f32; 3],
+    /// Where the eye is, in the physical frame (index × spacing).
     pub eye: Eye,
+    /// Which lines and how they are filtered; `iso` on the normalised scale of `volume`.
     pub params: LineParams,
+    /// Where the lines are drawn; [`Post::record`] sets its `value` and `floor` for the edge image.
     pub view: RasterView,
 }
 
 /// What every step of one frame's style passes shares.
 struct Step<'a> {
-    cmd: vk::CommandBuffer,
+    cmd: CommandBuffer,
     groups: [u32; 3],
     /// The push constants with the image size set.
     base: PostPush,
@@ -58,9 +64,14 @@ struct Step<'a> {
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct PostPush {
+    /// x, y: the image's width and height; z: the blur's axis (0 x, 1 y); w: Kuwahara's radius.
     pub size_mode: [i32; 4],
+    /// Per pass: blur σ; Sobel threshold; DoG τ, ε, φ; Canny high and low; saturation factor.
     pub params: [f32; 4],
+    /// Composite: the edge colour (rgb) and its opacity (a).
     pub edge: [f32; 4],
+    /// Composite: x the dilation radius, y whether edges are present, z the edge image's offset
+    /// (1 for Canny's classes); hysteresis: w the pass index.
     pub flags: [i32; 4],
 }
 
@@ -368,21 +379,15 @@ impl Post {
     /// The hysteresis series on `post.edges`, in place.
     fn record_hysteresis(
         &self,
-        cmd: vk::CommandBuffer,
+        cmd: CommandBuffer,
         post: &PostTargets,
         base: PostPush,
     ) -> Result<()> {
         let ctx = &self.ctx;
         let groups = group_count([post.size[0], post.size[1], 1], [LOCAL, LOCAL, 1]);
-        unsafe {
-            ctx.device
-                .cmd_fill_buffer(cmd, post.changed.raw, 0, vk::WHOLE_SIZE, 0);
-        }
+        vellum_gpu::commands::fill_buffer(ctx, cmd, &post.changed, 0);
         memory_transition(ctx, cmd, Access::TransferWrite, Access::TransferWrite);
-        unsafe {
-            ctx.device
-                .cmd_update_buffer(cmd, post.changed.raw, 0, &1u32.to_ne_bytes());
-        }
+        vellum_gpu::commands::update_buffer(ctx, cmd, &post.changed, &1u32.to_ne_bytes());
         memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
         for i in 0..HYSTERESIS_PASSES {
             post.edges.transition(cmd, Access::ComputeReadWrite);

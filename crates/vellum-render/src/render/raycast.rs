@@ -110,13 +110,21 @@ pub fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
 pub struct Variant(pub u32);
 
 impl Variant {
+    /// Mode: two levels, writing the focus and context layers (else the one-pass composite).
     pub const TWO_LEVEL: u32 = 1;
+    /// Steps over bricks that hold nothing visible (`RayOptions::skip_empty`).
     pub const SKIP_EMPTY: u32 = 2;
+    /// Jitters the planes per pixel (`RayOptions::jitter`).
     pub const JITTER: u32 = 4;
+    /// Refines the first isosurface hit by regula falsi (`RayOptions::refine_iso`; two levels).
     pub const REFINE_ISO: u32 = 8;
+    /// Mode: equal steps along each ray ([`Sampling::WorldSteps`]) instead of the slicer's planes.
     pub const WORLD_STEPS: u32 = 16;
+    /// Classifies through the occlusion transfer function when the `focus` uniform's w says so.
     pub const OTF: u32 = 32;
+    /// Modulates opacity by importance (eq. 5) where the `mod_flags` uniform enables it.
     pub const MOD_OPACITY: u32 = 64;
+    /// Modulates the shaded colour by importance: stippling (eq. 6) or colour (eq. 3, 4).
     pub const MOD_SHADE: u32 = 128;
     /// Samples through the brick cache's page table (skipping the bricks its words say are empty,
     /// at the level each sample reads, instead of the in-core table's).
@@ -157,20 +165,25 @@ pub struct RayRequest<'a> {
     pub shading: &'a [Bind<'a>; 8],
     /// The frame's uniforms, from which the pipeline variant is chosen.
     pub uniforms: &'a SliceUniforms,
+    /// The ray caster's options for this frame.
     pub options: RayOptions,
     /// The two-level layers; `None` draws one pass into `composite`.
     pub layers: Option<&'a TargetLayers>,
+    /// The composite: the one-pass frame, or a two-level frame's context over its focus.
     pub composite: &'a Image,
     /// The opacity bounds and brick flags staged for this frame (`RayTables`).
     pub tables: BufferSlice,
     /// The page table, feedback and ray states of a bricked volume (stand-ins in core).
     pub paging: [Bind<'a>; 3],
+    /// Whether the volume is drawn through the brick cache (the `BRICKED` variant).
     pub bricked: bool,
     /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
     pub brick_reuse: bool,
     /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
     pub brick_span: bool,
+    /// The push constants of `raycast.comp`.
     pub push: RayPush,
+    /// The image size in pixels, width and height: one invocation per pixel.
     pub size: [u32; 2],
 }
 

@@ -67,14 +67,18 @@ pub const SCENE_VERSION: u32 = 1;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawInput {
+    /// Voxels along x, y, z.
     pub dims: [usize; 3],
     /// u8, u16, i16 or f32.
     #[serde(rename = "type")]
     pub voxel_type: String,
+    /// Multi-byte voxels are stored most significant byte first (default false).
     #[serde(default)]
     pub big_endian: bool,
+    /// Bytes to skip before the first voxel (default 0).
     #[serde(default)]
     pub offset: u64,
+    /// Physical voxel size along x, y, z, in millimetres when `origin` is given (default 1).
     #[serde(default = "unit_spacing")]
     pub spacing: [f64; 3],
     /// Position of voxel (0,0,0) in LPS millimetres: the volume is then axis-aligned in LPS.
@@ -92,6 +96,7 @@ fn unit_spacing() -> [f64; 3] {
 pub struct InputSpec {
     /// A file, a DICOM folder or a phantom spec (`phantom:shepp-logan:128`).
     pub path: String,
+    /// The layout of a headerless file at `path`; left out, the file describes itself.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub raw: Option<RawInput>,
 }
@@ -108,7 +113,12 @@ pub enum ClassificationSpec {
     Features(String),
     /// A feature map composed with an occlusion transfer function (`classify::compose`): the
     /// features in their colours, the context by intensity and occlusion.
-    Composed { features: String, occlusion: String },
+    Composed {
+        /// The feature map file (features.json).
+        features: String,
+        /// The occlusion transfer function file (JSON).
+        occlusion: String,
+    },
 }
 
 impl ClassificationSpec {
@@ -141,11 +151,17 @@ impl Default for ClassificationSpec {
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum NamedView {
+    /// The eye in front of the patient (azimuth 0°).
     Anterior,
+    /// The eye behind the patient (azimuth 180°).
     Posterior,
+    /// The eye on the patient's left (azimuth 90°).
     Left,
+    /// The eye on the patient's right (azimuth −90°).
     Right,
+    /// The eye above the head (elevation 90°).
     Superior,
+    /// The eye below the feet (elevation −90°).
     Inferior,
 }
 
@@ -182,14 +198,19 @@ impl NamedView {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraSpec {
+    /// A named view; not together with `azimuth` or `elevation`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<NamedView>,
+    /// Azimuth in degrees; 0 puts the eye on the anterior side of an oriented volume.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub azimuth: Option<f32>,
+    /// Elevation in degrees; 90 looks down from above (superior for an oriented volume).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub elevation: Option<f32>,
+    /// Distance of the eye in bounding-sphere radii; left out, fitted to the volume.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub distance: Option<f32>,
+    /// Orthographic projection instead of perspective.
     pub ortho: bool,
     /// Pan (x right, y up) in bounding-sphere radii.
     pub pan: [f32; 2],
@@ -274,6 +295,7 @@ impl CameraSpec {
 pub struct StyleSpec {
     /// The paper's style number (1–15) or its name.
     pub style: serde_json::Value,
+    /// The style's parameters; keys left out keep their defaults.
     #[serde(default)]
     pub params: StyleParams,
 }
@@ -298,26 +320,38 @@ impl StyleSpec {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Scene {
+    /// The file format's version; only [`SCENE_VERSION`] loads.
     pub version: u32,
+    /// The volume to render.
     pub input: InputSpec,
+    /// How samples are classified; left out, the automatic window (`auto`).
     #[serde(default)]
     pub classification: ClassificationSpec,
+    /// The focus level of two-level frames, in data units; left out, none.
     #[serde(default)]
     pub focus: Focus,
+    /// The camera; every key may be left out.
     #[serde(default)]
     pub camera: CameraSpec,
+    /// Image width and height in pixels (default 512 × 512).
     #[serde(default = "default_size")]
     pub size: [u32; 2],
+    /// Slice planes; null or left out, about two per voxel along the longest axis.
     #[serde(default)]
     pub slices: Option<u32>,
+    /// Render every sample as context in one pass, without the focus level and its layers.
     #[serde(default)]
     pub one_pass: bool,
+    /// RGB in [0, 1] behind the volume in PNG output (default black).
     #[serde(default)]
     pub background: [f32; 3],
+    /// The Phong headlight's coefficients (`ambient`, `diffuse`, `specular`, `shininess`).
     #[serde(default)]
     pub lighting: Lighting,
+    /// A perceptual style over the two levels; none by default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub style: Option<StyleSpec>,
+    /// Importance modulation by ΔD (SPEC IM3–IM5, `classify::modulation`); none by default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub modulation: Option<Modulation>,
     /// Ray cast with these options instead of slicing (`render::raycast`).
@@ -532,7 +566,9 @@ impl Scene {
 /// occlusion transfer function needs one, ΔD when modulation needs it, and the classification
 /// (transfer-function textures, focus, modulation).
 pub struct GpuScene {
+    /// The volume's textures: intensity, gradients, and the occlusion volume and ΔD when needed.
     pub volume: VolumeTextures,
+    /// Transfer-function textures, focus and modulation.
     pub classify: GpuClassification,
     /// GPU ms of `upload`, `sobel_normals`; for occlusion `to_float` and `occlusion`; for
     /// modulation `pack`, `gauss_x`, `gauss_y`, `gauss_z`, `subtract` and `unpack`.
@@ -573,7 +609,9 @@ fn composed(
 /// A volume prepared for rendering through the brick cache: its pools, nothing resident yet,
 /// and the classification.
 pub struct PagedScene {
+    /// The brick pools and cache of the volume.
     pub volume: crate::passes::paging::PagedVolume,
+    /// Transfer-function textures, focus and modulation.
     pub classify: GpuClassification,
 }
 

@@ -59,7 +59,9 @@ impl Lod {
 pub struct SessionOptions {
     /// MiB of GPU memory the volume's textures may take; `None`: half the device's largest heap.
     pub gpu_budget_mib: Option<f64>,
+    /// Which levels a bricked frame samples.
     pub lod: Lod,
+    /// The loaders of a bricked volume: how many, and how many bytes of bricks may wait ready.
     pub stream: StreamOptions,
     /// Bytes of decoded chunks kept for the bricks (`None`: the default).
     pub chunk_cache_bytes: Option<u64>,
@@ -67,7 +69,9 @@ pub struct SessionOptions {
 
 /// An input opened on the host: whole, or as the pyramid the brick cache reads.
 pub enum Opened {
+    /// The whole volume, read into host memory.
     InCore(Volume),
+    /// The pyramid the brick cache reads: a store's levels on disk, or levels made in memory.
     Bricked(Arc<BrickLevels>),
 }
 
@@ -126,7 +130,9 @@ impl Opened {
 /// A volume on the GPU with its classification: in core, or through the brick cache with the
 /// streamer that fills it.
 pub enum Prepared {
+    /// The whole volume's textures, with its classification.
     InCore(GpuScene),
+    /// The brick cache's pools with their classification, and the streamer that fills them.
     Paged(PagedScene, Box<Streamer>),
 }
 
@@ -234,7 +240,9 @@ pub fn bricked_view(view: &mut View, budget: u64) -> Option<String> {
 
 /// One input opened for rendering: its volume on the GPU, and a renderer.
 pub struct Session {
+    /// The volume on the GPU with its classification.
     pub prepared: Prepared,
+    /// The renderer that draws its frames.
     pub renderer: Renderer,
     /// The GPU budget in bytes.
     pub budget: u64,

@@ -9,12 +9,20 @@ use vellum_gpu::BindingKind;
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct SliceUniforms {
+    /// Box frame → clip space (`FrameCamera::view_proj`), column-major.
     pub view_proj: [[f32; 4]; 4],
+    /// xyz: half size of the volume's box in world units (longest edge 1), centred at 0; w unused.
     pub half_extent: [f32; 4],
+    /// xyz: the eye in the box frame; w unused.
     pub eye: [f32; 4],
+    /// xyz: unit direction from the eye into the scene, box frame; w 1 for an orthographic camera.
     pub view_dir: [f32; 4],
+    /// xyz: unit direction towards the light (a headlight, −view_dir); w the specular exponent.
     pub light: [f32; 4],
+    /// Ambient, diffuse and specular coefficients; w the opacity correction, plane spacing / voxel.
     pub material: [f32; 4],
+    /// lo, hi and mode of `Focus::normalised` (normalised intensity); w 1 when an occlusion TF
+    /// classifies.
     pub focus: [f32; 4],
     /// x colour mode (0 off, 1 raw, 2 abs), y opacity on, z stipple on, w levels (1 focus,
     /// 2 context, 3 both; 0 when nothing is modulated).
@@ -27,13 +35,16 @@ pub struct SliceUniforms {
     pub mod_stipple: [f32; 4],
     /// x stipple seed.
     pub mod_seed: [u32; 4],
+    /// rgb: eq. 6's white stipple colour; w 1.
     pub stipple_white: [f32; 4],
+    /// rgb: eq. 6's black stipple colour; w 1.
     pub stipple_black: [f32; 4],
     /// Volume size in voxels (xyz), for the stipple grid.
     pub volume_dims: [f32; 4],
     /// The ray caster's region in texture coordinates, samples in [lo, hi) only (`region_hi[3]`
     /// = 1 when set): one rank's box of an MPI job.
     pub region_lo: [f32; 4],
+    /// xyz: the region's upper corner (exclusive); w 1 when a region is set, else 0.
     pub region_hi: [f32; 4],
 }
 

@@ -16,19 +16,21 @@
 
 use crate::render::shading::SHADE_BINDINGS;
 use crate::render::targets::{TargetLayers, COLOR, DEPTH, LINEAR_DEPTH};
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::Result;
 use vellum_gpu::graphics::{
-    begin_rendering, end_rendering, Blend, DepthState, GraphicsDesc, GraphicsPipeline, Load,
+    begin_rendering, end_rendering, Blend, DepthState, DepthTest, GraphicsDesc, GraphicsPipeline,
+    Load,
 };
 use vellum_gpu::{Access, Bind, BindingKind, BufferSlice, Context, Image, Sampler};
+use vellum_gpu::{CommandBuffer, Format};
 
 /// What the slicer draws in one frame: the shared shading bindings, and the proxy planes staged
 /// in the frame's ring (the focus level's apart, for two levels).
 pub struct SliceDraw<'a> {
     /// The eight bindings of `shade.glsl` (`render::shading::SHADE_BINDINGS`).
     pub shading: &'a [Bind<'a>; 8],
+    /// Width and height of the targets in pixels.
     pub size: [u32; 2],
     /// The context's (or the one pass's) vertices and their count.
     pub vertices: (BufferSlice, u32),
@@ -50,7 +52,7 @@ impl Slicer {
     /// Builds the four pipelines.
     pub fn new(ctx: &Arc<Context>) -> Result<Self> {
         let slice =
-            |name, fragment, colors: &[vk::Format], blend: &[Blend], depth, constants: &[u32]| {
+            |name, fragment, colors: &[Format], blend: &[Blend], depth, constants: &[u32]| {
                 GraphicsPipeline::new(
                     ctx,
                     &GraphicsDesc {
@@ -83,7 +85,7 @@ impl Slicer {
             &[over, over, Blend::Replace],
             Some(DepthState {
                 format: DEPTH,
-                compare: vk::CompareOp::LESS_OR_EQUAL,
+                compare: DepthTest::LessOrEqual,
                 write: true,
             }),
             &[],
@@ -95,7 +97,7 @@ impl Slicer {
             &[over],
             Some(DepthState {
                 format: DEPTH,
-                compare: vk::CompareOp::LESS,
+                compare: DepthTest::Less,
                 write: false,
             }),
             &[1],
@@ -129,7 +131,7 @@ impl Slicer {
     /// there is nothing to draw, so the attachments are cleared).
     fn draw(
         &self,
-        cmd: vk::CommandBuffer,
+        cmd: CommandBuffer,
         pipeline: &GraphicsPipeline,
         d: &SliceDraw,
         (buffer, count): (BufferSlice, u32),

@@ -29,6 +29,7 @@ pub enum Exchange {
 }
 
 impl Exchange {
+    /// Parses `direct-send` or `binary-swap`.
     pub fn parse(s: &str) -> Result<Self> {
         match s {
             "direct-send" => Ok(Exchange::DirectSend),
@@ -45,6 +46,7 @@ impl Exchange {
         Exchange::DirectSend
     }
 
+    /// The name [`Exchange::parse`] takes.
     pub fn name(self) -> &'static str {
         match self {
             Exchange::DirectSend => "direct-send",
@@ -207,6 +209,8 @@ pub fn over(front: &mut [f32], back: &[f32]) {
 pub struct Cost {
     /// Bytes this rank sent to others (its piece's gather to rank 0 included).
     pub bytes_sent: u64,
+    /// Wall-clock seconds this rank spent compositing: from the barrier after ray casting through
+    /// the gather to rank 0.
     pub seconds: f64,
     /// Of those seconds, the ones spent in [`over`] (the rest is the exchange and the gather).
     pub over_seconds: f64,

@@ -30,7 +30,9 @@ pub enum Order {
 /// How many loaders read bricks and how many bytes of bricks may wait ready.
 #[derive(Copy, Clone, Debug)]
 pub struct StreamOptions {
+    /// Loader threads reading bricks (at least one is started).
     pub threads: usize,
+    /// At most about this many bytes of read bricks are held ready to upload.
     pub ready_bytes: u64,
 }
 
@@ -48,12 +50,16 @@ pub const DEFAULT_READY_BYTES: u64 = 128 << 20;
 
 /// A brick that arrived and has a slot: what to upload with the next frame.
 pub struct Arrived {
+    /// The pool slot it was placed in.
     pub slot: usize,
+    /// Its page-table entry.
     pub entry: usize,
+    /// Its voxels as they travel to the GPU.
     pub voxels: BrickVoxels,
 }
 
 impl Arrived {
+    /// The brick as an upload for [`PagedVolume::record_loads`], borrowing its voxels.
     pub fn upload(&self) -> Upload<'_> {
         Upload {
             slot: self.slot,
@@ -67,7 +73,9 @@ impl Arrived {
 /// placed in all (those sharing the slot of their constant value upload nothing).
 #[derive(Default)]
 pub struct Batch {
+    /// The bricks that need an upload with the next frame.
     pub uploads: Vec<Arrived>,
+    /// Bricks placed in all, uploads included.
     pub placed: usize,
 }
 
@@ -80,10 +88,13 @@ pub struct Streamer {
     pub placed: u64,
     /// Bricks placed per level, finest first.
     pub per_level: Vec<u64>,
+    /// Placed bricks that needed an upload (not sharing the slot of a constant value).
     pub uploaded: u64,
+    /// Bytes of the voxels of those uploads.
     pub uploaded_bytes: u64,
     /// Bricks that could not be read: never asked again. The first one's sentence.
     failed: HashSet<usize>,
+    /// Why the first brick that could not be read failed, as one sentence.
     pub failure: Option<String>,
 }
 
@@ -262,9 +273,13 @@ impl Placement3 {
 /// device (64 MiB at a time, host-visible memory to device-local).
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct Floor {
+    /// Store chunks the frame decoded.
     pub chunks: usize,
+    /// Their voxel bytes once decoded: the amount the upload floor copies.
     pub bytes: u64,
+    /// Milliseconds to decode them again in parallel on every core.
     pub decode_ms: f64,
+    /// Milliseconds to copy `bytes` from host-visible to device-local memory.
     pub upload_ms: f64,
 }
 

@@ -11,22 +11,29 @@ use vellum_error::{Error, Result};
 /// An image-space edge detector on the focus layer (TL4).
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub enum EdgeKind {
+    /// Thresholded Sobel gradient magnitude of the luminance (`sobel_threshold`).
     Sobel,
+    /// Difference of Gaussians with XDoG's soft threshold (the `dog_*` parameters).
     Dog,
+    /// Canny: non-maximum suppression, double threshold and hysteresis (the `canny_*` parameters).
     Canny,
 }
 
 /// Object-space lines (TL5).
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub enum LineKind {
+    /// Silhouettes of the isosurface: where n·v = 0.
     Silhouettes,
+    /// Suggestive contours: κ_r = 0 with D_w κ_r > t_d, on the front-facing surface.
     SuggestiveContours,
 }
 
 /// Abstraction of the context layer (TL6).
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub enum Abstraction {
+    /// The four-quadrant Kuwahara filter of radius `kuwahara_radius` pixels.
     Kuwahara,
+    /// Saturation variation of the context colours by the factor `saturation`.
     Saturation,
 }
 
@@ -37,8 +44,11 @@ pub struct StyleDef {
     pub number: u32,
     /// Its name: lower case, parts joined by `+`.
     pub name: &'static str,
+    /// The image-space edge detector run on the focus layer, if any.
     pub edges: Option<EdgeKind>,
+    /// The object-space lines drawn into the edge layer, if any.
     pub lines: Option<LineKind>,
+    /// The abstraction applied to the context layer, if any.
     pub abstraction: Option<Abstraction>,
 }
 
@@ -225,21 +235,29 @@ impl From<LineSmooth> for SmoothRepr {
 pub struct StyleParams {
     /// Edge colour (RGB in [0, 1]), opacity in [0, 1] and line width in pixels (1–15).
     pub edge_color: [f32; 3],
+    /// Edge opacity in [0, 1]: scales the edge strength into the line's alpha.
     pub edge_opacity: f32,
+    /// Edge line width in pixels, 1–15.
     pub edge_width: u32,
     /// Sobel: threshold on the normalised gradient magnitude, in [0, 1].
     pub sobel_threshold: f32,
     /// DoG: σ in pixels, the ratio k of the wider σ, XDoG's τ (1 = plain DoG), the threshold ε in
     /// [0, 1] and the sharpness φ of the soft threshold.
     pub dog_sigma: f32,
+    /// DoG: ratio k of the wider σ to `dog_sigma`, in (0, 8], with k·σ at most 16 pixels.
     pub dog_k: f32,
+    /// DoG: XDoG's τ in D = G_σ − τ·G_kσ, in (0, 2]; 1 is the plain DoG.
     pub dog_tau: f32,
+    /// DoG: threshold ε in [0, 1]; edges where D < −ε.
     pub dog_threshold: f32,
+    /// DoG: sharpness φ of the soft threshold tanh(φ·(−ε − D)), in (0, 10⁴].
     pub dog_phi: f32,
     /// Canny: smoothing σ in pixels, the high threshold in [0, 1], and the low one as a fraction
     /// of it.
     pub canny_sigma: f32,
+    /// Canny: high threshold on the normalised gradient magnitude, in [0, 1].
     pub canny_high: f32,
+    /// Canny: low threshold as a fraction of `canny_high`, in [0, 1].
     pub canny_low_ratio: f32,
     /// Kuwahara radius in pixels (1–16).
     pub kuwahara_radius: u32,
@@ -250,8 +268,11 @@ pub struct StyleParams {
     /// focus within which a line still shows, and the cell stride (1 all cells; 2 the cheaper
     /// interactive mode).
     pub line_angle: f32,
+    /// Object-space lines: t_d; a suggestive contour shows only where D_w κ_r > t_d.
     pub line_derivative_threshold: f32,
+    /// Object-space lines: how far behind the focus a line still shows, in voxels, in (0, 64].
     pub line_depth_bias: f32,
+    /// Object-space lines: cell stride of the extraction, 1–8 (1 all cells; 2 interactive).
     pub line_stride: u32,
     /// Draw both kinds of lines whatever the style's kind (`vellum lines --kind both`).
     pub line_both: bool,
@@ -378,7 +399,9 @@ impl StyleParams {
 /// A style with its parameters, ready to record.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct Style {
+    /// The style's entry in [`STYLES`].
     pub def: &'static StyleDef,
+    /// Its parameters, checked by [`StyleParams::validate`].
     pub params: StyleParams,
 }
 

@@ -5,19 +5,22 @@
 //! be sampled by passes recorded after the renderer's (edges, abstraction, lines).
 
 use crate::passes::lines::LineState;
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::profiler::PassTime;
 use vellum_gpu::transfer::{record_readback, staging_buffer};
+use vellum_gpu::Format;
 use vellum_gpu::{Buffer, BufferDesc, Context, Frame, Image, ImageDesc};
 
 /// Colour layers: premultiplied RGBA in float.
-pub const COLOR: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+// RGBA32F: many slices blend into each pixel, which 8 bits would band; EXR keeps the float.
+pub const COLOR: Format = Format::R32G32B32A32_SFLOAT;
 /// The linear focus depth.
-pub const LINEAR_DEPTH: vk::Format = vk::Format::R32_SFLOAT;
+// R32F: one distance a pixel (+inf where no focus), which the line raster tests against.
+pub const LINEAR_DEPTH: Format = Format::R32_SFLOAT;
 /// The depth-test buffer of the focus.
-pub const DEPTH: vk::Format = vk::Format::D32_SFLOAT;
+// D32F: float depth, so that the context pass's test against the focus keeps its precision.
+pub const DEPTH: Format = Format::D32_SFLOAT;
 
 /// Names of the layers, as in the EXR output and for [`FrameTargets::layer`].
 pub const LAYER_NAMES: [&str; 5] = [
@@ -30,10 +33,13 @@ pub const LAYER_NAMES: [&str; 5] = [
 
 /// The two-level layers.
 pub struct TargetLayers {
+    /// The focus level with Phong shading, specular included.
     pub focus_phong: Image,
+    /// The focus level with diffuse shading only, which the edge passes read.
     pub focus_diffuse: Image,
     /// Linear depth of the nearest focus sample (+inf where none).
     pub focus_depth: Image,
+    /// The context level: every other sample, depth-tested against the focus.
     pub context: Image,
     /// D32 depth of the nearest focus sample, tested by the context pass.
     pub depth: Image,
@@ -41,8 +47,12 @@ pub struct TargetLayers {
 
 /// The images of one size.
 pub struct TargetImages {
+    /// Width and height in pixels, of every image here.
     pub size: [u32; 2],
+    /// The frame as shown: the context over the focus, the one pass's image, or the style's
+    /// composite.
     pub composite: Image,
+    /// The two-level layers, from the first two-level frame at this size on.
     pub layers: Option<TargetLayers>,
     /// The style passes' images, from the first styled frame on.
     pub post: Option<PostTargets>,
@@ -132,16 +142,13 @@ impl ViewState {
     }
 }
 
-fn target(ctx: &Arc<Context>, name: &str, format: vk::Format, [w, h]: [u32; 2]) -> Result<Image> {
-    let usage = if format == DEPTH {
-        vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT
+fn target(ctx: &Arc<Context>, name: &str, format: Format, [w, h]: [u32; 2]) -> Result<Image> {
+    let desc = if format == DEPTH {
+        ImageDesc::depth_target(format, [w, h])
     } else {
-        vk::ImageUsageFlags::COLOR_ATTACHMENT
-            | vk::ImageUsageFlags::SAMPLED
-            | vk::ImageUsageFlags::STORAGE
-            | vk::ImageUsageFlags::TRANSFER_SRC
+        ImageDesc::color_target(format, [w, h])
     };
-    Image::new(ctx, name, &ImageDesc::new_2d(format, [w, h]).usage(usage))
+    Image::new(ctx, name, &desc)
 }
 
 impl FrameTargets {
@@ -312,12 +319,15 @@ pub const HYSTERESIS_PASSES: u32 = 16;
 
 /// The images the post passes work in, for one size.
 pub struct PostTargets {
+    /// Width and height in pixels.
     pub size: [u32; 2],
     /// Luminance of focus.diffuse.
     pub luminance: Image,
     /// Blur scratch and results.
     pub tmp: Image,
+    /// The first Gaussian blur of the luminance: DoG's narrow one, Canny's smoothing.
     pub blur_a: Image,
+    /// The second blur, DoG's wide one (σ · k).
     pub blur_b: Image,
     /// Sobel gradient (gx, gy, normalised magnitude).
     pub gradient: Image,
@@ -332,17 +342,12 @@ pub struct PostTargets {
 impl PostTargets {
     /// Allocates the images for `size`.
     pub fn new(ctx: &Arc<Context>, size: [u32; 2]) -> Result<Self> {
-        let desc = |format| {
-            ImageDesc::new_2d(format, size).usage(
-                vk::ImageUsageFlags::STORAGE
-                    | vk::ImageUsageFlags::SAMPLED
-                    | vk::ImageUsageFlags::TRANSFER_SRC
-                    | vk::ImageUsageFlags::TRANSFER_DST,
-            )
-        };
+        let desc = |format| ImageDesc::storage_2d(format, size);
         let image = |name: &str, format| Image::new(ctx, name, &desc(format));
-        let r32 = vk::Format::R32_SFLOAT;
-        let rgba = vk::Format::R32G32B32A32_SFLOAT;
+        // R32F for the one-channel images (luminance, blurs, edges), RGBA32F for the gradient and
+        // the abstracted context: float, as the layers they are computed from.
+        let r32 = Format::R32_SFLOAT;
+        let rgba = Format::R32G32B32A32_SFLOAT;
         Ok(PostTargets {
             size,
             luminance: image("post.luminance", r32)?,
@@ -352,7 +357,7 @@ impl PostTargets {
             gradient: image("post.gradient", rgba)?,
             // Lines are drawn into the edges with atomic max on the R32_UINT view: coverage is a
             // non-negative float, whose bits order as unsigned integers do.
-            edges: Image::new(ctx, "post.edges", &desc(r32).alias(vk::Format::R32_UINT))?,
+            edges: Image::new(ctx, "post.edges", &desc(r32).alias(Format::R32_UINT))?,
             context: image("post.context", rgba)?,
             changed: Buffer::new(
                 ctx,
@@ -374,16 +379,20 @@ impl PostTargets {
 /// The layers of a two-level frame, premultiplied RGBA rows top to bottom.
 #[derive(Clone, Debug)]
 pub struct Layers {
+    /// The focus level with Phong shading.
     pub focus_phong: Vec<[f32; 4]>,
+    /// The focus level with diffuse shading only.
     pub focus_diffuse: Vec<[f32; 4]>,
     /// Distance along the view direction of the nearest focus sample; +inf where there is none.
     pub focus_depth: Vec<f32>,
+    /// The context level.
     pub context: Vec<[f32; 4]>,
 }
 
 /// A rendered frame on the host: what a readback brings back.
 #[derive(Clone, Debug)]
 pub struct FrameImage {
+    /// Width and height in pixels.
     pub size: [u32; 2],
     /// Premultiplied RGBA over transparent black (empty when not read back).
     pub composite: Vec<[f32; 4]>,
@@ -391,6 +400,7 @@ pub struct FrameImage {
     pub layers: Option<Layers>,
     /// GPU ms of `focus`, `context`, `composite` or `one_pass`, and `readback` when read back.
     pub passes: Vec<PassTime>,
+    /// Planes drawn (or sampled by the rays).
     pub slices: u32,
     /// The geometry the frame's object-space lines were drawn with (styles with lines).
     pub lines: Option<crate::passes::lines::RasterView>,

@@ -19,8 +19,11 @@ use vellum_volume::geometry::Geometry;
 #[derive(Copy, Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Lighting {
+    /// Ambient coefficient k_a, at least 0.
     pub ambient: f32,
+    /// Diffuse coefficient k_d, at least 0.
     pub diffuse: f32,
+    /// Specular coefficient k_s, at least 0.
     pub specular: f32,
     /// Specular exponent.
     pub shininess: f32,
@@ -54,11 +57,15 @@ impl Lighting {
 /// What a frame looks at and how: everything but the volume and its classification.
 #[derive(Clone, Debug, PartialEq)]
 pub struct View {
+    /// The camera around the volume's box (its distance replaced when `fit`).
     pub camera: Camera,
+    /// The image size in pixels, width and height.
     pub size: [u32; 2],
     /// Number of slice planes; `None` picks about two per voxel along the longest axis.
     pub slices: Option<u32>,
+    /// Draw one level, all context, instead of the two levels (focus and context) and their layers.
     pub one_pass: bool,
+    /// The Phong headlight's coefficients.
     pub lighting: Lighting,
     /// A perceptual style (two-level frames only), recorded after the levels.
     pub style: Option<Style>,
@@ -228,6 +235,7 @@ pub fn frame_camera(bx: &WorldBox, view: &View) -> Camera {
 /// in the box frame.
 #[derive(Copy, Clone, Debug)]
 pub struct FrameCamera {
+    /// The view's camera, its distance fitted to the box when `View::fit`.
     pub camera: Camera,
     /// Width over height.
     pub aspect: f32,

@@ -33,7 +33,9 @@ unsafe impl Sync for Lines {}
 
 /// Plans for one padded size.
 pub struct CpuFft {
+    /// The padded size (Px, Py, Pz) in voxels that the plans transform.
     pub pad: [usize; 3],
+    /// Px/2 + 1: the number of x coefficients a real-to-complex row keeps.
     pub half: usize,
     r2c: Arc<dyn RealToComplex<f32>>,
     c2r: Arc<dyn ComplexToReal<f32>>,
@@ -43,11 +45,15 @@ pub struct CpuFft {
 
 /// A half spectrum and the padded size it belongs to.
 pub struct HalfSpectrum {
+    /// The padded size (Px, Py, Pz) it was transformed at.
     pub pad: [usize; 3],
+    /// The half·Py·Pz coefficients, x fastest (`s[kx + half·(y + Py·z)]`); z is untransformed when
+    /// [`CpuFft::forward`] ran without `full`.
     pub data: Vec<Complex32>,
 }
 
 impl CpuFft {
+    /// Plans the x, y and z transforms, forward and inverse, for the padded size `pad`.
     pub fn new(pad: [usize; 3]) -> Self {
         let mut real = RealFftPlanner::<f32>::new();
         let mut complex = rustfft::FftPlanner::<f32>::new();

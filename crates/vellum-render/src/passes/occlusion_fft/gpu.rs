@@ -17,36 +17,56 @@
 //! 5. `fft_x_inverse`: two sampled rows per complex transform, then the exact denominator.
 
 use super::{check_pad, reach, Denominator, Kernel};
-use ash::vk;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::{
     Access, Bind, BindingKind, Buffer, ComputePipeline, Context, Frame, Image, ImageDesc,
 };
+use vellum_gpu::{CommandBuffer, Format};
 
 /// Push constants of the FFT passes (GLSL twin: `FftPush` in occlusion.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct FftPush {
+    /// Volume size N in voxels.
     pub dims: [i32; 3],
+    /// `fft_x`: 0 data, 1 ball kernel, 2 Gaussian kernel; `fft_z`: 0 kernel spectrum, 1 convolve.
     pub mode: i32,
+    /// Transform size P per axis.
     pub pad: [i32; 3],
+    /// R in voxels.
     pub radius: i32,
+    /// Rows (y) and planes (z) that hold data; those at or beyond are read as zero.
     pub live: [i32; 3],
+    /// Output voxel o samples voxel o · stride.
     pub stride: i32,
+    /// min(R, N − 1) per axis: how far the kernel reaches within the volume.
     pub reach: [i32; 3],
+    /// Length of this pass's transforms (P along its axis).
     pub n: i32,
+    /// Output size: N / stride, rounded up.
     pub out_dims: [i32; 3],
+    /// Radix stages of a transform of length n.
     pub stages: i32,
+    /// Radices of stages 0–7, 4 bits each, stage 0 in the lowest bits.
     pub radices0: i32,
+    /// Radices of stages 8–15, packed as `radices0`.
     pub radices1: i32,
+    /// Index in the twiddle table of the first twiddle of length n.
     pub twiddle_base: i32,
+    /// The visibility mapping M: 0 linear ramp, 1 truncated ramp, 2 a transfer function's opacity.
     pub mapping: i32,
+    /// The truncated ramp's lower cut-off, in normalised intensity.
     pub t0: f32,
+    /// The truncated ramp's upper cut-off, in normalised intensity.
     pub t1: f32,
+    /// 1 / (Px · Py · Pz): the normalisation of the inverse transform.
     pub norm: f32,
+    /// −1 forward, +1 inverse: the sign of the twiddles' exponent.
     pub dir: f32,
+    /// Boundary classes per axis of the exact denominator's table.
     pub classes: [i32; 3],
+    /// Padding to 128 bytes, a multiple of the block's 16-byte std430 alignment.
     pub pad0: i32,
 }
 
@@ -123,6 +143,7 @@ pub fn unavailable(ctx: &Context) -> Option<String> {
 }
 
 impl FftGpu {
+    /// Builds the four pipelines; refused where [`unavailable`] gives a reason.
     pub fn new(ctx: &Arc<Context>) -> Result<Self> {
         if let Some(why) = unavailable(ctx) {
             return Err(Error::Invalid(why));
@@ -194,9 +215,13 @@ impl FftGpu {
 /// The images and tables of one FFT occlusion configuration (dims, pad, kernel, stride). The
 /// kernel spectrum is computed by the first recording and kept for the next.
 pub struct FftWork {
+    /// Volume size N in voxels.
     pub dims: [usize; 3],
+    /// Transform size P per axis.
     pub pad: [usize; 3],
+    /// The neighbourhood's kernel, whose spectrum is kept once recorded.
     pub kernel: Kernel,
+    /// Output voxel o samples voxel o · stride.
     pub stride: usize,
     spectrum: Image,
     kernel_hat: Image,
@@ -211,6 +236,8 @@ pub struct FftWork {
 }
 
 impl FftWork {
+    /// Allocates the images and tables for `dims` padded to `pad` (twiddles, radix plans, the exact
+    /// denominator); refused where [`FftGpu::check`] refuses.
     pub fn new(
         ctx: &Arc<Context>,
         dims: [usize; 3],
@@ -261,24 +288,20 @@ impl FftWork {
             pad,
             kernel,
             stride,
-            spectrum: image("fft spectrum", vk::Format::R32G32_SFLOAT, [half, py, pz])?,
-            kernel_hat: image(
-                "fft kernel spectrum",
-                vk::Format::R32_SFLOAT,
-                [half, py, pz],
-            )?,
-            result: image("fft result", vk::Format::R32G32_SFLOAT, [half, py, nzo])?,
-            twiddles: Buffer::from_bytes(
+            // RG32F: the half spectrum and the result are complex floats (re, im).
+            // R32F: the kernel is real and even, so its spectrum is real.
+            spectrum: image("fft spectrum", Format::R32G32_SFLOAT, [half, py, pz])?,
+            kernel_hat: image("fft kernel spectrum", Format::R32_SFLOAT, [half, py, pz])?,
+            result: image("fft result", Format::R32G32_SFLOAT, [half, py, nzo])?,
+            twiddles: Buffer::storage_from_bytes(
                 ctx,
                 "fft twiddles",
-                vk::BufferUsageFlags::STORAGE_BUFFER,
                 bytemuck::cast_slice(&table),
             )?,
             lengths,
-            den: Buffer::from_bytes(
+            den: Buffer::storage_from_bytes(
                 ctx,
                 "fft denominator",
-                vk::BufferUsageFlags::STORAGE_BUFFER,
                 bytemuck::cast_slice(&den_words),
             )?,
             classes: den.classes,
@@ -294,8 +317,11 @@ impl FftWork {
 
 /// The visibility mapping as push-constant fields (mapping, t0, t1).
 pub struct Mapping {
+    /// 0 linear ramp, 1 truncated ramp, 2 a transfer function's opacity (the visibility table).
     pub mapping: i32,
+    /// The truncated ramp's lower cut-off, in normalised intensity.
     pub t0: f32,
+    /// The truncated ramp's upper cut-off, in normalised intensity.
     pub t1: f32,
 }
 
@@ -332,7 +358,7 @@ impl FftGpu {
     /// 2, every row live) or of M (`mode` 0, rows and planes beyond the volume left unwritten).
     fn forward_xy(
         &self,
-        cmd: vk::CommandBuffer,
+        cmd: CommandBuffer,
         w: &FftWork,
         input: &MappedInput,
         mode: i32,
@@ -380,7 +406,7 @@ impl FftGpu {
     /// Records `fft_z` in `mode` 0 (kernel spectrum) or 1 (convolve into `result`).
     fn z_pass(
         &self,
-        cmd: vk::CommandBuffer,
+        cmd: CommandBuffer,
         w: &FftWork,
         mapping: &Mapping,
         mode: i32,

@@ -39,6 +39,7 @@ pub enum Kernel {
 }
 
 impl Kernel {
+    /// The kernel of `neighbourhood` with radius R = `radius` in voxels.
     pub fn new(neighbourhood: Neighbourhood, radius: u32) -> Self {
         match neighbourhood {
             Neighbourhood::Ball => Kernel::Ball(radius),
@@ -46,6 +47,7 @@ impl Kernel {
         }
     }
 
+    /// Its radius R in voxels.
     pub fn radius(&self) -> u32 {
         match *self {
             Kernel::Ball(r) | Kernel::Gaussian(r) => r,
@@ -123,6 +125,7 @@ pub struct Denominator {
     pub class: [Vec<u32>; 3],
     /// Number of classes per axis.
     pub classes: [usize; 3],
+    /// The in-volume kernel weight of every triple of classes, the x class fastest.
     pub table: Vec<f32>,
 }
 
@@ -168,6 +171,7 @@ fn isqrt(n: i64) -> i64 {
 }
 
 impl Denominator {
+    /// Tabulates the exact denominator of `kernel` for a volume of `dims` voxels.
     pub fn new(dims: [usize; 3], kernel: Kernel) -> Self {
         let r = kernel.radius();
         let axes: [AxisClasses; 3] = [0, 1, 2].map(|a| axis_classes(dims[a], reach(r, dims[a])));
