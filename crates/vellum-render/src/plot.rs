@@ -165,7 +165,7 @@ pub fn heat(t: f64) -> [u8; 3] {
 }
 
 /// Distinct line colours for plots.
-pub const PALETTE: [[u8; 3]; 8] = [
+pub(crate) const PALETTE: [[u8; 3]; 8] = [
     [31, 119, 180],
     [255, 127, 14],
     [44, 160, 44],
@@ -220,7 +220,7 @@ pub fn histogram_2d(
 }
 
 /// Axes with ticks at 0, ¼, ½, ¾ and 1 of each range around the plot area (x0, y0, w, h).
-pub fn axes(
+pub(crate) fn axes(
     c: &mut Canvas,
     (x0, y0, w, h): (usize, usize, usize, usize),
     x_label: &str,

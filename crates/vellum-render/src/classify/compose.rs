@@ -91,7 +91,7 @@ fn check(map: &FeatureMap, range: [f64; 2]) -> Result<()> {
 
 /// The occlusion TF `otf` (a 256 × 256 table over the original data, `otf[o * 256 + s]`) and
 /// the feature map `map` as one table over the feature volume whose data range is `range`.
-pub fn composed_table(
+pub(crate) fn composed_table(
     map: &FeatureMap,
     otf: &[[f32; 4]],
     range: [f64; 2],
@@ -144,7 +144,7 @@ fn along_intensity(row: &[[f32; 4]], u: f32) -> [f32; 4] {
 /// The visibility mapping of the occlusion pass on the feature volume whose data range is
 /// `range`: `original` (the occlusion TF's mapping on the data before migration) at each value's
 /// original intensity, so the occlusion volume is the original data's.
-pub fn composed_visibility(
+pub(crate) fn composed_visibility(
     map: &FeatureMap,
     original: &Visibility,
     range: [f64; 2],

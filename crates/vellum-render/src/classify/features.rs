@@ -5,14 +5,14 @@
 //! (0 = its minimum, 1 = its maximum). It has one band per private interval and one for the
 //! context (the unmigrated data, [`FeatureMap::context_range`]):
 //! - the context is a faint grey whose opacity ramps from 0 (the lowest tenth of the context range,
-//!   usually background) up to [`CONTEXT_OPACITY`];
-//! - each feature has its colour at [`FEATURE_OPACITY`] per voxel across its interval;
+//!   usually background) up to `CONTEXT_OPACITY`;
+//! - each feature has its colour at `FEATURE_OPACITY` per voxel across its interval;
 //! - bands begin with a step exactly at their lower edge, and end with a step halfway across the gap
 //!   to the next band (the last one holds to 1). Fuzzy-boundary voxels that eq. 5 shifted a little
 //!   past the top of an interval thus keep their feature's colour, and the gaps stay transparent
 //!   where it matters: between the context and a feature's lower edge.
 //!
-//! A feature narrower than [`MIN_FEATURE_WIDTH`] (a segmentation of one intensity has an interval
+//! A feature narrower than `MIN_FEATURE_WIDTH` (a segmentation of one intensity has an interval
 //! of zero width) is widened downwards into its gap, never past the gap's middle, so that the
 //! renderer's 256-entry table still has bins of its colour. Transparent points carry the colour of
 //! the band next to them, so texture filtering across a step never blends in black.
@@ -22,14 +22,14 @@ use vellum_error::{Error, Result};
 use vellum_volume::feature::FeatureMap;
 
 /// Opacity per voxel-length sample inside a feature's interval.
-pub const FEATURE_OPACITY: f32 = 0.8;
+pub(crate) const FEATURE_OPACITY: f32 = 0.8;
 /// Opacity per voxel-length sample at the top of the context range.
-pub const CONTEXT_OPACITY: f32 = 0.03;
+pub(crate) const CONTEXT_OPACITY: f32 = 0.03;
 /// Colour of the context.
-pub const CONTEXT_GREY: [f32; 3] = [0.8, 0.8, 0.8];
+pub(crate) const CONTEXT_GREY: [f32; 3] = [0.8, 0.8, 0.8];
 /// Narrowest feature band on the normalised range: two bins of the 256-entry table the renderer
 /// samples the function into.
-pub const MIN_FEATURE_WIDTH: f32 = 2.0 / 256.0;
+pub(crate) const MIN_FEATURE_WIDTH: f32 = 2.0 / 256.0;
 
 /// A band of the function on the normalised range.
 struct Band {

@@ -5,7 +5,7 @@
 //! It sits beneath both `passes/` and `render/` and holds:
 //! - the data: 1D transfer functions ([`transfer`]), occlusion transfer functions ([`otf`]) and
 //!   their visibility mappings ([`mapping`]), feature-map transfer functions ([`features`]) and
-//!   their composition with an occlusion transfer function ([`compose`]), the
+//!   their composition with an occlusion transfer function (`compose`), the
 //!   focus of a two-level frame ([`Focus`]) and importance modulation ([`modulation`]);
 //! - their persistent GPU state ([`textures::GpuClassification`]): textures re-uploaded only when
 //!   their contents change, focus and modulation as per-frame uniforms;
@@ -16,7 +16,7 @@
 //! Command-line grammar (`--focus LO:HI`, `tf:FILE`) is parsed by the binary; this layer takes
 //! typed values. File formats (transfer-function and occlusion-TF JSON) are parsed here.
 
-pub mod compose;
+pub(crate) mod compose;
 pub mod features;
 pub mod mapping;
 pub mod modulation;
@@ -51,7 +51,7 @@ pub enum Focus {
 impl Focus {
     /// (lo, hi, mode) on the normalised range of `data_range`; mode 0 none, 1 range, 2 iso (the
     /// `focus` uniform of the shaders).
-    pub fn normalised(&self, data_range: [f64; 2]) -> [f32; 3] {
+    pub(crate) fn normalised(&self, data_range: [f64; 2]) -> [f32; 3] {
         let n = |v: f64| {
             if data_range[1] > data_range[0] {
                 ((v - data_range[0]) / (data_range[1] - data_range[0])) as f32
@@ -117,7 +117,7 @@ pub enum Classification {
     Features(FeatureMap),
     /// An occlusion transfer function; its occlusion volume is computed when a scene is prepared.
     Occlusion(OcclusionTf),
-    /// A feature map composed with an occlusion transfer function ([`compose`]): the features in
+    /// A feature map composed with an occlusion transfer function (`compose`): the features in
     /// their colours, the context by intensity and occlusion.
     Composed(FeatureMap, OcclusionTf),
 }

@@ -205,14 +205,6 @@ impl Modulation {
         Ok(())
     }
 
-    /// Whether a sample of the focus level (`focus`) or of the context is modulated.
-    pub fn applies(&self, focus: bool) -> bool {
-        match self.apply_to {
-            ApplyTo::Both => true,
-            ApplyTo::Focus => focus,
-            ApplyTo::Context => !focus,
-        }
-    }
 }
 
 /// Eq. 3 / eq. 4: `rgb` plus ΔD·γ (or |ΔD|·γ) in every channel, floored at 0.
@@ -242,10 +234,10 @@ pub fn stipple_is_white(n: f32, r: f32, s: &Stipple) -> bool {
 
 /// Sub-voxel steps per voxel of the stipple grid: a sample's random number depends on its
 /// position quantised to 1/16 voxel, so that it is the same wherever the same point is sampled.
-pub const STIPPLE_GRID: f32 = 16.0;
+pub(crate) const STIPPLE_GRID: f32 = 16.0;
 
 /// PCG3D (Jarzynski and Olano 2020, "Hash functions for GPU rendering"), as in classify.glsl.
-pub fn pcg3d(v: [u32; 3]) -> [u32; 3] {
+pub(crate) fn pcg3d(v: [u32; 3]) -> [u32; 3] {
     let [mut x, mut y, mut z] = v.map(|c| c.wrapping_mul(1664525).wrapping_add(1013904223));
     x = x.wrapping_add(y.wrapping_mul(z));
     y = y.wrapping_add(z.wrapping_mul(x));

@@ -23,12 +23,12 @@ use std::path::Path;
 use vellum_error::{Error, Result};
 
 /// The largest occlusion radius in voxels, and output stride, the occlusion pass takes.
-pub const MAX_OCCLUSION_RADIUS: u32 = 1024;
+pub(crate) const MAX_OCCLUSION_RADIUS: u32 = 1024;
 /// The largest output stride of the occlusion volume, in voxels.
-pub const MAX_OCCLUSION_STRIDE: u32 = 64;
+pub(crate) const MAX_OCCLUSION_STRIDE: u32 = 64;
 
 /// Table size along intensity and occlusion.
-pub const TABLE_SIZE: usize = 256;
+pub(crate) const TABLE_SIZE: usize = 256;
 
 /// A Gaussian occlusion curve of the decoupled model.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -174,7 +174,7 @@ impl OcclusionTf {
     }
 
     /// α_o(s, O) of the decoupled model: the largest curve response over curves spanning s, or 1.
-    pub fn occlusion_opacity(&self, s: f32, o: f32) -> f32 {
+    pub(crate) fn occlusion_opacity(&self, s: f32, o: f32) -> f32 {
         let spanning: Vec<&Curve> = self
             .curves
             .iter()
@@ -237,7 +237,7 @@ impl OcclusionTf {
     }
 
     /// The stride to compute occlusion at (explicit, or radius / 16 and at least 1).
-    pub fn effective_stride(&self) -> u32 {
+    pub(crate) fn effective_stride(&self) -> u32 {
         if self.stride > 0 {
             self.stride
         } else {

@@ -15,9 +15,9 @@ use vellum_gpu::Format;
 use vellum_gpu::{Access, Context, Frame, Image, ImageDesc};
 
 /// Entries of the 1D transfer-function table.
-pub const TF_SIZE: usize = 256;
+pub(crate) const TF_SIZE: usize = 256;
 /// Entries along each axis of the occlusion transfer-function table.
-pub const OTF_SIZE: usize = crate::classify::otf::TABLE_SIZE;
+pub(crate) const OTF_SIZE: usize = crate::classify::otf::TABLE_SIZE;
 
 // RGBA32F: the tables' float RGBA as computed on the host; 8 bits would flatten low opacities.
 const FORMAT: Format = Format::R32G32B32A32_SFLOAT;
@@ -129,12 +129,12 @@ impl GpuClassification {
     }
 
     /// The 1D table as uploaded (for empty-space decisions on the CPU).
-    pub fn transfer_table(&self) -> &[[f32; 4]] {
+    pub(crate) fn transfer_table(&self) -> &[[f32; 4]] {
         &self.transfer.texels
     }
 
     /// Whether the occlusion transfer function replaces the 1D one.
-    pub fn uses_occlusion(&self) -> bool {
+    pub(crate) fn uses_occlusion(&self) -> bool {
         self.uses_occlusion
     }
 
@@ -147,12 +147,12 @@ impl GpuClassification {
     }
 
     /// The 1D transfer-function texture.
-    pub fn transfer_image(&self) -> &Image {
+    pub(crate) fn transfer_image(&self) -> &Image {
         &self.transfer.image
     }
 
     /// The occlusion transfer-function texture (a stand-in when none is set).
-    pub fn occlusion_image(&self) -> &Image {
+    pub(crate) fn occlusion_image(&self) -> &Image {
         &self.occlusion.image
     }
 }

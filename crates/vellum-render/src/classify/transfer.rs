@@ -4,7 +4,7 @@
 //! 1 its maximum, so one preset serves 8- and 16-bit data alike. Between points the function is
 //! piecewise linear; outside them it is clamped to the end points. Colours are straight (not
 //! premultiplied) linear RGB. Alpha is the opacity of one sample at the reference sampling distance
-//! of one voxel; renderers that sample at another spacing apply [`correct_opacity`].
+//! of one voxel; renderers that sample at another spacing apply `correct_opacity`.
 
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -206,7 +206,8 @@ impl TransferFunction {
 /// Graphics*, 2006): it keeps the accumulated opacity along a ray
 /// independent of how finely the ray is sampled. `ratio` = actual sample distance / reference
 /// distance (one voxel).
-pub fn correct_opacity(alpha: f32, ratio: f32) -> f32 {
+#[cfg(test)]
+pub(crate) fn correct_opacity(alpha: f32, ratio: f32) -> f32 {
     1.0 - (1.0 - alpha.clamp(0.0, 1.0)).powf(ratio)
 }
 

@@ -4,7 +4,7 @@
 //! voxel sits low on the ramp. `auto` spans instead the 1st to the 99.5th percentile of the voxels
 //! above the background, the way a radiology viewer's first window-level does.
 //!
-//! **Background** is the bottom [`BACKGROUND`] of the data range (air in CT, noise outside the head
+//! **Background** is the bottom `BACKGROUND` of the data range (air in CT, noise outside the head
 //! in MRI). The percentiles are taken over the remaining voxels, from a 4096-bin histogram.
 //! A volume with no voxel above its background (a constant, or a mask of zeros) gets the whole
 //! range.
@@ -17,14 +17,14 @@ use vellum_volume::Volume;
 /// The name of the default transfer function.
 pub const AUTO: &str = "auto";
 /// The fraction of the data range, from its minimum up, that counts as background.
-pub const BACKGROUND: f64 = 0.02;
+pub(crate) const BACKGROUND: f64 = 0.02;
 /// The percentiles of the content that bound the window.
-pub const PERCENTILES: [f64; 2] = [0.01, 0.995];
+pub(crate) const PERCENTILES: [f64; 2] = [0.01, 0.995];
 const BINS: usize = 4096;
 
 /// The window [lo, hi] on the normalised range of `range` = [min, max]: the [`PERCENTILES`] of
 /// the voxels of `v` above the background.
-pub fn auto_window(v: &Volume, range: [f64; 2]) -> [f32; 2] {
+pub(crate) fn auto_window(v: &Volume, range: [f64; 2]) -> [f32; 2] {
     let width = range[1] - range[0];
     if width.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return [0.0, 1.0];
@@ -79,7 +79,7 @@ const RAMP_POINTS: usize = 16;
 /// soft tissue low in the window is lit rather than dark (on three real volumes the content's
 /// mean luminance is 2.2–3.6 times that of the plain `grey` ramp, BENCHMARKS.md); opaque white
 /// above `hi`.
-pub fn grey_window([lo, hi]: [f32; 2]) -> Result<TransferFunction> {
+pub(crate) fn grey_window([lo, hi]: [f32; 2]) -> Result<TransferFunction> {
     let hi = hi.min(1.0);
     // No point twice at one x (the viewer's editor drags one point at a time): the ends of the
     // range get points of their own only outside the window.

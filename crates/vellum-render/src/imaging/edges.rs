@@ -5,7 +5,7 @@
 use super::{blur, Plane};
 
 /// Sobel gradient (gx, gy) at (x, y): x to the right, y down the image.
-pub fn sobel_at(p: &Plane, x: i64, y: i64) -> (f32, f32) {
+pub(crate) fn sobel_at(p: &Plane, x: i64, y: i64) -> (f32, f32) {
     let v = |dx: i64, dy: i64| p.at(x + dx, y + dy);
     let gx = (v(1, -1) + 2.0 * v(1, 0) + v(1, 1)) - (v(-1, -1) + 2.0 * v(-1, 0) + v(-1, 1));
     let gy = (v(-1, 1) + 2.0 * v(0, 1) + v(1, 1)) - (v(-1, -1) + 2.0 * v(0, -1) + v(1, -1));
@@ -13,7 +13,7 @@ pub fn sobel_at(p: &Plane, x: i64, y: i64) -> (f32, f32) {
 }
 
 /// The largest Sobel magnitude of an image in [0, 1]: magnitudes are divided by it.
-pub const SOBEL_MAX: f32 = 4.0 * std::f32::consts::SQRT_2;
+pub(crate) const SOBEL_MAX: f32 = 4.0 * std::f32::consts::SQRT_2;
 
 /// Sobel magnitude, normalised to [0, 1].
 pub fn sobel_magnitude(p: &Plane) -> Plane {
@@ -53,7 +53,7 @@ pub struct DogParams {
 
 /// DoG edge strength: tanh(φ·(−ε − D)) where D = G_σ − τ·G_kσ < −ε, else 0 (XDoG's soft
 /// threshold, Winnemöller 2011, as an edge strength).
-pub fn dog_strength(d: f32, p: &DogParams) -> f32 {
+pub(crate) fn dog_strength(d: f32, p: &DogParams) -> f32 {
     let u = -p.threshold - d;
     if u > 0.0 {
         (p.phi * u).tanh()
@@ -89,7 +89,7 @@ const TAN_22_5: f32 = 0.414_213_57;
 const TAN_67_5: f32 = 2.414_213_6;
 
 /// The two neighbour offsets along the gradient direction, quantised to 0°, 45°, 90° or 135°.
-pub fn gradient_neighbours(gx: f32, gy: f32) -> [(i64, i64); 2] {
+pub(crate) fn gradient_neighbours(gx: f32, gy: f32) -> [(i64, i64); 2] {
     let (ax, ay) = (gx.abs(), gy.abs());
     if ay <= TAN_22_5 * ax {
         [(1, 0), (-1, 0)]
@@ -105,7 +105,7 @@ pub fn gradient_neighbours(gx: f32, gy: f32) -> [(i64, i64); 2] {
 /// Canny classes before hysteresis: 2 strong, 1 weak, 0 none (non-maximum suppression and the
 /// double threshold). A pixel survives suppression when its magnitude is greater than its first
 /// neighbour along the gradient and at least its second, so plateaus keep one side.
-pub fn canny_classes(luminance: &Plane, p: &CannyParams) -> Plane {
+pub(crate) fn canny_classes(luminance: &Plane, p: &CannyParams) -> Plane {
     let smooth = blur(luminance, p.sigma);
     let (w, h) = (smooth.width, smooth.height);
     let mut grad = vec![(0.0f32, 0.0f32, 0.0f32); w * h];
@@ -138,7 +138,7 @@ pub fn canny_classes(luminance: &Plane, p: &CannyParams) -> Plane {
 }
 
 /// Hysteresis: weak pixels 8-connected to a strong one become strong; then 1 for strong, 0 else.
-pub fn hysteresis(classes: &Plane) -> Plane {
+pub(crate) fn hysteresis(classes: &Plane) -> Plane {
     let (w, h) = (classes.width, classes.height);
     let mut state = classes.data.clone();
     let mut stack: Vec<usize> = (0..w * h).filter(|&i| state[i] == 2.0).collect();

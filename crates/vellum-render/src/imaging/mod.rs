@@ -40,10 +40,10 @@ impl Plane {
 }
 
 /// Rec. 709 luma weights, applied to premultiplied colour (the layer over black).
-pub const LUMA: [f32; 3] = [0.2126, 0.7152, 0.0722];
+pub(crate) const LUMA: [f32; 3] = [0.2126, 0.7152, 0.0722];
 
 /// Luminance of a premultiplied RGBA pixel.
-pub fn luminance(p: [f32; 4]) -> f32 {
+pub(crate) fn luminance(p: [f32; 4]) -> f32 {
     LUMA[0] * p[0] + LUMA[1] * p[1] + LUMA[2] * p[2]
 }
 
@@ -58,7 +58,7 @@ pub fn luminance_plane(rgba: &[[f32; 4]], width: usize, height: usize) -> Plane 
 
 /// Normalised 1D Gaussian weights for σ (pixels) over −r..=r with r = ⌈3σ⌉, the same taps the
 /// blur shader computes.
-pub fn gaussian_weights(sigma: f32) -> Vec<f32> {
+pub(crate) fn gaussian_weights(sigma: f32) -> Vec<f32> {
     let r = (3.0 * sigma).ceil().max(1.0) as i64;
     let w: Vec<f32> = (-r..=r)
         .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
@@ -68,7 +68,7 @@ pub fn gaussian_weights(sigma: f32) -> Vec<f32> {
 }
 
 /// Separable Gaussian blur of `p` with σ in pixels (clamped borders), x then y.
-pub fn blur(p: &Plane, sigma: f32) -> Plane {
+pub(crate) fn blur(p: &Plane, sigma: f32) -> Plane {
     let w = gaussian_weights(sigma);
     let r = (w.len() / 2) as i64;
     let pass = |src: &Plane, dx: i64, dy: i64| {

@@ -97,7 +97,7 @@ fn combine(a: &Plane, b: &Plane, f: impl Fn(f32, f32) -> f32) -> Plane {
 }
 
 /// The normalisation operator N(·).
-pub fn normalise(p: &Plane) -> Plane {
+pub(crate) fn normalise(p: &Plane) -> Plane {
     let max = p.data.iter().copied().fold(0.0f32, f32::max);
     if max <= 0.0 {
         return p.clone();

@@ -2,7 +2,9 @@
 //! premultiplied RGBA: the classic four-quadrant Kuwahara filter, saturation variation, and edges
 //! laid over the focus under the context.
 
-use super::{luminance, Plane, LUMA};
+use super::{luminance, Plane};
+#[cfg(test)]
+use super::LUMA;
 
 /// Classic Kuwahara filter of radius `r`: each pixel takes the mean colour of whichever of its four
 /// (r+1)×(r+1) quadrants (top-left, top-right, bottom-left, bottom-right, each including the pixel's
@@ -53,7 +55,8 @@ pub fn saturate(p: [f32; 4], factor: f32) -> [f32; 4] {
 }
 
 /// Sum of the luma weights, so that `saturate` keeps luminance exactly.
-pub const LUMA_SUM: f32 = LUMA[0] + LUMA[1] + LUMA[2];
+#[cfg(test)]
+pub(crate) const LUMA_SUM: f32 = LUMA[0] + LUMA[1] + LUMA[2];
 
 /// How edges are drawn.
 #[derive(Copy, Clone, Debug, PartialEq)]

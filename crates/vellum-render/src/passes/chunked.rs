@@ -91,7 +91,7 @@ fn box_bytes(dims: [usize; 3], c: usize, halo: usize, bytes_per_voxel: u64) -> u
 /// The largest chunk edge whose box with `halo`, at `bytes_per_voxel`, fits `budget` twice (one
 /// chunk in its pass, one being written), at most the grid's longest axis; one sentence when
 /// not even the smallest fits.
-pub fn chunk_for(
+pub(crate) fn chunk_for(
     dims: [usize; 3],
     halo: usize,
     bytes_per_voxel: u64,

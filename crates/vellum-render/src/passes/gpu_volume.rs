@@ -8,14 +8,6 @@ use crate::passes::paging::{Paged, PagedVolume};
 use vellum_gpu::Image;
 use vellum_volume::geometry::Geometry;
 
-/// A volume on the GPU, owned.
-pub enum GpuVolume {
-    /// The whole volume in GPU memory.
-    InCore(VolumeTextures),
-    /// A volume drawn through the brick cache.
-    Paged(PagedVolume),
-}
-
 /// A volume on the GPU, borrowed: what a renderer draws.
 #[derive(Copy, Clone)]
 pub enum VolumeRef<'a> {
@@ -23,16 +15,6 @@ pub enum VolumeRef<'a> {
     InCore(&'a VolumeTextures),
     /// A volume drawn through the brick cache.
     Paged(&'a PagedVolume),
-}
-
-impl GpuVolume {
-    /// Borrows it as the [`VolumeRef`] a renderer takes.
-    pub fn as_ref(&self) -> VolumeRef<'_> {
-        match self {
-            GpuVolume::InCore(v) => VolumeRef::InCore(v),
-            GpuVolume::Paged(p) => VolumeRef::Paged(p),
-        }
-    }
 }
 
 impl<'a> From<&'a VolumeTextures> for VolumeRef<'a> {
@@ -44,12 +26,6 @@ impl<'a> From<&'a VolumeTextures> for VolumeRef<'a> {
 impl<'a> From<&'a PagedVolume> for VolumeRef<'a> {
     fn from(v: &'a PagedVolume) -> Self {
         VolumeRef::Paged(v)
-    }
-}
-
-impl<'a> From<&'a GpuVolume> for VolumeRef<'a> {
-    fn from(v: &'a GpuVolume) -> Self {
-        v.as_ref()
     }
 }
 
@@ -144,7 +120,7 @@ impl<'a> VolumeRef<'a> {
     }
 
     /// The volume in core, which object-space lines and the whole-volume passes need.
-    pub fn in_core(self) -> Option<&'a VolumeTextures> {
+    pub(crate) fn in_core(self) -> Option<&'a VolumeTextures> {
         match self {
             VolumeRef::InCore(v) => Some(v),
             VolumeRef::Paged(_) => None,

@@ -40,7 +40,7 @@ pub struct GaussPush {
 /// Push constants of `importance/subtract.comp` (GLSL twin: `SubtractPush`).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct SubtractPush {
+pub(crate) struct SubtractPush {
     /// Volume size in voxels.
     pub dims: [i32; 3],
     /// Padding to 16 bytes, the block's std430 alignment.
@@ -48,17 +48,17 @@ pub struct SubtractPush {
 }
 
 /// Workgroup shape, as IMPORTANCE_LOCAL_* in importance.glsl.
-pub const LOCAL_SIZE: [u32; 3] = [64, 2, 2];
+pub(crate) const LOCAL_SIZE: [u32; 3] = [64, 2, 2];
 
 /// Texels (four voxels each) each Gaussian invocation filters along x (specialisation constant
 /// SEGMENT_X). Measured on lavapipe: 3..6 are equal, 8 is slower.
-pub const SEGMENT_X: u32 = 4;
+pub(crate) const SEGMENT_X: u32 = 4;
 
 /// Texels each Gaussian invocation filters along y or z (specialisation constant SEGMENT). Its
 /// private array holds SEGMENT + 2R texels; lavapipe keeps such an array in vector registers only
 /// up to about 23 entries (measured: at R = 10, SEGMENT 3 runs in half the time of SEGMENT 4), and
 /// short segments beat long ones below that, so take 4 and shrink it for large radii.
-pub fn segment(radius_voxels: u32) -> u32 {
+pub(crate) fn segment(radius_voxels: u32) -> u32 {
     (23u32.saturating_sub(2 * radius_voxels)).clamp(1, 4)
 }
 
@@ -66,14 +66,14 @@ pub fn segment(radius_voxels: u32) -> u32 {
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
 pub struct Segments {
     /// Texels each invocation filters along y or z (SEGMENT).
-    pub yz: u32,
+    pub(crate) yz: u32,
     /// Texels each invocation filters along x (SEGMENT_X).
     pub x: u32,
 }
 
 impl Segments {
-    /// The lengths for a device of `device_type` at `radius_voxels`: lavapipe's ([`segment`],
-    /// [`SEGMENT_X`]) on a CPU; on a GPU, where the private array stays in registers, longer
+    /// The lengths for a device of `device_type` at `radius_voxels`: lavapipe's (`segment`,
+    /// `SEGMENT_X`) on a CPU; on a GPU, where the private array stays in registers, longer
     /// segments re-read less halo (BENCHMARKS.md, "On a GPU"). `VELLUM_GAUSS_SEGMENTS=YZ,X`
     /// overrides both, for measuring.
     pub fn choose(device_type: &str, radius_voxels: u32) -> Segments {
@@ -109,7 +109,7 @@ const GPU_SEGMENT_YZ: u32 = 8;
 const GPU_SEGMENT_X: u32 = 8;
 
 /// Lines per Gaussian workgroup (GAUSS_LOCAL_X in importance.glsl).
-pub const GAUSS_LOCAL_X: u32 = 64;
+pub(crate) const GAUSS_LOCAL_X: u32 = 64;
 
 /// A normalised volume texture as the filters read it: the image, its size in voxels, and the
 /// nearest-texel sampler it is read through.
@@ -143,11 +143,9 @@ pub struct ImportanceVolume {
     /// Max |ΔD| over the volume: one u32 holding the bits of a non-negative float, so that an
     /// atomic max finds it. The shaders read it; the host never does.
     pub max_abs: Buffer,
-    /// R of the Gaussian G, in voxels.
-    pub radius_voxels: u32,
 }
 
-/// A chunk staged for [`ImportanceMap::run`] by [`ImportanceMap::stage`]; its ΔD comes back by
+/// A chunk staged for [`ImportanceMap::run`] by `ImportanceMap::stage`; its ΔD comes back by
 /// [`StagedImportance::delta_d`].
 pub struct StagedImportance {
     images: ImportanceImages,
@@ -215,7 +213,7 @@ pub struct Tile {
 
 impl Tile {
     /// Bytes of shared memory the tile stages at `radius_voxels` (RGBA32F texels).
-    pub fn shared_bytes(self, radius_voxels: u32) -> u32 {
+    pub(crate) fn shared_bytes(self, radius_voxels: u32) -> u32 {
         (self.length + 2 * radius_voxels) * self.depth * self.tx * 16
     }
 
@@ -331,7 +329,7 @@ impl GaussKernel {
 
     /// Workgroups of the pass along `axis` over an image of `extent` texels (x holds four voxels
     /// per texel).
-    pub fn groups(self, extent: [u32; 3], axis: usize) -> [u32; 3] {
+    pub(crate) fn groups(self, extent: [u32; 3], axis: usize) -> [u32; 3] {
         match (self, axis) {
             (GaussKernel::Segments(s), _) => gauss_groups(extent, axis, s),
             (GaussKernel::Tiled { x, .. }, 0) => [
@@ -361,7 +359,7 @@ struct Gauss {
 }
 
 /// The images of the importance map for one volume size, kept on the GPU: `src` holds the volume
-/// as float, four x-neighbours per RGBA32F texel (see [`pack_rows`]); after
+/// as float, four x-neighbours per RGBA32F texel (see `pack_rows`); after
 /// [`ImportanceMap::record`], `a` holds ΔD in the same packing and `b` is scratch.
 pub struct ImportanceImages {
     /// The volume as float, four x-neighbours per texel.
@@ -588,7 +586,7 @@ impl ImportanceMap {
     /// filter passes, and `unpack` (packed → R32F volume, with the max |ΔD| reduction). The work
     /// images are released once the frame completes. `intensity` is the renderer's texture
     /// (`VolumeTextures::intensity`) of `dims` voxels.
-    pub fn record_from_texture(
+    pub(crate) fn record_from_texture(
         &mut self,
         frame: &mut Frame,
         intensity: &Image,
@@ -605,14 +603,13 @@ impl ImportanceMap {
         Ok(ImportanceVolume {
             delta_d,
             max_abs,
-            radius_voxels,
         })
     }
 
     /// Records G∗V of a normalised volume texture (R16 or R32F, read texel by texel through the
     /// nearest-texel `sampler`) as an R32F volume on the same scale: `pack`, the three filter
     /// passes and `unpack`. Line extraction smooths noisy data with it.
-    pub fn record_blur_of_texture(
+    pub(crate) fn record_blur_of_texture(
         &mut self,
         frame: &mut Frame,
         source: &Image,
@@ -712,7 +709,7 @@ impl ImportanceMap {
     /// The host's part before a chunk's passes (no recording, so it may run beside another
     /// thread's passes): `v` checked, its images allocated and its voxels packed into a staging
     /// buffer.
-    pub fn stage(ctx: &Arc<Context>, v: &Volume) -> Result<StagedImportance> {
+    pub(crate) fn stage(ctx: &Arc<Context>, v: &Volume) -> Result<StagedImportance> {
         v.check_finite("the input volume")?;
         let images = ImportanceImages::new(ctx, v.dims)?;
         let mut staging = staging_buffer(ctx, "importance staging", images.src.byte_size())?;
@@ -796,7 +793,7 @@ impl ImportanceMap {
 
 impl ImportanceMap {
     /// Median GPU ms of `gauss_x`, `gauss_y`, `gauss_z` and `subtract` under sustained load:
-    /// `v` is uploaded once, then `submissions` submissions (and more until [`WARM_SECONDS`]
+    /// `v` is uploaded once, then `submissions` submissions (and more until `WARM_SECONDS`
     /// have passed) each record `rounds` rounds of the four passes back to back, and the medians
     /// come from the last submission. A GPU lowers its clocks while the host works between
     /// frames (BENCHMARKS.md, "On a GPU"); this is the rate of a device kept busy, the yardstick
@@ -851,21 +848,22 @@ impl ImportanceMap {
 }
 
 /// How long [`ImportanceMap::sustained`] keeps the device busy before the submission it reports.
-pub const WARM_SECONDS: f64 = 0.5;
+pub(crate) const WARM_SECONDS: f64 = 0.5;
 
 /// Largest radius: R sizes private arrays in the shader (a specialisation constant).
-pub const MAX_RADIUS: u32 = 32;
+pub(crate) const MAX_RADIUS: u32 = 32;
 
 /// The voxels of `v` as f32, each x row padded to a multiple of four with its last voxel, so that
 /// an RGBA32F texel holds four x-neighbours and padding behaves like the clamped border.
-pub fn pack_rows(v: &Volume) -> Vec<f32> {
+#[cfg(test)]
+pub(crate) fn pack_rows(v: &Volume) -> Vec<f32> {
     let mut out = vec![0f32; v.dims[0].div_ceil(4) * 4 * v.dims[1] * v.dims[2]];
     pack_rows_into(v, &mut out);
     out
 }
 
 /// [`pack_rows`] into `out` (for example mapped staging memory), one parallel task per row.
-pub fn pack_rows_into(v: &Volume, out: &mut [f32]) {
+pub(crate) fn pack_rows_into(v: &Volume, out: &mut [f32]) {
     fn rows<T: Copy + Send + Sync>(
         src: &[T],
         nx: usize,
@@ -893,7 +891,7 @@ pub fn pack_rows_into(v: &Volume, out: &mut [f32]) {
 }
 
 /// Inverse of [`pack_rows`]: drops the padding of each row.
-pub fn unpack_rows(packed: &[f32], dims: [usize; 3]) -> Vec<f32> {
+pub(crate) fn unpack_rows(packed: &[f32], dims: [usize; 3]) -> Vec<f32> {
     let px = dims[0].div_ceil(4) * 4;
     let mut out = vec![0f32; dims[0] * dims[1] * dims[2]];
     out.par_chunks_mut(dims[0])
@@ -905,7 +903,7 @@ pub fn unpack_rows(packed: &[f32], dims: [usize; 3]) -> Vec<f32> {
 /// Workgroups of the Gaussian pass along `axis` (as in gauss1d.comp). `extent` is in texels (x
 /// holds four voxels per texel). x: lanes over (segment, y), groups over z. y and z: lanes over
 /// (texel x, the other axis), groups over segments.
-pub fn gauss_groups(extent: [u32; 3], axis: usize, segments: Segments) -> [u32; 3] {
+pub(crate) fn gauss_groups(extent: [u32; 3], axis: usize, segments: Segments) -> [u32; 3] {
     match axis {
         0 => [
             (extent[0].div_ceil(segments.x) * extent[1]).div_ceil(GAUSS_LOCAL_X),

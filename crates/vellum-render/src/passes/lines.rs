@@ -30,7 +30,7 @@ use vellum_volume::Volume;
 /// Push constants of `extract` (GLSL twin: `LinesPush` in lines.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct LinesPush {
+pub(crate) struct LinesPush {
     /// Volume size in voxels along x, y, z.
     pub dims: [i32; 3],
     /// Visit every `stride`-th cell along each axis (1 all, 2 the interactive mode).
@@ -45,19 +45,19 @@ pub struct LinesPush {
     /// Which lines: bit 0 silhouettes, bit 1 suggestive contours.
     pub kinds: i32,
     /// cos θ_c: suggestive contours closer than θ_c to facing the viewer are dropped.
-    pub cos_c: f32,
+    pub(crate) cos_c: f32,
     /// t_d: the least D_w κ_r (per physical unit²) a suggestive contour needs.
-    pub derivative_threshold: f32,
+    pub(crate) derivative_threshold: f32,
     /// Segments the line buffer holds; the counter goes on past it.
     pub capacity: u32,
     /// Cells the straddling-cell list holds.
-    pub cell_capacity: u32,
+    pub(crate) cell_capacity: u32,
     /// seed.comp: 0 the previous segments, 1 the strided scan.
-    pub seed_mode: u32,
+    pub(crate) seed_mode: u32,
     /// Padding to a multiple of 16 bytes, the block's std430 alignment.
-    pub pad1: u32,
+    pub(crate) pad1: u32,
     /// Padding, as `pad1`.
-    pub pad2: u32,
+    pub(crate) pad2: u32,
 }
 
 impl LinesPush {
@@ -96,16 +96,16 @@ impl LinesPush {
 /// Push constants of `raster` (GLSL twin: `RasterPush` in lines.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct RasterPush {
+pub(crate) struct RasterPush {
     /// Voxel index → clip, column-major ([`RasterView::index_to_clip`]).
-    pub index_to_clip: [[f32; 4]; 4],
+    pub(crate) index_to_clip: [[f32; 4]; 4],
     /// Linear depth of voxel index p: dot(p, xyz) + w, in box units ([`RasterView::depth_terms`]).
     pub depth: [f32; 4],
     /// x: depth bias in box units; y: the value of full coverage; z: the value of zero coverage;
     /// w unused ([`RasterView`]'s `bias`, `value` and `floor`).
     pub params: [f32; 4],
     /// x: segments the buffer holds; y, z: the edge image's width and height in pixels; w unused.
-    pub capacity_size: [u32; 4],
+    pub(crate) capacity_size: [u32; 4],
 }
 
 /// Bytes before the first segment: the rasteriser's indirect dispatch (groups, 1, 1) and the
@@ -121,10 +121,10 @@ const LINES_MAX_GROUPS: u64 = 65535;
 /// Rounds of the seeded traversal per frame: how many cells a line is followed, or a search
 /// walks, from where the frame's seeds are. A line found in one frame seeds the next, so longer
 /// lines complete over frames.
-pub const SEED_ROUNDS: u32 = 16;
+pub(crate) const SEED_ROUNDS: u32 = 16;
 /// The seeded traversal also seeds every `SEED_STRIDE`-th cell along each axis that straddles τ,
 /// so that lines appear where the previous frame had none.
-pub const SEED_STRIDE: u32 = 8;
+pub(crate) const SEED_STRIDE: u32 = 8;
 /// Most cells one round's frontier holds (16 MiB); more are counted and lost.
 const FRONTIER_CELLS: u64 = 1 << 22;
 
@@ -298,7 +298,7 @@ impl LineBuffer {
 /// never need them): per kinds (1 silhouettes, 2 suggestive contours, 3 both), since the kind is
 /// a specialisation constant and a frame that draws one kind does not run the other's code (a
 /// CPU rasteriser would run it masked in every lane); `extract_hessian.comp` for a
-/// [`HessianVolume`]; `hessian.comp`; and the seeded traversal's `seed.comp` and
+/// `HessianVolume`; `hessian.comp`; and the seeded traversal's `seed.comp` and
 /// `extract_seeded.comp`. What a view keeps between frames is in its [`LineState`].
 pub struct LineExtractor {
     ctx: Arc<Context>,
@@ -350,7 +350,7 @@ pub enum HessianSource {
     /// memory beside the volume. What the renderers use (BENCHMARKS.md says why).
     #[default]
     OnTheFly,
-    /// Read from a [`HessianVolume`] made once per volume: 6 fetches of the volume (the
+    /// Read from a `HessianVolume` made once per volume: 6 fetches of the volume (the
     /// gradient) and 2 of the Hessian a corner, for 32 bytes a voxel.
     Precomputed,
 }
@@ -379,7 +379,7 @@ impl HessianSource {
 /// The Hessian of a line extraction's volume, per voxel and in physical units: (hxx, hyy, hzz,
 /// hxy) in `a` and (hxz, hyz, 0, 0) in `b`, both RGBA32F (RG32F storage would need an optional
 /// device feature).
-pub struct HessianVolume {
+pub(crate) struct HessianVolume {
     /// (hxx, hyy, hzz, hxy) per voxel.
     pub a: Image,
     /// (hxz, hyz, 0, 0) per voxel.
@@ -412,7 +412,7 @@ pub struct RasterView {
 impl RasterView {
     /// Voxel index → clip: the renderer's box → clip after index → box (a scale and an offset
     /// per axis).
-    pub fn index_to_clip(&self) -> glam::Mat4 {
+    pub(crate) fn index_to_clip(&self) -> glam::Mat4 {
         let (sc, off) = (
             glam::Vec3::from_array(self.index_scale),
             glam::Vec3::from_array(self.index_offset),
@@ -423,7 +423,7 @@ impl RasterView {
     }
 
     /// The linear depth of voxel index p is `dot(p, coef) + constant` (box units, as focus.depth).
-    pub fn depth_terms(&self) -> ([f32; 3], f32) {
+    pub(crate) fn depth_terms(&self) -> ([f32; 3], f32) {
         let vd = glam::Vec3::from_array(self.view_dir);
         let coef = glam::Vec3::from_array(self.index_scale) * vd;
         let constant =
@@ -501,7 +501,7 @@ pub struct LineRequest<'a> {
     pub params: LineParams,
     /// The precomputed Hessian of `values` ([`HessianSource::Precomputed`]); `None` takes it by
     /// central differences at every cell corner.
-    pub hessian: Option<&'a HessianVolume>,
+    pub(crate) hessian: Option<&'a HessianVolume>,
 }
 
 impl LineExtractor {
@@ -534,7 +534,7 @@ impl LineExtractor {
     /// Records G∗`values` for [`LineParams::smooth`] = `radius` (> 0): an R32F volume on the same
     /// scale, which [`LineExtractor::record`] then extracts from. Callers that draw every frame
     /// keep it (the renderer's view state) and record this once.
-    pub fn record_smoothing(
+    pub(crate) fn record_smoothing(
         &mut self,
         frame: &mut Frame,
         values: &Image,
@@ -547,7 +547,7 @@ impl LineExtractor {
 
     /// Records pass `lines_hessian`: the Hessian of `values` (as [`LineExtractor::record`] reads
     /// them) into a new [`HessianVolume`], for [`HessianSource::Precomputed`].
-    pub fn record_hessian(
+    pub(crate) fn record_hessian(
         &self,
         frame: &mut Frame,
         pipelines: &mut PipelineCache,
@@ -636,7 +636,7 @@ impl LineExtractor {
     /// Records pass `lines` into `cmd`: resets the header and extracts from `values` (a
     /// normalised volume texture, R16 or R32F, read texel by texel; `params.iso` on the same
     /// scale). With `hessian`, the Hessian is read from it (made from the same `values` by
-    /// [`LineExtractor::record_hessian`]) instead of taken by differences. The segments go to
+    /// `LineExtractor::record_hessian`) instead of taken by differences. The segments go to
     /// `state.buffer`. With [`LineParams::seeded`], the seeded traversal runs instead of the
     /// visit of the cells (`record_seeded`), seeded from what the buffer holds when the last
     /// extraction into it had the same volume, τ and kinds.

@@ -15,17 +15,17 @@ use vellum_volume::Volume;
 /// Push constants of `render/sobel_normals.comp` (GLSL twin: `NormalsPush` in render.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct NormalsPush {
+pub(crate) struct NormalsPush {
     /// Volume size in voxels.
     pub dims: [i32; 3],
     /// Padding: `inv_spacing` starts at byte 16, a vec4's std430 alignment.
     pub pad: i32,
     /// 1 / voxel spacing along x, y, z, which scales the Sobel sums to world units; w unused.
-    pub inv_spacing: [f32; 4],
+    pub(crate) inv_spacing: [f32; 4],
 }
 
 /// Workgroup shape (NORMALS_LOCAL_* in render.glsl).
-pub const LOCAL_SIZE: [u32; 3] = [8, 8, 4];
+pub(crate) const LOCAL_SIZE: [u32; 3] = [8, 8, 4];
 
 /// The volume as the renderer sees it: a normalised R16_UNORM 3D texture and its gradients.
 pub struct VolumeTextures {
@@ -52,11 +52,11 @@ pub struct VolumeTextures {
     pub id: u64,
     /// The smoothing radius `--line-smooth auto` gives this volume's object-space lines
     /// (`volume::lines::auto_smooth_radius`).
-    pub auto_line_smooth: u32,
+    pub(crate) auto_line_smooth: u32,
 }
 
 /// Edge of a brick in voxels.
-pub const BRICK: usize = 16;
+pub(crate) const BRICK: usize = 16;
 
 /// Per-brick range of the normalised intensity (0..=65535), widened by one voxel on every side:
 /// a trilinear sample anywhere in a brick blends only voxels of that widened region, so it can
@@ -101,7 +101,7 @@ impl Bricks {
     }
 
     /// Voxel bounds [lo, hi) of brick `b` along each axis, clamped to `dims`.
-    pub fn voxel_bounds(&self, b: usize, dims: [usize; 3]) -> ([usize; 3], [usize; 3]) {
+    pub(crate) fn voxel_bounds(&self, b: usize, dims: [usize; 3]) -> ([usize; 3], [usize; 3]) {
         let c = [
             b % self.counts[0],
             (b / self.counts[0]) % self.counts[1],
@@ -115,16 +115,16 @@ impl Bricks {
 }
 
 /// A number no other `VolumeTextures` of this process has (`VolumeTextures::id`).
-pub fn next_volume_id() -> u64 {
+pub(crate) fn next_volume_id() -> u64 {
     static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
     NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
 impl VolumeTextures {
     /// Allocates the textures of `v` (no GPU work yet) and a staging buffer holding its voxels
-    /// normalised to R16; record the copy with [`VolumeTextures::record_upload`].
+    /// normalised to R16; record the copy with `VolumeTextures::record_upload`.
     /// A whole volume, which a renderer may draw lines of: its `auto` line smoothing is measured
-    /// here (a chunk of [`VolumeTextures::new_in_range`] is never drawn, and skips it).
+    /// here (a chunk of `VolumeTextures::new_in_range` is never drawn, and skips it).
     pub fn new(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, vellum_gpu::Buffer)> {
         let (mut textures, staging) = Self::new_in_range(ctx, v, v.normalised_range())?;
         textures.auto_line_smooth = vellum_volume::lines::auto_smooth_radius(v);
@@ -133,7 +133,7 @@ impl VolumeTextures {
 
     /// [`VolumeTextures::new`] with intensities normalised over `range`, not `v`'s own: a
     /// chunk of a larger grid takes the grid's range. Its `auto_line_smooth` is 0.
-    pub fn new_in_range(
+    pub(crate) fn new_in_range(
         ctx: &Arc<Context>,
         v: &Volume,
         range: [f64; 2],
@@ -177,7 +177,7 @@ impl VolumeTextures {
     }
 
     /// Records pass `upload`: `staging` (from [`VolumeTextures::new`]) into the intensity texture.
-    pub fn record_upload(&self, ctx: &Context, frame: &mut Frame, staging: &vellum_gpu::Buffer) {
+    pub(crate) fn record_upload(&self, ctx: &Context, frame: &mut Frame, staging: &vellum_gpu::Buffer) {
         frame.profiler.pass(frame.cmd, "upload", |cmd| {
             vellum_gpu::transfer::record_upload(
                 ctx,
@@ -214,7 +214,7 @@ impl VolumeTextures {
     }
 }
 
-/// A chunk staged for [`Normals::run`] by [`Normals::stage`].
+/// A chunk staged for [`Normals::run`] by `Normals::stage`.
 pub struct StagedNormals {
     textures: VolumeTextures,
     upload: vellum_gpu::Buffer,
@@ -266,7 +266,7 @@ impl Normals {
     }
 
     /// [`Normals::prepare`] with intensities normalised over `range`.
-    pub fn prepare_in_range(
+    pub(crate) fn prepare_in_range(
         &self,
         v: &Volume,
         range: [f64; 2],
@@ -327,7 +327,7 @@ impl Normals {
     /// The host's part before a chunk's gradients (no recording, so it may run beside another
     /// thread's passes): `v` normalised over `range` into a staging buffer, its textures and a
     /// readback buffer allocated.
-    pub fn stage(ctx: &Arc<Context>, v: &Volume, range: [f64; 2]) -> Result<StagedNormals> {
+    pub(crate) fn stage(ctx: &Arc<Context>, v: &Volume, range: [f64; 2]) -> Result<StagedNormals> {
         let (textures, upload) = VolumeTextures::new_in_range(ctx, v, range)?;
         let readback = vellum_gpu::transfer::staging_buffer(
             ctx,
@@ -357,7 +357,7 @@ impl Normals {
     }
 
     /// The nearest-texel sampler the pass reads with (also right for `texelFetch` elsewhere).
-    pub fn nearest(&self) -> &Sampler {
+    pub(crate) fn nearest(&self) -> &Sampler {
         &self.nearest
     }
 }

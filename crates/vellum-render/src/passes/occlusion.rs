@@ -39,13 +39,13 @@ use vellum_volume::{Volume, VoxelData};
 /// Push constants of the occlusion passes (GLSL twin: `OcclusionPush` in occlusion.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct OcclusionPush {
+pub(crate) struct OcclusionPush {
     /// Input volume size in voxels.
     pub dims: [i32; 3],
     /// R in voxels.
     pub radius: i32,
     /// Output size: `dims` / `stride`, rounded up.
-    pub out_dims: [i32; 3],
+    pub(crate) out_dims: [i32; 3],
     /// Output voxel o covers input voxel o · stride.
     pub stride: i32,
     /// The visibility mapping M (SPEC OS2): 0 linear ramp, 1 truncated ramp, 2 a transfer
@@ -62,23 +62,23 @@ pub struct OcclusionPush {
 /// Push constants of the spectrum pass (GLSL twin: `SpectrumPush`).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct SpectrumPush {
+pub(crate) struct SpectrumPush {
     /// Intensity volume size in voxels.
     pub dims: [i32; 3],
     /// The occlusion volume's stride: voxel p reads occlusion voxel p / stride.
     pub stride: i32,
     /// Intensity bins.
-    pub bins_x: i32,
+    pub(crate) bins_x: i32,
     /// Occlusion bins.
-    pub bins_y: i32,
+    pub(crate) bins_y: i32,
     /// Padding to a multiple of 16 bytes, the block's std430 alignment (from its ivec3).
-    pub pad0: i32,
+    pub(crate) pad0: i32,
     /// Padding, as `pad0`.
-    pub pad1: i32,
+    pub(crate) pad1: i32,
 }
 
 /// Workgroup shape of the per-voxel passes (OCCLUSION_LOCAL_* in occlusion.glsl).
-pub const LOCAL_SIZE: [u32; 3] = [64, 2, 2];
+pub(crate) const LOCAL_SIZE: [u32; 3] = [64, 2, 2];
 
 /// How the neighbourhood sum is computed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -98,9 +98,9 @@ pub enum Method {
 
 impl Method {
     /// The names [`Method::parse`] takes, as error messages list them.
-    pub const NAMES: &'static str = "auto, runs, fft-gpu or fft-cpu";
+    pub(crate) const NAMES: &'static str = "auto, runs, fft-gpu or fft-cpu";
 
-    /// Parses a method name ([`Method::NAMES`]).
+    /// Parses a method name (`Method::NAMES`).
     pub fn parse(s: &str) -> Result<Self> {
         Ok(match s {
             "auto" => Method::Auto,
@@ -862,7 +862,7 @@ impl Occlusion {
 
     /// Records pass `to_float`: the renderer's normalised R16 texture (sampled by compute with the
     /// nearest-texel `sampler`) into a new R32F [`OcclusionInput`], without a host round trip.
-    pub fn record_input_from_texture(
+    pub(crate) fn record_input_from_texture(
         &self,
         frame: &mut Frame,
         tex: &crate::passes::normals::VolumeTextures,
@@ -930,11 +930,11 @@ impl OcclusionInput {
     }
 
     /// [`OcclusionInput::upload`] that also returns the time of its pass, `upload`.
-    pub fn upload_timed(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, Vec<PassTime>)> {
+    pub(crate) fn upload_timed(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, Vec<PassTime>)> {
         Self::upload_in_range(ctx, v, None)
     }
 
-    /// [`OcclusionInput::upload_timed`] normalised over `range` instead of `v`'s own [min, max]:
+    /// `OcclusionInput::upload_timed` normalised over `range` instead of `v`'s own [min, max]:
     /// a chunk of a larger volume is normalised as the whole volume is.
     pub fn upload_in_range(
         ctx: &Arc<Context>,
@@ -949,7 +949,7 @@ impl OcclusionInput {
     /// The host's part of [`OcclusionInput::upload_in_range`] (no recording, so it may run
     /// beside another thread's passes): the normalised voxels in a staging buffer, the image
     /// allocated; [`OcclusionInput::upload_staged`] then copies them.
-    pub fn stage_in_range(
+    pub(crate) fn stage_in_range(
         ctx: &Arc<Context>,
         v: &Volume,
         range: Option<[f64; 2]>,
@@ -976,7 +976,7 @@ impl OcclusionInput {
     }
 
     /// Pass `upload`: `staging` (from [`OcclusionInput::stage_in_range`]) into the image.
-    pub fn upload_staged(
+    pub(crate) fn upload_staged(
         &self,
         ctx: &Arc<Context>,
         staging: &vellum_gpu::Buffer,
@@ -1004,7 +1004,7 @@ pub struct OcclusionTargets {
     /// The spectrum's histogram (host-visible), when asked for.
     pub spectrum: Option<Buffer>,
     /// Size of the occlusion volume: the input's dims over the stride, rounded up.
-    pub out_dims: [usize; 3],
+    pub(crate) out_dims: [usize; 3],
 }
 
 /// Checks spectrum bins (1..=4096 each).
@@ -1040,7 +1040,7 @@ pub fn normalised_f32(v: &Volume) -> (Vec<f32>, [f64; 2]) {
 }
 
 /// [`normalised_f32`] over `range` when given (values outside it go below 0 or above 1).
-pub fn normalised_f32_in(v: &Volume, range: Option<[f64; 2]>) -> (Vec<f32>, [f64; 2]) {
+pub(crate) fn normalised_f32_in(v: &Volume, range: Option<[f64; 2]>) -> (Vec<f32>, [f64; 2]) {
     use rayon::prelude::*;
     let [min, max] = range.unwrap_or_else(|| v.normalised_range());
     let scale = if max > min { 1.0 / (max - min) } else { 0.0 };

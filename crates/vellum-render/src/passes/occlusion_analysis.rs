@@ -50,7 +50,7 @@ pub struct Selection {
     /// Output stride of the occlusion passes: only every `stride`-th voxel per axis is scored.
     pub stride: u32,
     /// K, the number of intensity bins of the local histograms (one occlusion pass each).
-    pub histogram_bins: usize,
+    pub(crate) histogram_bins: usize,
     /// How many voxels of the output grid lie in `interval`: the values that were clustered.
     pub voxels_in_interval: usize,
     /// The highest-scoring candidate.
@@ -98,7 +98,7 @@ fn ball_occlusion(
 }
 
 /// 1D k-means with deterministic quantile initialisation; returns (means ascending, counts).
-pub fn kmeans_1d(values: &[f64], k: usize) -> (Vec<f64>, Vec<usize>) {
+pub(crate) fn kmeans_1d(values: &[f64], k: usize) -> (Vec<f64>, Vec<usize>) {
     let mut sorted = values.to_vec();
     sorted.sort_by(f64::total_cmp);
     let n = sorted.len();
@@ -143,7 +143,7 @@ pub fn kmeans_1d(values: &[f64], k: usize) -> (Vec<f64>, Vec<usize>) {
 }
 
 /// Variance of cluster means, weighted by cluster size (the between-cluster variance).
-pub fn variance_of_means(means: &[f64], counts: &[usize]) -> f64 {
+pub(crate) fn variance_of_means(means: &[f64], counts: &[usize]) -> f64 {
     let n: usize = counts.iter().sum();
     if n == 0 {
         return 0.0;
@@ -281,9 +281,9 @@ pub struct SensitivityRow {
     /// Index of the intensity band, from 0 at the low end of the data range.
     pub band: usize,
     /// Lower edge of the band, in data units.
-    pub band_lo: f64,
+    pub(crate) band_lo: f64,
     /// Upper edge of the band, in data units.
-    pub band_hi: f64,
+    pub(crate) band_hi: f64,
     /// How many voxels of the output grid fall in the band.
     pub voxels: usize,
     /// Sample variance of their occlusion (ramp mapping, ball); 0 with fewer than 2 voxels.
@@ -291,9 +291,9 @@ pub struct SensitivityRow {
 }
 
 /// Most intensity bands of a sensitivity plot.
-pub const MAX_BANDS: usize = 1024;
+pub(crate) const MAX_BANDS: usize = 1024;
 /// Most radii of a sensitivity plot.
-pub const MAX_RADII: usize = 64;
+pub(crate) const MAX_RADII: usize = 64;
 
 /// Variance of occlusion (ramp mapping, ball) within each of `bands` intensity bands, for each
 /// radius (SPEC OS7, paper Fig. 6). Band edges are in data units.

@@ -11,9 +11,9 @@
 //! - words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its texture to
 //!   voxel scale along x, y, z, and level 0's voxel over its own (f32 bits): opacity is corrected
 //!   per voxel of the level sampled, so that a coarse level looks as that level rendered in core;
-//! - from word [`HEADER`]: per entry, when the brick is resident ([`RESIDENT_BIT`]) its slot's
+//! - from word `HEADER`: per entry, when the brick is resident (`RESIDENT_BIT`) its slot's
 //!   place along x, y and z of the pool in bits 0-7, 8-15 and 16-23, and when the brick's range is
-//!   known ([`KNOWN_BIT`]) what it may hold under this frame's classification (bit 24: visible
+//!   known (`KNOWN_BIT`) what it may hold under this frame's classification (bit 24: visible
 //!   context or one-pass samples, bit 25: focus), so that a ray walks past a brick that holds
 //!   nothing for it, resident or not, without asking for it.
 //!
@@ -37,21 +37,21 @@ use vellum_volume::bricks::{
 };
 
 /// Words before the first page-table entry.
-pub const HEADER: usize = 8 + 8 * MAX_LEVELS;
+pub(crate) const HEADER: usize = 8 + 8 * MAX_LEVELS;
 /// Mode bit: rays stop at a missing brick (and ask for it) instead of sampling a coarser level.
-pub const MODE_WAIT: u32 = 1;
+pub(crate) const MODE_WAIT: u32 = 1;
 /// Mode bit: rays continue from the state the previous pass of this frame saved.
-pub const MODE_RESUME: u32 = 2;
+pub(crate) const MODE_RESUME: u32 = 2;
 /// Feedback flag: a resident brick was read (`USED_BIT` in raycast.comp); a missing brick some
 /// ray asked for reads 1. (Plain stores, not counts: a CPU device runs atomics lane by lane.)
-pub const USED_BIT: u32 = 1 << 31;
+pub(crate) const USED_BIT: u32 = 1 << 31;
 /// Page-table word: the brick's range is known, and bits 24 and 25 say what it may hold.
-pub const KNOWN_BIT: u32 = 1 << 26;
+pub(crate) const KNOWN_BIT: u32 = 1 << 26;
 /// Page-table word: the brick is resident, its slot along x, y, z of the pool in bits 0-7, 8-15
 /// and 16-23 (so that the shader finds its texels without dividing).
-pub const RESIDENT_BIT: u32 = 1 << 27;
+pub(crate) const RESIDENT_BIT: u32 = 1 << 27;
 /// Bricks one dispatch of `brick_fill` writes at most (its workgroup rows).
-pub const FILL_BATCH: usize = 4096;
+pub(crate) const FILL_BATCH: usize = 4096;
 
 /// What a frame's rays said about the bricks ([`Paged::take_feedback`]).
 #[derive(Clone, Debug, Default)]
@@ -63,7 +63,7 @@ pub struct Feedback {
 }
 
 /// Bytes of one ray's saved state (`RayState` in raycast.comp).
-pub const RAY_STATE_BYTES: u64 = 80;
+pub(crate) const RAY_STATE_BYTES: u64 = 80;
 
 /// A volume in the brick cache, on the GPU: the pools (sampled as the in-core textures are), the
 /// cache and the upload pass.
@@ -99,9 +99,9 @@ pub struct Paged {
     /// Slots along x, y, z of the pool images.
     pub grid: [usize; 3],
     /// Per page-table entry, whether a ray asked for the brick in the last frame (or read it,
-    /// [`USED_BIT`]); the host reads it once the frame has completed.
+    /// `USED_BIT`); the host reads it once the frame has completed.
     pub feedback: Buffer,
-    /// Page-table mode bits for the next frame ([`MODE_WAIT`], [`MODE_RESUME`]).
+    /// Page-table mode bits for the next frame (`MODE_WAIT`, `MODE_RESUME`).
     pub mode: u32,
     /// Sample level 0 everywhere instead of choosing the level by projected voxel size.
     pub finest: bool,
@@ -120,7 +120,7 @@ pub struct Paged {
 }
 
 /// The default of [`Paged::reuse`] on a device of `device_type`.
-pub fn brick_reuse(device_type: &str) -> bool {
+pub(crate) fn brick_reuse(device_type: &str) -> bool {
     match std::env::var("VELLUM_BRICK_REUSE").ok().as_deref() {
         Some("0") => false,
         Some("1") => true,
@@ -129,12 +129,12 @@ pub fn brick_reuse(device_type: &str) -> bool {
 }
 
 /// The default of [`Paged::span`].
-pub fn brick_span() -> bool {
+pub(crate) fn brick_span() -> bool {
     std::env::var("VELLUM_BRICK_SPAN").ok().as_deref() == Some("1")
 }
 
 /// Slots per axis for a pool of at most `capacity` slots, each axis within `max_texels`.
-pub fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
+pub(crate) fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
     // A page-table word holds a slot's place in 8 bits per axis.
     let m = (max_texels / SLOT).clamp(1, 255);
     // The largest g with g^k <= n.
@@ -148,7 +148,7 @@ pub fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
 /// Push constants of `render/brick_fill.comp` (GLSL twin: `FillPush` in render.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct FillPush {
+pub(crate) struct FillPush {
     /// x, y: pool slots along x and y; z: 1 for 8-bit voxels, 0 for 16-bit; w: bricks in this
     /// dispatch.
     pub grid: [i32; 4],
@@ -157,14 +157,14 @@ pub struct FillPush {
 /// One brick of an upload (GLSL twin: `BrickFill` in render.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct BrickFill {
+pub(crate) struct BrickFill {
     /// xyz: the level's voxel at the upload's first voxel (the brick's corner − 2); w: the pool
     /// slot.
-    pub lo_slot: [i32; 4],
+    pub(crate) lo_slot: [i32; 4],
     /// xyz: the level's size in voxels; w: the upload's first voxel in the batch's voxel buffer.
-    pub dims_offset: [i32; 4],
+    pub(crate) dims_offset: [i32; 4],
     /// 1 / the level's voxel spacing along x, y, z, for the Sobel gradient; w unused.
-    pub inv_spacing: [f32; 4],
+    pub(crate) inv_spacing: [f32; 4],
 }
 
 /// A brick to upload: its slot, its page-table entry and its voxels.
@@ -350,7 +350,7 @@ impl Paged {
     /// The page table's header for a frame whose samples at distance d from the eye cover
     /// `lod.0 · d + lod.1` level-0 voxels (see the module's documentation); the entries,
     /// [`Paged::page_words`], follow it.
-    pub fn header(&self, lod: (f32, f32)) -> [u32; HEADER] {
+    pub(crate) fn header(&self, lod: (f32, f32)) -> [u32; HEADER] {
         let levels = self.levels.levels();
         let (a, b) = if self.finest { (0.0, 0.0) } else { lod };
         let mut words = [0u32; HEADER];
@@ -391,7 +391,7 @@ impl Paged {
     /// a resident brick, and for a brick whose range is known [`KNOWN_BIT`] and `flags(range)`
     /// (bit 0: may hold visible context or one-pass samples, bit 1: may hold focus) in bits 24
     /// and 25.
-    pub fn page_words(&self, dst: &mut [u32], flags: &dyn Fn([u16; 2]) -> u32) {
+    pub(crate) fn page_words(&self, dst: &mut [u32], flags: &dyn Fn([u16; 2]) -> u32) {
         let c = &self.cache;
         let [gx, gy, _] = self.grid;
         for ((w, &slot), &range) in dst.iter_mut().zip(&c.page_table).zip(&c.ranges) {
@@ -429,7 +429,7 @@ impl Paged {
     }
 
     /// Records the clearing of the feedback buffer, before the frame's ray casting writes it.
-    pub fn record_clear_feedback(&self, ctx: &Context, frame: &mut Frame) {
+    pub(crate) fn record_clear_feedback(&self, ctx: &Context, frame: &mut Frame) {
         vellum_gpu::commands::memory_transition(
             ctx,
             frame.cmd,

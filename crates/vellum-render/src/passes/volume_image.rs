@@ -7,10 +7,10 @@ use vellum_gpu::profiler::PassTime;
 use vellum_gpu::transfer::{record_readback, record_upload, staging_buffer};
 use vellum_gpu::Format;
 use vellum_gpu::{submit_timed, Access, Context, Image, ImageDesc};
-use vellum_volume::{Volume, VoxelData, VoxelType};
+use vellum_volume::{Volume, VoxelType};
 
 /// The image format that stores `ty` bit for bit.
-pub fn format_of(ty: VoxelType) -> Format {
+pub(crate) fn format_of(ty: VoxelType) -> Format {
     match ty {
         VoxelType::U8 => Format::R8_UINT,
         VoxelType::U16 => Format::R16_UINT,
@@ -19,20 +19,8 @@ pub fn format_of(ty: VoxelType) -> Format {
     }
 }
 
-/// The voxel type stored by `format`, for readback.
-pub fn voxel_type_of(format: Format) -> Option<VoxelType> {
-    // The inverse of `format_of`: only formats that hold a voxel type bit for bit.
-    match format {
-        Format::R8_UINT => Some(VoxelType::U8),
-        Format::R16_UINT => Some(VoxelType::U16),
-        Format::R16_SINT => Some(VoxelType::I16),
-        Format::R32_SFLOAT => Some(VoxelType::F32),
-        _ => None,
-    }
-}
-
 /// The extent of `v` as an image extent, after checking it against the device.
-pub fn extent_of(
+pub(crate) fn extent_of(
     ctx: &Context,
     dims: [usize; 3],
     bytes_per_voxel: usize,
@@ -47,18 +35,6 @@ pub fn create(ctx: &Arc<Context>, name: &str, v: &Volume) -> Result<Image> {
     let ty = v.voxel_type();
     let extent = extent_of(ctx, v.dims, ty.size(), 1)?;
     Image::new(ctx, name, &ImageDesc::new_3d(format_of(ty), extent))
-}
-
-/// Turns image bytes read back from the GPU into a volume with the given dims and spacing.
-pub fn volume_from_bytes(
-    format: Format,
-    dims: [usize; 3],
-    spacing: [f64; 3],
-    bytes: &[u8],
-) -> Result<Volume> {
-    let ty = voxel_type_of(format)
-        .ok_or_else(|| Error::Invalid(format!("format {format:?} does not hold volume voxels")))?;
-    Volume::new(dims, spacing, VoxelData::from_le_bytes(ty, bytes))
 }
 
 /// Timings of a round trip.

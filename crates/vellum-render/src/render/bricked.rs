@@ -44,7 +44,7 @@ pub fn gpu_budget_bytes(ctx: &vellum_gpu::Context, mib: Option<f64>) -> Result<u
 }
 
 /// Bricks uploaded between two passes at most.
-pub const LOADS_PER_PASS: usize = 2048;
+pub(crate) const LOADS_PER_PASS: usize = 2048;
 
 /// What streaming one frame did.
 #[derive(Clone, Debug, Default, serde::Serialize)]
@@ -56,7 +56,7 @@ pub struct StreamReport {
     /// Distinct bricks the frame's rays asked for: what it touched and did not hold.
     pub bricks_touched: u64,
     /// Bricks loaded per brick touched (1 when nothing was read twice).
-    pub loads_per_touched: f64,
+    pub(crate) loads_per_touched: f64,
     /// Bricks loaded per level, finest first.
     pub loaded_per_level: Vec<u64>,
     /// Of the bricks loaded, those of one value that shared a slot and uploaded nothing.
@@ -68,24 +68,24 @@ pub struct StreamReport {
     /// Chunks of the store decoded, their bytes of voxels, and those bytes per second of the frame.
     pub chunks_decoded: u64,
     /// Bytes of voxels those chunks decoded to.
-    pub source_bytes: u64,
+    pub(crate) source_bytes: u64,
     /// `source_bytes` in MiB per second of the whole frame (`total_ms`).
     pub source_mib_per_s: f64,
     /// Milliseconds the loaders spent decoding chunks, summed over the loaders.
-    pub decode_ms: f64,
+    pub(crate) decode_ms: f64,
     /// Milliseconds the loaders were reading (at least one of them), the GPU was busy, and both
     /// at once; the share of the frame during which both were busy.
     pub host_ms: f64,
     /// Milliseconds the GPU was busy with the frame's passes.
     pub gpu_ms: f64,
     /// Milliseconds during which the loaders and the GPU were both busy.
-    pub both_ms: f64,
+    pub(crate) both_ms: f64,
     /// `both_ms` over `total_ms`, in [0, 1].
     pub both_share: f64,
     /// Per pass: GPU ms, and bricks uploaded before it.
-    pub pass_gpu_ms: Vec<f64>,
+    pub(crate) pass_gpu_ms: Vec<f64>,
     /// Per pass: bricks uploaded before it.
-    pub pass_bricks: Vec<usize>,
+    pub(crate) pass_bricks: Vec<usize>,
     /// Whether every ray reached its end with the bricks it asked for (false: the wait was cut
     /// short and missing bricks were sampled from coarser levels).
     pub complete: bool,
@@ -100,7 +100,7 @@ pub struct StreamReport {
     pub pool_bytes: u64,
     /// Milliseconds until the first pass had run, until the first (coarse) frame was drawn,
     /// and until the complete frame was.
-    pub first_pass_ms: f64,
+    pub(crate) first_pass_ms: f64,
     /// Milliseconds until the first (coarse) frame was drawn.
     pub first_frame_ms: f64,
     /// Milliseconds until the complete frame was drawn: the whole frame's time.

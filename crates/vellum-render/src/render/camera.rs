@@ -31,7 +31,7 @@ pub struct Camera {
     pub distance: f32,
     /// Orthographic instead of perspective projection.
     pub ortho: bool,
-    /// Vertical field of view in degrees; in orthographic mode it sets the framing (see [`Camera::projection`]).
+    /// Vertical field of view in degrees; in orthographic mode it sets the framing (see `Camera::projection`).
     pub fov_y_deg: f32,
     /// Shift of eye and target in the image plane (x right, y up), in bounding-sphere radii.
     pub pan: Vec2,
@@ -185,7 +185,7 @@ impl Camera {
     /// (depth [0, 1], y down). Near and far planes enclose the bounding sphere (near at least
     /// 1e-3·radius). Orthographic mode uses a half-height of `radius·distance·tan(fov/2)`, which is
     /// the perspective frustum's half-height at the target, so toggling keeps the framing.
-    pub fn projection(&self, aspect: f32, radius: f32) -> Mat4 {
+    pub(crate) fn projection(&self, aspect: f32, radius: f32) -> Mat4 {
         // The eye-to-origin distance grows with pan; the sphere lies within it ± one radius.
         let centre = (self.distance * self.distance + self.pan.length_squared()).sqrt();
         let far = (centre + 1.0 + DEPTH_MARGIN) * radius;

@@ -1,15 +1,15 @@
 //! Frame assembly: what one frame of a volume becomes, from the [`View`] to the recorded passes.
 //!
-//! 1. [`FrameSetup::new`] decides everything the host decides, with no Vulkan: it validates the
+//! 1. `FrameSetup::new` decides everything the host decides, with no Vulkan: it validates the
 //!    view against the volume and its classification, builds the [`WorldBox`] and the
-//!    [`FrameCamera`] (once), culls the 16³ bricks per level, cuts the slicer's proxy planes to
+//!    `FrameCamera` (once), culls the 16³ bricks per level, cuts the slicer's proxy planes to
 //!    them, and fills the uniforms and the ray caster's tables. A unit test can look at all of it.
 //! 2. [`Renderer::record`] stages those into the frame's ring, re-uploads changed classification
 //!    tables, makes sure the persistent layers exist at this size, and hands the frame to one
-//!    draw step: [`Slicer::record_two_level`], [`Slicer::record_one_pass`] or
-//!    [`RayCaster::record`]. All of them write the same named layers.
+//!    draw step: `Slicer::record_two_level`, `Slicer::record_one_pass` or
+//!    `RayCaster::record`. All of them write the same named layers.
 //! 3. With a style, the lines-draw step (`Renderer::record_style`) prepares the object-space
-//!    lines the style asks for and [`Post::record`] runs the style passes over the layers.
+//!    lines the style asks for and `Post::record` runs the style passes over the layers.
 //! 4. [`Recorded`] returns what a caller needs afterwards (the planes drawn, the lines' raster
 //!    view); [`Renderer::render_frame`] is the one-shot form that also reads the layers back.
 
@@ -43,7 +43,7 @@ use vellum_gpu::{CommandBuffer, Format};
 use vellum_volume::geometry::Geometry;
 
 /// What [`FrameSetup`] needs of the volume and its classification: host data only.
-pub struct SetupInput<'a> {
+pub(crate) struct SetupInput<'a> {
     /// Voxels along x, y, z.
     pub dims: [usize; 3],
     /// Physical size of a voxel along x, y, z.
@@ -63,13 +63,13 @@ pub struct SetupInput<'a> {
     pub modulation: &'a Modulation,
     /// Whether an occlusion transfer function classifies the volume, and whether the volume
     /// carries the occlusion volume it reads.
-    pub uses_occlusion: bool,
+    pub(crate) uses_occlusion: bool,
     /// Whether the volume carries its occlusion volume.
-    pub has_occlusion: bool,
+    pub(crate) has_occlusion: bool,
     /// Whether the volume carries its importance map (ΔD), which modulation reads.
     pub has_importance: bool,
     /// The device's largest 2D image side.
-    pub max_image_size: u32,
+    pub(crate) max_image_size: u32,
 }
 
 impl<'a> SetupInput<'a> {
@@ -94,7 +94,7 @@ impl<'a> SetupInput<'a> {
 
 /// Everything the host decides for one frame, before anything is recorded.
 #[derive(Clone, Debug)]
-pub struct FrameSetup {
+pub(crate) struct FrameSetup {
     /// Image width and height in pixels.
     pub size: [u32; 2],
     /// The volume's box in the world.
@@ -103,20 +103,18 @@ pub struct FrameSetup {
     pub camera: FrameCamera,
     /// The focus in normalised intensity: low, high, mode ([`Focus::normalised`]).
     pub focus: [f32; 3],
-    /// Per brick: whether it may hold visible context (or one-pass) samples.
-    pub visible: Vec<bool>,
     /// The context's (or the one pass's) planes, cut to its bricks; for a ray-cast frame only
     /// their spacing and count, which the rays share.
-    pub proxy: ProxySlices,
+    pub(crate) proxy: ProxySlices,
     /// The focus level's planes, cut to the bricks that may hold focus (slicing, two levels).
-    pub focus_proxy: Option<ProxySlices>,
+    pub(crate) focus_proxy: Option<ProxySlices>,
     /// Depth of the nearest and the farthest box corner along the view direction.
-    pub depth_span: (f32, f32),
+    pub(crate) depth_span: (f32, f32),
     /// The shaders' per-frame uniforms, staged into the frame's ring.
-    pub uniforms: SliceUniforms,
+    pub(crate) uniforms: SliceUniforms,
     /// The ray caster's table for a ray-cast frame: the transfer function's opacity bounds, then
     /// the bricks' flags ([`BRICK_VISIBLE`], [`BRICK_FOCUS`]).
-    pub ray_tables: Option<Vec<u32>>,
+    pub(crate) ray_tables: Option<Vec<u32>>,
 }
 
 impl FrameSetup {
@@ -164,7 +162,6 @@ impl FrameSetup {
             world,
             camera,
             focus,
-            visible,
             proxy,
             focus_proxy,
             depth_span: span,
@@ -174,7 +171,7 @@ impl FrameSetup {
     }
 
     /// The ray caster's push constants for `options` on a volume of `bricks`.
-    pub fn ray_push(&self, options: &RayOptions, bricks: [usize; 3], two_level: bool) -> RayPush {
+    pub(crate) fn ray_push(&self, options: &RayOptions, bricks: [usize; 3], two_level: bool) -> RayPush {
         let c = bricks.map(|n| n as i32);
         RayPush {
             inv_view_proj: self.camera.view_proj.inverse().to_cols_array_2d(),
@@ -1201,7 +1198,6 @@ mod tests {
         let h = host();
         let s = FrameSetup::new(&input(&h), &view()).unwrap();
         assert_eq!(s.proxy.slices, 128, "two planes per voxel");
-        assert_eq!(s.visible.len(), h.bricks.range.len());
         let focus = s
             .focus_proxy
             .as_ref()

@@ -39,7 +39,7 @@ impl Front {
 
     /// The option `key` given `value`, as this front end's user writes it: `--renderer raycast`
     /// or `renderer="raycast"` (a word is quoted in Python, a pattern such as `N|NAME` is not).
-    pub fn with(self, key: &str, value: &str) -> String {
+    pub(crate) fn with(self, key: &str, value: &str) -> String {
         match self {
             Front::Cli => format!("{} {value}", self.name(key)),
             Front::Python if value.chars().all(|c| c.is_ascii_alphabetic() || c == '-') => {

@@ -29,9 +29,9 @@ use vellum_volume::lines::{Eye, LineParams};
 /// Object-space lines of a frame (styles 4–12): what to extract, from which volume, and where
 /// to draw it. The renderer fills it in; [`Post::record`] extracts and draws the lines into the
 /// edge image before the style composite.
-pub struct LinesDraw<'a> {
+pub(crate) struct LinesDraw<'a> {
     /// The extraction and raster passes.
-    pub extractor: &'a LineExtractor,
+    pub(crate) extractor: &'a LineExtractor,
     /// Where the extraction's per-kind pipelines are built and kept.
     pub pipelines: &'a mut PipelineCache,
     /// The view's segment buffer and traversal state.
@@ -63,9 +63,9 @@ struct Step<'a> {
 /// Push constants of the post passes (GLSL twin: `PostPush` in post.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct PostPush {
+pub(crate) struct PostPush {
     /// x, y: the image's width and height; z: the blur's axis (0 x, 1 y); w: Kuwahara's radius.
-    pub size_mode: [i32; 4],
+    pub(crate) size_mode: [i32; 4],
     /// Per pass: blur σ; Sobel threshold; DoG τ, ε, φ; Canny high and low; saturation factor.
     pub params: [f32; 4],
     /// Composite: the edge colour (rgb) and its opacity (a).
@@ -76,12 +76,12 @@ pub struct PostPush {
 }
 
 /// Workgroup edge of the post passes (POST_LOCAL in post.glsl).
-pub const LOCAL: u32 = 16;
+pub(crate) const LOCAL: u32 = 16;
 
-pub use crate::render::targets::HYSTERESIS_PASSES;
+pub(crate) use crate::render::targets::HYSTERESIS_PASSES;
 
 /// The post pipelines.
-pub struct Post {
+pub(crate) struct Post {
     ctx: Arc<Context>,
     luminance: Arc<ComputePipeline>,
     blur: Arc<ComputePipeline>,

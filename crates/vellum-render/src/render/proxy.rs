@@ -15,9 +15,9 @@ use glam::Vec3;
 
 /// Triangles of all slice polygons, ready for one non-indexed draw.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct ProxySlices {
+pub(crate) struct ProxySlices {
     /// Triangle list in world units (the box frame, centred at the origin), back to front.
-    pub vertices: Vec<[f32; 3]>,
+    pub(crate) vertices: Vec<[f32; 3]>,
     /// Distance between neighbouring planes along the viewing direction, world units.
     pub spacing: f32,
     /// Number of planes that produced a polygon.
@@ -43,7 +43,7 @@ const EDGES: [(usize, usize); 12] = [
 /// The nearest and farthest depth of the box `[-half_extent, +half_extent]` along the unit vector
 /// `d`: the planes of a frame lie between them, plane k at `far - (k + 0.5) * spacing` with
 /// `spacing = (far - near) / n_slices` (the ray caster samples the same planes).
-pub fn depth_span(half_extent: Vec3, d: Vec3) -> (f32, f32) {
+pub(crate) fn depth_span(half_extent: Vec3, d: Vec3) -> (f32, f32) {
     let depths: [f32; 8] = std::array::from_fn(|i| {
         let sign = |k: usize| if (i >> k) & 1 == 1 { 1.0 } else { -1.0 };
         Vec3::new(
@@ -63,7 +63,8 @@ pub fn depth_span(half_extent: Vec3, d: Vec3) -> (f32, f32) {
 /// spaced between the farthest and the nearest box corner, the first half a spacing inside the
 /// farthest corner, and are emitted back to front. Each plane's polygon (3 to 6 vertices) becomes
 /// a triangle fan.
-pub fn view_aligned_slices(half_extent: Vec3, view_dir: Vec3, n_slices: u32) -> ProxySlices {
+#[cfg(test)]
+pub(crate) fn view_aligned_slices(half_extent: Vec3, view_dir: Vec3, n_slices: u32) -> ProxySlices {
     view_aligned_slices_in(
         half_extent,
         view_dir,
@@ -77,7 +78,7 @@ pub fn view_aligned_slices(half_extent: Vec3, view_dir: Vec3, n_slices: u32) -> 
 /// fragment samples exactly where the whole-box geometry would; this clips a pass to the bricks
 /// that can contribute to it. Within a plane the boxes do not overlap, so the output stays back to
 /// front. Adjacent boxes must share corner coordinates exactly so that their edges match.
-pub fn view_aligned_slices_in(
+pub(crate) fn view_aligned_slices_in(
     half_extent: Vec3,
     view_dir: Vec3,
     n_slices: u32,

@@ -1,6 +1,6 @@
 //! The compute-shader ray caster (SPEC §6), beside the slicer: `glsl/render/raycast.comp`.
 //!
-//! It shares everything but the sampling loop with the slicer ([`crate::render::slicer`]): the
+//! It shares everything but the sampling loop with the slicer (`crate::render::slicer`): the
 //! uniforms, the classification and shading code (`shade.glsl` with `RAYCAST` defined), the brick
 //! ranges and the named layers, so styles, importance modulation, occlusion transfer functions and
 //! feature maps work on it unchanged.
@@ -46,11 +46,11 @@ use vellum_gpu::{
 /// Push constants of `raycast.comp`.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct RayPush {
+pub(crate) struct RayPush {
     /// Clip space to the box frame.
-    pub inv_view_proj: [[f32; 4]; 4],
+    pub(crate) inv_view_proj: [[f32; 4]; 4],
     /// Depth of the farthest plane's reference along the view direction, spacing, planes, ert.
-    pub planes: [f32; 4],
+    pub(crate) planes: [f32; 4],
     /// Brick counts along x, y, z, and the brick size in voxels.
     pub bricks: [i32; 4],
     /// Two levels, skip empty bricks, jitter seed (0 off), bit 0 refine isosurface hits | bit 1
@@ -60,13 +60,13 @@ pub struct RayPush {
 }
 
 /// Brick flag: may hold visible context (or one-pass) samples.
-pub const BRICK_VISIBLE: u32 = 1;
+pub(crate) const BRICK_VISIBLE: u32 = 1;
 /// Brick flag: may hold focus samples.
-pub const BRICK_FOCUS: u32 = 2;
+pub(crate) const BRICK_FOCUS: u32 = 2;
 
 /// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images, the
 /// brick flags, and the brick cache's page table, feedback and ray states (`passes::paging`).
-pub const RAY_BINDINGS: [BindingKind; 17] = {
+pub(crate) const RAY_BINDINGS: [BindingKind; 17] = {
     let slicer = SHADE_BINDINGS;
     let mut all = [BindingKind::StorageBuffer; 17];
     let mut i = 0;
@@ -82,13 +82,13 @@ pub const RAY_BINDINGS: [BindingKind; 17] = {
 };
 
 /// Workgroup size of `raycast.comp`.
-pub const LOCAL: [u32; 3] = [8, 8, 1];
+pub(crate) const LOCAL: [u32; 3] = [8, 8, 1];
 
 /// Per texel i of a 256-texel transfer function, the larger opacity of texels i and i + 1: a
 /// bound on every opacity linear filtering returns for intensities between their centres (and
 /// below the first centre or above the last, where it clamps). The ray caster's walk tests samples
 /// against it before classifying them.
-pub fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
+pub(crate) fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
     let mut out = [0.0f32; 256];
     let n = table.len();
     for (i, o) in out.iter_mut().enumerate() {
@@ -107,34 +107,34 @@ pub fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
 /// world steps) select code; the other bits enable code that still tests its uniform, so setting
 /// one is never wrong, only slower.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
-pub struct Variant(pub u32);
+pub(crate) struct Variant(pub u32);
 
 impl Variant {
     /// Mode: two levels, writing the focus and context layers (else the one-pass composite).
-    pub const TWO_LEVEL: u32 = 1;
+    pub(crate) const TWO_LEVEL: u32 = 1;
     /// Steps over bricks that hold nothing visible (`RayOptions::skip_empty`).
-    pub const SKIP_EMPTY: u32 = 2;
+    pub(crate) const SKIP_EMPTY: u32 = 2;
     /// Jitters the planes per pixel (`RayOptions::jitter`).
-    pub const JITTER: u32 = 4;
+    pub(crate) const JITTER: u32 = 4;
     /// Refines the first isosurface hit by regula falsi (`RayOptions::refine_iso`; two levels).
-    pub const REFINE_ISO: u32 = 8;
+    pub(crate) const REFINE_ISO: u32 = 8;
     /// Mode: equal steps along each ray ([`Sampling::WorldSteps`]) instead of the slicer's planes.
-    pub const WORLD_STEPS: u32 = 16;
+    pub(crate) const WORLD_STEPS: u32 = 16;
     /// Classifies through the occlusion transfer function when the `focus` uniform's w says so.
-    pub const OTF: u32 = 32;
+    pub(crate) const OTF: u32 = 32;
     /// Modulates opacity by importance (eq. 5) where the `mod_flags` uniform enables it.
-    pub const MOD_OPACITY: u32 = 64;
+    pub(crate) const MOD_OPACITY: u32 = 64;
     /// Modulates the shaded colour by importance: stippling (eq. 6) or colour (eq. 3, 4).
-    pub const MOD_SHADE: u32 = 128;
+    pub(crate) const MOD_SHADE: u32 = 128;
     /// Samples through the brick cache's page table (skipping the bricks its words say are empty,
     /// at the level each sample reads, instead of the in-core table's).
-    pub const BRICKED: u32 = 256;
+    pub(crate) const BRICKED: u32 = 256;
     /// With BRICKED: each ray reuses its last brick's place in the pool (`Paged::reuse`).
-    pub const BRICK_REUSE: u32 = 512;
+    pub(crate) const BRICK_REUSE: u32 = 512;
     /// With BRICKED: each ray keeps the stretch of its path over which its last lookup holds
     /// (its brick, and its level by distance) and places the samples there by one multiply-add
     /// (`Paged::span`).
-    pub const BRICK_SPAN: u32 = 1024;
+    pub(crate) const BRICK_SPAN: u32 = 1024;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -160,11 +160,11 @@ impl Variant {
 }
 
 /// What the ray caster draws in one frame.
-pub struct RayRequest<'a> {
+pub(crate) struct RayRequest<'a> {
     /// The eight bindings of `shade.glsl` (`render::shading::SHADE_BINDINGS`).
-    pub shading: &'a [Bind<'a>; 8],
+    pub(crate) shading: &'a [Bind<'a>; 8],
     /// The frame's uniforms, from which the pipeline variant is chosen.
-    pub uniforms: &'a SliceUniforms,
+    pub(crate) uniforms: &'a SliceUniforms,
     /// The ray caster's options for this frame.
     pub options: RayOptions,
     /// The two-level layers; `None` draws one pass into `composite`.
@@ -178,9 +178,9 @@ pub struct RayRequest<'a> {
     /// Whether the volume is drawn through the brick cache (the `BRICKED` variant).
     pub bricked: bool,
     /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
-    pub brick_reuse: bool,
+    pub(crate) brick_reuse: bool,
     /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
-    pub brick_span: bool,
+    pub(crate) brick_span: bool,
     /// The push constants of `raycast.comp`.
     pub push: RayPush,
     /// The image size in pixels, width and height: one invocation per pixel.
@@ -190,11 +190,11 @@ pub struct RayRequest<'a> {
 /// The ray caster. Its pipelines, one per variant, live in the caller's [`PipelineCache`]: built
 /// when a frame first needs one and kept. At most 1,024 exist; a session uses a handful.
 #[derive(Copy, Clone, Debug, Default)]
-pub struct RayCaster;
+pub(crate) struct RayCaster;
 
 impl RayCaster {
     /// The pipeline of `variant`, built on first use.
-    pub fn pipeline(
+    pub(crate) fn pipeline(
         pipelines: &mut PipelineCache,
         variant: Variant,
     ) -> Result<Arc<ComputePipeline>> {

@@ -61,7 +61,7 @@ use vellum_volume::io::RawSpec;
 use vellum_volume::{Volume, VoxelType};
 
 /// The scene-file version this build reads and writes.
-pub const SCENE_VERSION: u32 = 1;
+pub(crate) const SCENE_VERSION: u32 = 1;
 
 /// A headerless input's layout.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -168,7 +168,7 @@ pub enum NamedView {
 impl NamedView {
     /// Azimuth and elevation in degrees (the camera's axes are the volume's world axes: LPS when
     /// the orientation is known, so azimuth 0 puts the eye on the anterior side with superior up).
-    pub fn angles(self) -> (f32, f32) {
+    pub(crate) fn angles(self) -> (f32, f32) {
         match self {
             NamedView::Anterior => (0.0, 0.0),
             NamedView::Posterior => (180.0, 0.0),
@@ -215,7 +215,7 @@ pub struct CameraSpec {
     /// Pan (x right, y up) in bounding-sphere radii.
     pub pan: [f32; 2],
     /// Vertical field of view in degrees.
-    pub fov_y: f32,
+    pub(crate) fov_y: f32,
 }
 
 impl Default for CameraSpec {
@@ -320,7 +320,7 @@ impl StyleSpec {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Scene {
-    /// The file format's version; only [`SCENE_VERSION`] loads.
+    /// The file format's version; only `SCENE_VERSION` loads.
     pub version: u32,
     /// The volume to render.
     pub input: InputSpec,
@@ -477,7 +477,7 @@ impl Scene {
     }
 
     /// The raw-file layout of the input, if any.
-    pub fn raw_spec(&self) -> Result<Option<RawSpec>> {
+    pub(crate) fn raw_spec(&self) -> Result<Option<RawSpec>> {
         self.input
             .raw
             .as_ref()

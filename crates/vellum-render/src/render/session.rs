@@ -227,7 +227,7 @@ impl Prepared {
 
 /// The ray caster draws a volume in the brick cache: `view` made so, with the sentence that says
 /// so when it was not (`budget` bytes, for the sentence).
-pub fn bricked_view(view: &mut View, budget: u64) -> Option<String> {
+pub(crate) fn bricked_view(view: &mut View, budget: u64) -> Option<String> {
     if view.raycast.is_some() {
         return None;
     }

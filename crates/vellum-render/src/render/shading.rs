@@ -8,11 +8,11 @@ use vellum_gpu::BindingKind;
 /// Uniforms of the slice shaders (GLSL twin: `SliceUniforms` in render.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct SliceUniforms {
+pub(crate) struct SliceUniforms {
     /// Box frame → clip space (`FrameCamera::view_proj`), column-major.
     pub view_proj: [[f32; 4]; 4],
     /// xyz: half size of the volume's box in world units (longest edge 1), centred at 0; w unused.
-    pub half_extent: [f32; 4],
+    pub(crate) half_extent: [f32; 4],
     /// xyz: the eye in the box frame; w unused.
     pub eye: [f32; 4],
     /// xyz: unit direction from the eye into the scene, box frame; w 1 for an orthographic camera.
@@ -20,37 +20,37 @@ pub struct SliceUniforms {
     /// xyz: unit direction towards the light (a headlight, −view_dir); w the specular exponent.
     pub light: [f32; 4],
     /// Ambient, diffuse and specular coefficients; w the opacity correction, plane spacing / voxel.
-    pub material: [f32; 4],
+    pub(crate) material: [f32; 4],
     /// lo, hi and mode of `Focus::normalised` (normalised intensity); w 1 when an occlusion TF
     /// classifies.
     pub focus: [f32; 4],
     /// x colour mode (0 off, 1 raw, 2 abs), y opacity on, z stipple on, w levels (1 focus,
     /// 2 context, 3 both; 0 when nothing is modulated).
-    pub mod_flags: [i32; 4],
+    pub(crate) mod_flags: [i32; 4],
     /// x γ, y base colour (0 ambient, 1 Phong).
-    pub mod_color: [f32; 4],
+    pub(crate) mod_color: [f32; 4],
     /// t_l, t_h, k_l, k_h (eq. 5).
-    pub mod_opacity: [f32; 4],
+    pub(crate) mod_opacity: [f32; 4],
     /// x t, y f (eq. 6).
-    pub mod_stipple: [f32; 4],
+    pub(crate) mod_stipple: [f32; 4],
     /// x stipple seed.
-    pub mod_seed: [u32; 4],
+    pub(crate) mod_seed: [u32; 4],
     /// rgb: eq. 6's white stipple colour; w 1.
     pub stipple_white: [f32; 4],
     /// rgb: eq. 6's black stipple colour; w 1.
     pub stipple_black: [f32; 4],
     /// Volume size in voxels (xyz), for the stipple grid.
-    pub volume_dims: [f32; 4],
+    pub(crate) volume_dims: [f32; 4],
     /// The ray caster's region in texture coordinates, samples in [lo, hi) only (`region_hi[3]`
     /// = 1 when set): one rank's box of an MPI job.
-    pub region_lo: [f32; 4],
+    pub(crate) region_lo: [f32; 4],
     /// xyz: the region's upper corner (exclusive); w 1 when a region is set, else 0.
-    pub region_hi: [f32; 4],
+    pub(crate) region_hi: [f32; 4],
 }
 
 impl SliceUniforms {
     /// Writes the modulation fields (all off when `m` is inactive).
-    pub fn set_modulation(&mut self, m: &Modulation, dims: [usize; 3]) {
+    pub(crate) fn set_modulation(&mut self, m: &Modulation, dims: [usize; 3]) {
         use crate::classify::modulation::{ApplyTo, ColorMode, ModulateLighting};
         let levels = match m.apply_to {
             ApplyTo::Focus => 1,
@@ -88,7 +88,7 @@ impl SliceUniforms {
 
 /// Uniforms; intensity, gradient, TF, occlusion, OTF, ΔD; max |ΔD| (`shade.glsl`, which the ray
 /// caster shares).
-pub const SHADE_BINDINGS: [BindingKind; 8] = [
+pub(crate) const SHADE_BINDINGS: [BindingKind; 8] = [
     BindingKind::UniformBuffer,
     BindingKind::SampledImage,
     BindingKind::SampledImage,

@@ -27,19 +27,19 @@ use vellum_gpu::{CommandBuffer, Format};
 
 /// What the slicer draws in one frame: the shared shading bindings, and the proxy planes staged
 /// in the frame's ring (the focus level's apart, for two levels).
-pub struct SliceDraw<'a> {
+pub(crate) struct SliceDraw<'a> {
     /// The eight bindings of `shade.glsl` (`render::shading::SHADE_BINDINGS`).
-    pub shading: &'a [Bind<'a>; 8],
+    pub(crate) shading: &'a [Bind<'a>; 8],
     /// Width and height of the targets in pixels.
     pub size: [u32; 2],
     /// The context's (or the one pass's) vertices and their count.
-    pub vertices: (BufferSlice, u32),
+    pub(crate) vertices: (BufferSlice, u32),
     /// The focus level's vertices and their count.
-    pub focus_vertices: Option<(BufferSlice, u32)>,
+    pub(crate) focus_vertices: Option<(BufferSlice, u32)>,
 }
 
 /// The slicer's pipelines.
-pub struct Slicer {
+pub(crate) struct Slicer {
     ctx: Arc<Context>,
     one_pass: GraphicsPipeline,
     focus: GraphicsPipeline,
@@ -145,7 +145,7 @@ impl Slicer {
 
     /// Passes `focus` (MRT: Phong, diffuse, linear depth, and D32 depth), `context` (depth-tested
     /// against the focus) and `composite` (context over focus) into `layers` and `composite`.
-    pub fn record_two_level(
+    pub(crate) fn record_two_level(
         &self,
         frame: &mut vellum_gpu::Frame,
         d: &SliceDraw,
@@ -201,7 +201,7 @@ impl Slicer {
     }
 
     /// Pass `one_pass`: every sample, classified and shaded, into `composite`.
-    pub fn record_one_pass(
+    pub(crate) fn record_one_pass(
         &self,
         frame: &mut vellum_gpu::Frame,
         d: &SliceDraw,

@@ -3,7 +3,7 @@
 //! in visibility order across the ranks ([`composite`]), by direct send or binary swap.
 //!
 //! A pixel's partial is focus.phong, focus.diffuse and context (premultiplied RGBA) and the
-//! focus depth. Front over back ([`over`]): the focus layers composite with "over", the depth is
+//! focus depth. Front over back (`over`): the focus layers composite with "over", the depth is
 //! the nearest region's that has focus, and the context of a region behind one that has focus
 //! is dropped: the single process's rule that context counts only in front of the first focus
 //! sample. The operator is associative, so any grouping that keeps the order gives the same
@@ -17,7 +17,7 @@ use vellum_volume::team::{KdTree, Team};
 use vellum_volume::Volume;
 
 /// Floats per pixel of a partial: focus.phong, focus.diffuse, context (RGBA each), focus depth.
-pub const FLOATS: usize = 13;
+pub(crate) const FLOATS: usize = 13;
 
 /// How the partials travel.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
@@ -56,15 +56,15 @@ impl Exchange {
 }
 
 /// Edge of a cell of the k-d split of a frame's volume, in voxels.
-pub const CELL: usize = 32;
+pub(crate) const CELL: usize = 32;
 
 /// Weight of a cell that holds only background, against 1 for one that holds more: its rays
 /// still walk it, but classify nothing and skip it where they can.
-pub const EMPTY_CELL: f64 = 0.25;
+pub(crate) const EMPTY_CELL: f64 = 0.25;
 
 /// The weight of each 32³-voxel cell of a grid of `dims` (x fastest), from `coarse`, the grid or
 /// any coarser copy of it (a store's small level): 1 where the cell's largest value rises above
-/// the copy's smallest by more than 1 % of its range, [`EMPTY_CELL`] elsewhere.
+/// the copy's smallest by more than 1 % of its range, `EMPTY_CELL` elsewhere.
 pub fn cell_weights(coarse: &Volume, dims: [usize; 3]) -> Vec<f64> {
     let counts = dims.map(|n| n.div_ceil(CELL).max(1));
     let c = coarse.dims;
@@ -182,7 +182,7 @@ fn over4(front: [f32; 4], back: [f32; 4]) -> [f32; 4] {
 }
 
 /// `front` over `back`, pixel by pixel, into `front`.
-pub fn over(front: &mut [f32], back: &[f32]) {
+pub(crate) fn over(front: &mut [f32], back: &[f32]) {
     for (f, b) in front
         .chunks_exact_mut(FLOATS)
         .zip(back.chunks_exact(FLOATS))
@@ -212,7 +212,7 @@ pub struct Cost {
     /// Wall-clock seconds this rank spent compositing: from the barrier after ray casting through
     /// the gather to rank 0.
     pub seconds: f64,
-    /// Of those seconds, the ones spent in [`over`] (the rest is the exchange and the gather).
+    /// Of those seconds, the ones spent in `over` (the rest is the exchange and the gather).
     pub over_seconds: f64,
 }
 

@@ -46,7 +46,7 @@ impl Default for StreamOptions {
 }
 
 /// Bytes of bricks that may wait ready to upload by default: about 1,400 bricks at 16 bits.
-pub const DEFAULT_READY_BYTES: u64 = 128 << 20;
+pub(crate) const DEFAULT_READY_BYTES: u64 = 128 << 20;
 
 /// A brick that arrived and has a slot: what to upload with the next frame.
 pub struct Arrived {
@@ -83,7 +83,7 @@ pub struct Batch {
 pub struct Streamer {
     loader: BrickLoader,
     /// Every brick asked for since the streamer started (the distinct bricks a frame touched).
-    pub asked: HashSet<usize>,
+    pub(crate) asked: HashSet<usize>,
     /// Bricks that arrived and were placed, those that needed an upload, and their bytes.
     pub placed: u64,
     /// Bricks placed per level, finest first.
@@ -114,7 +114,7 @@ impl Streamer {
     }
 
     /// The loaders.
-    pub fn loader(&self) -> &BrickLoader {
+    pub(crate) fn loader(&self) -> &BrickLoader {
         &self.loader
     }
 
@@ -278,7 +278,7 @@ pub struct Floor {
     /// Their voxel bytes once decoded: the amount the upload floor copies.
     pub bytes: u64,
     /// Milliseconds to decode them again in parallel on every core.
-    pub decode_ms: f64,
+    pub(crate) decode_ms: f64,
     /// Milliseconds to copy `bytes` from host-visible to device-local memory.
     pub upload_ms: f64,
 }

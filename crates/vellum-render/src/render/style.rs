@@ -30,7 +30,7 @@ pub enum LineKind {
 
 /// Abstraction of the context layer (TL6).
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
-pub enum Abstraction {
+pub(crate) enum Abstraction {
     /// The four-quadrant Kuwahara filter of radius `kuwahara_radius` pixels.
     Kuwahara,
     /// Saturation variation of the context colours by the factor `saturation`.
@@ -49,7 +49,7 @@ pub struct StyleDef {
     /// The object-space lines drawn into the edge layer, if any.
     pub lines: Option<LineKind>,
     /// The abstraction applied to the context layer, if any.
-    pub abstraction: Option<Abstraction>,
+    pub(crate) abstraction: Option<Abstraction>,
 }
 
 const fn style(

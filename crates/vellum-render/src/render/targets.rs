@@ -14,13 +14,13 @@ use vellum_gpu::{Buffer, BufferDesc, Context, Frame, Image, ImageDesc};
 
 /// Colour layers: premultiplied RGBA in float.
 // RGBA32F: many slices blend into each pixel, which 8 bits would band; EXR keeps the float.
-pub const COLOR: Format = Format::R32G32B32A32_SFLOAT;
+pub(crate) const COLOR: Format = Format::R32G32B32A32_SFLOAT;
 /// The linear focus depth.
 // R32F: one distance a pixel (+inf where no focus), which the line raster tests against.
-pub const LINEAR_DEPTH: Format = Format::R32_SFLOAT;
+pub(crate) const LINEAR_DEPTH: Format = Format::R32_SFLOAT;
 /// The depth-test buffer of the focus.
 // D32F: float depth, so that the context pass's test against the focus keeps its precision.
-pub const DEPTH: Format = Format::D32_SFLOAT;
+pub(crate) const DEPTH: Format = Format::D32_SFLOAT;
 
 /// Names of the layers, as in the EXR output and for [`FrameTargets::layer`].
 pub const LAYER_NAMES: [&str; 5] = [
@@ -99,7 +99,7 @@ impl Smoothed {
 impl ViewState {
     /// The lines' state, made with a buffer of `capacity` segments when this view has none yet,
     /// and the copy of volume `volume` smoothed by `radius` when kept (never for radius 0).
-    pub fn lines_and_smoothed(
+    pub(crate) fn lines_and_smoothed(
         &mut self,
         ctx: &Arc<Context>,
         capacity: u32,
@@ -113,7 +113,7 @@ impl ViewState {
     }
 
     /// The ray states for `pixels` rays, made (or remade larger) when needed.
-    pub fn ray_states(&mut self, ctx: &Arc<Context>, pixels: u64) -> Result<&vellum_gpu::Buffer> {
+    pub(crate) fn ray_states(&mut self, ctx: &Arc<Context>, pixels: u64) -> Result<&vellum_gpu::Buffer> {
         if self.rays.as_ref().is_none_or(|(n, _)| *n < pixels) {
             let bytes = pixels.max(1) * crate::passes::paging::RAY_STATE_BYTES;
             let buffer = vellum_gpu::Buffer::new(
@@ -127,13 +127,13 @@ impl ViewState {
     }
 
     /// Whether the copy of volume `volume` smoothed by `radius` (> 0) is kept.
-    pub fn has_smoothed(&self, volume: u64, radius: u32) -> bool {
+    pub(crate) fn has_smoothed(&self, volume: u64, radius: u32) -> bool {
         Smoothed::kept(&self.smoothed, volume, radius).is_some()
     }
 
     /// Keeps `image`, the copy of volume `volume` smoothed by `radius`, in place of the last one
     /// (which is released once the frames using it complete).
-    pub fn keep_smoothed(&mut self, volume: u64, radius: u32, image: Image) {
+    pub(crate) fn keep_smoothed(&mut self, volume: u64, radius: u32, image: Image) {
         self.smoothed = Some(Smoothed {
             volume,
             radius,
@@ -315,7 +315,7 @@ impl TargetsReadback {
 
 /// Passes of Canny's hysteresis (see `render::post`'s doc), whose change counters
 /// [`PostTargets`] holds.
-pub const HYSTERESIS_PASSES: u32 = 16;
+pub(crate) const HYSTERESIS_PASSES: u32 = 16;
 
 /// The images the post passes work in, for one size.
 pub struct PostTargets {
@@ -324,11 +324,11 @@ pub struct PostTargets {
     /// Luminance of focus.diffuse.
     pub luminance: Image,
     /// Blur scratch and results.
-    pub tmp: Image,
+    pub(crate) tmp: Image,
     /// The first Gaussian blur of the luminance: DoG's narrow one, Canny's smoothing.
-    pub blur_a: Image,
+    pub(crate) blur_a: Image,
     /// The second blur, DoG's wide one (σ · k).
-    pub blur_b: Image,
+    pub(crate) blur_b: Image,
     /// Sobel gradient (gx, gy, normalised magnitude).
     pub gradient: Image,
     /// Edge strength in [0, 1], or Canny's classes (2 edge, 1 weak, 0 none).

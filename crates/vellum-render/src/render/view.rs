@@ -1,6 +1,6 @@
 //! What a frame looks at and how: the [`View`] (camera, size, planes, levels, lighting, style,
 //! renderer), the ray caster's [`RayOptions`], and the geometry every renderer derives from it
-//! once per frame: the volume's [`WorldBox`] and the [`FrameCamera`]. Plain CPU data; no Vulkan.
+//! once per frame: the volume's [`WorldBox`] and the `FrameCamera`. Plain CPU data; no Vulkan.
 //!
 //! ## Spaces
 //! World space is LPS millimetres scaled so that the box's longest edge is 1, centred at the
@@ -76,10 +76,10 @@ pub struct View {
 }
 
 /// Margin left around a fitted volume, as a fraction of the image's half-size.
-pub const FIT_MARGIN: f32 = 0.05;
+pub(crate) const FIT_MARGIN: f32 = 0.05;
 
 /// Most slice planes a frame may draw.
-pub const MAX_SLICES: u32 = 16384;
+pub(crate) const MAX_SLICES: u32 = 16384;
 
 /// The ray caster's options.
 #[derive(Copy, Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -166,9 +166,9 @@ pub struct WorldBox {
     /// Half extents along the box's axes.
     pub half: Vec3,
     /// Box axes → world (LPS for an oriented volume; identity otherwise).
-    pub rot: Mat3,
+    pub(crate) rot: Mat3,
     /// The longest physical edge in millimetres (what one world unit is).
-    pub longest: f64,
+    pub(crate) longest: f64,
     /// The smallest voxel spacing in world units.
     pub voxel: f64,
 }
@@ -234,11 +234,9 @@ pub fn frame_camera(bx: &WorldBox, view: &View) -> Camera {
 /// The camera of one frame, computed once: the fitted [`Camera`] and what the passes need of it
 /// in the box frame.
 #[derive(Copy, Clone, Debug)]
-pub struct FrameCamera {
+pub(crate) struct FrameCamera {
     /// The view's camera, its distance fitted to the box when `View::fit`.
     pub camera: Camera,
-    /// Width over height.
-    pub aspect: f32,
     /// The view direction in the box frame (unit length).
     pub view_dir: Vec3,
     /// The eye in the box frame (for an orthographic camera, a point on the axis behind the box).
@@ -256,7 +254,6 @@ impl FrameCamera {
         let aspect = w as f32 / h as f32;
         FrameCamera {
             camera,
-            aspect,
             view_dir: bx.rot.transpose() * camera.view_dir(radius),
             eye: bx.rot.transpose() * camera.eye(radius),
             view_proj: camera.view_proj(aspect, radius) * Mat4::from_mat3(bx.rot),

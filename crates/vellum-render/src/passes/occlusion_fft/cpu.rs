@@ -12,16 +12,15 @@
 //! product never makes a pass of its own and the data spectrum stays intact for reuse (a radius
 //! sweep transforms the data once).
 
-use super::{check_pad, Denominator, Kernel};
+use super::{Denominator, Kernel};
 use rayon::prelude::*;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 use rustfft::num_complex::Complex32;
 use rustfft::Fft;
 use std::sync::Arc;
-use vellum_error::Result;
 
 /// Columns transformed together along y and z.
-pub const CHUNK: usize = 16;
+pub(crate) const CHUNK: usize = 16;
 
 /// A raw pointer shared by tasks that write disjoint lines of one buffer.
 #[derive(Clone, Copy)]
@@ -32,7 +31,7 @@ unsafe impl Send for Lines {}
 unsafe impl Sync for Lines {}
 
 /// Plans for one padded size.
-pub struct CpuFft {
+pub(crate) struct CpuFft {
     /// The padded size (Px, Py, Pz) in voxels that the plans transform.
     pub pad: [usize; 3],
     /// Px/2 + 1: the number of x coefficients a real-to-complex row keeps.
@@ -44,9 +43,7 @@ pub struct CpuFft {
 }
 
 /// A half spectrum and the padded size it belongs to.
-pub struct HalfSpectrum {
-    /// The padded size (Px, Py, Pz) it was transformed at.
-    pub pad: [usize; 3],
+pub(crate) struct HalfSpectrum {
     /// The half·Py·Pz coefficients, x fastest (`s[kx + half·(y + Py·z)]`); z is untransformed when
     /// [`CpuFft::forward`] ran without `full`.
     pub data: Vec<Complex32>,
@@ -172,15 +169,12 @@ impl CpuFft {
                 },
             );
         }
-        HalfSpectrum {
-            pad: self.pad,
-            data,
-        }
+        HalfSpectrum { data }
     }
 
     /// The real spectrum of `kernel` (even, so its DFT is real), wrapped around the origin and cut
     /// at the reach of `dims`.
-    pub fn kernel_spectrum(&self, kernel: Kernel, dims: [usize; 3]) -> Vec<f32> {
+    pub(crate) fn kernel_spectrum(&self, kernel: Kernel, dims: [usize; 3]) -> Vec<f32> {
         let [px, py, pz] = self.pad;
         let r = kernel.radius();
         let e = dims.map(|n| super::reach(r, n));
@@ -215,7 +209,7 @@ impl CpuFft {
 
     /// The forward transform (x and y; z is fused into [`CpuFft::convolve`]) of the field
     /// `values` (x fastest, `dims`), zero-padded.
-    pub fn data_spectrum(&self, values: &[f32], dims: [usize; 3]) -> HalfSpectrum {
+    pub(crate) fn data_spectrum(&self, values: &[f32], dims: [usize; 3]) -> HalfSpectrum {
         let fill = |y: usize, z: usize, row: &mut [f32]| {
             let start = dims[0] * (y + dims[1] * z);
             row[..dims[0]].copy_from_slice(&values[start..start + dims[0]]);
@@ -225,7 +219,7 @@ impl CpuFft {
 
     /// O at the output grid of `stride`: the inverse of (data · kernel) divided by `den`, clamped
     /// to [0, 1] (a mean of values in [0, 1]; round-off may stray by ~1e-7).
-    pub fn convolve(
+    pub(crate) fn convolve(
         &self,
         data: &HalfSpectrum,
         kernel: &[f32],
@@ -327,21 +321,4 @@ impl CpuFft {
             );
         out
     }
-}
-
-/// Ambient occlusion of `mapped` (M per voxel, x fastest) by FFT on the CPU, at the output grid
-/// of `stride`. `pad` may be larger than [`super::padded_dims`] (a sweep shares one).
-pub fn occlusion(
-    mapped: &[f32],
-    dims: [usize; 3],
-    kernel: Kernel,
-    pad: [usize; 3],
-    stride: usize,
-) -> Result<Vec<f32>> {
-    check_pad(dims, pad, kernel.radius())?;
-    let fft = CpuFft::new(pad);
-    let data = fft.data_spectrum(mapped, dims);
-    let k = fft.kernel_spectrum(kernel, dims);
-    let den = Denominator::new(dims, kernel);
-    Ok(fft.convolve(&data, &k, dims, &den, stride))
 }

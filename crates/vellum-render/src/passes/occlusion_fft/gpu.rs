@@ -27,7 +27,7 @@ use vellum_gpu::{CommandBuffer, Format};
 /// Push constants of the FFT passes (GLSL twin: `FftPush` in occlusion.glsl).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct FftPush {
+pub(crate) struct FftPush {
     /// Volume size N in voxels.
     pub dims: [i32; 3],
     /// `fft_x`: 0 data, 1 ball kernel, 2 Gaussian kernel; `fft_z`: 0 kernel spectrum, 1 convolve.
@@ -37,23 +37,23 @@ pub struct FftPush {
     /// R in voxels.
     pub radius: i32,
     /// Rows (y) and planes (z) that hold data; those at or beyond are read as zero.
-    pub live: [i32; 3],
+    pub(crate) live: [i32; 3],
     /// Output voxel o samples voxel o · stride.
     pub stride: i32,
     /// min(R, N − 1) per axis: how far the kernel reaches within the volume.
-    pub reach: [i32; 3],
+    pub(crate) reach: [i32; 3],
     /// Length of this pass's transforms (P along its axis).
     pub n: i32,
     /// Output size: N / stride, rounded up.
-    pub out_dims: [i32; 3],
+    pub(crate) out_dims: [i32; 3],
     /// Radix stages of a transform of length n.
-    pub stages: i32,
+    pub(crate) stages: i32,
     /// Radices of stages 0–7, 4 bits each, stage 0 in the lowest bits.
-    pub radices0: i32,
+    pub(crate) radices0: i32,
     /// Radices of stages 8–15, packed as `radices0`.
-    pub radices1: i32,
+    pub(crate) radices1: i32,
     /// Index in the twiddle table of the first twiddle of length n.
-    pub twiddle_base: i32,
+    pub(crate) twiddle_base: i32,
     /// The visibility mapping M: 0 linear ramp, 1 truncated ramp, 2 a transfer function's opacity.
     pub mapping: i32,
     /// The truncated ramp's lower cut-off, in normalised intensity.
@@ -65,18 +65,18 @@ pub struct FftPush {
     /// −1 forward, +1 inverse: the sign of the twiddles' exponent.
     pub dir: f32,
     /// Boundary classes per axis of the exact denominator's table.
-    pub classes: [i32; 3],
+    pub(crate) classes: [i32; 3],
     /// Padding to 128 bytes, a multiple of the block's 16-byte std430 alignment.
-    pub pad0: i32,
+    pub(crate) pad0: i32,
 }
 
 /// Longest transform: one line of complex f32 in 32 KiB of shared memory (FFT_MAX_N).
-pub const MAX_LENGTH: usize = 4096;
+pub(crate) const MAX_LENGTH: usize = 4096;
 /// Shared memory the passes declare.
-pub const SHARED_BYTES: u32 = (MAX_LENGTH * 8) as u32;
+pub(crate) const SHARED_BYTES: u32 = (MAX_LENGTH * 8) as u32;
 
 /// The radix stages of a transform of length n: fours first, then 2, 3 and 5.
-pub fn radices(mut n: usize) -> Vec<u32> {
+pub(crate) fn radices(mut n: usize) -> Vec<u32> {
     let mut out = Vec::new();
     for r in [4, 2, 3, 5] {
         while n.is_multiple_of(r) && n > 1 {
@@ -89,7 +89,7 @@ pub fn radices(mut n: usize) -> Vec<u32> {
 
 /// Forward twiddles of every stage of length n (see fft.glsl for the indexing), in double
 /// precision rounded to f32.
-pub fn twiddles(n: usize) -> Vec<[f32; 2]> {
+pub(crate) fn twiddles(n: usize) -> Vec<[f32; 2]> {
     let mut out = Vec::with_capacity(n.saturating_sub(1));
     let mut ns = 1usize;
     for r in radices(n) {
@@ -126,7 +126,7 @@ pub struct FftGpu {
 }
 
 /// Why the GPU method cannot run on this device, if it cannot.
-pub fn unavailable(ctx: &Context) -> Option<String> {
+pub(crate) fn unavailable(ctx: &Context) -> Option<String> {
     if !ctx.info.storage_image_extended_formats {
         return Some(format!(
             "{} cannot store two-channel float images (shaderStorageImageExtendedFormats), which `method` fft-gpu needs; use `method` fft-cpu",
@@ -143,7 +143,7 @@ pub fn unavailable(ctx: &Context) -> Option<String> {
 }
 
 impl FftGpu {
-    /// Builds the four pipelines; refused where [`unavailable`] gives a reason.
+    /// Builds the four pipelines; refused where `unavailable` gives a reason.
     pub fn new(ctx: &Arc<Context>) -> Result<Self> {
         if let Some(why) = unavailable(ctx) {
             return Err(Error::Invalid(why));
@@ -310,7 +310,7 @@ impl FftWork {
     }
 
     /// Whether this work serves (dims, pad, kernel, stride).
-    pub fn serves(&self, dims: [usize; 3], pad: [usize; 3], kernel: Kernel, stride: usize) -> bool {
+    pub(crate) fn serves(&self, dims: [usize; 3], pad: [usize; 3], kernel: Kernel, stride: usize) -> bool {
         self.dims == dims && self.pad == pad && self.kernel == kernel && self.stride == stride
     }
 }

@@ -13,7 +13,7 @@
 //!   half spectrum. It is computed once per (kernel, P) and cached by the caller.
 //! - **Denominator.** It is never transformed. Along an axis, the kernel's in-volume extent at x
 //!   depends only on (min(x, reach), min(N − 1 − x, reach)): at most 2·reach + 1 classes, and one
-//!   class for the whole interior. [`Denominator`] tabulates the exact weight for every triple of
+//!   class for the whole interior. `Denominator` tabulates the exact weight for every triple of
 //!   classes (integer counts for the ball, by 2D prefix sums over (dy, dz); products of 1D sums for
 //!   the separable Gaussian). That is exact, where a transform of 1_V would carry FFT round-off
 //!   into every division, and it costs well under a transform.
@@ -22,7 +22,7 @@
 //!   resolution transform (which does not grow with R, while a downsampled grid would change the
 //!   neighbourhood's shape).
 
-pub mod cpu;
+pub(crate) mod cpu;
 pub mod gpu;
 
 use crate::classify::mapping::Neighbourhood;
@@ -61,7 +61,7 @@ impl Kernel {
     }
 
     /// K at offset (dx, dy, dz).
-    pub fn weight(&self, d: [i64; 3]) -> f32 {
+    pub(crate) fn weight(&self, d: [i64; 3]) -> f32 {
         match *self {
             Kernel::Ball(r) => {
                 let r = r as i64;
@@ -79,12 +79,12 @@ impl Kernel {
 }
 
 /// How far the kernel reaches along an axis of n voxels: offsets beyond n − 1 never land inside.
-pub fn reach(radius: u32, n: usize) -> usize {
+pub(crate) fn reach(radius: u32, n: usize) -> usize {
     (radius as usize).min(n.saturating_sub(1))
 }
 
 /// The smallest size ≥ n whose prime factors are 2, 3 and 5.
-pub fn smooth_size(n: usize) -> usize {
+pub(crate) fn smooth_size(n: usize) -> usize {
     let mut m = n.max(1);
     loop {
         let mut k = m;
@@ -106,7 +106,7 @@ pub fn padded_dims(dims: [usize; 3], radius: u32) -> [usize; 3] {
 }
 
 /// Checks that `pad` is large enough for `dims` and `radius` (a sweep may share a larger one).
-pub fn check_pad(dims: [usize; 3], pad: [usize; 3], radius: u32) -> Result<()> {
+pub(crate) fn check_pad(dims: [usize; 3], pad: [usize; 3], radius: u32) -> Result<()> {
     for a in 0..3 {
         if pad[a] < dims[a] + reach(radius, dims[a]) || smooth_size(pad[a]) != pad[a] {
             return Err(Error::Invalid(format!(
@@ -120,11 +120,11 @@ pub fn check_pad(dims: [usize; 3], pad: [usize; 3], radius: u32) -> Result<()> {
 /// The exact denominator 1_V ∗ K, tabulated over per-axis boundary classes:
 /// `den(x, y, z) = table[cx[x] + nx·(cy[y] + ny·cz[z])]`.
 #[derive(Clone, Debug)]
-pub struct Denominator {
+pub(crate) struct Denominator {
     /// Class of each coordinate, per axis.
-    pub class: [Vec<u32>; 3],
+    pub(crate) class: [Vec<u32>; 3],
     /// Number of classes per axis.
-    pub classes: [usize; 3],
+    pub(crate) classes: [usize; 3],
     /// The in-volume kernel weight of every triple of classes, the x class fastest.
     pub table: Vec<f32>,
 }
@@ -313,7 +313,7 @@ fn denominator_entries_for_pad(dims: [usize; 3], pad: [usize; 3]) -> usize {
 }
 
 /// Memory this machine has available (MemAvailable), where the system says.
-pub fn available_memory() -> Option<u64> {
+pub(crate) fn available_memory() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
