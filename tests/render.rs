@@ -241,3 +241,104 @@ fn exr_holds_the_five_named_layers() {
         .count();
     assert!(covered > 50);
 }
+
+/// The lit share of an 8-bit RGB image (pixels with a channel above 30/255) and its brightest
+/// channel value.
+fn lit(png: &std::path::Path) -> (f64, u8) {
+    let rgb = image::open(png).unwrap().to_rgb8();
+    let n = rgb.pixels().filter(|p| p.0.iter().any(|&c| c > 30)).count();
+    let max = rgb.pixels().flat_map(|p| p.0).max().unwrap_or(0);
+    (n as f64 / (rgb.width() * rgb.height()) as f64, max)
+}
+
+#[test]
+fn auto_shows_a_mask_as_clearly_as_a_scan() {
+    // A ball of radius 20 in 64³, as bytes and as floats: before, `auto` drew it black, and
+    // under --iso 0.5 as a dim blob (RGB max 84/255) lit by ambient light alone.
+    let dir = tempfile::tempdir().unwrap();
+    let c = 31.5f64;
+    let inside = |i: usize| {
+        let (x, y, z) = ((i % 64) as f64, ((i / 64) % 64) as f64, (i / 4096) as f64);
+        (x - c).powi(2) + (y - c).powi(2) + (z - c).powi(2) <= 400.0
+    };
+    let bytes: Vec<u8> = (0..64 * 64 * 64).map(|i| u8::from(inside(i))).collect();
+    let floats: Vec<u8> = bytes
+        .iter()
+        .flat_map(|&b| (b as f32).to_le_bytes())
+        .collect();
+    for (ty, data) in [("u8", bytes), ("f32", floats)] {
+        let raw = dir.path().join(format!("ball-{ty}.raw"));
+        std::fs::write(&raw, data).unwrap();
+        for iso in [None, Some("0.5")] {
+            let png = dir.path().join("ball.png");
+            let mut args = vec![
+                "render",
+                raw.to_str().unwrap(),
+                "--raw-dims",
+                "64,64,64",
+                "--raw-type",
+                ty,
+                "--size",
+                "96x96",
+                "--out",
+                png.to_str().unwrap(),
+            ];
+            if let Some(v) = iso {
+                args.extend(["--iso", v]);
+            }
+            let out = common::vellum(&args);
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let (share, max) = lit(&png);
+            // The ball covers 8.8 % of the frame at the default framing (before: 0 and 0.7 %).
+            assert!(
+                share > 0.05 && max >= 200,
+                "{ty} ball, --iso {iso:?}: {share:.3} of the pixels lit, max {max}/255"
+            );
+        }
+    }
+}
+
+#[test]
+fn auto_shows_every_label_of_the_frog_tissue() {
+    let Some(data) = common::shared_data() else {
+        return;
+    };
+    // 26 labels (0 the background, 1..29 the tissues): `auto` makes each of them opaque and the
+    // background transparent (before, labels 1 and 2 sat at the window's foot, transparent).
+    let frog = data.join("formats/metaimage/frogtissue.mhd");
+    let v = vellum::volume::io::load(&frog, None).unwrap();
+    let range = v.normalised_range();
+    let tf = vellum::classify::window::auto(&v, range).unwrap();
+    let mut present = [false; 256];
+    (0..v.len()).for_each(|i| present[v.data.get_f64(i) as usize] = true);
+    for label in (0..256).filter(|&l| present[l]) {
+        let alpha = tf.sample(((label as f64 - range[0]) / (range[1] - range[0])) as f32)[3];
+        assert_eq!(alpha, if label == 0 { 0.0 } else { 1.0 }, "label {label}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("frog.png");
+    let out = common::vellum(&[
+        "render",
+        frog.to_str().unwrap(),
+        "--renderer",
+        "raycast",
+        "--size",
+        "128x128",
+        "--out",
+        png.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let (share, max) = lit(&png);
+    assert!(
+        share > 0.05 && max >= 200,
+        "{share:.3} of the pixels lit, max {max}/255"
+    );
+}

@@ -255,3 +255,15 @@ def test_a_store_beyond_its_budget_streams_through_the_session(tmp_path):
         with pytest.raises(vellum.Error, match=phrase) as raised:
             vellum.render(str(store), **bad)
         assert "\n" not in str(raised.value)
+
+
+def test_auto_shows_a_mask():
+    """A 0/1 ball rendered with the default `auto` transfer function is white and lit, as the
+    command line draws it (before: all black, and a dim blob under iso=0.5)."""
+    z, y, x = np.mgrid[:64, :64, :64]
+    ball = ((x - 31.5) ** 2 + (y - 31.5) ** 2 + (z - 31.5) ** 2 <= 400).astype(np.uint8)
+    for iso in [None, 0.5]:
+        options = {} if iso is None else {"iso": iso}
+        rgb = vellum.render(vellum.Volume(ball), size=(96, 96), **options).rgba[..., :3]
+        lit = (rgb.max(axis=2) > 30).mean()
+        assert lit > 0.05 and rgb.max() >= 200, (iso, lit, rgb.max())

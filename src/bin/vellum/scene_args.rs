@@ -22,7 +22,8 @@ pub(crate) struct SceneArgs {
     #[arg(long = "scene", value_name = "FILE")]
     pub(crate) file: Option<PathBuf>,
     /// Transfer function: auto (the grey ramp over the window from the 1st to the 99.5th
-    /// percentile of the voxels above the background), a preset (grey, ct-bone, ct-skin-bone,
+    /// percentile of the voxels above the background; for a mask or labels, opaque white from
+    /// halfway between the two lowest values), a preset (grey, ct-bone, ct-skin-bone,
     /// mri-brain) or a JSON file [default: auto].
     #[arg(long)]
     pub(crate) tf: Option<String>,

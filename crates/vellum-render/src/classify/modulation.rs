@@ -204,7 +204,6 @@ impl Modulation {
         }
         Ok(())
     }
-
 }
 
 /// Eq. 3 / eq. 4: `rgb` plus ΔD·γ (or |ΔD|·γ) in every channel, floored at 0.

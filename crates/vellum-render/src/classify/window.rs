@@ -8,6 +8,18 @@
 //! in MRI). The percentiles are taken over the remaining voxels, from a 4096-bin histogram.
 //! A volume with no voxel above its background (a constant, or a mask of zeros) gets the whole
 //! range.
+//!
+//! **Few distinct values.** A mask or a label volume takes a handful of values, and the
+//! percentile window fails on it: a 0/1 mask's content is one level, so the window collapses onto
+//! it and the surface, where the gradient is, stays transparent (a ball of radius 20 rendered
+//! black, or as a dim blob lit by ambient light alone under `--iso 0.5`); a label volume's lowest
+//! labels sit at the window's foot, transparent. Such a volume ([`levels`]: at most
+//! `MAX_LEVELS` distinct values, and integer voxels or a single level above the lowest) gets a
+//! window between its lowest value v₀ (the background) and the next one v₁: transparent below
+//! v₀ + ¼(v₁ − v₀), opaque white from v₀ + ½(v₁ − v₀) on. Every label, and the boundary of the
+//! mask where its gradient is, is then opaque and lit, and `--iso` at the midpoint finds white.
+//! A float volume with a few levels above its background (the Shepp–Logan phantom's 0.2, 0.3 and
+//! 1) keeps the percentile window: its levels are intensities, to be seen as a CT's are.
 
 use crate::classify::transfer::{ControlPoint, TransferFunction};
 use rayon::prelude::*;
@@ -22,12 +34,23 @@ pub(crate) const BACKGROUND: f64 = 0.02;
 pub(crate) const PERCENTILES: [f64; 2] = [0.01, 0.995];
 const BINS: usize = 4096;
 
-/// The window [lo, hi] on the normalised range of `range` = [min, max]: the [`PERCENTILES`] of
-/// the voxels of `v` above the background.
+/// The most distinct values a volume may take to be windowed as a mask or labels.
+const MAX_LEVELS: usize = 64;
+
+/// The window [lo, hi] on the normalised range of `range` = [min, max]: between the two lowest
+/// values of a mask or a label volume ([`levels`]), else the [`PERCENTILES`] of the voxels of `v`
+/// above the background.
 pub(crate) fn auto_window(v: &Volume, range: [f64; 2]) -> [f32; 2] {
     let width = range[1] - range[0];
     if width.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return [0.0, 1.0];
+    }
+    if let Some(levels) = levels(v, range) {
+        let discrete = v.voxel_type() != vellum_volume::VoxelType::F32 || levels.len() == 2;
+        if discrete && levels.len() >= 2 {
+            let (v0, gap) = (levels[0], levels[1] - levels[0]);
+            return [v0 + 0.25 * gap, v0 + 0.5 * gap];
+        }
     }
     let floor = BACKGROUND * BINS as f64;
     let histogram = (0..v.len())
@@ -69,6 +92,26 @@ pub(crate) fn auto_window(v: &Volume, range: [f64; 2]) -> [f32; 2] {
         lo as f32 / BINS as f32,
         (hi as f32 / BINS as f32).max(lo as f32 / BINS as f32 + 1e-3),
     ]
+}
+
+/// The distinct values of `v`, normalised over `range` and ascending, when there are at most
+/// `MAX_LEVELS` of them; `None` for a volume with more (a scan), found without reading it all.
+pub(crate) fn levels(v: &Volume, range: [f64; 2]) -> Option<Vec<f32>> {
+    let width = range[1] - range[0];
+    (0..v.len())
+        .into_par_iter()
+        .try_fold(Vec::new, |set, i| {
+            add_level(set, ((v.data.get_f64(i) - range[0]) / width) as f32)
+        })
+        .try_reduce(Vec::new, |a, b| b.into_iter().try_fold(a, add_level))
+}
+
+/// `set` (ascending) with `x` in it, or `None` once it holds more than `MAX_LEVELS`.
+fn add_level(mut set: Vec<f32>, x: f32) -> Option<Vec<f32>> {
+    if let Err(at) = set.binary_search_by(|p| p.total_cmp(&x)) {
+        set.insert(at, x);
+    }
+    (set.len() <= MAX_LEVELS).then_some(set)
 }
 
 /// Control points of the ramp across the window.
@@ -144,6 +187,34 @@ mod tests {
             (mid[3] - 0.5).abs() < 1e-3 && (mid[0] - 0.5f32.sqrt()).abs() < 0.01,
             "{mid:?}"
         );
+    }
+
+    #[test]
+    fn masks_and_labels_get_a_window_below_their_first_level() {
+        // A 0/1 mask, as bytes and as floats: transparent below ¼, opaque white from ½.
+        let mask: Vec<u8> = (0..1000).map(|i| u8::from(i % 7 == 0)).collect();
+        assert_eq!(auto_window(&volume(mask.clone()), [0.0, 1.0]), [0.25, 0.5]);
+        let floats: Vec<f32> = mask.iter().map(|&m| m as f32).collect();
+        let f = Volume::new([1000, 1, 1], [1.0; 3], VoxelData::F32(floats)).unwrap();
+        assert_eq!(auto_window(&f, [0.0, 1.0]), [0.25, 0.5]);
+        let tf = auto(&f, [0.0, 1.0]).unwrap();
+        assert_eq!(tf.sample(0.2)[3], 0.0);
+        assert_eq!(
+            tf.sample(0.5),
+            [1.0; 4],
+            "the midpoint, where --iso 0.5 is, is white"
+        );
+        // Labels 0..29: every label above the ramp, label 1 included.
+        let labels: Vec<u8> = (0..3000).map(|i| (i % 30) as u8).collect();
+        let [lo, hi] = auto_window(&volume(labels), [0.0, 29.0]);
+        assert!((lo * 29.0 - 0.25).abs() < 1e-4 && (hi * 29.0 - 0.5).abs() < 1e-4);
+        // A float volume with three levels above its background keeps the percentiles.
+        let shepp: Vec<f32> = (0..1000).map(|i| [0.0, 0.2, 0.3, 1.0][i % 4]).collect();
+        let s = Volume::new([1000, 1, 1], [1.0; 3], VoxelData::F32(shepp)).unwrap();
+        assert!((auto_window(&s, [0.0, 1.0])[0] - 0.2).abs() < 1e-3);
+        // More than MAX_LEVELS values: a scan, no levels.
+        let scan: Vec<u8> = (0..=255).collect();
+        assert_eq!(levels(&volume(scan), [0.0, 255.0]), None);
     }
 
     #[test]

@@ -2,9 +2,9 @@
 //! premultiplied RGBA: the classic four-quadrant Kuwahara filter, saturation variation, and edges
 //! laid over the focus under the context.
 
-use super::{luminance, Plane};
 #[cfg(test)]
 use super::LUMA;
+use super::{luminance, Plane};
 
 /// Classic Kuwahara filter of radius `r`: each pixel takes the mean colour of whichever of its four
 /// (r+1)×(r+1) quadrants (top-left, top-right, bottom-left, bottom-right, each including the pixel's

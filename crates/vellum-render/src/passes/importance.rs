@@ -600,10 +600,7 @@ impl ImportanceMap {
             sampler,
         };
         let (delta_d, max_abs) = self.record_filter(frame, &source, radius_voxels, true)?;
-        Ok(ImportanceVolume {
-            delta_d,
-            max_abs,
-        })
+        Ok(ImportanceVolume { delta_d, max_abs })
     }
 
     /// Records G∗V of a normalised volume texture (R16 or R32F, read texel by texel through the

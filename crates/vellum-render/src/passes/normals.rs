@@ -177,7 +177,12 @@ impl VolumeTextures {
     }
 
     /// Records pass `upload`: `staging` (from [`VolumeTextures::new`]) into the intensity texture.
-    pub(crate) fn record_upload(&self, ctx: &Context, frame: &mut Frame, staging: &vellum_gpu::Buffer) {
+    pub(crate) fn record_upload(
+        &self,
+        ctx: &Context,
+        frame: &mut Frame,
+        staging: &vellum_gpu::Buffer,
+    ) {
         frame.profiler.pass(frame.cmd, "upload", |cmd| {
             vellum_gpu::transfer::record_upload(
                 ctx,

@@ -171,7 +171,12 @@ impl FrameSetup {
     }
 
     /// The ray caster's push constants for `options` on a volume of `bricks`.
-    pub(crate) fn ray_push(&self, options: &RayOptions, bricks: [usize; 3], two_level: bool) -> RayPush {
+    pub(crate) fn ray_push(
+        &self,
+        options: &RayOptions,
+        bricks: [usize; 3],
+        two_level: bool,
+    ) -> RayPush {
         let c = bricks.map(|n| n as i32);
         RayPush {
             inv_view_proj: self.camera.view_proj.inverse().to_cols_array_2d(),

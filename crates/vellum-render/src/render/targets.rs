@@ -113,7 +113,11 @@ impl ViewState {
     }
 
     /// The ray states for `pixels` rays, made (or remade larger) when needed.
-    pub(crate) fn ray_states(&mut self, ctx: &Arc<Context>, pixels: u64) -> Result<&vellum_gpu::Buffer> {
+    pub(crate) fn ray_states(
+        &mut self,
+        ctx: &Arc<Context>,
+        pixels: u64,
+    ) -> Result<&vellum_gpu::Buffer> {
         if self.rays.as_ref().is_none_or(|(n, _)| *n < pixels) {
             let bytes = pixels.max(1) * crate::passes::paging::RAY_STATE_BYTES;
             let buffer = vellum_gpu::Buffer::new(

@@ -310,7 +310,13 @@ impl FftWork {
     }
 
     /// Whether this work serves (dims, pad, kernel, stride).
-    pub(crate) fn serves(&self, dims: [usize; 3], pad: [usize; 3], kernel: Kernel, stride: usize) -> bool {
+    pub(crate) fn serves(
+        &self,
+        dims: [usize; 3],
+        pad: [usize; 3],
+        kernel: Kernel,
+        stride: usize,
+    ) -> bool {
         self.dims == dims && self.pad == pad && self.kernel == kernel && self.stride == stride
     }
 }
