@@ -305,10 +305,7 @@ fn a_scene_file_round_trips_to_the_same_render() {
     let gpu = Gpu::new();
     let ctx = &gpu.ctx;
     let dir = tempfile::tempdir().unwrap();
-    let mut scene = Scene::new(InputSpec {
-        path: "phantom:shepp-logan:40".into(),
-        raw: None,
-    });
+    let mut scene = Scene::new(InputSpec::new("phantom:shepp-logan:40"));
     scene.focus = Focus::Iso(0.9);
     scene.size = [56, 48];
     scene.camera.azimuth = Some(-40.0);

@@ -175,7 +175,7 @@ fn bad_stores_are_one_sentence() {
     v2_store(&root, [2, 2, 2], 2, TCZYX, [1, 2]);
     let e = Multiscale::open(&root).err().expect("refused").to_string();
     assert!(
-        e.contains("2 channels") && e.contains("expected one"),
+        e.contains("2 channels") && e.contains("pick one with `channels` (0 to 1)"),
         "{e}"
     );
     // Read one channel at a time, it opens: channel 1 has no chunks, so it is the fill value.
@@ -187,11 +187,23 @@ fn bad_stores_are_one_sentence() {
         .expect("refused")
         .to_string();
     assert!(e.contains("channel 2 does not exist"), "{e}");
-    // Two time points.
+    // Two time points: one is picked, and one that does not exist is named.
     let root = dir.path().join("times.zarr");
     v2_store(&root, [2, 2, 2], 2, TCZYX, [2, 1]);
     let e = Multiscale::open(&root).err().expect("refused").to_string();
-    assert!(e.contains("2 time points"), "{e}");
+    assert!(e.contains("2 time points; pick one with `time`"), "{e}");
+    let pick = |time| vellum::volume::io::ome_zarr::Pick {
+        time: Some(time),
+        channel: None,
+    };
+    let t1 = Multiscale::open_picked(&root, pick(1)).unwrap();
+    assert_eq!((t1.times, t1.channels), (2, 1));
+    assert_eq!(t1.read_level(0).unwrap().data, VoxelData::U16(vec![7; 8]));
+    let e = Multiscale::open_picked(&root, pick(2))
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("time point 2 does not exist (`time`)"), "{e}");
     // Axes that are not z, y, x.
     let root = dir.path().join("axes.zarr");
     v2_store(
@@ -203,7 +215,7 @@ fn bad_stores_are_one_sentence() {
     );
     let e = Multiscale::open(&root).err().expect("refused").to_string();
     assert!(
-        e.contains("expected (z, y, x), (c, z, y, x) or (t, c, z, y, x)"),
+        e.contains("expected (z, y, x), (c, z, y, x), (t, z, y, x) or (t, c, z, y, x)"),
         "{e}"
     );
     // No multiscales metadata.
@@ -679,4 +691,167 @@ fn small_mistakes_are_one_clear_sentence() {
         "names its temporary"
     );
     common::only(d, &["plain.ome.zarr", "s.json", "o.json"]);
+}
+
+/// A (t, c, z, y, x) store of 3 time points and 2 channels of 24³ u16, one chunk per (t, c):
+/// channel 0 at time t is a ball of radius 4 + 3t, channel 1 is a slab of its lower half.
+fn time_series(root: &Path) {
+    put(&root.join(".zgroup"), br#"{"zarr_format": 2}"#);
+    let axes = r#"[{"name": "t", "type": "time"}, {"name": "c", "type": "channel"},
+        {"name": "z", "type": "space"}, {"name": "y", "type": "space"}, {"name": "x", "type": "space"}]"#;
+    let attrs = format!(
+        r#"{{"multiscales": [{{"version": "0.4", "axes": {axes}, "datasets": [{{"path": "0",
+            "coordinateTransformations": [{{"type": "scale", "scale": [1.0, 1.0, 1.0, 1.0, 1.0]}}]}}]}}]}}"#
+    );
+    put(&root.join(".zattrs"), attrs.as_bytes());
+    let n = 24;
+    put(
+        &root.join("0/.zarray"),
+        format!(
+            r#"{{"zarr_format": 2, "shape": [3, 2, {n}, {n}, {n}], "chunks": [1, 1, {n}, {n}, {n}],
+            "dtype": "<u2", "compressor": null, "fill_value": 0, "order": "C", "filters": null,
+            "dimension_separator": "/"}}"#
+        )
+        .as_bytes(),
+    );
+    for t in 0..3 {
+        for c in 0..2 {
+            let r = 4.0 + 3.0 * t as f64;
+            let mut bytes = Vec::new();
+            for i in 0..n * n * n {
+                let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
+                let d = |v: usize| v as f64 - 11.5;
+                let inside = match c {
+                    0 => d(x).powi(2) + d(y).powi(2) + d(z).powi(2) <= r * r,
+                    _ => z < n / 2,
+                };
+                bytes.extend(u16::from(inside).to_le_bytes());
+            }
+            put(&root.join(format!("0/{t}/{c}/0/0/0")), &bytes);
+        }
+    }
+}
+
+#[test]
+fn a_time_point_and_a_channel_of_a_store_are_picked() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("series.ome.zarr");
+    time_series(&store);
+    let s = store.to_str().unwrap();
+    // Described whole; read one (time, channel) at a time.
+    let info = common::ok_json(&common::vellum(&["info", s, "--json"]));
+    assert_eq!(
+        (info["times"].as_u64(), info["channels"].as_u64()),
+        (Some(3), Some(2))
+    );
+    let ones = |t: &str, c: &str| {
+        let j = common::ok_json(&common::vellum(&[
+            "info",
+            s,
+            "--time",
+            t,
+            "--channel",
+            c,
+            "--json",
+        ]));
+        j["statistics"]["mean"].as_f64().unwrap() * 24f64.powi(3)
+    };
+    let ball = |r: f64| 4.0 / 3.0 * std::f64::consts::PI * r.powi(3);
+    for t in 0..3 {
+        let count = ones(&t.to_string(), "0");
+        let want = ball(4.0 + 3.0 * t as f64);
+        assert!(
+            (count / want - 1.0).abs() < 0.2,
+            "t {t}: {count} voxels, ball {want:.0}"
+        );
+    }
+    assert_eq!(
+        ones("1", "1"),
+        24.0 * 24.0 * 12.0,
+        "channel 1 is the lower half"
+    );
+    // Rendered: each time point is its own frame, and the ball grows.
+    let out = dir.path().join("frames");
+    let o = out.to_str().unwrap();
+    let rendered = common::vellum(&[
+        "render",
+        s,
+        "--time",
+        "all",
+        "--channels",
+        "0",
+        "--size",
+        "64x64",
+        "--out",
+        o,
+    ]);
+    assert!(
+        rendered.status.success(),
+        "{}",
+        String::from_utf8_lossy(&rendered.stderr)
+    );
+    let lit: Vec<usize> = (0..3)
+        .map(|t| {
+            let png = out.join(format!("t{t:04}.png"));
+            let rgb = image::open(&png).unwrap().to_rgb8();
+            rgb.pixels().filter(|p| p.0.iter().any(|&c| c > 30)).count()
+        })
+        .collect();
+    assert!(
+        lit[0] > 0 && lit[0] < lit[1] && lit[1] < lit[2],
+        "lit pixels {lit:?}"
+    );
+    common::only(&out, &["t0000.png", "t0001.png", "t0002.png"]);
+    // One time point by --time equals its frame in the series.
+    let one = dir.path().join("one.png");
+    let single = common::vellum(&[
+        "render",
+        s,
+        "--time",
+        "1",
+        "--channels",
+        "0",
+        "--size",
+        "64x64",
+        "--out",
+        one.to_str().unwrap(),
+    ]);
+    assert!(single.status.success());
+    assert_eq!(
+        std::fs::read(&one).unwrap(),
+        std::fs::read(out.join("t0001.png")).unwrap()
+    );
+    // What is not there, or not picked, is one sentence each, and nothing is written.
+    let bad = dir.path().join("bad.png");
+    let b = bad.to_str().unwrap();
+    let refused = [
+        (
+            vec!["--channels", "0"],
+            "holds 3 time points; pick one with --time T (0 to 2)",
+        ),
+        (
+            vec!["--time", "3", "--channels", "0"],
+            "time point 3 does not exist (--time T)",
+        ),
+        (
+            vec!["--time", "0"],
+            "holds 2 channels; pick one with --channels C",
+        ),
+        (
+            vec!["--time", "0", "--channels", "5"],
+            "channel 5 does not exist",
+        ),
+        (
+            vec!["--time", "0", "--channels", "0,1"],
+            "mixing several in one ray is not built yet",
+        ),
+    ];
+    for (flags, phrase) in refused {
+        let mut args = vec!["render", s, "--out", b];
+        args.extend(flags);
+        common::fails_with(&common::vellum(&args), phrase);
+        assert!(!bad.exists());
+    }
+    let phantom = common::vellum(&["render", "phantom:sphere:16", "--time", "1", "--out", b]);
+    common::fails_with(&phantom, "is a phantom");
 }

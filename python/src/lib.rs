@@ -344,10 +344,20 @@ impl PyVolume {
 
 /// Reads a volume as the command line does: NRRD (.nrrd, .nhdr), NIfTI (.nii, .nii.gz),
 /// MetaImage (.mhd, .mha), a folder of one DICOM series, or an OME-Zarr store (its full
-/// resolution). The GIL is released while it reads.
+/// resolution; `time` and `channel` pick one of a store's time points and channels, as
+/// `--time` and `--channel` do). The GIL is released while it reads.
 #[pyfunction]
-fn read(py: Python<'_>, path: PathBuf) -> PyResult<PyVolume> {
-    let inner = detached(py, move || vellum_volume::io::load(&path, None))?;
+#[pyo3(signature = (path, time = None, channel = None))]
+fn read(
+    py: Python<'_>,
+    path: PathBuf,
+    time: Option<usize>,
+    channel: Option<usize>,
+) -> PyResult<PyVolume> {
+    let pick = vellum_volume::io::ome_zarr::Pick { time, channel };
+    let inner = detached(py, move || {
+        vellum_volume::io::load_picked(&path, None, pick)
+    })?;
     Ok(PyVolume { inner })
 }
 

@@ -163,7 +163,7 @@ use image::ImageEncoder;
 
 /// The keyword options of `render` and `Renderer`: the command line's scene flags in snake case,
 /// each filling the field of [`SceneOverrides`] its flag fills, and the session's two.
-const OPTIONS: &str = "iso, focus, tf, otf, features, camera, view, ortho, pan, size, slices, one_pass, renderer, jitter, ert, no_skip_empty, refine_iso, sampling, background, style, edge_color, edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation, line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, color_mod, gamma, opacity_mod, stipple, seed, stipple_white, stipple_black, importance_radius, modulate, modulate_lighting, gpu_budget, lod";
+const OPTIONS: &str = "time, channels, iso, focus, tf, otf, features, camera, view, ortho, pan, size, slices, one_pass, renderer, jitter, ert, no_skip_empty, refine_iso, sampling, background, style, edge_color, edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation, line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, color_mod, gamma, opacity_mod, stipple, seed, stipple_white, stipple_black, importance_radius, modulate, modulate_lighting, gpu_budget, lod";
 
 /// `scene` with the keyword `options` applied over it by the overrides the command line's flags
 /// fill too, and the session's options among them (`gpu_budget` in MiB, `lod`).
@@ -238,6 +238,13 @@ impl<'py> Value<'_, 'py> {
         let name = "a name or a path";
         match self.key {
             "iso" => o.iso = Some(self.get("a number")?),
+            "time" => o.time = Some(self.get("a time point (0, 1, ...)")?),
+            "channels" => {
+                o.channels = Some(match self.value.extract::<usize>() {
+                    Ok(c) => vec![c],
+                    Err(_) => self.get("a channel or a list of channels")?,
+                })
+            }
             "focus" => o.focus = Some(self.get::<(f64, f64)>("(lo, hi)").map(|(a, b)| [a, b])?),
             "tf" => o.tf = Some(self.get(name)?),
             "otf" => o.otf = Some(self.get(name)?),
@@ -345,7 +352,7 @@ type Source = (Scene, Option<vellum_volume::Volume>, SessionOptions);
 /// `phantom:NAME:N`), or a `vellum.Volume` (the scene of the last two otherwise at the
 /// defaults), with `options` over it.
 fn source(what: &Bound<'_, PyAny>, options: Option<&Bound<'_, PyDict>>) -> PyResult<Source> {
-    let input = |path: String| vellum_render::render::scene::InputSpec { path, raw: None };
+    let input = vellum_render::render::scene::InputSpec::new;
     if let Ok(v) = what.cast::<crate::PyVolume>() {
         let (scene, session) = apply(Scene::new(input("a numpy array".into())), options)?;
         return Ok((scene, Some(v.get().inner.clone()), session));

@@ -267,3 +267,47 @@ def test_auto_shows_a_mask():
         rgb = vellum.render(vellum.Volume(ball), size=(96, 96), **options).rgba[..., :3]
         lit = (rgb.max(axis=2) > 30).mean()
         assert lit > 0.05 and rgb.max() >= 200, (iso, lit, rgb.max())
+
+
+def _time_series(root):
+    """A (t, c, z, y, x) Zarr v2 store written by hand: 3 time points of a growing ball in
+    channel 0 and a slab in channel 1, 24³ u16."""
+    (root / "0").mkdir(parents=True)
+    (root / ".zgroup").write_text('{"zarr_format": 2}')
+    axes = [{"name": n} for n in "tczyx"]
+    scale = [{"type": "scale", "scale": [1.0] * 5}]
+    (root / ".zattrs").write_text(json.dumps({"multiscales": [
+        {"version": "0.4", "axes": axes, "datasets": [{"path": "0", "coordinateTransformations": scale}]}]}))
+    n = 24
+    (root / "0" / ".zarray").write_text(json.dumps({
+        "zarr_format": 2, "shape": [3, 2, n, n, n], "chunks": [1, 1, n, n, n], "dtype": "<u2",
+        "compressor": None, "fill_value": 0, "order": "C", "filters": None, "dimension_separator": "/"}))
+    z, y, x = np.mgrid[:n, :n, :n] - 11.5
+    for t in range(3):
+        for c in range(2):
+            inside = (x**2 + y**2 + z**2 <= (4 + 3 * t) ** 2) if c == 0 else (z + 11.5 < n / 2)
+            chunk = root / "0" / str(t) / str(c) / "0" / "0"
+            chunk.mkdir(parents=True)
+            inside.astype("<u2").tofile(chunk / "0")
+
+
+def test_time_and_channels_pick_from_a_store_as_the_flags_do(tmp_path):
+    from PIL import Image as PilImage
+
+    store = tmp_path / "series.ome.zarr"
+    _time_series(store)
+    png = tmp_path / "cli.png"
+    subprocess.run([str(cli()), "render", str(store), "--time", "2", "--channels", "0", "--size", "64x64",
+                    "--out", str(png)], check=True, capture_output=True)
+    theirs = np.asarray(PilImage.open(png).convert("RGB"))
+    ours = vellum.render(str(store), time=2, channels=0, size=(64, 64)).rgba[..., :3]
+    np.testing.assert_array_equal(ours, theirs)
+    assert (vellum.render(str(store), time=2, channels=[0], size=(64, 64)).rgba[..., :3] == ours).all()
+    with pytest.raises(vellum.Error, match="holds 3 time points; pick one with `time`"):
+        vellum.render(str(store), channels=0)
+    with pytest.raises(vellum.Error, match="time point 5 does not exist"):
+        vellum.render(str(store), time=5, channels=0)
+    # read picks the same way: channel 1 is the lower half, time point 2 the largest ball.
+    assert vellum.read(store, time=1, channel=1).array.sum() == 24 * 24 * 12
+    balls = [vellum.read(store, time=t, channel=0).array.sum() for t in range(3)]
+    assert balls[0] < balls[1] < balls[2], balls

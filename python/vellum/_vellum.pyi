@@ -56,11 +56,14 @@ class Volume:
     def dtype(self) -> np.dtype[Any]:
         """The voxels' dtype: uint8, uint16, int16 or float32."""
 
-def read(path: Union[str, "os.PathLike[str]"]) -> Volume:
+def read(
+    path: Union[str, "os.PathLike[str]"], time: Optional[int] = None, channel: Optional[int] = None
+) -> Volume:
     """Reads a volume as the command line does.
 
     NRRD (.nrrd, .nhdr), NIfTI (.nii, .nii.gz), MetaImage (.mhd, .mha), a folder of one DICOM
-    series, or an OME-Zarr store (its full resolution).
+    series, or an OME-Zarr store (its full resolution; `time` and `channel` pick one of its time
+    points and channels, as `--time` and `--channel` do).
     """
 
 def devices() -> List[Dict[str, Any]]:
@@ -147,7 +150,7 @@ class Renderer:
         """A scene, a scene file's path (.json), an input's path (a volume file, a DICOM folder,
         an OME-Zarr store, "phantom:NAME:N") or a Volume, with options named as `vellum
         render`'s scene flags in snake case, each meaning what its flag means (docs/cli.md):
-        iso, focus=(lo, hi), tf (default "auto": the grey ramp over the histogram's window), otf,
+        time and channels (a store's time point and channel), iso, focus=(lo, hi), tf (default "auto": the grey ramp over the histogram's window), otf,
         features (with otf: the two composed), camera=(az, el[, dist]) (without dist the volume
         is framed), view, ortho, pan=(x, y), size=(w, h), slices, one_pass, renderer, and the ray
         caster's jitter, ert, no_skip_empty, refine_iso, sampling (these need

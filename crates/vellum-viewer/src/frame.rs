@@ -127,6 +127,7 @@ impl Running {
         }
         self.session.model.requests.screenshot = false;
         let reset = self.session.model.requests.reset_camera;
+        self.session.tick_playback(Instant::now());
         self.session.handle_requests(self.view_size());
         if reset {
             self.changed();

@@ -15,6 +15,7 @@
 mod bench;
 mod files;
 mod frame;
+mod playback;
 mod running;
 mod session;
 mod ui;
@@ -343,6 +344,7 @@ impl ApplicationHandler for App {
         let busy = r.session.bench.is_some()
             || r.streaming()
             || r.session.loading()
+            || r.session.playing()
             || r.session.pending_occlusion.is_some();
         let refine_at = r.input.last_change + REFINE_AFTER;
         if busy

@@ -35,6 +35,8 @@ pub(crate) struct Loaded {
     pub(crate) range: [f64; 2],
     pub(crate) features: Option<vellum_volume::feature::FeatureMap>,
     pub(crate) otf: Option<OcclusionTf>,
+    /// The input's time points (a store's t axis; 1 otherwise).
+    pub(crate) times: usize,
 }
 
 /// Opens `scene`'s input by the session's rule within `budget` bytes of GPU memory: a store
@@ -69,6 +71,7 @@ pub(crate) fn load(scene: Scene, budget: u64) -> Result<Loaded> {
     };
     Ok(Loaded {
         otf,
+        times: crate::playback::times_of(&scene),
         scene,
         classification,
         tf,
@@ -154,6 +157,10 @@ pub(crate) struct Session {
     /// The camera of the loaded scene, for reset.
     home: CameraSpec,
     pending_load: Option<mpsc::Receiver<Result<Loaded>>>,
+    /// The next time point, read ahead while playing.
+    pub(crate) prefetch: Option<crate::playback::Prefetch>,
+    /// When the current volume was shown (a playing time point stays at least `STEP`).
+    pub(crate) shown_at: Instant,
     /// The occlusion volume being recomputed on a worker thread.
     pub(crate) pending_occlusion: Option<PendingOcclusion>,
     /// Counts the volumes loaded, so that an occlusion volume computed for an earlier one is
@@ -189,6 +196,7 @@ impl Session {
         model.range = loaded.range;
         model.dims = dims;
         model.oriented = loaded.volume.geometry.is_oriented();
+        model.times = loaded.times;
         model.message = format!("{} on {}", loaded.scene.input.path, setup.device_name);
         let beside = |name: &str| {
             setup
@@ -207,6 +215,8 @@ impl Session {
             volume: loaded.volume,
             model,
             pending_load: None,
+            prefetch: None,
+            shown_at: Instant::now(),
             pending_occlusion: None,
             generation: 0,
             device: setup.device,
@@ -302,10 +312,7 @@ impl Session {
     /// and the camera do not.
     pub(crate) fn start_load_input(&mut self, input: String) {
         let mut scene = self.model.scene.clone();
-        scene.input = InputSpec {
-            path: input.clone(),
-            raw: None,
-        };
+        scene.input = InputSpec::new(input.clone());
         if !matches!(scene.classification, ClassificationSpec::Transfer(_)) {
             scene.classification = ClassificationSpec::default();
         }
@@ -324,6 +331,12 @@ impl Session {
         });
         self.model.loading = Some(what);
         self.pending_load = Some(rx);
+    }
+
+    /// Makes `answer`, a load already under way (a time point read ahead), the pending load.
+    pub(crate) fn take_over_load(&mut self, what: String, answer: mpsc::Receiver<Result<Loaded>>) {
+        self.model.loading = Some(what);
+        self.pending_load = Some(answer);
     }
 
     /// Whether a volume is loading.
@@ -364,6 +377,9 @@ impl Session {
         self.model.range = l.range;
         self.model.dims = dims;
         self.model.oriented = l.volume.geometry.is_oriented();
+        self.model.times = l.times;
+        self.model.time = l.scene.input.time.unwrap_or(0);
+        self.shown_at = Instant::now();
         self.model.message = format!("opened {what}");
         self.home = l.scene.camera.clone();
         self.applied = l.scene;
@@ -542,6 +558,9 @@ impl Session {
         }
         if let Some(input) = req.open {
             self.start_load_input(input);
+        }
+        if let Some(t) = req.time {
+            self.show_time(t);
         }
         if let Some(path) = req.load_scene {
             match Scene::load(Path::new(&path)) {

@@ -273,14 +273,19 @@ impl BrickLevels {
         })
     }
 
-    /// The pyramid of the store at `path` when `path` is a store whose in-core textures exceed
-    /// `budget` bytes; `None` when it is not a store or fits (level 0 is never read here).
-    pub fn of_store_beyond(path: &std::path::Path, budget: u64) -> Result<Option<Self>> {
+    /// The pyramid of the store at `path` (the time point and channel of `pick`) when `path` is
+    /// a store whose in-core textures exceed `budget` bytes; `None` when it is not a store or
+    /// fits (level 0 is never read here).
+    pub fn of_store_beyond(
+        path: &std::path::Path,
+        budget: u64,
+        pick: crate::io::ome_zarr::Pick,
+    ) -> Result<Option<Self>> {
         use crate::io::ome_zarr;
         if !ome_zarr::is_store(path) {
             return Ok(None);
         }
-        let ms = ome_zarr::Multiscale::open(path)?;
+        let ms = ome_zarr::Multiscale::open_picked(path, pick)?;
         if in_core_bytes(ms.levels[0].dims) <= budget {
             return Ok(None);
         }

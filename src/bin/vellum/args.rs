@@ -34,6 +34,12 @@ pub(crate) struct InputArgs {
     pub(crate) input: String,
     #[command(flatten)]
     pub(crate) raw: RawArgs,
+    /// An OME-Zarr store with a t axis: the time point to read, from 0.
+    #[arg(long, value_name = "T")]
+    pub(crate) time: Option<usize>,
+    /// An OME-Zarr store with a c axis: the channel to read, from 0.
+    #[arg(long, value_name = "C")]
+    pub(crate) channel: Option<usize>,
 }
 
 #[derive(Subcommand)]
@@ -560,7 +566,20 @@ pub(crate) enum BenchCommand {
 impl InputArgs {
     pub(crate) fn load(&self) -> Result<Volume> {
         let (raw, origin) = (self.raw.spec()?, self.raw.origin()?);
-        Ok(vellum::input::open(&self.input, raw.as_ref(), origin)?)
+        Ok(vellum::input::open(
+            &self.input,
+            raw.as_ref(),
+            origin,
+            self.pick(),
+        )?)
+    }
+
+    /// The time point and channel of a store that `--time` and `--channel` pick.
+    pub(crate) fn pick(&self) -> vellum::volume::io::ome_zarr::Pick {
+        vellum::volume::io::ome_zarr::Pick {
+            time: self.time,
+            channel: self.channel,
+        }
     }
 }
 
@@ -636,7 +655,7 @@ pub(crate) fn parse_cli() -> Cli {
 
 /// The library's errors name the scene's keys and the passes' parameters in backticks
 /// (`one_pass`, `iso`, `method`); the command line names its flags for them.
-pub(crate) const KEY_FLAGS: [(&str, &str); 10] = [
+pub(crate) const KEY_FLAGS: [(&str, &str); 12] = [
     ("`one_pass`", "--one-pass"),
     ("`iso`", "--iso V"),
     ("`focus`", "--focus LO:HI"),
@@ -647,6 +666,8 @@ pub(crate) const KEY_FLAGS: [(&str, &str); 10] = [
     ("`style`", "--style"),
     ("`gpu_budget`", "--gpu-budget"),
     ("`lod`", "--lod"),
+    ("`time`", "--time T"),
+    ("`channels`", "--channels C (or --channel C)"),
 ];
 
 /// `message` with each key the library names replaced by its flag.

@@ -18,6 +18,13 @@ pub(crate) struct SceneArgs {
     pub(crate) input: Option<String>,
     #[command(flatten)]
     pub(crate) raw: RawArgs,
+    /// An OME-Zarr store with a t axis: the time point to read, from 0; `render --time all
+    /// --out DIR/` writes one PNG per time point.
+    #[arg(long, value_name = "T|all", value_parser = parse_time)]
+    pub(crate) time: Option<TimeArg>,
+    /// An OME-Zarr store with a c axis: the channel to read, from 0 (one, for now).
+    #[arg(long, value_name = "C", value_delimiter = ',')]
+    pub(crate) channels: Option<Vec<usize>>,
     /// A scene file (JSON); every flag given on the command line overrides its value.
     #[arg(long = "scene", value_name = "FILE")]
     pub(crate) file: Option<PathBuf>,
@@ -101,10 +108,7 @@ impl SceneArgs {
         let input = self.input.as_deref().or(default_input);
         match (&self.file, input) {
             (Some(path), _) => Ok(Scene::load(path)?),
-            (None, Some(input)) => Ok(Scene::new(InputSpec {
-                path: input.to_string(),
-                raw: None,
-            })),
+            (None, Some(input)) => Ok(Scene::new(InputSpec::new(input.to_string()))),
             (None, None) => anyhow::bail!(
                 "{command} needs an input (a file, DICOM folder or phantom spec) or --scene FILE"
             ),
@@ -145,6 +149,14 @@ impl SceneArgs {
             front: Front::Cli,
             input: a.input.clone(),
             raw: a.raw_input()?,
+            time: match a.time {
+                None => None,
+                Some(TimeArg::One(t)) => Some(t),
+                Some(TimeArg::All) => anyhow::bail!(
+                    "--time all writes one image per time point, which only render does (render --time all --out DIR/); give one time point"
+                ),
+            },
+            channels: a.channels.clone(),
             tf: a.tf.clone(),
             otf: path_arg(&a.otf),
             features: path_arg(&a.features),
@@ -196,6 +208,25 @@ impl SceneArgs {
             spacing: raw.spacing,
             origin: self.raw.origin()?,
         }))
+    }
+}
+
+/// `--time T` or `--time all`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum TimeArg {
+    /// One time point, from 0.
+    One(usize),
+    /// Every time point, one image each (`render` only).
+    All,
+}
+
+fn parse_time(s: &str) -> std::result::Result<TimeArg, String> {
+    match s {
+        "all" => Ok(TimeArg::All),
+        _ => s
+            .parse()
+            .map(TimeArg::One)
+            .map_err(|_| format!("'{s}' is not a time point (0, 1, ...) or all")),
     }
 }
 

@@ -133,6 +133,11 @@ pub struct SceneOverrides {
     pub input: Option<String>,
     /// How to read a headerless input (the scene's input, or the one given).
     pub raw: Option<RawInput>,
+    /// The time point of a store with a t axis.
+    pub time: Option<usize>,
+    /// The channels of a store with a c axis: one, for now (mixing several in one ray is issue
+    /// 42's next step).
+    pub channels: Option<Vec<usize>>,
     /// A transfer function: `auto`, a preset or a JSON file.
     pub tf: Option<String>,
     /// An occlusion transfer function (JSON file).
@@ -182,14 +187,12 @@ impl SceneOverrides {
     pub fn apply(&self, mut scene: Scene) -> Result<Scene> {
         let f = self.front;
         if let Some(path) = &self.input {
-            scene.input = InputSpec {
-                path: path.clone(),
-                raw: None,
-            };
+            scene.input = InputSpec::new(path.clone());
         }
         if let Some(raw) = &self.raw {
             scene.input.raw = Some(raw.clone());
         }
+        self.apply_pick(&mut scene.input)?;
         self.apply_classification(&mut scene);
         match (self.focus, self.iso) {
             (Some(_), Some(_)) => {
@@ -238,6 +241,25 @@ impl SceneOverrides {
         scene.style = self.style.apply(f, scene.style.take())?;
         scene.validate()?;
         Ok(scene)
+    }
+
+    /// `time` and `channels`: which time point and channel of a store to read.
+    fn apply_pick(&self, input: &mut InputSpec) -> Result<()> {
+        if let Some(t) = self.time {
+            input.time = Some(t);
+        }
+        match self.channels.as_deref() {
+            None => {}
+            Some([c]) => input.channel = Some(*c),
+            Some(several) => {
+                return Err(invalid(format!(
+                    "{} {several:?} names {} channels; vellum reads one channel of a store for now (mixing several in one ray is not built yet), so give one",
+                    self.front.name("channels"),
+                    several.len()
+                )))
+            }
+        }
+        Ok(())
     }
 
     /// `tf`, `otf` and `features`: the occlusion TF and the feature map given together compose.

@@ -91,7 +91,7 @@ fn unit_spacing() -> [f64; 3] {
 }
 
 /// What to load.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct InputSpec {
     /// A file, a DICOM folder or a phantom spec (`phantom:shepp-logan:128`).
@@ -99,6 +99,30 @@ pub struct InputSpec {
     /// The layout of a headerless file at `path`; left out, the file describes itself.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub raw: Option<RawInput>,
+    /// The time point of an OME-Zarr store with a t axis, from 0 (`--time`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time: Option<usize>,
+    /// The channel of an OME-Zarr store with a c axis, from 0 (`--channels`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel: Option<usize>,
+}
+
+impl InputSpec {
+    /// The input at `path`, which describes itself, its only time point and channel.
+    pub fn new(path: impl Into<String>) -> Self {
+        InputSpec {
+            path: path.into(),
+            ..Default::default()
+        }
+    }
+
+    /// The time point and channel to read from a store.
+    pub fn pick(&self) -> vellum_volume::io::ome_zarr::Pick {
+        vellum_volume::io::ome_zarr::Pick {
+            time: self.time,
+            channel: self.channel,
+        }
+    }
 }
 
 /// How samples are classified, as named in a scene file.
@@ -496,7 +520,12 @@ impl Scene {
     /// Loads the input volume whole, through the one opener (`vellum_volume::input::open`).
     pub fn load_volume(&self) -> Result<Volume> {
         let origin = self.input.raw.as_ref().and_then(|r| r.origin);
-        vellum_volume::input::open(&self.input.path, self.raw_spec()?.as_ref(), origin)
+        vellum_volume::input::open(
+            &self.input.path,
+            self.raw_spec()?.as_ref(),
+            origin,
+            self.input.pick(),
+        )
     }
 
     /// Loads the files the classification names.

@@ -96,7 +96,9 @@ impl Opened {
             None => {
                 let path = Path::new(&scene.input.path);
                 if scene.input.raw.is_none() {
-                    if let Some(levels) = BrickLevels::of_store_beyond(path, budget)? {
+                    if let Some(levels) =
+                        BrickLevels::of_store_beyond(path, budget, scene.input.pick())?
+                    {
                         return Ok(bricked(levels));
                     }
                 }

@@ -4,14 +4,12 @@ use super::*;
 
 /// A session on `input` (a phantom), as the shell makes one, without a window or device.
 fn session(input: &str) -> Session {
-    let loaded = load(
-        Scene::new(InputSpec {
-            path: input.into(),
-            raw: None,
-        }),
-        1 << 30,
-    )
-    .unwrap();
+    let loaded = load(Scene::new(InputSpec::new(input)), 1 << 30).unwrap();
+    session_of(loaded, std::env::temp_dir())
+}
+
+/// The session of `loaded`, as the shell makes one, writing its files in `dir`.
+fn session_of(loaded: Loaded, dir: std::path::PathBuf) -> Session {
     let dims = loaded.volume.dims;
     Session::new(
         loaded,
@@ -20,7 +18,7 @@ fn session(input: &str) -> Session {
         SessionSetup {
             device: None,
             device_name: "no device".into(),
-            screenshot_dir: std::env::temp_dir(),
+            screenshot_dir: dir,
             bench: None,
             budget: 1 << 30,
         },
@@ -210,4 +208,91 @@ fn a_saved_scene_names_the_edited_transfer_function_beside_it() {
     s.refused(&Error::Invalid("too few slices".into()));
     assert_eq!(s.model.scene, s.applied);
     assert_eq!(s.model.message, "too few slices");
+}
+
+/// A (t, z, y, x) Zarr v2 store of `times` time points of 12³ u8, one chunk each: time point t
+/// is a ball of radius 2 + t.
+fn time_series(root: &std::path::Path, times: usize) {
+    let put = |p: &str, bytes: &[u8]| {
+        let path = root.join(p);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(path, bytes).unwrap();
+    };
+    put(".zgroup", br#"{"zarr_format": 2}"#);
+    put(
+        ".zattrs",
+        br#"{"multiscales": [{"version": "0.4", "axes": ["t", "z", "y", "x"],
+            "datasets": [{"path": "0", "coordinateTransformations": [
+                {"type": "scale", "scale": [1.0, 1.0, 1.0, 1.0]}]}]}]}"#,
+    );
+    let zarray = format!(
+        r#"{{"zarr_format": 2, "shape": [{times}, 12, 12, 12], "chunks": [1, 12, 12, 12],
+        "dtype": "|u1", "compressor": null, "fill_value": 0, "order": "C", "filters": null,
+        "dimension_separator": "/"}}"#
+    );
+    put("0/.zarray", zarray.as_bytes());
+    for t in 0..times {
+        let r2 = ((2 + t) * (2 + t)) as f64;
+        let voxels: Vec<u8> = (0..12 * 12 * 12)
+            .map(|i: usize| {
+                let d = |v: usize| v as f64 - 5.5;
+                u8::from(d(i % 12).powi(2) + d((i / 12) % 12).powi(2) + d(i / 144).powi(2) <= r2)
+            })
+            .collect();
+        put(&format!("0/{t}/0/0/0"), &voxels);
+    }
+}
+
+#[test]
+fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("series.ome.zarr");
+    time_series(&store, 3);
+    let path = store.to_str().unwrap();
+    // The store has three time points: it opens only at one.
+    let refused = load(Scene::new(InputSpec::new(path)), 1 << 30)
+        .err()
+        .unwrap();
+    assert!(refused.to_string().contains("3 time points"), "{refused}");
+    let mut first = Scene::new(InputSpec::new(path));
+    first.input.time = Some(0);
+    first.focus = Focus::Iso(0.5);
+    let loaded = load(first, 1 << 30).unwrap();
+    assert_eq!(loaded.times, 3);
+    let dims = loaded.volume.dims;
+    let mut s = session_of(loaded, dir.path().to_path_buf());
+    let voxels = |s: &Session| {
+        (0..s.volume.len())
+            .map(|i| s.volume.data.get_f64(i))
+            .sum::<f64>()
+    };
+    let at_0 = voxels(&s);
+    // The slider asks for time point 2: loaded with the scene kept (its focus).
+    s.model.requests.time = Some(2);
+    s.handle_requests([64, 64]);
+    assert!(s.loading());
+    let (what, got) = wait_for_load(&mut s);
+    s.opened(got.unwrap(), &what, None, dims);
+    assert_eq!((s.model.time, s.model.scene.input.time), (2, Some(2)));
+    assert_eq!(s.model.scene.focus, Focus::Iso(0.5), "the scene is kept");
+    assert!(voxels(&s) > at_0, "the ball grew");
+    // Playing: the next time point (0, wrapping) is read ahead at once, and taken over when
+    // the current one has been shown for a step.
+    s.model.playing = true;
+    s.tick_playback(Instant::now());
+    assert!(
+        !s.loading() && s.prefetch.is_some(),
+        "read ahead, not yet shown"
+    );
+    s.tick_playback(Instant::now() + crate::playback::STEP);
+    assert!(
+        s.loading() && s.prefetch.is_none(),
+        "the read-ahead became the load"
+    );
+    let (what, got) = wait_for_load(&mut s);
+    assert_eq!(what, "time point 0");
+    s.opened(got.unwrap(), &what, None, dims);
+    assert_eq!(s.model.time, 0);
+    assert_eq!(voxels(&s), at_0);
+    assert!(s.playing(), "still playing");
 }

@@ -35,6 +35,8 @@ pub struct Requests {
     pub screenshot: bool,
     pub reset_camera: bool,
     pub quit: bool,
+    /// A time point of the store to show.
+    pub time: Option<usize>,
 }
 
 /// The state the panels edit and show.
@@ -55,6 +57,10 @@ pub struct Model {
     pub message: String,
     /// A load in progress, by name.
     pub loading: Option<String>,
+    /// The input's time points, the one shown, and whether they play.
+    pub times: usize,
+    pub time: usize,
+    pub playing: bool,
     pub open_path: String,
     pub scene_path: String,
     /// Where the transfer function is loaded from and saved to (the project's TF JSON).
@@ -108,6 +114,7 @@ pub struct Model {
 impl Model {
     /// A model for `scene` with its transfer function `tf` and the volume's statistics.
     pub fn new(scene: Scene, tf: TransferFunction) -> Self {
+        let time = scene.input.time.unwrap_or(0);
         Model {
             scene,
             tf_base: tf.clone(),
@@ -118,6 +125,9 @@ impl Model {
             dims: [1, 1, 1],
             oriented: false,
             message: String::new(),
+            times: 1,
+            time,
+            playing: false,
             loading: None,
             open_path: String::new(),
             scene_path: "vellum.scene.json".into(),
@@ -157,6 +167,7 @@ impl Model {
     pub fn reopen(&mut self, scene: Scene, tf: TransferFunction) {
         let old = std::mem::replace(self, Model::new(scene, tf));
         self.loading = old.loading;
+        self.playing = old.playing;
         self.open_path = old.open_path;
         self.scene_path = old.scene_path;
         self.tf_path = old.tf_path;
@@ -262,6 +273,11 @@ fn panel(ui: &mut egui::Ui, m: &mut Model) {
     egui::CollapsingHeader::new("File")
         .default_open(true)
         .show(ui, |ui| files(ui, m));
+    if m.times > 1 {
+        egui::CollapsingHeader::new("Time")
+            .default_open(true)
+            .show(ui, |ui| time(ui, m));
+    }
     egui::CollapsingHeader::new("Camera")
         .default_open(false)
         .show(ui, |ui| camera(ui, m));
@@ -290,6 +306,22 @@ fn panel(ui: &mut egui::Ui, m: &mut Model) {
     egui::CollapsingHeader::new("Renderer and lighting")
         .default_open(false)
         .show(ui, |ui| renderer(ui, m));
+}
+
+/// The time points of a store: a slider and a play button.
+fn time(ui: &mut egui::Ui, m: &mut Model) {
+    ui.horizontal(|ui| {
+        let label = if m.playing { "pause" } else { "play" };
+        if ui.button(label).clicked() {
+            m.playing = !m.playing;
+        }
+        let mut t = m.time;
+        let slider = egui::Slider::new(&mut t, 0..=m.times - 1).text(format!("of {}", m.times));
+        if ui.add(slider).changed() {
+            m.playing = false;
+            m.requests.time = Some(t);
+        }
+    });
 }
 
 fn files(ui: &mut egui::Ui, m: &mut Model) {

@@ -66,6 +66,18 @@ pub fn write(path: &Path, volume: &Volume) -> Result<()> {
 /// a DICOM series and a file by its extension (`.nrrd`, `.nhdr`, `.nii`, `.nii.gz`, `.mhd`, `.mha`)
 /// or, failing that, by its first bytes. Float volumes with NaN or infinite voxels are rejected.
 pub fn load(path: &Path, raw: Option<&RawSpec>) -> Result<Volume> {
+    load_picked(path, raw, ome_zarr::Pick::default())
+}
+
+/// [`load`], reading the time point and channel of `pick` from an OME-Zarr store; a pick of any
+/// other input is refused.
+pub fn load_picked(path: &Path, raw: Option<&RawSpec>, pick: ome_zarr::Pick) -> Result<Volume> {
+    if pick != ome_zarr::Pick::default() && !ome_zarr::is_store(path) {
+        return Err(Error::Invalid(format!(
+            "`time` and `channels` pick a time point and a channel of an OME-Zarr store; {} is not one",
+            path.display()
+        )));
+    }
     if !path.exists() && std::fs::symlink_metadata(path).is_ok() {
         return Err(Error::io(
             path,
@@ -94,7 +106,7 @@ pub fn load(path: &Path, raw: Option<&RawSpec>) -> Result<Volume> {
     } else if ome_zarr::is_store(path) {
         // In core: the finest level whole. `render` streams larger ones through the brick
         // cache without coming here; anything else must fit in memory.
-        let ms = ome_zarr::Multiscale::open(path)?;
+        let ms = ome_zarr::Multiscale::open_picked(path, pick)?;
         let bytes = ms.level_bytes(0);
         if !crate::memory::fits_in_memory(bytes) {
             return Err(Error::format(

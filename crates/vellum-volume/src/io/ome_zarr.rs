@@ -1,8 +1,9 @@
 //! OME-Zarr multiscale images (issue 26): NGFF 0.4 on Zarr v2 and NGFF 0.5 on Zarr v3, read and
 //! written through `zarrs`. The NGFF layer here is small: the `multiscales` metadata (axes, the
 //! datasets' paths and their scale and translation) in the root group's attributes, under `ome`
-//! for 0.5. The arrays hold (z, y, x), or (t, c, z, y, x) with one time point and one channel; C
-//! order with x fastest is our voxel order, so a level's bytes are a `Volume`'s as they come.
+//! for 0.5. The arrays hold (z, y, x), (c, z, y, x), (t, z, y, x) or (t, c, z, y, x); one time
+//! point and one channel are read ([`Pick`]: the `time` and `channels` options). C order with x
+//! fastest is our voxel order, so a level's bytes are a `Volume`'s as they come.
 //!
 //! NGFF has no rotation: a volume written with a direction matrix keeps its origin and spacing
 //! and loses its directions (`write` says so once), and a store read back has no anatomical
@@ -39,7 +40,9 @@ pub struct Multiscale {
     pub range: Option<[f64; 2]>,
     /// Values per voxel: the c axis's size (1 without one).
     pub channels: usize,
-    /// The index on the leading axes (t, c) that is read: time point 0 and the channel chosen.
+    /// Time points: the t axis's size (1 without one).
+    pub times: usize,
+    /// The index on the leading axes (t, c) that is read: the time point and channel picked.
     lead: Vec<u64>,
     /// The levels' arrays, opened once, read through the store's guards.
     arrays: Vec<Array<GuardedStore>>,
@@ -53,30 +56,42 @@ pub fn is_store(path: &Path) -> bool {
             .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"))
 }
 
+/// Which time point and channel of a store to read; `None` reads the only one and refuses a
+/// store of several in one sentence that names the option.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Pick {
+    /// The time point, from 0.
+    pub time: Option<usize>,
+    /// The channel, from 0.
+    pub channel: Option<usize>,
+}
+
 fn invalid(path: &Path, what: impl std::fmt::Display) -> Error {
     Error::format(path, what.to_string())
 }
 
 impl Multiscale {
     /// Opens the store at `path` and reads its multiscale metadata (no voxels yet). A store of
-    /// more than one channel is refused in one sentence; see [`Multiscale::open_channel`].
+    /// more than one channel or time point is refused in one sentence; see
+    /// [`Multiscale::open_picked`].
     pub fn open(path: &Path) -> Result<Self> {
-        let ms = Self::open_channel(path, 0)?;
-        if ms.channels > 1 {
-            return Err(invalid(
-                path,
-                format!(
-                    "holds {} channels; expected one (a vector store such as `vellum normals` writes is read one channel at a time)",
-                    ms.channels
-                ),
-            ));
-        }
-        Ok(ms)
+        Self::open_picked(path, Pick::default())
     }
 
     /// Opens the store at `path` to read channel `channel` of its c axis (0 for a store without
     /// one): a multi-channel store such as the normals' reads as one scalar grid per channel.
     pub fn open_channel(path: &Path, channel: usize) -> Result<Self> {
+        Self::open_picked(
+            path,
+            Pick {
+                time: None,
+                channel: Some(channel),
+            },
+        )
+    }
+
+    /// Opens the store at `path` to read the time point and channel of `pick`.
+    pub fn open_picked(path: &Path, pick: Pick) -> Result<Self> {
         let store =
             Arc::new(GuardedStore::new(path).map_err(|e| {
                 invalid(path, format!("could not be opened as a Zarr store ({e})"))
@@ -122,7 +137,7 @@ impl Multiscale {
                 ));
             }
             voxel = Some(t);
-            levels.push(level(path, name, &array, d, (leading, c_axis))?);
+            levels.push(level(path, name, &array, d, leading)?);
             arrays.push(array);
         }
         ngff_checks::multiscale_transforms(path, ms, leading, &mut levels)?;
@@ -138,15 +153,14 @@ impl Multiscale {
                 "levels hold different numbers of channels; expected the same in every level",
             ));
         }
-        if channel >= channels {
-            return Err(invalid(
-                path,
-                format!("has {channels} channel(s); channel {channel} does not exist"),
-            ));
-        }
+        let t_axis = axes.iter().position(|a| a == "t");
+        let times = t_axis.map_or(1, |t| arrays[0].shape()[t] as usize);
         let mut lead = vec![0u64; leading];
         if let Some(c) = c_axis {
-            lead[c] = channel as u64;
+            lead[c] = pick_one(path, "channel", "channels", pick.channel, channels)? as u64;
+        }
+        if let Some(t) = t_axis {
+            lead[t] = pick_one(path, "time point", "time", pick.time, times)? as u64;
         }
         let range = attrs["vellum"]["range"]
             .as_array()
@@ -159,6 +173,7 @@ impl Multiscale {
             voxel: voxel.expect("at least one level"),
             levels,
             channels,
+            times,
             lead,
             arrays,
         })
@@ -346,14 +361,44 @@ fn axis_names(path: &Path, ms: &Value) -> Result<Vec<String>> {
         .unwrap_or_default();
     let ok = names == ["z", "y", "x"]
         || names == ["c", "z", "y", "x"]
+        || names == ["t", "z", "y", "x"]
         || names == ["t", "c", "z", "y", "x"];
     if !ok {
         return Err(invalid(
             path,
-            format!("has axes {names:?}; expected (z, y, x), (c, z, y, x) or (t, c, z, y, x)"),
+            format!("has axes {names:?}; expected (z, y, x), (c, z, y, x), (t, z, y, x) or (t, c, z, y, x)"),
         ));
     }
     Ok(names)
+}
+
+/// The index `picked` along an axis of `count` (`what`: "channel" or "time point"; `option`: the
+/// option that picks it): the only one when none is picked.
+fn pick_one(
+    path: &Path,
+    what: &str,
+    option: &str,
+    picked: Option<usize>,
+    count: usize,
+) -> Result<usize> {
+    match picked {
+        Some(i) if i < count => Ok(i),
+        Some(i) => Err(invalid(
+            path,
+            format!(
+                "has {count} {what}(s), 0 to {}; {what} {i} does not exist (`{option}`)",
+                count.saturating_sub(1)
+            ),
+        )),
+        None if count == 1 => Ok(0),
+        None => Err(invalid(
+            path,
+            format!(
+                "holds {count} {what}s; pick one with `{option}` (0 to {})",
+                count - 1
+            ),
+        )),
+    }
 }
 
 fn voxel_type(path: &Path, name: &str, array: &Array<GuardedStore>) -> Result<VoxelType> {
@@ -375,13 +420,13 @@ fn voxel_type(path: &Path, name: &str, array: &Array<GuardedStore>) -> Result<Vo
 }
 
 /// One level from its array and its dataset entry (scale and translation, z y x order);
-/// `leading` axes come before z, y, x, the c axis among them at `c_axis`.
+/// `leading` axes (t, c) come before z, y, x.
 fn level(
     path: &Path,
     name: &str,
     array: &Array<GuardedStore>,
     d: &Value,
-    (leading, c_axis): (usize, Option<usize>),
+    leading: usize,
 ) -> Result<Level> {
     let shape = array.shape();
     if shape.len() != leading + 3 {
@@ -391,16 +436,6 @@ fn level(
                 "level {name} has {} dimensions; the axes name {}",
                 shape.len(),
                 leading + 3
-            ),
-        ));
-    }
-    let times = if leading == 2 { shape[0] } else { 1 };
-    if times != 1 {
-        let channels = c_axis.map_or(1, |c| shape[c]);
-        return Err(invalid(
-            path,
-            format!(
-                "level {name} holds {times} time points and {channels} channels; expected one time point"
             ),
         ));
     }

@@ -60,9 +60,14 @@ impl Source {
         let path = Path::new(&input.input);
         Ok(
             if let Some(phantom) = Phantom::parse(&input.input, MAX_STREAMED_SIZE) {
+                anyhow::ensure!(
+                    input.pick() == Default::default(),
+                    "--time and --channel pick a time point and a channel of an OME-Zarr store; {} is a phantom",
+                    input.input
+                );
                 Source::Phantom(phantom?)
             } else if ome_zarr::is_store(path) && input.raw.spec()?.is_none() {
-                Source::Store(ome_zarr::Multiscale::open(path)?)
+                Source::Store(ome_zarr::Multiscale::open_picked(path, input.pick())?)
             } else {
                 Source::Volume(input.load()?)
             },

@@ -56,7 +56,11 @@ const STATS_VOXELS: usize = 1 << 24;
 
 /// A store: its levels, and the statistics of its finest level of at most [`STATS_VOXELS`]
 /// voxels (level 0 itself when it is that small). Level 0 is never read whole otherwise.
-fn store_summary(ms: &vellum::volume::io::ome_zarr::Multiscale, json: bool) -> Result<()> {
+fn store_summary(
+    ms: &vellum::volume::io::ome_zarr::Multiscale,
+    pick: vellum::volume::io::ome_zarr::Pick,
+    json: bool,
+) -> Result<()> {
     let level = ms
         .finest_within(STATS_VOXELS)
         .unwrap_or(ms.levels.len() - 1);
@@ -69,16 +73,21 @@ fn store_summary(ms: &vellum::volume::io::ome_zarr::Multiscale, json: bool) -> R
         .collect();
     if json {
         let out = json!({
-            "input": ms.root, "ngff": ms.version, "voxel_type": ms.voxel, "channels": ms.channels, "levels": levels,
+            "input": ms.root, "ngff": ms.version, "voxel_type": ms.voxel, "channels": ms.channels, "times": ms.times, "levels": levels,
             "range": ms.range, "statistics_level": level,
             "statistics": {"min": s.min, "max": s.max, "mean": s.mean, "histogram": s.histogram},
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
     }
-    let channels = match ms.channels {
-        1 => String::new(),
-        n => format!(", {n} channels; the statistics below are channel 0's"),
+    let (t, c) = (pick.time.unwrap_or(0), pick.channel.unwrap_or(0));
+    let channels = match (ms.times, ms.channels) {
+        (1, 1) => String::new(),
+        (1, n) => format!(", {n} channels; the statistics below are channel {c}'s"),
+        (times, 1) => format!(", {times} time points; the statistics below are time point {t}'s"),
+        (times, n) => format!(
+            ", {times} time points of {n} channels; the statistics below are time point {t}'s, channel {c}"
+        ),
     };
     println!(
         "input:   {} (OME-NGFF {}, {}{channels})",
@@ -123,9 +132,14 @@ pub(crate) fn info(input: &InputArgs, json: bool) -> Result<()> {
     use vellum::volume::io::ome_zarr;
     let path = std::path::Path::new(&input.input);
     if ome_zarr::is_store(path) && input.raw.spec()?.is_none() {
-        // A store of several channels (the normals') is described, channel 0's statistics.
-        let ms = ome_zarr::Multiscale::open_channel(path, 0)?;
-        return store_summary(&ms, json);
+        // A store of several channels or time points is described whole, with the statistics
+        // of the one picked (channel 0 at time 0 unless --channel and --time say).
+        let pick = ome_zarr::Pick {
+            time: Some(input.time.unwrap_or(0)),
+            channel: Some(input.channel.unwrap_or(0)),
+        };
+        let ms = ome_zarr::Multiscale::open_picked(path, pick)?;
+        return store_summary(&ms, pick, json);
     }
     let v = input.load()?;
     let s = vellum::volume::stats::stats(&v, 16);

@@ -2,6 +2,7 @@
 
 use crate::args::*;
 use crate::commands::{context, inputs_key, passes_json, report_validation, together};
+use crate::scene_args::TimeArg;
 use anyhow::Result;
 use serde_json::json;
 use vellum::render::scene::GpuScene;
@@ -115,6 +116,9 @@ pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
 
 pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<()> {
     use vellum::render::targets::to_rgb8;
+    if a.scene.time == Some(TimeArg::All) {
+        return render_every_time((cli, team), a);
+    }
     let scene = a.scene.scene("render")?;
     if let Some(path) = &a.save_scene {
         if team.is_root() {
@@ -247,6 +251,50 @@ type Drawn = (
 /// The session's options from the flags: the GPU budget, the level of detail, and the host
 /// memory of the brick cache's streaming (seven eighths for decoded chunks, the rest for bricks
 /// waiting for the GPU).
+/// `render --time all --out DIR/`: one PNG per time point of the store, `DIR/tNNNN.png`, with a
+/// progress bar; each is the frame `--time T` draws.
+fn render_every_time((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<()> {
+    use vellum::volume::io::ome_zarr;
+    let dir = a.out.as_deref().ok_or_else(|| {
+        anyhow::anyhow!("render --time all needs --out DIR/, the folder of one PNG per time point")
+    })?;
+    anyhow::ensure!(
+        a.save_scene.is_none(),
+        "--save-scene describes one frame; give one time point with --time T"
+    );
+    let scene = a.scene.base(None, "render")?;
+    let path = std::path::Path::new(&scene.input.path);
+    anyhow::ensure!(
+        ome_zarr::is_store(path),
+        "--time all renders every time point of an OME-Zarr store; {} is not one",
+        scene.input.path
+    );
+    let channel = a.scene.channels.as_ref().and_then(|c| c.first().copied());
+    let pick = ome_zarr::Pick {
+        time: Some(0),
+        channel: Some(channel.or(scene.input.channel).unwrap_or(0)),
+    };
+    let times = ome_zarr::Multiscale::open_picked(path, pick)?.times;
+    if team.is_root() {
+        std::fs::create_dir_all(dir).map_err(|e| {
+            anyhow::anyhow!("{}: the folder could not be made ({e})", dir.display())
+        })?;
+    }
+    let bar = vellum::progress::bar(times as u64, "time points");
+    for t in 0..times {
+        let mut one = a.clone();
+        one.scene.time = Some(TimeArg::One(t));
+        one.out = Some(dir.join(format!("t{t:04}.png")));
+        render((cli, team), &one)?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    if team.is_root() {
+        println!("wrote {times} time points to {}", dir.display());
+    }
+    Ok(())
+}
+
 fn session_options(a: &RenderArgs) -> Result<SessionOptions> {
     let memory = match a.memory_budget {
         None => vellum::render::session::DEFAULT_MEMORY,
