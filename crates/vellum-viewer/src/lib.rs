@@ -18,6 +18,7 @@ mod frame;
 mod playback;
 mod running;
 mod session;
+mod timeline;
 mod ui;
 
 // The viewer speaks Vulkan where it hands egui-ash-renderer what its API takes: the swapchain's

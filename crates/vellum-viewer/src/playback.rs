@@ -3,34 +3,10 @@
 //! focus, camera, style). While playing, the next time point is read on a second worker as soon
 //! as the current one is shown, so that a step waits only for what is left of its load.
 
-use super::session::{load, Loaded, Session};
+use super::session::{load, Session};
+use super::timeline::{Prefetch, STEP};
 use std::sync::mpsc;
-use std::time::{Duration, Instant};
-use vellum_error::Result;
-
-/// How long a time point stays on screen while playing, at least: ten a second.
-pub(crate) const STEP: Duration = Duration::from_millis(100);
-
-/// The next time point, read ahead while the current one plays.
-pub(crate) struct Prefetch {
-    time: usize,
-    answer: mpsc::Receiver<Result<Loaded>>,
-}
-
-/// How many time points the input of `scene` has: a store's t axis, else 1. Only the metadata is
-/// read.
-pub(crate) fn times_of(scene: &vellum_render::render::scene::Scene) -> usize {
-    use vellum_volume::io::ome_zarr::{self, Multiscale, Pick};
-    let path = std::path::Path::new(&scene.input.path);
-    if scene.input.raw.is_some() || !ome_zarr::is_store(path) {
-        return 1;
-    }
-    let pick = Pick {
-        time: Some(0),
-        channel: Some(scene.input.channel.unwrap_or(0)),
-    };
-    Multiscale::open_picked(path, pick).map_or(1, |ms| ms.times)
-}
+use std::time::Instant;
 
 impl Session {
     /// Shows time point `t`: from the read-ahead when it holds `t`, else loaded now.

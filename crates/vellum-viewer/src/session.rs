@@ -71,7 +71,7 @@ pub(crate) fn load(scene: Scene, budget: u64) -> Result<Loaded> {
     };
     Ok(Loaded {
         otf,
-        times: crate::playback::times_of(&scene),
+        times: crate::timeline::times_of(&scene),
         scene,
         classification,
         tf,
@@ -158,7 +158,7 @@ pub(crate) struct Session {
     home: CameraSpec,
     pending_load: Option<mpsc::Receiver<Result<Loaded>>>,
     /// The next time point, read ahead while playing.
-    pub(crate) prefetch: Option<crate::playback::Prefetch>,
+    pub(crate) prefetch: Option<crate::timeline::Prefetch<Result<Loaded>>>,
     /// When the current volume was shown (a playing time point stays at least `STEP`).
     pub(crate) shown_at: Instant,
     /// The occlusion volume being recomputed on a worker thread.

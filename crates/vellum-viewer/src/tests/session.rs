@@ -284,7 +284,7 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
         !s.loading() && s.prefetch.is_some(),
         "read ahead, not yet shown"
     );
-    s.tick_playback(Instant::now() + crate::playback::STEP);
+    s.tick_playback(Instant::now() + crate::timeline::STEP);
     assert!(
         s.loading() && s.prefetch.is_none(),
         "the read-ahead became the load"
