@@ -41,17 +41,17 @@ pub enum Access {
 
 /// The synchronization2 view of an [`Access`].
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
-pub struct AccessInfo {
+pub(crate) struct AccessInfo {
     /// The pipeline stages that wait or are waited for.
-    pub stage: vk::PipelineStageFlags2,
+    pub(crate) stage: vk::PipelineStageFlags2,
     /// The memory accesses made available or visible.
-    pub access: vk::AccessFlags2,
+    pub(crate) access: vk::AccessFlags2,
     /// The layout an image is in for this access (`UNDEFINED` for buffers).
-    pub layout: vk::ImageLayout,
+    pub(crate) layout: vk::ImageLayout,
 }
 
 /// The table.
-pub fn access_info(a: Access) -> AccessInfo {
+pub(crate) fn access_info(a: Access) -> AccessInfo {
     use vk::AccessFlags2 as A;
     use vk::ImageLayout as L;
     use vk::PipelineStageFlags2 as S;
@@ -106,7 +106,7 @@ pub fn access_info(a: Access) -> AccessInfo {
 }
 
 /// True when `a` writes (so a later access of any kind must wait for it).
-pub fn is_write(a: Access) -> bool {
+pub(crate) fn is_write(a: Access) -> bool {
     matches!(
         a,
         Access::TransferWrite
@@ -123,7 +123,7 @@ pub fn is_write(a: Access) -> bool {
 ///
 /// With `discard_contents`, the old layout is UNDEFINED (the contents may be dropped), but the
 /// barrier still waits for `prev`: a write after a discarded write or read is still a hazard.
-pub fn image_barrier(
+pub(crate) fn image_barrier(
     image: vk::Image,
     aspect: vk::ImageAspectFlags,
     prev: Access,
@@ -165,7 +165,7 @@ pub fn image_barrier(
 }
 
 /// A global memory barrier from `prev` to `next` (buffers), or `None` for read after read.
-pub fn memory_barrier(prev: Access, next: Access) -> Option<vk::MemoryBarrier2<'static>> {
+pub(crate) fn memory_barrier(prev: Access, next: Access) -> Option<vk::MemoryBarrier2<'static>> {
     if !is_write(prev) && !is_write(next) {
         return None;
     }

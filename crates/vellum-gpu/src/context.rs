@@ -9,7 +9,7 @@
 //!
 //! ## Validation
 //! With validation on, `VK_LAYER_KHRONOS_validation` is enabled and a debug-utils messenger counts
-//! messages by severity ([`MessageCounts`]). Tests assert the counts stay at zero.
+//! messages by severity (`MessageCounts`). Tests assert the counts stay at zero.
 
 use crate::lifetime::{Lifetimes, TransferCount};
 use crate::validation::{self, MessageCounts, MessageSnapshot};
@@ -34,7 +34,7 @@ pub struct ContextDesc {
 
 impl ContextDesc {
     /// Resolves the validation switch: explicit value, then `VELLUM_VALIDATION`, then debug/release.
-    pub fn validation_enabled(&self) -> Result<bool> {
+    pub(crate) fn validation_enabled(&self) -> Result<bool> {
         if let Some(v) = self.validation {
             return Ok(v);
         }
@@ -83,7 +83,7 @@ impl ContextDesc {
 #[derive(Clone, Debug, Default)]
 pub struct Presentation {
     /// Instance extensions for surfaces on this display.
-    pub instance_extensions: Vec<&'static CStr>,
+    pub(crate) instance_extensions: Vec<&'static CStr>,
     /// Enable `VK_KHR_swapchain` on the device (a device without it is rejected, with the reason).
     pub swapchain: bool,
 }
@@ -123,13 +123,13 @@ pub struct DeviceInfo {
     /// The largest storage buffer range in bytes.
     pub max_storage_buffer_range: u32,
     /// The largest dispatch along x, y, z in workgroups.
-    pub max_compute_work_group_count: [u32; 3],
+    pub(crate) max_compute_work_group_count: [u32; 3],
     /// Nanoseconds per timestamp tick.
-    pub timestamp_period_ns: f32,
+    pub(crate) timestamp_period_ns: f32,
     /// Size of the largest device-local heap in bytes.
     pub device_local_heap_bytes: u64,
     /// Alignment of uniform-buffer offsets.
-    pub min_uniform_buffer_offset_alignment: u64,
+    pub(crate) min_uniform_buffer_offset_alignment: u64,
     /// Bytes of shared memory a compute workgroup may declare.
     pub max_compute_shared_memory: u32,
     /// Whether storage images may use the extended formats (RG32F among them); enabled when true.
@@ -145,15 +145,15 @@ pub struct Context {
     debug_instance: Option<ash::ext::debug_utils::Instance>,
     messenger: vk::DebugUtilsMessengerEXT,
     /// Present when debug utils are available: object names and command-buffer labels.
-    pub debug_utils: Option<ash::ext::debug_utils::Device>,
+    pub(crate) debug_utils: Option<ash::ext::debug_utils::Device>,
     /// The chosen physical device.
     pub physical: vk::PhysicalDevice,
     /// The logical device.
     pub device: ash::Device,
     /// The push-descriptor functions every pipeline binds its resources with.
-    pub push_descriptor: ash::khr::push_descriptor::Device,
+    pub(crate) push_descriptor: ash::khr::push_descriptor::Device,
     /// The family of the one queue.
-    pub queue_family: u32,
+    pub(crate) queue_family: u32,
     queue: Mutex<vk::Queue>,
     /// Shared (an `Arc`) so that egui's renderer can allocate through it; every holder is dropped
     /// before the context (the viewer drops its egui renderer first).
@@ -677,7 +677,7 @@ impl Context {
     }
 
     /// Whether the device was created with `VK_KHR_swapchain`.
-    pub fn can_present(&self) -> bool {
+    pub(crate) fn can_present(&self) -> bool {
         self.presentation
     }
 
@@ -693,7 +693,7 @@ impl Context {
     }
 
     /// Names a Vulkan object for validation messages and captures (no-op without debug utils).
-    pub fn set_name<H: vk::Handle>(&self, handle: H, name: &str) {
+    pub(crate) fn set_name<H: vk::Handle>(&self, handle: H, name: &str) {
         if let Some(du) = &self.debug_utils {
             if let Ok(cname) = CString::new(name) {
                 let info = vk::DebugUtilsObjectNameInfoEXT::default()
@@ -706,7 +706,7 @@ impl Context {
     }
 
     /// Opens a debug label region in `cmd`.
-    pub fn begin_label(&self, cmd: vk::CommandBuffer, name: &str) {
+    pub(crate) fn begin_label(&self, cmd: vk::CommandBuffer, name: &str) {
         if let Some(du) = &self.debug_utils {
             if let Ok(cname) = CString::new(name) {
                 let label = vk::DebugUtilsLabelEXT::default().label_name(&cname);
@@ -716,7 +716,7 @@ impl Context {
     }
 
     /// Closes the label region opened by [`Context::begin_label`].
-    pub fn end_label(&self, cmd: vk::CommandBuffer) {
+    pub(crate) fn end_label(&self, cmd: vk::CommandBuffer) {
         if let Some(du) = &self.debug_utils {
             unsafe { du.cmd_end_debug_utils_label(cmd) };
         }

@@ -31,7 +31,7 @@ pub struct FramesDesc {
     /// Slots, so frames that may be in flight at once (at least 1).
     pub frames_in_flight: usize,
     /// Timed passes per frame.
-    pub timestamp_capacity: u32,
+    pub(crate) timestamp_capacity: u32,
     /// Initial bytes of each slot's staging ring (0 for none until first use).
     pub staging_bytes: u64,
     /// Names the command buffers in captures and messages.
@@ -245,7 +245,7 @@ impl Frame<'_> {
 #[derive(Copy, Clone, Debug, Default, serde::Serialize)]
 pub struct HostTimes {
     /// Blocked on the fence of the slot's previous frame (the GPU is behind).
-    pub wait_ms: f64,
+    pub(crate) wait_ms: f64,
     /// Recording the commands and submitting them.
     pub record_submit_ms: f64,
 }

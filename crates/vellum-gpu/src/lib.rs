@@ -3,21 +3,21 @@
 //! about volumes or rendering techniques; `vellum-render`'s passes and renderers build on it.
 //! Beneath it is only `vellum-error`.
 
-/// The workspace's glsl/ folder, whose files build.rs compiled into [`shaders`].
+/// The workspace's glsl/ folder, whose files build.rs compiled into `shaders`.
 pub const GLSL_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../glsl");
 
-pub mod barrier;
+pub(crate) mod barrier;
 pub mod commands;
 pub mod context;
-pub mod frame;
+pub(crate) mod frame;
 pub mod graphics;
 pub mod interface;
-pub mod lifetime;
+pub(crate) mod lifetime;
 pub mod pipeline;
-pub mod pipeline_cache;
+pub(crate) mod pipeline_cache;
 pub mod profiler;
 pub mod resources;
-pub mod shaders;
+pub(crate) mod shaders;
 pub mod swapchain;
 pub mod transfer;
 pub mod validation;
@@ -37,4 +37,4 @@ pub use pipeline::{Bind, BindingKind, ComputePipeline};
 pub use pipeline_cache::{PipelineCache, PipelineDesc};
 pub use profiler::{PassTime, Profiler};
 pub use resources::{Buffer, BufferDesc, BufferSlice, Image, ImageDesc, Sampler};
-pub use vk_context::VkContext;
+pub(crate) use vk_context::VkContext;

@@ -37,7 +37,7 @@ pub struct TransferCount {
     /// Readbacks recorded.
     pub readbacks: u64,
     /// Bytes read back.
-    pub readback_bytes: u64,
+    pub(crate) readback_bytes: u64,
 }
 
 /// Serial numbers, the garbage list and the counters.

@@ -36,7 +36,7 @@ impl BindingKind {
 }
 
 /// Most bindings one dispatch or draw pushes (the ray caster has 17).
-pub const MAX_BINDINGS: usize = 32;
+pub(crate) const MAX_BINDINGS: usize = 32;
 
 /// A resource bound at dispatch time; its position in the slice is its binding number.
 #[derive(Copy, Clone)]
@@ -73,7 +73,7 @@ impl Bind<'_> {
 pub struct PipelineLayout {
     ctx: Arc<Context>,
     /// The layout of set 0 (push descriptors).
-    pub set_layout: vk::DescriptorSetLayout,
+    pub(crate) set_layout: vk::DescriptorSetLayout,
     /// The pipeline layout.
     pub raw: vk::PipelineLayout,
     /// The bindings of set 0, in binding order.
@@ -267,7 +267,7 @@ impl Drop for PipelineLayout {
 }
 
 /// Map entries for 32-bit specialisation constants: `constants[i]` is `constant_id = i`.
-pub fn specialization_entries(constants: &[u32]) -> Vec<vk::SpecializationMapEntry> {
+pub(crate) fn specialization_entries(constants: &[u32]) -> Vec<vk::SpecializationMapEntry> {
     (0..constants.len() as u32)
         .map(|i| vk::SpecializationMapEntry {
             constant_id: i,
@@ -278,7 +278,7 @@ pub fn specialization_entries(constants: &[u32]) -> Vec<vk::SpecializationMapEnt
 }
 
 /// Creates a shader module from the embedded SPIR-V of `shader`.
-pub fn shader_module(ctx: &Context, shader: &str) -> Result<vk::ShaderModule> {
+pub(crate) fn shader_module(ctx: &Context, shader: &str) -> Result<vk::ShaderModule> {
     let words = shaders::spirv(shader)?;
     let info = vk::ShaderModuleCreateInfo::default().code(&words);
     unsafe { ctx.device.create_shader_module(&info, None) }

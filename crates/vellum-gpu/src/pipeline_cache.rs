@@ -22,7 +22,7 @@ pub struct PipelineDesc<'a> {
     /// The bindings of set 0, in binding order; a shader asked for with others is refused.
     pub bindings: &'a [BindingKind],
     /// Bytes of push constants.
-    pub push_bytes: u32,
+    pub(crate) push_bytes: u32,
     /// Specialisation constants: `constants[i]` is `constant_id = i`.
     pub constants: &'a [u32],
 }

@@ -48,7 +48,7 @@ impl Profiler {
     }
 
     /// Starts a new recording: resets the queries and forgets earlier pass names.
-    pub fn reset(&mut self, cmd: vk::CommandBuffer) {
+    pub(crate) fn reset(&mut self, cmd: vk::CommandBuffer) {
         unsafe {
             self.ctx
                 .device
@@ -119,7 +119,7 @@ impl Profiler {
     }
 
     /// Like [`Profiler::results`], for a submission whose fence has signalled: no query wait.
-    pub fn results_ready(&self) -> Result<Vec<PassTime>> {
+    pub(crate) fn results_ready(&self) -> Result<Vec<PassTime>> {
         self.read(vk::QueryResultFlags::empty())
     }
 

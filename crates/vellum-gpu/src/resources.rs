@@ -13,7 +13,7 @@ use vellum_error::{Error, Result};
 
 /// Where a buffer lives and how the host reaches it.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
-pub enum BufferLocation {
+pub(crate) enum BufferLocation {
     /// Device memory the host never maps.
     Gpu,
     /// Host-written staging or uniform data.
@@ -30,7 +30,7 @@ pub struct BufferDesc {
     /// What the buffer is used for.
     pub usage: vk::BufferUsageFlags,
     /// Device-local, or host-visible for uploads or readbacks.
-    pub location: BufferLocation,
+    pub(crate) location: BufferLocation,
 }
 
 impl BufferDesc {
@@ -244,7 +244,7 @@ pub struct BufferSlice {
 
 impl Buffer {
     /// The whole buffer as a slice.
-    pub fn slice(&self) -> BufferSlice {
+    pub(crate) fn slice(&self) -> BufferSlice {
         BufferSlice {
             raw: self.raw,
             offset: 0,
@@ -261,7 +261,7 @@ pub struct ImageDesc {
     /// Texels along x, y, z (z is 1 for a 2D image).
     pub extent: [u32; 3],
     /// 2D or 3D.
-    pub image_type: vk::ImageType,
+    pub(crate) image_type: vk::ImageType,
     /// What the image is used for.
     pub usage: vk::ImageUsageFlags,
     /// A second view in this format of the same texels (`Image::alias_view`, bound with
@@ -338,7 +338,7 @@ impl ImageDesc {
     }
 
     /// Whether the format is a depth format (changes the aspect).
-    pub fn is_depth(&self) -> bool {
+    pub(crate) fn is_depth(&self) -> bool {
         matches!(
             self.format,
             vk::Format::D32_SFLOAT
@@ -350,7 +350,7 @@ impl ImageDesc {
 }
 
 /// Bytes per texel for the formats vellum uses.
-pub fn format_size(format: vk::Format) -> usize {
+pub(crate) fn format_size(format: vk::Format) -> usize {
     match format {
         vk::Format::R8_UNORM | vk::Format::R8_UINT | vk::Format::R8_SNORM | vk::Format::R8_SINT => {
             1
@@ -379,7 +379,7 @@ pub struct Image {
     /// Its view in its own format.
     pub view: vk::ImageView,
     /// The view in `desc.alias`'s format; null without one.
-    pub alias_view: vk::ImageView,
+    pub(crate) alias_view: vk::ImageView,
     allocation: Option<Allocation>,
     /// What it was made from.
     pub desc: ImageDesc,
@@ -488,7 +488,7 @@ impl Image {
     }
 
     /// Number of texels.
-    pub fn texel_count(&self) -> usize {
+    pub(crate) fn texel_count(&self) -> usize {
         self.desc.extent.iter().map(|&e| e as usize).product()
     }
 
@@ -498,7 +498,7 @@ impl Image {
     }
 
     /// The access the image was last transitioned to.
-    pub fn access(&self) -> Access {
+    pub(crate) fn access(&self) -> Access {
         self.access.get()
     }
 

@@ -5,7 +5,7 @@ use vellum_error::{Error, Result};
 include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
 
 /// The SPIR-V words of shader `name` (its path under glsl/, e.g. `importance/gauss1d.comp`).
-pub fn spirv(name: &str) -> Result<Vec<u32>> {
+pub(crate) fn spirv(name: &str) -> Result<Vec<u32>> {
     let bytes = SHADERS
         .iter()
         .find(|(n, _)| *n == name)

@@ -9,7 +9,7 @@ use std::sync::Mutex;
 
 /// Message counts by severity, plus the text of the first few errors and warnings.
 #[derive(Debug, Default)]
-pub struct MessageCounts {
+pub(crate) struct MessageCounts {
     errors: AtomicUsize,
     warnings: AtomicUsize,
     infos: AtomicUsize,
@@ -17,7 +17,7 @@ pub struct MessageCounts {
     first: Mutex<Vec<String>>,
 }
 
-/// A copy of [`MessageCounts`] at one moment.
+/// A copy of `MessageCounts` at one moment.
 #[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct MessageSnapshot {
     /// Errors reported.
@@ -25,7 +25,7 @@ pub struct MessageSnapshot {
     /// Warnings reported.
     pub warnings: usize,
     /// Informational messages.
-    pub infos: usize,
+    pub(crate) infos: usize,
     /// Verbose messages.
     pub verbose: usize,
     /// The text of the first errors and warnings (at most 16).
@@ -41,7 +41,7 @@ impl MessageSnapshot {
 
 impl MessageCounts {
     /// Current counts.
-    pub fn snapshot(&self) -> MessageSnapshot {
+    pub(crate) fn snapshot(&self) -> MessageSnapshot {
         MessageSnapshot {
             errors: self.errors.load(Ordering::SeqCst),
             warnings: self.warnings.load(Ordering::SeqCst),

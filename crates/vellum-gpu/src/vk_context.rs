@@ -3,7 +3,7 @@
 use vellum_error::{Error, Result};
 
 /// Attaches a description of the call to a Vulkan result, as in `unsafe { dev.create_x(..) }.vk("creating x")?`.
-pub trait VkContext<T> {
+pub(crate) trait VkContext<T> {
     /// Maps `Err(vk::Result)` to [`Error::Vulkan`] naming `what`.
     fn vk(self, what: impl Into<String>) -> Result<T>;
 }

@@ -35,11 +35,11 @@ use vellum_error::{Error, Result};
 /// Edge of a brick in voxels.
 pub const BRICK: usize = 32;
 /// Apron voxels on each side of a brick in its slot.
-pub const APRON: usize = 1;
+pub(crate) const APRON: usize = 1;
 /// Edge of a pool slot in texels.
 pub const SLOT: usize = BRICK + 2 * APRON;
 /// Bytes a voxel takes in the renderer's textures: R16 intensity and RGBA16F gradient.
-pub const TEXTURE_BYTES_PER_VOXEL: u64 = 2 + 8;
+pub(crate) const TEXTURE_BYTES_PER_VOXEL: u64 = 2 + 8;
 /// Bytes of one slot.
 pub const SLOT_BYTES: usize = SLOT * SLOT * SLOT * TEXTURE_BYTES_PER_VOXEL as usize;
 
@@ -157,7 +157,7 @@ pub struct BrickLevels {
 }
 
 /// Bytes of decoded chunks a pyramid keeps by default (`--memory-budget` sets it).
-pub const DEFAULT_CHUNK_CACHE: u64 = 896 << 20;
+pub(crate) const DEFAULT_CHUNK_CACHE: u64 = 896 << 20;
 
 /// The finest level of `ms` of at most `voxels` voxels, or its coarsest when none is that small.
 fn small_level(ms: &Multiscale, voxels: usize) -> usize {

@@ -113,7 +113,7 @@ pub struct ChunkStats {
     /// Milliseconds spent decoding, summed over the threads.
     pub decode_ms: f64,
     /// Lookups answered from the cache.
-    pub hits: u64,
+    pub(crate) hits: u64,
 }
 
 /// Decoded chunks, at most about `budget` bytes of them.
@@ -255,7 +255,8 @@ impl ChunkCache {
     }
 
     /// Chunks held now and their bytes.
-    pub fn held(&self) -> (usize, u64) {
+    #[cfg(test)]
+    pub(crate) fn held(&self) -> (usize, u64) {
         let inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
         (inner.entries.len(), inner.bytes)
     }

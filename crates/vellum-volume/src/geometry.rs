@@ -50,7 +50,7 @@ pub const IDENTITY: [[f64; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0
 
 /// Tolerance on orthonormality of a direction matrix (columns of unit length, pairwise
 /// perpendicular), as a deviation of dot products.
-pub const ORTHO_TOLERANCE: f64 = 1e-3;
+pub(crate) const ORTHO_TOLERANCE: f64 = 1e-3;
 
 impl Geometry {
     /// Geometry in LPS from an origin and the three axis direction vectors (any length; they are
@@ -87,7 +87,7 @@ impl Geometry {
     }
 
     /// Checks: finite origin and directions; unit, mutually perpendicular columns (within
-    /// [`ORTHO_TOLERANCE`]); a non-zero determinant.
+    /// `ORTHO_TOLERANCE`); a non-zero determinant.
     pub fn validate(&self) -> Result<()> {
         if !self.origin.iter().all(|v| v.is_finite()) {
             return Err(Error::Invalid(format!(
@@ -117,7 +117,8 @@ impl Geometry {
     }
 
     /// The physical point of continuous voxel index `index` for voxel `spacing`.
-    pub fn point(&self, index: [f64; 3], spacing: [f64; 3]) -> [f64; 3] {
+    #[cfg(test)]
+    pub(crate) fn point(&self, index: [f64; 3], spacing: [f64; 3]) -> [f64; 3] {
         std::array::from_fn(|r| {
             self.origin[r]
                 + (0..3)
@@ -163,7 +164,7 @@ impl Geometry {
 }
 
 /// Converts a RAS vector or point to LPS (and back): x and y change sign.
-pub fn ras_to_lps(v: [f64; 3]) -> [f64; 3] {
+pub(crate) fn ras_to_lps(v: [f64; 3]) -> [f64; 3] {
     [-v[0], -v[1], v[2]]
 }
 

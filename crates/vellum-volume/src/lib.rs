@@ -91,7 +91,7 @@ pub enum VoxelData {
 
 impl VoxelData {
     /// `n` zero voxels of type `t`.
-    pub fn zeros(t: VoxelType, n: usize) -> Self {
+    pub(crate) fn zeros(t: VoxelType, n: usize) -> Self {
         match t {
             VoxelType::U8 => VoxelData::U8(vec![0; n]),
             VoxelType::U16 => VoxelData::U16(vec![0; n]),
@@ -188,7 +188,7 @@ pub struct Volume {
 
 /// Largest voxel count vellum accepts from a file header before reading data (16 Gi voxels), so a
 /// corrupt header cannot make us try to allocate absurd amounts of memory.
-pub const MAX_VOXELS: u128 = 1 << 34;
+pub(crate) const MAX_VOXELS: u128 = 1 << 34;
 
 impl Volume {
     /// Makes a volume, checking that the dims are non-zero and agree with the voxel count.
@@ -253,7 +253,7 @@ impl Volume {
     }
 
     /// Counts NaN and infinite voxels (always 0 for integer types).
-    pub fn count_non_finite(&self) -> usize {
+    pub(crate) fn count_non_finite(&self) -> usize {
         match &self.data {
             VoxelData::F32(v) => v.iter().filter(|x| !x.is_finite()).count(),
             _ => 0,

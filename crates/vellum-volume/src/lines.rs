@@ -60,9 +60,9 @@ pub struct LineParams {
 
 /// `--line-smooth auto` smooths when the quantisation step is at least this fraction of the
 /// surfaces' gradient (see [`auto_smooth_radius`]).
-pub const AUTO_SMOOTH_FROM: f64 = 0.003;
+pub(crate) const AUTO_SMOOTH_FROM: f64 = 0.003;
 /// ... and with radius 2 from this fraction on.
-pub const AUTO_SMOOTH_WIDE_FROM: f64 = 0.03;
+pub(crate) const AUTO_SMOOTH_WIDE_FROM: f64 = 0.03;
 
 /// The smoothing radius of `--line-smooth auto` for `v`: 0 (none), 1 or 2 voxels.
 ///
@@ -72,8 +72,8 @@ pub const AUTO_SMOOTH_WIDE_FROM: f64 = 0.03;
 /// radius 1. The rule compares the step q (one data unit for integer voxels, none for floats)
 /// with g, the 90th percentile of the non-zero gradient magnitudes (central differences, data
 /// units per voxel, over up to a million sampled voxels), which is the gradient across the
-/// volume's surfaces: no smoothing for q/g < [`AUTO_SMOOTH_FROM`], radius 1 up to
-/// [`AUTO_SMOOTH_WIDE_FROM`], radius 2 above. Measured q/g: smooth float phantoms 0; the uint8
+/// volume's surfaces: no smoothing for q/g < `AUTO_SMOOTH_FROM`, radius 1 up to
+/// `AUTO_SMOOTH_WIDE_FROM`, radius 2 above. Measured q/g: smooth float phantoms 0; the uint8
 /// sphere 0.023; CT heads 0.002–0.004 (16-bit), the chest CT 0.019, brain MRI 0.037 (8-bit).
 /// Noise in float data is not measured: such data need `--line-smooth N` by hand.
 pub fn auto_smooth_radius(v: &crate::Volume) -> u32 {
@@ -180,7 +180,7 @@ impl Segment {
 }
 
 /// The six tetrahedra of a cell, as cube-corner indices (bit 0 x, bit 1 y, bit 2 z).
-pub const TETS: [[usize; 4]; 6] = [
+pub(crate) const TETS: [[usize; 4]; 6] = [
     [0, 1, 3, 7],
     [0, 1, 5, 7],
     [0, 2, 3, 7],

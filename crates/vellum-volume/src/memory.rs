@@ -23,7 +23,7 @@ pub fn total_kib() -> Option<u64> {
 
 /// Whether `bytes` may be read whole: at most half of the machine's memory (always, where the
 /// system does not say).
-pub fn fits_in_memory(bytes: u64) -> bool {
+pub(crate) fn fits_in_memory(bytes: u64) -> bool {
     total_kib().is_none_or(|k| bytes <= k * 1024 / 2)
 }
 

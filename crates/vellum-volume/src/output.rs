@@ -7,7 +7,7 @@
 //!
 //! ## All of a command's files, or none
 //! Between [`begin`] and [`commit`], completed files stay under their temporary names: `commit`
-//! renames them all, and [`abort`] (or an error, or Ctrl-C through [`remove_pending`]) removes them
+//! renames them all, and [`abort`] (or an error, or Ctrl-C through [`remove_pending_and_exit`]) removes them
 //! all. A command therefore writes every output or none, and two outputs with the same path are
 //! refused. Outside a transaction (library use, tests) each file is renamed as soon as it is
 //! complete.
@@ -67,18 +67,9 @@ pub fn abort() {
     }
 }
 
-/// Removes every temporary file, complete or being written (for a signal handler, which then
-/// exits).
-pub fn remove_pending() {
-    for tmp in lock(&WRITING).iter() {
-        remove(tmp);
-    }
-    abort();
-}
-
-/// [`remove_pending`], then ends the process with `code`, still holding the list of files
+/// Removes every temporary file, complete or being written, then ends the process with `code`, still holding the list of files
 /// being written: once interrupted, no thread can make a new temporary after the removal
-/// ([`begin_folder`] and [`write_atomic`] make theirs under that lock, after checking
+/// (`begin_folder` and [`write_atomic`] make theirs under that lock, after checking
 /// [`vellum_error::check_interrupt`]).
 pub fn remove_pending_and_exit(code: i32) -> ! {
     let writing = lock(&WRITING);
@@ -108,26 +99,18 @@ fn remove(tmp: &Path) {
     }
 }
 
-/// Writes a folder output (a chunked store) as [`write_atomic`] writes a file: `fill` fills a
-/// temporary folder beside `path`, which is renamed into place once complete (at [`commit`] in a
-/// transaction) and removed on an error or Ctrl-C. `path` must not exist yet.
-pub fn write_folder_atomic(path: &Path, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let folder = begin_folder(path)?;
-    let result = fill(&folder.tmp);
-    folder.finish(result)
-}
-
-/// A folder output being written under its temporary name (see [`write_folder_atomic`], which
-/// is [`begin_folder`], filling [`FolderInProgress::tmp`], then [`FolderInProgress::finish`]).
+/// A folder output (a chunked store) written as [`write_atomic`] writes a file, under its
+/// temporary name: [`begin_folder`], filling [`FolderInProgress::tmp`], then
+/// [`FolderInProgress::finish`], which renames it into place or removes it.
 /// The split lets the ranks of a job fill one folder that rank 0 made and renames.
-pub struct FolderInProgress {
+pub(crate) struct FolderInProgress {
     /// The temporary folder to fill; renamed to the output by `finish`.
-    pub tmp: PathBuf,
+    pub(crate) tmp: PathBuf,
     path: PathBuf,
 }
 
 /// Checks that `path` is a new folder's path and makes its temporary folder beside it.
-pub fn begin_folder(path: &Path) -> Result<FolderInProgress> {
+pub(crate) fn begin_folder(path: &Path) -> Result<FolderInProgress> {
     if path.file_name().is_none() {
         return Err(Error::Invalid(format!(
             "{} has no folder name; expected a path to a new folder",
@@ -167,7 +150,7 @@ pub fn begin_folder(path: &Path) -> Result<FolderInProgress> {
 impl FolderInProgress {
     /// Renames the folder into place when `result` is `Ok` (at [`commit`] in a transaction), or
     /// removes it and returns the error.
-    pub fn finish(self, result: Result<()>) -> Result<()> {
+    pub(crate) fn finish(self, result: Result<()>) -> Result<()> {
         // The folder leaves the list only once it is removed or handed to the transaction, both
         // under the list's lock: a signal handler never sees it in neither place.
         let mut writing = lock(&WRITING);

@@ -10,9 +10,9 @@ use super::{Volume, VoxelData};
 use vellum_error::{Error, Result};
 
 /// Grid size used when a spec gives none.
-pub const DEFAULT_SIZE: usize = 128;
+pub(crate) const DEFAULT_SIZE: usize = 128;
 /// Largest grid size a spec may ask for (1024^3 f32 voxels are 4 GiB).
-pub const MAX_SIZE: usize = 1024;
+pub(crate) const MAX_SIZE: usize = 1024;
 
 /// Parses `phantom:NAME[:N]` (NAME is `shepp-logan` or `nested`) and builds the phantom. Returns
 /// `None` when `spec` does not start with `phantom:`, so callers can fall back to file loading.
@@ -40,7 +40,7 @@ pub enum Kind {
 }
 
 /// A phantom named by a spec, not yet sampled: the whole grid ([`Phantom::volume`]) or any box of
-/// it ([`Phantom::sample_box`]) gives the same voxels.
+/// it (`Phantom::sample_box`) gives the same voxels.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub struct Phantom {
     /// Which phantom.
@@ -62,7 +62,7 @@ impl Phantom {
     }
 
     /// Voxels `lo .. lo + size` of the grid (clamped to it), as a volume of that size.
-    pub fn sample_box(&self, lo: [usize; 3], size: [usize; 3]) -> Volume {
+    pub(crate) fn sample_box(&self, lo: [usize; 3], size: [usize; 3]) -> Volume {
         let n = self.n;
         let size: [usize; 3] = std::array::from_fn(|a| size[a].min(n.saturating_sub(lo[a])));
         let b = GridBox { n, lo, size };
@@ -106,13 +106,13 @@ fn parse(rest: &str, max: usize) -> Result<Phantom> {
 /// Smooth phantoms for line drawings: 0.5 + 0.5 tanh(d / SMOOTH_WIDTH) of a signed distance d
 /// (positive inside, in [-1, 1] coordinates), so f = 0.5 is the exact shape and every derivative
 /// exists.
-pub const SMOOTH_WIDTH: f64 = 0.08;
+pub(crate) const SMOOTH_WIDTH: f64 = 0.08;
 /// Radius of `phantom:sphere` in [-1, 1] coordinates.
 pub const SPHERE_RADIUS: f64 = 0.6;
 /// Major and minor radius of `phantom:torus` (axis along z).
 pub const TORUS_RADII: [f64; 2] = [0.55, 0.25];
 /// Semi-axes of `phantom:ellipsoid`.
-pub const ELLIPSOID_AXES: [f64; 3] = [0.75, 0.5, 0.35];
+pub(crate) const ELLIPSOID_AXES: [f64; 3] = [0.75, 0.5, 0.35];
 
 fn smooth(d: f64) -> f32 {
     (0.5 + 0.5 * (d / SMOOTH_WIDTH).tanh()) as f32
@@ -146,7 +146,7 @@ fn torus_at(x: f64, y: f64, z: f64) -> f32 {
     smooth(small - (q * q + z * z).sqrt())
 }
 
-/// An ellipsoid with semi-axes [`ELLIPSOID_AXES`], with a smooth profile (an approximate distance:
+/// An ellipsoid with semi-axes `ELLIPSOID_AXES`, with a smooth profile (an approximate distance:
 /// the level set f = 0.5 is the exact ellipsoid).
 pub fn smooth_ellipsoid(n: usize) -> Volume {
     Phantom {
@@ -390,11 +390,11 @@ pub const NESTED_LOW: f32 = 0.25;
 /// Shell around the second sphere (medium intensity).
 pub const NESTED_MEDIUM: f32 = 0.5;
 /// Centres (x, in [-1, 1] coordinates; y = z = 0) of the low-shelled and medium-shelled structure.
-pub const NESTED_CENTRES_X: [f64; 2] = [-0.45, 0.45];
+pub(crate) const NESTED_CENTRES_X: [f64; 2] = [-0.45, 0.45];
 /// Radius of each inner sphere.
-pub const NESTED_CORE_RADIUS: f64 = 0.2;
+pub(crate) const NESTED_CORE_RADIUS: f64 = 0.2;
 /// Outer radius of each shell.
-pub const NESTED_SHELL_RADIUS: f64 = 0.4;
+pub(crate) const NESTED_SHELL_RADIUS: f64 = 0.4;
 
 /// The nested-structures phantom of the occlusion-spectrum paper (Correa & Ma, Fig. 4a/5), as the
 /// project defines it: two spheres of equal intensity, one surrounded by a low-intensity shell and

@@ -5,7 +5,7 @@ use crate::Volume;
 
 /// A diverging "thermal" colour map for signed data, symmetric about zero: cool blues for negative
 /// values, a neutral near-white at zero, warm reds and yellows for positive ones. `t` in [-1, 1].
-pub fn thermal(t: f64) -> [u8; 3] {
+pub(crate) fn thermal(t: f64) -> [u8; 3] {
     // Control points from cold to hot; zero sits at the middle point.
     const STOPS: [(f64, [f64; 3]); 7] = [
         (-1.0, [0.02, 0.05, 0.35]),
@@ -33,7 +33,7 @@ pub fn thermal(t: f64) -> [u8; 3] {
 
 /// Middle slices of `v` normal to x, y and z, as (width, height, values) with rows top to bottom.
 /// The x slice shows (y, z), the y slice (x, z), the z slice (x, y); z grows upwards.
-pub fn middle_slices(v: &Volume) -> [(usize, usize, Vec<f64>); 3] {
+pub(crate) fn middle_slices(v: &Volume) -> [(usize, usize, Vec<f64>); 3] {
     let [nx, ny, nz] = v.dims;
     let (cx, cy, cz) = (nx / 2, ny / 2, nz / 2);
     let grab = |w: usize, h: usize, at: &dyn Fn(usize, usize) -> usize| {
@@ -52,7 +52,7 @@ pub fn middle_slices(v: &Volume) -> [(usize, usize, Vec<f64>); 3] {
     ]
 }
 
-/// An RGB picture of the three middle slices of signed data side by side, coloured by [`thermal`]
+/// An RGB picture of the three middle slices of signed data side by side, coloured by `thermal`
 /// with the scale symmetric about zero at ±`limit`, and a colour bar underneath. Returns
 /// (width, height, rgb bytes).
 pub fn thermal_slices(v: &Volume, limit: f64) -> (u32, u32, Vec<u8>) {

@@ -147,7 +147,12 @@ pub fn read_widened(
 /// Voxels `lo .. lo + size` of `src` as f32, where the box may reach outside the grid: voxels
 /// outside repeat the nearest edge voxel, as a clamp-to-edge sampler reads them. What the brick
 /// cache fills a brick and its apron with.
-pub fn read_box_clamped(src: &dyn BoxSource, lo: [i64; 3], size: [usize; 3]) -> Result<Vec<f32>> {
+#[cfg(test)]
+pub(crate) fn read_box_clamped(
+    src: &dyn BoxSource,
+    lo: [i64; 3],
+    size: [usize; 3],
+) -> Result<Vec<f32>> {
     let dims = src.dims();
     let clamp = |v: i64, a: usize| v.clamp(0, dims[a] as i64 - 1) as usize;
     let inner_lo: [usize; 3] = std::array::from_fn(|a| clamp(lo[a], a));

@@ -22,7 +22,7 @@ pub struct Stats {
     /// Counts in equal-width bins over `[min, max]`; the last bin includes `max`.
     pub histogram: Vec<u64>,
     /// NaN and infinite voxels, left out of everything above.
-    pub non_finite: usize,
+    pub(crate) non_finite: usize,
 }
 
 /// The smallest and largest finite value of `v` ([+∞, −∞] when it has none).

@@ -36,9 +36,9 @@ pub struct LoaderStats {
     /// Bytes that travel for them.
     pub bytes: u64,
     /// Bricks read and then dropped, no longer asked for when they were ready.
-    pub dropped: u64,
+    pub(crate) dropped: u64,
     /// Seconds of reading, summed over the loaders.
-    pub busy_s: f64,
+    pub(crate) busy_s: f64,
 }
 
 struct State {
@@ -225,14 +225,6 @@ impl BrickLoader {
     pub fn outstanding(&self) -> usize {
         let st = self.shared.lock();
         st.queue.len() + st.in_flight.len() + st.ready.len()
-    }
-
-    /// Whether brick `entry` is queued, being read or ready.
-    pub fn is_pending(&self, entry: usize) -> bool {
-        let st = self.shared.lock();
-        st.priority.contains_key(&entry)
-            || st.in_flight.contains(&entry)
-            || st.ready.iter().any(|l| l.entry == entry)
     }
 
     /// What the loaders did so far.

@@ -1,6 +1,6 @@
 //! The processes that share one job (issue 27): a process alone ([`Solo`]), or the ranks of an
 //! MPI job (`cluster::MpiTeam`, behind the `mpi` feature). Work that runs chunk by chunk asks its
-//! team which chunks are its own ([`kd_owners`]), agrees with the others after each step (one
+//! team which chunks are its own (`kd_owners`), agrees with the others after each step (one
 //! failed rank ends every rank with its sentence), and reduces what is global (a value range,
 //! the spectrum's counts). Nothing here knows MPI, and nothing beneath `cluster` imports it.
 
@@ -140,7 +140,7 @@ impl CellBox {
 /// each box is cut across its longest axis where the weights on either side are closest to the
 /// ratio of the ranks each side gets. A weight is what a cell costs (1 for each when `weights`
 /// is empty). A box may be empty when there are more ranks than cells.
-pub fn kd_split(counts: [usize; 3], weights: &[f64], parts: usize) -> Vec<CellBox> {
+pub(crate) fn kd_split(counts: [usize; 3], weights: &[f64], parts: usize) -> Vec<CellBox> {
     KdTree::new(counts, weights, parts).boxes
 }
 
@@ -165,7 +165,7 @@ enum Node {
 }
 
 impl KdTree {
-    /// See [`kd_split`].
+    /// See `kd_split`.
     pub fn new(counts: [usize; 3], weights: &[f64], parts: usize) -> Self {
         let whole = CellBox {
             lo: [0; 3],
@@ -273,7 +273,7 @@ fn split_into(
 }
 
 /// The owner of each cell of a grid of `counts` (x fastest) under the boxes of [`kd_split`].
-pub fn kd_owners(counts: [usize; 3], weights: &[f64], parts: usize) -> Vec<usize> {
+pub(crate) fn kd_owners(counts: [usize; 3], weights: &[f64], parts: usize) -> Vec<usize> {
     let boxes = kd_split(counts, weights, parts);
     let mut owner = vec![0; counts[0] * counts[1] * counts[2]];
     for (rank, b) in boxes.iter().enumerate() {

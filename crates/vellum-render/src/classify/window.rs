@@ -13,7 +13,7 @@
 //! percentile window fails on it: a 0/1 mask's content is one level, so the window collapses onto
 //! it and the surface, where the gradient is, stays transparent (a ball of radius 20 rendered
 //! black, or as a dim blob lit by ambient light alone under `--iso 0.5`); a label volume's lowest
-//! labels sit at the window's foot, transparent. Such a volume ([`levels`]: at most
+//! labels sit at the window's foot, transparent. Such a volume (`levels`: at most
 //! `MAX_LEVELS` distinct values, and integer voxels or a single level above the lowest) gets a
 //! window between its lowest value v₀ (the background) and the next one v₁: transparent below
 //! v₀ + ¼(v₁ − v₀), opaque white from v₀ + ½(v₁ − v₀) on. Every label, and the boundary of the

@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 use vellum_error::{Error, Result};
 
 /// The JSON format version this code reads and writes.
-pub const FEATURE_MAP_VERSION: u32 = 1;
+pub(crate) const FEATURE_MAP_VERSION: u32 = 1;
 
 /// Default colours, given to features in the order they are added (bone, red, blue, green,
 /// orange, violet, then round again).
@@ -89,7 +89,7 @@ pub enum Node {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FeatureMap {
-    /// Always [`FEATURE_MAP_VERSION`].
+    /// Always `FEATURE_MAP_VERSION`.
     pub version: u32,
     /// The feature volume's file name, relative to the map's folder.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -144,7 +144,7 @@ impl FeatureMap {
     }
 
     /// The top of the highest private interval, or `None` for a map without features.
-    pub fn highest(&self) -> Option<f64> {
+    pub(crate) fn highest(&self) -> Option<f64> {
         self.features()
             .iter()
             .map(|(_, f)| f.interval[1])

@@ -34,12 +34,12 @@ use crate::{stats, Volume, VoxelData, VoxelType};
 use vellum_error::{Error, Result};
 
 /// Default ε as a fraction of the input range (IN_high − IN_low).
-pub const DEFAULT_EPSILON_FRACTION: f64 = 0.05;
+pub(crate) const DEFAULT_EPSILON_FRACTION: f64 = 0.05;
 
 /// The knobs of a migration.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct MigrateParams {
-    /// ε of eq. 2 in data units; `None` for [`DEFAULT_EPSILON_FRACTION`] of the input range.
+    /// ε of eq. 2 in data units; `None` for `DEFAULT_EPSILON_FRACTION` of the input range.
     pub epsilon: Option<f64>,
     /// The region grow of §3.4.
     pub grow: RegionGrow,
@@ -101,7 +101,7 @@ pub struct MigrationReport {
     /// Voxel type of the feature volume.
     pub output_type: VoxelType,
     /// (min, max) of the feature volume.
-    pub output_range: [f64; 2],
+    pub(crate) output_range: [f64; 2],
     /// ROI voxels.
     pub roi_voxels: usize,
     /// Voxels per category.

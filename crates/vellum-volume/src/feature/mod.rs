@@ -6,11 +6,11 @@
 //! where it was. Any renderer then colours it with an ordinary 1D transfer function.
 //!
 //! The pipeline, one module per step of §3:
-//! - [`roi`]: the ROI from a mask volume or seeded region growing (§3.1, FM1);
+//! - `roi`: the ROI from a mask volume or seeded region growing (§3.1, FM1);
 //! - [`categorise`](mod@categorise): categories 1–4 (§3.2, FM2);
 //! - [`migrate`](mod@migrate): the ROI range, Δ and eq. 5, the output type, and [`migrate()`] running it all
 //!   (§3.3, FM3);
-//! - [`reconstruct`]: the region grow and eq. 10 on category 1 (§3.4, FM4);
+//! - `reconstruct`: the region grow and eq. 10 on category 1 (§3.4, FM4);
 //! - [`map`]: the feature map saved beside the feature volume (§4, FM5).
 //!
 //! Every per-voxel pass runs in parallel over x-rows with rayon; each module's doc states the
@@ -20,8 +20,8 @@ pub mod categorise;
 pub mod map;
 pub mod migrate;
 pub mod neighbourhood;
-pub mod reconstruct;
-pub mod roi;
+pub(crate) mod reconstruct;
+pub(crate) mod roi;
 
 pub use categorise::{categorise, Categories, Category, CategoryCounts};
 pub use map::{parse_color, Feature, FeatureMap, Group, Node};

@@ -44,7 +44,7 @@ impl Connectivity {
 
     /// The neighbour offsets: every d in {-1, 0, 1}³ \ {0} with at most 1, 2 or 3 non-zero
     /// components.
-    pub fn offsets(self) -> Vec<[i32; 3]> {
+    pub(crate) fn offsets(self) -> Vec<[i32; 3]> {
         let max_nonzero = match self {
             Connectivity::Six => 1,
             Connectivity::Eighteen => 2,
@@ -67,7 +67,7 @@ fn cube(r: i32) -> impl Iterator<Item = [i32; 3]> {
 /// How many steps of the 18-neighbourhood it takes to reach offset `d` from the origin:
 /// max(‖d‖∞, ⌈‖d‖₁ / 2⌉). A step changes at most two coordinates by one each, so neither norm can
 /// fall faster than that, and moving the two largest coordinates towards zero achieves it.
-pub fn steps_18(d: [i32; 3]) -> u32 {
+pub(crate) fn steps_18(d: [i32; 3]) -> u32 {
     let a = d.map(|c| c.unsigned_abs());
     let inf = a[0].max(a[1]).max(a[2]);
     let l1 = a[0] + a[1] + a[2];
@@ -76,7 +76,7 @@ pub fn steps_18(d: [i32; 3]) -> u32 {
 
 /// The rings of an iterated 18-neighbour region grow around a voxel: `rings(n)[k - 1]` holds the
 /// offsets first reached in iteration k (k = 1..=n). Ring 1 is the 18-neighbourhood itself.
-pub fn rings_18(iterations: u32) -> Vec<Vec<[i32; 3]>> {
+pub(crate) fn rings_18(iterations: u32) -> Vec<Vec<[i32; 3]>> {
     let r = iterations as i32;
     let mut rings = vec![Vec::new(); iterations as usize];
     for d in cube(r) {
@@ -190,7 +190,7 @@ impl Grid {
     /// Calls `f` with the linear index of every neighbour of `p` (linear index `i`) in `s` that
     /// lies inside the grid.
     #[inline]
-    pub fn visit(&self, p: [usize; 3], i: usize, s: &Stencil, mut f: impl FnMut(usize)) {
+    pub(crate) fn visit(&self, p: [usize; 3], i: usize, s: &Stencil, mut f: impl FnMut(usize)) {
         self.any(p, i, s, |q| {
             f(q);
             false
@@ -204,7 +204,7 @@ impl Grid {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Stencil {
     /// The offsets.
-    pub offsets: Vec<[i32; 3]>,
+    pub(crate) offsets: Vec<[i32; 3]>,
     /// The same offsets as steps of the linear index.
     pub linear: Vec<isize>,
     /// The largest |component| of any offset.

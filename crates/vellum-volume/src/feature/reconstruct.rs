@@ -40,7 +40,7 @@ pub struct RegionGrow {
     /// g: category-2 voxels that suffice on the ROI side (a thin ROI).
     pub g: usize,
     /// Iterations after which the grow stops regardless.
-    pub max_iterations: u32,
+    pub(crate) max_iterations: u32,
 }
 
 impl Default for RegionGrow {
@@ -55,25 +55,25 @@ impl Default for RegionGrow {
 
 /// What the region grow around one voxel found.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct LocalMeans {
+pub(crate) struct LocalMeans {
     /// λ_i: ROI voxels (categories 2 and 3) found.
-    pub lambda_i: usize,
+    pub(crate) lambda_i: usize,
     /// γ_i: category-2 voxels found (a subset of λ_i).
-    pub gamma_i: usize,
+    pub(crate) gamma_i: usize,
     /// λ_o: category-4 voxels found.
-    pub lambda_o: usize,
+    pub(crate) lambda_o: usize,
     /// δ_i (eq. 6): the mean of the category-2 voxels when γ_i ≥ g, else of all λ_i ROI voxels;
     /// `None` when λ_i = 0.
-    pub delta_i: Option<f64>,
+    pub(crate) delta_i: Option<f64>,
     /// δ_o (eq. 7): the mean of the λ_o outside voxels; `None` when λ_o = 0.
-    pub delta_o: Option<f64>,
+    pub(crate) delta_o: Option<f64>,
     /// Iterations run.
-    pub iterations: u32,
+    pub(crate) iterations: u32,
 }
 
 /// How a category-1 voxel got its new value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
-pub enum Case {
+pub(crate) enum Case {
     /// Eq. 10.
     Flipped,
     /// Only ROI voxels were found: shifted by Δ (eq. 5).
@@ -88,7 +88,7 @@ pub enum Case {
     ByMask,
 }
 
-/// Number of category-1 voxels per [`Case`].
+/// Number of category-1 voxels per `Case`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct ReconstructionCounts {
     /// Eq. 10.
@@ -140,13 +140,13 @@ impl ReconstructionCounts {
 
 /// Eq. 10: δ′_p = δ_o + (δ_p − δ_o)/(δ_i − δ_o) · (δ_i + Δ − δ_o). Requires δ_i ≠ δ_o.
 #[inline]
-pub fn eq10(delta_p: f64, delta_i: f64, delta_o: f64, delta: f64) -> f64 {
+pub(crate) fn eq10(delta_p: f64, delta_i: f64, delta_o: f64, delta: f64) -> f64 {
     delta_o + (delta_p - delta_o) / (delta_i - delta_o) * (delta_i + delta - delta_o)
 }
 
 /// Step 2 for one voxel: its new value and the case that produced it. `in_roi` is the mask bit of
 /// p, used only where intensities cannot decide (see the module doc).
-pub fn new_value(delta_p: f64, means: &LocalMeans, delta: f64, in_roi: bool) -> (f64, Case) {
+pub(crate) fn new_value(delta_p: f64, means: &LocalMeans, delta: f64, in_roi: bool) -> (f64, Case) {
     let by_mask = if in_roi { delta_p + delta } else { delta_p };
     match (means.delta_i, means.delta_o) {
         (None, None) => (by_mask, Case::ByMask),
@@ -168,7 +168,7 @@ pub fn new_value(delta_p: f64, means: &LocalMeans, delta: f64, in_roi: bool) -> 
 }
 
 /// The rings of step 1's region grow as stencils on `grid` (see [`rings_18`]).
-pub fn grow_rings(grid: Grid, grow: &RegionGrow) -> Vec<Stencil> {
+pub(crate) fn grow_rings(grid: Grid, grow: &RegionGrow) -> Vec<Stencil> {
     rings_18(grow.max_iterations)
         .into_iter()
         .map(|ring| grid.stencil(ring))
@@ -177,7 +177,7 @@ pub fn grow_rings(grid: Grid, grow: &RegionGrow) -> Vec<Stencil> {
 
 /// Step 1 for the voxel at `p`: the region grow over the `rings` (from [`grow_rings`]) and the
 /// means of eqs. 6 and 7 over the original `values`.
-pub fn local_means(
+pub(crate) fn local_means(
     grid: Grid,
     labels: &[Category],
     values: &[f32],
@@ -234,7 +234,7 @@ pub fn local_means(
 
 /// Writes the reconstructed value of every category-1 voxel into `out` (other voxels are left as
 /// they are) and counts the cases. `values` are the original intensities, `delta` is Δ (eq. 4).
-pub fn reconstruct(
+pub(crate) fn reconstruct(
     categories: &Categories,
     roi: &Roi,
     values: &[f32],

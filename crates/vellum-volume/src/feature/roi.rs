@@ -169,7 +169,8 @@ impl Roi {
     }
 
     /// The ROI as a u8 volume (1 = ROI) with `spacing`, e.g. to save a grown region as a mask.
-    pub fn to_volume(&self, spacing: [f64; 3]) -> Result<Volume> {
+    #[cfg(test)]
+    pub(crate) fn to_volume(&self, spacing: [f64; 3]) -> Result<Volume> {
         let data = self.mask.iter().map(|&m| m as u8).collect();
         Volume::new(self.dims, spacing, crate::VoxelData::U8(data))
     }

@@ -14,41 +14,39 @@
 //!   So a chunk of 33 KB that would decode to a gigabyte is refused after reading 33 KB.
 
 use std::io::Read as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::RwLock;
 use zarrs::filesystem::FilesystemStore;
 use zarrs::storage::byte_range::{ByteRange, ByteRangeIterator};
 use zarrs::storage::{MaybeBytesIterator, ReadableStorageTraits, StorageError, StoreKey};
 
 /// Bytes a metadata document (`zarr.json`, `.zarray`, `.zattrs`, `.zgroup`) may hold.
-pub const METADATA_BYTES: u64 = 16 << 20;
+pub(crate) const METADATA_BYTES: u64 = 16 << 20;
 
 /// Bytes a chunk may decode to, whatever its array declares (the arrays' checks refuse larger
 /// chunks before any is read).
-pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
+pub(crate) const MAX_CHUNK_BYTES: u64 = 1 << 30;
 
 /// The filesystem store of a Zarr hierarchy, read under the guards above.
-pub struct GuardedStore {
+pub(crate) struct GuardedStore {
     inner: FilesystemStore,
-    root: PathBuf,
     /// Per array (its path in the store, with a trailing '/'), the bytes a chunk decodes to.
     chunk_bytes: RwLock<Vec<(String, u64)>>,
 }
 
 impl GuardedStore {
     /// The store at `root`.
-    pub fn new(root: &Path) -> Result<Self, String> {
+    pub(crate) fn new(root: &Path) -> Result<Self, String> {
         let inner = FilesystemStore::new(root).map_err(|e| e.to_string())?;
         Ok(GuardedStore {
             inner,
-            root: root.to_path_buf(),
             chunk_bytes: RwLock::new(Vec::new()),
         })
     }
 
     /// Bounds the chunks of the array at `path` (in the store, without a leading '/') to
     /// `bytes` decoded.
-    pub fn bound_array(&self, path: &str, bytes: u64) {
+    pub(crate) fn bound_array(&self, path: &str, bytes: u64) {
         let prefix = format!("{}/", path.trim_matches('/'));
         let mut all = self.chunk_bytes.write().unwrap_or_else(|p| p.into_inner());
         all.retain(|(p, _)| *p != prefix);
@@ -121,11 +119,6 @@ impl GuardedStore {
         }
         Ok(Some(meta.len()))
     }
-
-    /// The store's root, for messages.
-    pub fn root(&self) -> &Path {
-        &self.root
-    }
 }
 
 #[cfg(unix)]
@@ -154,7 +147,7 @@ const ZSTD_MAGIC: [u8; 4] = [0x28, 0xb5, 0x2f, 0xfd];
 /// The bytes `value` decodes to at most, as far as its codec says without decoding it, or by
 /// a bounded decode of zstd frames that do not say: `Err` with the sentence when more than
 /// `bound`.
-pub fn check_decoded_size(value: &[u8], bound: u64) -> Result<(), String> {
+pub(crate) fn check_decoded_size(value: &[u8], bound: u64) -> Result<(), String> {
     if value.starts_with(&ZSTD_MAGIC) {
         return check_zstd(value, bound);
     }

@@ -11,15 +11,15 @@
 //! cannot make us try to allocate terabytes.
 
 mod dicom;
-pub mod guarded_store;
+pub(crate) mod guarded_store;
 mod metaimage;
 mod ngff_checks;
-pub mod nifti;
+pub(crate) mod nifti;
 pub mod nrrd;
 pub mod ome_zarr;
 mod raw;
 
-pub use nifti::write_nifti;
+pub(crate) use nifti::write_nifti;
 pub use nrrd::write_nrrd;
 
 use std::fs::File;
@@ -184,10 +184,10 @@ fn open_regular_as(path: &Path, expected: &str) -> Result<File> {
 
 /// The largest text file vellum reads (transfer functions, occlusion TFs, feature maps, scenes):
 /// far above any real one, and small enough that a wrong path cannot exhaust memory.
-pub const MAX_TEXT_BYTES: u64 = 64 << 20;
+pub(crate) const MAX_TEXT_BYTES: u64 = 64 << 20;
 
 /// Reads a JSON or other text file: a regular file (a FIFO would block forever and a device never
-/// ends) of at most [`MAX_TEXT_BYTES`], in UTF-8.
+/// ends) of at most `MAX_TEXT_BYTES`, in UTF-8.
 pub fn read_text(path: &Path) -> Result<String> {
     let file = open_regular_as(path, "a JSON file")?;
     let mut bytes = Vec::new();
@@ -441,25 +441,25 @@ pub(crate) fn decode(
 
 /// Rounding to f32 that is at most this fraction of the data range passes silently: it is below
 /// what any transfer function, histogram or image of vellum can show.
-pub const PRECISION_SILENT: f64 = 1e-6;
+pub(crate) const PRECISION_SILENT: f64 = 1e-6;
 /// Rounding beyond this fraction of the data range refuses the file: a 4096-entry table could no
 /// longer tell neighbouring values apart.
-pub const PRECISION_REFUSED: f64 = 1.0 / 4096.0;
+pub(crate) const PRECISION_REFUSED: f64 = 1.0 / 4096.0;
 
 /// What rounding wider values to f32 did to them.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PrecisionLoss {
+pub(crate) struct PrecisionLoss {
     /// (min, max) of the values as stored (finite ones only).
-    pub range: [f64; 2],
+    pub(crate) range: [f64; 2],
     /// Voxels whose f32 value differs from the stored one.
-    pub changed: usize,
+    pub(crate) changed: usize,
     /// The largest |f32 − stored| over finite voxels that fit f32's range.
-    pub max_error: f64,
+    pub(crate) max_error: f64,
 }
 
 /// Measures the rounding of `values` to f32. Values beyond f32's range are left to the finiteness
 /// check of [`load`], which names them.
-pub fn precision_loss(values: &[f64]) -> PrecisionLoss {
+pub(crate) fn precision_loss(values: &[f64]) -> PrecisionLoss {
     let (lo, hi, changed, err) = values
         .par_iter()
         .filter(|v| v.is_finite() && v.abs() <= f32::MAX as f64)
@@ -480,7 +480,7 @@ pub fn precision_loss(values: &[f64]) -> PrecisionLoss {
 
 /// Refuses, warns about or accepts `loss` (see [`PRECISION_SILENT`] and [`PRECISION_REFUSED`]).
 /// Returns the warning, if any.
-pub fn check_precision(
+pub(crate) fn check_precision(
     path: &Path,
     type_name: &str,
     loss: &PrecisionLoss,

@@ -251,7 +251,7 @@ fn file_type(path: &Path, datatype: i16) -> Result<FileType> {
 /// quaternion, with qfac for a left-handed frame), converted to NIfTI's RAS, both with code 1
 /// (scanner). A volume with no anatomical orientation gets codes 0 and its spacing only: NIfTI has
 /// no way to say "an origin but no orientation", and claiming one would be a lie.
-pub fn write_nifti(path: &Path, volume: &Volume) -> Result<()> {
+pub(crate) fn write_nifti(path: &Path, volume: &Volume) -> Result<()> {
     crate::output::check_extension(path, &["nii", "nii.gz"], "a NIfTI-1 volume")?;
     if let Some(&d) = volume.dims.iter().find(|&&d| d > i16::MAX as usize) {
         return Err(Error::Invalid(format!(

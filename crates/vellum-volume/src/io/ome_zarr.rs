@@ -256,7 +256,7 @@ impl Multiscale {
     }
 
     /// Bytes of level `level` in memory (0 for a level the store does not have).
-    pub fn level_bytes(&self, level: usize) -> u64 {
+    pub(crate) fn level_bytes(&self, level: usize) -> u64 {
         self.levels.get(level).map_or(0, |l| {
             l.dims.iter().map(|&n| n as u64).product::<u64>() * self.voxel.size() as u64
         })
@@ -647,24 +647,14 @@ impl<'a> Channels<'a> {
     }
 }
 
-/// [`write_source`] for a grid of several channels: the arrays get a leading c axis (`channel`
-/// in the axes) when `src.count` is above 1, each channel's pyramid is made as a scalar one's,
-/// and the recorded range spans every channel.
-pub fn write_channels(
-    path: &Path,
-    src: &Channels,
-    opts: &WriteOptions,
-    on_chunk: &(dyn Fn() + Sync),
-) -> Result<WriteReport> {
-    write_channels_in(&Solo, path, src, opts, on_chunk)
-}
-
-/// [`write_channels`] by the ranks of `team` together: rank 0 makes the temporary folder and
-/// writes the metadata, every rank writes the chunks of its own boxes of each level (a k-d
-/// split of the chunk grid; chunks are separate objects, so no two ranks write one), the ranks
-/// agree after each level (one failed rank ends every rank with its sentence, and rank 0
-/// removes the folder), and level 0's range is reduced over the ranks. The store is the one a
-/// process alone writes, byte for byte.
+/// [`write_source`] for a grid of several channels, by the ranks of `team` together (`Solo`
+/// for a process alone): the arrays get a leading c axis (`channel` in the axes) when
+/// `src.count` is above 1, each channel's pyramid is made as a scalar one's, and the recorded
+/// range spans every channel. Rank 0 makes the temporary folder and writes the metadata, every
+/// rank writes the chunks of its own boxes of each level (a k-d split of the chunk grid; chunks
+/// are separate objects, so no two ranks write one), the ranks agree after each level (one
+/// failed rank ends every rank with its sentence, and rank 0 removes the folder), and level 0's
+/// range is reduced over the ranks. The store is the one a process alone writes, byte for byte.
 pub fn write_channels_in(
     team: &dyn Team,
     path: &Path,
@@ -731,7 +721,7 @@ pub fn write_channels_in(
 /// longest axis down to one voxel (each further level would be that voxel again), chunks of at
 /// most `guarded_store::MAX_CHUNK_BYTES` at 32 bits, and at most `ngff_checks::MAX_CHUNKS`
 /// of them in level 0 (what a reader accepts).
-pub fn check_write_shape(dims: [usize; 3], chunk: usize, levels: usize) -> Result<()> {
+pub(crate) fn check_write_shape(dims: [usize; 3], chunk: usize, levels: usize) -> Result<()> {
     let longest = dims.into_iter().max().unwrap_or(1).max(1);
     let most = (usize::BITS - (longest - 1).leading_zeros()) as usize + 1;
     if levels == 0 || levels > most {

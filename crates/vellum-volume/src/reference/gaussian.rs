@@ -24,7 +24,12 @@ pub fn gaussian_kernel(radius_voxels: u32) -> Result<Vec<f64>> {
 }
 
 /// Convolves `data` (x fastest) along `axis` with `kernel`, clamping at the borders.
-pub fn convolve_axis(data: &[f64], dims: [usize; 3], axis: usize, kernel: &[f64]) -> Vec<f64> {
+pub(crate) fn convolve_axis(
+    data: &[f64],
+    dims: [usize; 3],
+    axis: usize,
+    kernel: &[f64],
+) -> Vec<f64> {
     let r = (kernel.len() / 2) as i64;
     let stride = [1, dims[0], dims[0] * dims[1]][axis];
     let n = dims[axis] as i64;
@@ -50,7 +55,7 @@ pub fn convolve_axis(data: &[f64], dims: [usize; 3], axis: usize, kernel: &[f64]
 }
 
 /// The Gaussian blur G∗V of `v` with radius `radius_voxels`, as f64.
-pub fn gaussian_blur(v: &Volume, radius_voxels: u32) -> Result<Vec<f64>> {
+pub(crate) fn gaussian_blur(v: &Volume, radius_voxels: u32) -> Result<Vec<f64>> {
     let kernel = gaussian_kernel(radius_voxels)?;
     let mut data: Vec<f64> = (0..v.len())
         .into_par_iter()
