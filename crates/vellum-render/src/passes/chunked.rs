@@ -140,8 +140,15 @@ pub fn importance_store(
     let map = Mutex::new(team.together(ImportanceMap::new(ctx))?);
     let f = |v: &Volume, offset: [usize; 3], size: [usize; 3]| -> Result<Volume> {
         let staged = ImportanceMap::stage(ctx, v)?;
-        locked(&map)?.run(&staged, radius)?;
-        staged.delta_d()?.read_box(offset, size)
+        let mut pass = locked(&map)?;
+        pass.run(&staged, radius)?;
+        let dd = staged.delta_d();
+        // Dropped while the lock is held no recording is open, so the chunk's images and
+        // staging are freed now rather than deferred to another worker's submission: the
+        // memory budget counts the chunks being worked on, not garbage waiting on a serial.
+        drop(staged);
+        drop(pass);
+        dd?.read_box(offset, size)
     };
     let halo = Halo {
         src,
@@ -192,10 +199,13 @@ pub fn occlusion_store(
         let mut pass = locked(&occlusion)?;
         input.upload_staged(ctx, &staging)?;
         let o = pass.compute_on(&input, &params)?.occlusion;
-        drop(pass);
+        // Freed under the lock, with no recording open (see `importance_store`).
         drop(staging);
+        let host = input.host.clone();
+        drop(input);
+        drop(pass);
         let kept = o.read_box(offset, size)?;
-        if let (Some(b), Some(host)) = (bins, &input.host) {
+        if let (Some(b), Some(host)) = (bins, &host) {
             let s = Volume::new(v.dims, v.spacing, VoxelData::F32(host.to_vec()))?
                 .read_box(offset, size)?;
             add_to_spectrum(&mut locked(&counts)?, b, &s, &kept);
@@ -244,8 +254,13 @@ pub fn normals_store(
     let read = |lo: [usize; 3], size: [usize; 3]| -> Result<Vec<Volume>> {
         let (v, offset) = read_widened(src, NORMALS_HALO, lo, size)?;
         let staged = Normals::stage(ctx, &v, range)?;
-        locked(&normals)?.run(&staged)?;
-        let g = staged.gradients()?;
+        let pass = locked(&normals)?;
+        pass.run(&staged)?;
+        let g = staged.gradients();
+        // Freed under the lock, with no recording open (see `importance_store`).
+        drop(staged);
+        drop(pass);
+        let g = g?;
         (0..4)
             .map(|c| {
                 let one = g.iter().map(|t| t[c]).collect();
