@@ -242,9 +242,18 @@ fn exr_holds_the_five_named_layers() {
     assert!(covered > 50);
 }
 
-/// The lit share of an 8-bit RGB image (pixels with a channel above 30/255) and its brightest
-/// channel value.
-fn lit(png: &std::path::Path) -> (f64, u8) {
+/// `vellum render` with `args` and `--out png`, which must succeed; then the lit share of the PNG
+/// (pixels with a channel above 30/255) and its brightest channel value.
+fn render_lit(args: &[&str], png: &std::path::Path) -> (f64, u8) {
+    let mut all = vec!["render"];
+    all.extend(args);
+    all.extend(["--out", png.to_str().unwrap()]);
+    let out = common::vellum(&all);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let rgb = image::open(png).unwrap().to_rgb8();
     let n = rgb.pixels().filter(|p| p.0.iter().any(|&c| c > 30)).count();
     let max = rgb.pixels().flat_map(|p| p.0).max().unwrap_or(0);
@@ -272,7 +281,6 @@ fn auto_shows_a_mask_as_clearly_as_a_scan() {
         for iso in [None, Some("0.5")] {
             let png = dir.path().join("ball.png");
             let mut args = vec![
-                "render",
                 raw.to_str().unwrap(),
                 "--raw-dims",
                 "64,64,64",
@@ -280,19 +288,11 @@ fn auto_shows_a_mask_as_clearly_as_a_scan() {
                 ty,
                 "--size",
                 "96x96",
-                "--out",
-                png.to_str().unwrap(),
             ];
             if let Some(v) = iso {
                 args.extend(["--iso", v]);
             }
-            let out = common::vellum(&args);
-            assert!(
-                out.status.success(),
-                "{}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-            let (share, max) = lit(&png);
+            let (share, max) = render_lit(&args, &png);
             // The ball covers 8.8 % of the frame at the default framing (before: 0 and 0.7 %).
             assert!(
                 share > 0.05 && max >= 200,
@@ -321,22 +321,14 @@ fn auto_shows_every_label_of_the_frog_tissue() {
     }
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("frog.png");
-    let out = common::vellum(&[
-        "render",
+    let args = [
         frog.to_str().unwrap(),
         "--renderer",
         "raycast",
         "--size",
         "128x128",
-        "--out",
-        png.to_str().unwrap(),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let (share, max) = lit(&png);
+    ];
+    let (share, max) = render_lit(&args, &png);
     assert!(
         share > 0.05 && max >= 200,
         "{share:.3} of the pixels lit, max {max}/255"
