@@ -304,22 +304,7 @@ fn stores_written_by_python_ome_zarr_are_read() {
 
 /// `convert phantom:shepp-logan:32 NAME --chunk 16 --levels 2` into `dir`: 32³ and 16³ f32.
 fn phantom_store(dir: &Path, name: &str) -> std::path::PathBuf {
-    let root = dir.join(name);
-    let out = common::vellum(&[
-        "convert",
-        "phantom:shepp-logan:32",
-        root.to_str().unwrap(),
-        "--chunk",
-        "16",
-        "--levels",
-        "2",
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    root
+    common::phantom_store(dir, name, "shepp-logan:32", 16)
 }
 
 /// Rewrites the JSON document at `path` through `f`.

@@ -361,6 +361,34 @@ fn read(
     Ok(PyVolume { inner })
 }
 
+/// How stores on a server (`http://` and `https://` URLs, read wherever a path is) are read
+/// from now on, as the command line's `--cache-dir`, `--cache-mib` and `--http-timeout` say:
+/// the chunk cache's folder (default `$XDG_CACHE_HOME/vellum/http`), its size in MiB (0 keeps
+/// none; default 1024), and the seconds without a byte before a request is tried again (default
+/// 20, with three more tries). Options not given keep their defaults.
+#[pyfunction]
+#[pyo3(signature = (cache_dir = None, cache_mib = None, timeout_s = None))]
+fn remote(cache_dir: Option<PathBuf>, cache_mib: Option<u64>, timeout_s: Option<f64>) -> PyResult<()> {
+    use vellum_volume::io::http_store::{configure, RemoteOptions};
+    let mut o = RemoteOptions::default();
+    if let Some(dir) = cache_dir {
+        o.cache_dir = Some(dir);
+    }
+    if let Some(mib) = cache_mib {
+        o.cache_mib = mib;
+    }
+    if let Some(s) = timeout_s {
+        if !(s > 0.0 && s.is_finite()) {
+            return Err(Error::new_err(format!(
+                "timeout_s={s} is not a number of seconds; expected one above 0, such as 20"
+            )));
+        }
+        o.timeout = std::time::Duration::from_secs_f64(s);
+    }
+    configure(o);
+    Ok(())
+}
+
 /// The Vulkan devices, one dict each: `index`, `name`, `type`, `api_version`, `driver`,
 /// `rejected` (why vellum cannot use the device, or None) and `chosen` (whether GPU work runs
 /// on it: `VELLUM_DEVICE`, an index or part of a name, else the best usable device).
@@ -517,6 +545,7 @@ fn _vellum(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("Error", m.py().get_type::<Error>())?;
     m.add_class::<PyVolume>()?;
     m.add_function(wrap_pyfunction!(read, m)?)?;
+    m.add_function(wrap_pyfunction!(remote, m)?)?;
     m.add_function(wrap_pyfunction!(devices, m)?)?;
     m.add_function(wrap_pyfunction!(importance, m)?)?;
     m.add_function(wrap_pyfunction!(occlusion, m)?)?;

@@ -123,10 +123,12 @@ def test_every_scene_flag_of_the_command_line_is_a_keyword():
                                text=True).stdout
     flags = set(re.findall(r"^\s+(?:-\w, )?--([a-z][a-z0-9-]*)", help_text, re.M))
     # Not scene options: where the frame goes, what to report, the scene file itself, how to
-    # read a headerless input (Python passes arrays), and the flags of the command's own run.
+    # read a headerless input (Python passes arrays), the flags of the command's own run, and
+    # how stores on a server are read (vellum.remote's keywords).
     not_scene = {"out", "exr", "json", "composite", "scene", "save-scene", "help", "verbose",
                  "device", "raw-dims", "raw-type", "big-endian", "offset", "raw-spacing",
-                 "raw-origin", "max-wait-ms", "progress-frames", "memory-budget"}
+                 "raw-origin", "max-wait-ms", "progress-frames", "memory-budget", "cache-dir",
+                 "cache-mib", "http-timeout"}
     keywords = sorted(f.replace("-", "_") for f in flags - not_scene)
     assert {"iso", "style", "edge_threshold", "stipple", "gpu_budget", "ert", "pan"} <= set(keywords)
     v = vellum.Volume(np.zeros((8, 8, 8), np.float32))
@@ -311,3 +313,35 @@ def test_time_and_channels_pick_from_a_store_as_the_flags_do(tmp_path):
     assert vellum.read(store, time=1, channel=1).array.sum() == 24 * 24 * 12
     balls = [vellum.read(store, time=t, channel=0).array.sum() for t in range(3)]
     assert balls[0] < balls[1] < balls[2], balls
+
+
+def test_a_store_on_a_server_reads_and_renders_as_from_disk(tmp_path):
+    """Issue 42: an http:// URL is an input wherever a path is; vellum.remote sets the chunk cache."""
+    import functools
+    import http.server
+    import threading
+
+    store = tmp_path / "s.ome.zarr"
+    subprocess.run([str(cli()), "convert", "phantom:shepp-logan:40", str(store), "--chunk", "16"],
+                   check=True, capture_output=True)
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    handler = functools.partial(Quiet, directory=str(tmp_path))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/s.ome.zarr"
+        cache = tmp_path / "cache"
+        vellum.remote(cache_dir=str(cache), cache_mib=64, timeout_s=5)
+        np.testing.assert_array_equal(vellum.read(url).array, vellum.read(str(store)).array)
+        written = sum(1 for _ in (store / "0" / "c").rglob("*") if _.is_file())
+        assert len(list(cache.iterdir())) == written, "one cache file per chunk of level 0"
+        options = dict(size=(48, 48), renderer="raycast")
+        np.testing.assert_array_equal(vellum.render(url, **options).rgba, vellum.render(str(store), **options).rgba)
+        with pytest.raises(vellum.Error, match="timeout_s"):
+            vellum.remote(timeout_s=0)
+    finally:
+        vellum.remote()
+        server.shutdown()

@@ -66,6 +66,18 @@ def read(
     points and channels, as `--time` and `--channel` do).
     """
 
+def remote(
+    cache_dir: Optional[Union[str, "os.PathLike[str]"]] = None,
+    cache_mib: Optional[int] = None,
+    timeout_s: Optional[float] = None,
+) -> None:
+    """How stores on a server (http:// and https:// URLs, read wherever a path is) are read.
+
+    As the command line's --cache-dir, --cache-mib and --http-timeout: the chunk cache's folder
+    (default $XDG_CACHE_HOME/vellum/http), its size in MiB (0 keeps none; default 1024), and the
+    seconds without a byte before a request is tried again (default 20, three more tries).
+    """
+
 def devices() -> List[Dict[str, Any]]:
     """The Vulkan devices, one dict each.
 

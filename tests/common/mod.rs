@@ -109,6 +109,29 @@ pub fn vellum(args: &[&str]) -> std::process::Output {
         .expect("run vellum")
 }
 
+/// `vellum convert phantom:SPEC DIR/NAME --chunk CHUNK --levels 2`: a phantom's store, asserted
+/// written.
+pub fn phantom_store(dir: &std::path::Path, name: &str, spec: &str, chunk: usize) -> PathBuf {
+    let root = dir.join(name);
+    let phantom = format!("phantom:{spec}");
+    let chunk = chunk.to_string();
+    let out = vellum(&[
+        "convert",
+        &phantom,
+        root.to_str().unwrap(),
+        "--chunk",
+        &chunk,
+        "--levels",
+        "2",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    root
+}
+
 /// Asserts failure with exactly one line on stderr, starting "error:" and containing every one of
 /// `phrases`, and no panic.
 pub fn fails_with_all(out: &std::process::Output, phrases: &[&str]) {

@@ -23,14 +23,52 @@ pub(crate) struct Cli {
     /// Log more (-v info, -vv debug).
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     pub(crate) verbose: u8,
+    /// Stores on a server (http:// or https:// URLs): the chunk cache's folder (default
+    /// $XDG_CACHE_HOME/vellum/http or ~/.cache/vellum/http).
+    #[arg(long, global = true, value_name = "DIR")]
+    pub(crate) cache_dir: Option<PathBuf>,
+    /// Stores on a server: the chunk cache's size in MiB, 0 for none (default 1024).
+    #[arg(long, global = true, value_name = "MIB")]
+    pub(crate) cache_mib: Option<u64>,
+    /// Stores on a server: seconds without a byte before a request is tried again (default 20;
+    /// three more tries).
+    #[arg(long, global = true, value_name = "S", value_parser = positive_seconds)]
+    pub(crate) http_timeout: Option<f64>,
     #[command(subcommand)]
     pub(crate) command: Command,
+}
+
+fn positive_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!(
+            "{s} is not a number of seconds; expected one above 0, such as 20"
+        )),
+    }
+}
+
+impl Cli {
+    /// How this command reads stores on a server.
+    pub(crate) fn remote(&self) -> vellum::volume::io::http_store::RemoteOptions {
+        let mut o = vellum::volume::io::http_store::RemoteOptions::default();
+        if let Some(dir) = &self.cache_dir {
+            o.cache_dir = Some(dir.clone());
+        }
+        if let Some(mib) = self.cache_mib {
+            o.cache_mib = mib;
+        }
+        if let Some(s) = self.http_timeout {
+            o.timeout = std::time::Duration::from_secs_f64(s);
+        }
+        o
+    }
 }
 
 /// An input volume: a path, a DICOM folder or a phantom spec, with raw-file options.
 #[derive(Args, Clone)]
 pub(crate) struct InputArgs {
-    /// File, DICOM folder, or phantom spec (phantom:shepp-logan:N, phantom:nested:N).
+    /// File, DICOM folder, OME-Zarr store (a folder or an http:// or https:// URL), or phantom
+    /// spec (phantom:shepp-logan:N, phantom:nested:N).
     pub(crate) input: String,
     #[command(flatten)]
     pub(crate) raw: RawArgs,

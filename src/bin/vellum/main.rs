@@ -49,6 +49,7 @@ fn main() -> ExitCode {
     }) {
         log::warn!("no Ctrl-C handler: {e}");
     }
+    vellum::volume::io::http_store::configure(cli.remote());
     // Every output of the command, or none (see output.rs).
     vellum::output::begin();
     let team = start_team();

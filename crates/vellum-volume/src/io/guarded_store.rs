@@ -12,13 +12,17 @@
 //!   with a bound before `zarrs` decodes it. A Blosc chunk's header gives its decoded size too;
 //!   a gzip chunk (whose trailer gives its size only modulo 4 GiB) is decoded under the bound.
 //!   So a chunk of 33 KB that would decode to a gigabyte is refused after reading 33 KB.
+//!
+//! A store on a server (issue 42) is read through the same guards: its values are read to at
+//! most the same bounds (`http_store.rs`), and the file checks have no counterpart there.
 
+use super::http_store::{is_url, HttpStore};
 use std::io::Read as _;
 use std::path::Path;
 use std::sync::RwLock;
 use zarrs::filesystem::FilesystemStore;
 use zarrs::storage::byte_range::{ByteRange, ByteRangeIterator};
-use zarrs::storage::{MaybeBytesIterator, ReadableStorageTraits, StorageError, StoreKey};
+use zarrs::storage::{Bytes, MaybeBytesIterator, ReadableStorageTraits, StorageError, StoreKey};
 
 /// Bytes a metadata document (`zarr.json`, `.zarray`, `.zattrs`, `.zgroup`) may hold.
 pub(crate) const METADATA_BYTES: u64 = 16 << 20;
@@ -27,17 +31,30 @@ pub(crate) const METADATA_BYTES: u64 = 16 << 20;
 /// chunks before any is read).
 pub(crate) const MAX_CHUNK_BYTES: u64 = 1 << 30;
 
-/// The filesystem store of a Zarr hierarchy, read under the guards above.
+/// Where a guarded store's values come from.
+enum Backend {
+    /// A folder.
+    Files(FilesystemStore),
+    /// A base URL.
+    Http(HttpStore),
+}
+
+/// The store of a Zarr hierarchy, in a folder or on a server, read under the guards above.
 pub(crate) struct GuardedStore {
-    inner: FilesystemStore,
+    inner: Backend,
     /// Per array (its path in the store, with a trailing '/'), the bytes a chunk decodes to.
     chunk_bytes: RwLock<Vec<(String, u64)>>,
 }
 
 impl GuardedStore {
-    /// The store at `root`.
+    /// The store at `root`: a folder, or an `http://` or `https://` URL.
     pub(crate) fn new(root: &Path) -> Result<Self, String> {
-        let inner = FilesystemStore::new(root).map_err(|e| e.to_string())?;
+        let inner = if is_url(root) {
+            let url = root.to_str().unwrap_or_default();
+            Backend::Http(HttpStore::new(url)?)
+        } else {
+            Backend::Files(FilesystemStore::new(root).map_err(|e| e.to_string())?)
+        };
         Ok(GuardedStore {
             inner,
             chunk_bytes: RwLock::new(Vec::new()),
@@ -75,8 +92,12 @@ impl GuardedStore {
 
     /// The file of `key`, if there is one and it may be read: a regular file (through links),
     /// of at most the bytes its value may take.
-    fn check_file(&self, key: &StoreKey) -> Result<Option<u64>, StorageError> {
-        let path = self.inner.key_to_fspath(key);
+    fn check_file(
+        &self,
+        files: &FilesystemStore,
+        key: &StoreKey,
+    ) -> Result<Option<u64>, StorageError> {
+        let path = files.key_to_fspath(key);
         let refuse = |what: String| Err(StorageError::Other(format!("`{}` {what}", key.as_str())));
         let link = match std::fs::symlink_metadata(&path) {
             Ok(m) => m,
@@ -100,12 +121,7 @@ impl GuardedStore {
             ));
         }
         let (bound, metadata) = self.bound(key);
-        // A chunk's file may exceed its decoded size by a codec's headers or a shard's index.
-        let limit = if metadata {
-            bound
-        } else {
-            bound + bound / 4 + (1 << 20)
-        };
+        let limit = stored_limit(bound, metadata);
         if meta.len() > limit {
             return refuse(format!(
                 "holds {} bytes; at most {limit} expected{}",
@@ -118,6 +134,16 @@ impl GuardedStore {
             ));
         }
         Ok(Some(meta.len()))
+    }
+}
+
+/// The bytes a value may take as stored: a chunk's file may exceed its decoded size by a codec's
+/// headers or a shard's index.
+fn stored_limit(bound: u64, metadata: bool) -> u64 {
+    if metadata {
+        bound
+    } else {
+        bound + bound / 4 + (1 << 20)
     }
 }
 
@@ -214,44 +240,77 @@ fn check_zstd(value: &[u8], bound: u64) -> Result<(), String> {
     Ok(())
 }
 
+impl GuardedStore {
+    /// The values of `ranges` of `key`, read from the backend under the bounds.
+    fn read(
+        &self,
+        key: &StoreKey,
+        ranges: Vec<ByteRange>,
+    ) -> Result<Option<Vec<Result<Bytes, StorageError>>>, StorageError> {
+        match &self.inner {
+            Backend::Files(files) => {
+                if self.check_file(files, key)?.is_none() {
+                    return Ok(None);
+                }
+                Ok(files
+                    .get_partial_many(key, Box::new(ranges.into_iter()))?
+                    .map(|values| values.collect()))
+            }
+            Backend::Http(http) => {
+                let (bound, metadata) = self.bound(key);
+                let limit = stored_limit(bound, metadata);
+                let whole = |r: &ByteRange| matches!(r, ByteRange::FromStart(0, None));
+                let mut values = Vec::with_capacity(ranges.len());
+                for r in &ranges {
+                    let range = (!whole(r)).then_some(r);
+                    match http.get(key.as_str(), range, limit, !metadata)? {
+                        Some(v) => values.push(Ok(Bytes::from(v))),
+                        None => return Ok(None),
+                    }
+                }
+                Ok(Some(values))
+            }
+        }
+    }
+}
+
 impl ReadableStorageTraits for GuardedStore {
     fn get_partial_many<'a>(
         &'a self,
         key: &StoreKey,
         byte_ranges: ByteRangeIterator<'a>,
     ) -> Result<MaybeBytesIterator<'a>, StorageError> {
-        if self.check_file(key)?.is_none() {
-            return Ok(None);
-        }
         let ranges: Vec<ByteRange> = byte_ranges.collect();
         let whole = matches!(ranges.as_slice(), [ByteRange::FromStart(0, None)]);
-        let Some(got) = self
-            .inner
-            .get_partial_many(key, Box::new(ranges.into_iter()))?
-        else {
+        let Some(values) = self.read(key, ranges)? else {
             return Ok(None);
         };
-        if !whole {
-            return Ok(Some(got));
-        }
-        // A whole value: a chunk is checked against its declared size before anyone decodes it.
-        let values: Vec<_> = got.collect();
-        let (bound, metadata) = self.bound(key);
-        if !metadata {
-            if let Some(Ok(bytes)) = values.first() {
-                check_decoded_size(bytes, bound)
-                    .map_err(|e| StorageError::Other(format!("`{}` {e}", key.as_str())))?;
+        if whole {
+            // A whole value: a chunk is checked against its declared size before anyone
+            // decodes it.
+            let (bound, metadata) = self.bound(key);
+            if !metadata {
+                if let Some(Ok(bytes)) = values.first() {
+                    check_decoded_size(bytes, bound)
+                        .map_err(|e| StorageError::Other(format!("`{}` {e}", key.as_str())))?;
+                }
             }
         }
         Ok(Some(Box::new(values.into_iter())))
     }
 
     fn size_key(&self, key: &StoreKey) -> Result<Option<u64>, StorageError> {
-        self.check_file(key)
+        match &self.inner {
+            Backend::Files(files) => self.check_file(files, key),
+            Backend::Http(http) => http.size(key.as_str()),
+        }
     }
 
     fn supports_get_partial(&self) -> bool {
-        self.inner.supports_get_partial()
+        match &self.inner {
+            Backend::Files(files) => files.supports_get_partial(),
+            Backend::Http(_) => true,
+        }
     }
 }
 

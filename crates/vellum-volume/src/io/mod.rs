@@ -12,6 +12,7 @@
 
 mod dicom;
 pub(crate) mod guarded_store;
+pub mod http_store;
 mod metaimage;
 mod ngff_checks;
 pub(crate) mod nifti;
@@ -62,6 +63,23 @@ pub fn write(path: &Path, volume: &Volume) -> Result<()> {
     }
 }
 
+/// Level 0 of the OME-Zarr store at `path` (a folder or a URL), in core. `render` streams larger
+/// ones through the brick cache without coming here; anything else must fit in memory.
+fn load_store(path: &Path, pick: ome_zarr::Pick) -> Result<Volume> {
+    let ms = ome_zarr::Multiscale::open_picked(path, pick)?;
+    let bytes = ms.level_bytes(0);
+    if !crate::memory::fits_in_memory(bytes) {
+        return Err(Error::format(
+            path,
+            format!(
+                "level 0 holds {:.1} GiB, more than half of this machine's memory; expected a store that fits, or `vellum render` (which streams it through the brick cache)",
+                bytes as f64 / (1u64 << 30) as f64
+            ),
+        ));
+    }
+    ms.read_level(0)
+}
+
 /// Loads a volume. With `raw` the file is read as headerless voxels; otherwise a folder is read as
 /// a DICOM series and a file by its extension (`.nrrd`, `.nhdr`, `.nii`, `.nii.gz`, `.mhd`, `.mha`)
 /// or, failing that, by its first bytes. Float volumes with NaN or infinite voxels are rejected.
@@ -77,6 +95,9 @@ pub fn load_picked(path: &Path, raw: Option<&RawSpec>, pick: ome_zarr::Pick) -> 
             "`time` and `channels` pick a time point and a channel of an OME-Zarr store; {} is not one",
             path.display()
         )));
+    }
+    if http_store::is_url(path) && raw.is_none() {
+        return load_store(path, pick);
     }
     if !path.exists() && std::fs::symlink_metadata(path).is_ok() {
         return Err(Error::io(
@@ -104,20 +125,7 @@ pub fn load_picked(path: &Path, raw: Option<&RawSpec>, pick: ome_zarr::Pick) -> 
     let volume = if let Some(spec) = raw {
         raw::read(path, spec)?
     } else if ome_zarr::is_store(path) {
-        // In core: the finest level whole. `render` streams larger ones through the brick
-        // cache without coming here; anything else must fit in memory.
-        let ms = ome_zarr::Multiscale::open_picked(path, pick)?;
-        let bytes = ms.level_bytes(0);
-        if !crate::memory::fits_in_memory(bytes) {
-            return Err(Error::format(
-                path,
-                format!(
-                    "level 0 holds {:.1} GiB, more than half of this machine's memory; expected a store that fits, or `vellum render` (which streams it through the brick cache)",
-                    bytes as f64 / (1u64 << 30) as f64
-                ),
-            ));
-        }
-        ms.read_level(0)?
+        load_store(path, pick)?
     } else if path.is_dir() {
         dicom::read(path)?
     } else if has(".nrrd") || has(".nhdr") {

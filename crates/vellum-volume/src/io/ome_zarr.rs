@@ -28,7 +28,7 @@ pub use super::ngff_checks::Level;
 
 /// An opened OME-Zarr multiscale image: its levels, finest first.
 pub struct Multiscale {
-    /// The store's folder.
+    /// The store's folder, or its URL.
     pub root: PathBuf,
     /// The NGFF version, "0.4" or "0.5".
     pub version: String,
@@ -48,12 +48,14 @@ pub struct Multiscale {
     arrays: Vec<Array<GuardedStore>>,
 }
 
-/// Whether `path` names an OME-Zarr store: a folder whose name ends in `.zarr`.
+/// Whether `path` names an OME-Zarr store: a folder whose name ends in `.zarr`, or an `http://`
+/// or `https://` URL (read as a store whatever its name).
 pub fn is_store(path: &Path) -> bool {
-    path.is_dir()
-        && path
-            .file_name()
-            .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"))
+    super::http_store::is_url(path)
+        || path.is_dir()
+            && path
+                .file_name()
+                .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"))
 }
 
 /// Which time point and channel of a store to read; `None` reads the only one and refuses a
