@@ -254,23 +254,9 @@ fn stores_written_by_python_ome_zarr_are_read() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let script = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/support/write_ome_zarr.py"
-    );
     for version in ["0.4", "0.5"] {
         let store = dir.path().join(format!("python-{version}.zarr"));
-        let out = std::process::Command::new("python3")
-            .arg(script)
-            .arg(&store)
-            .arg(version)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        common::support_script("write_ome_zarr.py", &[store.as_os_str(), version.as_ref()]);
         let raw = std::fs::read(store.with_extension("zarr.raw")).unwrap();
         let expected: Vec<u16> = raw
             .chunks_exact(2)

@@ -41,6 +41,12 @@ struct RayState {
     uvec4 flags; // x: bit 0 started, bit 1 done, bit 2 no focus sample yet
 };
 layout(set = 0, binding = 16) buffer RayStates { RayState rays[]; };
+// Segments of a label volume (classify/labels.rs): each voxel's index among the ids the volume
+// holds, 16 bits, two per word; and per index its colour (RGBA8) and flags (bit 0 drawn, bit 1
+// focus), after a header of the count and whether the segments decide the level (bit 0).
+// Frames without labels bind one-word stand-ins and never read them.
+layout(set = 0, binding = 17) readonly buffer LabelVoxels { uint label_words[]; };
+layout(set = 0, binding = 18) readonly buffer LabelTable { uint label_table[]; };
 const int PT_HEADER = 8 + 8 * 16;
 const uint MODE_WAIT = 1u;
 const uint MODE_RESUME = 2u;
@@ -71,6 +77,15 @@ layout(push_constant) uniform Push {
 } p;
 
 const float INF = 1.0 / 0.0;
+
+// The index of the segment at texture coordinate `at`: the voxel it lies in, never a blend.
+uint label_at(vec3 at) {
+    ivec3 d = ivec3(u.volume_dims.xyz);
+    ivec3 v = clamp(ivec3(floor(at * u.volume_dims.xyz)), ivec3(0), d - 1);
+    uint i = uint(v.x) + uint(d.x) * (uint(v.y) + uint(d.y) * uint(v.z));
+    uint w = label_words[i >> 1u];
+    return (i & 1u) == 0u ? (w & 0xffffu) : (w >> 16u);
+}
 
 // The page table's header, read once per ray (see passes/paging.rs): levels, brick edge in
 // voxels, slot edge in texels, mode, slots along x and y of the pool, the coefficients of a
@@ -448,6 +463,7 @@ void main() {
         for (; !done;) {
             float t = 0.0, s = 0.0;
             bool focus = false, hit = false;
+            uint label = 0u;
             vec4 c = vec4(0.0);
             for (; m <= m_last; m += 1.0) {
                 t = a + b * m;
@@ -477,6 +493,19 @@ void main() {
                 }
                 s = sample_intensity();
                 focus = sample_in_focus(s);
+                if (V_LABELS) {
+                    // A hidden segment's samples add nothing; with focus ids, the segment
+                    // decides the level.
+                    label = label_at(tex);
+                    uint flags = label_table[3u + 2u * label];
+                    if ((flags & 1u) == 0u) {
+                        prev_t = -1.0;
+                        continue;
+                    }
+                    if ((label_table[1] & 1u) != 0u) {
+                        focus = (flags & 2u) != 0u;
+                    }
+                }
                 // Behind the first focus sample, only focus samples count (the depth test); nor do
                 // context samples behind a context that reached `ert` (early termination).
                 bool counts = !V_TWO_LEVEL || focus || (first && ctx.a < ert);
@@ -543,6 +572,9 @@ void main() {
             prev_s = s;
             if (c.a < MIN_ALPHA) {
                 continue;
+            }
+            if (V_LABELS) {
+                c.rgb = unpackUnorm4x8(label_table[2u + 2u * label]).rgb;
             }
             vec3 ph, di;
             shade(c.rgb, focus, ph, di);

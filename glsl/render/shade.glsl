@@ -41,6 +41,7 @@ const bool V_MOD_SHADE = (VARIANT & 128u) != 0u;
 const bool V_BRICKED = (VARIANT & 256u) != 0u;
 const bool V_BRICK_REUSE = (VARIANT & 512u) != 0u;
 const bool V_BRICK_SPAN = (VARIANT & 1024u) != 0u;
+const bool V_LABELS = (VARIANT & 2048u) != 0u;
 #else
 const bool V_OTF = true;
 const bool V_MOD_OPACITY = true;

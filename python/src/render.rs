@@ -163,7 +163,7 @@ use image::ImageEncoder;
 
 /// The keyword options of `render` and `Renderer`: the command line's scene flags in snake case,
 /// each filling the field of [`SceneOverrides`] its flag fills, and the session's two.
-const OPTIONS: &str = "time, channels, iso, focus, tf, otf, features, camera, view, ortho, pan, size, slices, one_pass, renderer, jitter, ert, no_skip_empty, refine_iso, sampling, background, style, edge_color, edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation, line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, color_mod, gamma, opacity_mod, stipple, seed, stipple_white, stipple_black, importance_radius, modulate, modulate_lighting, gpu_budget, lod";
+const OPTIONS: &str = "time, channels, labels, hide_labels, focus_labels, label_colour, iso, focus, tf, otf, features, camera, view, ortho, pan, size, slices, one_pass, renderer, jitter, ert, no_skip_empty, refine_iso, sampling, background, style, edge_color, edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation, line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, color_mod, gamma, opacity_mod, stipple, seed, stipple_white, stipple_black, importance_radius, modulate, modulate_lighting, gpu_budget, lod";
 
 /// `scene` with the keyword `options` applied over it by the overrides the command line's flags
 /// fill too, and the session's options among them (`gpu_budget` in MiB, `lod`).
@@ -177,6 +177,7 @@ fn apply(scene: Scene, options: Option<&Bound<'_, PyDict>>) -> PyResult<(Scene, 
         let key: String = key.extract()?;
         let v = Value { key: &key, value };
         let known = v.session(&mut session)?
+            || v.labels(&mut o)?
             || v.scene(&mut o)?
             || v.style(&mut o.style)?
             || v.modulation(&mut o.modulation)?;
@@ -227,6 +228,30 @@ impl<'py> Value<'_, 'py> {
             "lod" => {
                 let lod: String = self.get("\"auto\" or \"finest\"")?;
                 session.lod = Lod::parse(&lod).map_err(|_| self.bad("\"auto\" or \"finest\""))?;
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// `labels`, `hide_labels`, `focus_labels` and `label_colour`; whether the key is one of them.
+    fn labels(&self, o: &mut SceneOverrides) -> PyResult<bool> {
+        let ids = |v: &Self| match v.value.extract::<u32>() {
+            Ok(id) => Ok(vec![id]),
+            Err(_) => v.get("a label id or a list of ids"),
+        };
+        match self.key {
+            "labels" => o.labels = Some(self.get("a path or a label image's name")?),
+            "hide_labels" => o.hide_labels = Some(ids(self)?),
+            "focus_labels" => o.focus_labels = Some(ids(self)?),
+            "label_colour" => {
+                let what = "a dict of id to \"#RRGGBB\"";
+                let colours: std::collections::BTreeMap<u32, String> = self.get(what)?;
+                for (id, hex) in colours {
+                    let c = vellum_render::render::overrides::parse_label_colour(&format!("{id}={hex}"))
+                        .map_err(|_| self.bad(what))?;
+                    o.label_colours.push(c);
+                }
             }
             _ => return Ok(false),
         }

@@ -209,6 +209,23 @@ pub fn styled_frame(
 
 /// Whether python3 imports `modules` (comma-separated, as in an import statement), for tests
 /// whose peer is a Python package; under CI its absence fails the test.
+/// Runs `python3 tests/support/SCRIPT ARGS...`, which must succeed.
+pub fn support_script(script: &str, args: &[&std::ffi::OsStr]) {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/support")
+        .join(script);
+    let out = std::process::Command::new("python3")
+        .arg(path)
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{script}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 pub fn python_with(modules: &str) -> bool {
     let have = std::process::Command::new("python3")
         .args(["-c", &format!("import {modules}")])

@@ -14,6 +14,7 @@ pub mod feature;
 pub mod geometry;
 pub mod input;
 pub mod io;
+pub mod labels;
 pub mod lines;
 pub mod memory;
 pub mod output;

@@ -693,7 +693,7 @@ pub(crate) fn parse_cli() -> Cli {
 
 /// The library's errors name the scene's keys and the passes' parameters in backticks
 /// (`one_pass`, `iso`, `method`); the command line names its flags for them.
-pub(crate) const KEY_FLAGS: [(&str, &str); 12] = [
+pub(crate) const KEY_FLAGS: [(&str, &str); 14] = [
     ("`one_pass`", "--one-pass"),
     ("`iso`", "--iso V"),
     ("`focus`", "--focus LO:HI"),
@@ -706,6 +706,8 @@ pub(crate) const KEY_FLAGS: [(&str, &str); 12] = [
     ("`lod`", "--lod"),
     ("`time`", "--time T"),
     ("`channels`", "--channels C (or --channel C)"),
+    ("`focus_labels`", "--focus-labels IDS"),
+    ("`renderer: raycast`", "--renderer raycast"),
 ];
 
 /// `message` with each key the library names replaced by its flag.

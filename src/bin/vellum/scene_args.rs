@@ -4,7 +4,7 @@ use crate::flags::*;
 use anyhow::Result;
 use clap::Args;
 use std::path::PathBuf;
-use vellum::render::overrides::{CameraAngles, Front, SceneOverrides};
+use vellum::render::overrides::{parse_label_colour, CameraAngles, Front, SceneOverrides};
 use vellum::render::scene::{InputSpec, NamedView, RawInput, Scene};
 
 /// The scene a `render` command line describes: the scene file (or defaults) with every given
@@ -91,6 +91,20 @@ pub(crate) struct SceneArgs {
     /// With --otf, the two compose: features in their colours, the context by the occlusion TF.
     #[arg(long, conflicts_with = "tf")]
     pub(crate) features: Option<PathBuf>,
+    /// A label volume on the input's grid: a file, a store, or the name of a label image in the
+    /// input store's `labels` group. Each segment takes its colour (the store's NGFF colours,
+    /// else one made from its id), sampled nearest; the ray caster draws them.
+    #[arg(long, value_name = "PATH|NAME")]
+    pub(crate) labels: Option<String>,
+    /// Label ids not drawn, e.g. 2,5 (the background, 0, never is).
+    #[arg(long, value_name = "IDS", value_delimiter = ',')]
+    pub(crate) hide_labels: Option<Vec<u32>>,
+    /// Label ids drawn as the focus level of the two levels; every other segment is the context.
+    #[arg(long, value_name = "IDS", value_delimiter = ',')]
+    pub(crate) focus_labels: Option<Vec<u32>>,
+    /// A segment's colour, ID=#RRGGBB (repeatable).
+    #[arg(long, value_name = "ID=#RRGGBB")]
+    pub(crate) label_colour: Vec<String>,
     #[command(flatten)]
     pub(crate) modulation: ModulationArgs,
     #[command(flatten)]
@@ -190,6 +204,14 @@ impl SceneArgs {
                 .as_deref()
                 .map(|b| parse_rgb("--background", b))
                 .transpose()?,
+            labels: a.labels.clone(),
+            hide_labels: a.hide_labels.clone(),
+            focus_labels: a.focus_labels.clone(),
+            label_colours: a
+                .label_colour
+                .iter()
+                .map(|c| parse_label_colour(c))
+                .collect::<vellum::Result<_>>()?,
             modulation: a.modulation.overrides()?,
             style: a.style.overrides()?,
         })

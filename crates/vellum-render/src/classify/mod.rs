@@ -6,7 +6,8 @@
 //! - the data: 1D transfer functions ([`transfer`]), occlusion transfer functions ([`otf`]) and
 //!   their visibility mappings ([`mapping`]), feature-map transfer functions ([`features`]) and
 //!   their composition with an occlusion transfer function (`compose`), the
-//!   focus of a two-level frame ([`Focus`]) and importance modulation ([`modulation`]);
+//!   focus of a two-level frame ([`Focus`]), importance modulation ([`modulation`]) and the
+//!   segments of a label volume ([`labels`]);
 //! - their persistent GPU state ([`textures::GpuClassification`]): textures re-uploaded only when
 //!   their contents change, focus and modulation as per-frame uniforms;
 //! - in GLSL, `glsl/common/classify.glsl` and `glsl/common/shading.glsl`: pure functions of
@@ -18,6 +19,7 @@
 
 pub(crate) mod compose;
 pub mod features;
+pub mod labels;
 pub mod mapping;
 pub mod modulation;
 pub mod otf;

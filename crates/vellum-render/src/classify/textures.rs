@@ -73,6 +73,9 @@ pub struct GpuClassification {
     /// The occlusion TF table, or a 1×1 stand-in while none is used (shaders bind something).
     occlusion: Table,
     uses_occlusion: bool,
+    /// Segments from a label volume beside the input, which the ray caster colours, hides and
+    /// puts in the focus level by id (`classify::labels`).
+    pub labels: Option<crate::classify::labels::GpuLabels>,
 }
 
 impl GpuClassification {
@@ -91,6 +94,7 @@ impl GpuClassification {
             )?,
             occlusion: Table::new(ctx, "occlusion transfer function", [1, 1], vec![[0.0; 4]])?,
             uses_occlusion: false,
+            labels: None,
         })
     }
 

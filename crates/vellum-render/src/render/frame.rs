@@ -58,6 +58,9 @@ pub(crate) struct SetupInput<'a> {
     pub table: &'a [[f32; 4]],
     /// The focus, in data units.
     pub focus: Focus,
+    /// Whether the segments of a label volume decide the level (`classify::labels`), in place
+    /// of the focus.
+    pub(crate) labels_focus: bool,
     /// Importance modulation (SPEC IM3–IM5), written into the uniforms; when active, the volume
     /// must carry ΔD.
     pub modulation: &'a Modulation,
@@ -83,6 +86,7 @@ impl<'a> SetupInput<'a> {
             bricks: vol.bricks(),
             table: classify.transfer_table(),
             focus: classify.focus,
+            labels_focus: classify.labels.as_ref().is_some_and(|l| l.decide_focus),
             modulation: &classify.modulation,
             uses_occlusion: classify.uses_occlusion(),
             has_occlusion: vol.occlusion().is_some(),
@@ -218,9 +222,9 @@ fn validate(input: &SetupInput, view: &View) -> Result<()> {
                 style.def.number, style.def.name
             )));
         }
-        if style.def.needs_focus() && input.focus == Focus::None {
+        if style.def.needs_focus() && input.focus == Focus::None && !input.labels_focus {
             return Err(Error::Invalid(format!(
-                "style {} ({}) works on the focus layer; give a focus with `iso` or `focus`",
+                "style {} ({}) works on the focus layer; give a focus with `iso`, `focus` or `focus_labels`",
                 style.def.number, style.def.name
             )));
         }
@@ -602,6 +606,7 @@ impl Renderer {
         let vol = vol.into();
         let max = self.ctx.info.max_image_dimension_2d;
         check_paged(vol, view)?;
+        check_labels(vol, classify, view)?;
         let paged_view = paged_planes(vol, view);
         let view = paged_view.as_ref().unwrap_or(view);
         let setup = FrameSetup::new(&SetupInput::of(vol, classify, max), view)?;
@@ -633,8 +638,13 @@ impl Renderer {
             focus_vertices: staged.focus_vertices,
         };
         match (view.raycast, &t.layers, view.one_pass, staged.ray_tables) {
-            (Some(options), layers, one_pass, Some(tables)) => {
+            (Some(mut options), layers, one_pass, Some(tables)) => {
                 let two_level = !one_pass;
+                // The bricks' flags know the focus interval, not the segments: where segments
+                // decide the level, any visible brick may hold focus, and none is skipped.
+                if classify.labels.as_ref().is_some_and(|l| l.decide_focus) {
+                    options.skip_empty = false;
+                }
                 let rays = RayFrame {
                     setup: &setup,
                     options,
@@ -643,6 +653,7 @@ impl Renderer {
                     composite: &t.composite,
                     tables,
                     stand_in: &self.stand_ins.paging,
+                    labels: classify.labels.as_ref(),
                     flags: BrickFlags::new(
                         classify.transfer_table(),
                         setup.focus,
@@ -924,6 +935,16 @@ fn record_rays(
             tables: r.tables,
             paging,
             bricked: vol.paged().is_some(),
+            labels: match r.labels {
+                Some(l) => (
+                    [
+                        Bind::StorageBuffer(&l.voxels),
+                        Bind::StorageBuffer(&l.table),
+                    ],
+                    true,
+                ),
+                None => ([Bind::StorageBuffer(r.stand_in); 2], false),
+            },
             brick_reuse: vol.paged().is_some_and(|p| p.reuse),
             brick_span: vol.paged().is_some_and(|p| p.span),
             push: r.setup.ray_push(&r.options, vol.bricks().counts, two_level),
@@ -949,8 +970,10 @@ struct RayFrame<'a> {
     layers: Option<&'a crate::render::targets::TargetLayers>,
     composite: &'a Image,
     tables: BufferSlice,
-    /// Bound for the brick cache's buffers in core.
+    /// Bound for the brick cache's buffers in core, and for the label buffers without labels.
     stand_in: &'a vellum_gpu::Buffer,
+    /// A label volume beside the input.
+    labels: Option<&'a crate::classify::labels::GpuLabels>,
     /// What a brick of a known range may hold under this frame's classification (the page
     /// table's flags of a volume in the brick cache).
     flags: BrickFlags,
@@ -1017,6 +1040,25 @@ fn check_paged(vol: VolumeRef, view: &View) -> Result<()> {
             "style {} ({}) draws object-space lines, which need the whole volume on the GPU; it is larger than the GPU budget ({budget:.0} MiB of bricks)",
             style.def.number, style.def.name
         )));
+    }
+    Ok(())
+}
+
+/// Segments from a label volume are drawn by the ray caster, of a volume in core.
+fn check_labels(vol: VolumeRef, classify: &GpuClassification, view: &View) -> Result<()> {
+    if classify.labels.is_none() {
+        return Ok(());
+    }
+    if vol.paged().is_some() {
+        return Err(Error::Invalid(
+            "segments from a label volume are drawn with the volume in core, and this one is larger than the GPU budget; expected a larger `gpu_budget`".into(),
+        ));
+    }
+    if view.raycast.is_none() {
+        return Err(Error::Invalid(
+            "segments from a label volume are drawn by the ray caster; use `renderer: raycast`"
+                .into(),
+        ));
     }
     Ok(())
 }
@@ -1177,6 +1219,7 @@ mod tests {
             bricks: &h.bricks,
             table: &h.table,
             focus: Focus::Iso(0.9),
+            labels_focus: false,
             modulation: &h.modulation,
             uses_occlusion: false,
             has_occlusion: false,

@@ -5,6 +5,7 @@
 //! refused, what a flag keeps of the scene file's value, and the messages, which name the option
 //! as the front end that filled it spells it ([`Front`]).
 
+use crate::classify::labels::LabelSpec;
 use crate::classify::modulation::{
     ApplyTo, ColorMode, ColorModulation, ModulateLighting, Modulation, OpacityModulation, Stipple,
 };
@@ -15,6 +16,23 @@ use crate::render::scene::{ClassificationSpec, InputSpec, NamedView, RawInput, S
 use crate::render::style::{EdgeKind, LineSmooth, StyleDef};
 use crate::render::view::RayOptions;
 use vellum_error::{Error, Result};
+
+/// A segment's colour written `ID=#RRGGBB` (or `ID=RRGGBB`): the id and its RGB.
+pub fn parse_label_colour(s: &str) -> Result<(u32, [u8; 3])> {
+    let bad = || {
+        invalid(format!(
+            "label colour {s:?} is not ID=#RRGGBB; expected an id and a hex colour, such as 3=#ff8000"
+        ))
+    };
+    let (id, hex) = s.split_once('=').ok_or_else(bad)?;
+    let id: u32 = id.trim().parse().map_err(|_| bad())?;
+    let hex = hex.trim().trim_start_matches('#');
+    if hex.len() != 6 || !hex.is_ascii() {
+        return Err(bad());
+    }
+    let byte = |i: usize| u8::from_str_radix(&hex[i..i + 2], 16).map_err(|_| bad());
+    Ok((id, [byte(0)?, byte(2)?, byte(4)?]))
+}
 
 /// Which front end filled the overrides, so that a message names an option as its user typed
 /// it: `--edge-threshold` on the command line, `edge_threshold=` in Python.
@@ -176,6 +194,15 @@ pub struct SceneOverrides {
     pub sampling: Option<String>,
     /// The background, R, G, B in 0..1.
     pub background: Option<[f32; 3]>,
+    /// A label volume beside the input: a file, a store, or the name of a label image in the
+    /// input store's `labels` group.
+    pub labels: Option<String>,
+    /// Label ids not drawn.
+    pub hide_labels: Option<Vec<u32>>,
+    /// Label ids drawn as the focus level, every other segment as the context.
+    pub focus_labels: Option<Vec<u32>>,
+    /// Segments' colours, each `ID=#RRGGBB` ([`parse_label_colour`]).
+    pub label_colours: Vec<(u32, [u8; 3])>,
     /// Importance modulation.
     pub modulation: ModulationOverrides,
     /// The style.
@@ -215,6 +242,7 @@ impl SceneOverrides {
             (Some([lo, hi]), None) => scene.focus = Focus::Range { lo, hi },
             (None, None) => {}
         }
+        self.apply_labels(&mut scene)?;
         self.apply_camera(&mut scene)?;
         if let Some(size) = self.size {
             scene.size = size;
@@ -241,6 +269,52 @@ impl SceneOverrides {
         scene.style = self.style.apply(f, scene.style.take())?;
         scene.validate()?;
         Ok(scene)
+    }
+
+    /// `labels`, `hide_labels`, `focus_labels` and `label_colour`: segments from a label volume.
+    fn apply_labels(&self, scene: &mut Scene) -> Result<()> {
+        let f = self.front;
+        if let Some(path) = &self.labels {
+            scene.labels = Some(LabelSpec {
+                path: path.clone(),
+                ..Default::default()
+            });
+        }
+        let given = [
+            ("hide_labels", self.hide_labels.is_some()),
+            ("focus_labels", self.focus_labels.is_some()),
+            ("label_colour", !self.label_colours.is_empty()),
+        ];
+        let Some(spec) = scene.labels.as_mut() else {
+            return match given.iter().find(|g| g.1) {
+                Some((key, _)) => Err(invalid(format!(
+                    "{} picks segments of a label volume; add {}",
+                    f.name(key),
+                    f.with("labels", "PATH")
+                ))),
+                None => Ok(()),
+            };
+        };
+        if let Some(h) = &self.hide_labels {
+            spec.hide = h.clone();
+        }
+        if let Some(ids) = &self.focus_labels {
+            spec.focus = ids.clone();
+        }
+        for &(id, rgb) in &self.label_colours {
+            spec.colours.retain(|c| c.0 != id);
+            spec.colours.push((id, rgb));
+        }
+        if !spec.focus.is_empty() && scene.focus != Focus::None {
+            return Err(invalid(format!(
+                "{} and the focus interval or isovalue both choose the focus level; give {}, {} or {}",
+                f.name("focus_labels"),
+                f.name("focus_labels"),
+                f.with("focus", "LO:HI"),
+                f.with("iso", "V")
+            )));
+        }
+        Ok(())
     }
 
     /// `time` and `channels`: which time point and channel of a store to read.

@@ -65,10 +65,11 @@ pub(crate) const BRICK_VISIBLE: u32 = 1;
 pub(crate) const BRICK_FOCUS: u32 = 2;
 
 /// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images, the
-/// brick flags, and the brick cache's page table, feedback and ray states (`passes::paging`).
-pub(crate) const RAY_BINDINGS: [BindingKind; 17] = {
+/// brick flags, the brick cache's page table, feedback and ray states (`passes::paging`), and a
+/// label volume's voxels and table (`classify::labels`).
+pub(crate) const RAY_BINDINGS: [BindingKind; 19] = {
     let slicer = SHADE_BINDINGS;
-    let mut all = [BindingKind::StorageBuffer; 17];
+    let mut all = [BindingKind::StorageBuffer; 19];
     let mut i = 0;
     while i < slicer.len() {
         all[i] = slicer[i];
@@ -135,6 +136,9 @@ impl Variant {
     /// (its brick, and its level by distance) and places the samples there by one multiply-add
     /// (`Paged::span`).
     pub(crate) const BRICK_SPAN: u32 = 1024;
+    /// Reads each sample's segment from a label volume: its colour, whether it is drawn, and
+    /// (with focus ids) its level.
+    pub(crate) const LABELS: u32 = 2048;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -177,6 +181,9 @@ pub(crate) struct RayRequest<'a> {
     pub paging: [Bind<'a>; 3],
     /// Whether the volume is drawn through the brick cache (the `BRICKED` variant).
     pub bricked: bool,
+    /// A label volume's voxels and table (stand-ins without one), and whether there is one
+    /// (the `LABELS` variant).
+    pub(crate) labels: ([Bind<'a>; 2], bool),
     /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
     pub(crate) brick_reuse: bool,
     /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
@@ -232,7 +239,8 @@ impl RayCaster {
         let s = r.shading;
         let [i0, i1, i2, i3, i4] = images.map(Bind::StorageImage);
         let [p0, p1, p2] = r.paging;
-        let binds: [Bind; 17] = [
+        let [l0, l1] = r.labels.0;
+        let binds: [Bind; 19] = [
             s[0],
             s[1],
             s[2],
@@ -250,6 +258,8 @@ impl RayCaster {
             p0,
             p1,
             p2,
+            l0,
+            l1,
         ];
         let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         if r.bricked && r.brick_reuse {
@@ -257,6 +267,9 @@ impl RayCaster {
         }
         if r.bricked && r.brick_span {
             variant.0 |= Variant::BRICK_SPAN;
+        }
+        if r.labels.1 {
+            variant.0 |= Variant::LABELS;
         }
         let pipeline = Self::pipeline(pipelines, variant)?;
         let groups = vellum_gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);

@@ -57,6 +57,7 @@ use std::path::Path;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::{Context, Frames, FramesDesc, PassTime};
+use vellum_volume::io::http_store::is_url;
 use vellum_volume::io::RawSpec;
 use vellum_volume::{Volume, VoxelType};
 
@@ -381,15 +382,18 @@ pub struct Scene {
     /// Ray cast with these options instead of slicing (`render::raycast`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub raycast: Option<crate::render::raycast::RayOptions>,
+    /// Segments from a label volume beside the input (`classify::labels`); none by default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub labels: Option<crate::classify::labels::LabelSpec>,
 }
 
 fn default_size() -> [u32; 2] {
     [512, 512]
 }
 
-/// Resolves `p` against `dir` unless it is absolute or a phantom spec.
+/// Resolves `p` against `dir` unless it is absolute, a URL or a phantom spec.
 fn resolve(dir: &Path, p: &str) -> String {
-    if p.starts_with("phantom:") || Path::new(p).is_absolute() {
+    if p.starts_with("phantom:") || Path::new(p).is_absolute() || is_url(Path::new(p)) {
         return p.to_string();
     }
     dir.join(p).to_string_lossy().into_owned()
@@ -402,7 +406,7 @@ fn is_named(t: &str) -> bool {
 }
 
 fn absolute(p: &str) -> String {
-    if p.starts_with("phantom:") || is_named(p) {
+    if p.starts_with("phantom:") || is_named(p) || is_url(Path::new(p)) {
         return p.to_string();
     }
     std::path::absolute(p)
@@ -427,6 +431,7 @@ impl Scene {
             style: None,
             modulation: None,
             raycast: None,
+            labels: None,
         }
     }
 
@@ -452,6 +457,13 @@ impl Scene {
         let dir = path.parent().unwrap_or(Path::new("."));
         scene.input.path = resolve(dir, &scene.input.path);
         scene.classification = scene.classification.map_paths(|p| resolve(dir, p));
+        if let Some(l) = &mut scene.labels {
+            // A bare name that is no file beside the scene names a label image of the input
+            // store's `labels` group.
+            if dir.join(&l.path).exists() {
+                l.path = resolve(dir, &l.path);
+            }
+        }
         Ok(scene)
     }
 
@@ -461,6 +473,9 @@ impl Scene {
         let mut s = self.clone();
         s.input.path = absolute(&s.input.path);
         s.classification = s.classification.map_paths(absolute);
+        if let Some(l) = s.labels.as_mut().filter(|l| Path::new(&l.path).exists()) {
+            l.path = absolute(&l.path);
+        }
         let json = serde_json::to_string_pretty(&s)
             .map_err(|e| Error::Invalid(format!("scene cannot be written as JSON: {e}")))?;
         vellum_volume::output::write_atomic(path, |w| {

@@ -227,6 +227,34 @@ impl Prepared {
     }
 }
 
+/// Reads the label volume `spec` names, checks that it lies on the input's grid, and puts it on
+/// the GPU beside the volume in core.
+fn attach_labels(
+    ctx: &Arc<Context>,
+    scene: &Scene,
+    spec: &crate::classify::labels::LabelSpec,
+    prepared: &mut Prepared,
+) -> Result<()> {
+    let Prepared::InCore(g) = prepared else {
+        return Err(Error::Invalid(
+            "segments from a label volume are drawn with the volume in core, and this one is larger than the GPU budget; expected a larger `gpu_budget`".into(),
+        ));
+    };
+    let image = Path::new(&scene.input.path);
+    let labels = vellum_volume::labels::Labels::open(Path::new(&spec.path), Some(image))?;
+    if labels.dims != g.volume.dims {
+        let [a, b, c] = labels.dims;
+        let [x, y, z] = g.volume.dims;
+        return Err(Error::Invalid(format!(
+            "the label volume {} is {a} x {b} x {c} voxels and the input {x} x {y} x {z}; expected a label volume on the input's grid",
+            spec.path
+        )));
+    }
+    let gpu = crate::classify::labels::GpuLabels::new(ctx, Arc::new(labels), spec)?;
+    g.classify.labels = Some(gpu);
+    Ok(())
+}
+
 /// The ray caster draws a volume in the brick cache: `view` made so, with the sentence that says
 /// so when it was not (`budget` bytes, for the sentence).
 pub(crate) fn bricked_view(view: &mut View, budget: u64) -> Option<String> {
@@ -272,20 +300,33 @@ impl Session {
         opened: &Opened,
         (budget, opts): (u64, &SessionOptions),
     ) -> Result<Self> {
+        let mut prepared = Prepared::new(ctx, scene, classification, opened, (budget, opts))?;
+        if let Some(spec) = &scene.labels {
+            attach_labels(ctx, scene, spec, &mut prepared)?;
+        }
         Ok(Session {
-            prepared: Prepared::new(ctx, scene, classification, opened, (budget, opts))?,
+            prepared,
             renderer: Renderer::new(ctx)?,
             budget,
         })
     }
 
-    /// `view` as this session draws it, and the sentence to say when the brick cache made it a
-    /// ray-cast view.
+    /// `view` as this session draws it, and the sentence to say when the brick cache or a label
+    /// volume made it a ray-cast view.
     pub fn view(&self, mut view: View) -> (View, Option<String>) {
         let note = match self.prepared.is_paged() {
             true => bricked_view(&mut view, self.budget),
             false => None,
         };
+        let labels = match &self.prepared {
+            Prepared::InCore(g) => g.classify.labels.is_some(),
+            Prepared::Paged(..) => false,
+        };
+        if labels && view.raycast.is_none() {
+            view.raycast = Some(Default::default());
+            let said = "segments from a label volume are drawn by the ray caster";
+            return (view, Some(said.into()));
+        }
         (view, note)
     }
 

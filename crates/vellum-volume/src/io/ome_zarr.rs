@@ -42,20 +42,29 @@ pub struct Multiscale {
     pub channels: usize,
     /// Time points: the t axis's size (1 without one).
     pub times: usize,
+    /// A label image's colours (NGFF `image-label` `colors`): id and RGBA.
+    pub label_colours: Vec<(u32, [u8; 4])>,
     /// The index on the leading axes (t, c) that is read: the time point and channel picked.
     lead: Vec<u64>,
     /// The levels' arrays, opened once, read through the store's guards.
     arrays: Vec<Array<GuardedStore>>,
 }
 
-/// Whether `path` names an OME-Zarr store: a folder whose name ends in `.zarr`, or an `http://`
-/// or `https://` URL (read as a store whatever its name).
+/// Whether `path` names an OME-Zarr store: a folder whose name ends in `.zarr` or that holds a
+/// Zarr group's metadata (as a label image under `labels/` does), or an `http://` or `https://`
+/// URL (read as a store whatever its name).
 pub fn is_store(path: &Path) -> bool {
-    super::http_store::is_url(path)
-        || path.is_dir()
-            && path
-                .file_name()
-                .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"))
+    if super::http_store::is_url(path) {
+        return true;
+    }
+    let named = path
+        .file_name()
+        .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"));
+    path.is_dir()
+        && (named
+            || ["zarr.json", ".zgroup", ".zattrs"]
+                .iter()
+                .any(|m| path.join(m).is_file()))
 }
 
 /// Which time point and channel of a store to read; `None` reads the only one and refuses a
@@ -169,6 +178,7 @@ impl Multiscale {
             .and_then(|r| Some([r.first()?.as_f64()?, r.get(1)?.as_f64()?]))
             .filter(|r| r[0] <= r[1]);
         Ok(Multiscale {
+            label_colours: label_colours(&attrs),
             range,
             root: path.to_path_buf(),
             version,
@@ -285,8 +295,18 @@ fn retrieve<S: zarrs::storage::ReadableStorageTraits + ?Sized + 'static>(
     Ok(match voxel {
         VoxelType::U8 => VoxelData::U8(array.retrieve_array_subset(&subset)?),
         VoxelType::U16 => VoxelData::U16(array.retrieve_array_subset(&subset)?),
+        VoxelType::I16 if *array.data_type() == data_type::int8() => VoxelData::I16(
+            array
+                .retrieve_array_subset::<Vec<i8>>(&subset)?
+                .into_iter()
+                .map(i16::from)
+                .collect(),
+        ),
         VoxelType::I16 => VoxelData::I16(array.retrieve_array_subset(&subset)?),
-        VoxelType::F32 => VoxelData::F32(array.retrieve_array_subset(&subset)?),
+        VoxelType::F32 => match wide(array.data_type()) {
+            Some(w) => VoxelData::F32(widened(array, w, &subset)?),
+            None => VoxelData::F32(array.retrieve_array_subset(&subset)?),
+        },
     })
 }
 
@@ -315,6 +335,27 @@ impl BoxSource for StoreLevel<'_> {
     fn read_box(&self, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
         self.ms.read_box(self.level, lo, size)
     }
+}
+
+/// The colours of a label image's NGFF `image-label` metadata (0.4 at the attributes' root, 0.5
+/// under `ome`); entries without a whole label value or four channels are passed over.
+fn label_colours(attrs: &Value) -> Vec<(u32, [u8; 4])> {
+    let meta = match &attrs["ome"]["image-label"] {
+        Value::Null => &attrs["image-label"],
+        m => m,
+    };
+    let Some(colours) = meta["colors"].as_array() else {
+        return Vec::new();
+    };
+    colours
+        .iter()
+        .filter_map(|c| {
+            let id = u32::try_from(c["label-value"].as_u64()?).ok()?;
+            let rgba = c["rgba"].as_array()?;
+            let ch = |i: usize| rgba.get(i)?.as_u64().filter(|&v| v <= 255).map(|v| v as u8);
+            Some((id, [ch(0)?, ch(1)?, ch(2)?, ch(3)?]))
+        })
+        .collect()
 }
 
 /// The NGFF version and the first multiscale of the root attributes: under `ome` for 0.5, at the
@@ -409,16 +450,83 @@ fn voxel_type(path: &Path, name: &str, array: &Array<GuardedStore>) -> Result<Vo
         VoxelType::U8
     } else if *t == data_type::uint16() {
         VoxelType::U16
-    } else if *t == data_type::int16() {
+    } else if *t == data_type::int16() || *t == data_type::int8() {
         VoxelType::I16
-    } else if *t == data_type::float32() {
+    } else if *t == data_type::float32() || wide(t).is_some() {
+        // Widened as the file readers widen them: exact up to 2^24 (label ids, counts), and a
+        // value beyond is refused when read (`widened`).
         VoxelType::F32
     } else {
         return Err(invalid(
             path,
-            format!("level {name} holds an unsupported data type; expected uint8, uint16, int16 or float32"),
+            format!("level {name} holds an unsupported data type; expected uint8, uint16, int16 or float32 (or int8, uint32, int32, uint64, int64 or float64, widened)"),
         ));
     })
+}
+
+/// The types read as float32 by [`widened`].
+#[derive(Clone, Copy)]
+enum Wide {
+    U32,
+    I32,
+    U64,
+    I64,
+    F64,
+}
+
+fn wide(t: &zarrs::array::DataType) -> Option<Wide> {
+    [
+        (data_type::uint32(), Wide::U32),
+        (data_type::int32(), Wide::I32),
+        (data_type::uint64(), Wide::U64),
+        (data_type::int64(), Wide::I64),
+        (data_type::float64(), Wide::F64),
+    ]
+    .into_iter()
+    .find(|(d, _)| d == t)
+    .map(|(_, w)| w)
+}
+
+/// The voxels of `subset` of an array of a type wider than float32, as float32; a value that
+/// float32 does not keep exactly (beyond 2^24 in magnitude, or a float64 fraction it rounds) is
+/// refused, so two label ids never merge.
+fn widened<S: zarrs::storage::ReadableStorageTraits + ?Sized + 'static>(
+    array: &Array<S>,
+    w: Wide,
+    subset: &ArraySubset,
+) -> std::result::Result<Vec<f32>, Box<dyn std::error::Error>> {
+    let all: Vec<f64> = match w {
+        Wide::U32 => array
+            .retrieve_array_subset::<Vec<u32>>(subset)?
+            .into_iter()
+            .map(f64::from)
+            .collect(),
+        Wide::I32 => array
+            .retrieve_array_subset::<Vec<i32>>(subset)?
+            .into_iter()
+            .map(f64::from)
+            .collect(),
+        Wide::U64 => array
+            .retrieve_array_subset::<Vec<u64>>(subset)?
+            .into_iter()
+            .map(|v| v as f64)
+            .collect(),
+        Wide::I64 => array
+            .retrieve_array_subset::<Vec<i64>>(subset)?
+            .into_iter()
+            .map(|v| v as f64)
+            .collect(),
+        Wide::F64 => array.retrieve_array_subset::<Vec<f64>>(subset)?,
+    };
+    all.into_iter()
+        .map(|v| {
+            let f = v as f32;
+            match f as f64 == v || (matches!(w, Wide::F64) && v.is_finite() && v.abs() < 1e38) {
+                true => Ok(f),
+                false => Err(format!("it holds {v}, which float32 does not keep exactly; expected values within 2^24").into()),
+            }
+        })
+        .collect()
 }
 
 /// One level from its array and its dataset entry (scale and translation, z y x order);

@@ -1,0 +1,160 @@
+//! Segments from a label volume (issue 42): which segments are drawn, in which colour, and which
+//! are the focus level of a two-level frame, as a table of one entry per id the volume holds;
+//! and the two buffers the ray caster reads (`raycast.comp`, `LabelVoxels` and `LabelTable`).
+//!
+//! A sample keeps the opacity its transfer function gives its intensity and takes its
+//! segment's colour, which the headlight then shades; a hidden segment's samples add nothing.
+//! With `focus` ids, the segment decides a sample's level instead of the focus interval: those
+//! segments are the focus, every other visible one the context.
+
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use vellum_error::{Error, Result};
+use vellum_gpu::{Buffer, Context};
+use vellum_volume::labels::Labels;
+
+/// The segments of a label volume beside the input, as a scene file and the flags give them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LabelSpec {
+    /// The label volume: a file, a store, or the name of a label image in the input store's
+    /// `labels` group.
+    pub path: String,
+    /// Ids not drawn (`--hide-labels`). Id 0, the background, is never drawn.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub hide: Vec<u32>,
+    /// Ids drawn as the focus level, every other visible one as the context (`--focus-labels`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub focus: Vec<u32>,
+    /// Colours that replace the file's or the hashed ones (`--label-colour ID=#RRGGBB`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub colours: Vec<(u32, [u8; 3])>,
+}
+
+/// A table entry's flag: the segment is drawn.
+pub const SHOWN: u32 = 1;
+/// A table entry's flag: the segment is the focus level.
+pub const FOCUS: u32 = 2;
+/// The table's header flag: the segments decide the level (there are focus ids).
+pub const LABELS_DECIDE_FOCUS: u32 = 1;
+
+impl LabelSpec {
+    /// The ids this spec names that `labels` does not hold, refused in one sentence.
+    pub fn check(&self, labels: &Labels) -> Result<()> {
+        let named = self
+            .hide
+            .iter()
+            .chain(&self.focus)
+            .chain(self.colours.iter().map(|c| &c.0));
+        if let Some(id) = named.copied().find(|&id| labels.index_of(id).is_none()) {
+            let shown: Vec<String> = labels.ids.iter().take(12).map(|i| i.to_string()).collect();
+            let more = if labels.ids.len() > 12 { ", ..." } else { "" };
+            return Err(Error::Invalid(format!(
+                "label {id} is not in {} (it holds {}{more}); expected one of its ids",
+                self.path,
+                shown.join(", ")
+            )));
+        }
+        Ok(())
+    }
+
+    /// The ray caster's table: the count and the header flags, then per index its colour
+    /// (RGBA8, packed as `unpackUnorm4x8` reads it) and its flags.
+    pub fn table(&self, labels: &Labels) -> Vec<u32> {
+        let mut words = Vec::with_capacity(2 + 2 * labels.ids.len());
+        let decide = if self.focus.is_empty() {
+            0
+        } else {
+            LABELS_DECIDE_FOCUS
+        };
+        words.extend([labels.ids.len() as u32, decide]);
+        for &id in &labels.ids {
+            let c = match self.colours.iter().find(|c| c.0 == id) {
+                Some((_, rgb)) => [rgb[0], rgb[1], rgb[2], 255],
+                None => labels.colour(id),
+            };
+            let shown = id != 0 && !self.hide.contains(&id);
+            let focus = self.focus.contains(&id);
+            words.push(u32::from_le_bytes(c));
+            words.push(if shown { SHOWN } else { 0 } | if focus { FOCUS } else { 0 });
+        }
+        words
+    }
+}
+
+/// A label volume on the GPU: each voxel's index (16 bits, two per word) and the table.
+pub struct GpuLabels {
+    /// The indices, as `Labels::packed`.
+    pub voxels: Buffer,
+    /// The table, as [`LabelSpec::table`].
+    pub table: Buffer,
+    /// Whether the segments decide the level (some ids are the focus).
+    pub decide_focus: bool,
+    /// The label volume on the host: ids, counts and colours, for a viewer's list.
+    pub labels: Arc<Labels>,
+}
+
+impl GpuLabels {
+    /// `labels` on the GPU as `spec` draws them.
+    pub fn new(ctx: &Arc<Context>, labels: Arc<Labels>, spec: &LabelSpec) -> Result<Self> {
+        spec.check(&labels)?;
+        let voxels = Buffer::storage_from_bytes(
+            ctx,
+            "label voxels",
+            bytemuck::cast_slice(&labels.packed()),
+        )?;
+        let table = Buffer::storage_from_bytes(
+            ctx,
+            "label table",
+            bytemuck::cast_slice(&spec.table(&labels)),
+        )?;
+        Ok(GpuLabels {
+            voxels,
+            table,
+            decide_focus: !spec.focus.is_empty(),
+            labels,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vellum_volume::{Volume, VoxelData};
+
+    fn labels() -> Labels {
+        let v = Volume::new([4, 1, 1], [1.0; 3], VoxelData::U8(vec![0, 3, 7, 3])).unwrap();
+        Labels::of_volume(&v, "l").unwrap()
+    }
+
+    #[test]
+    fn the_table_says_colour_visibility_and_level_per_id() {
+        let spec = LabelSpec {
+            path: "l".into(),
+            hide: vec![7],
+            focus: vec![3],
+            colours: vec![(3, [10, 20, 30])],
+        };
+        let t = spec.table(&labels());
+        assert_eq!(t[..2], [3, LABELS_DECIDE_FOCUS]);
+        assert_eq!(t[3], 0, "the background is never drawn");
+        assert_eq!(t[4], u32::from_le_bytes([10, 20, 30, 255]));
+        assert_eq!(t[5], SHOWN | FOCUS);
+        assert_eq!(t[7], 0, "7 is hidden");
+        assert_eq!(LabelSpec::default().table(&labels())[1], 0);
+    }
+
+    #[test]
+    fn an_id_the_volume_lacks_is_one_sentence() {
+        let spec = LabelSpec {
+            path: "seg.nrrd".into(),
+            focus: vec![5],
+            ..Default::default()
+        };
+        let e = spec.check(&labels()).unwrap_err().to_string();
+        assert!(
+            e.contains("label 5 is not in seg.nrrd (it holds 0, 3, 7)"),
+            "{e}"
+        );
+    }
+}

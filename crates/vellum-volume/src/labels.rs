@@ -1,0 +1,187 @@
+//! Label volumes (issue 42): a segmentation read as segments, not intensities. Each voxel holds
+//! an id (0 is background by convention); the ids present are numbered densely (`index`), so a
+//! renderer samples a voxel's index nearest, never interpolated, and looks its segment's colour,
+//! visibility and level up in a table of one entry per id present.
+//!
+//! Colours come from the store's NGFF `image-label` metadata when it has them, else from a hash
+//! of the id ([`colour_of`]): the same id has the same colour in every picture and every run.
+
+use crate::io::ome_zarr;
+use crate::Volume;
+use std::path::{Path, PathBuf};
+use vellum_error::{Error, Result};
+
+/// The most distinct ids a label volume may hold (its indices are 16-bit on the GPU).
+pub const MAX_LABELS: usize = 65_535;
+
+/// A label volume: the distinct ids it holds and each voxel's index among them.
+#[derive(Clone, Debug)]
+pub struct Labels {
+    /// Voxels along x, y, z.
+    pub dims: [usize; 3],
+    /// The ids present, ascending; a voxel's index points into this.
+    pub ids: Vec<u32>,
+    /// Per voxel (x fastest), the index of its id in `ids`.
+    pub index: Vec<u16>,
+    /// Per index, the voxels that hold it.
+    pub counts: Vec<u64>,
+    /// Colours the file gives (NGFF `image-label` colours: id, RGBA), if any.
+    pub file_colours: Vec<(u32, [u8; 4])>,
+}
+
+impl Labels {
+    /// The segments of `v`, whose voxels must be whole numbers from 0 to 2^32 − 1 (`what`
+    /// names it in a refusal), with at most [`MAX_LABELS`] distinct values.
+    pub fn of_volume(v: &Volume, what: &str) -> Result<Labels> {
+        let n = v.len();
+        let mut ids: Vec<u32> = Vec::new();
+        let mut seen = std::collections::HashSet::new();
+        for i in 0..n {
+            let x = v.data.get_f64(i);
+            if x < 0.0 || x.fract() != 0.0 || x > u32::MAX as f64 {
+                return Err(Error::Invalid(format!(
+                    "{what} holds {x} at voxel {i}; a label volume holds whole numbers from 0 (ids), expected a segmentation"
+                )));
+            }
+            if seen.insert(x as u32) {
+                ids.push(x as u32);
+                if ids.len() > MAX_LABELS {
+                    return Err(Error::Invalid(format!(
+                        "{what} holds more than {MAX_LABELS} distinct ids; expected a segmentation with fewer labels"
+                    )));
+                }
+            }
+        }
+        ids.sort_unstable();
+        let lookup: std::collections::HashMap<u32, u16> = ids
+            .iter()
+            .enumerate()
+            .map(|(i, &id)| (id, i as u16))
+            .collect();
+        let mut counts = vec![0u64; ids.len()];
+        let index: Vec<u16> = (0..n)
+            .map(|i| {
+                let k = lookup[&(v.data.get_f64(i) as u32)];
+                counts[k as usize] += 1;
+                k
+            })
+            .collect();
+        Ok(Labels {
+            dims: v.dims,
+            ids,
+            index,
+            counts,
+            file_colours: Vec::new(),
+        })
+    }
+
+    /// The label volume at `path`: a file, a store (with its NGFF `image-label` colours), or
+    /// the name of a label image in the `labels` group of the store `image` (`--labels NAME`).
+    pub fn open(path: &Path, image: Option<&Path>) -> Result<Labels> {
+        let (path, in_group) = resolve(path, image);
+        let what = format!("the label volume {}", path.display());
+        if in_group || ome_zarr::is_store(&path) {
+            let ms = ome_zarr::Multiscale::open(&path)?;
+            let mut labels = Labels::of_volume(&ms.read_level(0)?, &what)?;
+            labels.file_colours = ms.label_colours.clone();
+            return Ok(labels);
+        }
+        Labels::of_volume(&crate::io::load(&path, None)?, &what)
+    }
+
+    /// The index of `id`, if the volume holds it.
+    pub fn index_of(&self, id: u32) -> Option<usize> {
+        self.ids.binary_search(&id).ok()
+    }
+
+    /// The colour of `id`: the file's, or [`colour_of`].
+    pub fn colour(&self, id: u32) -> [u8; 4] {
+        self.file_colours
+            .iter()
+            .find(|(i, _)| *i == id)
+            .map_or_else(|| colour_of(id), |(_, c)| *c)
+    }
+
+    /// The indices, two per 32-bit word (the lower half first), as the ray caster reads them.
+    pub fn packed(&self) -> Vec<u32> {
+        self.index
+            .chunks(2)
+            .map(|p| p[0] as u32 | (p.get(1).copied().unwrap_or(0) as u32) << 16)
+            .collect()
+    }
+}
+
+/// `path`, or the label image of that name in the `labels` group of the store `image` when
+/// `path` is a bare name that names no file; and whether it is the latter.
+fn resolve(path: &Path, image: Option<&Path>) -> (PathBuf, bool) {
+    let bare = path.components().count() == 1 && !path.exists();
+    match image.filter(|i| bare && ome_zarr::is_store(i)) {
+        Some(store) => (store.join("labels").join(path), true),
+        None => (path.to_path_buf(), false),
+    }
+}
+
+/// A colour for `id` that neighbouring ids do not share: hues a golden angle apart, with the
+/// saturation and value varied too, so that ids far apart differ as well. Id 0 is black.
+pub fn colour_of(id: u32) -> [u8; 4] {
+    if id == 0 {
+        return [0, 0, 0, 255];
+    }
+    let h = (id as f64 * 0.618_033_988_749_895).fract();
+    let s = [0.75, 0.55, 0.9][(id % 3) as usize];
+    let v = [0.95, 0.8, 0.7][(id / 3 % 3) as usize];
+    let rgb = hsv(h, s, v);
+    [rgb[0], rgb[1], rgb[2], 255]
+}
+
+fn hsv(h: f64, s: f64, v: f64) -> [u8; 3] {
+    let i = (h * 6.0).floor();
+    let f = h * 6.0 - i;
+    let (p, q, t) = (v * (1.0 - s), v * (1.0 - f * s), v * (1.0 - (1.0 - f) * s));
+    let (r, g, b) = match i as i32 % 6 {
+        0 => (v, t, p),
+        1 => (q, v, p),
+        2 => (p, v, t),
+        3 => (p, q, v),
+        4 => (t, p, v),
+        _ => (v, p, q),
+    };
+    [r, g, b].map(|c| (c * 255.0).round() as u8)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::VoxelData;
+
+    #[test]
+    fn ids_are_numbered_densely_and_counted() {
+        let v = Volume::new([4, 1, 1], [1.0; 3], VoxelData::U16(vec![0, 70, 3, 70])).unwrap();
+        let l = Labels::of_volume(&v, "x").unwrap();
+        assert_eq!(l.ids, vec![0, 3, 70]);
+        assert_eq!(l.index, vec![0, 2, 1, 2]);
+        assert_eq!(l.counts, vec![1, 1, 2]);
+        assert_eq!(l.packed(), vec![2 << 16, 1 | 2 << 16]);
+        assert_eq!(l.index_of(70), Some(2));
+        assert_eq!(l.index_of(5), None);
+    }
+
+    #[test]
+    fn fractions_and_negatives_are_refused() {
+        for bad in [vec![0.0, 1.5], vec![-1.0, 2.0]] {
+            let v = Volume::new([2, 1, 1], [1.0; 3], VoxelData::F32(bad)).unwrap();
+            let e = Labels::of_volume(&v, "the label volume m.nrrd").unwrap_err();
+            assert!(e.to_string().contains("whole numbers"), "{e}");
+        }
+    }
+
+    #[test]
+    fn neighbouring_ids_get_distinct_colours() {
+        for id in 1..200u32 {
+            let (a, b) = (colour_of(id), colour_of(id + 1));
+            let d: i32 = (0..3).map(|c| (a[c] as i32 - b[c] as i32).abs()).sum();
+            assert!(d > 60, "{id}: {a:?} {b:?}");
+        }
+        assert_eq!(colour_of(0), [0, 0, 0, 255]);
+    }
+}

@@ -1,0 +1,399 @@
+//! Label volumes (issue 42): segments beside an intensity volume, drawn by the ray caster in
+//! their colours, hidden by id, and chosen as the focus level by id. Checked against the CPU's
+//! projections of the same label volume: three balls that never overlap along an axis, seen
+//! orthographically along one, cover shares of the image that their voxel discs give.
+
+mod common;
+
+use common::Gpu;
+use std::path::Path;
+use vellum::classify::labels::LabelSpec;
+use vellum::render::bricked::StillOptions;
+use vellum::render::overrides::{CameraAngles, SceneOverrides};
+use vellum::render::scene::{InputSpec, Scene};
+use vellum::render::session::{Session, SessionOptions};
+use vellum::render::targets::FrameImage;
+use vellum::volume::labels::colour_of;
+use vellum::volume::{Volume, VoxelData};
+
+const N: usize = 48;
+/// Id, centre and radius of each ball: apart by more than their radii in every axis's
+/// projection.
+const BALLS: [(u8, [f32; 3], f32); 3] = [
+    (2, [12.0, 12.0, 36.0], 7.0),
+    (5, [36.0, 14.0, 12.0], 6.0),
+    (9, [24.0, 36.0, 24.0], 8.0),
+];
+
+/// The balls' intensity (1 inside, 0 outside) and their label volume.
+fn balls() -> (Volume, Volume) {
+    let mut labels = vec![0u8; N * N * N];
+    for z in 0..N {
+        for y in 0..N {
+            for x in 0..N {
+                let p = [x as f32 + 0.5, y as f32 + 0.5, z as f32 + 0.5];
+                for (id, c, r) in BALLS {
+                    let d2: f32 = (0..3).map(|a| (p[a] - c[a]).powi(2)).sum();
+                    if d2 <= r * r {
+                        labels[x + N * (y + N * z)] = id;
+                    }
+                }
+            }
+        }
+    }
+    let intensity = labels.iter().map(|&l| (l > 0) as u8 as f32).collect();
+    let v = |d| Volume::new([N; 3], [1.0; 3], d).unwrap();
+    (v(VoxelData::F32(intensity)), v(VoxelData::U8(labels)))
+}
+
+/// Per ball, the pixels of its disc along the axis `axis` looks down.
+fn disc_areas(labels: &Volume, axis: usize) -> Vec<usize> {
+    let VoxelData::U8(l) = &labels.data else {
+        unreachable!()
+    };
+    let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
+    BALLS
+        .iter()
+        .map(|&(id, ..)| {
+            let mut seen = vec![false; N * N];
+            for z in 0..N {
+                for y in 0..N {
+                    for x in 0..N {
+                        if l[x + N * (y + N * z)] == id {
+                            let p = [x, y, z];
+                            seen[p[a] + N * p[b]] = true;
+                        }
+                    }
+                }
+            }
+            seen.iter().filter(|&&s| s).count()
+        })
+        .collect()
+}
+
+/// One orthographic frame along z of the balls with `spec`'s segments, 192² pixels (4 per
+/// voxel), through the session as the front ends open it.
+fn frame(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> FrameImage {
+    let (intensity, _) = balls();
+    let overrides = SceneOverrides {
+        camera: Some(CameraAngles {
+            azimuth: 0.0,
+            elevation: 90.0,
+            distance: None,
+        }),
+        ortho: true,
+        size: Some([192, 192]),
+        style: vellum::render::overrides::StyleOverrides {
+            style: style.map(str::to_string),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let mut scene = overrides
+        .apply(Scene::new(InputSpec::new(String::from("an array"))))
+        .unwrap();
+    scene.labels = Some(spec);
+    let mut session = Session::open(
+        &gpu.ctx,
+        &scene,
+        Some(intensity),
+        &SessionOptions::default(),
+    )
+    .unwrap();
+    let (view, note) = session.view(scene.view(false).unwrap());
+    assert!(note.unwrap().contains("ray caster"));
+    let opts = StillOptions {
+        max_wait: None,
+        progress: None,
+    };
+    session.still(&view, opts).unwrap().0
+}
+
+fn spec(dir: &Path, hide: &[u32], focus: &[u32]) -> LabelSpec {
+    let path = dir.join("labels.nrrd");
+    if !path.exists() {
+        vellum::volume::io::write(&path, &balls().1).unwrap();
+    }
+    LabelSpec {
+        path: path.to_string_lossy().into_owned(),
+        hide: hide.to_vec(),
+        focus: focus.to_vec(),
+        colours: Vec::new(),
+    }
+}
+
+/// The pixels of a frame's composite that are mostly covered.
+fn covered(f: &FrameImage) -> Vec<usize> {
+    (0..f.composite.len())
+        .filter(|&i| f.composite[i][3] >= 0.5)
+        .collect()
+}
+
+/// Which ball's colour a premultiplied pixel shows (by its chromaticity), if any is within 0.12.
+fn ball_of(p: [f32; 4]) -> Option<u8> {
+    if p[3] < 0.5 {
+        return None;
+    }
+    let unit = |c: [f32; 3]| {
+        let m = c[0].max(c[1]).max(c[2]).max(1e-6);
+        c.map(|v| v / m)
+    };
+    let seen = unit([p[0], p[1], p[2]]);
+    BALLS.iter().map(|b| b.0).find(|&id| {
+        let c = colour_of(id as u32).map(|v| v as f32 / 255.0);
+        let want = unit([c[0], c[1], c[2]]);
+        (0..3).all(|i| (seen[i] - want[i]).abs() < 0.12)
+    })
+}
+
+#[test]
+fn segments_take_their_colours_and_cover_their_discs() {
+    let gpu = Gpu::new();
+    let dir = tempfile::tempdir().unwrap();
+    let all = frame(&gpu, spec(dir.path(), &[], &[]), None);
+    let lit = covered(&all);
+    // Every lit pixel shows one ball's colour (diffuse light scales it; the specular highlight
+    // whitens a few).
+    let mut per = [0usize; 3];
+    for &i in &lit {
+        if let Some(id) = ball_of(all.composite[i]) {
+            per[BALLS.iter().position(|b| b.0 == id).unwrap()] += 1;
+        }
+    }
+    let coloured: usize = per.iter().sum();
+
+    assert!(
+        coloured as f64 >= 0.9 * lit.len() as f64,
+        "{coloured} of {} lit pixels in a ball's colour",
+        lit.len()
+    );
+    // Each ball's share of the image is its disc's share (4 × 4 pixels a voxel), along z.
+    let discs = disc_areas(&balls().1, 2);
+    let total: usize = discs.iter().sum();
+    for (k, &d) in discs.iter().enumerate() {
+        let want = d as f64 / total as f64;
+        let got = per[k] as f64 / coloured as f64;
+        assert!(
+            (got - want).abs() < 0.03,
+            "ball {k}: {got:.3} of the pixels, its disc {want:.3}"
+        );
+    }
+    // Hidden segments add nothing: only ball 2 is left, and it covers what it covered.
+    let one = frame(&gpu, spec(dir.path(), &[5, 9], &[]), None);
+    let lit_one = covered(&one);
+    assert!(lit_one
+        .iter()
+        .all(|&i| ball_of(all.composite[i]) == Some(2) || ball_of(all.composite[i]).is_none()));
+    let got = lit_one.len() as f64 / lit.len() as f64;
+    let want = discs[0] as f64 / total as f64;
+    assert!(
+        (got - want).abs() < 0.03,
+        "ball 2 alone: {got:.3}, its disc {want:.3}"
+    );
+}
+
+#[test]
+fn focus_labels_make_those_segments_the_focus_level() {
+    let gpu = Gpu::new();
+    let dir = tempfile::tempdir().unwrap();
+    let f = frame(&gpu, spec(dir.path(), &[], &[5]), Some("14"));
+    let layers = f.layers.expect("two levels");
+    let focus = layers.focus_depth.iter().filter(|d| d.is_finite()).count();
+    let context = layers.context.iter().filter(|p| p[3] >= 0.5).count();
+    let discs = disc_areas(&balls().1, 2);
+    let want = discs[1] as f64 / discs.iter().sum::<usize>() as f64;
+    let got = focus as f64 / (focus + context) as f64;
+
+    assert!(
+        (got - want).abs() < 0.03,
+        "focus {got:.3} of the covered pixels, ball 5's disc {want:.3}"
+    );
+    // Style 14 keeps the focus's colour and greys the context.
+    let saturated = |p: &[f32; 4]| {
+        p[3] > 0.5 && p[0].max(p[1]).max(p[2]) - p[0].min(p[1]).min(p[2]) > 0.2 * p[3]
+    };
+    let vivid = f.composite.iter().filter(|p| saturated(p)).count();
+    assert!(
+        (vivid as f64 - focus as f64).abs() < 0.1 * focus as f64,
+        "{vivid} vivid pixels, {focus} of focus"
+    );
+}
+
+#[test]
+fn label_mistakes_are_one_sentence() {
+    let dir = tempfile::tempdir().unwrap();
+    let (intensity, labels) = balls();
+    let img = dir.path().join("i.nrrd");
+    let lab = dir.path().join("l.nrrd");
+    vellum::volume::io::write(&img, &intensity).unwrap();
+    vellum::volume::io::write(&lab, &labels).unwrap();
+    let (i, l) = (img.to_str().unwrap(), lab.to_str().unwrap());
+    let small = dir.path().join("small.nrrd");
+    vellum::volume::io::write(
+        &small,
+        &Volume::new([8; 3], [1.0; 3], VoxelData::U8(vec![1; 512])).unwrap(),
+    )
+    .unwrap();
+    let frac = dir.path().join("frac.nrrd");
+    vellum::volume::io::write(
+        &frac,
+        &Volume::new([N; 3], [1.0; 3], VoxelData::F32(vec![0.5; N * N * N])).unwrap(),
+    )
+    .unwrap();
+    let out = dir.path().join("o.png");
+    let o = out.to_str().unwrap();
+    let cases: [(Vec<&str>, &[&str]); 5] = [
+        (
+            vec!["--focus-labels", "5"],
+            &["--focus-labels", "add --labels PATH"],
+        ),
+        (
+            vec!["--labels", l, "--focus-labels", "4"],
+            &["label 4 is not in", "it holds 0, 2, 5, 9"],
+        ),
+        (
+            vec!["--labels", small.to_str().unwrap()],
+            &["8 x 8 x 8", "48 x 48 x 48", "on the input's grid"],
+        ),
+        (vec!["--labels", frac.to_str().unwrap()], &["whole numbers"]),
+        (
+            vec!["--labels", l, "--focus-labels", "5", "--iso", "0.5"],
+            &["both choose the focus level"],
+        ),
+    ];
+    for (flags, phrases) in cases {
+        let mut args = vec!["render", i, "--size", "32x32", "--out", o];
+        args.extend(flags);
+        common::fails_with_all(&common::vellum(&args), phrases);
+        assert!(!out.exists());
+    }
+    let bad = common::vellum(&[
+        "render",
+        i,
+        "--labels",
+        l,
+        "--label-colour",
+        "5=#12345",
+        "--out",
+        o,
+    ]);
+    common::fails_with_all(&bad, &["5=#12345", "ID=#RRGGBB"]);
+}
+
+/// The ids of `colour_of` (or `extra`'s colours) that a PNG shows, by chromaticity, with the
+/// pixels of each.
+fn ids_shown(png: &Path, ids: &[u32], extra: &[(u32, [u8; 3])]) -> Vec<(u32, usize)> {
+    let rgb = image::open(png).unwrap().to_rgb8();
+    let colour = |id: u32| match extra.iter().find(|e| e.0 == id) {
+        Some(e) => e.1,
+        None => {
+            let c = colour_of(id);
+            [c[0], c[1], c[2]]
+        }
+    };
+    let unit = |c: [f32; 3]| {
+        let m = c[0].max(c[1]).max(c[2]).max(1e-6);
+        c.map(|v| v / m)
+    };
+    let mut shown = Vec::new();
+    for &id in ids {
+        let want = unit(colour(id).map(|v| v as f32));
+        let n = rgb
+            .pixels()
+            .filter(|p| p.0.iter().any(|&c| c > 60))
+            .filter(|p| {
+                let seen = unit(p.0.map(|v| v as f32));
+                (0..3).all(|i| (seen[i] - want[i]).abs() < 0.06)
+            })
+            .count();
+        if n >= 4 {
+            shown.push((id, n));
+        }
+    }
+    shown
+}
+
+#[test]
+fn labels_written_by_python_ome_zarr_are_read_with_their_colours() {
+    if !common::python_with("ome_zarr, zarr, numpy") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    for version in ["0.4", "0.5"] {
+        let store = dir.path().join(format!("python-{version}.zarr"));
+        common::support_script(
+            "write_ome_zarr_labels.py",
+            &[store.as_os_str(), version.as_ref()],
+        );
+        // The label image of the store's `labels` group, by name: uint32 ids, one beyond 255.
+        let labels = vellum::volume::labels::Labels::open(Path::new("seg"), Some(&store)).unwrap();
+        assert_eq!(labels.ids, [0, 7, 300], "NGFF {version}");
+        let raw = std::fs::read(format!("{}.labels.raw", store.display())).unwrap();
+        let want: Vec<u32> = raw
+            .chunks_exact(4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        let got: Vec<u32> = labels
+            .index
+            .iter()
+            .map(|&i| labels.ids[i as usize])
+            .collect();
+        assert_eq!(got, want, "NGFF {version}: every voxel's id");
+        assert_eq!(labels.colour(7), [255, 0, 0, 255], "the image-label colour");
+        // Drawn: 7 in the file's red, 300 in its own colour; hidden, 7 is gone.
+        let png = dir.path().join(format!("{version}.png"));
+        let p = png.to_str().unwrap();
+        let s = store.to_str().unwrap();
+        let base = [
+            "render", s, "--labels", "seg", "--size", "96x96", "--camera", "0,90", "--ortho",
+            "--out", p,
+        ];
+        let o = common::vellum(&base);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let shown = ids_shown(&png, &[7, 300], &[(7, [255, 0, 0])]);
+        assert_eq!(
+            shown.iter().map(|s| s.0).collect::<Vec<_>>(),
+            [7, 300],
+            "NGFF {version}: {shown:?}"
+        );
+        let mut hide = base.to_vec();
+        hide.extend(["--hide-labels", "7", "--label-colour", "300=#0000ff"]);
+        let o = common::vellum(&hide);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let shown = ids_shown(&png, &[7, 300], &[(7, [255, 0, 0]), (300, [0, 0, 255])]);
+        assert_eq!(
+            shown.iter().map(|s| s.0).collect::<Vec<_>>(),
+            [300],
+            "NGFF {version}: {shown:?}"
+        );
+    }
+}
+
+#[test]
+fn the_frog_tissue_labels_show_their_organs_in_their_colours() {
+    let Some(data) = common::shared_data() else {
+        return;
+    };
+    let frog = data.join("formats/metaimage/frogtissue.mhd");
+    let labels = vellum::volume::labels::Labels::open(&frog, None).unwrap();
+    assert!(labels.ids.len() > 10, "{:?}", labels.ids);
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("frog.png");
+    let f = frog.to_str().unwrap();
+    let o = common::vellum(&[
+        "render",
+        f,
+        "--labels",
+        f,
+        "--size",
+        "256x256",
+        "--camera",
+        "30,20",
+        "--out",
+        png.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ids: Vec<u32> = labels.ids[1..].to_vec();
+    let shown = ids_shown(&png, &ids, &[]);
+    assert!(shown.len() >= 6, "organs in their own colours: {shown:?}");
+}
