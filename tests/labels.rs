@@ -150,7 +150,9 @@ fn ball_of(p: [f32; 4]) -> Option<u8> {
 fn segments_take_their_colours_and_cover_their_discs() {
     let gpu = Gpu::new();
     let dir = tempfile::tempdir().unwrap();
-    let all = frame(&gpu, spec(dir.path(), &[], &[]), None);
+    // Id 0 hidden: the segments alone (the intensity here is the balls' mask, so what no
+    // segment holds would only be the half-voxel shell that linear filtering puts around them).
+    let all = frame(&gpu, spec(dir.path(), &[0], &[]), None);
     let lit = covered(&all);
     // Every lit pixel shows one ball's colour (diffuse light scales it; the specular highlight
     // whitens a few).
@@ -179,7 +181,7 @@ fn segments_take_their_colours_and_cover_their_discs() {
         );
     }
     // Hidden segments add nothing: only ball 2 is left, and it covers what it covered.
-    let one = frame(&gpu, spec(dir.path(), &[5, 9], &[]), None);
+    let one = frame(&gpu, spec(dir.path(), &[0, 5, 9], &[]), None);
     let lit_one = covered(&one);
     assert!(lit_one
         .iter()
@@ -190,13 +192,27 @@ fn segments_take_their_colours_and_cover_their_discs() {
         (got - want).abs() < 0.03,
         "ball 2 alone: {got:.3}, its disc {want:.3}"
     );
+    // Id 0 drawn (the default): that shell shows in the transfer function's grey, around the
+    // segments, which still show their colours.
+    let with_0 = frame(&gpu, spec(dir.path(), &[], &[]), None);
+    let grey = |p: &[f32; 4]| {
+        p[3] >= 0.5 && p[0].max(p[1]).max(p[2]) - p[0].min(p[1]).min(p[2]) < 0.05 * p[3]
+    };
+    let greys = with_0.composite.iter().filter(|p| grey(p)).count();
+    assert!(greys > 0 && all.composite.iter().filter(|p| grey(p)).count() == 0);
+    let shown: std::collections::BTreeSet<u8> = with_0
+        .composite
+        .iter()
+        .filter_map(|&p| ball_of(p))
+        .collect();
+    assert_eq!(shown.into_iter().collect::<Vec<_>>(), [2, 5, 9]);
 }
 
 #[test]
 fn focus_labels_make_those_segments_the_focus_level() {
     let gpu = Gpu::new();
     let dir = tempfile::tempdir().unwrap();
-    let f = frame(&gpu, spec(dir.path(), &[], &[5]), Some("14"));
+    let f = frame(&gpu, spec(dir.path(), &[0], &[5]), Some("14"));
     let layers = f.layers.expect("two levels");
     let focus = layers.focus_depth.iter().filter(|d| d.is_finite()).count();
     let context = layers.context.iter().filter(|p| p[3] >= 0.5).count();
@@ -245,7 +261,7 @@ fn label_mistakes_are_one_sentence() {
     let cases: [(Vec<&str>, &[&str]); 5] = [
         (
             vec!["--focus-labels", "5"],
-            &["--focus-labels", "add --labels PATH"],
+            &["--focus-labels", "add --labels PATH|NAME"],
         ),
         (
             vec!["--labels", l, "--focus-labels", "4"],
@@ -396,4 +412,47 @@ fn the_frog_tissue_labels_show_their_organs_in_their_colours() {
     let ids: Vec<u32> = labels.ids[1..].to_vec();
     let shown = ids_shown(&png, &ids, &[]);
     assert!(shown.len() >= 6, "organs in their own colours: {shown:?}");
+}
+
+#[test]
+fn the_seg3d_skull_mask_colours_its_head_beside_the_intensities() {
+    let Some(data) = common::shared_data() else {
+        return;
+    };
+    let d = data.join("volumes/mri_head_seg3d");
+    let head = d.join("mri_head_seg3d.nhdr");
+    let mask = d.join("mri_head_seg3d_skull_mask.nhdr");
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("head.png");
+    let (h, m, p) = (
+        head.to_str().unwrap(),
+        mask.to_str().unwrap(),
+        png.to_str().unwrap(),
+    );
+    let render = |extra: &[&str]| {
+        let mut args = vec![
+            "render", h, "--labels", m, "--size", "160x160", "--camera", "120,10", "--out", p,
+        ];
+        args.extend(extra);
+        let o = common::vellum(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let rgb = image::open(&png).unwrap().to_rgb8();
+        let lit: Vec<[u8; 3]> = rgb
+            .pixels()
+            .map(|p| p.0)
+            .filter(|p| p.iter().any(|&c| c > 40))
+            .collect();
+        let grey = lit
+            .iter()
+            .filter(|p| p.iter().max().unwrap() - p.iter().min().unwrap() < 12)
+            .count();
+        (lit.len(), grey, ids_shown(&png, &[1], &[]))
+    };
+    // The head in its transfer function's grey, in front of the segment.
+    let (lit, grey, _) = render(&[]);
+    assert!(grey as f64 > 0.5 * lit as f64, "{grey} grey of {lit}");
+    // What no segment holds hidden: the segment alone, all in its colour.
+    let (lit, grey, shown) = render(&["--hide-labels", "0"]);
+    assert!(lit > 2000 && grey < lit / 20, "{grey} grey of {lit}");
+    assert!(shown[0].1 as f64 > 0.8 * lit as f64, "{shown:?} of {lit}");
 }

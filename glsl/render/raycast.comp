@@ -43,7 +43,7 @@ struct RayState {
 layout(set = 0, binding = 16) buffer RayStates { RayState rays[]; };
 // Segments of a label volume (classify/labels.rs): each voxel's index among the ids the volume
 // holds, 16 bits, two per word; and per index its colour (RGBA8) and flags (bit 0 drawn, bit 1
-// focus), after a header of the count and whether the segments decide the level (bit 0).
+// focus, bit 2 keeps the transfer function's colour: id 0, no segment), after a header of the count and whether the segments decide the level (bit 0).
 // Frames without labels bind one-word stand-ins and never read them.
 layout(set = 0, binding = 17) readonly buffer LabelVoxels { uint label_words[]; };
 layout(set = 0, binding = 18) readonly buffer LabelTable { uint label_table[]; };
@@ -573,7 +573,7 @@ void main() {
             if (c.a < MIN_ALPHA) {
                 continue;
             }
-            if (V_LABELS) {
+            if (V_LABELS && (label_table[3u + 2u * label] & 4u) == 0u) {
                 c.rgb = unpackUnorm4x8(label_table[2u + 2u * label]).rgb;
             }
             vec3 ph, di;

@@ -345,3 +345,33 @@ def test_a_store_on_a_server_reads_and_renders_as_from_disk(tmp_path):
     finally:
         vellum.remote()
         server.shutdown()
+
+
+def test_segments_of_a_label_volume_are_keywords(tmp_path):
+    """Issue 42: labels=, hide_labels=, focus_labels= and label_colour= draw segments as the flags do."""
+    import re
+
+    z, y, x = np.mgrid[0:32, 0:32, 0:32]
+    labels = np.zeros((32, 32, 32), np.uint8)
+    labels[(x - 10) ** 2 + (y - 16) ** 2 + (z - 16) ** 2 <= 36] = 3
+    labels[(x - 22) ** 2 + (y - 16) ** 2 + (z - 16) ** 2 <= 36] = 7
+    path = tmp_path / "seg.nrrd"
+    header = b"NRRD0004\ntype: uint8\ndimension: 3\nsizes: 32 32 32\nencoding: raw\n\n"
+    path.write_bytes(header + labels.tobytes())
+    v = vellum.Volume((labels > 0).astype(np.float32))
+    options = dict(size=(64, 64), camera=(0, 90), ortho=True)
+    red = vellum.render(v, labels=str(path), hide_labels=0, label_colour={3: "#ff0000", 7: "#0000ff"},
+                        **options).rgba.astype(int)
+    lit = red[..., :3].max(-1) > 40
+    reds = lit & (red[..., 0] > 2 * red[..., 2])
+    blues = lit & (red[..., 2] > 2 * red[..., 0])
+    assert reds.sum() > 50 and blues.sum() > 50 and (reds | blues).sum() >= 0.9 * lit.sum()
+    only7 = vellum.render(v, labels=str(path), hide_labels=[0, 3], label_colour={7: "#0000ff"}, **options)
+    lit7 = only7.rgba[..., :3].max(-1) > 40
+    assert 0 < lit7.sum() < 0.6 * lit.sum() and not (lit7 & reds).any()
+    focus = vellum.render(v, labels=str(path), hide_labels=0, focus_labels=7, style=14, **options)
+    assert focus.rgba[..., :3].max() > 40
+    with pytest.raises(vellum.Error, match=re.escape("focus_labels picks segments of a label volume; add labels=PATH|NAME")):
+        vellum.render(v, focus_labels=3)
+    with pytest.raises(vellum.Error, match="label_colour"):
+        vellum.render(v, labels=str(path), label_colour={3: "red"})

@@ -4,8 +4,11 @@
 //!
 //! A sample keeps the opacity its transfer function gives its intensity and takes its
 //! segment's colour, which the headlight then shades; a hidden segment's samples add nothing.
-//! With `focus` ids, the segment decides a sample's level instead of the focus interval: those
-//! segments are the focus, every other visible one the context.
+//! Id 0 is no segment: its samples keep the transfer function's colour, so the unlabelled
+//! tissue around the segments stays visible as the intensity says (a label volume drawn over
+//! itself, where that would only outline each segment, hides id 0 instead). With `focus` ids,
+//! the segment decides a sample's level instead of the focus interval: those segments are the
+//! focus, every other visible sample the context.
 
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -20,7 +23,7 @@ pub struct LabelSpec {
     /// The label volume: a file, a store, or the name of a label image in the input store's
     /// `labels` group.
     pub path: String,
-    /// Ids not drawn (`--hide-labels`). Id 0, the background, is never drawn.
+    /// Ids not drawn (`--hide-labels`); 0 hides what no segment holds.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub hide: Vec<u32>,
     /// Ids drawn as the focus level, every other visible one as the context (`--focus-labels`).
@@ -35,6 +38,8 @@ pub struct LabelSpec {
 pub const SHOWN: u32 = 1;
 /// A table entry's flag: the segment is the focus level.
 pub const FOCUS: u32 = 2;
+/// A table entry's flag: the sample keeps its transfer function's colour (id 0, no segment).
+pub const OWN_COLOUR: u32 = 4;
 /// The table's header flag: the segments decide the level (there are focus ids).
 pub const LABELS_DECIDE_FOCUS: u32 = 1;
 
@@ -59,8 +64,9 @@ impl LabelSpec {
     }
 
     /// The ray caster's table: the count and the header flags, then per index its colour
-    /// (RGBA8, packed as `unpackUnorm4x8` reads it) and its flags.
-    pub fn table(&self, labels: &Labels) -> Vec<u32> {
+    /// (RGBA8, packed as `unpackUnorm4x8` reads it) and its flags. `background`: whether id 0
+    /// is drawn (in its transfer function's colour) unless hidden.
+    pub fn table(&self, labels: &Labels, background: bool) -> Vec<u32> {
         let mut words = Vec::with_capacity(2 + 2 * labels.ids.len());
         let decide = if self.focus.is_empty() {
             0
@@ -69,14 +75,19 @@ impl LabelSpec {
         };
         words.extend([labels.ids.len() as u32, decide]);
         for &id in &labels.ids {
-            let c = match self.colours.iter().find(|c| c.0 == id) {
+            let given = self.colours.iter().find(|c| c.0 == id);
+            let c = match given {
                 Some((_, rgb)) => [rgb[0], rgb[1], rgb[2], 255],
                 None => labels.colour(id),
             };
-            let shown = id != 0 && !self.hide.contains(&id);
-            let focus = self.focus.contains(&id);
+            let shown = (id != 0 || background) && !self.hide.contains(&id);
+            let flags = [
+                (shown, SHOWN),
+                (self.focus.contains(&id), FOCUS),
+                (id == 0 && given.is_none(), OWN_COLOUR),
+            ];
             words.push(u32::from_le_bytes(c));
-            words.push(if shown { SHOWN } else { 0 } | if focus { FOCUS } else { 0 });
+            words.push(flags.iter().filter(|f| f.0).map(|f| f.1).sum());
         }
         words
     }
@@ -95,8 +106,14 @@ pub struct GpuLabels {
 }
 
 impl GpuLabels {
-    /// `labels` on the GPU as `spec` draws them.
-    pub fn new(ctx: &Arc<Context>, labels: Arc<Labels>, spec: &LabelSpec) -> Result<Self> {
+    /// `labels` on the GPU as `spec` draws them; `background`: whether id 0 is drawn
+    /// ([`LabelSpec::table`]).
+    pub fn new(
+        ctx: &Arc<Context>,
+        labels: Arc<Labels>,
+        spec: &LabelSpec,
+        background: bool,
+    ) -> Result<Self> {
         spec.check(&labels)?;
         let voxels = Buffer::storage_from_bytes(
             ctx,
@@ -106,7 +123,7 @@ impl GpuLabels {
         let table = Buffer::storage_from_bytes(
             ctx,
             "label table",
-            bytemuck::cast_slice(&spec.table(&labels)),
+            bytemuck::cast_slice(&spec.table(&labels, background)),
         )?;
         Ok(GpuLabels {
             voxels,
@@ -135,13 +152,22 @@ mod tests {
             focus: vec![3],
             colours: vec![(3, [10, 20, 30])],
         };
-        let t = spec.table(&labels());
+        let t = spec.table(&labels(), true);
         assert_eq!(t[..2], [3, LABELS_DECIDE_FOCUS]);
-        assert_eq!(t[3], 0, "the background is never drawn");
+        assert_eq!(
+            t[3],
+            SHOWN | OWN_COLOUR,
+            "no segment: the TF's colour, context"
+        );
         assert_eq!(t[4], u32::from_le_bytes([10, 20, 30, 255]));
         assert_eq!(t[5], SHOWN | FOCUS);
         assert_eq!(t[7], 0, "7 is hidden");
-        assert_eq!(LabelSpec::default().table(&labels())[1], 0);
+        assert_eq!(LabelSpec::default().table(&labels(), true)[1], 0);
+        assert_eq!(
+            spec.table(&labels(), false)[3],
+            OWN_COLOUR,
+            "over itself, 0 is hidden"
+        );
     }
 
     #[test]

@@ -290,7 +290,7 @@ impl SceneOverrides {
                 Some((key, _)) => Err(invalid(format!(
                     "{} picks segments of a label volume; add {}",
                     f.name(key),
-                    f.with("labels", "PATH")
+                    f.with("labels", "PATH|NAME")
                 ))),
                 None => Ok(()),
             };

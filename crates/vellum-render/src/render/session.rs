@@ -250,7 +250,10 @@ fn attach_labels(
             spec.path
         )));
     }
-    let gpu = crate::classify::labels::GpuLabels::new(ctx, Arc::new(labels), spec)?;
+    // A label volume drawn over itself hides id 0, which would only outline each segment.
+    let same = |p: &str| std::fs::canonicalize(p).ok();
+    let over_itself = same(&spec.path).is_some_and(|l| Some(l) == same(&scene.input.path));
+    let gpu = crate::classify::labels::GpuLabels::new(ctx, Arc::new(labels), spec, !over_itself)?;
     g.classify.labels = Some(gpu);
     Ok(())
 }
