@@ -346,6 +346,50 @@ vec2 occupied_span(vec3 o, vec3 dir, float t0, float t1, uint need, float hair) 
     return vec2(first, last);
 }
 
+// `add` and `max` mixing, one level and unlit. `add`: each channel composited front to back on
+// its own (emission and absorption, the fluorescence look: no channel hides another), and the
+// channels' results added. `max`: each channel's largest value over the ray's samples,
+// classified by its transfer function, and the channels' colours added.
+vec4 channel_projection(vec3 o, vec3 dir, float a, float b, float m, float m_last, float t_in, float t_out) {
+    int n = min(textureSize(channel_tf, 0).y, 4);
+    vec4 most = vec4(0.0);
+    vec4 acc[4] = vec4[4](vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0));
+    float ert = p.planes.w;
+    for (; m <= m_last; m += 1.0) {
+        float t = a + b * m;
+        if (t < t_in || t > t_out) {
+            continue;
+        }
+        vec3 at = (o + t * dir) / (2.0 * u.half_extent.xyz) + 0.5;
+        vec4 v = textureLod(channels, at, 0.0);
+        if (V_MIX_MAX) {
+            most = max(most, v);
+            continue;
+        }
+        bool all_opaque = true;
+        for (int k = 0; k < n; k++) {
+            vec4 c = channel_class(k, v[k]);
+            float alpha = correct_opacity(c.a, u.material.w);
+            acc[k] += (1.0 - acc[k].a) * vec4(c.rgb * alpha, alpha);
+            all_opaque = all_opaque && acc[k].a >= ert;
+        }
+        if (all_opaque) {
+            break;
+        }
+    }
+    vec4 sum = vec4(0.0);
+    for (int k = 0; k < n; k++) {
+        if (V_MIX_MAX) {
+            vec4 c = channel_class(k, most[k]);
+            sum += vec4(c.rgb * c.a, c.a);
+        } else {
+            sum += acc[k];
+        }
+    }
+    float alpha = min(sum.a, 1.0);
+    return vec4(min(sum.rgb, vec3(alpha)), alpha);
+}
+
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = imageSize(out_composite);
@@ -440,6 +484,10 @@ void main() {
         // The previous sample on the ray, for refining an isosurface hit (t < 0: none).
         float prev_t = -1.0, prev_s = 0.0;
         bool done = false;
+        if (V_MIX_MAX || V_MIX_ADD) {
+            fp = channel_projection(o, dir, a, b, m, m_last, t_in, t_out);
+            done = true;
+        }
         if (V_BRICKED && (pt_mode & MODE_RESUME) != 0u) {
             RayState r = rays[ray];
             fp = r.fp;
@@ -510,7 +558,7 @@ void main() {
                 // context samples behind a context that reached `ert` (early termination).
                 bool counts = !V_TWO_LEVEL || focus || (first && ctx.a < ert);
                 bool maybe;
-                if (V_OTF || V_MOD_OPACITY) {
+                if (V_OTF || V_MOD_OPACITY || V_CHANNELS) {
                     c = classify(s, focus);
                     maybe = c.a >= MIN_ALPHA;
                 } else {
@@ -563,7 +611,7 @@ void main() {
                     break;
                 }
             }
-            if (!(V_OTF || V_MOD_OPACITY) || refine_on) {
+            if (!(V_OTF || V_MOD_OPACITY || V_CHANNELS) || refine_on) {
                 // The exact class (at the surface when refined: an occlusion or importance
                 // lookup may move it).
                 c = classify(s, focus);
@@ -595,7 +643,10 @@ void main() {
                 }
             } else {
                 ctx += (1.0 - ctx.a) * vec4(ph * c.a, c.a);
-                if (ctx.a >= ert && int(u.focus.z) == FOCUS_NONE) {
+                // (Where segments decide the level, the focus behind an opaque context still
+                // counts for its own layers.)
+                bool segments = V_LABELS && (label_table[1] & 1u) != 0u;
+                if (ctx.a >= ert && int(u.focus.z) == FOCUS_NONE && !segments) {
                     break;
                 }
             }

@@ -42,6 +42,36 @@ const bool V_BRICKED = (VARIANT & 256u) != 0u;
 const bool V_BRICK_REUSE = (VARIANT & 512u) != 0u;
 const bool V_BRICK_SPAN = (VARIANT & 1024u) != 0u;
 const bool V_LABELS = (VARIANT & 2048u) != 0u;
+const bool V_MIX_OVER = (VARIANT & 4096u) != 0u;
+const bool V_MIX_ADD = (VARIANT & 8192u) != 0u;
+const bool V_MIX_MAX = (VARIANT & 16384u) != 0u;
+const bool V_CHANNELS = V_MIX_OVER || V_MIX_ADD || V_MIX_MAX;
+// Channels of a store mixed in one ray (classify/channels.rs): up to four, component k of
+// `channels` over channel k's own range, with its transfer function in row k of `channel_tf`.
+// Frames without channels bind stand-ins and never read them.
+layout(set = 0, binding = 19) uniform sampler3D channels;
+layout(set = 0, binding = 20) uniform sampler2D channel_tf;
+
+// Channel k's class of value v (straight colour, opacity).
+vec4 channel_class(int k, float v) {
+    int n = textureSize(channel_tf, 0).y;
+    return textureLod(channel_tf, vec2(v, (float(k) + 0.5) / float(n)), 0.0);
+}
+
+// The channels' classes at `at` mixed by `over` into one sample's straight colour and opacity:
+// composited with the first channel on top. (`add` and `max` are projections of their own,
+// raycast.comp's `channel_projection`.)
+vec4 mixed_channels(vec3 at) {
+    vec4 v = textureLod(channels, at, 0.0);
+    int n = textureSize(channel_tf, 0).y;
+    vec4 acc = vec4(0.0);
+    for (int k = 0; k < 4 && k < n; k++) {
+        vec4 t = channel_class(k, v[k]);
+        acc += (1.0 - acc.a) * vec4(t.rgb * t.a, t.a);
+    }
+    float a = min(acc.a, 1.0);
+    return a > 0.0 ? vec4(min(acc.rgb / a, vec3(1.0)), a) : vec4(0.0);
+}
 #else
 const bool V_OTF = true;
 const bool V_MOD_OPACITY = true;
@@ -81,7 +111,11 @@ vec4 classify(float s, bool focus) {
     if (V_OTF && u.focus.w > 0.5) {
         rgba = textureLod(occlusion_tf, occlusion_tf_coord(s, textureLod(occlusion, tex, 0.0).r), 0.0);
     } else {
+#ifdef RAYCAST
+        rgba = V_CHANNELS ? mixed_channels(tex) : textureLod(transfer, vec2(s, 0.5), 0.0);
+#else
         rgba = textureLod(transfer, vec2(s, 0.5), 0.0);
+#endif
     }
     if (V_MOD_OPACITY && u.mod_flags.y != 0 && modulated(focus)) {
         rgba.a = modulate_opacity(rgba.a, importance_n(textureLod(importance, tex, 0.0).r), u.mod_opacity);

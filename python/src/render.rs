@@ -163,7 +163,7 @@ use image::ImageEncoder;
 
 /// The keyword options of `render` and `Renderer`: the command line's scene flags in snake case,
 /// each filling the field of [`SceneOverrides`] its flag fills, and the session's two.
-const OPTIONS: &str = "time, channels, labels, hide_labels, focus_labels, label_colour, iso, focus, tf, otf, features, camera, view, ortho, pan, size, slices, one_pass, renderer, jitter, ert, no_skip_empty, refine_iso, sampling, background, style, edge_color, edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation, line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, color_mod, gamma, opacity_mod, stipple, seed, stipple_white, stipple_black, importance_radius, modulate, modulate_lighting, gpu_budget, lod";
+const OPTIONS: &str = "time, channels, mix, channel_tfs, focus_channel, labels, hide_labels, focus_labels, label_colour, iso, focus, tf, otf, features, camera, view, ortho, pan, size, slices, one_pass, renderer, jitter, ert, no_skip_empty, refine_iso, sampling, background, style, edge_color, edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation, line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, color_mod, gamma, opacity_mod, stipple, seed, stipple_white, stipple_black, importance_radius, modulate, modulate_lighting, gpu_budget, lod";
 
 /// `scene` with the keyword `options` applied over it by the overrides the command line's flags
 /// fill too, and the session's options among them (`gpu_budget` in MiB, `lod`).
@@ -242,6 +242,13 @@ impl<'py> Value<'_, 'py> {
         };
         match self.key {
             "labels" => o.labels = Some(self.get("a path or a label image's name")?),
+            "mix" => o.mix = Some(self.get("\"over\", \"add\" or \"max\"")?),
+            "focus_channel" => o.focus_channel = Some(self.get("a channel (0, 1, ...)")?),
+            "channel_tfs" | "channel_tf" => {
+                let what = "a dict of channel to a preset or a file";
+                let tfs: std::collections::BTreeMap<usize, String> = self.get(what)?;
+                o.channel_tfs.extend(tfs);
+            }
             "hide_labels" => o.hide_labels = Some(ids(self)?),
             "focus_labels" => o.focus_labels = Some(ids(self)?),
             "label_colour" => {

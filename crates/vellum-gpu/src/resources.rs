@@ -365,7 +365,7 @@ pub(crate) fn format_size(format: vk::Format) -> usize {
         | vk::Format::B8G8R8A8_UNORM
         | vk::Format::R8G8B8A8_UNORM
         | vk::Format::R8G8B8A8_SRGB => 4,
-        vk::Format::R16G16B16A16_SFLOAT => 8,
+        vk::Format::R16G16B16A16_SFLOAT | vk::Format::R16G16B16A16_UNORM => 8,
         vk::Format::R32G32B32A32_SFLOAT => 16,
         other => panic!("format_size: {other:?} is not used by vellum"),
     }

@@ -4,7 +4,9 @@ use crate::flags::*;
 use anyhow::Result;
 use clap::Args;
 use std::path::PathBuf;
-use vellum::render::overrides::{parse_label_colour, CameraAngles, Front, SceneOverrides};
+use vellum::render::overrides::{
+    parse_channel_tf, parse_label_colour, CameraAngles, Front, SceneOverrides,
+};
 use vellum::render::scene::{InputSpec, NamedView, RawInput, Scene};
 
 /// The scene a `render` command line describes: the scene file (or defaults) with every given
@@ -22,9 +24,23 @@ pub(crate) struct SceneArgs {
     /// --out DIR/` writes one PNG per time point.
     #[arg(long, value_name = "T|all", value_parser = parse_time)]
     pub(crate) time: Option<TimeArg>,
-    /// An OME-Zarr store with a c axis: the channel to read, from 0 (one, for now).
-    #[arg(long, value_name = "C", value_delimiter = ',')]
+    /// An OME-Zarr store with a c axis: the channel to read, from 0; several (0,2) are mixed
+    /// in one ray by the ray caster (at most 4, in core), each with its own transfer function.
+    #[arg(long, value_name = "C[,C...]", value_delimiter = ',')]
     pub(crate) channels: Option<Vec<usize>>,
+    /// Several channels: over (composited at each sample, the first on top; default), add
+    /// (summed: the fluorescence look) or max (each channel's maximum along the ray).
+    #[arg(long, value_name = "over|add|max")]
+    pub(crate) mix: Option<String>,
+    /// Several channels: channel C's transfer function, a preset or a JSON file over the
+    /// channel's own range (repeatable; default: the store's omero colour and window, else a
+    /// ramp over its auto window in green, magenta, cyan, yellow).
+    #[arg(long, value_name = "C=PRESET|FILE")]
+    pub(crate) channel_tf: Vec<String>,
+    /// Several channels: the one the two levels, shading and importance work on (default: the
+    /// first listed).
+    #[arg(long, value_name = "C")]
+    pub(crate) focus_channel: Option<usize>,
     /// A scene file (JSON); every flag given on the command line overrides its value.
     #[arg(long = "scene", value_name = "FILE")]
     pub(crate) file: Option<PathBuf>,
@@ -171,6 +187,13 @@ impl SceneArgs {
                 ),
             },
             channels: a.channels.clone(),
+            mix: a.mix.clone(),
+            channel_tfs: a
+                .channel_tf
+                .iter()
+                .map(|c| parse_channel_tf(c))
+                .collect::<vellum::Result<_>>()?,
+            focus_channel: a.focus_channel,
             tf: a.tf.clone(),
             otf: path_arg(&a.otf),
             features: path_arg(&a.features),

@@ -17,6 +17,7 @@
 //! Command-line grammar (`--focus LO:HI`, `tf:FILE`) is parsed by the binary; this layer takes
 //! typed values. File formats (transfer-function and occlusion-TF JSON) are parsed here.
 
+pub mod channels;
 pub(crate) mod compose;
 pub mod features;
 pub mod labels;

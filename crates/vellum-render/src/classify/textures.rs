@@ -76,6 +76,8 @@ pub struct GpuClassification {
     /// Segments from a label volume beside the input, which the ray caster colours, hides and
     /// puts in the focus level by id (`classify::labels`).
     pub labels: Option<crate::classify::labels::GpuLabels>,
+    /// Channels of a store mixed in one ray by the ray caster (`classify::channels`).
+    pub channels: Option<crate::classify::channels::GpuChannels>,
 }
 
 impl GpuClassification {
@@ -95,6 +97,7 @@ impl GpuClassification {
             occlusion: Table::new(ctx, "occlusion transfer function", [1, 1], vec![[0.0; 4]])?,
             uses_occlusion: false,
             labels: None,
+            channels: None,
         })
     }
 

@@ -645,6 +645,18 @@ impl Renderer {
                 if classify.labels.as_ref().is_some_and(|l| l.decide_focus) {
                     options.skip_empty = false;
                 }
+                // Nor do they know the channels' transfer functions.
+                match &classify.channels {
+                    Some(c) => {
+                        options.skip_empty = false;
+                        c.image.transition(frame.cmd, Access::ComputeSampled);
+                        c.tfs.transition(frame.cmd, Access::ComputeSampled);
+                    }
+                    None => self
+                        .stand_ins
+                        .volume
+                        .transition(frame.cmd, Access::ComputeSampled),
+                }
                 let rays = RayFrame {
                     setup: &setup,
                     options,
@@ -654,6 +666,11 @@ impl Renderer {
                     tables,
                     stand_in: &self.stand_ins.paging,
                     labels: classify.labels.as_ref(),
+                    channels: classify
+                        .channels
+                        .as_ref()
+                        .ok_or([&self.stand_ins.volume, classify.transfer_image()]),
+                    sampler: &self.linear,
                     flags: BrickFlags::new(
                         classify.transfer_table(),
                         setup.focus,
@@ -945,6 +962,22 @@ fn record_rays(
                 ),
                 None => ([Bind::StorageBuffer(r.stand_in); 2], false),
             },
+            channels: match r.channels {
+                Ok(c) => (
+                    [
+                        Bind::Sampled(&c.image, r.sampler),
+                        Bind::Sampled(&c.tfs, r.sampler),
+                    ],
+                    Some(c.mix),
+                ),
+                Err([volume, table]) => (
+                    [
+                        Bind::Sampled(volume, r.sampler),
+                        Bind::Sampled(table, r.sampler),
+                    ],
+                    None,
+                ),
+            },
             brick_reuse: vol.paged().is_some_and(|p| p.reuse),
             brick_span: vol.paged().is_some_and(|p| p.span),
             push: r.setup.ray_push(&r.options, vol.bricks().counts, two_level),
@@ -974,6 +1007,10 @@ struct RayFrame<'a> {
     stand_in: &'a vellum_gpu::Buffer,
     /// A label volume beside the input.
     labels: Option<&'a crate::classify::labels::GpuLabels>,
+    /// Channels mixed in the ray, or the stand-ins (a 3D and a 2D image) bound without.
+    channels: Result<&'a crate::classify::channels::GpuChannels, [&'a Image; 2]>,
+    /// The sampler of the channels.
+    sampler: &'a Sampler,
     /// What a brick of a known range may hold under this frame's classification (the page
     /// table's flags of a volume in the brick cache).
     flags: BrickFlags,
@@ -1044,8 +1081,14 @@ fn check_paged(vol: VolumeRef, view: &View) -> Result<()> {
     Ok(())
 }
 
-/// Segments from a label volume are drawn by the ray caster, of a volume in core.
+/// Segments from a label volume and mixed channels are drawn by the ray caster, of a volume in
+/// core.
 fn check_labels(vol: VolumeRef, classify: &GpuClassification, view: &View) -> Result<()> {
+    if classify.channels.is_some() && view.raycast.is_none() {
+        return Err(Error::Invalid(
+            "channels are mixed by the ray caster; use `renderer: raycast`".into(),
+        ));
+    }
     if classify.labels.is_none() {
         return Ok(());
     }

@@ -5,6 +5,7 @@
 //! refused, what a flag keeps of the scene file's value, and the messages, which name the option
 //! as the front end that filled it spells it ([`Front`]).
 
+use crate::classify::channels::{ChannelSpec, Mix};
 use crate::classify::labels::LabelSpec;
 use crate::classify::modulation::{
     ApplyTo, ColorMode, ColorModulation, ModulateLighting, Modulation, OpacityModulation, Stipple,
@@ -16,6 +17,21 @@ use crate::render::scene::{ClassificationSpec, InputSpec, NamedView, RawInput, S
 use crate::render::style::{EdgeKind, LineSmooth, StyleDef};
 use crate::render::view::RayOptions;
 use vellum_error::{Error, Result};
+
+/// A channel's transfer function written `C=PRESET|FILE`: the channel and the function.
+pub fn parse_channel_tf(s: &str) -> Result<(usize, String)> {
+    let bad = || {
+        invalid(format!(
+            "channel transfer function {s:?} is not C=PRESET|FILE; expected a channel and a preset or file, such as 1=grey"
+        ))
+    };
+    let (c, tf) = s.split_once('=').ok_or_else(bad)?;
+    let c: usize = c.trim().parse().map_err(|_| bad())?;
+    match tf.trim() {
+        "" => Err(bad()),
+        tf => Ok((c, tf.to_string())),
+    }
+}
 
 /// A segment's colour written `ID=#RRGGBB` (or `ID=RRGGBB`): the id and its RGB.
 pub fn parse_label_colour(s: &str) -> Result<(u32, [u8; 3])> {
@@ -153,9 +169,15 @@ pub struct SceneOverrides {
     pub raw: Option<RawInput>,
     /// The time point of a store with a t axis.
     pub time: Option<usize>,
-    /// The channels of a store with a c axis: one, for now (mixing several in one ray is issue
-    /// 42's next step).
+    /// The channels of a store with a c axis: one is read as the volume; several are mixed in
+    /// one ray.
     pub channels: Option<Vec<usize>>,
+    /// How several channels are mixed: `over`, `add` or `max`.
+    pub mix: Option<String>,
+    /// Transfer functions by channel (a preset or a JSON file).
+    pub channel_tfs: Vec<(usize, String)>,
+    /// The channel the two levels, shading and the passes work on (default: the first listed).
+    pub focus_channel: Option<usize>,
     /// A transfer function: `auto`, a preset or a JSON file.
     pub tf: Option<String>,
     /// An occlusion transfer function (JSON file).
@@ -219,7 +241,7 @@ impl SceneOverrides {
         if let Some(raw) = &self.raw {
             scene.input.raw = Some(raw.clone());
         }
-        self.apply_pick(&mut scene.input)?;
+        self.apply_pick(&mut scene)?;
         self.apply_classification(&mut scene);
         match (self.focus, self.iso) {
             (Some(_), Some(_)) => {
@@ -267,6 +289,7 @@ impl SceneOverrides {
         }
         scene.modulation = self.modulation.apply(f, scene.modulation.take())?;
         scene.style = self.style.apply(f, scene.style.take())?;
+        self.check_projection(&mut scene)?;
         scene.validate()?;
         Ok(scene)
     }
@@ -318,21 +341,75 @@ impl SceneOverrides {
     }
 
     /// `time` and `channels`: which time point and channel of a store to read.
-    fn apply_pick(&self, input: &mut InputSpec) -> Result<()> {
+    fn apply_pick(&self, scene: &mut Scene) -> Result<()> {
+        let f = self.front;
         if let Some(t) = self.time {
-            input.time = Some(t);
+            scene.input.time = Some(t);
         }
+        let needs_several = [
+            ("mix", self.mix.is_some()),
+            ("channel_tf", !self.channel_tfs.is_empty()),
+            ("focus_channel", self.focus_channel.is_some()),
+        ];
         match self.channels.as_deref() {
-            None => {}
-            Some([c]) => input.channel = Some(*c),
+            None | Some([]) => {}
+            Some([c]) => {
+                scene.input.channel = Some(*c);
+                scene.channels = None;
+            }
             Some(several) => {
-                return Err(invalid(format!(
-                    "{} {several:?} names {} channels; vellum reads one channel of a store for now (mixing several in one ray is not built yet), so give one",
-                    self.front.name("channels"),
-                    several.len()
-                )))
+                let mix = match &self.mix {
+                    Some(m) => Mix::parse(m)?,
+                    None => Mix::default(),
+                };
+                let focus = self.focus_channel.unwrap_or(several[0]);
+                if !several.contains(&focus) {
+                    return Err(invalid(format!(
+                        "{} {focus} is not among {} {several:?}; expected one of them",
+                        f.name("focus_channel"),
+                        f.name("channels")
+                    )));
+                }
+                scene.input.channel = Some(focus);
+                scene.channels = Some(ChannelSpec {
+                    channels: several.to_vec(),
+                    mix,
+                    tfs: self.channel_tfs.clone(),
+                });
+                return Ok(());
             }
         }
+        if scene.channels.is_none() {
+            if let Some((key, _)) = needs_several.iter().find(|n| n.1) {
+                return Err(invalid(format!(
+                    "{} mixes several channels of a store; add {}",
+                    f.name(key),
+                    f.with("channels", "0,1")
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// `mix add` and `mix max` are projections of one level: they refuse what works on two.
+    fn check_projection(&self, scene: &mut Scene) -> Result<()> {
+        let f = self.front;
+        let Some(mix) = scene
+            .channels
+            .as_ref()
+            .map(|c| c.mix)
+            .filter(|m| *m != Mix::Over)
+        else {
+            return Ok(());
+        };
+        if scene.focus != Focus::None || scene.style.is_some() || scene.labels.is_some() {
+            let name = if mix == Mix::Add { "add" } else { "max" };
+            return Err(invalid(format!(
+                "{} projects the channels on one level, without a focus, styles or labels; drop those, or mix by over",
+                f.with("mix", name)
+            )));
+        }
+        scene.one_pass = true;
         Ok(())
     }
 

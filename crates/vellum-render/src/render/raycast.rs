@@ -65,11 +65,12 @@ pub(crate) const BRICK_VISIBLE: u32 = 1;
 pub(crate) const BRICK_FOCUS: u32 = 2;
 
 /// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images, the
-/// brick flags, the brick cache's page table, feedback and ray states (`passes::paging`), and a
-/// label volume's voxels and table (`classify::labels`).
-pub(crate) const RAY_BINDINGS: [BindingKind; 19] = {
+/// brick flags, the brick cache's page table, feedback and ray states (`passes::paging`), a
+/// label volume's voxels and table (`classify::labels`), and mixed channels' texture and
+/// transfer functions (`classify::channels`).
+pub(crate) const RAY_BINDINGS: [BindingKind; 21] = {
     let slicer = SHADE_BINDINGS;
-    let mut all = [BindingKind::StorageBuffer; 19];
+    let mut all = [BindingKind::StorageBuffer; 21];
     let mut i = 0;
     while i < slicer.len() {
         all[i] = slicer[i];
@@ -79,6 +80,8 @@ pub(crate) const RAY_BINDINGS: [BindingKind; 19] = {
         all[i] = BindingKind::StorageImage;
         i += 1;
     }
+    all[19] = BindingKind::SampledImage;
+    all[20] = BindingKind::SampledImage;
     all
 };
 
@@ -139,6 +142,12 @@ impl Variant {
     /// Reads each sample's segment from a label volume: its colour, whether it is drawn, and
     /// (with focus ids) its level.
     pub(crate) const LABELS: u32 = 2048;
+    /// Mixes channels by `over` at each sample (`classify::channels`).
+    pub(crate) const MIX_OVER: u32 = 4096;
+    /// Mixes channels by `add` at each sample.
+    pub(crate) const MIX_ADD: u32 = 8192;
+    /// Projects each channel to its maximum along the ray (one level).
+    pub(crate) const MIX_MAX: u32 = 16384;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -184,6 +193,8 @@ pub(crate) struct RayRequest<'a> {
     /// A label volume's voxels and table (stand-ins without one), and whether there is one
     /// (the `LABELS` variant).
     pub(crate) labels: ([Bind<'a>; 2], bool),
+    /// Mixed channels' texture and transfer functions (stand-ins without), and their mix.
+    pub(crate) channels: ([Bind<'a>; 2], Option<crate::classify::channels::Mix>),
     /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
     pub(crate) brick_reuse: bool,
     /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
@@ -240,7 +251,8 @@ impl RayCaster {
         let [i0, i1, i2, i3, i4] = images.map(Bind::StorageImage);
         let [p0, p1, p2] = r.paging;
         let [l0, l1] = r.labels.0;
-        let binds: [Bind; 19] = [
+        let [c0, c1] = r.channels.0;
+        let binds: [Bind; 21] = [
             s[0],
             s[1],
             s[2],
@@ -260,6 +272,8 @@ impl RayCaster {
             p2,
             l0,
             l1,
+            c0,
+            c1,
         ];
         let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         if r.bricked && r.brick_reuse {
@@ -271,6 +285,12 @@ impl RayCaster {
         if r.labels.1 {
             variant.0 |= Variant::LABELS;
         }
+        variant.0 |= match r.channels.1 {
+            None => 0,
+            Some(crate::classify::channels::Mix::Over) => Variant::MIX_OVER,
+            Some(crate::classify::channels::Mix::Add) => Variant::MIX_ADD,
+            Some(crate::classify::channels::Mix::Max) => Variant::MIX_MAX,
+        };
         let pipeline = Self::pipeline(pipelines, variant)?;
         let groups = vellum_gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
         frame.profiler.begin(cmd, "raycast");

@@ -385,6 +385,10 @@ pub struct Scene {
     /// Segments from a label volume beside the input (`classify::labels`); none by default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub labels: Option<crate::classify::labels::LabelSpec>,
+    /// Several channels of the input store mixed in one ray (`classify::channels`); the input's
+    /// own channel is the focus channel. None by default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channels: Option<crate::classify::channels::ChannelSpec>,
 }
 
 fn default_size() -> [u32; 2] {
@@ -432,6 +436,7 @@ impl Scene {
             modulation: None,
             raycast: None,
             labels: None,
+            channels: None,
         }
     }
 

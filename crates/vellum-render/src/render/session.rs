@@ -258,6 +258,33 @@ fn attach_labels(
     Ok(())
 }
 
+/// Reads the channels `spec` mixes from the input store and puts them on the GPU beside the
+/// volume in core (the focus channel, which every pass sees).
+fn attach_channels(
+    ctx: &Arc<Context>,
+    scene: &Scene,
+    spec: &crate::classify::channels::ChannelSpec,
+    prepared: &mut Prepared,
+) -> Result<()> {
+    let Prepared::InCore(g) = prepared else {
+        return Err(Error::Invalid(
+            "channels are mixed with the volume in core for now, and this one is larger than the GPU budget; expected a larger `gpu_budget`, or one channel".into(),
+        ));
+    };
+    if scene.input.raw.is_some()
+        || !vellum_volume::io::ome_zarr::is_store(Path::new(&scene.input.path))
+    {
+        return Err(Error::Invalid(format!(
+            "`channels` mixes channels of an OME-Zarr store; {} is not one",
+            scene.input.path
+        )));
+    }
+    let channels = spec.read(Path::new(&scene.input.path), scene.input.time)?;
+    let gpu = crate::classify::channels::GpuChannels::new(ctx, &channels, spec.mix)?;
+    g.classify.channels = Some(gpu);
+    Ok(())
+}
+
 /// The ray caster draws a volume in the brick cache: `view` made so, with the sentence that says
 /// so when it was not (`budget` bytes, for the sentence).
 pub(crate) fn bricked_view(view: &mut View, budget: u64) -> Option<String> {
@@ -307,6 +334,9 @@ impl Session {
         if let Some(spec) = &scene.labels {
             attach_labels(ctx, scene, spec, &mut prepared)?;
         }
+        if let Some(spec) = &scene.channels {
+            attach_channels(ctx, scene, spec, &mut prepared)?;
+        }
         Ok(Session {
             prepared,
             renderer: Renderer::new(ctx)?,
@@ -321,13 +351,16 @@ impl Session {
             true => bricked_view(&mut view, self.budget),
             false => None,
         };
-        let labels = match &self.prepared {
-            Prepared::InCore(g) => g.classify.labels.is_some(),
-            Prepared::Paged(..) => false,
+        let (labels, channels) = match &self.prepared {
+            Prepared::InCore(g) => (g.classify.labels.is_some(), g.classify.channels.is_some()),
+            Prepared::Paged(..) => (false, false),
         };
-        if labels && view.raycast.is_none() {
+        if (labels || channels) && view.raycast.is_none() {
             view.raycast = Some(Default::default());
-            let said = "segments from a label volume are drawn by the ray caster";
+            let said = match labels {
+                true => "segments from a label volume are drawn by the ray caster",
+                false => "channels are mixed by the ray caster",
+            };
             return (view, Some(said.into()));
         }
         (view, note)

@@ -44,6 +44,8 @@ pub struct Multiscale {
     pub times: usize,
     /// A label image's colours (NGFF `image-label` `colors`): id and RGBA.
     pub label_colours: Vec<(u32, [u8; 4])>,
+    /// The channels' display settings (NGFF `omero` `channels`), by channel; empty without.
+    pub omero: Vec<OmeroChannel>,
     /// The index on the leading axes (t, c) that is read: the time point and channel picked.
     lead: Vec<u64>,
     /// The levels' arrays, opened once, read through the store's guards.
@@ -65,6 +67,56 @@ pub fn is_store(path: &Path) -> bool {
             || ["zarr.json", ".zgroup", ".zattrs"]
                 .iter()
                 .any(|m| path.join(m).is_file()))
+}
+
+/// A channel's display settings from NGFF `omero` metadata.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OmeroChannel {
+    /// Its colour, RGB.
+    pub colour: [u8; 3],
+    /// The window of values shown, in data units (`window.start`, `window.end`).
+    pub window: Option<[f64; 2]>,
+    /// Whether it is shown by default.
+    pub active: bool,
+    /// Its name.
+    pub label: Option<String>,
+}
+
+/// The `omero` channels (at the attributes' root in 0.4, under `ome` in 0.5); a colour that is
+/// not six hex digits reads as white.
+fn omero_channels(attrs: &Value) -> Vec<OmeroChannel> {
+    let omero = match &attrs["ome"]["omero"] {
+        Value::Null => &attrs["omero"],
+        o => o,
+    };
+    let Some(channels) = omero["channels"].as_array() else {
+        return Vec::new();
+    };
+    channels
+        .iter()
+        .map(|c| {
+            let hex = c["color"].as_str().unwrap_or("FFFFFF");
+            let byte = |i: usize| {
+                hex.get(i..i + 2)
+                    .and_then(|h| u8::from_str_radix(h, 16).ok())
+            };
+            let colour = match (hex.len(), byte(0), byte(2), byte(4)) {
+                (6, Some(r), Some(g), Some(b)) => [r, g, b],
+                _ => [255; 3],
+            };
+            let w = &c["window"];
+            let window = match (w["start"].as_f64(), w["end"].as_f64()) {
+                (Some(a), Some(b)) if a < b => Some([a, b]),
+                _ => None,
+            };
+            OmeroChannel {
+                colour,
+                window,
+                active: c["active"].as_bool().unwrap_or(true),
+                label: c["label"].as_str().map(str::to_string),
+            }
+        })
+        .collect()
 }
 
 /// Which time point and channel of a store to read; `None` reads the only one and refuses a
@@ -179,6 +231,7 @@ impl Multiscale {
             .filter(|r| r[0] <= r[1]);
         Ok(Multiscale {
             label_colours: label_colours(&attrs),
+            omero: omero_channels(&attrs),
             range,
             root: path.to_path_buf(),
             version,

@@ -1,0 +1,299 @@
+//! Several channels of a store mixed in one ray (issue 42): each channel has its own transfer
+//! function over its own range, and the ray caster mixes the channels' classified samples at
+//! every sample (`raycast.comp`, `channels` and `channel_tf`).
+//!
+//! - `over` composites the channels' premultiplied colours at each sample, the first listed on
+//!   top; the mixed colour and opacity then go on as one sample's (shading, the opacity
+//!   correction, the two levels).
+//! - `add` composites each channel along the ray on its own (emission and absorption, no
+//!   channel hiding another) and adds the results, unlit: the fluorescence look. Swapping the
+//!   channels changes nothing.
+//! - `max` projects each channel to its maximum along the ray, then adds their colours.
+//!
+//! `add` and `max` are projections of one level: no focus level, styles or labels.
+//!
+//! The channel the two levels, the gradient (shading), importance modulation and the lines work
+//! on is the focus channel, the first listed unless `focus_channel` says otherwise; it is also
+//! the volume every other pass sees. Up to [`MAX_CHANNELS`] channels, one RGBA texture.
+
+use crate::classify::transfer::{ControlPoint, TransferFunction};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::sync::Arc;
+use vellum_error::{Error, Result};
+use vellum_gpu::{Access, Context, Format, Image, ImageDesc};
+use vellum_volume::io::ome_zarr::{Multiscale, OmeroChannel, Pick};
+use vellum_volume::Volume;
+
+/// The most channels mixed in one ray (one RGBA texture).
+pub const MAX_CHANNELS: usize = 4;
+
+/// How the channels' samples are mixed.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mix {
+    /// Premultiplied colours composited at each sample, the first channel on top.
+    #[default]
+    Over,
+    /// Premultiplied colours added (emission).
+    Add,
+    /// Each channel's maximum along the ray, their colours added.
+    Max,
+}
+
+impl Mix {
+    /// `over`, `add` or `max`.
+    pub fn parse(s: &str) -> Result<Self> {
+        match s {
+            "over" => Ok(Mix::Over),
+            "add" => Ok(Mix::Add),
+            "max" => Ok(Mix::Max),
+            _ => Err(Error::Invalid(format!(
+                "`mix` {s:?} is unknown; expected over, add or max"
+            ))),
+        }
+    }
+}
+
+/// The channels of a store a scene mixes, as the flags and a scene file give them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelSpec {
+    /// The channels, in mixing order (`over` puts the first on top).
+    pub channels: Vec<usize>,
+    /// How they are mixed.
+    #[serde(default)]
+    pub mix: Mix,
+    /// Transfer functions by channel: a preset or a JSON file, over the channel's own range.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub tfs: Vec<(usize, String)>,
+}
+
+/// Colours of channels without NGFF `omero` colours: green, magenta, cyan, yellow.
+const PALETTE: [[f32; 3]; MAX_CHANNELS] = [
+    [0.0, 1.0, 0.0],
+    [1.0, 0.0, 1.0],
+    [0.0, 1.0, 1.0],
+    [1.0, 1.0, 0.0],
+];
+
+/// One channel on the host: its voxels, the range its texture spans, and its transfer function.
+pub struct Channel {
+    /// Its index in the store.
+    pub index: usize,
+    /// Its voxels at the level drawn.
+    pub volume: Volume,
+    /// The values its texture maps to 0 and 1.
+    pub range: [f64; 2],
+    /// Its transfer function over that range.
+    pub tf: TransferFunction,
+}
+
+impl ChannelSpec {
+    /// Reads the channels from the store `path` at `time`, each with its transfer function: the
+    /// one given, else a ramp in the channel's NGFF `omero` colour over its `omero` window, else
+    /// in a palette colour over its `auto` window.
+    pub fn read(&self, path: &Path, time: Option<usize>) -> Result<Vec<Channel>> {
+        if self.channels.len() > MAX_CHANNELS {
+            return Err(Error::Invalid(format!(
+                "`channels` names {} channels; vellum mixes at most {MAX_CHANNELS} in one ray",
+                self.channels.len()
+            )));
+        }
+        if let Some((c, _)) = self.tfs.iter().find(|(c, _)| !self.channels.contains(c)) {
+            return Err(Error::Invalid(format!(
+                "a transfer function is given for channel {c}, which `channels` does not list"
+            )));
+        }
+        let mut out = Vec::with_capacity(self.channels.len());
+        for (k, &c) in self.channels.iter().enumerate() {
+            let pick = Pick {
+                time,
+                channel: Some(c),
+            };
+            let ms = Multiscale::open_picked(path, pick)?;
+            let volume = ms.read_level(0)?;
+            let s = vellum_volume::stats::stats(&volume, 0);
+            let range = [s.min, s.max.max(s.min + f64::EPSILON)];
+            let omero = ms.omero.get(c);
+            let given = self
+                .tfs
+                .iter()
+                .find(|(i, _)| *i == c)
+                .map(|(_, t)| t.as_str());
+            let tf = match given {
+                Some(t) => named_or_file(t)?,
+                None => default_tf(&volume, range, omero, PALETTE[k % MAX_CHANNELS])?,
+            };
+            out.push(Channel {
+                index: c,
+                volume,
+                range,
+                tf,
+            });
+        }
+        Ok(out)
+    }
+}
+
+/// A preset or a JSON file.
+fn named_or_file(t: &str) -> Result<TransferFunction> {
+    match crate::classify::transfer::PRESETS.contains(&t) {
+        true => TransferFunction::preset(t),
+        false => TransferFunction::load(Path::new(t)),
+    }
+}
+
+/// A ramp in one colour: transparent below the window, opacity rising across it.
+fn default_tf(
+    v: &Volume,
+    range: [f64; 2],
+    omero: Option<&OmeroChannel>,
+    palette: [f32; 3],
+) -> Result<TransferFunction> {
+    let width = range[1] - range[0];
+    let norm = |x: f64| ((x - range[0]) / width).clamp(0.0, 1.0) as f32;
+    let (colour, [lo, hi]) = match omero {
+        Some(o) => (
+            o.colour.map(|c| c as f32 / 255.0),
+            o.window.map_or_else(
+                || crate::classify::window::auto_window(v, range),
+                |w| [norm(w[0]), norm(w[1])],
+            ),
+        ),
+        None => (palette, crate::classify::window::auto_window(v, range)),
+    };
+    // The lowest texel (centred at 1/512) stays transparent, so that the empty background of a
+    // channel adds nothing along a ray.
+    let lo = lo.max(1.0 / crate::classify::textures::TF_SIZE as f32);
+    let hi = hi.max(lo + 1e-3).min(1.0);
+    let mut points = vec![ControlPoint {
+        x: 0.0,
+        rgba: [colour[0], colour[1], colour[2], 0.0],
+    }];
+    if lo > 0.0 {
+        points.push(ControlPoint {
+            x: lo,
+            rgba: [colour[0], colour[1], colour[2], 0.0],
+        });
+    }
+    points.push(ControlPoint {
+        x: hi,
+        rgba: [colour[0], colour[1], colour[2], 1.0],
+    });
+    if hi < 1.0 {
+        points.push(ControlPoint {
+            x: 1.0,
+            rgba: [colour[0], colour[1], colour[2], 1.0],
+        });
+    }
+    TransferFunction::new("channel", points)
+}
+
+/// Channels on the GPU: one RGBA16 texture (channel k in component k, each over its own
+/// range) and their transfer functions (row k of a 256 × n table).
+pub struct GpuChannels {
+    /// The channels' voxels.
+    pub image: Image,
+    /// Their transfer functions.
+    pub tfs: Image,
+    /// How the ray caster mixes them.
+    pub mix: Mix,
+    /// How many.
+    pub count: usize,
+}
+
+impl GpuChannels {
+    /// `channels` on the GPU, mixed by `mix`; all on one grid.
+    pub fn new(ctx: &Arc<Context>, channels: &[Channel], mix: Mix) -> Result<Self> {
+        let n = channels.len();
+        let dims = channels.first().map_or([1; 3], |c| c.volume.dims);
+        if let Some(c) = channels.iter().find(|c| c.volume.dims != dims) {
+            return Err(Error::Invalid(format!(
+                "channel {} is not on the grid of channel {}; expected channels of one grid",
+                c.index, channels[0].index
+            )));
+        }
+        let voxels = dims.iter().product::<usize>();
+        let mut texels = vec![0u16; 4 * voxels];
+        for (k, c) in channels.iter().enumerate() {
+            let (lo, width) = (c.range[0], c.range[1] - c.range[0]);
+            for i in 0..voxels {
+                let t = ((c.volume.data.get_f64(i) - lo) / width).clamp(0.0, 1.0);
+                texels[4 * i + k] = (t * 65535.0).round() as u16;
+            }
+        }
+        let extent = dims.map(|d| d as u32);
+        // RGBA16 unorm: each channel at 16 bits over its range, filtered linearly as the
+        // intensity is.
+        let image = Image::new(
+            ctx,
+            "channels",
+            &ImageDesc::new_3d(Format::R16G16B16A16_UNORM, extent),
+        )?;
+        vellum_gpu::transfer::upload(
+            ctx,
+            &image,
+            bytemuck::cast_slice(&texels),
+            Access::ComputeSampled,
+        )?;
+        let size = crate::classify::textures::TF_SIZE;
+        let table: Vec<[f32; 4]> = channels.iter().flat_map(|c| c.tf.table(size)).collect();
+        // RGBA32F, as the 1D transfer function's texture.
+        let tfs = Image::new(
+            ctx,
+            "channel transfer functions",
+            &ImageDesc::new_2d(Format::R32G32B32A32_SFLOAT, [size as u32, n as u32]),
+        )?;
+        vellum_gpu::transfer::upload(
+            ctx,
+            &tfs,
+            bytemuck::cast_slice(&table),
+            Access::ComputeSampled,
+        )?;
+        Ok(GpuChannels {
+            image,
+            tfs,
+            mix,
+            count: n,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mixes_parse_and_refuse_in_one_sentence() {
+        assert_eq!(Mix::parse("add").unwrap(), Mix::Add);
+        let e = Mix::parse("screen").unwrap_err().to_string();
+        assert!(e.contains("expected over, add or max"), "{e}");
+    }
+
+    #[test]
+    fn the_default_ramp_is_in_the_omero_colour_over_its_window() {
+        let v = Volume::new(
+            [4, 1, 1],
+            [1.0; 3],
+            vellum_volume::VoxelData::U16(vec![0, 100, 200, 300]),
+        )
+        .unwrap();
+        let mut omero = OmeroChannel {
+            colour: [255, 0, 0],
+            window: Some([75.0, 150.0]),
+            active: true,
+            label: None,
+        };
+        let tf = default_tf(&v, [0.0, 300.0], Some(&omero), PALETTE[0]).unwrap();
+        assert_eq!(tf.sample(0.2)[3], 0.0);
+        assert_eq!(tf.sample(0.5)[3], 1.0);
+        assert_eq!(&tf.sample(0.5)[..3], &[1.0, 0.0, 0.0]);
+        let mid = tf.sample(0.375)[3];
+        assert!((mid - 0.5).abs() < 0.01, "{mid}");
+        // A window from 0 leaves the lowest texel transparent.
+        omero.window = Some([0.0, 150.0]);
+        let tf = default_tf(&v, [0.0, 300.0], Some(&omero), PALETTE[0]).unwrap();
+        assert_eq!(tf.table(256)[0][3], 0.0);
+    }
+}

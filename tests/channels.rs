@@ -1,0 +1,200 @@
+//! Several channels of a store mixed in one ray (issue 42), on a two-channel store written by
+//! Python's ome-zarr package with NGFF omero colours (red, blue) and windows: along x, a third
+//! holds channel 0 only, a third both, a third channel 1 only. Seen along z, `add` and `max` must
+//! show red, magenta and blue in those thirds, whatever the channels' order; `over` puts the
+//! first listed on top; and one visible channel under `over` draws what the single-channel
+//! renderer draws.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+/// The store, written by tests/support/write_ome_zarr_channels.py (NGFF `version`).
+fn store(dir: &Path, version: &str) -> Option<PathBuf> {
+    if !common::python_with("ome_zarr, zarr, numpy") {
+        return None;
+    }
+    let store = dir.join(format!("channels-{version}.zarr"));
+    common::support_script(
+        "write_ome_zarr_channels.py",
+        &[store.as_os_str(), version.as_ref()],
+    );
+    Some(store)
+}
+
+/// `vellum render STORE` seen along z, 96², with `flags`: the RGB pixels.
+fn render(store: &Path, flags: &[&str]) -> Vec<[u8; 3]> {
+    let png = store.with_extension(format!("{}.png", flags.join("_").replace(['/', '='], "-")));
+    let mut args = vec![
+        "render",
+        store.to_str().unwrap(),
+        "--camera",
+        "0,90",
+        "--ortho",
+    ];
+    args.extend(["--size", "96x96", "--out", png.to_str().unwrap()]);
+    args.extend(flags);
+    let o = common::vellum(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    image::open(&png)
+        .unwrap()
+        .to_rgb8()
+        .pixels()
+        .map(|p| p.0)
+        .collect()
+}
+
+/// Pixels within 2/255 of each of `colours`, and the pixels with any light.
+fn counts(pixels: &[[u8; 3]], colours: &[[u8; 3]]) -> (Vec<usize>, usize) {
+    let near = |p: &[u8; 3], c: &[u8; 3]| (0..3).all(|i| (p[i] as i32 - c[i] as i32).abs() <= 2);
+    let each = colours
+        .iter()
+        .map(|c| pixels.iter().filter(|p| near(p, c)).count())
+        .collect();
+    (
+        each,
+        pixels.iter().filter(|p| p.iter().any(|&v| v > 8)).count(),
+    )
+}
+
+fn max_difference(a: &[[u8; 3]], b: &[[u8; 3]]) -> u8 {
+    a.iter()
+        .zip(b)
+        .flat_map(|(p, q)| (0..3).map(move |i| p[i].abs_diff(q[i])))
+        .max()
+        .unwrap_or(0)
+}
+
+#[test]
+fn add_and_max_show_each_channel_in_its_omero_colour_in_any_order() {
+    let dir = tempfile::tempdir().unwrap();
+    for version in ["0.4", "0.5"] {
+        let Some(store) = store(dir.path(), version) else {
+            return;
+        };
+        let (red, magenta, blue) = ([255, 0, 0], [255, 0, 255], [0, 0, 255]);
+        for mix in ["add", "max"] {
+            let ab = render(&store, &["--channels", "0,1", "--mix", mix]);
+            let ba = render(&store, &["--channels", "1,0", "--mix", mix]);
+            assert!(
+                max_difference(&ab, &ba) <= 1,
+                "{mix}: swapping the channels changed a pixel"
+            );
+            // The thirds are 11, 11 and 10 voxels wide: channel 0 alone, both, channel 1 alone.
+            let (each, lit) = counts(&ab, &[red, magenta, blue]);
+            let total: usize = each.iter().sum();
+            assert!(
+                total as f64 >= 0.95 * lit as f64,
+                "{mix} {version}: {each:?} of {lit}"
+            );
+            for (k, want) in [11.0 / 32.0, 11.0 / 32.0, 10.0 / 32.0]
+                .into_iter()
+                .enumerate()
+            {
+                let got = each[k] as f64 / total as f64;
+                assert!(
+                    (got - want).abs() < 0.03,
+                    "{mix} {version}: third {k} {got:.3}, want {want:.3}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn over_puts_the_first_channel_on_top_and_one_channel_draws_as_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(store) = store(dir.path(), "0.5") else {
+        return;
+    };
+    // The middle third holds both: red over blue, or blue over red.
+    let hue = |px: &[[u8; 3]]| {
+        let mid = px[48 * 96 + 48];
+        mid[0] as i32 - mid[2] as i32
+    };
+    assert!(hue(&render(&store, &["--channels", "0,1"])) > 60);
+    assert!(hue(&render(&store, &["--channels", "1,0"])) < -60);
+    // Channel 1 transparent: channel 0 under the grey preset, as the one-channel renderer draws
+    // channel 0 with --tf grey.
+    let clear = dir.path().join("clear.json");
+    std::fs::write(
+        &clear,
+        r#"{"points": [{"x": 0, "rgba": [0, 0, 0, 0]}, {"x": 1, "rgba": [0, 0, 0, 0]}]}"#,
+    )
+    .unwrap();
+    let tf1 = format!("1={}", clear.display());
+    let mixed = render(
+        &store,
+        &[
+            "--channels",
+            "0,1",
+            "--channel-tf",
+            "0=grey",
+            "--channel-tf",
+            &tf1,
+        ],
+    );
+    let alone = render(
+        &store,
+        &[
+            "--channels",
+            "0",
+            "--tf",
+            "grey",
+            "--renderer",
+            "raycast",
+            "--no-skip-empty",
+        ],
+    );
+    let d = max_difference(&mixed, &alone);
+    assert!(
+        d <= 1,
+        "one visible channel differs from the channel alone by {d}/255"
+    );
+    assert!(alone.iter().any(|p| p[0] > 100));
+}
+
+#[test]
+fn channel_mistakes_are_one_sentence() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(store) = store(dir.path(), "0.5") else {
+        return;
+    };
+    let s = store.to_str().unwrap();
+    let out = dir.path().join("o.png");
+    let o = out.to_str().unwrap();
+    let cases: [(Vec<&str>, &[&str]); 7] = [
+        (
+            vec![s, "--channels", "0", "--mix", "add"],
+            &["--mix", "add --channels 0,1"],
+        ),
+        (
+            vec![s, "--channels", "0,1,0,1,0"],
+            &["5 channels", "at most 4"],
+        ),
+        (
+            vec![s, "--channels", "0,1", "--focus-channel", "3"],
+            &["--focus-channel 3", "not among"],
+        ),
+        (
+            vec![s, "--channels", "0,1", "--mix", "max", "--iso", "300"],
+            &["--mix max", "one level"],
+        ),
+        (
+            vec![s, "--channels", "0,1", "--mix", "screen"],
+            &["screen", "over, add or max"],
+        ),
+        (
+            vec![s, "--channels", "0,1", "--channel-tf", "1"],
+            &["C=PRESET|FILE"],
+        ),
+        (vec![s, "--channels", "0,5"], &["channel"]),
+    ];
+    for (flags, phrases) in cases {
+        let mut args = vec!["render"];
+        args.extend(flags);
+        args.extend(["--size", "32x32", "--out", o]);
+        common::fails_with_all(&common::vellum(&args), phrases);
+        assert!(!out.exists());
+    }
+}
