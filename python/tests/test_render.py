@@ -375,3 +375,27 @@ def test_segments_of_a_label_volume_are_keywords(tmp_path):
         vellum.render(v, focus_labels=3)
     with pytest.raises(vellum.Error, match="label_colour"):
         vellum.render(v, labels=str(path), label_colour={3: "red"})
+
+
+def test_channels_are_mixed_by_keywords(tmp_path):
+    """Issue 42: channels=, mix=, channel_tfs= and focus_channel= mix a store's channels as the flags do."""
+    if subprocess.run(["python3", "-c", "import ome_zarr"], capture_output=True).returncode != 0:
+        pytest.skip("ome-zarr is missing")
+    script = pathlib.Path(__file__).parents[2] / "tests" / "support" / "write_ome_zarr_channels.py"
+    store = tmp_path / "c.zarr"
+    subprocess.run(["python3", str(script), str(store), "0.5"], check=True, capture_output=True)
+    options = dict(size=(48, 48), camera=(0, 90), ortho=True)
+    ab = vellum.render(str(store), channels=[0, 1], mix="add", **options).rgba.astype(int)
+    ba = vellum.render(str(store), channels=[1, 0], mix="add", **options).rgba.astype(int)
+    assert np.abs(ab - ba).max() <= 1
+    assert tuple(ab[24, 24, :3]) == (255, 0, 255), "red and blue added in the middle third"
+    cli_png = tmp_path / "cli.png"
+    subprocess.run([str(cli()), "render", str(store), "--channels", "1,0", "--channel-tf", "0=grey",
+                    "--focus-channel", "0", "--size", "48x48", "--camera", "0,90", "--ortho",
+                    "--out", str(cli_png)], check=True, capture_output=True)
+    from PIL import Image as PilImage
+    theirs = np.asarray(PilImage.open(cli_png).convert("RGB"))
+    ours = vellum.render(str(store), channels=[1, 0], channel_tfs={0: "grey"}, focus_channel=0, **options)
+    np.testing.assert_array_equal(ours.rgba[..., :3], theirs)
+    with pytest.raises(vellum.Error, match="mix"):
+        vellum.render(str(store), channels=0, mix="add")

@@ -201,6 +201,9 @@ pub struct GpuChannels {
     pub mix: Mix,
     /// How many.
     pub count: usize,
+    /// Per channel, its transfer function's table and its bricks' ranges: a brick none of whose
+    /// channels can be visible is skipped.
+    pub skipping: Vec<(Vec<[f32; 4]>, crate::passes::normals::Bricks)>,
 }
 
 impl GpuChannels {
@@ -215,13 +218,22 @@ impl GpuChannels {
             )));
         }
         let voxels = dims.iter().product::<usize>();
+        let size = crate::classify::textures::TF_SIZE;
         let mut texels = vec![0u16; 4 * voxels];
+        let mut skipping = Vec::with_capacity(n);
         for (k, c) in channels.iter().enumerate() {
             let (lo, width) = (c.range[0], c.range[1] - c.range[0]);
-            for i in 0..voxels {
-                let t = ((c.volume.data.get_f64(i) - lo) / width).clamp(0.0, 1.0);
-                texels[4 * i + k] = (t * 65535.0).round() as u16;
+            let own: Vec<u16> = (0..voxels)
+                .map(|i| {
+                    let t = ((c.volume.data.get_f64(i) - lo) / width).clamp(0.0, 1.0);
+                    (t * 65535.0).round() as u16
+                })
+                .collect();
+            for (i, &t) in own.iter().enumerate() {
+                texels[4 * i + k] = t;
             }
+            let bricks = crate::passes::normals::Bricks::new(&own, dims);
+            skipping.push((c.tf.table(size), bricks));
         }
         let extent = dims.map(|d| d as u32);
         // RGBA16 unorm: each channel at 16 bits over its range, filtered linearly as the
@@ -237,8 +249,7 @@ impl GpuChannels {
             bytemuck::cast_slice(&texels),
             Access::ComputeSampled,
         )?;
-        let size = crate::classify::textures::TF_SIZE;
-        let table: Vec<[f32; 4]> = channels.iter().flat_map(|c| c.tf.table(size)).collect();
+        let table: Vec<[f32; 4]> = skipping.iter().flat_map(|(t, _)| t.iter().copied()).collect();
         // RGBA32F, as the 1D transfer function's texture.
         let tfs = Image::new(
             ctx,
@@ -256,6 +267,7 @@ impl GpuChannels {
             tfs,
             mix,
             count: n,
+            skipping,
         })
     }
 }

@@ -61,6 +61,8 @@ pub(crate) struct SetupInput<'a> {
     /// Whether the segments of a label volume decide the level (`classify::labels`), in place
     /// of the focus.
     pub(crate) labels_focus: bool,
+    /// Channels mixed in the ray: what makes a brick visible is then any channel's opacity.
+    pub(crate) channels: Option<&'a crate::classify::channels::GpuChannels>,
     /// Importance modulation (SPEC IM3–IM5), written into the uniforms; when active, the volume
     /// must carry ΔD.
     pub modulation: &'a Modulation,
@@ -87,6 +89,7 @@ impl<'a> SetupInput<'a> {
             table: classify.transfer_table(),
             focus: classify.focus,
             labels_focus: classify.labels.as_ref().is_some_and(|l| l.decide_focus),
+            channels: classify.channels.as_ref(),
             modulation: &classify.modulation,
             uses_occlusion: classify.uses_occlusion(),
             has_occlusion: vol.occlusion().is_some(),
@@ -130,12 +133,18 @@ impl FrameSetup {
         let camera = FrameCamera::new(&world, view);
         let slices = plane_count(input.dims, view)?;
         let focus = input.focus.normalised(input.range);
-        let visible: Vec<bool> = input
-            .bricks
-            .range
-            .iter()
-            .map(|r| input.uses_occlusion || any_opacity(input.table, r))
-            .collect();
+        let visible: Vec<bool> = match input.channels {
+            // Mixed channels: a brick is visible where any channel's function gives opacity.
+            Some(c) => (0..input.bricks.range.len())
+                .map(|b| c.skipping.iter().any(|(t, br)| any_opacity(t, &br.range[b])))
+                .collect(),
+            None => input
+                .bricks
+                .range
+                .iter()
+                .map(|r| input.uses_occlusion || any_opacity(input.table, r))
+                .collect(),
+        };
         let span = depth_span(world.half, camera.view_dir.normalize());
         let (proxy, focus_proxy) = match view.raycast {
             Some(_) => (
@@ -645,10 +654,8 @@ impl Renderer {
                 if classify.labels.as_ref().is_some_and(|l| l.decide_focus) {
                     options.skip_empty = false;
                 }
-                // Nor do they know the channels' transfer functions.
                 match &classify.channels {
                     Some(c) => {
-                        options.skip_empty = false;
                         c.image.transition(frame.cmd, Access::ComputeSampled);
                         c.tfs.transition(frame.cmd, Access::ComputeSampled);
                     }
@@ -1263,6 +1270,7 @@ mod tests {
             table: &h.table,
             focus: Focus::Iso(0.9),
             labels_focus: false,
+            channels: None,
             modulation: &h.modulation,
             uses_occlusion: false,
             has_occlusion: false,
