@@ -6,8 +6,10 @@ usage: channels.py VELLUM N SIZE [REPEATS]   (e.g. target/release/vellum 256 512
 
 Writes an N^3 store of four channels with Python's ome-zarr package (each channel a few soft
 Gaussian blobs, so that every channel has structure), then times `vellum render --json` on it:
-`--channels 0` (the one-channel renderer, skipping on), `0,1` and `0,1,2,3` under each mix. The
-figure is the median GPU time of the `raycast` pass over REPEATS runs. Prints a Markdown table.
+`--channels 0` (the one-channel renderer, skipping on), `0,1` and `0,1,2,3` under each mix, and
+`0,1` with channel 1 transparent (the cost of mixing apart from what channel 1 adds to the
+picture). The figure is the median GPU time of the `raycast` pass over REPEATS runs. Prints a
+Markdown table.
 """
 import json
 import statistics
@@ -63,6 +65,13 @@ def main():
             for mix in ["over", "add", "max"]:
                 ms = raycast_ms(vellum, path, size, repeats, ["--channels", channels, "--mix", mix])
                 print(f"| {channels} | {mix} | {ms:.2f} | {ms / one:.2f}× |")
+        # The cost of mixing itself, apart from what the other channels add to the picture:
+        # channel 1 present but transparent, so the rays see what channel 0 alone shows.
+        clear = f"{tmp}/clear.json"
+        with open(clear, "w") as f:
+            f.write('{"points": [{"x": 0, "rgba": [0, 0, 0, 0]}, {"x": 1, "rgba": [0, 0, 0, 0]}]}')
+        ms = raycast_ms(vellum, path, size, repeats, ["--channels", "0,1", "--channel-tf", f"1={clear}"])
+        print(f"| 0,1 (1 transparent) | over | {ms:.2f} | {ms / one:.2f}× |")
 
 
 if __name__ == "__main__":

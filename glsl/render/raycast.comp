@@ -71,7 +71,8 @@ layout(push_constant) uniform Push {
     mat4 inv_view_proj;   // clip -> box frame
     vec4 planes;          // x: depth of plane 0 along view_dir (farthest), y: spacing, z: planes, w: ert
     ivec4 bricks;         // brick counts xyz, w: brick size in voxels
-    ivec4 flags;          // x: two levels (unread: VARIANT selects the mode), y: skip empty
+    ivec4 flags;          // x: two levels (unread: VARIANT selects the mode), or with mixed
+                          // channels the focus channel's component; y: skip empty
                           // bricks, z: jitter seed (0 off), w: bit 0 refine iso hits, bit 1
                           // equal steps along each ray (the last also selected by VARIANT)
 } p;
@@ -539,7 +540,14 @@ void main() {
                     stopped = true;
                     break;
                 }
-                s = sample_intensity();
+                if (V_CHANNELS) {
+                    // One fetch for every channel: the focus channel's component holds the
+                    // intensity texture's value.
+                    channel_sample = textureLod(channels, tex, 0.0);
+                    s = channel_sample[p.flags.x];
+                } else {
+                    s = sample_intensity();
+                }
                 focus = sample_in_focus(s);
                 if (V_LABELS) {
                     // A hidden segment's samples add nothing; with focus ids, the segment
@@ -558,9 +566,11 @@ void main() {
                 // context samples behind a context that reached `ert` (early termination).
                 bool counts = !V_TWO_LEVEL || focus || (first && ctx.a < ert);
                 bool maybe;
-                if (V_OTF || V_MOD_OPACITY || V_CHANNELS) {
+                if (V_OTF || V_MOD_OPACITY) {
                     c = classify(s, focus);
                     maybe = c.a >= MIN_ALPHA;
+                } else if (V_CHANNELS) {
+                    maybe = channels_may_show(channel_sample, a_min) || (focus && iso);
                 } else {
                     int i = clamp(int(floor(s * 256.0 - 0.5)), 0, 255);
                     maybe = uintBitsToFloat(ray_tables[i]) >= a_min || (focus && iso);
@@ -604,6 +614,9 @@ void main() {
                 tex = world / (2.0 * u.half_extent.xyz) + 0.5;
                 ray_t = t;
                 stopped = stopped || locate(0u) != FOUND;
+                if (V_CHANNELS && !stopped) {
+                    channel_sample = textureLod(channels, tex, 0.0);
+                }
                 if (stopped) {
                     m = m_hit;
                     prev_t = keep_t;
@@ -611,7 +624,7 @@ void main() {
                     break;
                 }
             }
-            if (!(V_OTF || V_MOD_OPACITY || V_CHANNELS) || refine_on) {
+            if (!(V_OTF || V_MOD_OPACITY) || refine_on) {
                 // The exact class (at the surface when refined: an occlusion or importance
                 // lookup may move it).
                 c = classify(s, focus);

@@ -51,6 +51,21 @@ const bool V_CHANNELS = V_MIX_OVER || V_MIX_ADD || V_MIX_MAX;
 // Frames without channels bind stand-ins and never read them.
 layout(set = 0, binding = 19) uniform sampler3D channels;
 layout(set = 0, binding = 20) uniform sampler2D channel_tf;
+// Per channel, 256 opacity bounds (float bits) of its transfer function's texels.
+layout(set = 0, binding = 21) readonly buffer ChannelBounds { uint channel_bounds[]; };
+
+// Whether some channel at `at` may give a sample opacity of `a_min` or more (a bound from the
+// texels linear filtering blends, so a sample it passes over adds nothing). `over` mixes n
+// channels, whose opacities together stay below n times the largest.
+bool channels_may_show(vec4 v, float a_min) {
+    int n = textureSize(channel_tf, 0).y;
+    float bound = 0.0;
+    for (int k = 0; k < 4 && k < n; k++) {
+        int i = clamp(int(floor(v[k] * 256.0 - 0.5)), 0, 255);
+        bound = max(bound, uintBitsToFloat(channel_bounds[256 * k + i]));
+    }
+    return bound * float(n) >= a_min;
+}
 
 // Channel k's class of value v (straight colour, opacity).
 vec4 channel_class(int k, float v) {
@@ -58,11 +73,15 @@ vec4 channel_class(int k, float v) {
     return textureLod(channel_tf, vec2(v, (float(k) + 0.5) / float(n)), 0.0);
 }
 
-// The channels' classes at `at` mixed by `over` into one sample's straight colour and opacity:
-// composited with the first channel on top. (`add` and `max` are projections of their own,
-// raycast.comp's `channel_projection`.)
-vec4 mixed_channels(vec3 at) {
-    vec4 v = textureLod(channels, at, 0.0);
+// The channels' values at the sample being classified (the ray caster fetches them once per
+// sample, in its walk).
+vec4 channel_sample;
+
+// The channels' classes of `channel_sample` mixed by `over` into one sample's straight colour
+// and opacity: composited with the first channel on top. (`add` and `max` are projections of
+// their own, raycast.comp's `channel_projection`.)
+vec4 mixed_channels() {
+    vec4 v = channel_sample;
     int n = textureSize(channel_tf, 0).y;
     vec4 acc = vec4(0.0);
     for (int k = 0; k < 4 && k < n; k++) {
@@ -112,7 +131,7 @@ vec4 classify(float s, bool focus) {
         rgba = textureLod(occlusion_tf, occlusion_tf_coord(s, textureLod(occlusion, tex, 0.0).r), 0.0);
     } else {
 #ifdef RAYCAST
-        rgba = V_CHANNELS ? mixed_channels(tex) : textureLod(transfer, vec2(s, 0.5), 0.0);
+        rgba = V_CHANNELS ? mixed_channels() : textureLod(transfer, vec2(s, 0.5), 0.0);
 #else
         rgba = textureLod(transfer, vec2(s, 0.5), 0.0);
 #endif

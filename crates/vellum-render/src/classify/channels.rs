@@ -113,8 +113,7 @@ impl ChannelSpec {
             };
             let ms = Multiscale::open_picked(path, pick)?;
             let volume = ms.read_level(0)?;
-            let s = vellum_volume::stats::stats(&volume, 0);
-            let range = [s.min, s.max.max(s.min + f64::EPSILON)];
+            let range = volume.normalised_range();
             let omero = ms.omero.get(c);
             let given = self
                 .tfs
@@ -151,7 +150,7 @@ fn default_tf(
     omero: Option<&OmeroChannel>,
     palette: [f32; 3],
 ) -> Result<TransferFunction> {
-    let width = range[1] - range[0];
+    let width = (range[1] - range[0]).max(f64::MIN_POSITIVE);
     let norm = |x: f64| ((x - range[0]) / width).clamp(0.0, 1.0) as f32;
     let (colour, [lo, hi]) = match omero {
         Some(o) => (
@@ -197,18 +196,30 @@ pub struct GpuChannels {
     pub image: Image,
     /// Their transfer functions.
     pub tfs: Image,
+    /// Per channel, the opacity bounds of its function's 256 texels (f32 bits), which the ray
+    /// caster's walk tests a sample against before classifying it.
+    pub bounds: vellum_gpu::Buffer,
     /// How the ray caster mixes them.
     pub mix: Mix,
     /// How many.
     pub count: usize,
+    /// The component of the focus channel, whose values equal the volume's intensity texture's
+    /// (its range is the volume's): the ray caster reads a sample's intensity from it.
+    pub focus: usize,
     /// Per channel, its transfer function's table and its bricks' ranges: a brick none of whose
     /// channels can be visible is skipped.
     pub skipping: Vec<(Vec<[f32; 4]>, crate::passes::normals::Bricks)>,
 }
 
 impl GpuChannels {
-    /// `channels` on the GPU, mixed by `mix`; all on one grid.
-    pub fn new(ctx: &Arc<Context>, channels: &[Channel], mix: Mix) -> Result<Self> {
+    /// `channels` on the GPU, mixed by `mix`; all on one grid. Channel `focus` (an index into
+    /// `channels`) is the volume's, whose `range` its texture takes.
+    pub fn new(
+        ctx: &Arc<Context>,
+        channels: &[Channel],
+        mix: Mix,
+        (focus, range): (usize, [f64; 2]),
+    ) -> Result<Self> {
         let n = channels.len();
         let dims = channels.first().map_or([1; 3], |c| c.volume.dims);
         if let Some(c) = channels.iter().find(|c| c.volume.dims != dims) {
@@ -222,13 +233,10 @@ impl GpuChannels {
         let mut texels = vec![0u16; 4 * voxels];
         let mut skipping = Vec::with_capacity(n);
         for (k, c) in channels.iter().enumerate() {
-            let (lo, width) = (c.range[0], c.range[1] - c.range[0]);
-            let own: Vec<u16> = (0..voxels)
-                .map(|i| {
-                    let t = ((c.volume.data.get_f64(i) - lo) / width).clamp(0.0, 1.0);
-                    (t * 65535.0).round() as u16
-                })
-                .collect();
+            // As the intensity texture is made, so that the focus channel's equal it.
+            let (own, _) = c
+                .volume
+                .normalised_u16_in(if k == focus { range } else { c.range });
             for (i, &t) in own.iter().enumerate() {
                 texels[4 * i + k] = t;
             }
@@ -262,11 +270,22 @@ impl GpuChannels {
             bytemuck::cast_slice(&table),
             Access::ComputeSampled,
         )?;
+        let bounds: Vec<u32> = skipping
+            .iter()
+            .flat_map(|(t, _)| crate::classify::transfer::opacity_bounds(t).map(f32::to_bits))
+            .collect();
+        let bounds = vellum_gpu::Buffer::storage_from_bytes(
+            ctx,
+            "channel opacity bounds",
+            bytemuck::cast_slice(&bounds),
+        )?;
         Ok(GpuChannels {
             image,
             tfs,
+            bounds,
             mix,
             count: n,
+            focus,
             skipping,
         })
     }

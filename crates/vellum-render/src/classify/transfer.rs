@@ -199,6 +199,20 @@ impl TransferFunction {
     }
 }
 
+/// Per texel i of a 256-texel transfer function, the larger opacity of texels i and i + 1: a
+/// bound on every opacity linear filtering returns for intensities between their centres (and
+/// below the first centre or above the last, where it clamps). The ray caster's walk tests samples
+/// against it before classifying them (`render::raycast`; per channel, `classify::channels`).
+pub(crate) fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
+    let mut out = [0.0f32; 256];
+    let n = table.len();
+    for (i, o) in out.iter_mut().enumerate() {
+        let a = |j: usize| table.get(j.min(n.saturating_sub(1))).map_or(0.0, |t| t[3]);
+        *o = a(i).max(a(i + 1));
+    }
+    out
+}
+
 /// Opacity of a sample taken `ratio` times the reference distance apart: `1 − (1 − alpha)^ratio`.
 ///
 /// The standard opacity correction for a changed sampling distance (Lacroute & Levoy, "Fast volume

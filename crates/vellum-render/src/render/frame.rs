@@ -974,6 +974,7 @@ fn record_rays(
                     [
                         Bind::Sampled(&c.image, r.sampler),
                         Bind::Sampled(&c.tfs, r.sampler),
+                        Bind::StorageBuffer(&c.bounds),
                     ],
                     Some(c.mix),
                 ),
@@ -981,13 +982,22 @@ fn record_rays(
                     [
                         Bind::Sampled(volume, r.sampler),
                         Bind::Sampled(table, r.sampler),
+                        Bind::StorageBuffer(r.stand_in),
                     ],
                     None,
                 ),
             },
             brick_reuse: vol.paged().is_some_and(|p| p.reuse),
             brick_span: vol.paged().is_some_and(|p| p.span),
-            push: r.setup.ray_push(&r.options, vol.bricks().counts, two_level),
+            push: {
+                let mut push = r.setup.ray_push(&r.options, vol.bricks().counts, two_level);
+                // Mixed channels: the focus channel's component, where a sample's intensity is
+                // read (the shader reads x only then).
+                if let Ok(c) = r.channels {
+                    push.flags[0] = c.focus as i32;
+                }
+                push
+            },
             size,
         },
     )?;

@@ -53,9 +53,10 @@ pub(crate) struct RayPush {
     pub(crate) planes: [f32; 4],
     /// Brick counts along x, y, z, and the brick size in voxels.
     pub bricks: [i32; 4],
-    /// Two levels, skip empty bricks, jitter seed (0 off), bit 0 refine isosurface hits | bit 1
-    /// equal world steps. The modes (two levels, world steps) are selected by the pipeline's
-    /// [`Variant`]; the shader reads only y, z and bit 0 of w, each behind its variant bit.
+    /// Two levels (or, with mixed channels, the focus channel's component), skip empty bricks,
+    /// jitter seed (0 off), bit 0 refine isosurface hits | bit 1 equal world steps. The modes
+    /// (two levels, world steps) are selected by the pipeline's [`Variant`]; the shader reads
+    /// only y, z and bit 0 of w, each behind its variant bit, and x behind the channels'.
     pub flags: [i32; 4],
 }
 
@@ -66,11 +67,11 @@ pub(crate) const BRICK_FOCUS: u32 = 2;
 
 /// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images, the
 /// brick flags, the brick cache's page table, feedback and ray states (`passes::paging`), a
-/// label volume's voxels and table (`classify::labels`), and mixed channels' texture and
-/// transfer functions (`classify::channels`).
-pub(crate) const RAY_BINDINGS: [BindingKind; 21] = {
+/// label volume's voxels and table (`classify::labels`), and mixed channels' texture, transfer
+/// functions and opacity bounds (`classify::channels`).
+pub(crate) const RAY_BINDINGS: [BindingKind; 22] = {
     let slicer = SHADE_BINDINGS;
-    let mut all = [BindingKind::StorageBuffer; 21];
+    let mut all = [BindingKind::StorageBuffer; 22];
     let mut i = 0;
     while i < slicer.len() {
         all[i] = slicer[i];
@@ -88,19 +89,7 @@ pub(crate) const RAY_BINDINGS: [BindingKind; 21] = {
 /// Workgroup size of `raycast.comp`.
 pub(crate) const LOCAL: [u32; 3] = [8, 8, 1];
 
-/// Per texel i of a 256-texel transfer function, the larger opacity of texels i and i + 1: a
-/// bound on every opacity linear filtering returns for intensities between their centres (and
-/// below the first centre or above the last, where it clamps). The ray caster's walk tests samples
-/// against it before classifying them.
-pub(crate) fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
-    let mut out = [0.0f32; 256];
-    let n = table.len();
-    for (i, o) in out.iter_mut().enumerate() {
-        let a = |j: usize| table.get(j.min(n.saturating_sub(1))).map_or(0.0, |t| t[3]);
-        *o = a(i).max(a(i + 1));
-    }
-    out
-}
+pub(crate) use crate::classify::transfer::opacity_bounds;
 
 /// The bits of `raycast.comp`'s specialisation constant `VARIANT` (`shade.glsl`).
 ///
@@ -193,8 +182,9 @@ pub(crate) struct RayRequest<'a> {
     /// A label volume's voxels and table (stand-ins without one), and whether there is one
     /// (the `LABELS` variant).
     pub(crate) labels: ([Bind<'a>; 2], bool),
-    /// Mixed channels' texture and transfer functions (stand-ins without), and their mix.
-    pub(crate) channels: ([Bind<'a>; 2], Option<crate::classify::channels::Mix>),
+    /// Mixed channels' texture, transfer functions and opacity bounds (stand-ins without), and
+    /// their mix.
+    pub(crate) channels: ([Bind<'a>; 3], Option<crate::classify::channels::Mix>),
     /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
     pub(crate) brick_reuse: bool,
     /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
@@ -251,8 +241,8 @@ impl RayCaster {
         let [i0, i1, i2, i3, i4] = images.map(Bind::StorageImage);
         let [p0, p1, p2] = r.paging;
         let [l0, l1] = r.labels.0;
-        let [c0, c1] = r.channels.0;
-        let binds: [Bind; 21] = [
+        let [c0, c1, c2] = r.channels.0;
+        let binds: [Bind; 22] = [
             s[0],
             s[1],
             s[2],
@@ -274,6 +264,7 @@ impl RayCaster {
             l1,
             c0,
             c1,
+            c2,
         ];
         let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         if r.bricked && r.brick_reuse {

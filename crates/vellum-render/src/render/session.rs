@@ -280,7 +280,14 @@ fn attach_channels(
         )));
     }
     let channels = spec.read(Path::new(&scene.input.path), scene.input.time)?;
-    let gpu = crate::classify::channels::GpuChannels::new(ctx, &channels, spec.mix)?;
+    let focus = scene.input.channel.unwrap_or(spec.channels[0]);
+    let k = spec.channels.iter().position(|&c| c == focus).unwrap_or(0);
+    let gpu = crate::classify::channels::GpuChannels::new(
+        ctx,
+        &channels,
+        spec.mix,
+        (k, g.volume.range),
+    )?;
     g.classify.channels = Some(gpu);
     Ok(())
 }
