@@ -894,3 +894,56 @@ fn six_thousand_frames_hold_the_resident_set() {
         late - early
     );
 }
+
+/// Issue 42 in the window: a label volume's segments draw in their colours, as `render` draws
+/// them (the viewer prepares its volume itself and attaches segments and mixed channels through
+/// the session's `attach_beside`), with validation silent.
+#[test]
+fn a_label_volume_draws_in_its_colours_in_the_window() {
+    let Some((x, _guard)) = xvfb() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // Two boxes of ids 3 and 7 beside an intensity that is their mask.
+    let n = 24;
+    let mut labels = vec![0u8; n * n * n];
+    for z in 6..18 {
+        for y in 6..18 {
+            for x in 2..22 {
+                labels[x + n * (y + n * z)] = if x < 12 { 3 } else { 7 };
+            }
+        }
+    }
+    let vol = |d| vellum::volume::Volume::new([n; 3], [1.0; 3], d).unwrap();
+    let mask: Vec<f32> = labels.iter().map(|&l| (l > 0) as u8 as f32).collect();
+    let (img, lab) = (dir.path().join("i.nrrd"), dir.path().join("l.nrrd"));
+    vellum::volume::io::write(&img, &vol(vellum::volume::VoxelData::F32(mask))).unwrap();
+    vellum::volume::io::write(&lab, &vol(vellum::volume::VoxelData::U8(labels))).unwrap();
+    let shot = dir.path().join("labels.png");
+    let out = validated_view(&x, dir.path())
+        .arg(&img)
+        .arg("--labels")
+        .arg(&lab)
+        .args([
+            "--hide-labels",
+            "0",
+            "--label-colour",
+            "3=#ff0000",
+            "--label-colour",
+            "7=#0000ff",
+        ])
+        .args(["--size", "240x200", "--bench", "2", "--json", "--no-vsync"])
+        .arg("--screenshot-on-exit")
+        .arg(&shot)
+        .output()
+        .expect("running vellum view --bench");
+    bench_report(&out);
+    let rgb = rgb(&shot);
+    let count = |f: &dyn Fn(&[u8; 3]) -> bool| rgb.pixels().filter(|p| f(&p.0)).count();
+    let reds = count(&|p| p[0] > 80 && p[0] as u32 > 3 * (p[1] as u32 + p[2] as u32));
+    let blues = count(&|p| p[2] > 80 && p[2] as u32 > 3 * (p[0] as u32 + p[1] as u32));
+    assert!(
+        reds > 200 && blues > 200,
+        "{reds} red and {blues} blue pixels"
+    );
+}

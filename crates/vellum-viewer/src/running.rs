@@ -353,11 +353,16 @@ pub(crate) fn prepare_gpu(ctx: &Arc<Context>, l: &mut Loaded, budget: u64) -> Re
             l.scene.focus,
             &modulation,
         )?;
-        return Ok(Prepared::InCore(gpu));
+        let mut prepared = Prepared::InCore(gpu);
+        // Segments of a label volume and mixed channels, as `render` draws them.
+        vellum_render::render::session::attach_beside(ctx, &l.scene, &mut prepared)?;
+        return Ok(prepared);
     };
     let opts = SessionOptions::default();
     let opened = Opened::Bricked(levels);
-    let prepared = Prepared::new(ctx, &l.scene, &l.classification, &opened, (budget, &opts))?;
+    let mut prepared = Prepared::new(ctx, &l.scene, &l.classification, &opened, (budget, &opts))?;
+    // Refused in one sentence: labels and channels are drawn in core for now.
+    vellum_render::render::session::attach_beside(ctx, &l.scene, &mut prepared)?;
     // The ray caster draws bricked volumes.
     if l.scene.raycast.is_none() {
         l.scene.raycast = Some(Default::default());

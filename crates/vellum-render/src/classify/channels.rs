@@ -257,7 +257,10 @@ impl GpuChannels {
             bytemuck::cast_slice(&texels),
             Access::ComputeSampled,
         )?;
-        let table: Vec<[f32; 4]> = skipping.iter().flat_map(|(t, _)| t.iter().copied()).collect();
+        let table: Vec<[f32; 4]> = skipping
+            .iter()
+            .flat_map(|(t, _)| t.iter().copied())
+            .collect();
         // RGBA32F, as the 1D transfer function's texture.
         let tfs = Image::new(
             ctx,

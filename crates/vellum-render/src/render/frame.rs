@@ -136,7 +136,11 @@ impl FrameSetup {
         let visible: Vec<bool> = match input.channels {
             // Mixed channels: a brick is visible where any channel's function gives opacity.
             Some(c) => (0..input.bricks.range.len())
-                .map(|b| c.skipping.iter().any(|(t, br)| any_opacity(t, &br.range[b])))
+                .map(|b| {
+                    c.skipping
+                        .iter()
+                        .any(|(t, br)| any_opacity(t, &br.range[b]))
+                })
                 .collect(),
             None => input
                 .bricks

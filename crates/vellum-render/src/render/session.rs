@@ -227,6 +227,19 @@ impl Prepared {
     }
 }
 
+/// Puts what the scene draws beside its volume on the GPU: a label volume's segments and the
+/// channels mixed in the ray (`Session::prepare` does; a front end that prepares the volume
+/// itself, as the viewer does, calls it after).
+pub fn attach_beside(ctx: &Arc<Context>, scene: &Scene, prepared: &mut Prepared) -> Result<()> {
+    if let Some(spec) = &scene.labels {
+        attach_labels(ctx, scene, spec, prepared)?;
+    }
+    if let Some(spec) = &scene.channels {
+        attach_channels(ctx, scene, spec, prepared)?;
+    }
+    Ok(())
+}
+
 /// Reads the label volume `spec` names, checks that it lies on the input's grid, and puts it on
 /// the GPU beside the volume in core.
 fn attach_labels(
@@ -282,12 +295,8 @@ fn attach_channels(
     let channels = spec.read(Path::new(&scene.input.path), scene.input.time)?;
     let focus = scene.input.channel.unwrap_or(spec.channels[0]);
     let k = spec.channels.iter().position(|&c| c == focus).unwrap_or(0);
-    let gpu = crate::classify::channels::GpuChannels::new(
-        ctx,
-        &channels,
-        spec.mix,
-        (k, g.volume.range),
-    )?;
+    let gpu =
+        crate::classify::channels::GpuChannels::new(ctx, &channels, spec.mix, (k, g.volume.range))?;
     g.classify.channels = Some(gpu);
     Ok(())
 }
@@ -338,12 +347,7 @@ impl Session {
         (budget, opts): (u64, &SessionOptions),
     ) -> Result<Self> {
         let mut prepared = Prepared::new(ctx, scene, classification, opened, (budget, opts))?;
-        if let Some(spec) = &scene.labels {
-            attach_labels(ctx, scene, spec, &mut prepared)?;
-        }
-        if let Some(spec) = &scene.channels {
-            attach_channels(ctx, scene, spec, &mut prepared)?;
-        }
+        attach_beside(ctx, scene, &mut prepared)?;
         Ok(Session {
             prepared,
             renderer: Renderer::new(ctx)?,
