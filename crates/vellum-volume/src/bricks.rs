@@ -990,6 +990,42 @@ impl BrickCache {
     }
 }
 
+/// Per brick of `brick`³ voxels of `texels` (x fastest, `dims`), the (min, max) of the brick
+/// widened by one voxel on every side, where a trilinear sample in the brick reads: the bricks'
+/// counts along x, y, z and the ranges, x fastest.
+pub fn widened_ranges(
+    texels: &[u16],
+    dims: [usize; 3],
+    brick: usize,
+) -> ([usize; 3], Vec<[u16; 2]>) {
+    use rayon::prelude::*;
+    let counts = dims.map(|d| d.div_ceil(brick));
+    let range = (0..counts[0] * counts[1] * counts[2])
+        .into_par_iter()
+        .map(|b| {
+            let c = [
+                b % counts[0],
+                (b / counts[0]) % counts[1],
+                b / (counts[0] * counts[1]),
+            ];
+            let lo: [usize; 3] = std::array::from_fn(|a| (c[a] * brick).saturating_sub(1));
+            let hi: [usize; 3] = std::array::from_fn(|a| ((c[a] + 1) * brick + 1).min(dims[a]));
+            let (mut mn, mut mx) = (u16::MAX, 0u16);
+            for z in lo[2]..hi[2] {
+                for y in lo[1]..hi[1] {
+                    let row = &texels[dims[0] * (y + dims[1] * z)..][lo[0]..hi[0]];
+                    for &t in row {
+                        mn = mn.min(t);
+                        mx = mx.max(t);
+                    }
+                }
+            }
+            [mn, mx]
+        })
+        .collect();
+    (counts, range)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

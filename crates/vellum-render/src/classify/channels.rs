@@ -25,6 +25,9 @@ use vellum_gpu::{Access, Context, Format, Image, ImageDesc};
 use vellum_volume::io::ome_zarr::{Multiscale, OmeroChannel, Pick};
 use vellum_volume::Volume;
 
+/// Edge of the bricks whose ranges decide skipping: the volume's (`passes::normals::BRICK`).
+const BRICK: usize = 16;
+
 /// The most channels mixed in one ray (one RGBA texture).
 pub const MAX_CHANNELS: usize = 4;
 
@@ -164,7 +167,7 @@ fn default_tf(
     };
     // The lowest texel (centred at 1/512) stays transparent, so that the empty background of a
     // channel adds nothing along a ray.
-    let lo = lo.max(1.0 / crate::classify::textures::TF_SIZE as f32);
+    let lo = lo.max(1.0 / crate::classify::transfer::TF_SIZE as f32);
     let hi = hi.max(lo + 1e-3).min(1.0);
     let mut points = vec![ControlPoint {
         x: 0.0,
@@ -189,6 +192,9 @@ fn default_tf(
     TransferFunction::new("channel", points)
 }
 
+/// A channel's transfer-function table and its bricks' ranges.
+pub type ChannelSkip = (Vec<[f32; 4]>, Vec<[u16; 2]>);
+
 /// Channels on the GPU: one RGBA16 texture (channel k in component k, each over its own
 /// range) and their transfer functions (row k of a 256 × n table).
 pub struct GpuChannels {
@@ -206,9 +212,9 @@ pub struct GpuChannels {
     /// The component of the focus channel, whose values equal the volume's intensity texture's
     /// (its range is the volume's): the ray caster reads a sample's intensity from it.
     pub focus: usize,
-    /// Per channel, its transfer function's table and its bricks' ranges: a brick none of whose
-    /// channels can be visible is skipped.
-    pub skipping: Vec<(Vec<[f32; 4]>, crate::passes::normals::Bricks)>,
+    /// Per channel, its transfer function's table and its bricks' ranges (16³ bricks widened by
+    /// a voxel, as the volume's): a brick none of whose channels can be visible is skipped.
+    pub skipping: Vec<ChannelSkip>,
 }
 
 impl GpuChannels {
@@ -229,7 +235,7 @@ impl GpuChannels {
             )));
         }
         let voxels = dims.iter().product::<usize>();
-        let size = crate::classify::textures::TF_SIZE;
+        let size = crate::classify::transfer::TF_SIZE;
         let mut texels = vec![0u16; 4 * voxels];
         let mut skipping = Vec::with_capacity(n);
         for (k, c) in channels.iter().enumerate() {
@@ -240,8 +246,8 @@ impl GpuChannels {
             for (i, &t) in own.iter().enumerate() {
                 texels[4 * i + k] = t;
             }
-            let bricks = crate::passes::normals::Bricks::new(&own, dims);
-            skipping.push((c.tf.table(size), bricks));
+            let (_, ranges) = vellum_volume::bricks::widened_ranges(&own, dims, BRICK);
+            skipping.push((c.tf.table(size), ranges));
         }
         let extent = dims.map(|d| d as u32);
         // RGBA16 unorm: each channel at 16 bits over its range, filtered linearly as the

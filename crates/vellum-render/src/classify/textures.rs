@@ -14,8 +14,7 @@ use vellum_gpu::transfer::record_upload_from;
 use vellum_gpu::Format;
 use vellum_gpu::{Access, Context, Frame, Image, ImageDesc};
 
-/// Entries of the 1D transfer-function table.
-pub(crate) const TF_SIZE: usize = 256;
+pub(crate) use crate::classify::transfer::TF_SIZE;
 /// Entries along each axis of the occlusion transfer-function table.
 pub(crate) const OTF_SIZE: usize = crate::classify::otf::TABLE_SIZE;
 

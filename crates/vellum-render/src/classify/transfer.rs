@@ -34,6 +34,9 @@ pub struct TransferFunction {
     pub points: Vec<ControlPoint>,
 }
 
+/// Entries of the 1D transfer-function table on the GPU.
+pub(crate) const TF_SIZE: usize = 256;
+
 /// Names accepted by [`TransferFunction::preset`].
 pub const PRESETS: &[&str] = &["grey", "ct-bone", "ct-skin-bone", "mri-brain"];
 

@@ -72,31 +72,7 @@ pub struct Bricks {
 impl Bricks {
     /// The brick ranges of `texels` (normalised intensity, x fastest) of size `dims`.
     pub fn new(texels: &[u16], dims: [usize; 3]) -> Self {
-        use rayon::prelude::*;
-        let counts = dims.map(|d| d.div_ceil(BRICK));
-        let range = (0..counts[0] * counts[1] * counts[2])
-            .into_par_iter()
-            .map(|b| {
-                let c = [
-                    b % counts[0],
-                    (b / counts[0]) % counts[1],
-                    b / (counts[0] * counts[1]),
-                ];
-                let lo: [usize; 3] = std::array::from_fn(|a| (c[a] * BRICK).saturating_sub(1));
-                let hi: [usize; 3] = std::array::from_fn(|a| ((c[a] + 1) * BRICK + 1).min(dims[a]));
-                let (mut mn, mut mx) = (u16::MAX, 0u16);
-                for z in lo[2]..hi[2] {
-                    for y in lo[1]..hi[1] {
-                        let row = &texels[dims[0] * (y + dims[1] * z)..][lo[0]..hi[0]];
-                        for &t in row {
-                            mn = mn.min(t);
-                            mx = mx.max(t);
-                        }
-                    }
-                }
-                [mn, mx]
-            })
-            .collect();
+        let (counts, range) = vellum_volume::bricks::widened_ranges(texels, dims, BRICK);
         Bricks { counts, range }
     }
 

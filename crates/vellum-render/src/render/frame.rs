@@ -139,7 +139,7 @@ impl FrameSetup {
                 .map(|b| {
                     c.skipping
                         .iter()
-                        .any(|(t, br)| any_opacity(t, &br.range[b]))
+                        .any(|(t, ranges)| any_opacity(t, &ranges[b]))
                 })
                 .collect(),
             None => input
