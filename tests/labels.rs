@@ -396,22 +396,60 @@ fn the_frog_tissue_labels_show_their_organs_in_their_colours() {
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("frog.png");
     let f = frog.to_str().unwrap();
-    let o = common::vellum(&[
-        "render",
-        f,
-        "--labels",
-        f,
-        "--size",
-        "256x256",
-        "--camera",
-        "30,20",
-        "--out",
-        png.to_str().unwrap(),
-    ]);
+    let scene = dir.path().join("frog.json");
+    let (p, sc) = (png.to_str().unwrap(), scene.to_str().unwrap());
+    let args = [
+        "render", f, "--labels", f, "--size", "256x256", "--camera", "30,20",
+    ];
+    let o = common::vellum(&[&args[..], &["--out", p, "--save-scene", sc]].concat());
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let ids: Vec<u32> = labels.ids[1..].to_vec();
     let shown = ids_shown(&png, &ids, &[]);
     assert!(shown.len() >= 6, "organs in their own colours: {shown:?}");
+    // Nearest sampling blends no labels: without the white specular highlight, at most 1 % of
+    // the lit pixels (the segments' edges among them) take a colour of no label.
+    let mut json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&scene).unwrap()).unwrap();
+    json["lighting"]["specular"] = 0.0.into();
+    std::fs::write(&scene, json.to_string()).unwrap();
+    let o = common::vellum(&["render", "--scene", sc, "--out", p]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rgb = image::open(&png).unwrap().to_rgb8();
+    let lit: Vec<[u8; 3]> = rgb
+        .pixels()
+        .map(|p| p.0)
+        .filter(|p| p.iter().any(|&c| c > 40))
+        .collect();
+    let unit = |c: [f32; 3]| {
+        let m = c[0].max(c[1]).max(c[2]).max(1e-6);
+        c.map(|v| v / m)
+    };
+    let colours: Vec<[f32; 3]> = ids
+        .iter()
+        .map(|&id| {
+            unit(
+                colour_of(id)[..3]
+                    .try_into()
+                    .map(|c: [u8; 3]| c.map(f32::from))
+                    .unwrap(),
+            )
+        })
+        .collect();
+    let foreign = lit
+        .iter()
+        .filter(|p| {
+            let seen = unit(p.map(f32::from));
+            !colours
+                .iter()
+                .any(|c| (0..3).all(|i| (seen[i] - c[i]).abs() < 0.06))
+        })
+        .count();
+    let share = foreign as f64 / lit.len() as f64;
+    assert!(
+        lit.len() > 3000 && share <= 0.01,
+        "{foreign} of {} lit pixels in no label's colour",
+        lit.len()
+    );
 }
 
 #[test]
