@@ -31,6 +31,10 @@ use vellum_volume::Volume;
 /// decoded about twice rather than eight times.
 pub const DEFAULT_MEMORY: u64 = 1 << 30;
 
+/// Loader threads for a store on a server, at least: requests in flight, each waiting on its
+/// answer's latency rather than on a core.
+pub const REMOTE_LOADERS: usize = 16;
+
 /// Which levels a bricked frame samples.
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
 pub enum Lod {
@@ -169,7 +173,14 @@ impl Prepared {
                     budget,
                     finest,
                 )?;
-                let mut stream = Streamer::new(levels.clone(), opts.stream);
+                let mut stream_opts = opts.stream;
+                let remote = vellum_volume::io::http_store::is_url(Path::new(&scene.input.path));
+                if remote && std::env::var_os("VELLUM_LOADERS").is_none() {
+                    // A store on a server: the loaders mostly wait on answers, so more of them
+                    // keep more requests in flight (each sends its own).
+                    stream_opts.threads = stream_opts.threads.max(REMOTE_LOADERS);
+                }
+                let mut stream = Streamer::new(levels.clone(), stream_opts);
                 stream.start(&paged.volume.paged);
                 Prepared::Paged(paged, Box::new(stream))
             }
