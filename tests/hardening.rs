@@ -119,7 +119,10 @@ fn every_option_takes_a_negative_value_as_a_value() {
             .unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_ne!(out.status.code(), Some(101), "{args:?} panicked: {stderr}");
-        assert!(!stderr.contains("unexpected argument '-7'"), "{args:?}: {stderr}");
+        assert!(
+            !stderr.contains("unexpected argument '-7'"),
+            "{args:?}: {stderr}"
+        );
     }
     // Whole-number options say so, in each command that has one.
     for args in [
