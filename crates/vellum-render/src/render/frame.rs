@@ -1373,7 +1373,7 @@ mod tests {
             style: Some(styled),
             ..view()
         };
-        assert!(refused(styled_view, &no_focus).contains("`iso` or `focus`"));
+        assert!(refused(styled_view, &no_focus).contains("`iso`, `focus` or `focus_labels`"));
         let empty = View {
             size: [0, 10],
             ..view()
