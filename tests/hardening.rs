@@ -71,6 +71,26 @@ fn value_options(path: &[String]) -> Vec<String> {
         .collect()
 }
 
+/// Runs `vellum ARGS` in `cwd`, which must not panic nor take `-7` for a flag.
+fn takes_minus_seven_as_a_value(args: &[&str], cwd: &Path) {
+    let out = Command::new(env!("CARGO_BIN_EXE_vellum"))
+        .args(args)
+        .current_dir(cwd)
+        .env("VELLUM_VALIDATION", "1")
+        .env_remove("RUST_BACKTRACE")
+        // `view` with a value that passes would open a window and wait for a user.
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_ne!(out.status.code(), Some(101), "{args:?} panicked: {stderr}");
+    assert!(
+        !stderr.contains("unexpected argument '-7'"),
+        "{args:?}: -7 was taken for a flag: {stderr}"
+    );
+}
+
 #[test]
 fn every_option_takes_a_negative_value_as_a_value() {
     let commands = subcommands(&[]);
@@ -89,40 +109,13 @@ fn every_option_takes_a_negative_value_as_a_value() {
             }
             let mut args: Vec<&str> = path.iter().map(String::as_str).collect();
             args.extend([flag.as_str(), "-7"]);
-            let out = Command::new(env!("CARGO_BIN_EXE_vellum"))
-                .args(&args)
-                .current_dir(cwd.path())
-                .env("VELLUM_VALIDATION", "1")
-                .env_remove("RUST_BACKTRACE")
-                // `view` with a value that passes would open a window and wait for a user.
-                .env_remove("DISPLAY")
-                .env_remove("WAYLAND_DISPLAY")
-                .output()
-                .unwrap();
-            let stderr = String::from_utf8_lossy(&out.stderr);
-            assert_ne!(out.status.code(), Some(101), "{args:?} panicked: {stderr}");
-            assert!(
-                !stderr.contains("unexpected argument '-7'"),
-                "{args:?}: -7 was taken for a flag: {stderr}"
-            );
+            takes_minus_seven_as_a_value(&args, cwd.path());
             checked += 1;
         }
     }
     assert!(checked >= 60, "only {checked} options found");
     for flag in remote {
-        let args = ["info", "phantom:sphere:8", flag, "-7"];
-        let out = Command::new(env!("CARGO_BIN_EXE_vellum"))
-            .args(args)
-            .current_dir(cwd.path())
-            .env_remove("RUST_BACKTRACE")
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_ne!(out.status.code(), Some(101), "{args:?} panicked: {stderr}");
-        assert!(
-            !stderr.contains("unexpected argument '-7'"),
-            "{args:?}: {stderr}"
-        );
+        takes_minus_seven_as_a_value(&["info", "phantom:sphere:8", flag, "-7"], cwd.path());
     }
     // Whole-number options say so, in each command that has one.
     for args in [

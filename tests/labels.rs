@@ -385,6 +385,17 @@ fn labels_written_by_python_ome_zarr_are_read_with_their_colours() {
     }
 }
 
+/// `vellum ARGS`, which must succeed writing `png`: its pixels with a channel above 40.
+fn lit_pixels(args: &[&str], png: &Path) -> Vec<[u8; 3]> {
+    let o = common::vellum(args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rgb = image::open(png).unwrap().to_rgb8();
+    rgb.pixels()
+        .map(|p| p.0)
+        .filter(|p| p.iter().any(|&c| c > 40))
+        .collect()
+}
+
 #[test]
 fn the_frog_tissue_labels_show_their_organs_in_their_colours() {
     let Some(data) = common::shared_data() else {
@@ -412,14 +423,7 @@ fn the_frog_tissue_labels_show_their_organs_in_their_colours() {
         serde_json::from_slice(&std::fs::read(&scene).unwrap()).unwrap();
     json["lighting"]["specular"] = 0.0.into();
     std::fs::write(&scene, json.to_string()).unwrap();
-    let o = common::vellum(&["render", "--scene", sc, "--out", p]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let rgb = image::open(&png).unwrap().to_rgb8();
-    let lit: Vec<[u8; 3]> = rgb
-        .pixels()
-        .map(|p| p.0)
-        .filter(|p| p.iter().any(|&c| c > 40))
-        .collect();
+    let lit = lit_pixels(&["render", "--scene", sc, "--out", p], &png);
     let unit = |c: [f32; 3]| {
         let m = c[0].max(c[1]).max(c[2]).max(1e-6);
         c.map(|v| v / m)
@@ -472,14 +476,7 @@ fn the_seg3d_skull_mask_colours_its_head_beside_the_intensities() {
             "render", h, "--labels", m, "--size", "160x160", "--camera", "120,10", "--out", p,
         ];
         args.extend(extra);
-        let o = common::vellum(&args);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let rgb = image::open(&png).unwrap().to_rgb8();
-        let lit: Vec<[u8; 3]> = rgb
-            .pixels()
-            .map(|p| p.0)
-            .filter(|p| p.iter().any(|&c| c > 40))
-            .collect();
+        let lit = lit_pixels(&args, &png);
         let grey = lit
             .iter()
             .filter(|p| p.iter().max().unwrap() - p.iter().min().unwrap() < 12)
