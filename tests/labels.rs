@@ -10,9 +10,11 @@ use std::path::Path;
 use vellum::classify::labels::LabelSpec;
 use vellum::render::bricked::StillOptions;
 use vellum::render::overrides::{CameraAngles, SceneOverrides};
+use vellum::render::pick::{pick_label, PickInput};
 use vellum::render::scene::{InputSpec, Scene};
 use vellum::render::session::{Session, SessionOptions};
 use vellum::render::targets::FrameImage;
+use vellum::render::view::View;
 use vellum::volume::labels::colour_of;
 use vellum::volume::{Volume, VoxelData};
 
@@ -72,8 +74,8 @@ fn disc_areas(labels: &Volume, axis: usize) -> Vec<usize> {
 }
 
 /// One orthographic frame along z of the balls with `spec`'s segments, 192² pixels (4 per
-/// voxel), through the session as the front ends open it.
-fn frame(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> FrameImage {
+/// voxel), through the session as the front ends open it; and the view it was drawn with.
+fn frame_and_view(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> (FrameImage, View) {
     let (intensity, _) = balls();
     let overrides = SceneOverrides {
         camera: Some(CameraAngles {
@@ -106,7 +108,11 @@ fn frame(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> FrameImage {
         max_wait: None,
         progress: None,
     };
-    session.still(&view, opts).unwrap().0
+    (session.still(&view, opts).unwrap().0, view)
+}
+
+fn frame(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> FrameImage {
+    frame_and_view(gpu, spec, style).0
 }
 
 fn spec(dir: &Path, hide: &[u32], focus: &[u32]) -> LabelSpec {
@@ -152,7 +158,7 @@ fn segments_take_their_colours_and_cover_their_discs() {
     let dir = tempfile::tempdir().unwrap();
     // Id 0 hidden: the segments alone (the intensity here is the balls' mask, so what no
     // segment holds would only be the half-voxel shell that linear filtering puts around them).
-    let all = frame(&gpu, spec(dir.path(), &[0], &[]), None);
+    let (all, view) = frame_and_view(&gpu, spec(dir.path(), &[0], &[]), None);
     let lit = covered(&all);
     // Every lit pixel shows one ball's colour (diffuse light scales it; the specular highlight
     // whitens a few).
@@ -180,6 +186,7 @@ fn segments_take_their_colours_and_cover_their_discs() {
             "ball {k}: {got:.3} of the pixels, its disc {want:.3}"
         );
     }
+    picks_agree_with_the_frame(&all, &view, &spec(dir.path(), &[0], &[]));
     // Hidden segments add nothing: only ball 2 is left, and it covers what it covered.
     let one = frame(&gpu, spec(dir.path(), &[0, 5, 9], &[]), None);
     let lit_one = covered(&one);
@@ -206,6 +213,40 @@ fn segments_take_their_colours_and_cover_their_discs() {
         .filter_map(|&p| ball_of(p))
         .collect();
     assert_eq!(shown.into_iter().collect::<Vec<_>>(), [2, 5, 9]);
+}
+
+/// The viewer's pick (a CPU walk of the pixel's ray) names the ball whose colour the GPU drew
+/// at that pixel, and nothing where the frame is empty: checked on every 7th pixel.
+fn picks_agree_with_the_frame(f: &FrameImage, view: &View, spec: &LabelSpec) {
+    let (intensity, labels) = balls();
+    let labels = vellum::volume::labels::Labels::of_volume(&labels, "balls").unwrap();
+    let tf = vellum::classify::window::auto(&intensity, [0.0, 1.0]).unwrap();
+    let input = PickInput {
+        volume: &intensity,
+        range: [0.0, 1.0],
+        tf: &tf,
+        labels: &labels,
+        spec,
+        background: true,
+    };
+    let (mut agree, mut coloured, mut empty_wrong) = (0, 0, 0);
+    for i in (0..f.composite.len()).step_by(7) {
+        let pixel = [(i % 192) as f32, (i / 192) as f32];
+        let picked = pick_label(&input, view, pixel);
+        match ball_of(f.composite[i]) {
+            Some(id) => {
+                coloured += 1;
+                agree += (picked == Some(id as u32)) as usize;
+            }
+            None if f.composite[i][3] < 0.01 => empty_wrong += picked.is_some() as usize,
+            None => {}
+        }
+    }
+    assert!(coloured > 200, "{coloured} coloured pixels checked");
+    assert!(
+        agree as f64 >= 0.98 * coloured as f64 && empty_wrong == 0,
+        "the pick agrees with the frame at {agree} of {coloured} coloured pixels, and names a segment at {empty_wrong} empty ones"
+    );
 }
 
 #[test]

@@ -89,6 +89,23 @@ pub fn copy_buffer(ctx: &Context, cmd: vk::CommandBuffer, src: &Buffer, dst: &Bu
     };
 }
 
+/// Records a copy of `src` (a slice of a staging buffer) into the start of `dst`; the caller
+/// orders it with [`memory_transition`].
+pub fn copy_slice_to_buffer(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    src: &crate::resources::BufferSlice,
+    dst: &Buffer,
+) {
+    let region = vk::BufferCopy::default()
+        .src_offset(src.offset)
+        .size(src.size.min(dst.size));
+    unsafe {
+        ctx.device
+            .cmd_copy_buffer(cmd, src.raw, dst.raw, std::slice::from_ref(&region))
+    };
+}
+
 /// Records a write of `bytes` (at most 65,536, a multiple of 4) at the start of `buffer`, in
 /// the command buffer itself; the caller orders it with [`memory_transition`].
 pub fn update_buffer(ctx: &Context, cmd: vk::CommandBuffer, buffer: &Buffer, bytes: &[u8]) {

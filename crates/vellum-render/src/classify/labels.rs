@@ -13,7 +13,8 @@
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 use vellum_error::{Error, Result};
-use vellum_gpu::{Buffer, Context};
+use vellum_gpu::commands::{copy_slice_to_buffer, memory_transition};
+use vellum_gpu::{Access, Buffer, Context, Frame};
 use vellum_volume::labels::Labels;
 
 /// The segments of a label volume beside the input, as a scene file and the flags give them.
@@ -103,6 +104,12 @@ pub struct GpuLabels {
     pub decide_focus: bool,
     /// The label volume on the host: ids, counts and colours, for a viewer's list.
     pub labels: Arc<Labels>,
+    /// The spec the table was made from, and whether id 0 is drawn ([`LabelSpec::table`]).
+    spec: LabelSpec,
+    background: bool,
+    /// A table set since the last frame, uploaded by the next one ([`GpuLabels::record`]).
+    pending: Option<Vec<u32>>,
+    ctx: Arc<Context>,
 }
 
 impl GpuLabels {
@@ -130,7 +137,42 @@ impl GpuLabels {
             table,
             decide_focus: !spec.focus.is_empty(),
             labels,
+            spec: spec.clone(),
+            background,
+            pending: None,
+            ctx: ctx.clone(),
         })
+    }
+
+    /// The spec the segments are drawn by.
+    pub fn spec(&self) -> &LabelSpec {
+        &self.spec
+    }
+
+    /// Draws the segments as `spec` says from the next frame on (a viewer's edit of visibility,
+    /// colour or focus): only the table changes, uploaded when that frame is recorded. An id the
+    /// volume lacks is refused and the table kept.
+    pub fn set_spec(&mut self, spec: &LabelSpec) -> Result<()> {
+        spec.check(&self.labels)?;
+        if *spec != self.spec {
+            self.pending = Some(spec.table(&self.labels, self.background));
+            self.decide_focus = !spec.focus.is_empty();
+            self.spec = spec.clone();
+        }
+        Ok(())
+    }
+
+    /// Records the upload of a table set since the last frame, ordered after the previous
+    /// frames' reads and before this one's (`next`).
+    pub(crate) fn record(&mut self, frame: &mut Frame, next: Access) -> Result<()> {
+        let Some(words) = self.pending.take() else {
+            return Ok(());
+        };
+        let src = frame.staging.push(bytemuck::cast_slice(&words), 16)?;
+        memory_transition(&self.ctx, frame.cmd, next, Access::TransferWrite);
+        copy_slice_to_buffer(&self.ctx, frame.cmd, &src, &self.table);
+        memory_transition(&self.ctx, frame.cmd, Access::TransferWrite, next);
+        Ok(())
     }
 }
 

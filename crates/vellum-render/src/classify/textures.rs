@@ -149,6 +149,9 @@ impl GpuClassification {
     pub fn record(&mut self, frame: &mut Frame, next: Access) -> Result<()> {
         let ctx = self.ctx.clone();
         self.transfer.record(frame, &ctx, next)?;
+        if let Some(labels) = self.labels.as_mut() {
+            labels.record(frame, Access::ComputeRead)?;
+        }
         self.occlusion.record(frame, &ctx, next)
     }
 

@@ -8,6 +8,7 @@ pub mod bricked;
 pub mod camera;
 pub mod frame;
 pub mod overrides;
+pub mod pick;
 pub(crate) mod post;
 pub(crate) mod proxy;
 pub mod raycast;
