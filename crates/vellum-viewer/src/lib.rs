@@ -212,6 +212,8 @@ struct Input {
     shift: bool,
     ctrl: bool,
     last_click: Option<Instant>,
+    /// Where the left button went down over the view: a release there is a click that picks.
+    pressed_at: Option<[f64; 2]>,
     last_change: Instant,
     /// Whether the full-resolution frame has been drawn since the last change.
     refined: bool,
@@ -271,7 +273,7 @@ impl ApplicationHandler for App {
             {
                 match state {
                     ElementState::Pressed => r.press(button),
-                    ElementState::Released => r.input.drag = None,
+                    ElementState::Released => r.release(button),
                 }
             }
             WindowEvent::MouseInput {

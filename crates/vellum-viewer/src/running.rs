@@ -122,7 +122,8 @@ impl Running {
         let mut gpu = prepare_gpu(&ctx, &mut loaded, budget)?;
         let spectrum = gpu.take_spectrum();
         let dims = gpu.volume().dims();
-        let session = Session::new(
+        let segments = segments_of(&mut gpu);
+        let mut session = Session::new(
             loaded,
             spectrum,
             dims,
@@ -134,6 +135,7 @@ impl Running {
                 budget,
             },
         );
+        session.model.segments = segments;
         Ok(Running {
             gpu: GpuState {
                 frames,
@@ -155,6 +157,7 @@ impl Running {
                 shift: false,
                 ctrl: false,
                 last_click: None,
+                pressed_at: None,
                 last_change: Instant::now() - REFINE_AFTER,
                 refined: false,
             },
@@ -197,8 +200,54 @@ impl Running {
                 self.reset_camera();
             }
             self.input.last_click = Some(now);
+            self.input.pressed_at = Some(self.input.cursor);
         }
         self.input.drag = kind.map(|k| (k, self.input.cursor));
+    }
+
+    /// A mouse button released over the view: a left click that did not move (within 3 pixels)
+    /// picks the segment under the pointer, when the volume has segments.
+    pub(crate) fn release(&mut self, button: MouseButton) {
+        self.input.drag = None;
+        let pressed = self.input.pressed_at.take();
+        let [x, y] = self.input.cursor;
+        let still = pressed.is_some_and(|p| (p[0] - x).hypot(p[1] - y) <= 3.0);
+        if button == MouseButton::Left && still && self.session.model.segments.is_some() {
+            self.pick([x, y]);
+        }
+    }
+
+    /// Picks the segment at window position `p` (pixels) with [`vellum_render::render::pick`],
+    /// and says which in the message line and the segments panel.
+    fn pick(&mut self, p: [f64; 2]) {
+        let Ok(mut view) = self.session.model.scene.view(self.session.model.oriented) else {
+            return;
+        };
+        view.size = self.view_size();
+        let [vx, vy, ..] = self.view_rect;
+        let pixel = [(p[0] - vx as f64) as f32, (p[1] - vy as f64) as f32];
+        let range = self.gpu.scene.volume().range();
+        let Some(gpu) = self.gpu.scene.classify().labels.as_ref() else {
+            return;
+        };
+        let input = vellum_render::render::pick::PickInput {
+            volume: &self.session.volume,
+            range,
+            tf: &self.session.applied_tf,
+            labels: &gpu.labels,
+            spec: gpu.spec(),
+            background: gpu.background(),
+        };
+        let picked = vellum_render::render::pick::pick_label(&input, &view, pixel);
+        let m = &mut self.session.model;
+        if let Some(list) = m.segments.as_mut() {
+            list.picked = picked;
+            m.message = match picked {
+                Some(id) => format!("picked label {id} ({} voxels)", list.count_of(id)),
+                None => "no segment under the pointer".into(),
+            };
+        }
+        self.changed();
     }
 
     /// A key pressed outside egui: the session's keys, and the panel's.
@@ -281,8 +330,10 @@ impl Running {
                 self.gpu.frames.wait_idle().ok();
                 let spectrum = gpu.take_spectrum();
                 let dims = gpu.volume().dims();
+                let segments = segments_of(&mut gpu);
                 self.gpu.scene = gpu;
                 self.session.opened(l, &what, spectrum, dims);
+                self.session.model.segments = segments;
                 self.window
                     .set_title(&format!("vellum: {}", self.session.model.scene.input.path));
             }
@@ -335,10 +386,21 @@ impl Running {
                 Edit::Transfer(tf) => classify.set_transfer(&tf),
                 Edit::OcclusionTable(table) => classify.set_occlusion_table(Some(table))?,
                 Edit::Modulation(m) => classify.modulation = m,
+                Edit::Labels(spec) => {
+                    if let Some(l) = classify.labels.as_mut() {
+                        l.set_spec(&spec)?;
+                    }
+                }
             }
         }
         Ok(())
     }
+}
+
+/// The segments panel's list of the label volume `gpu` draws, if it has one.
+fn segments_of(gpu: &mut Prepared) -> Option<crate::ui::Segments> {
+    let l = gpu.classify().labels.as_ref()?;
+    Some(crate::ui::Segments::of(&l.labels, l.background()))
 }
 
 /// The GPU state of a loaded volume: in core, or the brick cache's pools with the streamer

@@ -130,6 +130,8 @@ pub(crate) enum Edit {
     Transfer(TransferFunction),
     OcclusionTable(Vec<[f32; 4]>),
     Modulation(Modulation),
+    /// The segments' visibility, colours or focus changed (the same label volume).
+    Labels(vellum_render::classify::labels::LabelSpec),
 }
 
 /// What the shell tells a new session besides the first volume.
@@ -476,7 +478,9 @@ impl Session {
                 .filter(|m| m.is_active())
                 .map(|m| m.importance_radius)
         };
+        let label_path = |x: &Scene| x.labels.as_ref().map(|l| l.path.clone());
         let needs_prepare = s.input != a.input
+            || label_path(s) != label_path(a)
             || (!matches!(s.classification, ClassificationSpec::Transfer(_))
                 && s.classification != a.classification)
             || radius(s) != radius(a) && radius(s).is_some();
@@ -491,6 +495,11 @@ impl Session {
             self.model.scene.focus = self.applied.focus;
         }
         let mut edits = vec![Edit::Focus(self.model.scene.focus)];
+        if let Some(spec) = self.model.scene.labels.as_ref() {
+            if self.applied.labels.as_ref() != Some(spec) {
+                edits.push(Edit::Labels(spec.clone()));
+            }
+        }
         self.apply_occlusion(&mut edits);
         if self.model.tf != self.applied_tf {
             edits.push(Edit::Transfer(self.model.tf.clone()));

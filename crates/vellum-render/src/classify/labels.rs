@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::commands::{copy_slice_to_buffer, memory_transition};
-use vellum_gpu::{Access, Buffer, Context, Frame};
+use vellum_gpu::{Access, Buffer, BufferDesc, Context, Frame};
 use vellum_volume::labels::Labels;
 
 /// The segments of a label volume beside the input, as a scene file and the flags give them.
@@ -127,10 +127,13 @@ impl GpuLabels {
             "label voxels",
             bytemuck::cast_slice(&labels.packed()),
         )?;
-        let table = Buffer::storage_from_bytes(
+        // Device-local, written by the frames that record a table ([`GpuLabels::record`]),
+        // the first one included.
+        let words = spec.table(&labels, background);
+        let table = Buffer::new(
             ctx,
             "label table",
-            bytemuck::cast_slice(&spec.table(&labels, background)),
+            &BufferDesc::storage(4 * words.len() as u64),
         )?;
         Ok(GpuLabels {
             voxels,
@@ -139,7 +142,7 @@ impl GpuLabels {
             labels,
             spec: spec.clone(),
             background,
-            pending: None,
+            pending: Some(words),
             ctx: ctx.clone(),
         })
     }
@@ -147,6 +150,11 @@ impl GpuLabels {
     /// The spec the segments are drawn by.
     pub fn spec(&self) -> &LabelSpec {
         &self.spec
+    }
+
+    /// Whether id 0 is drawn unless hidden ([`LabelSpec::table`]).
+    pub fn background(&self) -> bool {
+        self.background
     }
 
     /// Draws the segments as `spec` says from the next frame on (a viewer's edit of visibility,

@@ -296,3 +296,50 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
     assert_eq!(voxels(&s), at_0);
     assert!(s.playing(), "still playing");
 }
+
+/// The segments panel's edits (issue 42): visibility, colour and focus of a label volume's ids
+/// become one `Edit::Labels` with the new spec, applied once; another label volume loads the
+/// scene again instead.
+#[test]
+fn a_segment_edit_is_a_new_label_table_and_another_label_volume_a_load() {
+    use crate::ui::segments::{colour_in, set_colour, set_focus, set_shown};
+    use vellum_render::classify::labels::LabelSpec;
+    let mut s = session("phantom:sphere:16");
+    let range = s.model.range;
+    let spec = LabelSpec {
+        path: "labels.nrrd".into(),
+        ..Default::default()
+    };
+    s.model.scene.labels = Some(spec.clone());
+    s.applied.labels = Some(spec.clone());
+    assert!(!s
+        .apply(range, false)
+        .iter()
+        .any(|e| matches!(e, Edit::Labels(_))));
+
+    let edited = s.model.scene.labels.as_mut().unwrap();
+    set_shown(edited, 7, false);
+    set_shown(edited, 3, false);
+    set_shown(edited, 7, true);
+    set_focus(edited, 5, true);
+    set_colour(edited, 5, [1, 2, 3], [9, 9, 9]);
+    set_colour(edited, 3, [9, 9, 9], [9, 9, 9]);
+    assert_eq!(colour_in(edited, 5, [9, 9, 9]), [1, 2, 3]);
+    assert_eq!(colour_in(edited, 3, [9, 9, 9]), [9, 9, 9]);
+    let want = LabelSpec {
+        hide: vec![3],
+        focus: vec![5],
+        colours: vec![(5, [1, 2, 3])],
+        ..spec.clone()
+    };
+    let edits = s.apply(range, false);
+    assert!(edits.contains(&Edit::Labels(want)), "{edits:?}");
+    assert!(!s
+        .apply(range, false)
+        .iter()
+        .any(|e| matches!(e, Edit::Labels(_))));
+
+    s.model.scene.labels.as_mut().unwrap().path = "other.nrrd".into();
+    assert_eq!(s.apply(range, false), Vec::new());
+    assert!(s.loading(), "another label volume is loaded with the scene");
+}

@@ -18,12 +18,15 @@ use vellum_volume::feature::map::{FeatureMap, Node};
 mod features;
 mod occlusion;
 mod rendering;
+pub(crate) mod segments;
 mod transfer;
 
 pub use features::visible_map;
 use features::*;
 use occlusion::*;
 use rendering::*;
+pub use segments::Segments;
+use segments::*;
 use transfer::*;
 
 /// What the panels ask the window loop to do.
@@ -82,7 +85,7 @@ pub struct Model {
     pub interactive: bool,
     pub requests: Requests,
     /// Where named widgets were last drawn (points), for `VELLUM_VIEW_LAYOUT`: `tf-editor`,
-    /// `spectrum`, `feature:LABEL` (its visibility box).
+    /// `spectrum`, `feature:LABEL` and `label:ID` (their visibility boxes).
     pub marks: std::collections::BTreeMap<String, Rect>,
     /// The feature map (FM5) when the scene is classified by one; its colours are edited here.
     pub features: Option<FeatureMap>,
@@ -90,6 +93,9 @@ pub struct Model {
     pub hidden: BTreeSet<String>,
     /// Whether the feature map was edited since it was loaded (saved beside the scene).
     pub features_edited: bool,
+    /// The segments of a label volume beside the input, when the scene has one (the scene's
+    /// `labels` spec holds what the panel edits).
+    pub segments: Option<Segments>,
     /// The occlusion transfer function (OS4, OS5) when the scene is classified by one.
     pub otf: Option<OcclusionTf>,
     /// Whether the OTF's table or its AO parameters changed since it was loaded.
@@ -146,6 +152,7 @@ impl Model {
             features: None,
             hidden: BTreeSet::new(),
             features_edited: false,
+            segments: None,
             otf: None,
             otf_edited: false,
             spectrum: None,
@@ -277,6 +284,11 @@ fn panel(ui: &mut egui::Ui, m: &mut Model) {
         egui::CollapsingHeader::new("Time")
             .default_open(true)
             .show(ui, |ui| time(ui, m));
+    }
+    if m.segments.is_some() {
+        egui::CollapsingHeader::new("Segments")
+            .default_open(true)
+            .show(ui, |ui| segments(ui, m));
     }
     egui::CollapsingHeader::new("Camera")
         .default_open(false)
