@@ -703,6 +703,88 @@ fn time_series(root: &Path) {
     }
 }
 
+/// A (t, z, y, x) store of 3 time points of 24³ u16: a slab (x < 8) of 300 at every time
+/// point, and a cube in the middle of 1000 (t + 1), which makes each time point's largest value
+/// different.
+fn brightening_series(root: &Path) {
+    put(&root.join(".zgroup"), br#"{"zarr_format": 2}"#);
+    put(
+        &root.join(".zattrs"),
+        br#"{"multiscales": [{"version": "0.4", "axes": ["t", "z", "y", "x"], "datasets": [{"path": "0",
+            "coordinateTransformations": [{"type": "scale", "scale": [1.0, 1.0, 1.0, 1.0]}]}]}]}"#,
+    );
+    let n = 24;
+    put(
+        &root.join("0/.zarray"),
+        format!(
+            r#"{{"zarr_format": 2, "shape": [3, {n}, {n}, {n}], "chunks": [1, {n}, {n}, {n}],
+            "dtype": "<u2", "compressor": null, "fill_value": 0, "order": "C", "filters": null,
+            "dimension_separator": "/"}}"#
+        )
+        .as_bytes(),
+    );
+    for t in 0..3u16 {
+        let mut bytes = Vec::new();
+        for i in 0..n * n * n {
+            let (x, y, z) = (i % n, (i / n) % n, i / (n * n));
+            let inner = |v: usize| (8..16).contains(&v);
+            let v: u16 = match x {
+                _ if x < 8 && (4..20).contains(&y) && (4..20).contains(&z) => 300,
+                _ if (12..20).contains(&x) && inner(y) && inner(z) => 1000 * (t + 1),
+                _ => 0,
+            };
+            bytes.extend(v.to_le_bytes());
+        }
+        put(&root.join(format!("0/{t}/0/0/0")), &bytes);
+    }
+}
+
+/// The frames of a series share one intensity scale and one `auto` transfer function, time
+/// point 0's: the slab, the same at every time point, draws the same pixels in every frame,
+/// though each time point's largest value differs; and `--time 2` alone draws frame 2.
+#[test]
+fn the_frames_of_a_series_share_one_scale() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("series.ome.zarr");
+    brightening_series(&store);
+    let (s, out) = (store.to_str().unwrap(), dir.path().join("frames"));
+    let args = [
+        "render",
+        s,
+        "--size",
+        "64x64",
+        "--renderer",
+        "raycast",
+        "--out",
+    ];
+    let all = common::vellum(&[&args[..], &[out.to_str().unwrap(), "--time", "all"]].concat());
+    assert!(
+        all.status.success(),
+        "{}",
+        String::from_utf8_lossy(&all.stderr)
+    );
+    let frame = |p: &Path| image::open(p).unwrap().to_rgb8();
+    let frames: Vec<_> = (0..3)
+        .map(|t| frame(&out.join(format!("t{t:04}.png"))))
+        .collect();
+    // The slab's side of the image (x to the right; the cube starts at column 29).
+    let left = |im: &image::RgbImage| -> Vec<[u8; 3]> {
+        im.enumerate_pixels()
+            .filter(|(x, ..)| *x < 26)
+            .map(|(.., p)| p.0)
+            .collect()
+    };
+    let lit = left(&frames[0]).iter().filter(|p| p[0] > 20).count();
+    assert!(lit > 100, "the slab shows ({lit} lit pixels)");
+    for t in 1..3 {
+        assert_eq!(left(&frames[t]), left(&frames[0]), "frame {t}'s slab");
+    }
+    let one = dir.path().join("two.png");
+    let single = common::vellum(&[&args[..], &[one.to_str().unwrap(), "--time", "2"]].concat());
+    assert!(single.status.success());
+    assert_eq!(frame(&one), frames[2], "--time 2 draws frame 2");
+}
+
 #[test]
 fn a_time_point_and_a_channel_of_a_store_are_picked() {
     let dir = tempfile::tempdir().unwrap();

@@ -48,6 +48,10 @@ pub struct BenchReport {
     pub first_frame_ms: Option<f64>,
     /// The brick cache's line at the end, when the volume is streamed.
     pub streaming: Option<String>,
+    /// Time points of a store shown while playing (`--play`), each loaded and drawn.
+    pub time_points_shown: u64,
+    /// Time points shown per second, from the first step to the last.
+    pub time_points_per_s: Option<f64>,
 }
 
 /// What the report is made of, gathered frame by frame.
@@ -64,6 +68,9 @@ pub struct BenchLog {
     gpu: Vec<(String, VecDeque<f64>)>,
     rss_kib: Vec<(u64, u64)>,
     heap_bytes: Vec<(u64, u64)>,
+    /// Time points shown while playing, and when the first and the last were.
+    time_points: u64,
+    time_span: Option<(std::time::Instant, std::time::Instant)>,
 }
 
 impl BenchLog {
@@ -78,7 +85,16 @@ impl BenchLog {
             gpu: Vec::new(),
             rss_kib: Vec::new(),
             heap_bytes: Vec::new(),
+            time_points: 0,
+            time_span: None,
         }
+    }
+
+    /// Another time point is on screen (playing), at `now`.
+    pub fn time_point_shown(&mut self, now: std::time::Instant) {
+        self.time_points += 1;
+        let first = self.time_span.map_or(now, |s| s.0);
+        self.time_span = Some((first, now));
     }
 
     /// A frame was presented `ms` after the one before it.
@@ -146,6 +162,12 @@ impl BenchLog {
             gpu_ms,
             rss_kib: self.rss_kib.clone(),
             heap_bytes: self.heap_bytes.clone(),
+            time_points_shown: self.time_points,
+            // Steps between the first time point shown and the last, over the time they took.
+            time_points_per_s: self.time_span.and_then(|(a, b)| {
+                let s = (b - a).as_secs_f64();
+                (self.time_points > 1 && s > 0.0).then(|| (self.time_points - 1) as f64 / s)
+            }),
             ..base
         }
     }
@@ -186,6 +208,8 @@ mod tests {
             heap_bytes: Vec::new(),
             first_frame_ms: None,
             streaming: None,
+            time_points_shown: 0,
+            time_points_per_s: None,
         }
     }
 

@@ -439,6 +439,8 @@ impl Running {
             heap_bytes: Vec::new(),
             first_frame_ms: self.first_frame_ms,
             streaming: self.session.model.streaming.clone(),
+            time_points_shown: 0,
+            time_points_per_s: None,
         };
         match &self.session.bench {
             Some(b) => b.report(base),

@@ -15,6 +15,7 @@
 mod bench;
 mod files;
 mod frame;
+mod loading;
 mod playback;
 mod running;
 mod session;
@@ -78,6 +79,8 @@ pub struct ViewOptions {
     /// GPU memory for the volume's textures in MiB; a store that needs more is streamed through
     /// the brick cache (default: half the device's largest heap).
     pub gpu_budget: Option<f64>,
+    /// Start playing a store's time points (`--play`).
+    pub play: bool,
 }
 
 /// Opens the window and runs until it is closed. Returns the bench report in bench mode.
@@ -202,6 +205,8 @@ struct GpuState {
     last_view: Option<View>,
     /// GPU memory for a volume's textures; a store that needs more is streamed.
     budget: u64,
+    /// The next time point of a playing series, read and put on the GPU ahead of its turn.
+    ahead: Option<(String, session::Loaded, Prepared)>,
 }
 
 /// The pointer and keyboard: a drag in progress, modifiers, the last click (for the double
@@ -331,6 +336,7 @@ impl ApplicationHandler for App {
             return;
         };
         r.poll_load();
+        r.poll_ahead();
         r.poll_occlusion();
         let timings_pending = r.timings_of.is_some();
         if timings_pending && r.gpu.frames.poll().is_ok() && r.gpu.frames.has_finished() {

@@ -3,15 +3,21 @@
 //! focus, camera, style). While playing, the next time point is read on a second worker as soon
 //! as the current one is shown, so that a step waits only for what is left of its load.
 
-use super::session::{load, Session};
+use super::session::{load, Loaded, Session};
 use super::timeline::{Prefetch, STEP};
 use std::sync::mpsc;
 use std::time::Instant;
+use vellum_error::Result;
 
 impl Session {
     /// Shows time point `t`: from the read-ahead when it holds `t`, else loaded now.
     pub(crate) fn show_time(&mut self, t: usize) {
         if t >= self.model.times || (t == self.model.time && !self.loading()) {
+            return;
+        }
+        if self.ready == Some(t) && !self.loading() {
+            // On the GPU already: the shell swaps it in.
+            self.swap = true;
             return;
         }
         let what = format!("time point {t}");
@@ -41,19 +47,40 @@ impl Session {
     }
 
     /// While playing, the next time point once this one has been shown for [`STEP`] and
-    /// nothing is loading; the one after it is read ahead as soon as a time point is shown.
+    /// nothing is loading; the one after it is read ahead as soon as a time point is shown, and
+    /// the one after that once the shell holds the next on the GPU.
     pub(crate) fn tick_playback(&mut self, now: Instant) {
         let times = self.model.times;
         if !self.model.playing || times < 2 || self.loading() {
             return;
         }
         let next = (self.model.time + 1) % times;
-        if self.prefetch.is_none() {
-            self.prefetch(next);
+        // With the next one on the GPU already, the one after it is read meanwhile.
+        let want = match self.ready == Some(next) {
+            true => (next + 1) % times,
+            false => next,
+        };
+        if self.prefetch.is_none() && self.ready != Some(want) && want != self.model.time {
+            self.prefetch(want);
         }
         if now >= self.shown_at + STEP {
             self.show_time(next);
         }
+    }
+
+    /// The time point read ahead, once its worker has answered (the shell puts it on the GPU).
+    pub(crate) fn take_prefetched(&mut self) -> Option<(usize, Result<Loaded>)> {
+        let p = self.prefetch.as_ref()?;
+        let got = match p.answer.try_recv() {
+            Ok(got) => got,
+            Err(mpsc::TryRecvError::Empty) => return None,
+            Err(mpsc::TryRecvError::Disconnected) => Err(vellum_error::Error::Invalid(
+                "the loader stopped without an answer".into(),
+            )),
+        };
+        let t = p.time;
+        self.prefetch = None;
+        Some((t, got))
     }
 
     /// Whether the window must keep drawing for the playback.

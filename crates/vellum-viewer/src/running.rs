@@ -133,6 +133,7 @@ impl Running {
                 screenshot_dir: opts.screenshot_dir.clone(),
                 bench: opts.bench_frames.map(|n| BenchLog::new(n, opts.bench_full)),
                 budget,
+                play: opts.play,
             },
         );
         session.model.segments = segments;
@@ -149,6 +150,7 @@ impl Running {
                 scene: gpu,
                 last_view: None,
                 budget,
+                ahead: None,
             },
             session,
             input: Input {
@@ -324,22 +326,60 @@ impl Running {
             let gpu = prepare_gpu(&self.ctx, &mut l, budget)?;
             Ok((l, gpu))
         });
+        // Whatever was read ahead belongs to the volume this load replaces.
+        self.gpu.ahead = None;
+        self.session.ready = None;
         match result {
-            Ok((l, mut gpu)) => {
-                // The old loaders and pools go with the old volume.
-                self.gpu.frames.wait_idle().ok();
-                let spectrum = gpu.take_spectrum();
-                let dims = gpu.volume().dims();
-                let segments = segments_of(&mut gpu);
-                self.gpu.scene = gpu;
-                self.session.opened(l, &what, spectrum, dims);
-                self.session.model.segments = segments;
-                self.window
-                    .set_title(&format!("vellum: {}", self.session.model.scene.input.path));
-            }
+            Ok((l, gpu)) => self.install(l, gpu, &what),
             Err(e) => self.session.model.message = format!("{what}: {e}"),
         }
         self.changed();
+    }
+
+    /// `l` on the GPU as `gpu` in place of the volume shown.
+    fn install(&mut self, l: Loaded, mut gpu: Prepared, what: &str) {
+        // The old loaders and pools go with the old volume.
+        self.gpu.frames.wait_idle().ok();
+        let spectrum = gpu.take_spectrum();
+        let dims = gpu.volume().dims();
+        let segments = segments_of(&mut gpu);
+        self.gpu.scene = gpu;
+        self.session.opened(l, what, spectrum, dims);
+        self.session.model.segments = segments;
+        self.window
+            .set_title(&format!("vellum: {}", self.session.model.scene.input.path));
+    }
+
+    /// While a series plays: the time point read ahead goes on the GPU as soon as it is read
+    /// (in its own textures, beside the ones drawn), so that its turn only swaps them; and the
+    /// session's turn to show it does so.
+    pub(crate) fn poll_ahead(&mut self) {
+        if self.gpu.ahead.is_none() && self.session.playing() {
+            if let Some((t, got)) = self.session.take_prefetched() {
+                let budget = self.gpu.budget;
+                let result = got.and_then(|mut l| {
+                    let gpu = prepare_gpu(&self.ctx, &mut l, budget)?;
+                    Ok((l, gpu))
+                });
+                match result {
+                    Ok((l, gpu)) => {
+                        self.gpu.ahead = Some((format!("time point {t}"), l, gpu));
+                        self.session.ready = Some(t);
+                    }
+                    Err(e) => {
+                        self.session.model.message = format!("time point {t}: {e}");
+                        self.session.model.playing = false;
+                    }
+                }
+            }
+        }
+        if std::mem::take(&mut self.session.swap) {
+            if let Some((what, l, gpu)) = self.gpu.ahead.take() {
+                self.session.ready = None;
+                self.install(l, gpu, &what);
+                self.changed();
+            }
+        }
     }
 
     /// Takes a finished occlusion volume: it replaces the one the renderer samples, and its
@@ -408,9 +448,9 @@ fn segments_of(gpu: &mut Prepared) -> Option<crate::ui::Segments> {
 pub(crate) fn prepare_gpu(ctx: &Arc<Context>, l: &mut Loaded, budget: u64) -> Result<Prepared> {
     let modulation = l.scene.modulation.clone().unwrap_or_default();
     let Some(levels) = l.levels.take() else {
-        let gpu = GpuScene::prepare(
+        let gpu = GpuScene::prepare_in_range(
             ctx,
-            &l.volume,
+            (&l.volume, l.scene.input.range),
             &l.classification,
             l.scene.focus,
             &modulation,

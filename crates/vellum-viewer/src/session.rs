@@ -6,81 +6,53 @@
 //! resolved. Its unit tests run without a window or a device.
 
 use crate::bench::BenchLog;
+pub(crate) use crate::loading::{load, Loaded};
 use crate::ui::{self, Model};
 use std::path::{Path, PathBuf};
-use std::sync::{mpsc, Arc};
+use std::sync::mpsc;
 use std::time::Instant;
 use vellum_error::{Error, Result};
 use vellum_render::classify::modulation::Modulation;
 use vellum_render::classify::otf::OcclusionTf;
 use vellum_render::classify::transfer::TransferFunction;
-use vellum_render::classify::{Classification, Focus};
+use vellum_render::classify::Focus;
 use vellum_render::passes::occlusion::{OcclusionOutput, OcclusionParams, Spectrum};
 use vellum_render::render::camera::Camera;
 use vellum_render::render::scene::{CameraSpec, ClassificationSpec, InputSpec, NamedView, Scene};
-use vellum_render::render::session::Opened;
 use vellum_render::render::view::View;
 use vellum_volume::Volume;
 
-/// A volume loaded on a worker thread.
-pub(crate) struct Loaded {
-    pub(crate) scene: Scene,
-    /// The volume, or for a store streamed through the brick cache its coarsest level (which the
-    /// histogram and range come from), with the pyramid in `levels`.
-    pub(crate) volume: Volume,
-    pub(crate) levels: Option<Arc<vellum_volume::bricks::BrickLevels>>,
-    pub(crate) classification: Classification,
-    pub(crate) tf: TransferFunction,
-    pub(crate) histogram: Vec<u64>,
-    pub(crate) range: [f64; 2],
-    pub(crate) features: Option<vellum_volume::feature::FeatureMap>,
-    pub(crate) otf: Option<OcclusionTf>,
-    /// The input's time points (a store's t axis; 1 otherwise).
-    pub(crate) times: usize,
+/// What a series keeps from one time point to the next: the transfer function as edited, with
+/// its window, and the histogram it is edited over.
+struct SeriesLook {
+    tf: TransferFunction,
+    tf_base: TransferFunction,
+    tf_edited: bool,
+    shift: f32,
+    scale: f32,
+    histogram: Vec<u64>,
 }
 
-/// Opens `scene`'s input by the session's rule within `budget` bytes of GPU memory: a store
-/// beyond the budget is never read whole, and its level of at most 64³ voxels stands in for it
-/// on the host (histogram, range); a volume beyond it is drawn through the brick cache too.
-pub(crate) fn load(scene: Scene, budget: u64) -> Result<Loaded> {
-    let classification = scene.classification()?;
-    let (levels, volume) = match Opened::open(&scene, None, budget, None)? {
-        Opened::Bricked(levels) => {
-            let small = levels.read_small_level(64 * 64 * 64)?;
-            (Some(levels), small)
+impl SeriesLook {
+    fn of(m: &Model) -> Self {
+        SeriesLook {
+            tf: m.tf.clone(),
+            tf_base: m.tf_base.clone(),
+            tf_edited: m.tf_edited,
+            shift: m.shift,
+            scale: m.scale,
+            histogram: m.histogram.clone(),
         }
-        Opened::InCore(v) => (None, v),
-    };
-    let s = vellum_volume::stats::stats(&volume, 256);
-    let range = levels.as_ref().map_or([s.min, s.max], |l| l.range);
-    let tf = match &classification {
-        Classification::Transfer(tf) => tf.clone(),
-        Classification::Auto => vellum_render::classify::window::auto(&volume, range)?,
-        _ => TransferFunction::preset("grey")?,
-    };
-    let (tf, features) = match &classification {
-        Classification::Features(map) => (
-            vellum_render::classify::features::feature_transfer_function(map, [s.min, s.max])?,
-            Some(map.clone()),
-        ),
-        _ => (tf, None),
-    };
-    let otf = match &classification {
-        Classification::Occlusion(o) => Some(o.clone()),
-        _ => None,
-    };
-    Ok(Loaded {
-        otf,
-        times: crate::timeline::times_of(&scene),
-        scene,
-        classification,
-        tf,
-        histogram: s.histogram,
-        range,
-        volume,
-        levels,
-        features,
-    })
+    }
+
+    fn restore(self, m: &mut Model) {
+        m.tf = self.tf;
+        m.tf_base = self.tf_base;
+        m.tf_edited = self.tf_edited;
+        m.shift = self.shift;
+        m.scale = self.scale;
+        m.histogram = self.histogram;
+    }
 }
 
 /// An occlusion volume being recomputed on a worker thread. The worker opens its own Vulkan
@@ -144,6 +116,8 @@ pub(crate) struct SessionSetup {
     pub(crate) bench: Option<BenchLog>,
     /// GPU memory for a volume's textures; a store that needs more is streamed.
     pub(crate) budget: u64,
+    /// Start playing the time points of a store.
+    pub(crate) play: bool,
 }
 
 /// The session: the model the panels edit (with the scene), what of it is applied to the GPU
@@ -161,6 +135,9 @@ pub(crate) struct Session {
     pending_load: Option<mpsc::Receiver<Result<Loaded>>>,
     /// The next time point, read ahead while playing.
     pub(crate) prefetch: Option<crate::timeline::Prefetch<Result<Loaded>>>,
+    /// The time point the shell holds on the GPU ahead of its turn, and whether its turn came.
+    pub(crate) ready: Option<usize>,
+    pub(crate) swap: bool,
     /// When the current volume was shown (a playing time point stays at least `STEP`).
     pub(crate) shown_at: Instant,
     /// The occlusion volume being recomputed on a worker thread.
@@ -209,7 +186,8 @@ impl Session {
         };
         model.scene_path = beside("vellum.scene.json");
         model.tf_path = beside("vellum.tf.json");
-        Session {
+        model.playing = setup.play;
+        let mut session = Session {
             home: loaded.scene.camera.clone(),
             applied: loaded.scene,
             applied_tf: loaded.tf,
@@ -218,6 +196,8 @@ impl Session {
             model,
             pending_load: None,
             prefetch: None,
+            ready: None,
+            swap: false,
             shown_at: Instant::now(),
             pending_occlusion: None,
             generation: 0,
@@ -228,7 +208,9 @@ impl Session {
             screenshot_dir: setup.screenshot_dir,
             bench: setup.bench,
             budget: setup.budget,
-        }
+        };
+        session.fix_series_scale();
+        session
     }
 
     /// Makes the scene's camera explicit (angles and distance) from `cam`, the camera resolved
@@ -370,6 +352,16 @@ impl Session {
     ) {
         self.generation += 1;
         self.epoch += 1;
+        // Another time point of the series shown: the transfer function (as edited), its
+        // histogram and the scale stay those of the series, so that the frames compare.
+        let step = l.scene.input.path == self.applied.input.path
+            && l.scene.input.time != self.applied.input.time;
+        let kept = step.then(|| SeriesLook::of(&self.model));
+        if step {
+            if let Some(b) = self.bench.as_mut() {
+                b.time_point_shown(Instant::now());
+            }
+        }
         self.model.reopen(l.scene.clone(), l.tf.clone());
         self.model.spectrum = spectrum;
         self.model.otf = l.otf.clone();
@@ -387,6 +379,19 @@ impl Session {
         self.applied = l.scene;
         self.applied_tf = l.tf;
         self.volume = l.volume;
+        match kept {
+            Some(look) => look.restore(&mut self.model),
+            None => self.fix_series_scale(),
+        }
+    }
+
+    /// A store of several time points is drawn on the scale of the first one shown: later
+    /// ones load with it (`input.range`).
+    pub(crate) fn fix_series_scale(&mut self) {
+        if self.model.times > 1 && self.model.scene.input.range.is_none() {
+            self.model.scene.input.range = Some(self.model.range);
+            self.applied.input.range = Some(self.model.range);
+        }
     }
 
     /// Starts computing the occlusion volume of the host volume on a worker thread, on a

@@ -373,6 +373,10 @@ pub(crate) struct ViewArgs {
     /// With --bench: orbit at full resolution instead.
     #[arg(long)]
     pub(crate) bench_full: bool,
+    /// Start playing a store's time points (the play button); with --bench, the report counts
+    /// the time points shown.
+    #[arg(long)]
+    pub(crate) play: bool,
     /// GPU memory for the volume's textures in MiB; a store that needs more is streamed through
     /// the brick cache (default: half the device's largest memory heap).
     #[arg(long, value_name = "MiB")]

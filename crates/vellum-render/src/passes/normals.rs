@@ -102,7 +102,18 @@ impl VolumeTextures {
     /// A whole volume, which a renderer may draw lines of: its `auto` line smoothing is measured
     /// here (a chunk of `VolumeTextures::new_in_range` is never drawn, and skips it).
     pub fn new(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, vellum_gpu::Buffer)> {
-        let (mut textures, staging) = Self::new_in_range(ctx, v, v.normalised_range())?;
+        Self::new_over(ctx, v, None)
+    }
+
+    /// [`VolumeTextures::new`] over `range` when given (a time point on its series' scale),
+    /// else over `v`'s own smallest and largest values.
+    pub fn new_over(
+        ctx: &Arc<Context>,
+        v: &Volume,
+        range: Option<[f64; 2]>,
+    ) -> Result<(Self, vellum_gpu::Buffer)> {
+        let range = range.unwrap_or_else(|| v.normalised_range());
+        let (mut textures, staging) = Self::new_in_range(ctx, v, range)?;
         textures.auto_line_smooth = vellum_volume::lines::auto_smooth_radius(v);
         Ok((textures, staging))
     }

@@ -106,6 +106,11 @@ pub struct InputSpec {
     /// The channel of an OME-Zarr store with a c axis, from 0 (`--channels`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel: Option<usize>,
+    /// The values the renderer's intensity scale spans (the transfer function's 0 and 1);
+    /// left out, the volume's own smallest and largest, or for a later time point of a series
+    /// those of time point 0, so that the frames of a series compare.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub range: Option<[f64; 2]>,
 }
 
 impl InputSpec {
@@ -714,10 +719,23 @@ impl GpuScene {
         focus: Focus,
         modulation: &Modulation,
     ) -> Result<GpuScene> {
+        Self::prepare_in_range(ctx, (v, None), classification, focus, modulation)
+    }
+
+    /// [`GpuScene::prepare`] with the intensity scale spanning `range` (values outside it
+    /// clamp) rather than `v`'s own smallest and largest: a time point of a series on the
+    /// series' scale.
+    pub fn prepare_in_range(
+        ctx: &Arc<Context>,
+        (v, range): (&Volume, Option<[f64; 2]>),
+        classification: &Classification,
+        focus: Focus,
+        modulation: &Modulation,
+    ) -> Result<GpuScene> {
         focus.validate()?;
         modulation.validate()?;
         let normals = Normals::new(ctx)?;
-        let (mut volume, staging) = VolumeTextures::new(ctx, v)?;
+        let (mut volume, staging) = VolumeTextures::new_over(ctx, v, range)?;
         focus.check_in(volume.range)?;
         let (transfer, otf) = match classification {
             Classification::Auto => (crate::classify::window::auto(v, volume.range)?, None),

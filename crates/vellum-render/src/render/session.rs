@@ -155,13 +155,16 @@ impl Prepared {
     ) -> Result<Self> {
         let modulation = scene.modulation.clone().unwrap_or_default();
         Ok(match opened {
-            Opened::InCore(v) => Prepared::InCore(GpuScene::prepare(
-                ctx,
-                v,
-                classification,
-                scene.focus,
-                &modulation,
-            )?),
+            Opened::InCore(v) => {
+                let (range, classification) = series_scale(scene, classification)?;
+                Prepared::InCore(GpuScene::prepare_in_range(
+                    ctx,
+                    (v, range),
+                    &classification,
+                    scene.focus,
+                    &modulation,
+                )?)
+            }
             Opened::Bricked(levels) => {
                 let finest = opts.lod == Lod::Finest;
                 let focus = (scene.focus, &modulation);
@@ -236,6 +239,40 @@ impl Prepared {
             Prepared::Paged(..) => None,
         }
     }
+}
+
+/// The intensity scale a volume in core is drawn on, and its classification there: the scene's
+/// `input.range` when it gives one; for a later time point of a store (`time` > 0), the
+/// smallest and largest values of time point 0, with `auto` made from time point 0, so that
+/// every frame of a series shares one scale and one transfer function (`render --time T` draws
+/// what the frame T of `render --time all` draws); else `None`, the volume's own values.
+pub fn series_scale(
+    scene: &Scene,
+    classification: &Classification,
+) -> Result<(Option<[f64; 2]>, Classification)> {
+    if let Some(r) = scene.input.range {
+        if !(r[0].is_finite() && r[1].is_finite() && r[0] < r[1]) {
+            return Err(Error::Invalid(format!(
+                "the input's range [{}, {}] is empty; expected the smallest value below the largest",
+                r[0], r[1]
+            )));
+        }
+        return Ok((Some(r), classification.clone()));
+    }
+    if scene.input.time.unwrap_or(0) == 0 {
+        return Ok((None, classification.clone()));
+    }
+    let mut first = scene.clone();
+    first.input.time = Some(0);
+    let t0 = first.load_volume()?;
+    let range = t0.normalised_range();
+    let classification = match classification {
+        Classification::Auto => {
+            Classification::Transfer(crate::classify::window::auto(&t0, range)?)
+        }
+        c => c.clone(),
+    };
+    Ok((Some(range), classification))
 }
 
 /// Puts what the scene draws beside its volume on the GPU: a label volume's segments and the

@@ -21,6 +21,7 @@ fn session_of(loaded: Loaded, dir: std::path::PathBuf) -> Session {
             screenshot_dir: dir,
             bench: None,
             budget: 1 << 30,
+            play: false,
         },
     )
 }
@@ -267,6 +268,13 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
             .sum::<f64>()
     };
     let at_0 = voxels(&s);
+    // The series is drawn on the scale of the first time point shown, kept with the edited
+    // transfer function from one time point to the next.
+    let scale = s.model.range;
+    assert_eq!(s.model.scene.input.range, Some(scale));
+    let edited = TransferFunction::preset("ct-bone").unwrap();
+    s.model.tf = edited.clone();
+    s.model.tf_edited = true;
     // The slider asks for time point 2: loaded with the scene kept (its focus).
     s.model.requests.time = Some(2);
     s.handle_requests([64, 64]);
@@ -275,6 +283,16 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
     s.opened(got.unwrap(), &what, None, dims);
     assert_eq!((s.model.time, s.model.scene.input.time), (2, Some(2)));
     assert_eq!(s.model.scene.focus, Focus::Iso(0.5), "the scene is kept");
+    assert_eq!(
+        (s.model.range, &s.model.tf),
+        (scale, &edited),
+        "the look is kept"
+    );
+    assert!(
+        s.apply(scale, false)
+            .contains(&Edit::Transfer(edited.clone())),
+        "the kept transfer function goes to the new time point's GPU state"
+    );
     assert!(voxels(&s) > at_0, "the ball grew");
     // Playing: the next time point (0, wrapping) is read ahead at once, and taken over when
     // the current one has been shown for a step.
@@ -295,6 +313,27 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
     assert_eq!(s.model.time, 0);
     assert_eq!(voxels(&s), at_0);
     assert!(s.playing(), "still playing");
+    // The shell puts the read-ahead on the GPU as soon as it is read; its turn then swaps it in
+    // without loading, and nothing is read twice.
+    s.tick_playback(Instant::now());
+    let deadline = Instant::now() + std::time::Duration::from_secs(60);
+    let (t, got) = loop {
+        if let Some(done) = s.take_prefetched() {
+            break done;
+        }
+        assert!(Instant::now() < deadline, "the read-ahead did not answer");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    };
+    assert!(t == 1 && got.is_ok());
+    s.ready = Some(1);
+    s.tick_playback(Instant::now());
+    assert_eq!(
+        s.prefetch.as_ref().map(|p| p.time),
+        Some(2),
+        "time point 1 is not read again; the one after it is"
+    );
+    s.tick_playback(Instant::now() + crate::timeline::STEP);
+    assert!(s.swap && !s.loading(), "its turn swaps it in");
 }
 
 /// The segments panel's edits (issue 42): visibility, colour and focus of a label volume's ids

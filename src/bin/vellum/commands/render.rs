@@ -115,10 +115,21 @@ pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
 }
 
 pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<()> {
-    use vellum::render::targets::to_rgb8;
     if a.scene.time == Some(TimeArg::All) {
         return render_every_time((cli, team), a);
     }
+    render_on(None, (cli, team), a).map(|_| ())
+}
+
+/// One frame, on the device `series` shares when it is one of a series (which says its lines
+/// once, for all its frames), else on a context of its own. Returns whether the input gives
+/// its orientation.
+fn render_on(
+    series: Option<&std::sync::Arc<vellum::gpu::Context>>,
+    (cli, team): (&Cli, &dyn Team),
+    a: &RenderArgs,
+) -> Result<bool> {
+    use vellum::render::targets::to_rgb8;
     let scene = a.scene.scene("render")?;
     if let Some(path) = &a.save_scene {
         if team.is_root() {
@@ -126,7 +137,7 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
         }
         if a.out.is_none() {
             println!("wrote the scene to {}", path.display());
-            return Ok(());
+            return Ok(true);
         }
     }
     let out = a.out.as_deref().ok_or_else(|| {
@@ -140,7 +151,10 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
     let classification = scene
         .classification()
         .map_err(|e| from("classification", e))?;
-    let ctx = together(team, context(cli))?;
+    let ctx = match series {
+        Some(ctx) => ctx.clone(),
+        None => together(team, context(cli))?,
+    };
     let opts = session_options(a)?;
     let budget = vellum::render::bricked::gpu_budget_bytes(&ctx, a.gpu_budget)?;
     let input = together(
@@ -170,12 +184,14 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
         ),
     );
     let (frame, prepare_passes, stream) = drawn?;
-    report_validation(&ctx);
+    if series.is_none() {
+        report_validation(&ctx);
+    }
     let (frame, composited) = match shared {
         None => (frame, None),
         Some(s) => match composite(team, &ctx, frame, s)? {
             Some((f, report)) => (f, Some(report)),
-            None => return Ok(()),
+            None => return Ok(grid.2.is_oriented()),
         },
     };
     let [w, h] = frame.size;
@@ -184,6 +200,9 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
         frame.write_exr(path)?;
     }
     let passes: Vec<_> = prepare_passes.iter().chain(&frame.passes).collect();
+    if series.is_some() {
+        return Ok(grid.2.is_oriented());
+    }
     if a.json {
         let map = passes_json(passes.iter().copied());
         println!(
@@ -239,7 +258,7 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
             vellum::volume::geometry::Geometry::UNKNOWN_ORIENTATION
         );
     }
-    Ok(())
+    Ok(grid.2.is_oriented())
 }
 
 type Drawn = (
@@ -280,17 +299,29 @@ fn render_every_time((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
             anyhow::anyhow!("{}: the folder could not be made ({e})", dir.display())
         })?;
     }
+    // One device for every frame; each time point after the first is drawn on time point 0's
+    // scale and transfer function (`render::session::series_scale`).
+    let ctx = together(team, context(cli))?;
     let bar = vellum::progress::bar(times as u64, "time points");
+    let mut oriented = true;
     for t in 0..times {
         let mut one = a.clone();
         one.scene.time = Some(TimeArg::One(t));
         one.out = Some(dir.join(format!("t{t:04}.png")));
-        render((cli, team), &one)?;
+        oriented = render_on(Some(&ctx), (cli, team), &one)?;
         bar.inc(1);
     }
     bar.finish_and_clear();
+    report_validation(&ctx);
     if team.is_root() {
         println!("wrote {times} time points to {}", dir.display());
+        if !oriented {
+            eprintln!(
+                "note: {}: {}",
+                scene.input.path,
+                vellum::volume::geometry::Geometry::UNKNOWN_ORIENTATION
+            );
+        }
     }
     Ok(())
 }

@@ -58,6 +58,7 @@ pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
         bench_frames: a.bench.map(|n| n + 5),
         bench_full: a.bench_full,
         gpu_budget: a.gpu_budget,
+        play: a.play,
     })?;
     if let Some(r) = report {
         if a.json {

@@ -1,0 +1,77 @@
+//! Loading a volume for the viewer on a worker thread: the input opened by the session's rule
+//! within the GPU budget, its statistics, and the transfer function the panels start from.
+
+use std::sync::Arc;
+use vellum_error::Result;
+use vellum_render::classify::otf::OcclusionTf;
+use vellum_render::classify::transfer::TransferFunction;
+use vellum_render::classify::Classification;
+use vellum_render::render::scene::Scene;
+use vellum_render::render::session::Opened;
+use vellum_volume::Volume;
+
+/// A volume loaded on a worker thread.
+pub(crate) struct Loaded {
+    pub(crate) scene: Scene,
+    /// The volume, or for a store streamed through the brick cache its coarsest level (which the
+    /// histogram and range come from), with the pyramid in `levels`.
+    pub(crate) volume: Volume,
+    pub(crate) levels: Option<Arc<vellum_volume::bricks::BrickLevels>>,
+    pub(crate) classification: Classification,
+    pub(crate) tf: TransferFunction,
+    pub(crate) histogram: Vec<u64>,
+    pub(crate) range: [f64; 2],
+    pub(crate) features: Option<vellum_volume::feature::FeatureMap>,
+    pub(crate) otf: Option<OcclusionTf>,
+    /// The input's time points (a store's t axis; 1 otherwise).
+    pub(crate) times: usize,
+}
+
+/// Opens `scene`'s input by the session's rule within `budget` bytes of GPU memory: a store
+/// beyond the budget is never read whole, and its level of at most 64³ voxels stands in for it
+/// on the host (histogram, range); a volume beyond it is drawn through the brick cache too.
+pub(crate) fn load(scene: Scene, budget: u64) -> Result<Loaded> {
+    let classification = scene.classification()?;
+    let (levels, volume) = match Opened::open(&scene, None, budget, None)? {
+        Opened::Bricked(levels) => {
+            let small = levels.read_small_level(64 * 64 * 64)?;
+            (Some(levels), small)
+        }
+        Opened::InCore(v) => (None, v),
+    };
+    let s = vellum_volume::stats::stats(&volume, 256);
+    // A time point of a series after the first shown is drawn on that one's scale.
+    let range = match (scene.input.range, &levels) {
+        (Some(r), _) => r,
+        (None, Some(l)) => l.range,
+        (None, None) => [s.min, s.max],
+    };
+    let tf = match &classification {
+        Classification::Transfer(tf) => tf.clone(),
+        Classification::Auto => vellum_render::classify::window::auto(&volume, range)?,
+        _ => TransferFunction::preset("grey")?,
+    };
+    let (tf, features) = match &classification {
+        Classification::Features(map) => (
+            vellum_render::classify::features::feature_transfer_function(map, [s.min, s.max])?,
+            Some(map.clone()),
+        ),
+        _ => (tf, None),
+    };
+    let otf = match &classification {
+        Classification::Occlusion(o) => Some(o.clone()),
+        _ => None,
+    };
+    Ok(Loaded {
+        otf,
+        times: crate::timeline::times_of(&scene),
+        scene,
+        classification,
+        tf,
+        histogram: s.histogram,
+        range,
+        volume,
+        levels,
+        features,
+    })
+}
