@@ -532,3 +532,102 @@ fn the_seg3d_skull_mask_colours_its_head_beside_the_intensities() {
     assert!(lit > 2000 && grey < lit / 20, "{grey} grey of {lit}");
     assert!(shown[0].1 as f64 > 0.8 * lit as f64, "{shown:?} of {lit}");
 }
+
+/// The feature-map path seeded by a label volume (issue 42): `migrate --labels` moves each
+/// ball to a private interval of its own, above the data and apart from the others, with most
+/// of its voxels inside it; the map names each after its id in the label volume's colour, and
+/// a frame classified by the map shows the three balls in those colours.
+#[test]
+fn each_segment_migrates_to_a_feature_of_its_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let (intensity, labels) = balls();
+    let (img, lab, out) = (
+        dir.path().join("i.nrrd"),
+        dir.path().join("l.nrrd"),
+        dir.path().join("f.nrrd"),
+    );
+    vellum::volume::io::write(&img, &intensity).unwrap();
+    vellum::volume::io::write(&lab, &labels).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let o = common::vellum(&[
+        "migrate",
+        &s(&img),
+        "--labels",
+        &s(&lab),
+        "--label",
+        "ball",
+        "--out",
+        &s(&out),
+        "--json",
+    ]);
+    let report = common::ok_json(&o);
+    let segments = report["segments"].as_array().unwrap();
+    let interval = |k: usize| -> [f64; 2] {
+        let i = &segments[k]["feature"]["interval"];
+        [i[0].as_f64().unwrap(), i[1].as_f64().unwrap()]
+    };
+    let ids: Vec<u64> = segments.iter().map(|s| s["id"].as_u64().unwrap()).collect();
+    assert_eq!(ids, [2, 5, 9]);
+    for k in 0..3 {
+        assert!(interval(k)[0] > 1.0, "above the data: {:?}", interval(k));
+        if k > 0 {
+            assert!(
+                interval(k)[0] > interval(k - 1)[1],
+                "apart: {:?}",
+                interval(k)
+            );
+        }
+    }
+    let feature = vellum::input::load(&s(&out), None).unwrap();
+    let VoxelData::U8(l) = &labels.data else {
+        unreachable!()
+    };
+    for (k, &(id, ..)) in BALLS.iter().enumerate() {
+        let [lo, hi] = interval(k);
+        let (mut n, mut inside) = (0, 0);
+        for (i, _) in l.iter().enumerate().filter(|(_, &v)| v == id) {
+            n += 1;
+            let v = feature.data.get_f64(i);
+            inside += usize::from(v >= lo && v <= hi);
+        }
+        assert!(
+            inside as f64 >= 0.9 * n as f64,
+            "ball {id}: {inside} of {n} voxels in its interval"
+        );
+    }
+    let map = dir.path().join("f.features.json");
+    let m = vellum::volume::feature::FeatureMap::load(&map).unwrap();
+    let names: Vec<String> = m.features().iter().map(|(_, f)| f.label.clone()).collect();
+    assert_eq!(names, ["ball 2", "ball 5", "ball 9"]);
+    let png = dir.path().join("f.png");
+    let r = common::vellum(&[
+        "render",
+        &s(&out),
+        "--features",
+        &s(&map),
+        "--camera",
+        "0,90",
+        "--ortho",
+        "--size",
+        "96x96",
+        "--out",
+        &s(&png),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let rgb = image::open(&png).unwrap().to_rgb8();
+    let shown: std::collections::BTreeSet<u8> = rgb
+        .pixels()
+        .filter_map(|p| {
+            ball_of(
+                [p[0], p[1], p[2]]
+                    .map(|c| c as f32 / 255.0)
+                    .into_iter()
+                    .chain([1.0])
+                    .collect::<Vec<_>>()
+                    .try_into()
+                    .unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(shown.into_iter().collect::<Vec<_>>(), [2, 5, 9]);
+}

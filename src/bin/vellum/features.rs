@@ -18,8 +18,21 @@ pub struct MigrateArgs {
     /// feature volume.
     input: String,
     /// ROI from a mask volume aligned voxel for voxel with the input (nonzero = ROI).
-    #[arg(long, value_name = "MASK", required_unless_present = "seed", conflicts_with_all = ["seed", "window"])]
+    #[arg(long, value_name = "MASK", required_unless_present_any = ["seed", "labels"], conflicts_with_all = ["seed", "window", "labels"])]
     mask: Option<String>,
+    /// Features from a label volume on the input's grid (a file or store of whole numbers):
+    /// each segment (every id but 0, or those of --ids) migrated in turn as a feature of its
+    /// own, named "LABEL ID" and coloured as the label volume colours it.
+    #[arg(long, value_name = "LABELS", conflicts_with_all = ["seed", "window", "color"])]
+    labels: Option<String>,
+    /// With --labels: the ids to migrate, in this order.
+    #[arg(
+        long,
+        value_name = "ID,ID...",
+        requires = "labels",
+        value_delimiter = ','
+    )]
+    ids: Option<Vec<u32>>,
     /// ROI by seeded region growing from these voxels.
     #[arg(
         long,
@@ -112,6 +125,9 @@ fn volume_ref(out: &Path, map: &Path) -> String {
 }
 
 pub fn migrate(args: &MigrateArgs) -> Result<()> {
+    if let Some(labels) = &args.labels {
+        return migrate_labels(args, labels);
+    }
     let start = Instant::now();
     let (map_path, append) = map_path(args);
     let existing = if append {
@@ -148,15 +164,7 @@ pub fn migrate(args: &MigrateArgs) -> Result<()> {
     };
     let loaded_ms = start.elapsed().as_secs_f64() * 1e3;
 
-    let params = MigrateParams {
-        epsilon: args.epsilon,
-        protected: existing
-            .as_ref()
-            .map(|m| m.features().iter().map(|(_, f)| f.interval).collect())
-            .unwrap_or_default(),
-        allow_overlap: args.allow_overlap,
-        ..Default::default()
-    };
+    let params = params_of(args, existing.as_ref());
     let migration = feature::migrate(&volume, &roi, &params)?;
     let report = &migration.report;
 
@@ -217,6 +225,100 @@ pub fn migrate(args: &MigrateArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `migrate --labels`: every chosen segment of the label volume a feature of its own, in one
+/// feature volume and one map (new, or appended to).
+fn migrate_labels(args: &MigrateArgs, labels_path: &str) -> Result<()> {
+    let (map_path, append) = map_path(args);
+    let existing = append.then(|| FeatureMap::load(&map_path)).transpose()?;
+    let volume = vellum::input::load(&args.input, None)?;
+    let labels = vellum::volume::labels::Labels::open(Path::new(labels_path), None)
+        .with_context(|| format!("--labels {labels_path}"))?;
+    let ids: Vec<u32> = match &args.ids {
+        Some(ids) => ids.clone(),
+        None => labels.ids.iter().copied().filter(|&i| i != 0).collect(),
+    };
+    anyhow::ensure!(
+        !ids.is_empty(),
+        "--labels {labels_path} holds no segment (only id 0); expected a segmentation"
+    );
+    let name = |id: u32| format!("{} {id}", args.label);
+    if let Some(taken) = existing
+        .as_ref()
+        .and_then(|m| ids.iter().find(|&&id| m.feature(&name(id)).is_some()))
+    {
+        anyhow::bail!(
+            "{}: a feature labelled '{}' exists already; expected a new --label",
+            map_path.display(),
+            name(*taken)
+        );
+    }
+    let params = params_of(args, existing.as_ref());
+    let (out, reports) = feature::migrate_segments(&volume, &labels, &ids, &params)
+        .with_context(|| format!("--labels {labels_path}"))?;
+    let first_range = reports.first().map(|r| r.1.in_range).unwrap_or([0.0, 1.0]);
+    let mut map = existing.unwrap_or_else(|| FeatureMap::new(first_range));
+    map.volume = Some(volume_ref(&args.out, &map_path));
+    let mut features = Vec::with_capacity(reports.len());
+    for (id, r) in &reports {
+        let c = labels.colour(*id);
+        let feature = Feature {
+            label: name(*id),
+            description: args.description.clone(),
+            interval: r.interval,
+            color: [c[0], c[1], c[2]].map(|v| v as f32 / 255.0),
+            source_range: Some(r.roi_range),
+        };
+        map.append(feature.clone(), args.parent.as_deref())
+            .with_context(|| map_path.display().to_string())?;
+        features.push(feature);
+    }
+    vellum::volume::io::write(&args.out, &out)?;
+    map.save(&map_path)?;
+    if args.json {
+        let list: Vec<_> = features
+            .iter()
+            .zip(&reports)
+            .map(|(f, (id, r))| json!({ "id": id, "feature": f, "report": r }))
+            .collect();
+        let out = json!({ "input": args.input, "labels": labels_path, "out": args.out,
+            "features": map_path, "appended": append, "segments": list });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    for (f, (_, r)) in features.iter().zip(&reports) {
+        println!(
+            "feature '{}': {} voxels, [{}, {}] → private interval [{}, {}]",
+            f.label,
+            r.roi_voxels,
+            num(r.roi_range[0]),
+            num(r.roi_range[1]),
+            num(r.interval[0]),
+            num(r.interval[1])
+        );
+    }
+    let n = features.len();
+    println!(
+        "wrote {} and {} ({n} segment{} as features)",
+        args.out.display(),
+        map_path.display(),
+        if n == 1 { "" } else { "s" }
+    );
+    Ok(())
+}
+
+/// The migration's parameters from the flags, with the intervals of the features already in
+/// the map `existing` kept private.
+fn params_of(args: &MigrateArgs, existing: Option<&FeatureMap>) -> MigrateParams {
+    MigrateParams {
+        epsilon: args.epsilon,
+        protected: existing
+            .map(|m| m.features().iter().map(|(_, f)| f.interval).collect())
+            .unwrap_or_default(),
+        allow_overlap: args.allow_overlap,
+        ..Default::default()
+    }
 }
 
 fn mask_name(args: &MigrateArgs) -> &str {

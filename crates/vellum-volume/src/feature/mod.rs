@@ -11,7 +11,8 @@
 //! - [`migrate`](mod@migrate): the ROI range, Δ and eq. 5, the output type, and [`migrate()`] running it all
 //!   (§3.3, FM3);
 //! - `reconstruct`: the region grow and eq. 10 on category 1 (§3.4, FM4);
-//! - [`map`]: the feature map saved beside the feature volume (§4, FM5).
+//! - [`map`]: the feature map saved beside the feature volume (§4, FM5);
+//! - [`segments`](mod@segments): each segment of a label volume migrated as a feature of its own.
 //!
 //! Every per-voxel pass runs in parallel over x-rows with rayon; each module's doc states the
 //! reading of the paper it implements where the paper leaves room.
@@ -22,6 +23,7 @@ pub mod migrate;
 pub mod neighbourhood;
 pub(crate) mod reconstruct;
 pub(crate) mod roi;
+pub mod segments;
 
 pub use categorise::{categorise, Categories, Category, CategoryCounts};
 pub use map::{parse_color, Feature, FeatureMap, Group, Node};
@@ -29,3 +31,4 @@ pub use migrate::{migrate, MigrateParams, Migration, MigrationReport, Timings};
 pub use neighbourhood::Connectivity;
 pub use reconstruct::{ReconstructionCounts, RegionGrow};
 pub use roi::{parse_seeds, parse_window, Roi};
+pub use segments::migrate_segments;
