@@ -198,3 +198,70 @@ fn channel_mistakes_are_one_sentence() {
         assert!(!out.exists());
     }
 }
+
+/// A channel's function set once the channels are on the GPU (the viewer's channel list does
+/// so): the next frame draws with it. Under `add`, channel 0 made transparent leaves no red and
+/// the blue third as it was.
+#[test]
+fn a_function_set_later_draws_in_the_next_frame() {
+    use vellum::render::overrides::{CameraAngles, SceneOverrides};
+    use vellum::render::scene::{InputSpec, Scene};
+    use vellum::render::session::{Session, SessionOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let Some(store) = store(dir.path(), "0.4") else {
+        return;
+    };
+    let gpu = common::Gpu::new();
+    let overrides = SceneOverrides {
+        channels: Some(vec![0, 1]),
+        mix: Some("add".into()),
+        camera: Some(CameraAngles {
+            azimuth: 0.0,
+            elevation: 90.0,
+            distance: None,
+        }),
+        ortho: true,
+        size: Some([96, 96]),
+        ..Default::default()
+    };
+    let path = store.to_string_lossy().into_owned();
+    let scene = overrides.apply(Scene::new(InputSpec::new(path))).unwrap();
+    let mut session = Session::open(&gpu.ctx, &scene, None, &SessionOptions::default()).unwrap();
+    let (view, _) = session.view(scene.view(false).unwrap());
+    let frame = |s: &mut Session| -> Vec<[u8; 3]> {
+        let opts = vellum::render::bricked::StillOptions {
+            max_wait: None,
+            progress: None,
+        };
+        let f = s.still(&view, opts).unwrap().0;
+        vellum::render::targets::to_rgb8(&f.composite, [0.0; 3])
+            .chunks_exact(3)
+            .map(|p| [p[0], p[1], p[2]])
+            .collect()
+    };
+    let (red, blue) = ([255, 0, 0], [0, 0, 255]);
+    let before = counts(&frame(&mut session), &[red, blue]).0;
+    let channels = session.prepared.classify().channels.as_mut().unwrap();
+    let clear = |x| vellum::classify::transfer::ControlPoint {
+        x,
+        rgba: [1.0, 0.0, 0.0, 0.0],
+    };
+    let hidden =
+        vellum::classify::transfer::TransferFunction::new("h", vec![clear(0.0), clear(1.0)])
+            .unwrap();
+    let blue_tf = channels.info[1].tf.clone();
+    channels.set_tfs(&[hidden, blue_tf]).unwrap();
+    let after = counts(&frame(&mut session), &[red, blue]).0;
+    assert!(
+        before[0] > 500 && after[0] == 0,
+        "red {} then {}",
+        before[0],
+        after[0]
+    );
+    assert!(
+        after[1] >= before[1],
+        "blue {} then {}",
+        before[1],
+        after[1]
+    );
+}

@@ -10,6 +10,15 @@ use std::time::Instant;
 use vellum_error::Result;
 
 impl Session {
+    /// A store of several time points is drawn on the scale of the first one shown: later
+    /// ones load with it (`input.range`).
+    pub(crate) fn fix_series_scale(&mut self) {
+        if self.model.times > 1 && self.model.scene.input.range.is_none() {
+            self.model.scene.input.range = Some(self.model.range);
+            self.applied.input.range = Some(self.model.range);
+        }
+    }
+
     /// Shows time point `t`: from the read-ahead when it holds `t`, else loaded now.
     pub(crate) fn show_time(&mut self, t: usize) {
         if t >= self.model.times || (t == self.model.time && !self.loading()) {

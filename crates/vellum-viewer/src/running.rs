@@ -122,7 +122,7 @@ impl Running {
         let mut gpu = prepare_gpu(&ctx, &mut loaded, budget)?;
         let spectrum = gpu.take_spectrum();
         let dims = gpu.volume().dims();
-        let segments = segments_of(&mut gpu);
+        let (segments, channels) = (segments_of(&mut gpu), channels_of(&mut gpu));
         let mut session = Session::new(
             loaded,
             spectrum,
@@ -137,6 +137,8 @@ impl Running {
             },
         );
         session.model.segments = segments;
+        session.applied_channels = channels.clone();
+        session.model.channels = channels;
         Ok(Running {
             gpu: GpuState {
                 frames,
@@ -342,10 +344,12 @@ impl Running {
         self.gpu.frames.wait_idle().ok();
         let spectrum = gpu.take_spectrum();
         let dims = gpu.volume().dims();
-        let segments = segments_of(&mut gpu);
+        let (segments, channels) = (segments_of(&mut gpu), channels_of(&mut gpu));
         self.gpu.scene = gpu;
         self.session.opened(l, what, spectrum, dims);
         self.session.model.segments = segments;
+        self.session.applied_channels = channels.clone();
+        self.session.model.channels = channels;
         self.window
             .set_title(&format!("vellum: {}", self.session.model.scene.input.path));
     }
@@ -431,6 +435,11 @@ impl Running {
                         l.set_spec(&spec)?;
                     }
                 }
+                Edit::Channels(tfs) => {
+                    if let Some(c) = classify.channels.as_mut() {
+                        c.set_tfs(&tfs)?;
+                    }
+                }
             }
         }
         Ok(())
@@ -441,6 +450,12 @@ impl Running {
 fn segments_of(gpu: &mut Prepared) -> Option<crate::ui::Segments> {
     let l = gpu.classify().labels.as_ref()?;
     Some(crate::ui::Segments::of(&l.labels, l.background()))
+}
+
+/// The channel list of the channels `gpu` mixes, if it mixes several.
+fn channels_of(gpu: &mut Prepared) -> Option<Vec<crate::ui::ChannelRow>> {
+    let c = gpu.classify().channels.as_ref()?;
+    Some(c.info.iter().map(crate::ui::ChannelRow::of).collect())
 }
 
 /// The GPU state of a loaded volume: in core, or the brick cache's pools with the streamer

@@ -22,39 +22,6 @@ use vellum_render::render::scene::{CameraSpec, ClassificationSpec, InputSpec, Na
 use vellum_render::render::view::View;
 use vellum_volume::Volume;
 
-/// What a series keeps from one time point to the next: the transfer function as edited, with
-/// its window, and the histogram it is edited over.
-struct SeriesLook {
-    tf: TransferFunction,
-    tf_base: TransferFunction,
-    tf_edited: bool,
-    shift: f32,
-    scale: f32,
-    histogram: Vec<u64>,
-}
-
-impl SeriesLook {
-    fn of(m: &Model) -> Self {
-        SeriesLook {
-            tf: m.tf.clone(),
-            tf_base: m.tf_base.clone(),
-            tf_edited: m.tf_edited,
-            shift: m.shift,
-            scale: m.scale,
-            histogram: m.histogram.clone(),
-        }
-    }
-
-    fn restore(self, m: &mut Model) {
-        m.tf = self.tf;
-        m.tf_base = self.tf_base;
-        m.tf_edited = self.tf_edited;
-        m.shift = self.shift;
-        m.scale = self.scale;
-        m.histogram = self.histogram;
-    }
-}
-
 /// An occlusion volume being recomputed on a worker thread. The worker opens its own Vulkan
 /// device (a second queue on the same GPU) and hands back the volume and spectrum on the host;
 /// the shell uploads them in one short submission. The window keeps rendering meanwhile, and no
@@ -104,6 +71,8 @@ pub(crate) enum Edit {
     Modulation(Modulation),
     /// The segments' visibility, colours or focus changed (the same label volume).
     Labels(vellum_render::classify::labels::LabelSpec),
+    /// The mixed channels' transfer functions, one per channel in mixing order.
+    Channels(Vec<TransferFunction>),
 }
 
 /// What the shell tells a new session besides the first volume.
@@ -128,6 +97,8 @@ pub(crate) struct Session {
     pub(crate) applied: Scene,
     pub(crate) applied_tf: TransferFunction,
     pub(crate) applied_otf: Option<OcclusionTf>,
+    /// The channel rows as last applied.
+    pub(crate) applied_channels: Option<Vec<crate::ui::ChannelRow>>,
     /// The volume on the host, for recomputing what depends on it (the occlusion volume).
     pub(crate) volume: Volume,
     /// The camera of the loaded scene, for reset.
@@ -192,6 +163,7 @@ impl Session {
             applied: loaded.scene,
             applied_tf: loaded.tf,
             applied_otf: loaded.otf,
+            applied_channels: None,
             volume: loaded.volume,
             model,
             pending_load: None,
@@ -356,7 +328,7 @@ impl Session {
         // histogram and the scale stay those of the series, so that the frames compare.
         let step = l.scene.input.path == self.applied.input.path
             && l.scene.input.time != self.applied.input.time;
-        let kept = step.then(|| SeriesLook::of(&self.model));
+        let kept = step.then(|| crate::timeline::SeriesLook::of(&self.model));
         if step {
             if let Some(b) = self.bench.as_mut() {
                 b.time_point_shown(Instant::now());
@@ -382,15 +354,6 @@ impl Session {
         match kept {
             Some(look) => look.restore(&mut self.model),
             None => self.fix_series_scale(),
-        }
-    }
-
-    /// A store of several time points is drawn on the scale of the first one shown: later
-    /// ones load with it (`input.range`).
-    pub(crate) fn fix_series_scale(&mut self) {
-        if self.model.times > 1 && self.model.scene.input.range.is_none() {
-            self.model.scene.input.range = Some(self.model.range);
-            self.applied.input.range = Some(self.model.range);
         }
     }
 
@@ -467,7 +430,9 @@ impl Session {
 
     /// Whether the scene or the transfer function was edited since the last [`Session::apply`].
     pub(crate) fn edited(&self) -> bool {
-        self.model.scene != self.applied || self.model.tf != self.applied_tf
+        self.model.scene != self.applied
+            || self.model.tf != self.applied_tf
+            || self.model.channels != self.applied_channels
     }
 
     /// Turns the scene's edits into the GPU state's [`Edit`]s, for a volume whose values span
@@ -506,6 +471,7 @@ impl Session {
             }
         }
         self.apply_occlusion(&mut edits);
+        self.apply_channels(&mut edits);
         if self.model.tf != self.applied_tf {
             edits.push(Edit::Transfer(self.model.tf.clone()));
             self.applied_tf = self.model.tf.clone();
@@ -516,6 +482,25 @@ impl Session {
         }));
         self.applied = self.model.scene.clone();
         edits
+    }
+
+    /// The channels' functions when a row was edited since the last apply.
+    fn apply_channels(&mut self, edits: &mut Vec<Edit>) {
+        let Some(rows) = self.model.channels.as_ref() else {
+            return;
+        };
+        if self.applied_channels.as_ref() == Some(rows) {
+            return;
+        }
+        match rows.iter().map(|r| r.tf()).collect() {
+            Ok(tfs) => {
+                edits.push(Edit::Channels(tfs));
+                // The channels' functions are not in the scene: the next frame draws anew.
+                self.epoch += 1;
+            }
+            Err(e) => self.model.message = e.to_string(),
+        }
+        self.applied_channels = Some(rows.clone());
     }
 
     /// An edited OTF's table; starts recomputing the occlusion volume (and the spectrum) on a

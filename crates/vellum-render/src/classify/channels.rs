@@ -21,7 +21,8 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
-use vellum_gpu::{Access, Context, Format, Image, ImageDesc};
+use vellum_gpu::commands::{copy_slice_to_buffer, memory_transition};
+use vellum_gpu::{Access, Buffer, BufferDesc, Context, Format, Frame, Image, ImageDesc};
 use vellum_volume::io::ome_zarr::{Multiscale, OmeroChannel, Pick};
 use vellum_volume::Volume;
 
@@ -82,6 +83,8 @@ const PALETTE: [[f32; 3]; MAX_CHANNELS] = [
 
 /// One channel on the host: its voxels, the range its texture spans, and its transfer function.
 pub struct Channel {
+    /// Its name in the store's NGFF `omero` metadata, if any.
+    pub name: Option<String>,
     /// Its index in the store.
     pub index: usize,
     /// Its voxels at the level drawn.
@@ -128,6 +131,7 @@ impl ChannelSpec {
                 None => default_tf(&volume, range, omero, PALETTE[k % MAX_CHANNELS])?,
             };
             out.push(Channel {
+                name: omero.and_then(|o| o.label.clone()),
                 index: c,
                 volume,
                 range,
@@ -165,8 +169,13 @@ fn default_tf(
         ),
         None => (palette, crate::classify::window::auto_window(v, range)),
     };
-    // The lowest texel (centred at 1/512) stays transparent, so that the empty background of a
-    // channel adds nothing along a ray.
+    ramp(colour, [lo, hi])
+}
+
+/// A ramp in `colour`: transparent up to `lo`, opacity rising to 1 at `hi` (both on the
+/// channel's normalised range). The lowest texel (centred at 1/512) stays transparent, so that
+/// the empty background of a channel adds nothing along a ray.
+pub fn ramp(colour: [f32; 3], [lo, hi]: [f32; 2]) -> Result<TransferFunction> {
     let lo = lo.max(1.0 / crate::classify::transfer::TF_SIZE as f32);
     let hi = hi.max(lo + 1e-3).min(1.0);
     let mut points = vec![ControlPoint {
@@ -215,6 +224,26 @@ pub struct GpuChannels {
     /// Per channel, its transfer function's table and its bricks' ranges (16³ bricks widened by
     /// a voxel, as the volume's): a brick none of whose channels can be visible is skipped.
     pub skipping: Vec<ChannelSkip>,
+    /// Per channel, what a viewer's channel list shows: name, range, histogram and function.
+    pub info: Vec<ChannelInfo>,
+    /// Functions set since the last frame, uploaded by the next one ([`GpuChannels::record`]).
+    pending: bool,
+    ctx: Arc<Context>,
+}
+
+/// One mixed channel as a viewer lists it.
+#[derive(Clone, Debug)]
+pub struct ChannelInfo {
+    /// Its index in the store.
+    pub index: usize,
+    /// Its NGFF `omero` name, if any.
+    pub name: Option<String>,
+    /// The values its texture spans (its transfer function's 0 and 1).
+    pub range: [f64; 2],
+    /// 256 bins of its voxels over that range.
+    pub histogram: Vec<u64>,
+    /// Its transfer function as drawn.
+    pub tf: TransferFunction,
 }
 
 impl GpuChannels {
@@ -238,6 +267,16 @@ impl GpuChannels {
         let size = crate::classify::transfer::TF_SIZE;
         let mut texels = vec![0u16; 4 * voxels];
         let mut skipping = Vec::with_capacity(n);
+        let info = channels
+            .iter()
+            .map(|c| ChannelInfo {
+                index: c.index,
+                name: c.name.clone(),
+                range: c.range,
+                histogram: vellum_volume::stats::stats(&c.volume, 256).histogram,
+                tf: c.tf.clone(),
+            })
+            .collect();
         for (k, c) in channels.iter().enumerate() {
             // As the intensity texture is made, so that the focus channel's equal it.
             let (own, _) = c
@@ -279,15 +318,9 @@ impl GpuChannels {
             bytemuck::cast_slice(&table),
             Access::ComputeSampled,
         )?;
-        let bounds: Vec<u32> = skipping
-            .iter()
-            .flat_map(|(t, _)| crate::classify::transfer::opacity_bounds(t).map(f32::to_bits))
-            .collect();
-        let bounds = vellum_gpu::Buffer::storage_from_bytes(
-            ctx,
-            "channel opacity bounds",
-            bytemuck::cast_slice(&bounds),
-        )?;
+        // Device-local, written by the frames that record bounds, the first one included.
+        let words = 4 * bounds_of(&skipping).len() as u64;
+        let bounds = Buffer::new(ctx, "channel opacity bounds", &BufferDesc::storage(words))?;
         Ok(GpuChannels {
             image,
             tfs,
@@ -296,8 +329,69 @@ impl GpuChannels {
             count: n,
             focus,
             skipping,
+            info,
+            pending: true,
+            ctx: ctx.clone(),
         })
     }
+
+    /// Draws the channels with `tfs` (one per channel, in mixing order) from the next frame on:
+    /// a viewer's edit of a channel's visibility, colour or window.
+    pub fn set_tfs(&mut self, tfs: &[TransferFunction]) -> Result<()> {
+        if tfs.len() != self.count {
+            return Err(Error::Invalid(format!(
+                "{} transfer functions for {} channels; expected one per channel",
+                tfs.len(),
+                self.count
+            )));
+        }
+        let size = crate::classify::transfer::TF_SIZE;
+        for (k, tf) in tfs.iter().enumerate() {
+            if self.info[k].tf != *tf {
+                self.skipping[k].0 = tf.table(size);
+                self.info[k].tf = tf.clone();
+                self.pending = true;
+            }
+        }
+        Ok(())
+    }
+
+    /// Records the upload of functions set since the last frame (their table and opacity
+    /// bounds), ordered after the previous frames' reads and before this one's.
+    pub(crate) fn record(&mut self, frame: &mut Frame) -> Result<()> {
+        if !std::mem::take(&mut self.pending) {
+            return Ok(());
+        }
+        let ctx = self.ctx.clone();
+        let table: Vec<[f32; 4]> = self
+            .skipping
+            .iter()
+            .flat_map(|(t, _)| t.iter().copied())
+            .collect();
+        let src = frame.staging.push(bytemuck::cast_slice(&table), 16)?;
+        vellum_gpu::transfer::record_upload_from(
+            &ctx,
+            frame.cmd,
+            src,
+            &self.tfs,
+            Access::ComputeSampled,
+        );
+        let src = frame
+            .staging
+            .push(bytemuck::cast_slice(&bounds_of(&self.skipping)), 16)?;
+        memory_transition(&ctx, frame.cmd, Access::ComputeRead, Access::TransferWrite);
+        copy_slice_to_buffer(&ctx, frame.cmd, &src, &self.bounds);
+        memory_transition(&ctx, frame.cmd, Access::TransferWrite, Access::ComputeRead);
+        Ok(())
+    }
+}
+
+/// Per channel, the opacity bounds of its function's texels (f32 bits), as the walk reads them.
+fn bounds_of(skipping: &[ChannelSkip]) -> Vec<u32> {
+    skipping
+        .iter()
+        .flat_map(|(t, _)| crate::classify::transfer::opacity_bounds(t).map(f32::to_bits))
+        .collect()
 }
 
 #[cfg(test)]

@@ -152,6 +152,9 @@ impl GpuClassification {
         if let Some(labels) = self.labels.as_mut() {
             labels.record(frame, Access::ComputeRead)?;
         }
+        if let Some(channels) = self.channels.as_mut() {
+            channels.record(frame)?;
+        }
         self.occlusion.record(frame, &ctx, next)
     }
 

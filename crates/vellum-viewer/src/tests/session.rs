@@ -382,3 +382,50 @@ fn a_segment_edit_is_a_new_label_table_and_another_label_volume_a_load() {
     assert_eq!(s.apply(range, false), Vec::new());
     assert!(s.loading(), "another label volume is loaded with the scene");
 }
+
+/// The channels panel's edits (issue 42): a row starts with the function the GPU state holds;
+/// hiding it makes its function transparent and a colour or window edit makes it a ramp in that
+/// colour across that window, sent once as `Edit::Channels`.
+#[test]
+fn a_channel_edit_is_a_new_function_for_that_channel_only() {
+    use crate::ui::ChannelRow;
+    use vellum_render::classify::channels::{ramp, ChannelInfo};
+    let mut s = session("phantom:sphere:16");
+    let range = s.model.range;
+    let info = |index, colour| ChannelInfo {
+        index,
+        name: None,
+        range: [0.0, 1000.0],
+        histogram: vec![1; 256],
+        tf: ramp(colour, [0.25, 0.5]).unwrap(),
+    };
+    let rows: Vec<ChannelRow> = [info(0, [1.0, 0.0, 0.0]), info(2, [0.0, 0.0, 1.0])]
+        .iter()
+        .map(ChannelRow::of)
+        .collect();
+    assert_eq!(rows[0].window, [0.25, 0.5], "the loaded function's window");
+    assert_eq!(rows[1].colour, [0.0, 0.0, 1.0]);
+    assert_eq!(rows[0].tf().unwrap(), info(0, [1.0, 0.0, 0.0]).tf);
+    s.model.channels = Some(rows.clone());
+    s.applied_channels = Some(rows);
+    let channel_edits = |s: &mut Session| -> Vec<Vec<TransferFunction>> {
+        s.apply(range, false)
+            .into_iter()
+            .filter_map(|e| match e {
+                Edit::Channels(t) => Some(t),
+                _ => None,
+            })
+            .collect()
+    };
+    assert!(channel_edits(&mut s).is_empty());
+    let rows = s.model.channels.as_mut().unwrap();
+    rows[0].visible = false;
+    rows[1].colour = [0.0, 1.0, 0.0];
+    rows[1].window = [0.1, 0.2];
+    rows[1].edited = true;
+    let sent = channel_edits(&mut s);
+    assert_eq!(sent.len(), 1);
+    assert!(sent[0][0].table(256).iter().all(|t| t[3] == 0.0), "hidden");
+    assert_eq!(sent[0][1], ramp([0.0, 1.0, 0.0], [0.1, 0.2]).unwrap());
+    assert!(channel_edits(&mut s).is_empty(), "applied once");
+}

@@ -15,12 +15,15 @@ use vellum_render::render::scene::{ClassificationSpec, NamedView, Scene, StyleSp
 use vellum_render::render::style::STYLES;
 use vellum_volume::feature::map::{FeatureMap, Node};
 
+pub(crate) mod channels;
 mod features;
 mod occlusion;
 mod rendering;
 pub(crate) mod segments;
 mod transfer;
 
+pub use channels::ChannelRow;
+use channels::*;
 pub use features::visible_map;
 use features::*;
 use occlusion::*;
@@ -96,6 +99,8 @@ pub struct Model {
     /// The segments of a label volume beside the input, when the scene has one (the scene's
     /// `labels` spec holds what the panel edits).
     pub segments: Option<Segments>,
+    /// The channels mixed in one ray, when the scene mixes several.
+    pub channels: Option<Vec<ChannelRow>>,
     /// The occlusion transfer function (OS4, OS5) when the scene is classified by one.
     pub otf: Option<OcclusionTf>,
     /// Whether the OTF's table or its AO parameters changed since it was loaded.
@@ -153,6 +158,7 @@ impl Model {
             hidden: BTreeSet::new(),
             features_edited: false,
             segments: None,
+            channels: None,
             otf: None,
             otf_edited: false,
             spectrum: None,
@@ -289,6 +295,11 @@ fn panel(ui: &mut egui::Ui, m: &mut Model) {
         egui::CollapsingHeader::new("Segments")
             .default_open(true)
             .show(ui, |ui| segments(ui, m));
+    }
+    if m.channels.is_some() {
+        egui::CollapsingHeader::new("Channels")
+            .default_open(true)
+            .show(ui, |ui| channels(ui, m));
     }
     egui::CollapsingHeader::new("Camera")
         .default_open(false)
