@@ -273,3 +273,61 @@ fn style_references() {
         );
     }
 }
+
+/// Every style over levels drawn once (`Renderer::render_styles`, the gallery's way) equals
+/// that style's own whole frame (`render_frame`) exactly, on the Shepp–Logan phantom: the style
+/// passes read only the layers, so styling the same layers again leaves no trace of the style
+/// before. The first frame has the levels' passes; the others only the style's.
+#[test]
+fn styles_over_levels_drawn_once_equal_their_own_frames() {
+    use vellum::render::frame::Renderer;
+    use vellum::render::style::STYLES;
+    use vellum::render::view::{Lighting, View};
+    let gpu = Gpu::new();
+    let v = phantom::shepp_logan(48);
+    let c = Classification::Transfer(TransferFunction::preset("grey").unwrap());
+    let focus = Focus::Iso(0.25);
+    let mut scene =
+        vellum::render::scene::GpuScene::prepare(&gpu.ctx, &v, &c, focus, &Default::default())
+            .unwrap();
+    let view = View {
+        camera: vellum::render::camera::Camera::parse("30,20").unwrap(),
+        size: [96, 96],
+        slices: None,
+        one_pass: false,
+        lighting: Lighting::default(),
+        style: None,
+        fit: true,
+        raycast: None,
+    };
+    let styles: Vec<Style> = STYLES
+        .iter()
+        .filter(|d| d.available())
+        .map(|def| Style {
+            def,
+            params: StyleParams::default(),
+        })
+        .collect();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let once = renderer
+        .render_styles(&scene.volume, &mut scene.classify, &view, &styles)
+        .unwrap();
+    assert_eq!(once.len(), styles.len());
+    for (style, got) in styles.iter().zip(&once) {
+        let v = View {
+            style: Some(*style),
+            ..view.clone()
+        };
+        let own = renderer
+            .render_frame(&scene.volume, &mut scene.classify, &v, true)
+            .unwrap();
+        assert!(
+            own.composite == got.composite,
+            "style {} differs over shared levels",
+            style.def.number
+        );
+    }
+    let levels =
+        |f: &vellum::render::targets::FrameImage| f.passes.iter().any(|p| p.name == "focus");
+    assert!(levels(&once[0]) && once[1..].iter().filter(|f| levels(f)).count() <= 1);
+}

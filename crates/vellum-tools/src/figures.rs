@@ -355,16 +355,20 @@ pub fn style_gallery(
     params.validate()?;
     let mut renderer = Renderer::new(ctx)?;
     let [w, h] = view.size.map(|s| s as usize);
+    // The levels are drawn once; each style's passes run over them.
+    let styles: Vec<Style> = STYLES
+        .iter()
+        .filter(|d| d.available())
+        .map(|def| Style { def, params })
+        .collect();
+    let mut frames = renderer
+        .render_styles(&scene.volume, &mut scene.classify, view, &styles)?
+        .into_iter();
     let mut tiles = Vec::new();
     for def in STYLES.iter() {
-        let frame = if def.available() {
-            let v = View {
-                style: Some(Style { def, params }),
-                ..view.clone()
-            };
-            Some(renderer.render_frame(&scene.volume, &mut scene.classify, &v, true)?)
-        } else {
-            None
+        let frame = match def.available() {
+            true => frames.next(),
+            false => None,
         };
         let sal = match (&frame, saliency) {
             (Some(f), true) => Some(focus_saliency(f, background)?),

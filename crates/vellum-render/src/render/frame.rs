@@ -696,18 +696,53 @@ impl Renderer {
             }
             _ => self.slicer.record_one_pass(frame, &draw, &t.composite)?,
         }
-        let lines = match (&view.style, &t.post, view.one_pass) {
-            (Some(style), Some(post), false) => {
+        let lines = match view.one_pass {
+            false => self.record_view_style(frame, vol, (&setup, view), (t, state))?,
+            true => None,
+        };
+        Ok(Recorded {
+            slices: setup.proxy.slices,
+            lines,
+        })
+    }
+
+    /// The style of `view`, if any, over the layers of `t`.
+    fn record_view_style(
+        &mut self,
+        frame: &mut vellum_gpu::Frame,
+        vol: VolumeRef,
+        (setup, view): (&FrameSetup, &View),
+        (t, state): (&TargetImages, &mut ViewState),
+    ) -> Result<Option<RasterView>> {
+        match (&view.style, &t.post) {
+            (Some(style), Some(post)) => {
                 let style_frame = StyleFrame {
-                    setup: &setup,
+                    setup,
                     style,
                     images: t,
                     post,
                 };
-                self.record_style(frame, vol, &style_frame, state)?
+                self.record_style(frame, vol, &style_frame, state)
             }
-            _ => None,
-        };
+            _ => Ok(None),
+        }
+    }
+
+    /// Records only `view`'s style over the layers in `targets`, which a frame of the same view
+    /// (another style, or none) left there ([`Renderer::render_styles`]).
+    fn record_restyle(
+        &mut self,
+        frame: &mut vellum_gpu::Frame,
+        vol: VolumeRef,
+        classify: &mut GpuClassification,
+        view: &View,
+        targets: &mut FrameTargets,
+    ) -> Result<Recorded> {
+        let max = self.ctx.info.max_image_dimension_2d;
+        let setup = FrameSetup::new(&SetupInput::of(vol, classify, max), view)?;
+        self.build_style_passes(view)?;
+        let (t, state) = targets.ensure(view.size, true, true)?;
+        let lines = self.record_view_style(frame, vol, (&setup, view), (t, state))?;
         Ok(Recorded {
             slices: setup.proxy.slices,
             lines,
@@ -812,16 +847,63 @@ impl Renderer {
         view: &View,
         readback: bool,
     ) -> Result<FrameImage> {
+        let mut targets = FrameTargets::new(&self.ctx);
+        self.frame_in(
+            vol.into(),
+            classify,
+            (view, &mut targets),
+            (readback, false),
+        )
+    }
+
+    /// Each of `styles` over one two-level frame of `view` (whose own style is ignored), read
+    /// back: the levels are drawn once, and every style's passes then run over the same layers
+    /// (they read the layers and write the composite). A style that records nothing (15, none)
+    /// shows the levels' own composite, so it is drawn whole. The first frame's passes include
+    /// the levels'; the others' only the style's.
+    pub fn render_styles<'v>(
+        &mut self,
+        vol: impl Into<VolumeRef<'v>>,
+        classify: &mut GpuClassification,
+        view: &View,
+        styles: &[Style],
+    ) -> Result<Vec<FrameImage>> {
         let vol = vol.into();
+        let mut targets = FrameTargets::new(&self.ctx);
+        let mut out = Vec::with_capacity(styles.len());
+        for (i, style) in styles.iter().enumerate() {
+            let v = View {
+                style: Some(*style),
+                ..view.clone()
+            };
+            let d = style.def;
+            let plain = d.edges.is_none() && d.abstraction.is_none() && d.lines.is_none();
+            let restyle = i > 0 && !plain && !view.one_pass;
+            out.push(self.frame_in(vol, classify, (&v, &mut targets), (true, restyle))?);
+        }
+        Ok(out)
+    }
+
+    /// One frame of `view` into `targets`: whole, or (`restyle`) only its style's passes over
+    /// the layers a frame of the same view left there; read back when `readback`.
+    fn frame_in(
+        &mut self,
+        vol: VolumeRef,
+        classify: &mut GpuClassification,
+        (view, targets): (&View, &mut FrameTargets),
+        (readback, restyle): (bool, bool),
+    ) -> Result<FrameImage> {
         let ctx = &self.ctx.clone();
-        let mut targets = FrameTargets::new(ctx);
         let mut frames = Frames::new(ctx, &FramesDesc::one_shot("render frame", 32))?;
         let mut host = None;
         let (recorded, _) = frames.frame(|f| {
-            let r = self.record(f, vol, classify, view, &mut targets)?;
+            let r = match restyle {
+                true => self.record_restyle(f, vol, classify, view, targets)?,
+                false => self.record(f, vol, classify, view, targets)?,
+            };
             if readback {
-                let rb = TargetsReadback::new(ctx, &targets)?;
-                rb.record(f, &targets);
+                let rb = TargetsReadback::new(ctx, targets)?;
+                rb.record(f, targets);
                 host = Some(rb);
             }
             Ok(r)
