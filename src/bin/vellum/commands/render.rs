@@ -121,16 +121,47 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
     render_on(None, (cli, team), a).map(|_| ())
 }
 
+/// The frames of `render --time all`: one device, and time point 0's intensity scale and
+/// classification (`render::session::series_scale`), taken from its frame so that no later frame
+/// reads time point 0 again.
+struct Series {
+    ctx: std::sync::Arc<vellum::gpu::Context>,
+    scale: Option<([f64; 2], vellum::classify::Classification)>,
+}
+
+impl Series {
+    /// Time point 0's scale, from its volume in core (a series beyond the GPU budget keeps the
+    /// brick cache's own scale).
+    fn take_scale(
+        &mut self,
+        input: &Opened,
+        classification: &vellum::classify::Classification,
+    ) -> Result<()> {
+        let Opened::InCore(v) = input else {
+            return Ok(());
+        };
+        let range = v.normalised_range();
+        let c = match classification {
+            vellum::classify::Classification::Auto => vellum::classify::Classification::Transfer(
+                vellum::classify::window::auto(v, range)?,
+            ),
+            c => c.clone(),
+        };
+        self.scale = Some((range, c));
+        Ok(())
+    }
+}
+
 /// One frame, on the device `series` shares when it is one of a series (which says its lines
-/// once, for all its frames), else on a context of its own. Returns whether the input gives
-/// its orientation.
+/// once, for all its frames, and draws them on one scale), else on a context of its own.
+/// Returns whether the input gives its orientation.
 fn render_on(
-    series: Option<&std::sync::Arc<vellum::gpu::Context>>,
+    mut series: Option<&mut Series>,
     (cli, team): (&Cli, &dyn Team),
     a: &RenderArgs,
 ) -> Result<bool> {
     use vellum::render::targets::to_rgb8;
-    let scene = a.scene.scene("render")?;
+    let mut scene = a.scene.scene("render")?;
     if let Some(path) = &a.save_scene {
         if team.is_root() {
             scene.save(path)?;
@@ -148,11 +179,15 @@ fn render_on(
         Some(p) => anyhow::anyhow!("scene file {}: {key}: {e}", p.display()),
         None => e.into(),
     };
-    let classification = scene
+    let mut classification = scene
         .classification()
         .map_err(|e| from("classification", e))?;
-    let ctx = match series {
-        Some(ctx) => ctx.clone(),
+    if let Some((range, c)) = series.as_ref().and_then(|s| s.scale.clone()) {
+        scene.input.range = Some(range);
+        classification = c;
+    }
+    let ctx = match series.as_ref() {
+        Some(s) => s.ctx.clone(),
         None => together(team, context(cli))?,
     };
     let opts = session_options(a)?;
@@ -161,6 +196,9 @@ fn render_on(
         team,
         Opened::open(&scene, None, budget, opts.chunk_cache_bytes).map_err(|e| from("input", e)),
     )?;
+    if let Some(s) = series.as_mut().filter(|s| s.scale.is_none()) {
+        s.take_scale(&input, &classification)?;
+    }
     let grid = input.grid();
     team.same_inputs(inputs_key(&(&scene.input.path, grid.0)))?;
     let mut view = scene
@@ -300,19 +338,22 @@ fn render_every_time((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
         })?;
     }
     // One device for every frame; each time point after the first is drawn on time point 0's
-    // scale and transfer function (`render::session::series_scale`).
-    let ctx = together(team, context(cli))?;
+    // scale and transfer function, taken once from its frame.
+    let mut series = Series {
+        ctx: together(team, context(cli))?,
+        scale: None,
+    };
     let bar = vellum::progress::bar(times as u64, "time points");
     let mut oriented = true;
     for t in 0..times {
         let mut one = a.clone();
         one.scene.time = Some(TimeArg::One(t));
         one.out = Some(dir.join(format!("t{t:04}.png")));
-        oriented = render_on(Some(&ctx), (cli, team), &one)?;
+        oriented = render_on(Some(&mut series), (cli, team), &one)?;
         bar.inc(1);
     }
     bar.finish_and_clear();
-    report_validation(&ctx);
+    report_validation(&series.ctx);
     if team.is_root() {
         println!("wrote {times} time points to {}", dir.display());
         if !oriented {
