@@ -202,6 +202,26 @@ fn two_levels_equal_one_pass_and_speed_ups_keep_the_image() {
                 skip.composite, full.composite,
                 "{name}: skipping changed the image"
             );
+            // The walk four samples at a time (a GPU's default) keeps every layer, bit for bit.
+            let mut walk = |batch| {
+                let o = RayOptions {
+                    walk_batch: Some(batch),
+                    ..base
+                };
+                render(one_pass, o)
+            };
+            let (batched, single) = (walk(true), walk(false));
+            let moved = (batched.composite.iter())
+                .zip(&single.composite)
+                .filter(|(p, q)| p != q)
+                .count();
+            assert_eq!(moved, 0, "{name}: the batched walk changed {moved} pixels");
+            let depth = |f: &FrameImage| f.layers.as_ref().map(|l| l.focus_depth.clone());
+            assert_eq!(
+                depth(&batched),
+                depth(&single),
+                "{name}: the batched walk moved the depth"
+            );
             let exact = render(one_pass, RayOptions { ert: 1.0, ..base });
             let worst = skip
                 .composite

@@ -46,6 +46,7 @@ const bool V_MIX_OVER = (VARIANT & 4096u) != 0u;
 const bool V_MIX_ADD = (VARIANT & 8192u) != 0u;
 const bool V_MIX_MAX = (VARIANT & 16384u) != 0u;
 const bool V_CHANNELS = V_MIX_OVER || V_MIX_ADD || V_MIX_MAX;
+const bool V_WALK_BATCH = (VARIANT & 32768u) != 0u;
 // Channels of a store mixed in one ray (classify/channels.rs): up to four, component k of
 // `channels` over channel k's own range, with its transfer function in row k of `channel_tf`.
 // Frames without channels bind stand-ins and never read them.

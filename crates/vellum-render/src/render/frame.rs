@@ -23,7 +23,7 @@ use crate::passes::paging::HEADER;
 use crate::render::post::{LinesDraw, Post};
 use crate::render::proxy::{depth_span, view_aligned_slices_in, ProxySlices};
 use crate::render::raycast::{
-    opacity_bounds, RayCaster, RayPush, RayRequest, BRICK_FOCUS, BRICK_VISIBLE,
+    opacity_bounds, walk_batch, RayCaster, RayPush, RayRequest, BRICK_FOCUS, BRICK_VISIBLE,
 };
 use crate::render::shading::SliceUniforms;
 use crate::render::slicer::{SliceDraw, Slicer};
@@ -1075,6 +1075,10 @@ fn record_rays(
             },
             brick_reuse: vol.paged().is_some_and(|p| p.reuse),
             brick_span: vol.paged().is_some_and(|p| p.span),
+            walk_batch: r
+                .options
+                .walk_batch
+                .unwrap_or_else(|| walk_batch(&ctx.info.device_type)),
             push: {
                 let mut push = r.setup.ray_push(&r.options, vol.bricks().counts, two_level);
                 // Mixed channels: the focus channel's component, where a sample's intensity is

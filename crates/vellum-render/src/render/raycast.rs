@@ -137,6 +137,9 @@ impl Variant {
     pub(crate) const MIX_ADD: u32 = 8192;
     /// Projects each channel to its maximum along the ray (one level).
     pub(crate) const MIX_MAX: u32 = 16384;
+    /// In core, the walk to a ray's next contributing sample fetches four samples at once
+    /// ([`walk_batch`]).
+    pub(crate) const WALK_BATCH: u32 = 32768;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -158,6 +161,20 @@ impl Variant {
             (uniforms.mod_flags[3] != 0, Self::MOD_SHADE),
         ];
         Variant(bits.iter().filter(|(on, _)| *on).map(|(_, b)| b).sum())
+    }
+}
+
+/// Whether rays in core walk to their next contributing sample four samples at a time on a
+/// device of `device_type` (the `WALK_BATCH` variant; the shader's `walk_batch`). On a GPU a lone
+/// ray is a chain of dependent fetches, and a small frame lasts as long as its longest ray's
+/// chain (issue 43); four fetches in flight together shorten it. On by default on a GPU; off on a
+/// CPU rasteriser, whose lanes pay for every fetch, the batch's speculative ones too.
+/// `VELLUM_WALK_BATCH=0|1` overrides, for measuring. The image is the same either way.
+pub(crate) fn walk_batch(device_type: &str) -> bool {
+    match std::env::var("VELLUM_WALK_BATCH").ok().as_deref() {
+        Some("0") => false,
+        Some("1") => true,
+        _ => device_type != "CPU",
     }
 }
 
@@ -189,6 +206,8 @@ pub(crate) struct RayRequest<'a> {
     pub(crate) brick_reuse: bool,
     /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
     pub(crate) brick_span: bool,
+    /// Rays in core walk four samples at a time to their next contributing one ([`walk_batch`]).
+    pub(crate) walk_batch: bool,
     /// The push constants of `raycast.comp`.
     pub push: RayPush,
     /// The image size in pixels, width and height: one invocation per pixel.
@@ -275,6 +294,9 @@ impl RayCaster {
         }
         if r.labels.1 {
             variant.0 |= Variant::LABELS;
+        }
+        if r.walk_batch {
+            variant.0 |= Variant::WALK_BATCH;
         }
         variant.0 |= match r.channels.1 {
             None => 0,

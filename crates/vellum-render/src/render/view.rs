@@ -103,6 +103,11 @@ pub struct RayOptions {
     /// MPI job; a bound at or past the volume's edge is open). Not part of a scene file.
     #[serde(skip)]
     pub region: Option<[[f32; 3]; 2]>,
+    /// Whether rays in core walk four samples at a time to their next contributing sample
+    /// (`render::raycast::walk_batch`); `None` takes the device's default. The image is the same
+    /// either way. Not part of a scene file.
+    #[serde(skip)]
+    pub walk_batch: Option<bool>,
 }
 
 /// Where the ray caster samples.
@@ -141,6 +146,7 @@ impl Default for RayOptions {
             refine_iso: false,
             sampling: Sampling::Planes,
             region: None,
+            walk_batch: None,
         }
     }
 }
