@@ -257,3 +257,34 @@ fn engine_matches_scipy() {
         "max |vellum − scipy| = {max_err:e}"
     );
 }
+
+/// The bench's yardstick (`bench table1`): a plain copy of the volume timed beside the passes,
+/// once per run and under sustained load, without touching ΔD.
+#[test]
+fn copy_reference_is_timed_and_leaves_the_map_alone() {
+    let gpu = Gpu::new();
+    let mut map = ImportanceMap::new(&gpu.ctx).unwrap();
+    let v = phantom::shepp_logan(24);
+    let plain = map.compute(&v, 5, false).unwrap();
+    let timed = map.compute(&v, 5, true).unwrap();
+    assert_eq!(
+        plain.delta_d.data, timed.delta_d.data,
+        "the copy changed ΔD"
+    );
+    let copies: Vec<f64> = timed
+        .passes
+        .iter()
+        .filter(|p| p.name == "copy")
+        .map(|p| p.ms)
+        .collect();
+    assert!(
+        copies.len() == 1 && copies[0] > 0.0,
+        "copy passes: {copies:?}"
+    );
+    assert!(!plain.passes.iter().any(|p| p.name == "copy"));
+    let sustained = map.sustained(&v, 5, 2, 1).unwrap();
+    assert!(
+        sustained.iter().all(|ms| ms.is_finite() && *ms > 0.0),
+        "gauss x, y, z, subtract, copy: {sustained:?}"
+    );
+}

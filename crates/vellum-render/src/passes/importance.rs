@@ -11,7 +11,7 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Instant;
 use vellum_error::{Error, Result};
-use vellum_gpu::commands::{clear_image, copy_image};
+use vellum_gpu::commands::clear_image;
 use vellum_gpu::pipeline::group_count;
 use vellum_gpu::profiler::PassTime;
 use vellum_gpu::transfer::{record_readback, record_upload, staging_buffer};
@@ -131,6 +131,8 @@ pub struct ImportanceMap {
     gauss: HashMap<u32, Gauss>,
     choice: KernelChoice,
     subtract: ComputePipeline,
+    /// The bench's yardstick (`record_copy`).
+    copy: ComputePipeline,
     pack: ComputePipeline,
     unpack: ComputePipeline,
 }
@@ -425,6 +427,12 @@ impl ImportanceMap {
             gauss: HashMap::new(),
             choice: KernelChoice::Auto,
             subtract,
+            copy: ComputePipeline::new(
+                ctx,
+                "importance/copy.comp",
+                &[StorageImage, StorageImage],
+                push,
+            )?,
             pack: ComputePipeline::new(
                 ctx,
                 "importance/pack.comp",
@@ -524,6 +532,30 @@ impl ImportanceMap {
         radius_voxels: u32,
     ) -> Result<()> {
         self.record_passes(frame, images, radius_voxels, true)
+    }
+
+    /// Pass `copy`: the source volume's texels copied into `images.b` by `importance/copy.comp`,
+    /// with subtract's images, workgroups and access and no arithmetic: the bandwidth a 1D pass
+    /// (one volume read, one written) cannot beat, measured beside it. The driver's own copies are
+    /// no such yardstick: on an H200 `vkCmdCopyImage` between these 3D images took 5.5 ms for the
+    /// CT head's 311 MB, and `vkCmdCopyBuffer` of as many bytes 0.74 ms, where the passes take
+    /// about 0.23 ms.
+    fn record_copy(&self, frame: &mut Frame, images: &ImportanceImages) -> Result<()> {
+        let (cmd, profiler) = (frame.cmd, &mut *frame.profiler);
+        let (src, b) = (&images.src, &images.b);
+        profiler.begin(cmd, "copy");
+        src.transition(cmd, Access::ComputeRead);
+        b.discard();
+        b.transition(cmd, Access::ComputeWrite);
+        let dims = images.dims.map(|d| d as i32);
+        self.copy.dispatch(
+            cmd,
+            &[Bind::StorageImage(src), Bind::StorageImage(b)],
+            &SubtractPush { dims, pad: 0 },
+            group_count(src.desc.extent, LOCAL_SIZE),
+        )?;
+        profiler.end(cmd);
+        Ok(())
     }
 
     /// The three filter passes (G∗V into `images.a`), then `subtract` when asked.
@@ -746,7 +778,8 @@ impl ImportanceMap {
 
     /// Computes ΔD of `v` with radius `radius_voxels`: allocation, upload, the passes and
     /// readback, timed as the paper's "Total". With `copy_reference`, the submission also times a
-    /// plain image copy of one float volume (pass `copy`), the bandwidth bound of a 1D pass.
+    /// plain copy of one float volume (pass `copy`: `record_copy`), the bandwidth bound of a 1D
+    /// pass.
     pub fn compute(
         &mut self,
         v: &Volume,
@@ -769,9 +802,7 @@ impl ImportanceMap {
                 }
             });
             if copy_reference {
-                f.profiler.pass(cmd, "copy", |cmd| {
-                    copy_image(ctx, cmd, &images.src, &images.b)
-                });
+                self.record_copy(f, &images)?;
             }
             self.record(f, &images, radius_voxels)?;
             f.profiler.pass(cmd, "readback", |cmd| {
@@ -789,7 +820,8 @@ impl ImportanceMap {
 }
 
 impl ImportanceMap {
-    /// Median GPU ms of `gauss_x`, `gauss_y`, `gauss_z` and `subtract` under sustained load:
+    /// Median GPU ms of `gauss_x`, `gauss_y`, `gauss_z`, `subtract` and a plain copy of the
+    /// volume (`copy`, after each round: `record_copy`) under sustained load:
     /// `v` is uploaded once, then `submissions` submissions (and more until `WARM_SECONDS`
     /// have passed) each record `rounds` rounds of the four passes back to back, and the medians
     /// come from the last submission. A GPU lowers its clocks while the host works between
@@ -801,7 +833,7 @@ impl ImportanceMap {
         radius_voxels: u32,
         rounds: usize,
         submissions: usize,
-    ) -> Result<[f64; 4]> {
+    ) -> Result<[f64; 5]> {
         let ctx = &self.ctx.clone();
         let (images, staging) = self.staged(v, radius_voxels)?;
         submit_timed(ctx, "importance upload", |f| {
@@ -811,7 +843,7 @@ impl ImportanceMap {
             }
             Ok(())
         })?;
-        let desc = FramesDesc::one_shot("importance sustained", 4 * rounds as u32 + 4);
+        let desc = FramesDesc::one_shot("importance sustained", 5 * rounds as u32 + 4);
         let mut passes = Vec::new();
         // At least `submissions`, and on for half a second: after the host's packing the GPU
         // takes that long to raise its clocks again (seen on an H100: a CT-head pass ran at two
@@ -822,7 +854,10 @@ impl ImportanceMap {
             done += 1;
             let mut frames = Frames::new(ctx, &desc)?;
             frames.frame(|f| {
-                (0..rounds.max(1)).try_for_each(|_| self.record(f, &images, radius_voxels))
+                (0..rounds.max(1)).try_for_each(|_| {
+                    self.record(f, &images, radius_voxels)?;
+                    self.record_copy(f, &images)
+                })
             })?;
             passes = frames.finish()?;
         }
@@ -840,6 +875,7 @@ impl ImportanceMap {
             med(GAUSS_PASSES[1]),
             med(GAUSS_PASSES[2]),
             med("subtract"),
+            med("copy"),
         ])
     }
 }

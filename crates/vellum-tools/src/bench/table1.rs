@@ -106,6 +106,12 @@ pub struct Row {
     /// gauss_x, gauss_y, gauss_z and subtract with the device kept busy: the medians of
     /// `--sustained N` rounds recorded back to back, on the volume uploaded once.
     pub sustained_ms: Option<[f64; 4]>,
+    /// A plain copy of the volume (a compute pass over the same images, `importance/copy.comp`)
+    /// after each of those rounds (median ms): the yardstick of the sustained passes.
+    pub sustained_copy_ms: Option<f64>,
+    /// Each sustained pass's rate as a fraction of the copy's: copy ms over pass ms (the subtract
+    /// against 1.5 copies, as it reads two volumes and writes one). 1 is the copy's bandwidth.
+    pub sustained_of_copy: Option<[f64; 4]>,
 }
 
 /// The whole table.
@@ -228,6 +234,10 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
             } else {
                 None
             };
+            let sustained = match opts.sustained {
+                0 => None,
+                n => Some(map.sustained(&v, r, n, 3)?),
+            };
             rows.push(Row {
                 case: case.into(),
                 dims,
@@ -248,10 +258,10 @@ pub fn run(ctx: &Arc<Context>, opts: &Options) -> Result<Table> {
                 speedup_total: paper_total[ri] / total_ms,
                 scipy_ms: scipy,
                 vellum_over_scipy: scipy.map(|s| passes_ms / s),
-                sustained_ms: match opts.sustained {
-                    0 => None,
-                    n => Some(map.sustained(&v, r, n, 3)?),
-                },
+                sustained_ms: sustained.map(|m| [m[0], m[1], m[2], m[3]]),
+                sustained_copy_ms: sustained.map(|m| m[4]),
+                sustained_of_copy: sustained
+                    .map(|m| [m[4] / m[0], m[4] / m[1], m[4] / m[2], 1.5 * m[4] / m[3]]),
             });
             drop(runs);
         }
@@ -313,6 +323,16 @@ impl Table {
                 ms[3],
                 gbs(ms[3], 3.0),
             );
+            if let (Some(c), Some(f)) = (r.sustained_copy_ms, r.sustained_of_copy) {
+                s += &format!(
+                    "          copy {c:.3} ms ({:.0} GB/s); each pass at {:.0} %, {:.0} %, {:.0} %, {:.0} % of the copy's rate\n",
+                    gbs(c, 2.0),
+                    100.0 * f[0],
+                    100.0 * f[1],
+                    100.0 * f[2],
+                    100.0 * f[3],
+                );
+            }
         }
         s += "data: ";
         s += &self
