@@ -78,7 +78,10 @@ fi
 
 # table1 after the renderers: its sub-millisecond passes read low on a GPU whose clocks have
 # not yet ramped up (seen as half the bandwidth when it ran first).
-run render 150 render --repeat 9
+# 64² beside 256² and 1024²: the ray caster's share that does not scale with pixels (issue 43).
+run render 150 render --repeat 9 --sizes 64,256,512,1024
+# The same with the walk one sample at a time (the batched walk is a GPU's default).
+VELLUM_WALK_BATCH=0 run render_walk1 150 render --repeat 9 --sizes 64,256,512,1024
 run styles 120 styles --repeat 5 --sizes 512,1024
 run table1 150 table1 --no-scipy --repeat 9 --sustained 40
 run styles_raycast 60 styles --repeat 9 --sizes 1024 --renderer raycast
@@ -93,7 +96,7 @@ run scale 120 scale --sizes 256,512 --image 1024 --dir /tmp/bench-scale
 # behind passes::importance::gpu_tiles. TILES="..." and TILES_X="..." sweep other shapes.
 CT="--no-scipy --repeat 3 --sustained 40 --cases ct-head:1,ct-head:5,ct-head:10"
 VELLUM_GAUSS_KERNEL=segments run sweep_segments 60 table1 $CT
-for t in ${TILES:-32,1,8,64 8,1,32,64 4,1,32,128 8,1,16,64 16,2,8,64 8,2,16,64 4,8,16,64 \
+for t in ${TILES:-8,1,32,64 4,1,32,128 4,8,16,64 8,2,16,64 8,4,16,64 4,2,32,64 \
     16,2,16,64 4,1,32,256 8,2,16,128 4,2,32,128 4,4,16,128}; do
     VELLUM_GAUSS_KERNEL=tiled VELLUM_GAUSS_TILE=$t run "sweep_tile_${t//,/_}" 60 table1 $CT
 done
@@ -104,9 +107,10 @@ done
 # The bricked ray caster against in core on a 256³ store at 1024², two levels: five renders of
 # each, the ray caster's GPU ms (in core with and without empty-space skipping; through a pool
 # just below the in-core need at level 0, each ray looking its brick up at every sample, reusing
-# its last lookup, or keeping the stretch of its path that lookup holds for: Paged::span, off by
-# default until this case has measured it); and empty-space skipping in core on the CT head and
-# the engine.
+# its last lookup, or keeping the stretch of its path that lookup holds for: Paged::span, a GPU's
+# default since it won here on an H200); and empty-space skipping against none in core on the
+# four volumes of issue 43, two levels and one pass, with the walk batched (a GPU's default) and,
+# for two of them, one sample at a time (VELLUM_WALK_BATCH=0).
 case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
     "$V" convert phantom:shepp-logan:256 /tmp/b.ome.zarr >/dev/null 2>&1
     mib=$(python3 -c "print(256**3*10/2**20)")
@@ -114,14 +118,24 @@ case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
     core="--gpu-budget $(python3 -c "print($mib*1.5)")"
     brick="--gpu-budget $(python3 -c "print($mib*0.99)") --lod finest"
     D="$B/data/volumes"
-    head="$D/cthead_stanford/cthead_stanford.nhdr --iso 1300 --tf ct-skin-bone"
-    engine="$D/engine/engine.nhdr --iso 180 --tf grey"
+    head="$D/cthead_stanford/cthead_stanford.nhdr --tf ct-skin-bone"
+    engine="$D/engine/engine.nhdr --tf grey"
+    chest="$D/ct_chest_lidc2/ct_chest_lidc2.nhdr --tf ct-skin-bone"
     F="--size 1024x1024 --renderer raycast --out /tmp/b.png"
+    # Skipping against none on the four volumes of issue 43, two levels (--iso) and one pass (1p).
     for c in "core_skip|$A $core" "core_noskip|$A $core --no-skip-empty" \
-        "bricked_lookup|$A $brick|VELLUM_BRICK_REUSE=0" "bricked_reuse|$A $brick|VELLUM_BRICK_REUSE=1" \
-        "bricked_span|$A $brick|VELLUM_BRICK_REUSE=1 VELLUM_BRICK_SPAN=1" \
-        "head_skip|$head $F" "head_noskip|$head $F --no-skip-empty" \
-        "engine_skip|$engine $F" "engine_noskip|$engine $F --no-skip-empty"; do
+        "core1p_skip|${A/--iso 0.9 /} $core" "core1p_noskip|${A/--iso 0.9 /} $core --no-skip-empty" \
+        "bricked_lookup|$A $brick|VELLUM_BRICK_REUSE=0 VELLUM_BRICK_SPAN=0" "bricked_reuse|$A $brick|VELLUM_BRICK_REUSE=1 VELLUM_BRICK_SPAN=0" \
+        "bricked_span|$A $brick" \
+        "head_skip|$head --iso 1300 $F" "head_noskip|$head --iso 1300 $F --no-skip-empty" \
+        "head1p_skip|$head $F" "head1p_noskip|$head $F --no-skip-empty" \
+        "engine_skip|$engine --iso 180 $F" "engine_noskip|$engine --iso 180 $F --no-skip-empty" \
+        "engine1p_skip|$engine $F" "engine1p_noskip|$engine $F --no-skip-empty" \
+        "chest_skip|$chest --iso 150 $F" "chest_noskip|$chest --iso 150 $F --no-skip-empty" \
+        "chest1p_skip|$chest $F" "chest1p_noskip|$chest $F --no-skip-empty" \
+        "core1p_skip_walk1|${A/--iso 0.9 /} $core|VELLUM_WALK_BATCH=0" \
+        "core1p_noskip_walk1|${A/--iso 0.9 /} $core --no-skip-empty|VELLUM_WALK_BATCH=0" \
+        "head1p_skip_walk1|$head $F|VELLUM_WALK_BATCH=0" "head1p_noskip_walk1|$head $F --no-skip-empty|VELLUM_WALK_BATCH=0"; do
         IFS='|' read -r name flags env <<<"$c"
         for i in 1 2 3 4 5; do
             env $env timeout 60 "$V" render $flags 2>&1 | awk '$1 == "raycast" {print $2}'
