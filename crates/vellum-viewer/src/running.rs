@@ -345,11 +345,19 @@ impl Running {
         let spectrum = gpu.take_spectrum();
         let dims = gpu.volume().dims();
         let (segments, channels) = (segments_of(&mut gpu), channels_of(&mut gpu));
+        // Another time point of the series shown: its channels keep the rows' look, which the
+        // next apply sends to the new GPU state where it differs from what that loaded.
+        let applied = &self.session.applied.input;
+        let step = l.scene.input.path == applied.path && l.scene.input.time != applied.time;
+        let before = step.then(|| self.session.model.channels.take()).flatten();
         self.gpu.scene = gpu;
         self.session.opened(l, what, spectrum, dims);
         self.session.model.segments = segments;
         self.session.applied_channels = channels.clone();
-        self.session.model.channels = channels;
+        self.session.model.channels = match (before, channels) {
+            (Some(old), Some(new)) => Some(crate::ui::ChannelRow::carried(&old, new)),
+            (_, new) => new,
+        };
         self.window
             .set_title(&format!("vellum: {}", self.session.model.scene.input.path));
     }

@@ -65,6 +65,34 @@ impl ChannelRow {
     }
 }
 
+impl ChannelRow {
+    /// The rows `new` of another time point of the same channels, carrying over what was set on
+    /// `old`: each channel's visibility, and for an edited one its colour and its window in data
+    /// units (normalised again to the new time point's range), so that a series plays with the
+    /// look it was given. A channel `old` lacks keeps its new row.
+    pub fn carried(old: &[ChannelRow], new: Vec<ChannelRow>) -> Vec<ChannelRow> {
+        new.into_iter()
+            .map(|mut row| {
+                let Some(o) = old.iter().find(|o| o.index == row.index) else {
+                    return row;
+                };
+                row.visible = o.visible;
+                if o.edited {
+                    let ([lo, hi], [nlo, nhi]) = (o.range, row.range);
+                    let data = |x: f32| lo + x as f64 * (hi - lo);
+                    let norm = |v: f64| {
+                        (((v - nlo) / (nhi - nlo).max(f64::MIN_POSITIVE)) as f32).clamp(0.0, 1.0)
+                    };
+                    row.colour = o.colour;
+                    row.window = o.window.map(|x| norm(data(x)));
+                    row.edited = true;
+                }
+                row
+            })
+            .collect()
+    }
+}
+
 /// The panel: per channel, its visibility box (layout mark `channel:INDEX`), colour, name, its
 /// window in data units, and its histogram with the window marked.
 pub(super) fn channels(ui: &mut egui::Ui, m: &mut Model) {
@@ -125,5 +153,52 @@ fn channel_histogram(ui: &mut egui::Ui, row: &ChannelRow) {
             ],
             Stroke::new(1.0, Color32::from_rgb(r, g, bl)),
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(index: usize, range: [f64; 2]) -> ChannelRow {
+        let tf = ramp([0.0, 1.0, 0.0], [0.0, 1.0]).unwrap();
+        ChannelRow {
+            index,
+            name: None,
+            range,
+            histogram: vec![0; 256],
+            visible: true,
+            colour: [0.0, 1.0, 0.0],
+            window: [0.0, 1.0],
+            loaded: tf,
+            edited: false,
+        }
+    }
+
+    #[test]
+    fn a_time_point_keeps_the_channels_look_in_data_units() {
+        let mut edited = row(0, [0.0, 100.0]);
+        edited.window = [0.25, 0.5];
+        edited.colour = [1.0, 0.0, 1.0];
+        edited.edited = true;
+        let mut hidden = row(1, [0.0, 10.0]);
+        hidden.visible = false;
+        let old = [edited, hidden];
+        let new = vec![
+            row(0, [0.0, 200.0]),
+            row(1, [0.0, 20.0]),
+            row(2, [5.0, 6.0]),
+        ];
+        let rows = ChannelRow::carried(&old, new.clone());
+        // Values 25..50 of the first channel, now over 0..200.
+        assert_eq!(rows[0].window, [0.125, 0.25]);
+        assert_eq!(rows[0].colour, [1.0, 0.0, 1.0]);
+        assert!(rows[0].edited && rows[0].visible);
+        assert_eq!(rows[0].range, [0.0, 200.0]);
+        // Hidden stays hidden; its window and function are the new time point's.
+        assert!(!rows[1].visible && !rows[1].edited);
+        assert_eq!(rows[1].window, new[1].window);
+        // A channel the old rows lack is as loaded.
+        assert_eq!(rows[2], new[2]);
     }
 }
