@@ -410,6 +410,21 @@ vec4 channel_projection(vec3 o, vec3 dir, float a, float b, float m, float m_las
     return vec4(min(sum.rgb, vec3(alpha)), alpha);
 }
 
+// The bounds table's opacity bound for a sample of value s (the larger of the two transfer-function
+// texels linear filtering blends there).
+float opacity_bound(float s) {
+    return uintBitsToFloat(ray_tables[clamp(int(floor(s * 256.0 - 0.5)), 0, 255)]);
+}
+
+// Whether a sample of value s, with opacity bound `bound`, may add to a layer: it counts (one
+// pass, focus, or context in front of the first focus sample) and its bound reaches a_min, or it
+// is focus on an isosurface.
+bool table_may_add(float s, float bound, bool context_counts, bool iso, float a_min) {
+    bool focus = sample_in_focus(s);
+    bool counts = !V_TWO_LEVEL || focus || context_counts;
+    return counts && (bound >= a_min || (focus && iso));
+}
+
 // The walk to the next sample that may add to a layer, four samples at a time, for a ray in core
 // whose samples the bounds table decides. A sample waits for its fetch and then for its table
 // read before the next one is fetched; on a GPU a lone ray is that chain of latencies, and a
@@ -434,10 +449,7 @@ bool walk_batch(vec3 o, vec3 dir, float a, float b, float t_in, float t_out, ino
         if (t < t_in || t > t_out) {
             continue;
         }
-        bool focus = sample_in_focus(s);
-        bool counts = !V_TWO_LEVEL || focus || context_counts;
-        float bound = uintBitsToFloat(ray_tables[clamp(int(floor(s * 256.0 - 0.5)), 0, 255)]);
-        if (counts && (bound >= a_min || (focus && iso))) {
+        if (table_may_add(s, opacity_bound(s), context_counts, iso, a_min)) {
             return true;
         }
         prev_t = t;
@@ -452,13 +464,11 @@ bool walk_batch(vec3 o, vec3 dir, float a, float b, float t_in, float t_out, ino
         }
         vec4 bound;
         for (int j = 0; j < 4; j++) {
-            bound[j] = uintBitsToFloat(ray_tables[clamp(int(floor(s4[j] * 256.0 - 0.5)), 0, 255)]);
+            bound[j] = opacity_bound(s4[j]);
         }
         for (int j = 0; j < 4; j++) {
             bool inside = t4[j] >= t_in && t4[j] <= t_out;
-            bool focus = sample_in_focus(s4[j]);
-            bool counts = !V_TWO_LEVEL || focus || context_counts;
-            if (inside && counts && (bound[j] >= a_min || (focus && iso))) {
+            if (inside && table_may_add(s4[j], bound[j], context_counts, iso, a_min)) {
                 m += float(j);
                 s = s4[j];
                 return true;
@@ -663,8 +673,7 @@ void main() {
                 } else if (V_CHANNELS) {
                     maybe = channels_may_show(channel_sample, a_min) || (focus && iso);
                 } else {
-                    int i = clamp(int(floor(s * 256.0 - 0.5)), 0, 255);
-                    maybe = uintBitsToFloat(ray_tables[i]) >= a_min || (focus && iso);
+                    maybe = opacity_bound(s) >= a_min || (focus && iso);
                 }
                 if (counts && maybe) {
                     hit = true;
