@@ -136,6 +136,18 @@ pub struct DeviceInfo {
     pub storage_image_extended_formats: bool,
 }
 
+impl DeviceInfo {
+    /// A choice a GPU makes and a CPU rasteriser does not (one whose lanes pay for work a GPU
+    /// hides): on unless this is a CPU device, with `var=0|1` overriding it, for measuring.
+    pub fn on_gpu_unless(&self, var: &str) -> bool {
+        match std::env::var(var).ok().as_deref() {
+            Some("0") => false,
+            Some("1") => true,
+            _ => self.device_type != "CPU",
+        }
+    }
+}
+
 /// The instance, device, queue and allocator. Create once, share as `Arc<Context>`.
 pub struct Context {
     /// The Vulkan loader.

@@ -120,22 +120,14 @@ pub struct Paged {
     pub span: bool,
 }
 
-/// The default of [`Paged::reuse`] on a device of `device_type`.
-pub(crate) fn brick_reuse(device_type: &str) -> bool {
-    match std::env::var("VELLUM_BRICK_REUSE").ok().as_deref() {
-        Some("0") => false,
-        Some("1") => true,
-        _ => device_type != "CPU",
-    }
+/// The default of [`Paged::reuse`] on the device `info` describes.
+pub(crate) fn brick_reuse(info: &vellum_gpu::DeviceInfo) -> bool {
+    info.on_gpu_unless("VELLUM_BRICK_REUSE")
 }
 
-/// The default of [`Paged::span`] on a device of `device_type`.
-pub(crate) fn brick_span(device_type: &str) -> bool {
-    match std::env::var("VELLUM_BRICK_SPAN").ok().as_deref() {
-        Some("0") => false,
-        Some("1") => true,
-        _ => device_type != "CPU",
-    }
+/// The default of [`Paged::span`] on the device `info` describes.
+pub(crate) fn brick_span(info: &vellum_gpu::DeviceInfo) -> bool {
+    info.on_gpu_unless("VELLUM_BRICK_SPAN")
 }
 
 /// Slots per axis for a pool of at most `capacity` slots, each axis within `max_texels`.
@@ -244,8 +236,8 @@ impl PagedVolume {
                 mode: 0,
                 finest,
                 pool_bytes: (capacity * SLOT_BYTES) as u64,
-                reuse: brick_reuse(&ctx.info.device_type),
-                span: brick_span(&ctx.info.device_type),
+                reuse: brick_reuse(&ctx.info),
+                span: brick_span(&ctx.info),
             },
             fill,
         })

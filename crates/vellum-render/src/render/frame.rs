@@ -1078,7 +1078,7 @@ fn record_rays(
             walk_batch: r
                 .options
                 .walk_batch
-                .unwrap_or_else(|| walk_batch(&ctx.info.device_type)),
+                .unwrap_or_else(|| walk_batch(&ctx.info)),
             push: {
                 let mut push = r.setup.ray_push(&r.options, vol.bricks().counts, two_level);
                 // Mixed channels: the focus channel's component, where a sample's intensity is

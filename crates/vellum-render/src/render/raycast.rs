@@ -165,17 +165,13 @@ impl Variant {
 }
 
 /// Whether rays in core walk to their next contributing sample four samples at a time on a
-/// device of `device_type` (the `WALK_BATCH` variant; the shader's `walk_batch`). On a GPU a lone
+/// device `info` describes (the `WALK_BATCH` variant; the shader's `walk_batch`). On a GPU a lone
 /// ray is a chain of dependent fetches, and a small frame lasts as long as its longest ray's
 /// chain (issue 43); four fetches in flight together shorten it. On by default on a GPU; off on a
 /// CPU rasteriser, whose lanes pay for every fetch, the batch's speculative ones too.
 /// `VELLUM_WALK_BATCH=0|1` overrides, for measuring. The image is the same either way.
-pub(crate) fn walk_batch(device_type: &str) -> bool {
-    match std::env::var("VELLUM_WALK_BATCH").ok().as_deref() {
-        Some("0") => false,
-        Some("1") => true,
-        _ => device_type != "CPU",
-    }
+pub(crate) fn walk_batch(info: &vellum_gpu::DeviceInfo) -> bool {
+    info.on_gpu_unless("VELLUM_WALK_BATCH")
 }
 
 /// What the ray caster draws in one frame.
