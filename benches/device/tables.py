@@ -105,7 +105,7 @@ def goals(dev, t1, render, styles, lines, occ, occ512, styles_ray=None, bricked=
                 ms = next((c["ms"] for c in row["cells"] if c["method"] == "fft-gpu"), None)
         add(f"AO fft-gpu, R = 64, {label}", f"{fmt(ms, 1)} ms", f"≤ {goal_ms / 1000:g} s",
             None if ms is None else ms <= goal_ms)
-    rows += goals43(dev, t1, render, bricked)
+    rows += goals43(t1, render, bricked)
     rows_b = {b["case"]: median(b["ms"]) for b in (bricked or {}).get("rows", [])}
     core = rows_b.get("core_skip")
     # The fastest way of looking bricks up that the run measured.
@@ -138,7 +138,7 @@ def goals(dev, t1, render, styles, lines, occ, occ512, styles_ray=None, bricked=
 SKIP_PAIRS = (("Shepp–Logan 256³", "core"), ("CT head", "head"), ("engine", "engine"), ("chest", "chest"))
 
 
-def goals43(dev, t1, render, bricked):
+def goals43(t1, render, bricked):
     """Issue 43's goals: no fixed cost in a frame, skipping that never loses, passes at the
     bandwidth of a plain copy measured in the same run."""
     rows = []
@@ -266,15 +266,15 @@ def section(d):
                 "uploaded once, in the last of three submissions.", "",
                 table(["case", "dims", "R", "timing", "gauss_x", "gauss_y", "gauss_z", "subtract",
                        "slowest % of peak", "paper total ms"], rows)]
-        copies = [(r["case"], r["radius"], r["sustained_copy_ms"], r["sustained_of_copy"])
-                  for r in t1["rows"] if r.get("sustained_of_copy")]
+        copies = [r for r in t1["rows"] if r.get("sustained_of_copy")]
         if copies:
             out += ["", "Against a plain copy of the same volume in the same run (sustained; "
                     "`importance/copy.comp`, a compute pass over the passes' images; the subtract "
                     "against 1.5 copies):", "",
                     table(["case", "R", "copy ms (TB/s)", "gauss_x", "gauss_y", "gauss_z", "subtract"],
-                          [(c, rad, f"{ms:.3f} ({bandwidths(r0, [ms])[0]:.2f})", *(f"{x * 100:.0f} %" for x in f))
-                           for (c, rad, ms, f), r0 in zip(copies, [r for r in t1["rows"] if r.get("sustained_of_copy")])])]
+                          [(r["case"], r["radius"],
+                            f"{r['sustained_copy_ms']:.3f} ({bandwidths(r, [r['sustained_copy_ms']])[0]:.2f})",
+                            *(f"{x * 100:.0f} %" for x in r["sustained_of_copy"])) for r in copies])]
     sweep = sorted(d.glob("sweep_*.json"))
     if sweep:
         rows = []
