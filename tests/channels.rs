@@ -11,16 +11,39 @@ use std::path::{Path, PathBuf};
 
 /// The store, written by tests/support/write_ome_zarr_channels.py (NGFF `version`).
 fn store(dir: &Path, version: &str) -> Option<PathBuf> {
+    written(dir, &format!("channels-{version}.zarr"), &[version])
+}
+
+/// The store `name` in `dir` as tests/support/write_ome_zarr_channels.py writes it with `args`,
+/// or None where Python lacks its packages (outside CI).
+fn written(dir: &Path, name: &str, args: &[&str]) -> Option<PathBuf> {
     if !common::python_with("ome_zarr, zarr, numpy") {
         return None;
     }
-    let store = dir.join(format!("channels-{version}.zarr"));
-    common::support_script(
-        "write_ome_zarr_channels.py",
-        &[store.as_os_str(), version.as_ref()],
-    );
+    let store = dir.join(name);
+    let mut all = vec![store.as_os_str()];
+    all.extend(args.iter().map(std::ffi::OsStr::new));
+    common::support_script("write_ome_zarr_channels.py", &all);
     Some(store)
 }
+
+/// The eight-channel store: channel k lights only the band 4k <= x < 4k + 4, in the colour
+/// `EIGHT[k]`.
+fn eight_channel_store(dir: &Path) -> Option<PathBuf> {
+    written(dir, "eight.zarr", &["0.5", "8"])
+}
+
+/// The omero colours of the eight-channel store's channels.
+const EIGHT: [[u8; 3]; 8] = [
+    [255, 0, 0],
+    [0, 255, 0],
+    [0, 0, 255],
+    [255, 255, 0],
+    [255, 0, 255],
+    [0, 255, 255],
+    [255, 255, 255],
+    [255, 128, 0],
+];
 
 /// `vellum render STORE` seen along z, 96², with `flags`: the RGB pixels.
 fn render(store: &Path, flags: &[&str]) -> Vec<[u8; 3]> {
@@ -154,6 +177,39 @@ fn over_puts_the_first_channel_on_top_and_one_channel_draws_as_alone() {
     assert!(alone.iter().any(|p| p[0] > 100));
 }
 
+/// Five to eight channels take a second texture: each of the eight bands along x must show its
+/// own channel's colour (channels 4-7 come from the second), whatever the channels' order.
+#[test]
+fn eight_channels_mix_in_one_ray_each_in_its_own_colour() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(store) = eight_channel_store(dir.path()) else {
+        return;
+    };
+    for mix in ["add", "max"] {
+        let all = render(&store, &["--channels", "0,1,2,3,4,5,6,7", "--mix", mix]);
+        let back = render(&store, &["--channels", "7,6,5,4,3,2,1,0", "--mix", mix]);
+        assert!(
+            max_difference(&all, &back) <= 1,
+            "{mix}: reversing the channels changed a pixel"
+        );
+        // The middle row crosses the bands; the centre of each eighth of its lit span shows one
+        // channel (the image may run along x either way).
+        let row = &all[48 * 96..49 * 96];
+        let lit: Vec<usize> = (0..96).filter(|&x| row[x].iter().any(|&v| v > 8)).collect();
+        let (x0, span) = (lit[0], lit[lit.len() - 1] + 1 - lit[0]);
+        assert!(span > 64, "{mix}: the volume spans {span} of 96 columns");
+        let centres: Vec<[u8; 3]> = (0..8).map(|k| row[x0 + (2 * k + 1) * span / 16]).collect();
+        let near = |p: &[u8; 3], c: &[u8; 3]| (0..3).all(|i| p[i].abs_diff(c[i]) <= 2);
+        let matches = |order: &mut dyn Iterator<Item = &[u8; 3]>| {
+            centres.iter().zip(order).all(|(p, c)| near(p, c))
+        };
+        assert!(
+            matches(&mut EIGHT.iter()) || matches(&mut EIGHT.iter().rev()),
+            "{mix}: the bands show {centres:?}, want {EIGHT:?} either way"
+        );
+    }
+}
+
 #[test]
 fn channel_mistakes_are_one_sentence() {
     let dir = tempfile::tempdir().unwrap();
@@ -169,8 +225,8 @@ fn channel_mistakes_are_one_sentence() {
             &["--mix", "add --channels 0,1"],
         ),
         (
-            vec![s, "--channels", "0,1,0,1,0"],
-            &["5 channels", "at most 4"],
+            vec![s, "--channels", "0,1,0,1,0,1,0,1,0"],
+            &["9 channels", "at most 8"],
         ),
         (
             vec![s, "--channels", "0,1", "--focus-channel", "3"],

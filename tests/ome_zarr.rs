@@ -895,8 +895,8 @@ fn a_time_point_and_a_channel_of_a_store_are_picked() {
             "channel 5 does not exist",
         ),
         (
-            vec!["--time", "0", "--channels", "0,1,0,1,0"],
-            "names 5 channels; vellum mixes at most 4 in one ray",
+            vec!["--time", "0", "--channels", "0,1,0,1,0,1,0,1,0"],
+            "names 9 channels; vellum mixes at most 8 in one ray",
         ),
     ];
     for (flags, phrase) in refused {

@@ -371,24 +371,29 @@ vec2 occupied_span(vec3 o, vec3 dir, float t0, float t1, uint need, float hair) 
 // channels' results added. `max`: each channel's largest value over the ray's samples,
 // classified by its transfer function, and the channels' colours added.
 vec4 channel_projection(vec3 o, vec3 dir, float a, float b, float m, float m_last, float t_in, float t_out) {
-    int n = min(textureSize(channel_tf, 0).y, 4);
-    vec4 most = vec4(0.0);
-    vec4 acc[4] = vec4[4](vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0));
+    int n = channel_count();
+    float most[MAX_CHANNELS];
+    vec4 acc[MAX_CHANNELS];
+    for (int k = 0; k < MAX_CHANNELS; k++) {
+        most[k] = 0.0;
+        acc[k] = vec4(0.0);
+    }
     float ert = p.planes.w;
     for (; m <= m_last; m += 1.0) {
         float t = a + b * m;
         if (t < t_in || t > t_out) {
             continue;
         }
-        vec3 at = (o + t * dir) / (2.0 * u.half_extent.xyz) + 0.5;
-        vec4 v = textureLod(channels, at, 0.0);
+        fetch_channels((o + t * dir) / (2.0 * u.half_extent.xyz) + 0.5);
         if (V_MIX_MAX) {
-            most = max(most, v);
+            for (int k = 0; k < n; k++) {
+                most[k] = max(most[k], channel_value(k));
+            }
             continue;
         }
         bool all_opaque = true;
         for (int k = 0; k < n; k++) {
-            vec4 c = channel_class(k, v[k]);
+            vec4 c = channel_class(k, channel_value(k));
             float alpha = correct_opacity(c.a, u.material.w);
             acc[k] += (1.0 - acc[k].a) * vec4(c.rgb * alpha, alpha);
             all_opaque = all_opaque && acc[k].a >= ert;
@@ -641,10 +646,10 @@ void main() {
                     break;
                 }
                 if (V_CHANNELS) {
-                    // One fetch for every channel: the focus channel's component holds the
-                    // intensity texture's value.
-                    channel_sample = textureLod(channels, tex, 0.0);
-                    s = channel_sample[p.flags.x];
+                    // One fetch for every four channels: the focus channel's component holds
+                    // the intensity texture's value.
+                    fetch_channels(tex);
+                    s = channel_value(p.flags.x);
                 } else if (!have_s) {
                     s = sample_intensity();
                 }
@@ -671,7 +676,7 @@ void main() {
                     c = classify(s, focus);
                     maybe = c.a >= MIN_ALPHA;
                 } else if (V_CHANNELS) {
-                    maybe = channels_may_show(channel_sample, a_min) || (focus && iso);
+                    maybe = channels_may_show(a_min) || (focus && iso);
                 } else {
                     maybe = opacity_bound(s) >= a_min || (focus && iso);
                 }
@@ -715,7 +720,7 @@ void main() {
                 ray_t = t;
                 stopped = stopped || locate(0u) != FOUND;
                 if (V_CHANNELS && !stopped) {
-                    channel_sample = textureLod(channels, tex, 0.0);
+                    fetch_channels(tex);
                 }
                 if (stopped) {
                     m = m_hit;

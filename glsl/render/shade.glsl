@@ -47,22 +47,49 @@ const bool V_MIX_ADD = (VARIANT & 8192u) != 0u;
 const bool V_MIX_MAX = (VARIANT & 16384u) != 0u;
 const bool V_CHANNELS = V_MIX_OVER || V_MIX_ADD || V_MIX_MAX;
 const bool V_WALK_BATCH = (VARIANT & 32768u) != 0u;
-// Channels of a store mixed in one ray (classify/channels.rs): up to four, component k of
-// `channels` over channel k's own range, with its transfer function in row k of `channel_tf`.
-// Frames without channels bind stand-ins and never read them.
+// Channels of a store mixed in one ray (classify/channels.rs): up to eight, component k of
+// `channels` (k < 4) or k - 4 of `channels_hi` over channel k's own range, with its transfer
+// function in row k of `channel_tf`. Frames without channels bind stand-ins and never read them;
+// frames of four or fewer bind `channels` again as `channels_hi` and never read it.
 layout(set = 0, binding = 19) uniform sampler3D channels;
 layout(set = 0, binding = 20) uniform sampler2D channel_tf;
 // Per channel, 256 opacity bounds (float bits) of its transfer function's texels.
 layout(set = 0, binding = 21) readonly buffer ChannelBounds { uint channel_bounds[]; };
+layout(set = 0, binding = 22) uniform sampler3D channels_hi;
+const int MAX_CHANNELS = 8;
 
-// Whether some channel at `at` may give a sample opacity of `a_min` or more (a bound from the
-// texels linear filtering blends, so a sample it passes over adds nothing). `over` mixes n
-// channels, whose opacities together stay below n times the largest.
-bool channels_may_show(vec4 v, float a_min) {
-    int n = textureSize(channel_tf, 0).y;
+// How many channels are mixed (the rows of their transfer functions' table).
+int channel_count() {
+    return min(textureSize(channel_tf, 0).y, MAX_CHANNELS);
+}
+
+// The channels' values at the sample being classified, 0-3 and 4-7 (the ray caster fetches them
+// once per sample, in its walk).
+vec4 channel_sample;
+vec4 channel_sample_hi;
+
+// Fetches every channel's value at texture coordinate `at` into `channel_sample(_hi)`: one fetch
+// for up to four channels, two for more.
+void fetch_channels(vec3 at) {
+    channel_sample = textureLod(channels, at, 0.0);
+    if (channel_count() > 4) {
+        channel_sample_hi = textureLod(channels_hi, at, 0.0);
+    }
+}
+
+// Channel k's value at the fetched sample.
+float channel_value(int k) {
+    return k < 4 ? channel_sample[k] : channel_sample_hi[k - 4];
+}
+
+// Whether some channel at the fetched sample may give it an opacity of `a_min` or more (a bound
+// from the texels linear filtering blends, so a sample it passes over adds nothing). `over`
+// mixes n channels, whose opacities together stay below n times the largest.
+bool channels_may_show(float a_min) {
+    int n = channel_count();
     float bound = 0.0;
-    for (int k = 0; k < 4 && k < n; k++) {
-        int i = clamp(int(floor(v[k] * 256.0 - 0.5)), 0, 255);
+    for (int k = 0; k < n; k++) {
+        int i = clamp(int(floor(channel_value(k) * 256.0 - 0.5)), 0, 255);
         bound = max(bound, uintBitsToFloat(channel_bounds[256 * k + i]));
     }
     return bound * float(n) >= a_min;
@@ -74,19 +101,14 @@ vec4 channel_class(int k, float v) {
     return textureLod(channel_tf, vec2(v, (float(k) + 0.5) / float(n)), 0.0);
 }
 
-// The channels' values at the sample being classified (the ray caster fetches them once per
-// sample, in its walk).
-vec4 channel_sample;
-
-// The channels' classes of `channel_sample` mixed by `over` into one sample's straight colour
+// The channels' classes of the fetched sample mixed by `over` into one sample's straight colour
 // and opacity: composited with the first channel on top. (`add` and `max` are projections of
 // their own, raycast.comp's `channel_projection`.)
 vec4 mixed_channels() {
-    vec4 v = channel_sample;
-    int n = textureSize(channel_tf, 0).y;
+    int n = channel_count();
     vec4 acc = vec4(0.0);
-    for (int k = 0; k < 4 && k < n; k++) {
-        vec4 t = channel_class(k, v[k]);
+    for (int k = 0; k < n; k++) {
+        vec4 t = channel_class(k, channel_value(k));
         acc += (1.0 - acc.a) * vec4(t.rgb * t.a, t.a);
     }
     float a = min(acc.a, 1.0);

@@ -14,7 +14,7 @@
 //!
 //! The channel the two levels, the gradient (shading), importance modulation and the lines work
 //! on is the focus channel, the first listed unless `focus_channel` says otherwise; it is also
-//! the volume every other pass sees. Up to [`MAX_CHANNELS`] channels, one RGBA texture.
+//! the volume every other pass sees. Up to [`MAX_CHANNELS`] channels, four to an RGBA texture.
 
 use crate::classify::transfer::{ControlPoint, TransferFunction};
 use serde::{Deserialize, Serialize};
@@ -29,8 +29,11 @@ use vellum_volume::Volume;
 /// Edge of the bricks whose ranges decide skipping: the volume's (`passes::normals::BRICK`).
 const BRICK: usize = 16;
 
-/// The most channels mixed in one ray (one RGBA texture).
-pub const MAX_CHANNELS: usize = 4;
+/// The most channels mixed in one ray (two RGBA textures).
+pub const MAX_CHANNELS: usize = 8;
+
+/// Channels per RGBA texture.
+const PER_TEXTURE: usize = 4;
 
 /// How the channels' samples are mixed.
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -73,12 +76,17 @@ pub struct ChannelSpec {
     pub tfs: Vec<(usize, String)>,
 }
 
-/// Colours of channels without NGFF `omero` colours: green, magenta, cyan, yellow.
+/// Colours of channels without NGFF `omero` colours: green, magenta, cyan, yellow, then red,
+/// blue, orange and white (the first four are the common fluorescence look).
 const PALETTE: [[f32; 3]; MAX_CHANNELS] = [
     [0.0, 1.0, 0.0],
     [1.0, 0.0, 1.0],
     [0.0, 1.0, 1.0],
     [1.0, 1.0, 0.0],
+    [1.0, 0.0, 0.0],
+    [0.0, 0.0, 1.0],
+    [1.0, 0.5, 0.0],
+    [1.0, 1.0, 1.0],
 ];
 
 /// One channel on the host: its voxels, the range its texture spans, and its transfer function.
@@ -204,11 +212,13 @@ pub fn ramp(colour: [f32; 3], [lo, hi]: [f32; 2]) -> Result<TransferFunction> {
 /// A channel's transfer-function table and its bricks' ranges.
 pub type ChannelSkip = (Vec<[f32; 4]>, Vec<[u16; 2]>);
 
-/// Channels on the GPU: one RGBA16 texture (channel k in component k, each over its own
-/// range) and their transfer functions (row k of a 256 × n table).
+/// Channels on the GPU: RGBA16 textures (channel k in component k % 4 of texture k / 4, each
+/// over its own range) and their transfer functions (row k of a 256 × n table).
 pub struct GpuChannels {
-    /// The channels' voxels.
+    /// The voxels of channels 0–3.
     pub image: Image,
+    /// The voxels of channels 4–7, with more than four.
+    pub image_hi: Option<Image>,
     /// Their transfer functions.
     pub tfs: Image,
     /// Per channel, the opacity bounds of its function's 256 texels (f32 bits), which the ray
@@ -256,6 +266,11 @@ impl GpuChannels {
         (focus, range): (usize, [f64; 2]),
     ) -> Result<Self> {
         let n = channels.len();
+        if !(1..=MAX_CHANNELS).contains(&n) {
+            return Err(Error::Invalid(format!(
+                "{n} channels to mix; vellum mixes 1 to {MAX_CHANNELS} in one ray"
+            )));
+        }
         let dims = channels.first().map_or([1; 3], |c| c.volume.dims);
         if let Some(c) = channels.iter().find(|c| c.volume.dims != dims) {
             return Err(Error::Invalid(format!(
@@ -265,7 +280,7 @@ impl GpuChannels {
         }
         let voxels = dims.iter().product::<usize>();
         let size = crate::classify::transfer::TF_SIZE;
-        let mut texels = vec![0u16; 4 * voxels];
+        let mut texels = vec![vec![0u16; PER_TEXTURE * voxels]; n.div_ceil(PER_TEXTURE)];
         let mut skipping = Vec::with_capacity(n);
         let info = channels
             .iter()
@@ -282,8 +297,9 @@ impl GpuChannels {
             let (own, _) = c
                 .volume
                 .normalised_u16_in(if k == focus { range } else { c.range });
+            let (texture, component) = (k / PER_TEXTURE, k % PER_TEXTURE);
             for (i, &t) in own.iter().enumerate() {
-                texels[4 * i + k] = t;
+                texels[texture][PER_TEXTURE * i + component] = t;
             }
             let (_, ranges) = vellum_volume::bricks::widened_ranges(&own, dims, BRICK);
             skipping.push((c.tf.table(size), ranges));
@@ -291,17 +307,25 @@ impl GpuChannels {
         let extent = dims.map(|d| d as u32);
         // RGBA16 unorm: each channel at 16 bits over its range, filtered linearly as the
         // intensity is.
-        let image = Image::new(
-            ctx,
-            "channels",
-            &ImageDesc::new_3d(Format::R16G16B16A16_UNORM, extent),
-        )?;
-        vellum_gpu::transfer::upload(
-            ctx,
-            &image,
-            bytemuck::cast_slice(&texels),
-            Access::ComputeSampled,
-        )?;
+        let mut images = texels.iter().enumerate().map(|(i, texels)| {
+            let name = ["channels 0-3", "channels 4-7"][i];
+            let image = Image::new(
+                ctx,
+                name,
+                &ImageDesc::new_3d(Format::R16G16B16A16_UNORM, extent),
+            )?;
+            vellum_gpu::transfer::upload(
+                ctx,
+                &image,
+                bytemuck::cast_slice(texels),
+                Access::ComputeSampled,
+            )?;
+            Ok::<_, Error>(image)
+        });
+        let image = images
+            .next()
+            .ok_or_else(|| Error::Invalid("no channels".into()))??;
+        let image_hi = images.next().transpose()?;
         let table: Vec<[f32; 4]> = skipping
             .iter()
             .flat_map(|(t, _)| t.iter().copied())
@@ -323,6 +347,7 @@ impl GpuChannels {
         let bounds = Buffer::new(ctx, "channel opacity bounds", &BufferDesc::storage(words))?;
         Ok(GpuChannels {
             image,
+            image_hi,
             tfs,
             bounds,
             mix,

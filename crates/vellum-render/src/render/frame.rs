@@ -662,6 +662,9 @@ impl Renderer {
                     Some(c) => {
                         c.image.transition(frame.cmd, Access::ComputeSampled);
                         c.tfs.transition(frame.cmd, Access::ComputeSampled);
+                        if let Some(hi) = &c.image_hi {
+                            hi.transition(frame.cmd, Access::ComputeSampled);
+                        }
                     }
                     None => self
                         .stand_ins
@@ -1061,6 +1064,8 @@ fn record_rays(
                         Bind::Sampled(&c.image, r.sampler),
                         Bind::Sampled(&c.tfs, r.sampler),
                         Bind::StorageBuffer(&c.bounds),
+                        // Four or fewer channels: never read.
+                        Bind::Sampled(c.image_hi.as_ref().unwrap_or(&c.image), r.sampler),
                     ],
                     Some(c.mix),
                 ),
@@ -1069,6 +1074,7 @@ fn record_rays(
                         Bind::Sampled(volume, r.sampler),
                         Bind::Sampled(table, r.sampler),
                         Bind::StorageBuffer(r.stand_in),
+                        Bind::Sampled(volume, r.sampler),
                     ],
                     None,
                 ),

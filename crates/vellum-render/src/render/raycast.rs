@@ -69,9 +69,9 @@ pub(crate) const BRICK_FOCUS: u32 = 2;
 /// brick flags, the brick cache's page table, feedback and ray states (`passes::paging`), a
 /// label volume's voxels and table (`classify::labels`), and mixed channels' texture, transfer
 /// functions and opacity bounds (`classify::channels`).
-pub(crate) const RAY_BINDINGS: [BindingKind; 22] = {
+pub(crate) const RAY_BINDINGS: [BindingKind; 23] = {
     let slicer = SHADE_BINDINGS;
-    let mut all = [BindingKind::StorageBuffer; 22];
+    let mut all = [BindingKind::StorageBuffer; 23];
     let mut i = 0;
     while i < slicer.len() {
         all[i] = slicer[i];
@@ -83,6 +83,7 @@ pub(crate) const RAY_BINDINGS: [BindingKind; 22] = {
     }
     all[19] = BindingKind::SampledImage;
     all[20] = BindingKind::SampledImage;
+    all[22] = BindingKind::SampledImage;
     all
 };
 
@@ -195,9 +196,9 @@ pub(crate) struct RayRequest<'a> {
     /// A label volume's voxels and table (stand-ins without one), and whether there is one
     /// (the `LABELS` variant).
     pub(crate) labels: ([Bind<'a>; 2], bool),
-    /// Mixed channels' texture, transfer functions and opacity bounds (stand-ins without), and
-    /// their mix.
-    pub(crate) channels: ([Bind<'a>; 3], Option<crate::classify::channels::Mix>),
+    /// Mixed channels' texture, transfer functions, opacity bounds and texture of channels 4–7
+    /// (stand-ins without), and their mix.
+    pub(crate) channels: ([Bind<'a>; 4], Option<crate::classify::channels::Mix>),
     /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
     pub(crate) brick_reuse: bool,
     /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
@@ -256,8 +257,8 @@ impl RayCaster {
         let [i0, i1, i2, i3, i4] = images.map(Bind::StorageImage);
         let [p0, p1, p2] = r.paging;
         let [l0, l1] = r.labels.0;
-        let [c0, c1, c2] = r.channels.0;
-        let binds: [Bind; 22] = [
+        let [c0, c1, c2, c3] = r.channels.0;
+        let binds: [Bind; 23] = [
             s[0],
             s[1],
             s[2],
@@ -280,6 +281,7 @@ impl RayCaster {
             c0,
             c1,
             c2,
+            c3,
         ];
         let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         if r.bricked && r.brick_reuse {
