@@ -8,6 +8,9 @@
 
 #![cfg(feature = "viewer")]
 
+#[path = "common/http_server.rs"]
+mod http_server;
+
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdout, Command, Stdio};
@@ -784,6 +787,56 @@ fn the_bench_orbits_with_seeded_lines_and_writes_the_exit_screenshot() {
     assert!(red > 50, "{red} red pixels on the last view");
 }
 
+/// A 192³ Shepp–Logan store in `dir` (`convert`'s default pyramid), larger than 6 MiB.
+fn head_store(dir: &Path) -> PathBuf {
+    let store = dir.join("head.ome.zarr");
+    let made = Command::new(VELLUM)
+        .args(["convert", "phantom:shepp-logan:192"])
+        .arg(&store)
+        .output()
+        .expect("running vellum convert");
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    store
+}
+
+/// `view INPUT --bench FRAMES` through a 6 MiB budget at 320×240 with `flags`: the report's
+/// brick line, the report, and the lit pixels of the exit screenshot.
+fn view_streamed(
+    x: &Xvfb,
+    dir: &Path,
+    input: &str,
+    frames: &str,
+    flags: &[&std::ffi::OsStr],
+) -> (String, serde_json::Value, usize) {
+    let shot = dir.join("last.png");
+    let out = validated_view(x, dir)
+        .args([input, "--iso", "0.9", "--tf", "grey", "--gpu-budget", "6"])
+        .args([
+            "--size",
+            "320x240",
+            "--bench",
+            frames,
+            "--json",
+            "--no-vsync",
+        ])
+        .args(flags)
+        .arg("--screenshot-on-exit")
+        .arg(&shot)
+        .output()
+        .expect("running vellum view --bench");
+    let report = bench_report(&out);
+    let line = report["streaming"]
+        .as_str()
+        .expect("a streamed volume's brick line")
+        .to_string();
+    let lit = rgb(&shot).pixels().filter(|p| p[0] > 60).count();
+    (line, report, lit)
+}
+
 /// A store larger than the GPU budget opens streamed (issue 26): frames draw what is resident,
 /// coarser where a brick is missing, ask for what they missed, and the loader fills the cache
 /// while the orbit goes on; validation and synchronization validation stay silent with two
@@ -795,29 +848,8 @@ fn a_store_larger_than_the_budget_streams_while_the_view_orbits() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let store = dir.path().join("head.ome.zarr");
-    let s = store.to_str().unwrap();
-    let made = Command::new(VELLUM)
-        .args(["convert", "phantom:shepp-logan:192", s])
-        .output()
-        .expect("running vellum convert");
-    assert!(
-        made.status.success(),
-        "{}",
-        String::from_utf8_lossy(&made.stderr)
-    );
-    let shot = dir.path().join("last.png");
-    let out = validated_view(&x, dir.path())
-        .args([s, "--iso", "0.9", "--tf", "grey", "--gpu-budget", "6"])
-        .args(["--size", "320x240", "--bench", "40", "--json", "--no-vsync"])
-        .arg("--screenshot-on-exit")
-        .arg(&shot)
-        .output()
-        .expect("running vellum view --bench");
-    let report = bench_report(&out);
-    let line = report["streaming"]
-        .as_str()
-        .expect("a streamed volume's brick line");
+    let store = head_store(dir.path());
+    let (line, report, lit) = view_streamed(&x, dir.path(), store.to_str().unwrap(), "40", &[]);
     println!("{line}; first frame {} ms", report["first_frame_ms"]);
     // "bricks R/C resident, Q requested, S streamed (M MiB)"
     let streamed: u64 = line
@@ -831,7 +863,38 @@ fn a_store_larger_than_the_budget_streams_while_the_view_orbits() {
         line.contains("/16 resident"),
         "6 MiB holds 16 slots: {line}"
     );
-    let lit = rgb(&shot).pixels().filter(|p| p[0] > 60).count();
+    assert!(lit > 2000, "{lit} lit pixels on the last view");
+}
+
+/// A store on a server whose finest chunks come back broken (issues 39 and 42): the viewer
+/// keeps orbiting, draws those bricks from the coarser level, and says in its corner's line
+/// which chunk could not be read; validation stays silent and the view shows the head.
+#[test]
+fn a_server_whose_finest_chunks_break_leaves_the_view_on_the_coarser_level() {
+    let Some((x, _guard)) = xvfb() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    head_store(dir.path());
+    let server =
+        http_server::Server::start(dir.path(), 0, |path, _| match path.contains("/0/c/") {
+            true => http_server::Fault::Garbage,
+            false => http_server::Fault::None,
+        });
+    let url = server.url("head.ome.zarr");
+    let cache = dir.path().join("cache");
+    let flags = ["--cache-dir".as_ref(), cache.as_os_str()];
+    let (line, _, lit) = view_streamed(&x, dir.path(), &url, "30", &flags);
+    println!("{line}");
+    assert!(
+        server.asked("/0/c/") > 0,
+        "the view asked for no finest chunk: {line}"
+    );
+    assert!(
+        line.contains("drawn from coarser levels where bricks are missing")
+            && line.contains("0/c/"),
+        "the corner does not name the broken chunk: {line}"
+    );
     assert!(lit > 2000, "{lit} lit pixels on the last view");
 }
 
