@@ -866,36 +866,47 @@ fn a_store_larger_than_the_budget_streams_while_the_view_orbits() {
     assert!(lit > 2000, "{lit} lit pixels on the last view");
 }
 
-/// A store on a server whose finest chunks come back broken (issues 39 and 42): the viewer
-/// keeps orbiting, draws those bricks from the coarser level, and says in its corner's line
-/// which chunk could not be read; validation stays silent and the view shows the head.
+/// A store on a server whose finest chunks come back broken, then on one that stops answering
+/// for them (issues 39 and 42): the viewer keeps orbiting and draws those bricks from the coarser
+/// level, with validation silent.
+/// - Broken chunks: its corner's line names the chunk that could not be read.
+/// - Stalled chunks (each tried 4 times, `--http-timeout 1`): the view closes without waiting
+///   for reads to time out, so some chunk it was reading met fewer than its 4 tries.
 #[test]
-fn a_server_whose_finest_chunks_break_leaves_the_view_on_the_coarser_level() {
+fn a_server_whose_finest_chunks_break_or_stall_leaves_the_view_on_the_coarser_level() {
     let Some((x, _guard)) = xvfb() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
     head_store(dir.path());
-    let server =
-        http_server::Server::start(dir.path(), 0, |path, _| match path.contains("/0/c/") {
-            true => http_server::Fault::Garbage,
-            false => http_server::Fault::None,
-        });
-    let url = server.url("head.ome.zarr");
     let cache = dir.path().join("cache");
-    let flags = ["--cache-dir".as_ref(), cache.as_os_str()];
-    let (line, _, lit) = view_streamed(&x, dir.path(), &url, "30", &flags);
-    println!("{line}");
-    assert!(
-        server.asked("/0/c/") > 0,
-        "the view asked for no finest chunk: {line}"
-    );
-    assert!(
-        line.contains("drawn from coarser levels where bricks are missing")
-            && line.contains("0/c/"),
-        "the corner does not name the broken chunk: {line}"
-    );
-    assert!(lit > 2000, "{lit} lit pixels on the last view");
+    for fault in [http_server::Fault::Garbage, http_server::Fault::Stall] {
+        let server = http_server::Server::start(dir.path(), 0, move |path, _| {
+            match path.contains("/0/c/") {
+                true => fault,
+                false => http_server::Fault::None,
+            }
+        });
+        let url = server.url("head.ome.zarr");
+        let flags = [cache.as_os_str(), "--http-timeout".as_ref(), "1".as_ref()];
+        let flags = [&["--cache-dir".as_ref()], &flags[..]].concat();
+        let (line, report, lit) = view_streamed(&x, dir.path(), &url, "30", &flags);
+        println!("{fault:?}: {line}");
+        assert!(lit > 2000, "{fault:?}: {lit} lit pixels on the last view");
+        assert_eq!(report["frames"], 29, "{fault:?}: {report}");
+        let fewest = server.fewest("/0/c/").expect("a finest chunk asked for");
+        match fault {
+            http_server::Fault::Garbage => assert!(
+                line.contains("drawn from coarser levels where bricks are missing")
+                    && line.contains("0/c/"),
+                "the corner does not name the broken chunk: {line}"
+            ),
+            _ => assert!(
+                fewest < 4,
+                "every stalled chunk was tried 4 times: the view waited for its reads"
+            ),
+        }
+    }
 }
 
 /// The soak: 6,000 bench frames of a small phantom, with validation and synchronization

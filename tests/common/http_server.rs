@@ -78,6 +78,16 @@ impl Server {
         format!("{}/{name}", self.base)
     }
 
+    /// The fewest requests any one path that holds `part` met (None when none was asked).
+    pub fn fewest(&self, part: &str) -> Option<usize> {
+        let asked = self.state.asked.lock().unwrap();
+        asked
+            .iter()
+            .filter(|(k, _)| k.contains(part))
+            .map(|(_, n)| *n)
+            .min()
+    }
+
     /// Requests for paths that hold `part`.
     pub fn asked(&self, part: &str) -> usize {
         let asked = self.state.asked.lock().unwrap();

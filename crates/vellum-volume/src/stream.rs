@@ -255,12 +255,25 @@ impl BrickLoader {
     }
 }
 
+/// How long dropping a loader waits for its threads to finish the reads they are in.
+const JOIN_WAIT: Duration = Duration::from_millis(250);
+
 impl Drop for BrickLoader {
+    /// Stops the loaders and joins them. A loader still inside a read after [`JOIN_WAIT`] (a
+    /// server that stalls, tried again after a time-out) is left to end on its own: it holds only
+    /// its share of the queue, and stops after that read. So closing a view of a stalled server
+    /// does not wait for its time-outs.
     fn drop(&mut self) {
         self.shared.lock().stop = true;
         self.shared.work.notify_all();
+        let deadline = Instant::now() + JOIN_WAIT;
         for t in self.threads.drain(..) {
-            let _ = t.join();
+            while !t.is_finished() && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            if t.is_finished() {
+                let _ = t.join();
+            }
         }
     }
 }
