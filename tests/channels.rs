@@ -177,14 +177,17 @@ fn over_puts_the_first_channel_on_top_and_one_channel_draws_as_alone() {
     assert!(alone.iter().any(|p| p[0] > 100));
 }
 
-/// Five to eight channels take a second texture: each of the eight bands along x must show its
-/// own channel's colour (channels 4-7 come from the second), whatever the channels' order.
+/// Five to eight channels take a second texture, and each texture holds one, two or four
+/// components: each of the eight bands along x must show its own channel's colour (channels 4-7
+/// from the second texture), whatever the channels' order; with the first 3 or 6 channels only
+/// (a padded texture, a two-component second one), the other bands stay dark.
 #[test]
 fn eight_channels_mix_in_one_ray_each_in_its_own_colour() {
     let dir = tempfile::tempdir().unwrap();
     let Some(store) = eight_channel_store(dir.path()) else {
         return;
     };
+    let mut seen = None;
     for mix in ["add", "max"] {
         let all = render(&store, &["--channels", "0,1,2,3,4,5,6,7", "--mix", mix]);
         let back = render(&store, &["--channels", "7,6,5,4,3,2,1,0", "--mix", mix]);
@@ -198,15 +201,36 @@ fn eight_channels_mix_in_one_ray_each_in_its_own_colour() {
         let lit: Vec<usize> = (0..96).filter(|&x| row[x].iter().any(|&v| v > 8)).collect();
         let (x0, span) = (lit[0], lit[lit.len() - 1] + 1 - lit[0]);
         assert!(span > 64, "{mix}: the volume spans {span} of 96 columns");
-        let centres: Vec<[u8; 3]> = (0..8).map(|k| row[x0 + (2 * k + 1) * span / 16]).collect();
-        let near = |p: &[u8; 3], c: &[u8; 3]| (0..3).all(|i| p[i].abs_diff(c[i]) <= 2);
-        let matches = |order: &mut dyn Iterator<Item = &[u8; 3]>| {
-            centres.iter().zip(order).all(|(p, c)| near(p, c))
+        let columns: Vec<usize> = (0..8).map(|k| x0 + (2 * k + 1) * span / 16).collect();
+        let centres: Vec<[u8; 3]> = columns.iter().map(|&x| row[x]).collect();
+        let matches = |order: &[[u8; 3]]| {
+            centres
+                .iter()
+                .zip(order)
+                .all(|(p, c)| (0..3).all(|i| p[i].abs_diff(c[i]) <= 2))
         };
+        let mut reversed = EIGHT;
+        reversed.reverse();
         assert!(
-            matches(&mut EIGHT.iter()) || matches(&mut EIGHT.iter().rev()),
+            matches(&EIGHT) || matches(&reversed),
             "{mix}: the bands show {centres:?}, want {EIGHT:?} either way"
         );
+        // Channel k's band, in image order.
+        let forward = matches(&EIGHT);
+        seen = Some(move |k: usize| columns[if forward { k } else { 7 - k }]);
+    }
+    let band = seen.unwrap();
+    for count in [3usize, 6] {
+        let list: Vec<String> = (0..count).map(|k| k.to_string()).collect();
+        let some = render(&store, &["--channels", &list.join(","), "--mix", "add"]);
+        for (k, want) in EIGHT.iter().enumerate() {
+            let p = some[48 * 96 + band(k)];
+            let ok = match k < count {
+                true => (0..3).all(|i| p[i].abs_diff(want[i]) <= 2),
+                false => p.iter().all(|&v| v <= 8),
+            };
+            assert!(ok, "{count} channels: band {k} shows {p:?}");
+        }
     }
 }
 

@@ -705,19 +705,32 @@ fn time_series(root: &Path) {
 
 /// A (t, z, y, x) store of 3 time points of 24³ u16: a slab (x < 8) of 300 at every time
 /// point, and a cube in the middle of 1000 (t + 1), which makes each time point's largest value
-/// different.
-fn brightening_series(root: &Path) {
+/// different. With `channels` > 1, (t, c, z, y, x) with that volume in every channel.
+fn brightening_series(root: &Path, channels: usize) {
     put(&root.join(".zgroup"), br#"{"zarr_format": 2}"#);
-    put(
-        &root.join(".zattrs"),
-        br#"{"multiscales": [{"version": "0.4", "axes": ["t", "z", "y", "x"], "datasets": [{"path": "0",
-            "coordinateTransformations": [{"type": "scale", "scale": [1.0, 1.0, 1.0, 1.0]}]}]}]}"#,
+    let (axes, scale, c) = match channels {
+        1 => (
+            r#"["t", "z", "y", "x"]"#,
+            "1.0, 1.0, 1.0, 1.0",
+            String::new(),
+        ),
+        k => (
+            r#"["t", "c", "z", "y", "x"]"#,
+            "1.0, 1.0, 1.0, 1.0, 1.0",
+            format!("{k}, "),
+        ),
+    };
+    let attrs = format!(
+        r#"{{"multiscales": [{{"version": "0.4", "axes": {axes}, "datasets": [{{"path": "0",
+            "coordinateTransformations": [{{"type": "scale", "scale": [{scale}]}}]}}]}}]}}"#
     );
+    put(&root.join(".zattrs"), attrs.as_bytes());
     let n = 24;
+    let ones = "1, ".repeat(usize::from(channels > 1));
     put(
         &root.join("0/.zarray"),
         format!(
-            r#"{{"zarr_format": 2, "shape": [3, {n}, {n}, {n}], "chunks": [1, {n}, {n}, {n}],
+            r#"{{"zarr_format": 2, "shape": [3, {c}{n}, {n}, {n}], "chunks": [1, {ones}{n}, {n}, {n}],
             "dtype": "<u2", "compressor": null, "fill_value": 0, "order": "C", "filters": null,
             "dimension_separator": "/"}}"#
         )
@@ -735,7 +748,10 @@ fn brightening_series(root: &Path) {
             };
             bytes.extend(v.to_le_bytes());
         }
-        put(&root.join(format!("0/{t}/0/0/0")), &bytes);
+        match channels {
+            1 => put(&root.join(format!("0/{t}/0/0/0")), &bytes),
+            k => (0..k).for_each(|c| put(&root.join(format!("0/{t}/{c}/0/0/0")), &bytes)),
+        }
     }
 }
 
@@ -744,20 +760,26 @@ fn brightening_series(root: &Path) {
 /// though each time point's largest value differs; and `--time 2` alone draws frame 2.
 #[test]
 fn the_frames_of_a_series_share_one_scale() {
+    series_shares_one_scale(1, &["--renderer", "raycast"]);
+}
+
+/// The same for two channels mixed by `add`: each channel keeps time point 0's range and
+/// transfer function through the series.
+#[test]
+fn the_channels_of_a_series_share_one_scale() {
+    series_shares_one_scale(2, &["--channels", "0,1", "--mix", "add"]);
+}
+
+/// Renders every time point of a brightening series of `channels` with `flags`, and `--time 2`
+/// alone: the slab's pixels are the same in every frame, and `--time 2` draws frame 2.
+fn series_shares_one_scale(channels: usize, flags: &[&str]) {
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("series.ome.zarr");
-    brightening_series(&store);
+    brightening_series(&store, channels);
     let (s, out) = (store.to_str().unwrap(), dir.path().join("frames"));
-    let args = [
-        "render",
-        s,
-        "--size",
-        "64x64",
-        "--renderer",
-        "raycast",
-        "--out",
-    ];
-    let all = common::vellum(&[&args[..], &[out.to_str().unwrap(), "--time", "all"]].concat());
+    let args = [&["render", s, "--size", "64x64"], flags].concat();
+    let o = out.to_str().unwrap();
+    let all = common::vellum(&[&args[..], &["--out", o, "--time", "all"]].concat());
     assert!(
         all.status.success(),
         "{}",
@@ -774,13 +796,17 @@ fn the_frames_of_a_series_share_one_scale() {
             .map(|(.., p)| p.0)
             .collect()
     };
-    let lit = left(&frames[0]).iter().filter(|p| p[0] > 20).count();
+    let lit = left(&frames[0])
+        .iter()
+        .filter(|p| p.iter().any(|&v| v > 20))
+        .count();
     assert!(lit > 100, "the slab shows ({lit} lit pixels)");
     for t in 1..3 {
         assert_eq!(left(&frames[t]), left(&frames[0]), "frame {t}'s slab");
     }
     let one = dir.path().join("two.png");
-    let single = common::vellum(&[&args[..], &[one.to_str().unwrap(), "--time", "2"]].concat());
+    let o = one.to_str().unwrap();
+    let single = common::vellum(&[&args[..], &["--out", o, "--time", "2"]].concat());
     assert!(single.status.success());
     assert_eq!(frame(&one), frames[2], "--time 2 draws frame 2");
 }

@@ -57,10 +57,14 @@ layout(set = 0, binding = 20) uniform sampler2D channel_tf;
 layout(set = 0, binding = 21) readonly buffer ChannelBounds { uint channel_bounds[]; };
 layout(set = 0, binding = 22) uniform sampler3D channels_hi;
 const int MAX_CHANNELS = 8;
+// How many channels are mixed: bits 16-18 of VARIANT hold the count less one. A specialisation
+// constant, so that every loop over the channels unrolls (a CPU device keeps an array indexed at
+// run time in memory) and a frame of four or fewer never reads `channels_hi`.
+const int CHANNEL_COUNT = int((VARIANT >> 16u) & 7u) + 1;
 
-// How many channels are mixed (the rows of their transfer functions' table).
+// How many channels are mixed.
 int channel_count() {
-    return min(textureSize(channel_tf, 0).y, MAX_CHANNELS);
+    return CHANNEL_COUNT;
 }
 
 // The channels' values at the sample being classified, 0-3 and 4-7 (the ray caster fetches them
@@ -97,8 +101,7 @@ bool channels_may_show(float a_min) {
 
 // Channel k's class of value v (straight colour, opacity).
 vec4 channel_class(int k, float v) {
-    int n = textureSize(channel_tf, 0).y;
-    return textureLod(channel_tf, vec2(v, (float(k) + 0.5) / float(n)), 0.0);
+    return textureLod(channel_tf, vec2(v, (float(k) + 0.5) / float(CHANNEL_COUNT)), 0.0);
 }
 
 // The channels' classes of the fetched sample mixed by `over` into one sample's straight colour

@@ -361,6 +361,7 @@ pub(crate) fn format_size(format: vk::Format) -> usize {
         | vk::Format::R16_SNORM
         | vk::Format::R16_SFLOAT => 2,
         vk::Format::R32_SFLOAT | vk::Format::R32_UINT | vk::Format::R32_SINT => 4,
+        vk::Format::R16G16_UNORM => 4,
         vk::Format::D32_SFLOAT
         | vk::Format::B8G8R8A8_UNORM
         | vk::Format::R8G8B8A8_UNORM

@@ -19,6 +19,33 @@ impl Session {
         }
     }
 
+    /// The channels of a store of several time points are drawn on the scales of the first
+    /// time point shown, each with the function it loaded with there: later ones load with them
+    /// (`channels.scales`), so an unedited channel keeps one scale through the series.
+    pub(crate) fn fix_channel_scales(&mut self) {
+        let Some(rows) = self
+            .model
+            .channels
+            .as_ref()
+            .filter(|_| self.model.times > 1)
+        else {
+            return;
+        };
+        let scales: Vec<_> = rows
+            .iter()
+            .map(|r| vellum_render::classify::channels::ChannelScale {
+                channel: r.index,
+                range: r.range,
+                tf: r.loaded.clone(),
+            })
+            .collect();
+        for scene in [&mut self.model.scene, &mut self.applied] {
+            if let Some(spec) = scene.channels.as_mut().filter(|s| s.scales.is_empty()) {
+                spec.scales = scales.clone();
+            }
+        }
+    }
+
     /// Shows time point `t`: from the read-ahead when it holds `t`, else loaded now.
     pub(crate) fn show_time(&mut self, t: usize) {
         if t >= self.model.times || (t == self.model.time && !self.loading()) {

@@ -139,6 +139,7 @@ impl Running {
         session.model.segments = segments;
         session.applied_channels = channels.clone();
         session.model.channels = channels;
+        session.fix_channel_scales();
         Ok(Running {
             gpu: GpuState {
                 frames,
@@ -358,6 +359,7 @@ impl Running {
             (Some(old), Some(new)) => Some(crate::ui::ChannelRow::carried(&old, new)),
             (_, new) => new,
         };
+        self.session.fix_channel_scales();
         self.window
             .set_title(&format!("vellum: {}", self.session.model.scene.input.path));
     }

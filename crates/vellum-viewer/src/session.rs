@@ -275,6 +275,10 @@ impl Session {
         scene.focus = Focus::None;
         scene.style = None;
         scene.camera = Default::default();
+        // A series' channel scales are the old input's.
+        if let Some(c) = scene.channels.as_mut() {
+            c.scales.clear();
+        }
         self.start_load(input, scene);
     }
 

@@ -14,7 +14,7 @@
 //!
 //! The channel the two levels, the gradient (shading), importance modulation and the lines work
 //! on is the focus channel, the first listed unless `focus_channel` says otherwise; it is also
-//! the volume every other pass sees. Up to [`MAX_CHANNELS`] channels, four to an RGBA texture.
+//! the volume every other pass sees. Up to [`MAX_CHANNELS`] channels, up to four to a texture.
 
 use crate::classify::transfer::{ControlPoint, TransferFunction};
 use serde::{Deserialize, Serialize};
@@ -74,6 +74,24 @@ pub struct ChannelSpec {
     /// Transfer functions by channel: a preset or a JSON file, over the channel's own range.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub tfs: Vec<(usize, String)>,
+    /// Scales fixed for the frames of a series (time point 0's, [`ChannelSpec::series_scales`]);
+    /// a channel without one is drawn on its own values, or at a later time point on time point
+    /// 0's.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub scales: Vec<ChannelScale>,
+}
+
+/// A channel's scale, fixed for every frame of a series: the values its texture spans, and the
+/// transfer function it is drawn with where none is given.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelScale {
+    /// The channel's index in the store.
+    pub channel: usize,
+    /// The values its texture maps to 0 and 1.
+    pub range: [f64; 2],
+    /// Its transfer function over that range.
+    pub tf: TransferFunction,
 }
 
 /// Colours of channels without NGFF `omero` colours: green, magenta, cyan, yellow, then red,
@@ -119,6 +137,16 @@ impl ChannelSpec {
                 "a transfer function is given for channel {c}, which `channels` does not list"
             )));
         }
+        // A later time point without scales is drawn on time point 0's, as `series_scale` draws
+        // the volume: frame T of a series is what `--time T` alone draws.
+        let first;
+        let scales = match time.unwrap_or(0) > 0 && self.scales.is_empty() {
+            true => {
+                first = self.series_scales(path)?;
+                &first
+            }
+            false => &self.scales,
+        };
         let mut out = Vec::with_capacity(self.channels.len());
         for (k, &c) in self.channels.iter().enumerate() {
             let pick = Pick {
@@ -127,16 +155,18 @@ impl ChannelSpec {
             };
             let ms = Multiscale::open_picked(path, pick)?;
             let volume = ms.read_level(0)?;
-            let range = volume.normalised_range();
+            let scale = scales.iter().find(|s| s.channel == c);
+            let range = scale.map_or_else(|| volume.normalised_range(), |s| s.range);
             let omero = ms.omero.get(c);
             let given = self
                 .tfs
                 .iter()
                 .find(|(i, _)| *i == c)
                 .map(|(_, t)| t.as_str());
-            let tf = match given {
-                Some(t) => named_or_file(t)?,
-                None => default_tf(&volume, range, omero, PALETTE[k % MAX_CHANNELS])?,
+            let tf = match (given, scale) {
+                (Some(t), _) => named_or_file(t)?,
+                (None, Some(s)) => s.tf.clone(),
+                (None, None) => default_tf(&volume, range, omero, PALETTE[k % MAX_CHANNELS])?,
             };
             out.push(Channel {
                 name: omero.and_then(|o| o.label.clone()),
@@ -147,6 +177,24 @@ impl ChannelSpec {
             });
         }
         Ok(out)
+    }
+
+    /// Time point 0's scale of every channel: the range and transfer function each later frame
+    /// of a series is drawn with (read once by a front end that draws many).
+    pub fn series_scales(&self, path: &Path) -> Result<Vec<ChannelScale>> {
+        let first = ChannelSpec {
+            scales: Vec::new(),
+            ..self.clone()
+        };
+        let channels = first.read(path, Some(0))?;
+        Ok(channels
+            .into_iter()
+            .map(|c| ChannelScale {
+                channel: c.index,
+                range: c.range,
+                tf: c.tf,
+            })
+            .collect())
     }
 }
 
@@ -212,8 +260,9 @@ pub fn ramp(colour: [f32; 3], [lo, hi]: [f32; 2]) -> Result<TransferFunction> {
 /// A channel's transfer-function table and its bricks' ranges.
 pub type ChannelSkip = (Vec<[f32; 4]>, Vec<[u16; 2]>);
 
-/// Channels on the GPU: RGBA16 textures (channel k in component k % 4 of texture k / 4, each
-/// over its own range) and their transfer functions (row k of a 256 × n table).
+/// Channels on the GPU: 16-bit textures of one, two or four components (channel k in component
+/// k % 4 of texture k / 4, each over its own range) and their transfer functions (row k of a
+/// 256 × n table).
 pub struct GpuChannels {
     /// The voxels of channels 0–3.
     pub image: Image,
@@ -280,7 +329,14 @@ impl GpuChannels {
         }
         let voxels = dims.iter().product::<usize>();
         let size = crate::classify::transfer::TF_SIZE;
-        let mut texels = vec![vec![0u16; PER_TEXTURE * voxels]; n.div_ceil(PER_TEXTURE)];
+        // Per texture, its channels' components (one, two, or four with a third's padded).
+        let widths: Vec<usize> = (0..n.div_ceil(PER_TEXTURE))
+            .map(|t| match (n - t * PER_TEXTURE).min(PER_TEXTURE) {
+                3 => 4,
+                w => w,
+            })
+            .collect();
+        let mut texels: Vec<Vec<u16>> = widths.iter().map(|w| vec![0u16; w * voxels]).collect();
         let mut skipping = Vec::with_capacity(n);
         let info = channels
             .iter()
@@ -298,30 +354,37 @@ impl GpuChannels {
                 .volume
                 .normalised_u16_in(if k == focus { range } else { c.range });
             let (texture, component) = (k / PER_TEXTURE, k % PER_TEXTURE);
+            let w = widths[texture];
             for (i, &t) in own.iter().enumerate() {
-                texels[texture][PER_TEXTURE * i + component] = t;
+                texels[texture][w * i + component] = t;
             }
             let (_, ranges) = vellum_volume::bricks::widened_ranges(&own, dims, BRICK);
             skipping.push((c.tf.table(size), ranges));
         }
         let extent = dims.map(|d| d as u32);
-        // RGBA16 unorm: each channel at 16 bits over its range, filtered linearly as the
-        // intensity is.
-        let mut images = texels.iter().enumerate().map(|(i, texels)| {
-            let name = ["channels 0-3", "channels 4-7"][i];
-            let image = Image::new(
-                ctx,
-                name,
-                &ImageDesc::new_3d(Format::R16G16B16A16_UNORM, extent),
-            )?;
-            vellum_gpu::transfer::upload(
-                ctx,
-                &image,
-                bytemuck::cast_slice(texels),
-                Access::ComputeSampled,
-            )?;
-            Ok::<_, Error>(image)
-        });
+        // 16-bit unorm components: each channel at 16 bits over its range, filtered linearly as
+        // the intensity is. Two channels take RG16, half the bytes of RGBA16 to fetch and filter
+        // (a CPU device filters every component in software).
+        let mut images = texels
+            .iter()
+            .zip(&widths)
+            .enumerate()
+            .map(|(i, (texels, w))| {
+                let name = ["channels 0-3", "channels 4-7"][i];
+                let format = match w {
+                    1 => Format::R16_UNORM,
+                    2 => Format::R16G16_UNORM,
+                    _ => Format::R16G16B16A16_UNORM,
+                };
+                let image = Image::new(ctx, name, &ImageDesc::new_3d(format, extent))?;
+                vellum_gpu::transfer::upload(
+                    ctx,
+                    &image,
+                    bytemuck::cast_slice(texels),
+                    Access::ComputeSampled,
+                )?;
+                Ok::<_, Error>(image)
+            });
         let image = images
             .next()
             .ok_or_else(|| Error::Invalid("no channels".into()))??;

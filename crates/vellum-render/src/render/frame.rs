@@ -1067,7 +1067,7 @@ fn record_rays(
                         // Four or fewer channels: never read.
                         Bind::Sampled(c.image_hi.as_ref().unwrap_or(&c.image), r.sampler),
                     ],
-                    Some(c.mix),
+                    Some((c.mix, c.count)),
                 ),
                 Err([volume, table]) => (
                     [

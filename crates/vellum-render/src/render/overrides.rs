@@ -375,6 +375,7 @@ impl SceneOverrides {
                     channels: several.to_vec(),
                     mix,
                     tfs: self.channel_tfs.clone(),
+                    scales: Vec::new(),
                 });
                 return Ok(());
             }

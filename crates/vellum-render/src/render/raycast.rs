@@ -141,6 +141,8 @@ impl Variant {
     /// In core, the walk to a ray's next contributing sample fetches four samples at once
     /// ([`walk_batch`]).
     pub(crate) const WALK_BATCH: u32 = 32768;
+    /// With a mix: the channels mixed, less one, in bits 16-18 (`shade.glsl`'s `CHANNEL_COUNT`).
+    pub(crate) const CHANNELS_SHIFT: u32 = 16;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -197,8 +199,11 @@ pub(crate) struct RayRequest<'a> {
     /// (the `LABELS` variant).
     pub(crate) labels: ([Bind<'a>; 2], bool),
     /// Mixed channels' texture, transfer functions, opacity bounds and texture of channels 4–7
-    /// (stand-ins without), and their mix.
-    pub(crate) channels: ([Bind<'a>; 4], Option<crate::classify::channels::Mix>),
+    /// (stand-ins without), and their mix and count.
+    pub(crate) channels: (
+        [Bind<'a>; 4],
+        Option<(crate::classify::channels::Mix, usize)>,
+    ),
     /// With `bricked`: rays reuse their last brick's lookup (`Paged::reuse`).
     pub(crate) brick_reuse: bool,
     /// With `bricked`: rays keep the stretch over which their last lookup holds (`Paged::span`).
@@ -296,12 +301,14 @@ impl RayCaster {
         if r.walk_batch {
             variant.0 |= Variant::WALK_BATCH;
         }
-        variant.0 |= match r.channels.1 {
-            None => 0,
-            Some(crate::classify::channels::Mix::Over) => Variant::MIX_OVER,
-            Some(crate::classify::channels::Mix::Add) => Variant::MIX_ADD,
-            Some(crate::classify::channels::Mix::Max) => Variant::MIX_MAX,
-        };
+        if let Some((mix, count)) = r.channels.1 {
+            variant.0 |= match mix {
+                crate::classify::channels::Mix::Over => Variant::MIX_OVER,
+                crate::classify::channels::Mix::Add => Variant::MIX_ADD,
+                crate::classify::channels::Mix::Max => Variant::MIX_MAX,
+            };
+            variant.0 |= (count.clamp(1, 8) as u32 - 1) << Variant::CHANNELS_SHIFT;
+        }
         let pipeline = Self::pipeline(pipelines, variant)?;
         let groups = vellum_gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
         frame.profiler.begin(cmd, "raycast");

@@ -429,3 +429,52 @@ fn a_channel_edit_is_a_new_function_for_that_channel_only() {
     assert_eq!(sent[0][1], ramp([0.0, 1.0, 0.0], [0.1, 0.2]).unwrap());
     assert!(channel_edits(&mut s).is_empty(), "applied once");
 }
+
+/// A series' mixed channels keep the scales of the first time point shown: its rows' ranges
+/// and loaded functions become the scene's `channels.scales` (model and applied alike, so no
+/// load follows), kept once set; a store of one time point keeps none.
+#[test]
+fn a_series_keeps_its_first_time_points_channel_scales() {
+    use crate::ui::ChannelRow;
+    use vellum_render::classify::channels::{ramp, ChannelInfo, ChannelSpec};
+    let mut s = session("phantom:sphere:16");
+    let info = |index, top: f64| ChannelInfo {
+        index,
+        name: None,
+        range: [0.0, top],
+        histogram: vec![1; 256],
+        tf: ramp([1.0, 0.0, 0.0], [0.25, 0.5]).unwrap(),
+    };
+    let rows = |top| -> Vec<ChannelRow> {
+        [info(0, top), info(2, 2.0 * top)]
+            .iter()
+            .map(ChannelRow::of)
+            .collect()
+    };
+    let spec = ChannelSpec {
+        channels: vec![0, 2],
+        ..Default::default()
+    };
+    s.model.scene.channels = Some(spec.clone());
+    s.applied.channels = Some(spec);
+    s.model.channels = Some(rows(100.0));
+    s.fix_channel_scales();
+    assert!(
+        s.model.scene.channels.as_ref().unwrap().scales.is_empty(),
+        "one time point keeps no scales"
+    );
+    s.model.times = 3;
+    s.fix_channel_scales();
+    let scales = s.model.scene.channels.as_ref().unwrap().scales.clone();
+    let got: Vec<(usize, [f64; 2])> = scales.iter().map(|c| (c.channel, c.range)).collect();
+    assert_eq!(got, vec![(0, [0.0, 100.0]), (2, [0.0, 200.0])]);
+    assert_eq!(scales[1].tf, info(2, 1.0).tf);
+    assert_eq!(
+        s.applied.channels, s.model.scene.channels,
+        "no load follows"
+    );
+    // A later time point's rows (their own ranges) leave the scales as they were.
+    s.model.channels = Some(rows(300.0));
+    s.fix_channel_scales();
+    assert_eq!(s.model.scene.channels.as_ref().unwrap().scales, scales);
+}

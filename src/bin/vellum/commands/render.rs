@@ -127,6 +127,8 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
 struct Series {
     ctx: std::sync::Arc<vellum::gpu::Context>,
     scale: Option<([f64; 2], vellum::classify::Classification)>,
+    /// Time point 0's scales of the channels mixed, read once.
+    channel_scales: Option<Vec<vellum::classify::channels::ChannelScale>>,
 }
 
 impl Series {
@@ -185,6 +187,13 @@ fn render_on(
     if let Some((range, c)) = series.as_ref().and_then(|s| s.scale.clone()) {
         scene.input.range = Some(range);
         classification = c;
+    }
+    if let (Some(spec), Some(s)) = (scene.channels.as_mut(), series.as_mut()) {
+        let path = std::path::Path::new(&scene.input.path);
+        match &s.channel_scales {
+            Some(scales) => spec.scales = scales.clone(),
+            None => s.channel_scales = Some(spec.series_scales(path)?),
+        }
     }
     let ctx = match series.as_ref() {
         Some(s) => s.ctx.clone(),
@@ -342,6 +351,7 @@ fn render_every_time((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
     let mut series = Series {
         ctx: together(team, context(cli))?,
         scale: None,
+        channel_scales: None,
     };
     let bar = vellum::progress::bar(times as u64, "time points");
     let mut oriented = true;
