@@ -16,6 +16,7 @@ use vellum::render::session::{Session, SessionOptions};
 use vellum::render::targets::FrameImage;
 use vellum::render::view::View;
 use vellum::volume::labels::colour_of;
+use vellum::volume::lines::Segment;
 use vellum::volume::{Volume, VoxelData};
 
 const N: usize = 48;
@@ -273,6 +274,111 @@ fn focus_labels_make_those_segments_the_focus_level() {
     assert!(
         (vivid as f64 - focus as f64).abs() < 0.1 * focus as f64,
         "{vivid} vivid pixels, {focus} of focus"
+    );
+}
+
+/// Segment `i`'s field on the host, as the GPU makes it: at each voxel, the share of the 3×3×3
+/// voxels around it (clamped at the faces) that hold the segment.
+fn field(labels: &vellum::volume::labels::Labels, i: u16) -> Vec<f32> {
+    let [nx, ny, nz] = labels.dims;
+    let at = |x: usize, y: usize, z: usize| labels.index[x + nx * (y + ny * z)] == i;
+    let near = |c: usize, n: usize| [c.saturating_sub(1), c, (c + 1).min(n - 1)];
+    let mut out = Vec::with_capacity(nx * ny * nz);
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let mut inside = 0u32;
+                for zz in near(z, nz) {
+                    for yy in near(y, ny) {
+                        for xx in near(x, nx) {
+                            inside += u32::from(at(xx, yy, zz));
+                        }
+                    }
+                }
+                out.push(inside as f32 / 27.0);
+            }
+        }
+    }
+    out
+}
+
+/// Whether every segment of `got` has its endpoints within 0.05 voxel of some segment's of
+/// `want` (the GPU's floats against the CPU's), both sets the same size.
+fn same_segments(got: &[Segment], want: &[Segment]) -> bool {
+    let near =
+        |p: [f32; 4], q: [f32; 4]| (0..3).map(|a| (p[a] - q[a]).powi(2)).sum::<f32>() < 0.0025;
+    got.len() == want.len()
+        && got.iter().all(|g| {
+            want.iter()
+                .any(|w| (near(g.a, w.a) && near(g.b, w.b)) || (near(g.a, w.b) && near(g.b, w.a)))
+        })
+}
+
+/// Each segment's own lines (issue 42). Extracted on the GPU as a frame of a style with lines
+/// over a label volume extracts them, the three balls' silhouettes and suggestive contours equal
+/// the CPU reference, the lines of each segment's field (its share of each 3×3×3 box) at 0.5,
+/// within 0.05 voxel; leaving a segment out leaves out exactly its lines. A frame in style 4 (silhouettes)
+/// over the label volume with ball 5 hidden draws lines on the rims of the two others and
+/// nowhere else (the intensity's lines would outline all three).
+#[test]
+fn each_segment_has_its_own_lines() {
+    use vellum::passes::lines::LineExtractor;
+    use vellum::volume::lines::{extract, Eye, LineParams};
+    let gpu = Gpu::new();
+    let labels = vellum::volume::labels::Labels::of_volume(&balls().1, "balls").unwrap();
+    let mut lines = LineExtractor::new(&gpu.ctx).unwrap();
+    let mut pipelines = vellum::gpu::PipelineCache::new(&gpu.ctx);
+    let eye = Eye::Direction([0.3, 0.5, 0.81]);
+    let p = LineParams {
+        iso: 0.5,
+        suggestive: true,
+        ..LineParams::default()
+    };
+    let cpu = |i: u16| extract(&field(&labels, i), labels.dims, [1.0; 3], eye, &p);
+    let all: Vec<u16> = (1..labels.ids.len() as u16).collect();
+    for indices in [all.clone(), vec![1, 3]] {
+        let got = lines
+            .extract_segments(
+                &mut pipelines,
+                &labels,
+                (&indices, [1.0; 3]),
+                eye,
+                &p,
+                1 << 20,
+            )
+            .unwrap();
+        let want: Vec<Segment> = indices.iter().flat_map(|&i| cpu(i)).collect();
+        assert!(
+            indices.iter().all(|&i| !cpu(i).is_empty()),
+            "every ball has lines"
+        );
+        assert!(
+            same_segments(&got.segments, &want),
+            "segments {indices:?}: {} on the GPU, {} on the CPU",
+            got.segments.len(),
+            want.len()
+        );
+    }
+    // A frame: every line lies on a shown ball's boundary (within 1.5 voxels of its sphere).
+    let dir = tempfile::tempdir().unwrap();
+    let f = frame(&gpu, spec(dir.path(), &[5], &[2, 9]), Some("4"));
+    let (segments, found) = f.segments.expect("a frame of style 4 reads its lines back");
+    assert!(found > 0 && found == segments.len() as u64);
+    let mut per_ball = [0usize; 3];
+    for s in &segments {
+        let m: [f32; 3] = std::array::from_fn(|a| 0.5 * (s.a[a] + s.b[a]) + 0.5);
+        let on = BALLS.iter().position(|(_, c, r)| {
+            let d = (0..3).map(|a| (m[a] - c[a]).powi(2)).sum::<f32>().sqrt();
+            (d - r).abs() < 1.5
+        });
+        let Some(b) = on else {
+            panic!("a line at {m:?} lies on no ball's boundary");
+        };
+        per_ball[b] += 1;
+    }
+    assert!(
+        per_ball[0] > 0 && per_ball[1] == 0 && per_ball[2] > 0,
+        "lines per ball (5 hidden): {per_ball:?}"
     );
 }
 

@@ -104,6 +104,9 @@ pub struct GpuLabels {
     pub decide_focus: bool,
     /// The label volume on the host: ids, counts and colours, for a viewer's list.
     pub labels: Arc<Labels>,
+    /// The indices of the segments drawn (every id but 0 that is not hidden): those whose lines
+    /// a style with lines draws.
+    pub drawn: Vec<u16>,
     /// The spec the table was made from, and whether id 0 is drawn ([`LabelSpec::table`]).
     spec: LabelSpec,
     background: bool,
@@ -138,6 +141,7 @@ impl GpuLabels {
         Ok(GpuLabels {
             voxels,
             table,
+            drawn: drawn(spec, &labels),
             decide_focus: !spec.focus.is_empty(),
             labels,
             spec: spec.clone(),
@@ -165,6 +169,7 @@ impl GpuLabels {
         if *spec != self.spec {
             self.pending = Some(spec.table(&self.labels, self.background));
             self.decide_focus = !spec.focus.is_empty();
+            self.drawn = drawn(spec, &self.labels);
             self.spec = spec.clone();
         }
         Ok(())
@@ -182,6 +187,14 @@ impl GpuLabels {
         memory_transition(&self.ctx, frame.cmd, Access::TransferWrite, next);
         Ok(())
     }
+}
+
+/// The indices of `labels`' segments that `spec` draws, id 0 (no segment) apart.
+fn drawn(spec: &LabelSpec, labels: &Labels) -> Vec<u16> {
+    (0..labels.ids.len())
+        .filter(|&i| labels.ids[i] != 0 && !spec.hide.contains(&labels.ids[i]))
+        .map(|i| i as u16)
+        .collect()
 }
 
 #[cfg(test)]

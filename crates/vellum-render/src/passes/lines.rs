@@ -317,6 +317,9 @@ const EXTRACT_BINDINGS: [BindingKind; 3] = [
     BindingKind::StorageBuffer,
     BindingKind::StorageBuffer,
 ];
+/// `label_indicator.comp`: the label voxels, the field.
+const FIELD_BINDINGS: [BindingKind; 2] = [BindingKind::StorageBuffer, BindingKind::StorageImage];
+
 const EXTRACT_HESSIAN_BINDINGS: [BindingKind; 5] = [
     BindingKind::SampledImage,
     BindingKind::StorageBuffer,
@@ -485,6 +488,16 @@ impl RasterView {
     }
 }
 
+/// A label volume's segments as line extraction reads them ([`LineExtractor::record_segments`]).
+pub(crate) struct SegmentLines<'a> {
+    /// Each voxel's index among the ids the label volume holds (`GpuLabels::voxels`).
+    pub voxels: &'a Buffer,
+    /// The indices of the segments whose lines are drawn.
+    pub indices: &'a [u16],
+    /// An R32F image of the volume's size, which holds one segment's field at a time.
+    pub field: &'a Image,
+}
+
 /// One extraction: the normalised volume (or its smoothed copy) of `dims` voxels spaced
 /// `spacing` apart, the eye, what to extract, and the precomputed Hessian when measured that way.
 #[derive(Copy, Clone)]
@@ -647,6 +660,42 @@ impl LineExtractor {
         state: &mut LineState,
         r: &LineRequest,
     ) -> Result<()> {
+        let (params, cmd) = (&r.params, frame.cmd);
+        let kinds = kinds_of(params);
+        let key = SeedKey {
+            values: r.values.id(),
+            dims: r.dims,
+            iso: params.iso.to_bits(),
+            kinds,
+        };
+        let previous = state.last == Some(key);
+        // Set before recording: a failed recording is never submitted, and the next frame's
+        // seeds are then merely stale cells, which the traversal tolerates.
+        state.last = Some(key);
+        if params.seeded {
+            if r.hessian.is_some() {
+                return Err(Error::Invalid(
+                    "the seeded traversal takes the Hessian on the fly only".into(),
+                ));
+            }
+            return self.record_seeded(frame, pipelines, state, r, previous);
+        }
+        frame.profiler.begin(cmd, "lines");
+        self.record_cells(frame, pipelines, state, r, false)?;
+        frame.profiler.end(cmd);
+        Ok(())
+    }
+
+    /// The visit of the cells and the extraction of `r` into `state`'s buffer: after what it
+    /// holds when `append`, else from empty.
+    fn record_cells(
+        &self,
+        frame: &mut Frame,
+        pipelines: &mut PipelineCache,
+        state: &mut LineState,
+        r: &LineRequest,
+        append: bool,
+    ) -> Result<()> {
         let LineRequest {
             values,
             dims,
@@ -657,34 +706,19 @@ impl LineExtractor {
         } = *r;
         let params = &params;
         let (ctx, cmd) = (&self.ctx, frame.cmd);
-        let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
-        let key = SeedKey {
-            values: values.id(),
-            dims,
-            iso: params.iso.to_bits(),
-            kinds,
-        };
-        let previous = state.last == Some(key);
-        // Set before recording: a failed recording is never submitted, and the next frame's
-        // seeds are then merely stale cells, which the traversal tolerates.
-        state.last = Some(key);
-        if params.seeded {
-            if hessian.is_some() {
-                return Err(Error::Invalid(
-                    "the seeded traversal takes the Hessian on the fly only".into(),
-                ));
-            }
-            return self.record_seeded(frame, pipelines, state, r, previous);
-        }
+        let kinds = kinds_of(params);
         let LineState {
             buffer: out,
             cells: cell_slot,
             ..
         } = state;
-        frame.profiler.begin(cmd, "lines");
-        // The previous frame's readers (the rasteriser's indirect read) are done before this write.
+        // The previous frame's readers (the rasteriser's indirect read) are done before this
+        // write; appending, the last extraction's reads of the cell list are.
         memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
-        update_buffer(ctx, cmd, &out.buffer, bytemuck::cast_slice(&HEADER_INIT));
+        match append {
+            true => memory_transition(ctx, cmd, Access::ComputeReadWrite, Access::TransferWrite),
+            false => update_buffer(ctx, cmd, &out.buffer, bytemuck::cast_slice(&HEADER_INIT)),
+        }
         memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
         values.transition(cmd, Access::ComputeSampled);
         let s = params.stride.max(1);
@@ -735,6 +769,65 @@ impl LineExtractor {
             }
         }
         extract.dispatch_indirect(cmd, &binds, &push, cell_list, 0)?;
+        Ok(())
+    }
+
+    /// Pass `lines` of a label volume's segments (issue 42): for each segment of `s.indices`,
+    /// its field (its share of each 3×3×3 box of voxels, `label_indicator.comp`, into
+    /// [`SegmentLines::field`]) and the lines of that field at 0.5,
+    /// all appended to `state`'s buffer, so that each segment gets its own silhouettes and
+    /// contours where it meets any other. `r` gives the frame and the kinds; its τ, volume and
+    /// seeding are the segments'.
+    pub(crate) fn record_segments(
+        &self,
+        frame: &mut Frame,
+        pipelines: &mut PipelineCache,
+        state: &mut LineState,
+        r: &LineRequest,
+        s: &SegmentLines,
+    ) -> Result<()> {
+        let (ctx, cmd) = (&self.ctx, frame.cmd);
+        let fill = pipelines.get(&PipelineDesc::new(
+            "lines/label_indicator.comp",
+            &FIELD_BINDINGS,
+            16,
+        ))?;
+        let dims = r.dims;
+        let groups = group_count(dims.map(|d| d as u32), [4, 4, 4]);
+        // No extraction of another volume seeds from this one's segments.
+        state.last = None;
+        frame.profiler.begin(cmd, "lines");
+        if s.indices.is_empty() {
+            memory_transition(ctx, cmd, Access::IndirectRead, Access::TransferWrite);
+            update_buffer(
+                ctx,
+                cmd,
+                &state.buffer.buffer,
+                bytemuck::cast_slice(&HEADER_INIT),
+            );
+            memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
+        }
+        for (n, &index) in s.indices.iter().enumerate() {
+            s.field.transition(cmd, Access::ComputeWrite);
+            let push = [dims[0] as i32, dims[1] as i32, dims[2] as i32, index as i32];
+            fill.dispatch(
+                cmd,
+                &[Bind::StorageBuffer(s.voxels), Bind::StorageImage(s.field)],
+                &push,
+                groups,
+            )?;
+            let one = LineRequest {
+                values: s.field,
+                params: LineParams {
+                    iso: 0.5,
+                    seeded: false,
+                    ..r.params
+                },
+                hessian: None,
+                ..*r
+            };
+            self.record_cells(frame, pipelines, state, &one, n > 0)?;
+        }
         frame.profiler.end(cmd);
         Ok(())
     }
@@ -771,7 +864,7 @@ impl LineExtractor {
                 dims[0], dims[1], dims[2]
             )));
         }
-        let kinds = (params.silhouettes as u32) | (params.suggestive as u32) << 1;
+        let kinds = kinds_of(params);
         let seed = pipelines.get(&PipelineDesc::new(
             "lines/seed.comp",
             &SEED_BINDINGS,
@@ -988,6 +1081,63 @@ impl LineExtractor {
             hessian_ms,
         })
     }
+}
+
+impl LineExtractor {
+    /// The lines of each segment of `labels` whose index `indices` lists, as a frame of a style
+    /// with lines over that label volume draws them ([`LineExtractor::record_segments`]), read
+    /// back: the tools' path, one submission. `params.iso` and `seeded` are the segments'.
+    pub fn extract_segments(
+        &mut self,
+        pipelines: &mut PipelineCache,
+        labels: &vellum_volume::labels::Labels,
+        (indices, spacing): (&[u16], [f32; 3]),
+        eye: Eye,
+        params: &LineParams,
+        capacity: u32,
+    ) -> Result<LineSet> {
+        let ctx = &self.ctx.clone();
+        let voxels = Buffer::storage_from_bytes(
+            ctx,
+            "label voxels",
+            bytemuck::cast_slice(&labels.packed()),
+        )?;
+        let field = Image::new(
+            ctx,
+            "segment field",
+            &ImageDesc::new_3d(Format::R32_SFLOAT, labels.dims.map(|d| d as u32)),
+        )?;
+        let mut state = LineState::new(ctx, capacity)?;
+        let ((), timings) = submit_timed(ctx, "lines", |f| {
+            let request = LineRequest {
+                values: &field,
+                dims: labels.dims,
+                spacing,
+                eye,
+                params: *params,
+                hessian: None,
+            };
+            let segments = SegmentLines {
+                voxels: &voxels,
+                indices,
+                field: &field,
+            };
+            self.record_segments(f, pipelines, &mut state, &request, &segments)
+        })?;
+        let (segments, found) = state.buffer.read()?;
+        Ok(LineSet {
+            segments,
+            found,
+            ms: timings.iter().map(|t| t.ms).sum(),
+            hessian_ms: 0.0,
+        })
+    }
+}
+
+/// The kinds of lines `p` asks for, as the extraction's specialisation constant: bit 0
+/// silhouettes, bit 1 suggestive contours.
+fn kinds_of(p: &LineParams) -> u32 {
+    (p.silhouettes as u32) | (p.suggestive as u32) << 1
 }
 
 /// `iso` in data units on the [0, 1] scale of a volume normalised from `[lo, hi]` (0.5 for a

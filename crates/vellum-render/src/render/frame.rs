@@ -13,11 +13,12 @@
 //! 4. [`Recorded`] returns what a caller needs afterwards (the planes drawn, the lines' raster
 //!    view); [`Renderer::render_frame`] is the one-shot form that also reads the layers back.
 
+use crate::classify::labels::GpuLabels;
 use crate::classify::modulation::Modulation;
 use crate::classify::textures::GpuClassification;
 use crate::classify::Focus;
 use crate::passes::gpu_volume::VolumeRef;
-use crate::passes::lines::{LineExtractor, RasterView, DEFAULT_CAPACITY};
+use crate::passes::lines::{LineExtractor, RasterView, SegmentLines, DEFAULT_CAPACITY};
 use crate::passes::normals::{Bricks, VolumeTextures};
 use crate::passes::paging::HEADER;
 use crate::render::post::{LinesDraw, Post};
@@ -700,7 +701,10 @@ impl Renderer {
             _ => self.slicer.record_one_pass(frame, &draw, &t.composite)?,
         }
         let lines = match view.one_pass {
-            false => self.record_view_style(frame, vol, (&setup, view), (t, state))?,
+            false => {
+                let labels = classify.labels.as_ref();
+                self.record_view_style(frame, vol, (&setup, view, labels), (t, state))?
+            }
             true => None,
         };
         Ok(Recorded {
@@ -714,7 +718,7 @@ impl Renderer {
         &mut self,
         frame: &mut vellum_gpu::Frame,
         vol: VolumeRef,
-        (setup, view): (&FrameSetup, &View),
+        (setup, view, labels): (&FrameSetup, &View, Option<&GpuLabels>),
         (t, state): (&TargetImages, &mut ViewState),
     ) -> Result<Option<RasterView>> {
         match (&view.style, &t.post) {
@@ -724,6 +728,7 @@ impl Renderer {
                     style,
                     images: t,
                     post,
+                    labels,
                 };
                 self.record_style(frame, vol, &style_frame, state)
             }
@@ -745,7 +750,8 @@ impl Renderer {
         let setup = FrameSetup::new(&SetupInput::of(vol, classify, max), view)?;
         self.build_style_passes(view)?;
         let (t, state) = targets.ensure(view.size, true, true)?;
-        let lines = self.record_view_style(frame, vol, (&setup, view), (t, state))?;
+        let labels = classify.labels.as_ref();
+        let lines = self.record_view_style(frame, vol, (&setup, view, labels), (t, state))?;
         Ok(Recorded {
             slices: setup.proxy.slices,
             lines,
@@ -795,19 +801,38 @@ impl Renderer {
         }
         let draw = match (f.style.def.lines, &self.lines) {
             (Some(kind), Some(extractor)) => {
-                let (line_state, smoothed) =
-                    state.lines_and_smoothed(&self.ctx, DEFAULT_CAPACITY, (vol.id, radius))?;
                 let g = line_geometry(vol, f, kind);
+                let (line_state, volume, segments) = match f.labels {
+                    Some(labels) => {
+                        let (line_state, field) =
+                            state.lines_and_segment_field(&self.ctx, DEFAULT_CAPACITY, vol.dims)?;
+                        let segments = SegmentLines {
+                            voxels: &labels.voxels,
+                            indices: &labels.drawn,
+                            field,
+                        };
+                        (line_state, &vol.intensity, Some(segments))
+                    }
+                    None => {
+                        let (line_state, smoothed) = state.lines_and_smoothed(
+                            &self.ctx,
+                            DEFAULT_CAPACITY,
+                            (vol.id, radius),
+                        )?;
+                        (line_state, smoothed.unwrap_or(&vol.intensity), None)
+                    }
+                };
                 Some(LinesDraw {
                     extractor,
                     pipelines: &mut self.pipelines,
                     state: line_state,
-                    volume: smoothed.unwrap_or(&vol.intensity),
+                    volume,
                     dims: vol.dims,
                     spacing: g.spacing,
                     eye: g.eye,
                     params: g.params,
                     view: g.view,
+                    segments,
                 })
             }
             _ => None,
@@ -1283,6 +1308,8 @@ struct StyleFrame<'a> {
     style: &'a Style,
     images: &'a TargetImages,
     post: &'a PostTargets,
+    /// A label volume beside the volume: its segments' lines are drawn instead of the volume's.
+    labels: Option<&'a GpuLabels>,
 }
 
 /// The geometry of one frame's object-space lines: the extraction's frame and parameters, and

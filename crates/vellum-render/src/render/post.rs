@@ -13,7 +13,7 @@
 //! through 16 tile borders, at least 256 pixels of edge, which covers every chain we have met in
 //! renders up to 1024²; the tests assert convergence, so a longer chain fails loudly.
 
-use crate::passes::lines::{LineExtractor, LineRequest, LineState, RasterView};
+use crate::passes::lines::{LineExtractor, LineRequest, LineState, RasterView, SegmentLines};
 use crate::render::style::{Abstraction, EdgeKind, Style, StyleParams};
 use crate::render::targets::{PostTargets, TargetImages, TargetLayers};
 use std::sync::Arc;
@@ -48,6 +48,8 @@ pub(crate) struct LinesDraw<'a> {
     pub params: LineParams,
     /// Where the lines are drawn; [`Post::record`] sets its `value` and `floor` for the edge image.
     pub view: RasterView,
+    /// A label volume's segments, whose lines are drawn instead of `volume`'s.
+    pub segments: Option<SegmentLines<'a>>,
 }
 
 /// What every step of one frame's style passes shares.
@@ -300,7 +302,13 @@ impl Post {
             params: d.params,
             hessian: None,
         };
-        d.extractor.record(frame, d.pipelines, d.state, &request)?;
+        match &d.segments {
+            Some(segments) => {
+                d.extractor
+                    .record_segments(frame, d.pipelines, d.state, &request, segments)?
+            }
+            None => d.extractor.record(frame, d.pipelines, d.state, &request)?,
+        }
         let view = RasterView {
             // Canny's edge image holds classes: 2 is an edge, 1 a candidate the composite
             // draws as none; a line pixel of coverage c is 1 + c there.

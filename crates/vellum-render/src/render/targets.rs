@@ -75,6 +75,9 @@ pub struct ViewState {
     /// From the first frame of a style with lines on.
     pub lines: Option<LineState>,
     smoothed: Option<Smoothed>,
+    /// One label segment's field for its lines (`LineExtractor::record_segments`), from the
+    /// first frame of a style with lines over a label volume, at that volume's size.
+    segment_field: Option<Image>,
     /// The rays' saved states of a bricked frame that waits for its bricks (`passes::paging`),
     /// from the first such frame, for as many pixels as it had.
     rays: Option<(u64, vellum_gpu::Buffer)>,
@@ -110,6 +113,33 @@ impl ViewState {
         }
         let smoothed = Smoothed::kept(&self.smoothed, volume, radius);
         Ok((self.lines.as_mut().expect("made above"), smoothed))
+    }
+
+    /// The lines' state and the segment field for a label volume of `dims` voxels (made, or
+    /// made again at another size, when needed; the last one is released once the frames
+    /// using it complete).
+    pub(crate) fn lines_and_segment_field(
+        &mut self,
+        ctx: &Arc<Context>,
+        capacity: u32,
+        dims: [usize; 3],
+    ) -> Result<(&mut LineState, &Image)> {
+        if self.lines.is_none() {
+            self.lines = Some(LineState::new(ctx, capacity)?);
+        }
+        let extent = dims.map(|d| d as u32);
+        if self
+            .segment_field
+            .as_ref()
+            .is_none_or(|f| f.desc.extent != extent)
+        {
+            let desc = ImageDesc::new_3d(Format::R32_SFLOAT, extent);
+            self.segment_field = Some(Image::new(ctx, "segment field", &desc)?);
+        }
+        Ok((
+            self.lines.as_mut().expect("made above"),
+            self.segment_field.as_ref().expect("made above"),
+        ))
     }
 
     /// The ray states for `pixels` rays, made (or remade larger) when needed.
