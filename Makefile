@@ -80,7 +80,7 @@ view: deps
 # validation: a missing or wrong barrier fails the test like any other validation message. The
 # `mpi` feature is on, so tests/mpi.rs runs jobs under Open MPI's mpirun.
 test: deps-test
-	VELLUM_SYNC_VALIDATION=1 cargo test --locked --workspace --features vellum/mpi
+	VELLUM_SYNC_VALIDATION=1 cargo test --locked --workspace --exclude vellum-python --features vellum/mpi
 	$(MAKE) test-python
 
 # The Python package (python/, PyO3 built by maturin) in a venv make creates, then its pytest

@@ -17,7 +17,10 @@ fn main() {
         .to_path_buf();
     let glsl = root.join("glsl");
     let out_dir = PathBuf::from(std::env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
-    println!("cargo:rerun-if-changed=glsl");
+    // The folder by its full path: a relative one is taken from the crate's own folder
+    // (crates/vellum-gpu/glsl), which does not exist, so cargo ran this script again, and
+    // compiled vellum-gpu and every crate above it again, on every build.
+    println!("cargo:rerun-if-changed={}", glsl.display());
 
     let mut files = Vec::new();
     collect(&glsl, &mut files);

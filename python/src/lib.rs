@@ -368,7 +368,11 @@ fn read(
 /// 20, with three more tries). Options not given keep their defaults.
 #[pyfunction]
 #[pyo3(signature = (cache_dir = None, cache_mib = None, timeout_s = None))]
-fn remote(cache_dir: Option<PathBuf>, cache_mib: Option<u64>, timeout_s: Option<f64>) -> PyResult<()> {
+fn remote(
+    cache_dir: Option<PathBuf>,
+    cache_mib: Option<u64>,
+    timeout_s: Option<f64>,
+) -> PyResult<()> {
     use vellum_volume::io::http_store::{configure, RemoteOptions};
     let mut o = RemoteOptions::default();
     if let Some(dir) = cache_dir {

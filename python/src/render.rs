@@ -255,8 +255,10 @@ impl<'py> Value<'_, 'py> {
                 let what = "a dict of id to \"#RRGGBB\"";
                 let colours: std::collections::BTreeMap<u32, String> = self.get(what)?;
                 for (id, hex) in colours {
-                    let c = vellum_render::render::overrides::parse_label_colour(&format!("{id}={hex}"))
-                        .map_err(|_| self.bad(what))?;
+                    let c = vellum_render::render::overrides::parse_label_colour(&format!(
+                        "{id}={hex}"
+                    ))
+                    .map_err(|_| self.bad(what))?;
                     o.label_colours.push(c);
                 }
             }
