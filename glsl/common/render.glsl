@@ -6,7 +6,7 @@
 
 struct NormalsPush {
     ivec3 dims;          // volume size in voxels
-    int pad;
+    int listed;          // bricks in the list sobel_normals.comp runs on, or -1: every voxel
     vec4 inv_spacing;    // 1 / voxel spacing (xyz), w unused
 };
 
