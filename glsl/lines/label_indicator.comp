@@ -3,8 +3,8 @@
 // the share of the 3x3x3 voxels around it that hold segment `index`, so that the field's
 // iso-surface at 0.5 is the segment's boundary, smoothed over a voxel, and the lines of that
 // surface are the segment's silhouettes and suggestive contours. Labels are read as the ray
-// caster reads them (16-bit indices, two per word); the field is written whole, each frame a
-// segment's lines are made.
+// caster reads them (16-bit indices, two per word); each frame a segment's lines are made, the
+// field is cleared and written over the segment's bounding box and one voxel around it.
 
 layout(local_size_x = 4, local_size_y = 4, local_size_z = 4) in;
 
@@ -13,6 +13,8 @@ layout(set = 0, binding = 1, r32f) uniform writeonly image3D field;
 
 layout(push_constant) uniform Push {
     ivec4 dims;   // xyz: voxels; w: the segment's index among the ids the volume holds
+    ivec4 lo;     // xyz: the first voxel of the box written (the segment's box and one voxel
+                  // more: the field is 0 beyond, where a clear left it)
 } pc;
 
 bool in_segment(ivec3 v) {
@@ -23,7 +25,7 @@ bool in_segment(ivec3 v) {
 }
 
 void main() {
-    ivec3 v = ivec3(gl_GlobalInvocationID);
+    ivec3 v = pc.lo.xyz + ivec3(gl_GlobalInvocationID);
     if (any(greaterThanEqual(v, pc.dims.xyz))) {
         return;
     }

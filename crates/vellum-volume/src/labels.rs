@@ -102,6 +102,22 @@ impl Labels {
             .map_or_else(|| colour_of(id), |(_, c)| *c)
     }
 
+    /// Per index, the bounding box of its voxels: the first and the last voxel along x, y, z
+    /// (an index no voxel holds gets an empty box, first past last).
+    pub fn boxes(&self) -> Vec<[[u32; 3]; 2]> {
+        let [nx, ny, _] = self.dims;
+        let mut boxes = vec![[[u32::MAX; 3], [0; 3]]; self.ids.len()];
+        for (i, &k) in self.index.iter().enumerate() {
+            let v = [i % nx, (i / nx) % ny, i / (nx * ny)].map(|c| c as u32);
+            let b = &mut boxes[k as usize];
+            for a in 0..3 {
+                b[0][a] = b[0][a].min(v[a]);
+                b[1][a] = b[1][a].max(v[a]);
+            }
+        }
+        boxes
+    }
+
     /// The indices, two per 32-bit word (the lower half first), as the ray caster reads them.
     pub fn packed(&self) -> Vec<u32> {
         self.index
@@ -153,6 +169,22 @@ fn hsv(h: f64, s: f64, v: f64) -> [u8; 3] {
 mod tests {
     use super::*;
     use crate::VoxelData;
+
+    #[test]
+    fn each_segment_has_the_box_of_its_voxels() {
+        // 3 x 2 x 2: id 7 at (1, 0, 0) and (2, 1, 1), id 0 everywhere else.
+        let mut v = vec![0u8; 12];
+        v[1] = 7;
+        v[2 + 3 * (1 + 2)] = 7;
+        let l = Labels::of_volume(
+            &crate::Volume::new([3, 2, 2], [1.0; 3], VoxelData::U8(v)).unwrap(),
+            "l",
+        )
+        .unwrap();
+        let b = l.boxes();
+        assert_eq!(b[l.index_of(7).unwrap() as usize], [[1, 0, 0], [2, 1, 1]]);
+        assert_eq!(b[l.index_of(0).unwrap() as usize], [[0, 0, 0], [2, 1, 1]]);
+    }
 
     #[test]
     fn ids_are_numbered_densely_and_counted() {

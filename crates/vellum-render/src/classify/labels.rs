@@ -104,9 +104,12 @@ pub struct GpuLabels {
     pub decide_focus: bool,
     /// The label volume on the host: ids, counts and colours, for a viewer's list.
     pub labels: Arc<Labels>,
-    /// The indices of the segments drawn (every id but 0 that is not hidden): those whose lines
-    /// a style with lines draws.
+    /// The indices of the segments whose lines a style with lines draws: the focus segments
+    /// when there are some, else every drawn one (every id but 0 that is not hidden).
     pub drawn: Vec<u16>,
+    /// Per index, the segment's bounding box (first and last voxel), where its lines' field is
+    /// written (`Labels::boxes`).
+    pub boxes: Vec<[[u32; 3]; 2]>,
     /// The spec the table was made from, and whether id 0 is drawn ([`LabelSpec::table`]).
     spec: LabelSpec,
     background: bool,
@@ -142,6 +145,7 @@ impl GpuLabels {
             voxels,
             table,
             drawn: drawn(spec, &labels),
+            boxes: labels.boxes(),
             decide_focus: !spec.focus.is_empty(),
             labels,
             spec: spec.clone(),
@@ -189,10 +193,14 @@ impl GpuLabels {
     }
 }
 
-/// The indices of `labels`' segments that `spec` draws, id 0 (no segment) apart.
+/// The indices of the segments whose lines a style with lines draws: the focus segments when
+/// `spec` names some (the lines belong to the focus level, as the intensity's do), else every
+/// segment it draws; id 0 (no segment) apart.
 fn drawn(spec: &LabelSpec, labels: &Labels) -> Vec<u16> {
+    let id = |i: usize| labels.ids[i];
     (0..labels.ids.len())
-        .filter(|&i| labels.ids[i] != 0 && !spec.hide.contains(&labels.ids[i]))
+        .filter(|&i| id(i) != 0 && !spec.hide.contains(&id(i)))
+        .filter(|&i| spec.focus.is_empty() || spec.focus.contains(&id(i)))
         .map(|i| i as u16)
         .collect()
 }

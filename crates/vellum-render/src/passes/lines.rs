@@ -494,6 +494,8 @@ pub(crate) struct SegmentLines<'a> {
     pub voxels: &'a Buffer,
     /// The indices of the segments whose lines are drawn.
     pub indices: &'a [u16],
+    /// Per index of the label volume, the segment's bounding box: first and last voxel.
+    pub boxes: &'a [[[u32; 3]; 2]],
     /// An R32F image of the volume's size, which holds one segment's field at a time.
     pub field: &'a Image,
 }
@@ -790,10 +792,9 @@ impl LineExtractor {
         let fill = pipelines.get(&PipelineDesc::new(
             "lines/label_indicator.comp",
             &FIELD_BINDINGS,
-            16,
+            32,
         ))?;
         let dims = r.dims;
-        let groups = group_count(dims.map(|d| d as u32), [4, 4, 4]);
         // No extraction of another volume seeds from this one's segments.
         state.last = None;
         frame.profiler.begin(cmd, "lines");
@@ -808,13 +809,21 @@ impl LineExtractor {
             memory_transition(ctx, cmd, Access::TransferWrite, Access::ComputeReadWrite);
         }
         for (n, &index) in s.indices.iter().enumerate() {
+            // The field is 0 beyond one voxel around the segment's box: cleared, then written
+            // over that box only.
+            let [first, last] = s.boxes.get(index as usize).copied().unwrap_or_default();
+            let lo = first.map(|c| c.saturating_sub(1));
+            let size: [u32; 3] =
+                std::array::from_fn(|a| (last[a] + 2).min(dims[a] as u32).saturating_sub(lo[a]));
+            vellum_gpu::commands::clear_image(ctx, cmd, s.field);
             s.field.transition(cmd, Access::ComputeWrite);
-            let push = [dims[0] as i32, dims[1] as i32, dims[2] as i32, index as i32];
+            let [d, l] = [dims.map(|d| d as i32), lo.map(|c| c as i32)];
+            let push = [d[0], d[1], d[2], index as i32, l[0], l[1], l[2], 0];
             fill.dispatch(
                 cmd,
                 &[Bind::StorageBuffer(s.voxels), Bind::StorageImage(s.field)],
                 &push,
-                groups,
+                group_count(size, [4, 4, 4]),
             )?;
             let one = LineRequest {
                 values: s.field,
@@ -1107,6 +1116,7 @@ impl LineExtractor {
             "segment field",
             &ImageDesc::new_3d(Format::R32_SFLOAT, labels.dims.map(|d| d as u32)),
         )?;
+        let boxes = labels.boxes();
         let mut state = LineState::new(ctx, capacity)?;
         let ((), timings) = submit_timed(ctx, "lines", |f| {
             let request = LineRequest {
@@ -1120,6 +1130,7 @@ impl LineExtractor {
             let segments = SegmentLines {
                 voxels: &voxels,
                 indices,
+                boxes: &boxes,
                 field: &field,
             };
             self.record_segments(f, pipelines, &mut state, &request, &segments)

@@ -809,6 +809,7 @@ impl Renderer {
                         let segments = SegmentLines {
                             voxels: &labels.voxels,
                             indices: &labels.drawn,
+                            boxes: &labels.boxes,
                             field,
                         };
                         (line_state, &vol.intensity, Some(segments))
