@@ -371,7 +371,7 @@ vec2 occupied_span(vec3 o, vec3 dir, float t0, float t1, uint need, float hair) 
 // channels' results added. `max`: each channel's largest value over the ray's samples,
 // classified by its transfer function, and the channels' colours added.
 vec4 channel_projection(vec3 o, vec3 dir, float a, float b, float m, float m_last, float t_in, float t_out) {
-    int n = channel_count();
+    int n = CHANNEL_COUNT;
     float most[MAX_CHANNELS];
     vec4 acc[MAX_CHANNELS];
     for (int k = 0; k < MAX_CHANNELS; k++) {

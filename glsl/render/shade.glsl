@@ -62,11 +62,6 @@ const int MAX_CHANNELS = 8;
 // run time in memory) and a frame of four or fewer never reads `channels_hi`.
 const int CHANNEL_COUNT = int((VARIANT >> 16u) & 7u) + 1;
 
-// How many channels are mixed.
-int channel_count() {
-    return CHANNEL_COUNT;
-}
-
 // The channels' values at the sample being classified, 0-3 and 4-7 (the ray caster fetches them
 // once per sample, in its walk).
 vec4 channel_sample;
@@ -76,7 +71,7 @@ vec4 channel_sample_hi;
 // for up to four channels, two for more.
 void fetch_channels(vec3 at) {
     channel_sample = textureLod(channels, at, 0.0);
-    if (channel_count() > 4) {
+    if (CHANNEL_COUNT > 4) {
         channel_sample_hi = textureLod(channels_hi, at, 0.0);
     }
 }
@@ -90,7 +85,7 @@ float channel_value(int k) {
 // from the texels linear filtering blends, so a sample it passes over adds nothing). `over`
 // mixes n channels, whose opacities together stay below n times the largest.
 bool channels_may_show(float a_min) {
-    int n = channel_count();
+    int n = CHANNEL_COUNT;
     float bound = 0.0;
     for (int k = 0; k < n; k++) {
         int i = clamp(int(floor(channel_value(k) * 256.0 - 0.5)), 0, 255);
@@ -108,7 +103,7 @@ vec4 channel_class(int k, float v) {
 // and opacity: composited with the first channel on top. (`add` and `max` are projections of
 // their own, raycast.comp's `channel_projection`.)
 vec4 mixed_channels() {
-    int n = channel_count();
+    int n = CHANNEL_COUNT;
     vec4 acc = vec4(0.0);
     for (int k = 0; k < n; k++) {
         vec4 t = channel_class(k, channel_value(k));
