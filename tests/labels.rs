@@ -737,3 +737,86 @@ fn each_segment_migrates_to_a_feature_of_its_own() {
         .collect();
     assert_eq!(shown.into_iter().collect::<Vec<_>>(), [2, 5, 9]);
 }
+
+/// `vellum segment` on the shipped chest CT: the heart and aorta, then the bone, grown from
+/// seeds; the label volume holds each region's voxels under its id (the library's region
+/// growing, run here independently of the command), keeps the CT's grid and placement, and
+/// `render --labels` draws it. Mistakes are one sentence and write nothing.
+#[test]
+fn segment_grows_a_label_volume_that_render_draws() {
+    use vellum::volume::feature::{Connectivity, Roi};
+    let dir = tempfile::tempdir().unwrap();
+    let ct = "data/ct_chest/ct_chest.nhdr";
+    let heart = "113,150,50@105:145";
+    let bone = "106,134,47;50,97,16@80:255";
+    let out = dir.path().join("chest_labels.nrrd");
+    let o = common::vellum(&[
+        "segment",
+        ct,
+        "--region",
+        heart,
+        "--region",
+        bone,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = vellum::input::load(ct, None).unwrap();
+    let labels = vellum::input::load(out.to_str().unwrap(), None).unwrap();
+    assert_eq!(labels.dims, v.dims);
+    assert_eq!(labels.spacing, v.spacing);
+    assert_eq!(labels.geometry, v.geometry);
+    assert_eq!(labels.voxel_type(), vellum::volume::VoxelType::U8);
+    let grow =
+        |seeds: &[[usize; 3]], w: [f64; 2]| Roi::grow(&v, seeds, w, Connectivity::Six).unwrap();
+    let h = grow(&[[113, 150, 50]], [105.0, 145.0]);
+    let b = grow(&[[106, 134, 47], [50, 97, 16]], [80.0, 255.0]);
+    let mut counts = [0usize; 3];
+    for i in 0..v.len() {
+        let want = if h.contains(i) {
+            1
+        } else if b.contains(i) {
+            2
+        } else {
+            0
+        };
+        let got = labels.data.get_f64(i) as usize;
+        assert_eq!(got, want, "voxel {i}");
+        counts[got] += 1;
+    }
+    assert!(counts[1] > 50_000 && counts[2] > counts[1], "{counts:?}");
+    let png = dir.path().join("labels.png");
+    let args = [
+        "render",
+        ct,
+        "--labels",
+        out.to_str().unwrap(),
+        "--hide-labels",
+        "0",
+        "--size",
+        "96x96",
+        "--out",
+        png.to_str().unwrap(),
+    ];
+    let lit = lit_pixels(&args, &png);
+    assert!(lit.len() > 500, "{} lit pixels", lit.len());
+
+    let bad = |region: &str, want: &str| {
+        let path = dir.path().join("bad.nrrd");
+        let o = common::vellum(&[
+            "segment",
+            ct,
+            "--region",
+            region,
+            "--out",
+            path.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(want), "{region}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(!path.exists(), "{region} wrote a label volume");
+    };
+    bad("113,150,50", "expected seeds and a window");
+    bad("0,0,0@105:145", "outside the window");
+    bad("113,150,500@105:145", "outside the 256x256x133 volume");
+}

@@ -934,3 +934,73 @@ fn a_time_point_and_a_channel_of_a_store_are_picked() {
     let phantom = common::vellum(&["render", "phantom:sphere:16", "--time", "1", "--out", b]);
     common::fails_with(&phantom, "is a phantom");
 }
+
+/// `convert --add-channel`: the chest CT and a volume on its grid become the two channels of one
+/// store, each read back voxel for voxel; the CT's flipped axes come back from vellum's own
+/// attributes (NGFF's scale and translation cannot hold them), at level 0 and, turned by them,
+/// at level 1. A volume on another grid, or more channels than a ray mixes, is one sentence and
+/// leaves no store.
+#[test]
+fn added_channels_and_the_axes_directions_survive_a_store() {
+    let dir = tempfile::tempdir().unwrap();
+    let ct_path = "data/ct_chest/ct_chest.nhdr";
+    let ct = vellum::input::load(ct_path, None).unwrap();
+    let second: Vec<u8> = (0..ct.len())
+        .map(|i| (ct.data.get_f64(i) as u8) / 2 + 1)
+        .collect();
+    let second = Volume::new(ct.dims, ct.spacing, VoxelData::U8(second))
+        .unwrap()
+        .with_geometry(ct.geometry)
+        .unwrap();
+    let half = dir.path().join("half.nrrd");
+    vellum::volume::io::write(&half, &second).unwrap();
+    let store = dir.path().join("two.ome.zarr");
+    let o = common::vellum(&[
+        "convert",
+        ct_path,
+        store.to_str().unwrap(),
+        "--add-channel",
+        half.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for (c, want) in [(0, &ct), (1, &second)] {
+        let m = Multiscale::open_channel(&store, c).unwrap();
+        assert_eq!(m.channels, 2);
+        let back = m.read_level(0).unwrap();
+        assert_eq!(back.data, want.data, "channel {c}");
+        assert_eq!(back.geometry, ct.geometry, "channel {c}'s placement");
+        // Level 1's first voxel sits half a level-1 voxel less half a level-0 voxel along
+        // each index axis from level 0's, in the directions of the axes.
+        let g1 = m.geometry_of(1);
+        for r in 0..3 {
+            let want: f64 = ct.geometry.origin[r]
+                + (0..3)
+                    .map(|a| ct.geometry.direction[r][a] * 0.5 * ct.spacing[a])
+                    .sum::<f64>();
+            assert!(
+                (g1.origin[r] - want).abs() < 1e-9,
+                "level 1 origin {:?}",
+                g1.origin
+            );
+        }
+    }
+    let other = dir.path().join("other.nrrd");
+    vellum::volume::io::write(&other, &sample(40)).unwrap();
+    let refused = |args: &[&str], want: &str| {
+        let out = dir.path().join("refused.ome.zarr");
+        let mut all = vec!["convert", ct_path, out.to_str().unwrap()];
+        all.extend_from_slice(args);
+        let o = common::vellum(&all);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(want), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(!out.exists(), "{args:?} left a store");
+    };
+    refused(
+        &["--add-channel", other.to_str().unwrap()],
+        "expected a volume on the input's grid",
+    );
+    let h = half.to_str().unwrap();
+    let eight: Vec<&str> = (0..8).flat_map(|_| ["--add-channel", h]).collect();
+    refused(&eight, "at most 8 in one ray");
+}

@@ -221,10 +221,7 @@ impl BrickLevels {
                 ms.read_level(pick)?.normalised_range()
             }
         };
-        let geometry = crate::geometry::Geometry {
-            origin: ms.levels[0].origin,
-            ..Default::default()
-        };
+        let geometry = ms.geometry_of(0);
         let sources = (0..ms.levels.len())
             .map(|l| LevelSource::Store(ms.clone(), l))
             .collect();

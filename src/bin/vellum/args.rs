@@ -107,6 +107,11 @@ pub(crate) enum Command {
         /// OME-Zarr: levels of the pyramid, or auto (halve until the longest axis is ≤ 64).
         #[arg(long, value_name = "auto|N")]
         levels: Option<String>,
+        /// OME-Zarr: a volume on the input's grid written as the next channel (repeatable; the
+        /// input is channel 0), giving a store of (c, z, y, x) whose channels `render
+        /// --channels` mixes. Channels of different voxel types are all written as float32.
+        #[arg(long, value_name = "FILE")]
+        add_channel: Vec<String>,
         /// OME-Zarr: report what was written (levels, chunks, bytes, rate, peak memory) as JSON.
         #[arg(long)]
         json: bool,
@@ -179,6 +184,9 @@ pub(crate) enum Command {
     OcclusionSensitivity(SensitivityArgs),
     /// Migrate a segmented feature into a private density interval (feature maps, SPEC FM1-FM5).
     Migrate(crate::features::MigrateArgs),
+    /// Label a volume by seeded region growing: one segment per --region, numbered from 1 in
+    /// order, written as a label volume that render, view and migrate read with --labels.
+    Segment(crate::features::SegmentArgs),
     /// Print the tree of a feature map (features.json).
     Features(crate::features::FeaturesArgs),
     /// Every style of the two-level paper on one volume: a labelled contact sheet (its Fig. 11).

@@ -85,6 +85,85 @@ pub struct MigrateArgs {
 }
 
 #[derive(Args)]
+pub struct SegmentArgs {
+    /// Input: file, DICOM folder, store or phantom spec.
+    input: String,
+    /// A segment by seeded region growing, as SEEDS@LO:HI: seed voxels X,Y,Z[;X,Y,Z...] and
+    /// the intensity window, inclusive, in data units. Repeatable: the n-th is segment n, and a
+    /// voxel two regions reach keeps the first's id.
+    #[arg(
+        long = "region",
+        value_name = "X,Y,Z[;X,Y,Z...]@LO:HI",
+        required = true,
+        allow_hyphen_values = true
+    )]
+    regions: Vec<String>,
+    /// Connectivity of the region growing.
+    #[arg(long, default_value = "6", value_parser = ["6", "26"])]
+    connectivity: String,
+    /// Output label volume (.nrrd, .nii or .nii.gz): uint8 ids, or uint16 beyond 255 regions.
+    #[arg(long)]
+    out: PathBuf,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+impl SegmentArgs {
+    /// The files this command writes (for the binary's duplicate check).
+    pub fn outputs(&self) -> Vec<&Path> {
+        vec![self.out.as_path()]
+    }
+}
+
+/// `vellum segment`: a label volume grown from seeds, one segment per `--region`, for
+/// `render --labels`, `view --labels` and `migrate --labels`.
+pub fn segment(args: &SegmentArgs) -> Result<()> {
+    let start = Instant::now();
+    let volume = vellum::input::load(&args.input, None)?;
+    let connectivity = Connectivity::parse(&args.connectivity)?;
+    let rois = args
+        .regions
+        .iter()
+        .enumerate()
+        .map(|(n, r)| {
+            let (seeds, window) = r.rsplit_once('@').ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--region {r:?} is invalid; expected seeds and a window as X,Y,Z[;X,Y,Z...]@LO:HI"
+                )
+            })?;
+            let roi = Roi::grow(&volume, &parse_seeds(seeds)?, parse_window(window)?, connectivity)
+                .with_context(|| format!("--region {} ({r})", n + 1))?;
+            Ok(roi)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let (labels, counts) = feature::label_volume(&volume, &rois)?;
+    vellum::volume::io::write(&args.out, &labels)?;
+    let ms = start.elapsed().as_secs_f64() * 1e3;
+    if args.json {
+        let out = json!({
+            "input": args.input,
+            "out": args.out,
+            "voxel": labels.voxel_type().name(),
+            "voxels_per_id": counts,
+            "ms": ms,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    for (n, c) in counts.iter().enumerate() {
+        println!("segment {}: {c} voxels ({})", n + 1, args.regions[n]);
+    }
+    println!(
+        "wrote {} ({} ids, {}) in {ms:.0} ms",
+        args.out.display(),
+        counts.len(),
+        labels.voxel_type().name()
+    );
+    Ok(())
+}
+
+#[derive(Args)]
 pub struct FeaturesArgs {
     /// A feature map written by `vellum migrate`.
     features: PathBuf,

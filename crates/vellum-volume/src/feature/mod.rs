@@ -30,5 +30,5 @@ pub use map::{parse_color, Feature, FeatureMap, Group, Node};
 pub use migrate::{migrate, MigrateParams, Migration, MigrationReport, Timings};
 pub use neighbourhood::Connectivity;
 pub use reconstruct::{ReconstructionCounts, RegionGrow};
-pub use roi::{parse_seeds, parse_window, Roi};
+pub use roi::{label_volume, parse_seeds, parse_window, Roi};
 pub use segments::migrate_segments;

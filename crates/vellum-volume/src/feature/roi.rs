@@ -176,6 +176,41 @@ impl Roi {
     }
 }
 
+/// A label volume of `rois` on `volume`'s grid (its spacing and placement): voxels of the n-th
+/// ROI take id n + 1, a voxel in several keeps the first's id, and the rest are 0. Stored as
+/// uint8 up to 255 ROIs, else uint16. Also returns how many voxels each id took.
+pub fn label_volume(volume: &Volume, rois: &[Roi]) -> Result<(Volume, Vec<usize>)> {
+    if rois.len() > u16::MAX as usize {
+        return Err(Error::Invalid(format!(
+            "{} regions were given; a label volume holds at most {}",
+            rois.len(),
+            u16::MAX
+        )));
+    }
+    if let Some(r) = rois.iter().find(|r| r.dims != volume.dims) {
+        let [a, b, c] = r.dims;
+        return Err(Error::Invalid(format!(
+            "a region of {a}x{b}x{c} voxels lies on another grid than the volume's; expected the volume's"
+        )));
+    }
+    let mut ids = vec![0u16; volume.len()];
+    let mut counts = vec![0usize; rois.len()];
+    for (n, roi) in rois.iter().enumerate() {
+        for (id, &m) in ids.iter_mut().zip(&roi.mask) {
+            if m && *id == 0 {
+                *id = n as u16 + 1;
+                counts[n] += 1;
+            }
+        }
+    }
+    let data = match rois.len() <= u8::MAX as usize {
+        true => crate::VoxelData::U8(ids.iter().map(|&i| i as u8).collect()),
+        false => crate::VoxelData::U16(ids),
+    };
+    let labels = Volume::new(volume.dims, volume.spacing, data)?.with_geometry(volume.geometry)?;
+    Ok((labels, counts))
+}
+
 /// Parses seeds written as `X,Y,Z[;X,Y,Z...]` (whole voxel indices).
 pub fn parse_seeds(s: &str) -> Result<Vec<[usize; 3]>> {
     let bad = |part: &str| {
@@ -223,6 +258,25 @@ mod tests {
         let g = Grid::new(dims);
         let data = (0..g.len()).map(|i| f(g.coords(i))).collect();
         Volume::new(dims, [1.0; 3], VoxelData::U8(data)).unwrap()
+    }
+
+    #[test]
+    fn regions_become_labels_numbered_in_order_and_the_first_keeps_a_shared_voxel() {
+        // A bright slab x < 4 and a dimmer one x >= 4, grown separately, then again as one
+        // window that covers both: the third region's voxels are all taken already.
+        let v = volume([8, 3, 2], |[x, _, _]| if x < 4 { 200 } else { 100 });
+        let bright = Roi::grow(&v, &[[0, 0, 0]], [150.0, 255.0], Connectivity::Six).unwrap();
+        let dim = Roi::grow(&v, &[[7, 2, 1]], [50.0, 120.0], Connectivity::Six).unwrap();
+        let both = Roi::grow(&v, &[[0, 0, 0]], [50.0, 255.0], Connectivity::Six).unwrap();
+        let (labels, counts) = label_volume(&v, &[bright, dim, both]).unwrap();
+        assert_eq!(counts, vec![24, 24, 0]);
+        assert_eq!(labels.voxel_type(), crate::VoxelType::U8);
+        assert_eq!(labels.data.get_f64(v.index(3, 1, 1)), 1.0);
+        assert_eq!(labels.data.get_f64(v.index(4, 0, 0)), 2.0);
+        let other = volume([2, 2, 2], |_| 1);
+        let small = Roi::grow(&other, &[[0, 0, 0]], [0.0, 2.0], Connectivity::Six).unwrap();
+        let err = label_volume(&v, &[small]).unwrap_err().to_string();
+        assert!(err.contains("another grid"), "{err}");
     }
 
     #[test]

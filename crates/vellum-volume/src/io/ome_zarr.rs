@@ -46,6 +46,9 @@ pub struct Multiscale {
     pub label_colours: Vec<(u32, [u8; 4])>,
     /// The channels' display settings (NGFF `omero` `channels`), by channel; empty without.
     pub omero: Vec<OmeroChannel>,
+    /// Level 0's placement as vellum wrote it (`vellum.geometry`: origin, directions and
+    /// space), which NGFF's scale and translation cannot hold; `None` for other writers' stores.
+    pub placed: Option<Geometry>,
     /// The index on the leading axes (t, c) that is read: the time point and channel picked.
     lead: Vec<u64>,
     /// The levels' arrays, opened once, read through the store's guards.
@@ -67,6 +70,32 @@ pub fn is_store(path: &Path) -> bool {
             || ["zarr.json", ".zgroup", ".zattrs"]
                 .iter()
                 .any(|m| path.join(m).is_file()))
+}
+
+/// Level 0's geometry from vellum's attributes (`{origin, direction, space}`), when whole and
+/// finite with unit directions.
+fn placement(g: &Value) -> Option<Geometry> {
+    let triple = |v: &Value| -> Option<[f64; 3]> {
+        let a = v.as_array().filter(|a| a.len() == 3)?;
+        let t = [a[0].as_f64()?, a[1].as_f64()?, a[2].as_f64()?];
+        t.iter().all(|x| x.is_finite()).then_some(t)
+    };
+    let origin = triple(&g["origin"])?;
+    let rows = g["direction"].as_array().filter(|r| r.len() == 3)?;
+    let direction = [triple(&rows[0])?, triple(&rows[1])?, triple(&rows[2])?];
+    let unit = (0..3).all(|c| {
+        let n: f64 = (0..3).map(|r| direction[r][c] * direction[r][c]).sum();
+        (n - 1.0).abs() < 1e-3
+    });
+    let space = match g["space"].as_str()? {
+        "lps" => crate::geometry::Space::Lps,
+        _ => crate::geometry::Space::Unknown,
+    };
+    unit.then_some(Geometry {
+        origin,
+        direction,
+        space,
+    })
 }
 
 /// A channel's display settings from NGFF `omero` metadata.
@@ -230,6 +259,7 @@ impl Multiscale {
             .and_then(|r| Some([r.first()?.as_f64()?, r.get(1)?.as_f64()?]))
             .filter(|r| r[0] <= r[1]);
         Ok(Multiscale {
+            placed: placement(&attrs["vellum"]["geometry"]),
             label_colours: label_colours(&attrs),
             omero: omero_channels(&attrs),
             range,
@@ -248,11 +278,27 @@ impl Multiscale {
     pub fn read_level(&self, level: usize) -> Result<Volume> {
         let l = self.level_info(level)?;
         let v = self.read_box(level, [0; 3], l.dims)?;
-        let geometry = Geometry {
-            origin: l.origin,
-            ..Geometry::default()
+        v.with_geometry(self.geometry_of(level))
+    }
+
+    /// Level `level`'s origin, directions and space: as vellum recorded level 0's, with the
+    /// level's offset from level 0 (its translation's) turned by the directions; else the
+    /// translation as the origin, axis-aligned in no known space.
+    pub fn geometry_of(&self, level: usize) -> Geometry {
+        let at = self.levels.get(level).map_or([0.0; 3], |l| l.origin);
+        let Some(g) = self.placed else {
+            return Geometry {
+                origin: at,
+                ..Geometry::default()
+            };
         };
-        v.with_geometry(geometry)
+        let shift: [f64; 3] = std::array::from_fn(|a| at[a] - self.levels[0].origin[a]);
+        Geometry {
+            origin: std::array::from_fn(|r| {
+                g.origin[r] + (0..3).map(|c| g.direction[r][c] * shift[c]).sum::<f64>()
+            }),
+            ..g
+        }
     }
 
     fn level_info(&self, level: usize) -> Result<&Level> {
@@ -377,10 +423,7 @@ impl BoxSource for StoreLevel<'_> {
         self.ms.levels[self.level].spacing
     }
     fn geometry(&self) -> Geometry {
-        Geometry {
-            origin: self.ms.levels[self.level].origin,
-            ..Geometry::default()
-        }
+        self.ms.geometry_of(self.level)
     }
     fn voxel(&self) -> VoxelType {
         self.ms.voxel
@@ -834,7 +877,7 @@ pub fn write_channels_in(
     check_write_shape(src.dims, opts.chunk, levels)?;
     if src.geometry.direction != crate::geometry::IDENTITY && team.is_root() {
         log::warn!(
-            "OME-NGFF has no rotation: {} keeps the origin and spacing and drops the direction matrix",
+            "OME-NGFF has no rotation: other readers see {} without its direction matrix (vellum reads it back from the store's `vellum` attributes)",
             path.display()
         );
     }
@@ -1043,7 +1086,18 @@ fn write_levels(
             "multiscales": [{ "name": name, "axes": axes, "datasets": datasets }],
         }),
     );
-    attrs.insert("vellum".into(), json!({ "range": report.range }));
+    let g = src.geometry;
+    let space = match g.space {
+        crate::geometry::Space::Lps => "lps",
+        crate::geometry::Space::Unknown => "unknown",
+    };
+    attrs.insert(
+        "vellum".into(),
+        json!({
+            "range": report.range,
+            "geometry": { "origin": g.origin, "direction": g.direction, "space": space },
+        }),
+    );
     group.store_metadata().map_err(|e| invalid(path, e))?;
     Ok(report)
 }

@@ -21,16 +21,16 @@ fn parse_levels(levels: Option<&str>) -> Result<Option<usize>> {
 pub(crate) fn convert(
     input: &InputArgs,
     output: &Path,
-    chunk: Option<usize>,
-    levels: Option<&str>,
+    (chunk, levels): (Option<usize>, Option<&str>),
+    add_channel: &[String],
     json: bool,
 ) -> Result<()> {
     let store = output
         .file_name()
         .is_some_and(|n| n.to_string_lossy().to_lowercase().ends_with(".zarr"));
     anyhow::ensure!(
-        store || (chunk.is_none() && levels.is_none()),
-        "--chunk and --levels shape an OME-Zarr store; expected an output folder ending .zarr"
+        store || (chunk.is_none() && levels.is_none() && add_channel.is_empty()),
+        "--chunk, --levels and --add-channel shape an OME-Zarr store; expected an output folder ending .zarr"
     );
     if !store {
         let v = input.load()?;
@@ -44,7 +44,105 @@ pub(crate) fn convert(
     };
     let source = Source::open(input)?;
     let boxes = source.boxes()?;
+    if !add_channel.is_empty() {
+        return write_channels(output, &*boxes, add_channel, &opts, json);
+    }
     write_store(output, &*boxes, &opts, json)
+}
+
+/// Writes `src` and the volumes `extra` names as the channels of one store, each extra read
+/// whole and checked to lie on `src`'s grid.
+fn write_channels(
+    output: &Path,
+    src: &dyn BoxSource,
+    extra: &[String],
+    opts: &WriteOptions,
+    json: bool,
+) -> Result<()> {
+    let most = vellum::classify::channels::MAX_CHANNELS;
+    anyhow::ensure!(
+        extra.len() < most,
+        "--add-channel gives {} channels beside the input; vellum mixes at most {most} in one ray, so expected at most {}",
+        extra.len() + 1,
+        most - 1
+    );
+    let extra = extra
+        .iter()
+        .map(|p| {
+            let v = vellum::input::load(p, None)?;
+            let (a, b) = (v.dims, src.dims());
+            anyhow::ensure!(
+                a == b && grids_match(&v, src),
+                "--add-channel {p} is {}x{}x{} voxels of spacing {:?} and the input {}x{}x{} of spacing {:?}; expected a volume on the input's grid",
+                a[0], a[1], a[2], v.spacing, b[0], b[1], b[2], src.spacing()
+            );
+            Ok(v)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let same = extra.iter().all(|v| v.voxel_type() == src.voxel());
+    let voxel = match same {
+        true => src.voxel(),
+        false => vellum::volume::VoxelType::F32,
+    };
+    let as_voxel = |v: vellum::volume::Volume| match same {
+        true => Ok(v),
+        false => vellum::volume::Volume::new(
+            v.dims,
+            v.spacing,
+            vellum::volume::VoxelData::F32(v.data.to_f32()),
+        ),
+    };
+    let read = |lo, size| {
+        let mut out = vec![as_voxel(src.read_box(lo, size)?)?];
+        for v in &extra {
+            out.push(as_voxel(v.read_box(lo, size)?)?);
+        }
+        Ok(out)
+    };
+    let channels = ome_zarr::Channels::over(src, (extra.len() + 1, voxel), &read);
+    let chunks = ome_zarr::chunk_count(src.dims(), opts) * (extra.len() + 1);
+    let bar = vellum::progress::bar(chunks as u64, "writing chunks");
+    let report = ome_zarr::write_channels_in(
+        &vellum::volume::team::Solo,
+        output,
+        &channels,
+        opts,
+        &|| bar.inc(1),
+    )?;
+    bar.finish_and_clear();
+    let d = src.dims();
+    if json {
+        let out = serde_json::json!({
+            "store": output,
+            "dims": d,
+            "channels": extra.len() + 1,
+            "voxel": voxel.name(),
+            "levels": report.levels,
+            "chunks": report.chunks,
+            "bytes": report.bytes,
+            "range": report.range,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!(
+        "wrote {} ({} channels of {}x{}x{} {}): {} levels, {} chunks",
+        output.display(),
+        extra.len() + 1,
+        d[0],
+        d[1],
+        d[2],
+        voxel.name(),
+        report.levels,
+        report.chunks
+    );
+    Ok(())
+}
+
+/// Whether `v` has `src`'s spacing (within a millionth, relative).
+fn grids_match(v: &vellum::volume::Volume, src: &dyn BoxSource) -> bool {
+    let s = src.spacing();
+    (0..3).all(|a| (v.spacing[a] - s[a]).abs() <= 1e-6 * s[a].abs().max(1e-12))
 }
 
 /// An input read a box at a time: a phantom is sampled a chunk at a time and a store is read a

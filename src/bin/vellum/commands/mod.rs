@@ -78,6 +78,7 @@ pub(crate) fn output_paths(command: &Command) -> Vec<&Path> {
             v
         }
         Command::Migrate(a) => a.outputs(),
+        Command::Segment(a) => a.outputs(),
         Command::Saliency { out, .. } => all(&[out]),
         Command::Styles(a) => vec![a.out.as_path()],
         _ => vec![],
@@ -150,8 +151,15 @@ pub(crate) fn run(cli: &Cli, team: &dyn Team) -> Result<()> {
             output,
             chunk,
             levels,
+            add_channel,
             json,
-        } => convert(input, output, *chunk, levels.as_deref(), *json),
+        } => convert(
+            input,
+            output,
+            (*chunk, levels.as_deref()),
+            add_channel,
+            *json,
+        ),
         Command::Roundtrip { input, json } => roundtrip(cli, input, *json),
         Command::Importance {
             input,
@@ -196,6 +204,7 @@ pub(crate) fn run(cli: &Cli, team: &dyn Team) -> Result<()> {
             json,
         } => saliency(image, mask.as_deref(), out.as_deref(), *json),
         Command::Migrate(args) => crate::features::migrate(args),
+        Command::Segment(args) => crate::features::segment(args),
         Command::Features(args) => crate::features::print_tree(args),
         Command::Bench { which } => bench::bench(cli, which),
         Command::Figures { which } => bench::figures(cli, which),
