@@ -59,7 +59,12 @@ fn render(store: &Path, flags: &[&str]) -> Vec<[u8; 3]> {
     args.extend(flags);
     let o = common::vellum(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    image::open(&png)
+    rgb(&png)
+}
+
+/// The RGB pixels of the PNG `png`.
+fn rgb(png: &Path) -> Vec<[u8; 3]> {
+    image::open(png)
         .unwrap()
         .to_rgb8()
         .pixels()
@@ -344,4 +349,90 @@ fn a_function_set_later_draws_in_the_next_frame() {
         before[1],
         after[1]
     );
+}
+
+/// Channels through the brick cache (issue 42): the shipped chest CT and five volumes made from
+/// it (each the CT within its own band along x, so that every channel differs), written as one
+/// six-channel store by `convert --add-channel`, mixed by `over`, `add` and `max` through a pool
+/// of 40 MiB at level 0 (a third of the textures in core, so that bricks wait, arrive and are
+/// evicted over many passes): each frame is the frame in core within a mean of 0.5/255 and
+/// 3/255 at any pixel. Two channels use the first pool only, six both.
+#[test]
+fn channels_through_the_brick_cache_draw_what_the_channels_in_core_draw() {
+    use vellum::volume::{Volume, VoxelData};
+    let dir = tempfile::tempdir().unwrap();
+    let ct_path = "data/ct_chest/ct_chest.nhdr";
+    let ct = vellum::input::load(ct_path, None).unwrap();
+    let mut args = vec![
+        "convert".to_string(),
+        ct_path.to_string(),
+        dir.path().join("six.ome.zarr").display().to_string(),
+    ];
+    for k in 1..6usize {
+        let band: Vec<u8> = (0..ct.len())
+            .map(|i| {
+                let x = i % ct.dims[0];
+                let inside = (40 * (k - 1)..40 * k + 40).contains(&x);
+                if inside {
+                    ct.data.get_f64(i) as u8
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let v = Volume::new(ct.dims, ct.spacing, VoxelData::U8(band))
+            .unwrap()
+            .with_geometry(ct.geometry)
+            .unwrap();
+        let path = dir.path().join(format!("band{k}.nrrd"));
+        vellum::volume::io::write(&path, &v).unwrap();
+        args.extend(["--add-channel".to_string(), path.display().to_string()]);
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = common::vellum(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let store = dir.path().join("six.ome.zarr");
+    let frame = |channels: &str, mix: &str, budget: &str| -> Vec<[u8; 3]> {
+        let png = dir.path().join(format!("{channels}-{mix}-{budget}.png"));
+        let o = common::vellum(&[
+            "render",
+            store.to_str().unwrap(),
+            "--channels",
+            channels,
+            "--mix",
+            mix,
+            "--gpu-budget",
+            budget,
+            "--lod",
+            "finest",
+            "--size",
+            "128x128",
+            "--out",
+            png.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        let paged = err.contains("larger than the GPU budget");
+        assert_eq!(paged, budget != "4000", "{budget} MiB: {err}");
+        rgb(&png)
+    };
+    for channels in ["0,1", "0,1,2,3,4,5"] {
+        for mix in ["over", "add", "max"] {
+            let core = frame(channels, mix, "4000");
+            let paged = frame(channels, mix, "40");
+            let diffs: Vec<u8> = core
+                .iter()
+                .zip(&paged)
+                .flat_map(|(p, q)| (0..3).map(move |i| p[i].abs_diff(q[i])))
+                .collect();
+            let mean = diffs.iter().map(|&d| d as f64).sum::<f64>() / diffs.len() as f64;
+            let lit = core.iter().filter(|p| p.iter().any(|&v| v > 8)).count();
+            assert!(lit > 2000, "{channels} {mix}: {lit} lit pixels in core");
+            assert!(
+                mean <= 0.5 && max_difference(&core, &paged) <= 3,
+                "{channels} {mix}: through the cache differs from in core by a mean of {mean:.3}/255, {} at most",
+                max_difference(&core, &paged)
+            );
+        }
+    }
 }

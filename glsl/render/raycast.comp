@@ -41,6 +41,10 @@ struct RayState {
     uvec4 flags; // x: bit 0 started, bit 1 done, bit 2 no focus sample yet
 };
 layout(set = 0, binding = 16) buffer RayStates { RayState rays[]; };
+// Per ray of a bricked frame that waits and mixes channels by `add` or `max`, eight sums (one per
+// channel: `add`'s premultiplied colour and opacity, `max`'s largest value in x), kept between
+// its passes as the ray's state is. Other frames bind a stand-in and never read it.
+layout(set = 0, binding = 23) buffer ChannelSums { vec4 channel_sums[]; };
 // Segments of a label volume (classify/labels.rs): each voxel's index among the ids the volume
 // holds, 16 bits, two per word; and per index its colour (RGBA8) and flags (bit 0 drawn, bit 1
 // focus, bit 2 keeps the transfer function's colour: id 0, no segment), after a header of the count and whether the segments decide the level (bit 0).
@@ -369,14 +373,20 @@ vec2 occupied_span(vec3 o, vec3 dir, float t0, float t1, uint need, float hair) 
 // `add` and `max` mixing, one level and unlit. `add`: each channel composited front to back on
 // its own (emission and absorption, the fluorescence look: no channel hides another), and the
 // channels' results added. `max`: each channel's largest value over the ray's samples,
-// classified by its transfer function, and the channels' colours added.
-vec4 channel_projection(vec3 o, vec3 dir, float a, float b, float m, float m_last, float t_in, float t_out) {
+// classified by its transfer function, and the channels' colours added. Bricked, each sample is
+// looked up in the page table; a pass that waits stops the ray at a missing brick (`stopped`,
+// with m that sample's) and keeps its sums in `channel_sums`, from which a later pass of the
+// frame (`resumed`) goes on.
+vec4 channel_projection(vec3 o, vec3 dir, float a, float b, inout float m, float m_last, float t_in, float t_out, uint ray, bool resumed, out bool stopped) {
+    stopped = false;
     int n = CHANNEL_COUNT;
     float most[MAX_CHANNELS];
     vec4 acc[MAX_CHANNELS];
+    uint kept = ray * uint(MAX_CHANNELS);
     for (int k = 0; k < MAX_CHANNELS; k++) {
-        most[k] = 0.0;
-        acc[k] = vec4(0.0);
+        vec4 v = V_BRICKED && resumed && k < n ? channel_sums[kept + uint(k)] : vec4(0.0);
+        most[k] = v.x;
+        acc[k] = v;
     }
     float ert = p.planes.w;
     for (; m <= m_last; m += 1.0) {
@@ -384,7 +394,14 @@ vec4 channel_projection(vec3 o, vec3 dir, float a, float b, float m, float m_las
         if (t < t_in || t > t_out) {
             continue;
         }
-        fetch_channels((o + t * dir) / (2.0 * u.half_extent.xyz) + 0.5);
+        world = o + t * dir;
+        tex = world / (2.0 * u.half_extent.xyz) + 0.5;
+        ray_t = t;
+        if (locate(0u) != FOUND) {
+            stopped = true;
+            break;
+        }
+        fetch_channels(ptex);
         if (V_MIX_MAX) {
             for (int k = 0; k < n; k++) {
                 most[k] = max(most[k], channel_value(k));
@@ -394,12 +411,17 @@ vec4 channel_projection(vec3 o, vec3 dir, float a, float b, float m, float m_las
         bool all_opaque = true;
         for (int k = 0; k < n; k++) {
             vec4 c = channel_class(k, channel_value(k));
-            float alpha = correct_opacity(c.a, u.material.w);
+            float alpha = correct_opacity(c.a, u.material.w * level_ratio);
             acc[k] += (1.0 - acc[k].a) * vec4(c.rgb * alpha, alpha);
             all_opaque = all_opaque && acc[k].a >= ert;
         }
         if (all_opaque) {
             break;
+        }
+    }
+    if (V_BRICKED && stopped) {
+        for (int k = 0; k < n; k++) {
+            channel_sums[kept + uint(k)] = V_MIX_MAX ? vec4(most[k]) : acc[k];
         }
     }
     vec4 sum = vec4(0.0);
@@ -581,10 +603,6 @@ void main() {
         // The previous sample on the ray, for refining an isosurface hit (t < 0: none).
         float prev_t = -1.0, prev_s = 0.0;
         bool done = false;
-        if (V_MIX_MAX || V_MIX_ADD) {
-            fp = channel_projection(o, dir, a, b, m, m_last, t_in, t_out);
-            done = true;
-        }
         if (V_BRICKED && (pt_mode & MODE_RESUME) != 0u) {
             RayState r = rays[ray];
             fp = r.fp;
@@ -600,6 +618,12 @@ void main() {
                 // Finished in an earlier pass; its state stands.
                 return;
             }
+        }
+        if ((V_MIX_MAX || V_MIX_ADD) && !done) {
+            // A ray that a pass stopped (its state saved, bit 0) goes on from its sums.
+            bool resumed = V_BRICKED && (pt_mode & MODE_RESUME) != 0u && (rays[ray].flags.x & 1u) != 0u;
+            fp = channel_projection(o, dir, a, b, m, m_last, t_in, t_out, ray, resumed, stopped);
+            done = true;
         }
         // Two loops: the inner one walks to the next sample that adds to a layer, paying only for
         // its intensity and class; the outer one shades and composites it. A CPU rasteriser runs
@@ -648,7 +672,7 @@ void main() {
                 if (V_CHANNELS) {
                     // One fetch for every four channels: the focus channel's component holds
                     // the intensity texture's value.
-                    fetch_channels(tex);
+                    fetch_channels(ptex);
                     s = channel_value(p.flags.x);
                 } else if (!have_s) {
                     s = sample_intensity();
@@ -720,7 +744,7 @@ void main() {
                 ray_t = t;
                 stopped = stopped || locate(0u) != FOUND;
                 if (V_CHANNELS && !stopped) {
-                    fetch_channels(tex);
+                    fetch_channels(ptex);
                 }
                 if (stopped) {
                     m = m_hit;

@@ -399,3 +399,23 @@ def test_channels_are_mixed_by_keywords(tmp_path):
     np.testing.assert_array_equal(ours.rgba[..., :3], theirs)
     with pytest.raises(vellum.Error, match="mix"):
         vellum.render(str(store), channels=0, mix="add")
+
+
+def test_channels_of_a_store_beyond_its_budget_mix_through_the_brick_cache(tmp_path):
+    """Issue 42: a two-channel store whose textures exceed gpu_budget mixes its channels through
+    the brick cache; under over, add and max its complete frame at level 0 is the in-core frame
+    within a mean of 0.5/255."""
+    torus = tmp_path / "torus.nrrd"
+    subprocess.run([str(cli()), "convert", "phantom:torus:96", str(torus)], check=True, capture_output=True)
+    store = tmp_path / "two.ome.zarr"
+    subprocess.run([str(cli()), "convert", "phantom:shepp-logan:96", str(store), "--chunk", "32",
+                    "--add-channel", str(torus)], check=True, capture_output=True)
+    options = dict(channels=[0, 1], size=(64, 64), camera=(30, 20))
+    for mix in ["over", "add", "max"]:
+        whole = vellum.render(str(store), mix=mix, **options)
+        paged = vellum.render(str(store), mix=mix, gpu_budget=3, lod="finest", **options)
+        assert whole.streaming is None and paged.streaming["complete"], mix
+        assert paged.streaming["bricks_loaded"] > paged.streaming["capacity"], "the pool is refilled"
+        diff = np.abs(whole.rgba.astype(float) - paged.rgba.astype(float))[..., :3]
+        assert whole.rgba[..., :3].max() > 100, mix
+        assert diff.mean() <= 0.5 and diff.max() <= 3, f"{mix}: mean {diff.mean():.3f}, max {diff.max()}"

@@ -126,8 +126,11 @@ pub struct BrickVoxels {
     pub data: BrickData,
     /// The range of the slot's normalised texels.
     pub range: [u16; 2],
-    /// Whether every voxel of the upload has one value.
+    /// Whether every voxel of the upload has one value (never, beside mixed channels).
     pub constant: bool,
+    /// The mixed channels' voxels of the same upload box ([`BrickLevels::mix`]), channel after
+    /// channel in mixing order, each normalised to 16 bits over its own range; empty without.
+    pub channels: Vec<u16>,
 }
 
 /// What a brick's box of a store reads as: its voxels, or the one value of every chunk it touches.
@@ -154,6 +157,17 @@ pub struct BrickLevels {
     pub geometry: crate::geometry::Geometry,
     /// The store's decoded chunks, shared by the threads that read bricks.
     chunks: ChunkCache,
+    /// Channels mixed in the ray beside this pyramid's voxels, in mixing order.
+    mixed: Vec<Mixed>,
+}
+
+/// A channel mixed in the ray (issue 42): each brick read carries every mixed channel's voxels,
+/// so that they go to one pool slot together.
+pub enum Mixed {
+    /// This pyramid's own voxels (the focus channel, over the pyramid's range).
+    Own,
+    /// Another channel's pyramid on the same grid, over its own range.
+    Other(Box<BrickLevels>),
 }
 
 /// Bytes of decoded chunks a pyramid keeps by default (`--memory-budget` sets it).
@@ -267,6 +281,7 @@ impl BrickLevels {
             range,
             geometry,
             chunks: ChunkCache::new(DEFAULT_CHUNK_CACHE),
+            mixed: Vec::new(),
         })
     }
 
@@ -341,6 +356,56 @@ impl BrickLevels {
     /// [`BrickLevels::range`] or, for 8-bit data, as they are (the GPU maps them through
     /// [`BrickLevels::u8_table`]). Voxels outside the level repeat its nearest edge voxel.
     pub fn voxels(&self, key: BrickKey) -> Result<BrickVoxels> {
+        let mut v = self.own_voxels(key)?;
+        if self.mixed.is_empty() {
+            return Ok(v);
+        }
+        let n = UPLOAD * UPLOAD * UPLOAD;
+        let mut all = Vec::with_capacity(n * self.mixed.len());
+        for m in &self.mixed {
+            match m {
+                Mixed::Own => self.extend_u16(&mut all, &v.data),
+                Mixed::Other(l) => l.extend_u16(&mut all, &l.own_voxels(key)?.data),
+            }
+        }
+        v.channels = all;
+        // A slot shared by every brick of one value would be shared across channels that differ.
+        v.constant = false;
+        Ok(v)
+    }
+
+    /// Mixes `mixed` in every brick read from now on (see [`Mixed`]): each other channel's
+    /// pyramid must have this one's levels.
+    pub fn mix(&mut self, mixed: Vec<Mixed>) -> Result<()> {
+        for m in &mixed {
+            if let Mixed::Other(l) = m {
+                if l.levels != self.levels {
+                    return Err(Error::Invalid(
+                        "a mixed channel's levels differ from the volume's; expected channels of one grid".into(),
+                    ));
+                }
+            }
+        }
+        self.mixed = mixed;
+        Ok(())
+    }
+
+    /// How many channels each brick carries (0: none mixed).
+    pub fn mixed_count(&self) -> usize {
+        self.mixed.len()
+    }
+
+    /// `data` (this pyramid's) as normalised 16-bit values, appended to `out`.
+    fn extend_u16(&self, out: &mut Vec<u16>, data: &BrickData) {
+        match (data, self.u8_table()) {
+            (BrickData::U16(v), _) => out.extend_from_slice(v),
+            (BrickData::U8(v), Some(t)) => out.extend(v.iter().map(|&b| t[b as usize])),
+            (BrickData::U8(v), None) => out.extend(v.iter().map(|&b| b as u16 * 257)),
+        }
+    }
+
+    /// [`BrickLevels::voxels`] of this pyramid alone.
+    fn own_voxels(&self, key: BrickKey) -> Result<BrickVoxels> {
         let dims = self.levels[key.level].dims;
         let lo: [i64; 3] =
             std::array::from_fn(|a| (key.brick[a] * BRICK) as i64 - APRON as i64 - 1);
@@ -426,6 +491,7 @@ impl BrickLevels {
                     data: BrickData::U8(vec![raw; n]),
                     range: [u, u],
                     constant: true,
+                    channels: Vec::new(),
                 }
             }
             _ => {
@@ -436,6 +502,7 @@ impl BrickLevels {
                     data: BrickData::U16(vec![u; n]),
                     range: [u, u],
                     constant: true,
+                    channels: Vec::new(),
                 }
             }
         }
@@ -691,6 +758,7 @@ fn to_upload(
         data,
         range: [stats.min, stats.max],
         constant: stats.constant,
+        channels: Vec::new(),
     }
 }
 
@@ -844,13 +912,18 @@ impl BrickCache {
     /// A cache of `capacity` slots for `levels`; refused in one sentence when that cannot hold
     /// the coarsest level and one more brick. The coarsest level's bricks are the first to load
     /// (see [`BrickCache::pinned_entries`]).
-    pub fn new(levels: &BrickLevels, capacity: usize, budget_mib: f64) -> Result<Self> {
+    /// Each slot takes `slot_bytes` of the budget (for the sentence).
+    pub fn new(
+        levels: &BrickLevels,
+        capacity: usize,
+        (budget_mib, slot_bytes): (f64, usize),
+    ) -> Result<Self> {
         let need = min_slots(levels);
         if capacity < need {
             return Err(Error::Invalid(format!(
                 "a GPU budget of {budget_mib} MiB holds {capacity} bricks; this volume needs at least {need}, so give `gpu_budget` {:.1} or more (its coarsest level and one more brick)",
                 // Rounded up, so that the budget named holds them.
-                ((need * SLOT_BYTES) as f64 / (1 << 20) as f64 * 10.0).ceil() / 10.0
+                ((need * slot_bytes) as f64 / (1 << 20) as f64 * 10.0).ceil() / 10.0
             )));
         }
         Ok(BrickCache {
@@ -1115,11 +1188,11 @@ mod tests {
     #[test]
     fn the_cache_pins_the_coarsest_level_and_evicts_the_least_recently_used() {
         let levels = BrickLevels::of_volume(shepp_logan(64)).unwrap();
-        let refused = BrickCache::new(&levels, 1, 0.4)
+        let refused = BrickCache::new(&levels, 1, (0.4, SLOT_BYTES))
             .err()
             .map(|e| e.to_string());
         assert!(refused.is_some_and(|e| e.contains("at least 2") && e.contains("`gpu_budget` 0.8")));
-        let mut cache = BrickCache::new(&levels, 3, 1.2).unwrap();
+        let mut cache = BrickCache::new(&levels, 3, (1.2, SLOT_BYTES)).unwrap();
         let pinned = BrickCache::pinned_entries(&levels);
         assert_eq!(pinned, vec![8]);
         let up = |s| Some(Placement::Upload(s));
@@ -1150,7 +1223,9 @@ mod tests {
             "known once read, with or without a slot"
         );
         assert_eq!(
-            BrickCache::new(&levels, 3, 1.2).unwrap().ranges[0],
+            BrickCache::new(&levels, 3, (1.2, SLOT_BYTES))
+                .unwrap()
+                .ranges[0],
             UNKNOWN_RANGE
         );
     }
@@ -1158,7 +1233,7 @@ mod tests {
     #[test]
     fn bricks_of_one_value_share_a_slot() {
         let levels = BrickLevels::of_volume(shepp_logan(96)).unwrap();
-        let mut cache = BrickCache::new(&levels, 16, 6.0).unwrap();
+        let mut cache = BrickCache::new(&levels, 16, (6.0, SLOT_BYTES)).unwrap();
         let flat = |entry, v| Arrival {
             entry,
             range: [v, v],

@@ -32,6 +32,10 @@ const BRICK: usize = 16;
 /// The most channels mixed in one ray (two RGBA textures).
 pub const MAX_CHANNELS: usize = 8;
 
+/// Voxels of the level a channel's default window is measured on at most (its finest of at most
+/// this many): 2 Mi.
+pub const DESCRIBE_VOXELS: usize = 1 << 21;
+
 /// Channels per RGBA texture.
 const PER_TEXTURE: usize = 4;
 
@@ -125,7 +129,19 @@ impl ChannelSpec {
     /// Reads the channels from the store `path` at `time`, each with its transfer function: the
     /// one given, else a ramp in the channel's NGFF `omero` colour over its `omero` window, else
     /// in a palette colour over its `auto` window.
+    ///
+    /// A default window is measured on the channel's finest level of at most
+    /// [`DESCRIBE_VOXELS`], in core and through the brick cache alike, so that a channel looks
+    /// the same whichever way it is drawn.
     pub fn read(&self, path: &Path, time: Option<usize>) -> Result<Vec<Channel>> {
+        self.read_at(path, time, false)
+    }
+
+    /// [`ChannelSpec::read`], or with `paged` for a store drawn through the brick cache: each
+    /// channel's `volume` is then the level its window is measured on (never level 0 whole,
+    /// unless it is that small), and its range the one the store records for it, else that
+    /// level's.
+    pub fn read_at(&self, path: &Path, time: Option<usize>, paged: bool) -> Result<Vec<Channel>> {
         if self.channels.len() > MAX_CHANNELS {
             return Err(Error::Invalid(format!(
                 "`channels` names {} channels; vellum mixes at most {MAX_CHANNELS} in one ray",
@@ -142,7 +158,7 @@ impl ChannelSpec {
         let first;
         let scales = match time.unwrap_or(0) > 0 && self.scales.is_empty() {
             true => {
-                first = self.series_scales(path)?;
+                first = self.series_scales_at(path, paged)?;
                 &first
             }
             false => &self.scales,
@@ -154,9 +170,20 @@ impl ChannelSpec {
                 channel: Some(c),
             };
             let ms = Multiscale::open_picked(path, pick)?;
-            let volume = ms.read_level(0)?;
+            let small = ms
+                .finest_within(DESCRIBE_VOXELS)
+                .unwrap_or(ms.levels.len() - 1);
+            let described = ms.read_level(small)?;
+            let volume = match (paged, small) {
+                (false, 1..) => ms.read_level(0)?,
+                _ => described.clone(),
+            };
+            let own = match (paged, ms.range) {
+                (true, Some(r)) => r,
+                _ => volume.normalised_range(),
+            };
             let scale = scales.iter().find(|s| s.channel == c);
-            let range = scale.map_or_else(|| volume.normalised_range(), |s| s.range);
+            let range = scale.map_or(own, |s| s.range);
             let omero = ms.omero.get(c);
             let given = self
                 .tfs
@@ -166,7 +193,7 @@ impl ChannelSpec {
             let tf = match (given, scale) {
                 (Some(t), _) => named_or_file(t)?,
                 (None, Some(s)) => s.tf.clone(),
-                (None, None) => default_tf(&volume, range, omero, PALETTE[k % MAX_CHANNELS])?,
+                (None, None) => default_tf(&described, range, omero, PALETTE[k % MAX_CHANNELS])?,
             };
             out.push(Channel {
                 name: omero.and_then(|o| o.label.clone()),
@@ -182,11 +209,16 @@ impl ChannelSpec {
     /// Time point 0's scale of every channel: the range and transfer function each later frame
     /// of a series is drawn with (read once by a front end that draws many).
     pub fn series_scales(&self, path: &Path) -> Result<Vec<ChannelScale>> {
+        self.series_scales_at(path, false)
+    }
+
+    /// [`ChannelSpec::series_scales`] as [`ChannelSpec::read_at`] reads them.
+    fn series_scales_at(&self, path: &Path, paged: bool) -> Result<Vec<ChannelScale>> {
         let first = ChannelSpec {
             scales: Vec::new(),
             ..self.clone()
         };
-        let channels = first.read(path, Some(0))?;
+        let channels = first.read_at(path, Some(0), paged)?;
         Ok(channels
             .into_iter()
             .map(|c| ChannelScale {
@@ -314,12 +346,8 @@ impl GpuChannels {
         mix: Mix,
         (focus, range): (usize, [f64; 2]),
     ) -> Result<Self> {
+        check_count(channels.len())?;
         let n = channels.len();
-        if !(1..=MAX_CHANNELS).contains(&n) {
-            return Err(Error::Invalid(format!(
-                "{n} channels to mix; vellum mixes 1 to {MAX_CHANNELS} in one ray"
-            )));
-        }
         let dims = channels.first().map_or([1; 3], |c| c.volume.dims);
         if let Some(c) = channels.iter().find(|c| c.volume.dims != dims) {
             return Err(Error::Invalid(format!(
@@ -338,16 +366,7 @@ impl GpuChannels {
             .collect();
         let mut texels: Vec<Vec<u16>> = widths.iter().map(|w| vec![0u16; w * voxels]).collect();
         let mut skipping = Vec::with_capacity(n);
-        let info = channels
-            .iter()
-            .map(|c| ChannelInfo {
-                index: c.index,
-                name: c.name.clone(),
-                range: c.range,
-                histogram: vellum_volume::stats::stats(&c.volume, 256).histogram,
-                tf: c.tf.clone(),
-            })
-            .collect();
+        let info = channels.iter().map(ChannelInfo::of).collect();
         for (k, c) in channels.iter().enumerate() {
             // As the intensity texture is made, so that the focus channel's equal it.
             let (own, _) = c
@@ -389,6 +408,47 @@ impl GpuChannels {
             .next()
             .ok_or_else(|| Error::Invalid("no channels".into()))??;
         let image_hi = images.next().transpose()?;
+        Self::with_images(ctx, (image, image_hi), (skipping, info), (mix, focus))
+    }
+
+    /// The channels of a volume drawn through the brick cache, whose pools
+    /// (`passes::paging::ChannelPools`) hold their voxels: here only their transfer functions
+    /// and what a viewer lists, from each channel's `volume` (a small level). The one brick of
+    /// the cache's in-core table is visible to every channel: the page table decides.
+    pub fn new_paged(
+        ctx: &Arc<Context>,
+        channels: &[Channel],
+        mix: Mix,
+        focus: usize,
+    ) -> Result<Self> {
+        check_count(channels.len())?;
+        let size = crate::classify::transfer::TF_SIZE;
+        let skipping = channels
+            .iter()
+            .map(|c| (c.tf.table(size), vec![[0, u16::MAX]]))
+            .collect();
+        let info = channels.iter().map(ChannelInfo::of).collect();
+        // Sampled nowhere (the pools are bound in their place): one texel.
+        let stand_in = Image::new(
+            ctx,
+            "channels (in the brick cache)",
+            &ImageDesc::new_3d(Format::R16_UNORM, [1, 1, 1]),
+        )?;
+        vellum_gpu::transfer::upload(ctx, &stand_in, &[0, 0], Access::ComputeSampled)?;
+        Self::with_images(ctx, (stand_in, None), (skipping, info), (mix, focus))
+    }
+
+    /// The channels with their voxels' `images` (channels 0-3, 4-7), their functions' tables
+    /// and bricks' ranges (`skipping`), what a viewer lists (`info`), mixed by `mix` with the
+    /// focus channel's component `focus`.
+    fn with_images(
+        ctx: &Arc<Context>,
+        (image, image_hi): (Image, Option<Image>),
+        (skipping, info): (Vec<ChannelSkip>, Vec<ChannelInfo>),
+        (mix, focus): (Mix, usize),
+    ) -> Result<Self> {
+        let n = skipping.len();
+        let size = crate::classify::transfer::TF_SIZE;
         let table: Vec<[f32; 4]> = skipping
             .iter()
             .flat_map(|(t, _)| t.iter().copied())
@@ -471,6 +531,29 @@ impl GpuChannels {
         copy_slice_to_buffer(&ctx, frame.cmd, &src, &self.bounds);
         memory_transition(&ctx, frame.cmd, Access::TransferWrite, Access::ComputeRead);
         Ok(())
+    }
+}
+
+impl ChannelInfo {
+    /// What a viewer lists of `c`: its histogram over its voxels (the level read).
+    fn of(c: &Channel) -> Self {
+        ChannelInfo {
+            index: c.index,
+            name: c.name.clone(),
+            range: c.range,
+            histogram: vellum_volume::stats::stats(&c.volume, 256).histogram,
+            tf: c.tf.clone(),
+        }
+    }
+}
+
+/// 1 to [`MAX_CHANNELS`] channels, or one sentence.
+fn check_count(n: usize) -> Result<()> {
+    match (1..=MAX_CHANNELS).contains(&n) {
+        true => Ok(()),
+        false => Err(Error::Invalid(format!(
+            "{n} channels to mix; vellum mixes 1 to {MAX_CHANNELS} in one ray"
+        ))),
     }
 }
 

@@ -119,6 +119,15 @@ impl<'a> VolumeRef<'a> {
         }
     }
 
+    /// The brick cache's pools of mixed channels (channels 0-3, 4-7), for a volume drawn
+    /// through it that mixes some; in core the channels' own textures are sampled.
+    pub(crate) fn channel_pools(self) -> Option<(&'a Image, Option<&'a Image>)> {
+        match self {
+            VolumeRef::InCore(_) => None,
+            VolumeRef::Paged(p) => p.channels.as_ref().map(|c| (&c.image, c.image_hi.as_ref())),
+        }
+    }
+
     /// The volume in core, which object-space lines and the whole-volume passes need.
     pub(crate) fn in_core(self) -> Option<&'a VolumeTextures> {
         match self {

@@ -87,7 +87,76 @@ pub struct PagedVolume {
     pub id: u64,
     /// The cache's state between frames.
     pub paged: Paged,
+    /// The pools of the channels mixed in the ray, when the pyramid mixes some.
+    pub channels: Option<Box<ChannelPools>>,
     fill: ComputePipeline,
+}
+
+/// The brick cache's pools of mixed channels (issue 42): RGBA16 images of the intensity pool's
+/// slots, channel k in component k % 4 of pool k / 4, filled by `render/channel_fill.comp`.
+pub struct ChannelPools {
+    /// Channels 0-3.
+    pub image: Image,
+    /// Channels 4-7, with more than four.
+    pub image_hi: Option<Image>,
+    /// How many channels.
+    pub count: usize,
+    fill: ComputePipeline,
+}
+
+/// A fill pass: `shader` reads the batch's voxels and table of fills and writes two pool images.
+fn fill_pipeline(ctx: &Arc<Context>, shader: &str) -> Result<ComputePipeline> {
+    use BindingKind::{StorageBuffer, StorageImage};
+    let bindings = [StorageBuffer, StorageBuffer, StorageImage, StorageImage];
+    ComputePipeline::new(
+        ctx,
+        shader,
+        &bindings,
+        std::mem::size_of::<FillPush>() as u32,
+    )
+}
+
+/// Bytes of one slot of `count` mixed channels' pools (four 16-bit components a pool).
+fn channel_slot_bytes(count: usize) -> usize {
+    count.div_ceil(4) * SLOT * SLOT * SLOT * 8
+}
+
+impl ChannelPools {
+    /// Pools for `count` channels (none for 0) of the intensity pool's `extent`.
+    fn new(ctx: &Arc<Context>, count: usize, extent: [u32; 3]) -> Result<Option<Box<Self>>> {
+        if count == 0 {
+            return Ok(None);
+        }
+        if !ctx.can_write_storage(Format::R16G16B16A16_UNORM) {
+            return Err(Error::Invalid(format!(
+                "{} cannot write RGBA16 storage images, which the brick cache's channels fill; raise --gpu-budget so that the volume fits in core",
+                ctx.info.name
+            )));
+        }
+        let image = |name: &str| {
+            Image::new(
+                ctx,
+                name,
+                &ImageDesc::new_3d(Format::R16G16B16A16_UNORM, extent),
+            )
+        };
+        let fill = fill_pipeline(ctx, "render/channel_fill.comp")?;
+        Ok(Some(Box::new(ChannelPools {
+            image: image("brick pool channels 0-3")?,
+            image_hi: (count > 4)
+                .then(|| image("brick pool channels 4-7"))
+                .transpose()?,
+            count,
+            fill,
+        })))
+    }
+
+    fn transition(&self, cmd: vellum_gpu::CommandBuffer, to: Access) {
+        self.image.transition(cmd, to);
+        if let Some(hi) = &self.image_hi {
+            hi.transition(cmd, to);
+        }
+    }
 }
 
 /// The brick cache's state between frames.
@@ -186,13 +255,13 @@ impl PagedVolume {
     ) -> Result<Self> {
         check_pool_formats(ctx)?;
         let max = ctx.info.max_image_dimension_3d as usize;
-        let grid = pool_grid((budget_bytes / SLOT_BYTES as u64) as usize, max);
-        let capacity = grid
-            .iter()
-            .product::<usize>()
-            .min((budget_bytes / SLOT_BYTES as u64) as usize);
+        let mixed = levels.mixed_count();
+        let slot_bytes = SLOT_BYTES + channel_slot_bytes(mixed);
+        let slots = (budget_bytes / slot_bytes as u64) as usize;
+        let grid = pool_grid(slots, max);
+        let capacity = grid.iter().product::<usize>().min(slots);
         let mib = budget_bytes as f64 / (1 << 20) as f64;
-        let cache = BrickCache::new(&levels, capacity, mib)?;
+        let cache = BrickCache::new(&levels, capacity, (mib, slot_bytes))?;
         let extent = grid.map(|g| (g * SLOT) as u32);
         let image = |name: &str, format| Image::new(ctx, name, &ImageDesc::new_3d(format, extent));
         // The in-core textures' formats, so that the shaders sample both alike: R16_UNORM intensity
@@ -204,18 +273,9 @@ impl PagedVolume {
             "brick feedback",
             &BufferDesc::storage((levels.entries().max(1) * 4) as u64).host_read(),
         )?;
-        let fill = ComputePipeline::new(
-            ctx,
-            "render/brick_fill.comp",
-            &[
-                BindingKind::StorageBuffer,
-                BindingKind::StorageBuffer,
-                BindingKind::StorageImage,
-                BindingKind::StorageImage,
-            ],
-            std::mem::size_of::<FillPush>() as u32,
-        )?;
+        let fill = fill_pipeline(ctx, "render/brick_fill.comp")?;
         let level0 = levels.levels()[0].clone();
+        let channels = ChannelPools::new(ctx, mixed, extent)?;
         Ok(PagedVolume {
             intensity,
             gradient,
@@ -235,10 +295,11 @@ impl PagedVolume {
                 feedback,
                 mode: 0,
                 finest,
-                pool_bytes: (capacity * SLOT_BYTES) as u64,
+                pool_bytes: (capacity * slot_bytes) as u64,
                 reuse: brick_reuse(&ctx.info),
                 span: brick_span(&ctx.info),
             },
+            channels,
             fill,
         })
     }
@@ -253,6 +314,14 @@ impl PagedVolume {
         frame.profiler.begin(frame.cmd, "brick_upload");
         self.intensity.transition(frame.cmd, Access::ComputeWrite);
         self.gradient.transition(frame.cmd, Access::ComputeWrite);
+        if let Some(c) = &self.channels {
+            c.transition(frame.cmd, Access::ComputeWrite);
+            let all: Vec<&Upload> = loads.iter().collect();
+            for part in all.chunks(FILL_BATCH) {
+                self.record_channel_fill(ctx, frame, c, part)?;
+            }
+            c.transition(frame.cmd, Access::ComputeSampled);
+        }
         // 8-bit bricks and normalised ones in separate dispatches (a pyramid has one kind).
         for wide in [false, true] {
             let batch: Vec<&Upload> = loads
@@ -267,6 +336,66 @@ impl PagedVolume {
         self.gradient.transition(frame.cmd, Access::ComputeSampled);
         frame.profiler.end(frame.cmd);
         Ok(())
+    }
+
+    /// One `channel_fill` dispatch over `part`: each brick's mixed channels into `pools`.
+    fn record_channel_fill(
+        &self,
+        ctx: &Context,
+        frame: &mut Frame,
+        pools: &ChannelPools,
+        part: &[&Upload],
+    ) -> Result<()> {
+        let box_len = UPLOAD * UPLOAD * UPLOAD * pools.count;
+        if let Some(u) = part.iter().find(|u| u.voxels.channels.len() != box_len) {
+            return Err(Error::Invalid(format!(
+                "brick {} arrived with {} channel voxels; expected {box_len}",
+                u.entry,
+                u.voxels.channels.len()
+            )));
+        }
+        let fills: Vec<BrickFill> = part
+            .iter()
+            .map(|u| BrickFill {
+                lo_slot: [0, 0, 0, u.slot as i32],
+                dims_offset: [0; 4],
+                inv_spacing: [0.0; 4],
+            })
+            .collect();
+        let voxels: Vec<&[u8]> = part
+            .iter()
+            .map(|u| bytemuck::cast_slice(&u.voxels.channels))
+            .collect();
+        let voxels = frame.staging.push_parts(&voxels, 16)?;
+        let fills = frame.staging.push_parts(
+            &[
+                bytemuck::cast_slice(&[0u32; 128]),
+                bytemuck::cast_slice(&fills),
+            ],
+            16,
+        )?;
+        ctx.count_transfer(&pools.image.name, true, voxels.size);
+        let push = FillPush {
+            grid: [
+                self.paged.grid[0] as i32,
+                self.paged.grid[1] as i32,
+                pools.count as i32,
+                part.len() as i32,
+            ],
+        };
+        let slot_texels = (SLOT * SLOT * SLOT) as u32;
+        pools.fill.dispatch(
+            frame.cmd,
+            &[
+                Bind::StorageSlice(voxels),
+                Bind::StorageSlice(fills),
+                Bind::StorageImage(&pools.image),
+                // Four or fewer channels: never written.
+                Bind::StorageImage(pools.image_hi.as_ref().unwrap_or(&pools.image)),
+            ],
+            &push,
+            [slot_texels.div_ceil(64), part.len() as u32, 1],
+        )
     }
 
     /// One `brick_fill` dispatch over `part`, all of one width.

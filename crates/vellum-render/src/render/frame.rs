@@ -550,6 +550,12 @@ impl StandIns {
         };
         vol.intensity().transition(cmd, sampled);
         vol.gradient().transition(cmd, sampled);
+        if let Some((lo, hi)) = vol.channel_pools() {
+            lo.transition(cmd, sampled);
+            if let Some(hi) = hi {
+                hi.transition(cmd, sampled);
+            }
+        }
         occlusion.transition(cmd, sampled);
         let importance = vol.importance().filter(|_| classify.modulation.is_active());
         let Some(i) = importance else {
@@ -686,10 +692,12 @@ impl Renderer {
                         .as_ref()
                         .ok_or([&self.stand_ins.volume, classify.transfer_image()]),
                     sampler: &self.linear,
+                    // The page table knows the focus channel's ranges only: with mixed channels
+                    // every known brick may be visible.
                     flags: BrickFlags::new(
                         classify.transfer_table(),
                         setup.focus,
-                        classify.uses_occlusion(),
+                        classify.uses_occlusion() || classify.channels.is_some(),
                     ),
                 };
                 record_rays(&self.ctx, &mut self.pipelines, frame, vol, &rays, state)?;
@@ -1042,15 +1050,22 @@ fn record_rays(
                 p.page_words(&mut words[HEADER..], &|range| r.flags.of(range));
             })?;
             p.record_clear_feedback(ctx, frame);
-            let rays = state.ray_states(ctx, size[0] as u64 * size[1] as u64)?;
+            // `add` and `max` keep each channel's sum while a ray waits for a brick.
+            let project = r
+                .channels
+                .is_ok_and(|c| c.mix != crate::classify::channels::Mix::Over);
+            let pixels = size[0] as u64 * size[1] as u64;
+            let (rays, sums) = state.ray_states(ctx, pixels, project)?;
             [
                 Bind::StorageSlice(table),
                 Bind::StorageBuffer(&p.feedback),
                 Bind::StorageBuffer(rays),
+                Bind::StorageBuffer(sums.unwrap_or(r.stand_in)),
             ]
         }
         None => [
             Bind::StorageSlice(r.tables),
+            Bind::StorageBuffer(r.stand_in),
             Bind::StorageBuffer(r.stand_in),
             Bind::StorageBuffer(r.stand_in),
         ],
@@ -1085,16 +1100,22 @@ fn record_rays(
                 None => ([Bind::StorageBuffer(r.stand_in); 2], false),
             },
             channels: match r.channels {
-                Ok(c) => (
-                    [
-                        Bind::Sampled(&c.image, r.sampler),
-                        Bind::Sampled(&c.tfs, r.sampler),
-                        Bind::StorageBuffer(&c.bounds),
-                        // Four or fewer channels: never read.
-                        Bind::Sampled(c.image_hi.as_ref().unwrap_or(&c.image), r.sampler),
-                    ],
-                    Some((c.mix, c.count)),
-                ),
+                Ok(c) => {
+                    // Through the brick cache, the channels' pools; in core, their textures.
+                    let (lo, hi) = vol
+                        .channel_pools()
+                        .unwrap_or((&c.image, c.image_hi.as_ref()));
+                    (
+                        [
+                            Bind::Sampled(lo, r.sampler),
+                            Bind::Sampled(&c.tfs, r.sampler),
+                            Bind::StorageBuffer(&c.bounds),
+                            // Four or fewer channels: never read.
+                            Bind::Sampled(hi.unwrap_or(lo), r.sampler),
+                        ],
+                        Some((c.mix, c.count)),
+                    )
+                }
                 Err([volume, table]) => (
                     [
                         Bind::Sampled(volume, r.sampler),

@@ -69,9 +69,9 @@ pub(crate) const BRICK_FOCUS: u32 = 2;
 /// brick flags, the brick cache's page table, feedback and ray states (`passes::paging`), a
 /// label volume's voxels and table (`classify::labels`), and mixed channels' texture, transfer
 /// functions and opacity bounds (`classify::channels`).
-pub(crate) const RAY_BINDINGS: [BindingKind; 23] = {
+pub(crate) const RAY_BINDINGS: [BindingKind; 24] = {
     let slicer = SHADE_BINDINGS;
-    let mut all = [BindingKind::StorageBuffer; 23];
+    let mut all = [BindingKind::StorageBuffer; 24];
     let mut i = 0;
     while i < slicer.len() {
         all[i] = slicer[i];
@@ -191,8 +191,9 @@ pub(crate) struct RayRequest<'a> {
     pub composite: &'a Image,
     /// The opacity bounds and brick flags staged for this frame (`RayTables`).
     pub tables: BufferSlice,
-    /// The page table, feedback and ray states of a bricked volume (stand-ins in core).
-    pub paging: [Bind<'a>; 3],
+    /// The page table, feedback, ray states and the channels' sums of a bricked volume
+    /// (stand-ins in core, and for the sums without `add` or `max` mixing).
+    pub paging: [Bind<'a>; 4],
     /// Whether the volume is drawn through the brick cache (the `BRICKED` variant).
     pub bricked: bool,
     /// A label volume's voxels and table (stand-ins without one), and whether there is one
@@ -260,10 +261,10 @@ impl RayCaster {
         // On the stack: a steady frame allocates nothing here.
         let s = r.shading;
         let [i0, i1, i2, i3, i4] = images.map(Bind::StorageImage);
-        let [p0, p1, p2] = r.paging;
+        let [p0, p1, p2, p3] = r.paging;
         let [l0, l1] = r.labels.0;
         let [c0, c1, c2, c3] = r.channels.0;
-        let binds: [Bind; 23] = [
+        let binds: [Bind; 24] = [
             s[0],
             s[1],
             s[2],
@@ -287,6 +288,7 @@ impl RayCaster {
             c1,
             c2,
             c3,
+            p3,
         ];
         let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         if r.bricked && r.brick_reuse {

@@ -100,9 +100,12 @@ impl Opened {
             None => {
                 let path = Path::new(&scene.input.path);
                 if scene.input.raw.is_none() {
-                    if let Some(levels) =
+                    if let Some(mut levels) =
                         BrickLevels::of_store_beyond(path, budget, scene.input.pick())?
                     {
+                        if let Some(spec) = &scene.channels {
+                            mix_channels(&mut levels, scene, spec, chunk_cache)?;
+                        }
                         return Ok(bricked(levels));
                     }
                 }
@@ -288,6 +291,44 @@ pub fn attach_beside(ctx: &Arc<Context>, scene: &Scene, prepared: &mut Prepared)
     Ok(())
 }
 
+/// Makes every brick of `levels` (the focus channel's pyramid) carry the voxels of the channels
+/// `spec` mixes, each from its own pyramid over its own range; the chunk cache's bytes are
+/// shared among the pyramids. The focus channel takes the range its description gives it, as
+/// [`attach_channels`] describes it.
+fn mix_channels(
+    levels: &mut BrickLevels,
+    scene: &Scene,
+    spec: &crate::classify::channels::ChannelSpec,
+    chunk_cache: Option<u64>,
+) -> Result<()> {
+    use vellum_volume::bricks::Mixed;
+    use vellum_volume::io::ome_zarr::{Multiscale, Pick};
+    let path = Path::new(&scene.input.path);
+    let time = scene.input.time;
+    let channels = spec.read_at(path, time, true)?;
+    let focus = scene.input.channel.unwrap_or(spec.channels[0]);
+    let share = chunk_cache.unwrap_or(DEFAULT_MEMORY * 7 / 8) / channels.len() as u64;
+    levels.set_chunk_budget(share);
+    let mut mixed = Vec::with_capacity(channels.len());
+    for c in &channels {
+        if c.index == focus {
+            levels.range = c.range;
+            mixed.push(Mixed::Own);
+            continue;
+        }
+        let pick = Pick {
+            time,
+            channel: Some(c.index),
+        };
+        let mut other =
+            BrickLevels::of_store(Arc::new(Multiscale::open_picked(path, pick)?), 1 << 24)?;
+        other.range = c.range;
+        other.set_chunk_budget(share);
+        mixed.push(Mixed::Other(Box::new(other)));
+    }
+    levels.mix(mixed)
+}
+
 /// Reads the label volume `spec` names, checks that it lies on the input's grid, and puts it on
 /// the GPU beside the volume in core.
 fn attach_labels(
@@ -320,17 +361,31 @@ fn attach_labels(
 }
 
 /// Reads the channels `spec` mixes from the input store and puts them on the GPU beside the
-/// volume in core (the focus channel, which every pass sees).
+/// volume (the focus channel, which every pass sees): in core, their textures; through the brick
+/// cache, whose bricks carry their voxels ([`mix_channels`]), their transfer functions.
 fn attach_channels(
     ctx: &Arc<Context>,
     scene: &Scene,
     spec: &crate::classify::channels::ChannelSpec,
     prepared: &mut Prepared,
 ) -> Result<()> {
-    let Prepared::InCore(g) = prepared else {
-        return Err(Error::Invalid(
-            "channels are mixed with the volume in core for now, and this one is larger than the GPU budget; expected a larger `gpu_budget`, or one channel".into(),
-        ));
+    let path = Path::new(&scene.input.path);
+    let focus = scene.input.channel.unwrap_or(spec.channels[0]);
+    let k = spec.channels.iter().position(|&c| c == focus).unwrap_or(0);
+    let g = match prepared {
+        Prepared::InCore(g) => g,
+        Prepared::Paged(p, _) => {
+            if p.volume.channels.is_none() {
+                return Err(Error::Invalid(
+                    "the brick cache was opened without the channels to mix; expected `channels` when the input is opened".into(),
+                ));
+            }
+            let channels = spec.read_at(path, scene.input.time, true)?;
+            let gpu =
+                crate::classify::channels::GpuChannels::new_paged(ctx, &channels, spec.mix, k)?;
+            p.classify.channels = Some(gpu);
+            return Ok(());
+        }
     };
     if scene.input.raw.is_some()
         || !vellum_volume::io::ome_zarr::is_store(Path::new(&scene.input.path))
@@ -340,9 +395,7 @@ fn attach_channels(
             scene.input.path
         )));
     }
-    let channels = spec.read(Path::new(&scene.input.path), scene.input.time)?;
-    let focus = scene.input.channel.unwrap_or(spec.channels[0]);
-    let k = spec.channels.iter().position(|&c| c == focus).unwrap_or(0);
+    let channels = spec.read(path, scene.input.time)?;
     let gpu =
         crate::classify::channels::GpuChannels::new(ctx, &channels, spec.mix, (k, g.volume.range))?;
     g.classify.channels = Some(gpu);
@@ -412,7 +465,7 @@ impl Session {
         };
         let (labels, channels) = match &self.prepared {
             Prepared::InCore(g) => (g.classify.labels.is_some(), g.classify.channels.is_some()),
-            Prepared::Paged(..) => (false, false),
+            Prepared::Paged(p, _) => (false, p.classify.channels.is_some()),
         };
         if (labels || channels) && view.raycast.is_none() {
             view.raycast = Some(Default::default());

@@ -81,7 +81,13 @@ pub struct ViewState {
     /// The rays' saved states of a bricked frame that waits for its bricks (`passes::paging`),
     /// from the first such frame, for as many pixels as it had.
     rays: Option<(u64, vellum_gpu::Buffer)>,
+    /// The sums of the channels that `add` or `max` mixes, per ray of such a frame (eight
+    /// RGBA32F a ray), from the first one, for as many rays as it had.
+    sums: Option<(u64, vellum_gpu::Buffer)>,
 }
+
+/// Bytes of one ray's channel sums (`ChannelSums` in raycast.comp): eight RGBA32F.
+const CHANNEL_SUM_BYTES: u64 = 8 * 16;
 
 /// A volume smoothed for line extraction: `VolumeTextures::id` of the source and the radius.
 struct Smoothed {
@@ -142,22 +148,28 @@ impl ViewState {
         ))
     }
 
-    /// The ray states for `pixels` rays, made (or remade larger) when needed.
+    /// The ray states for `pixels` rays and, with `sums`, the channels' sums of as many (each
+    /// made, or remade larger, when needed).
     pub(crate) fn ray_states(
         &mut self,
         ctx: &Arc<Context>,
         pixels: u64,
-    ) -> Result<&vellum_gpu::Buffer> {
-        if self.rays.as_ref().is_none_or(|(n, _)| *n < pixels) {
-            let bytes = pixels.max(1) * crate::passes::paging::RAY_STATE_BYTES;
-            let buffer = vellum_gpu::Buffer::new(
-                ctx,
-                "ray states",
-                &vellum_gpu::BufferDesc::storage(bytes),
-            )?;
-            self.rays = Some((pixels, buffer));
+        sums: bool,
+    ) -> Result<(&vellum_gpu::Buffer, Option<&vellum_gpu::Buffer>)> {
+        let per_ray = [
+            ("ray states", crate::passes::paging::RAY_STATE_BYTES, true),
+            ("channel sums", CHANNEL_SUM_BYTES, sums),
+        ];
+        for (slot, (name, bytes, wanted)) in
+            [&mut self.rays, &mut self.sums].into_iter().zip(per_ray)
+        {
+            if wanted && slot.as_ref().is_none_or(|(n, _)| *n < pixels) {
+                let desc = vellum_gpu::BufferDesc::storage(pixels.max(1) * bytes);
+                *slot = Some((pixels, vellum_gpu::Buffer::new(ctx, name, &desc)?));
+            }
         }
-        Ok(&self.rays.as_ref().expect("made above").1)
+        let rays = &self.rays.as_ref().expect("made above").1;
+        Ok((rays, self.sums.as_ref().filter(|_| sums).map(|s| &s.1)))
     }
 
     /// Whether the copy of volume `volume` smoothed by `radius` (> 0) is kept.

@@ -36,7 +36,8 @@ pub struct Multiscale {
     pub voxel: VoxelType,
     /// The levels, finest first.
     pub levels: Vec<Level>,
-    /// Level 0's value range when the writer recorded it (`vellum.range`, written by vellum).
+    /// Level 0's value range when the writer recorded it (`vellum.range`, written by vellum; of
+    /// the channel picked, `vellum.channel_ranges`, in a store of several).
     pub range: Option<[f64; 2]>,
     /// Values per voxel: the c axis's size (1 without one).
     pub channels: usize,
@@ -254,7 +255,12 @@ impl Multiscale {
         if let Some(t) = t_axis {
             lead[t] = pick_one(path, "time point", "time", pick.time, times)? as u64;
         }
-        let range = attrs["vellum"]["range"]
+        // A store of several channels records each one's range: `range` spans them all.
+        let recorded = match c_axis {
+            Some(c) => &attrs["vellum"]["channel_ranges"][lead[c] as usize],
+            None => &attrs["vellum"]["range"],
+        };
+        let range = recorded
             .as_array()
             .and_then(|r| Some([r.first()?.as_f64()?, r.get(1)?.as_f64()?]))
             .filter(|r| r[0] <= r[1]);
@@ -767,6 +773,8 @@ pub struct WriteReport {
     pub bytes: u64,
     /// Smallest and largest value of level 0.
     pub range: [f64; 2],
+    /// Smallest and largest value of level 0, per channel.
+    pub channel_ranges: Vec<[f64; 2]>,
 }
 
 /// The number of chunks `write_source` makes for a grid of `dims`: `on_chunk`'s count.
@@ -982,6 +990,7 @@ fn write_levels(
         chunks: 0,
         bytes: 0,
         range: [f64::INFINITY, f64::NEG_INFINITY],
+        channel_ranges: Vec::new(),
     };
     // A c axis only for more than one channel: (c, z, y, x); its scale is 1 and translation 0.
     let with_c = |zyx: [f64; 3], c: f64| -> Vec<f64> {
@@ -1051,9 +1060,17 @@ fn write_levels(
                     .unwrap_or_else(|| Error::Invalid("a chunk failed".into())))
             }
         };
-        let range = team.min_max(local);
         if i == 0 {
-            report.range = range;
+            // Every rank reduces every channel's range, those with no chunk of their own too.
+            let mut local = local;
+            local.resize(channels, [f64::INFINITY, f64::NEG_INFINITY]);
+            report.channel_ranges = local.iter().map(|&r| team.min_max(r)).collect();
+            report.range = report
+                .channel_ranges
+                .iter()
+                .fold([f64::INFINITY, f64::NEG_INFINITY], |a, r| {
+                    [a[0].min(r[0]), a[1].max(r[1])]
+                });
         }
         let count = (0..3).map(|a| dims[a].div_ceil(chunk)).product::<usize>();
         report.chunks += count * channels;
@@ -1091,13 +1108,15 @@ fn write_levels(
         crate::geometry::Space::Lps => "lps",
         crate::geometry::Space::Unknown => "unknown",
     };
-    attrs.insert(
-        "vellum".into(),
-        json!({
-            "range": report.range,
-            "geometry": { "origin": g.origin, "direction": g.direction, "space": space },
-        }),
-    );
+    let mut ours = json!({
+        "range": report.range,
+        "geometry": { "origin": g.origin, "direction": g.direction, "space": space },
+    });
+    if channels > 1 {
+        // What a reader of one channel normalises it over (`range` spans them all).
+        ours["channel_ranges"] = json!(report.channel_ranges);
+    }
+    attrs.insert("vellum".into(), ours);
     group.store_metadata().map_err(|e| invalid(path, e))?;
     Ok(report)
 }
@@ -1194,17 +1213,27 @@ fn make_array(
 /// which can be another chunk that waits for the lock its own thread holds. That deadlocked a
 /// 512³ chunked importance map on a 16-core machine.
 #[allow(clippy::type_complexity)]
+/// Widens each range of `acc` by the matching one of `by` (an empty `acc` takes `by`).
+fn widen_each(acc: &mut Vec<[f64; 2]>, by: &[[f64; 2]]) {
+    if acc.is_empty() {
+        acc.extend_from_slice(by);
+    }
+    for (a, r) in acc.iter_mut().zip(by) {
+        *a = [a[0].min(r[0]), a[1].max(r[1])];
+    }
+}
+
 fn store_chunks(
     array: &Array<FilesystemStore>,
     path: &Path,
     (dims, chunk, mine, most): ([usize; 3], usize, &[usize], usize),
     read: &(dyn Fn([usize; 3], [usize; 3]) -> Result<Vec<Volume>> + Sync),
     on_chunk: &(dyn Fn() + Sync),
-) -> Result<[f64; 2]> {
+) -> Result<Vec<[f64; 2]>> {
     use std::sync::atomic::{AtomicUsize, Ordering};
     let counts = dims.map(|n| n.div_ceil(chunk));
     let total = mine.len();
-    let one = |k: usize| -> Result<[f64; 2]> {
+    let one = |k: usize| -> Result<Vec<[f64; 2]>> {
         // Ctrl-C: stop before the next chunk, so that nothing writes into the folder once it
         // is removed.
         vellum_error::check_interrupt()?;
@@ -1217,10 +1246,9 @@ fn store_chunks(
         let lo = index.map(|i| i * chunk);
         let size: [usize; 3] = std::array::from_fn(|a| chunk.min(dims[a] - lo[a]));
         let channels = read(lo, size)?;
-        let mut range = [f64::INFINITY, f64::NEG_INFINITY];
+        let mut ranges = Vec::with_capacity(channels.len());
         for (k, v) in channels.iter().enumerate() {
-            let r = crate::stats::value_range(v);
-            range = [range[0].min(r[0]), range[1].max(r[1])];
+            ranges.push(crate::stats::value_range(v));
             let mut ranges: Vec<std::ops::Range<u64>> = lead_of(channels.len(), k)
                 .into_iter()
                 .map(|i| i..i + 1)
@@ -1238,20 +1266,20 @@ fn store_chunks(
             })?;
         }
         on_chunk();
-        Ok(range)
+        Ok(ranges)
     };
     let next = AtomicUsize::new(0);
     // Each thread takes the next chunk until none is left or one has failed (then every thread
     // stops at its next chunk).
-    let worker = || -> Result<[f64; 2]> {
-        let mut acc = [f64::INFINITY, f64::NEG_INFINITY];
+    let worker = || -> Result<Vec<[f64; 2]>> {
+        let mut acc = Vec::new();
         loop {
             let c = next.fetch_add(1, Ordering::Relaxed);
             if c >= total {
                 return Ok(acc);
             }
             match one(c) {
-                Ok(r) => acc = [acc[0].min(r[0]), acc[1].max(r[1])],
+                Ok(r) => widen_each(&mut acc, &r),
                 Err(e) => {
                     next.store(total, Ordering::Relaxed);
                     return Err(e);
@@ -1265,12 +1293,12 @@ fn store_chunks(
         .min(total.max(1));
     std::thread::scope(|s| {
         let handles: Vec<_> = (0..threads).map(|_| s.spawn(worker)).collect();
-        let mut acc = [f64::INFINITY, f64::NEG_INFINITY];
+        let mut acc = Vec::new();
         for h in handles {
             let r = h
                 .join()
                 .map_err(|_| invalid(path, "a chunk's thread failed".to_string()))??;
-            acc = [acc[0].min(r[0]), acc[1].max(r[1])];
+            widen_each(&mut acc, &r);
         }
         Ok(acc)
     })
