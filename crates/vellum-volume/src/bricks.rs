@@ -131,6 +131,8 @@ pub struct BrickVoxels {
     /// The mixed channels' voxels of the same upload box ([`BrickLevels::mix`]), channel after
     /// channel in mixing order, each normalised to 16 bits over its own range; empty without.
     pub channels: Vec<u16>,
+    /// Per mixed channel, the range of its slot's texels.
+    pub channel_ranges: Vec<[u16; 2]>,
 }
 
 /// What a brick's box of a store reads as: its voxels, or the one value of every chunk it touches.
@@ -368,9 +370,13 @@ impl BrickLevels {
                 Mixed::Other(l) => l.extend_u16(&mut all, &l.own_voxels(key)?.data),
             }
         }
+        // One value only when every channel has one too: the slot of those values is shared.
+        for c in all.chunks(n) {
+            let (range, constant) = box_stats(c);
+            v.channel_ranges.push(range);
+            v.constant &= constant;
+        }
         v.channels = all;
-        // A slot shared by every brick of one value would be shared across channels that differ.
-        v.constant = false;
         Ok(v)
     }
 
@@ -492,6 +498,7 @@ impl BrickLevels {
                     range: [u, u],
                     constant: true,
                     channels: Vec::new(),
+                    channel_ranges: Vec::new(),
                 }
             }
             _ => {
@@ -503,6 +510,7 @@ impl BrickLevels {
                     range: [u, u],
                     constant: true,
                     channels: Vec::new(),
+                    channel_ranges: Vec::new(),
                 }
             }
         }
@@ -759,7 +767,24 @@ fn to_upload(
         range: [stats.min, stats.max],
         constant: stats.constant,
         channels: Vec::new(),
+        channel_ranges: Vec::new(),
     }
+}
+
+/// The range of the slot's texels in an upload box of normalised values (x fastest), and whether
+/// the whole box holds one value.
+fn box_stats(values: &[u16]) -> ([u16; 2], bool) {
+    let first = values.first().copied().unwrap_or(0);
+    let mut range = [u16::MAX, 0];
+    let mut constant = true;
+    for (i, &v) in values.iter().enumerate() {
+        constant &= v == first;
+        let (x, y, z) = (i % UPLOAD, (i / UPLOAD) % UPLOAD, i / (UPLOAD * UPLOAD));
+        if [x, y, z].iter().all(|c| (1..UPLOAD - 1).contains(c)) {
+            range = [range[0].min(v), range[1].max(v)];
+        }
+    }
+    (range, constant)
 }
 
 /// What [`gather`] learns of a brick's normalised values on the way.
@@ -846,8 +871,8 @@ pub struct BrickCache {
     /// Per slot: it holds one constant value for every brick of that value ([`BrickVoxels`]'s
     /// `constant`), and is never evicted.
     shared: Vec<bool>,
-    /// The slot of each constant value that has one.
-    constant: HashMap<u16, usize>,
+    /// The slot of each constant value (with its channels') that has one.
+    constant: HashMap<ConstantKey, usize>,
     last_used: Vec<u64>,
     clock: u64,
     /// Per page-table entry: its slot + 1, or 0 when the brick is not resident.
@@ -879,8 +904,22 @@ pub struct Arrival {
     pub entry: usize,
     /// The range of its slot's normalised texels.
     pub range: [u16; 2],
-    /// The value of every voxel, when the brick has one.
-    pub constant: Option<u16>,
+    /// The value of every voxel, when the brick has one (with each mixed channel's after it).
+    pub constant: Option<ConstantKey>,
+}
+
+/// Mixed channels a brick carries at most (`classify::channels::MAX_CHANNELS`).
+pub const MAX_MIXED: usize = 8;
+
+/// A brick of one value: that value, then each mixed channel's (0 past the last).
+pub type ConstantKey = [u16; 1 + MAX_MIXED];
+
+/// The key of a brick of `value` whose mixed channels hold `channels`.
+pub fn constant_key(value: u16, channels: &[u16]) -> ConstantKey {
+    std::array::from_fn(|i| match i {
+        0 => value,
+        i => channels.get(i - 1).copied().unwrap_or(0),
+    })
 }
 
 impl Arrival {
@@ -889,7 +928,10 @@ impl Arrival {
         Arrival {
             entry,
             range: v.range,
-            constant: v.constant.then_some(v.range[0]),
+            constant: v.constant.then(|| {
+                let channels: Vec<u16> = v.channel_ranges.iter().map(|r| r[0]).collect();
+                constant_key(v.range[0], &channels)
+            }),
         }
     }
 }
@@ -1237,7 +1279,7 @@ mod tests {
         let flat = |entry, v| Arrival {
             entry,
             range: [v, v],
-            constant: Some(v),
+            constant: Some(constant_key(v, &[])),
         };
         let got = cache.place(&[flat(0, 7), flat(1, 7), flat(2, 8), arrive(3), flat(4, 7)]);
         let Some(Placement::Upload(s7)) = got[0] else {

@@ -36,6 +36,10 @@ use vellum_volume::bricks::{
     UPLOAD,
 };
 
+/// What a brick may hold under a frame's classification, from its range and its mixed channels'
+/// ranges (bit 0: visible context or one-pass samples, bit 1: focus).
+pub(crate) type BrickFlagsOf<'a> = dyn Fn([u16; 2], &[[u16; 2]]) -> u32 + 'a;
+
 /// Words before the first page-table entry.
 pub(crate) const HEADER: usize = 8 + 8 * MAX_LEVELS;
 /// Mode bit: rays stop at a missing brick (and ask for it) instead of sampling a coarser level.
@@ -170,6 +174,9 @@ pub struct Paged {
     /// Per page-table entry, whether a ray asked for the brick in the last frame (or read it,
     /// `USED_BIT`); the host reads it once the frame has completed.
     pub feedback: Buffer,
+    /// Per page-table entry, the range of each mixed channel's texels once the brick has been
+    /// read ([`UNKNOWN_RANGE`] before), entry after entry; empty without mixed channels.
+    pub channel_ranges: Vec<[u16; 2]>,
     /// Page-table mode bits for the next frame (`MODE_WAIT`, `MODE_RESUME`).
     pub mode: u32,
     /// Sample level 0 everywhere instead of choosing the level by projected voxel size.
@@ -276,6 +283,7 @@ impl PagedVolume {
         let fill = fill_pipeline(ctx, "render/brick_fill.comp")?;
         let level0 = levels.levels()[0].clone();
         let channels = ChannelPools::new(ctx, mixed, extent)?;
+        let channel_ranges = vec![UNKNOWN_RANGE; levels.entries() * mixed];
         Ok(PagedVolume {
             intensity,
             gradient,
@@ -293,6 +301,7 @@ impl PagedVolume {
                 cache,
                 grid,
                 feedback,
+                channel_ranges,
                 mode: 0,
                 finest,
                 pool_bytes: (capacity * slot_bytes) as u64,
@@ -514,13 +523,15 @@ impl Paged {
     }
 
     /// The page table's entries for this frame into `dst` (one word each): the slot's place for
-    /// a resident brick, and for a brick whose range is known [`KNOWN_BIT`] and `flags(range)`
-    /// (bit 0: may hold visible context or one-pass samples, bit 1: may hold focus) in bits 24
-    /// and 25.
-    pub(crate) fn page_words(&self, dst: &mut [u32], flags: &dyn Fn([u16; 2]) -> u32) {
+    /// a resident brick, and for a brick whose range is known [`KNOWN_BIT`] and `flags(range,
+    /// its mixed channels' ranges)` (bit 0: may hold visible context or one-pass samples, bit 1:
+    /// may hold focus) in bits 24 and 25.
+    pub(crate) fn page_words(&self, dst: &mut [u32], flags: &BrickFlagsOf) {
         let c = &self.cache;
         let [gx, gy, _] = self.grid;
-        for ((w, &slot), &range) in dst.iter_mut().zip(&c.page_table).zip(&c.ranges) {
+        let mixed = self.levels.mixed_count();
+        let entries = dst.iter_mut().zip(&c.page_table).zip(&c.ranges).enumerate();
+        for (e, ((w, &slot), &range)) in entries {
             let place = match slot {
                 0 => 0,
                 s => {
@@ -531,7 +542,10 @@ impl Paged {
             };
             *w = match range == UNKNOWN_RANGE {
                 true => place,
-                false => place | KNOWN_BIT | (flags(range) & 3) << 24,
+                false => {
+                    let channels = self.channel_ranges.get(e * mixed..(e + 1) * mixed);
+                    place | KNOWN_BIT | (flags(range, channels.unwrap_or(&[])) & 3) << 24
+                }
             };
         }
     }

@@ -692,13 +692,12 @@ impl Renderer {
                         .as_ref()
                         .ok_or([&self.stand_ins.volume, classify.transfer_image()]),
                     sampler: &self.linear,
-                    // The page table knows the focus channel's ranges only: with mixed channels
-                    // every known brick may be visible.
                     flags: BrickFlags::new(
                         classify.transfer_table(),
                         setup.focus,
-                        classify.uses_occlusion() || classify.channels.is_some(),
-                    ),
+                        classify.uses_occlusion(),
+                    )
+                    .with_channels(classify.channels.as_ref()),
                 };
                 record_rays(&self.ctx, &mut self.pipelines, frame, vol, &rays, state)?;
             }
@@ -1047,7 +1046,9 @@ fn record_rays(
             let table = frame.staging.push_with(4 * (HEADER + entries), 16, |dst| {
                 let words: &mut [u32] = bytemuck::cast_slice_mut(dst);
                 words[..HEADER].copy_from_slice(&header);
-                p.page_words(&mut words[HEADER..], &|range| r.flags.of(range));
+                p.page_words(&mut words[HEADER..], &|range, channels| {
+                    r.flags.of(range, channels)
+                });
             })?;
             p.record_clear_feedback(ctx, frame);
             // `add` and `max` keep each channel's sum while a ray waits for a brick.
@@ -1185,32 +1186,61 @@ struct BrickFlags {
     opaque_before: Vec<u32>,
     focus: [f32; 3],
     uses_occlusion: bool,
+    /// With mixed channels, each channel's `opaque_before`: a brick is visible where one of
+    /// them gives its channel's range opacity.
+    channels: Option<Vec<Vec<u32>>>,
+}
+
+/// Per entry i of `table`, the entries before it that have opacity (and the total last).
+fn opaque_before(table: &[[f32; 4]]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(table.len() + 1);
+    let mut n = 0;
+    out.push(0);
+    for c in table {
+        n += (c[3] > 0.0) as u32;
+        out.push(n);
+    }
+    out
+}
+
+/// Whether a table of `opaque_before` gives some value of the widened range `r` opacity.
+fn opaque_in(opaque_before: &[u32], r: [u16; 2]) -> bool {
+    let n = opaque_before.len() - 1;
+    let (mn, mx) = widened(&r);
+    let first = ((mn * n as f32 - 0.5).floor().max(0.0)) as usize;
+    let last = ((mx * n as f32 + 0.5).ceil() as usize).min(n - 1);
+    let first = first.min(last);
+    opaque_before[last + 1] > opaque_before[first]
 }
 
 impl BrickFlags {
     fn new(table: &[[f32; 4]], focus: [f32; 3], uses_occlusion: bool) -> Self {
-        let mut opaque_before = Vec::with_capacity(table.len() + 1);
-        let mut n = 0;
-        opaque_before.push(0);
-        for c in table {
-            n += (c[3] > 0.0) as u32;
-            opaque_before.push(n);
-        }
         BrickFlags {
-            opaque_before,
+            opaque_before: opaque_before(table),
             focus,
             uses_occlusion,
+            channels: None,
         }
     }
 
-    fn of(&self, r: [u16; 2]) -> u32 {
-        let n = self.opaque_before.len() - 1;
-        let (mn, mx) = widened(&r);
-        let first = ((mn * n as f32 - 0.5).floor().max(0.0)) as usize;
-        let last = ((mx * n as f32 + 0.5).ceil() as usize).min(n - 1);
-        let first = first.min(last);
-        let visible =
-            self.uses_occlusion || self.opaque_before[last + 1] > self.opaque_before[first];
+    /// These flags where `channels` are mixed: visibility from their functions.
+    fn with_channels(mut self, channels: Option<&crate::classify::channels::GpuChannels>) -> Self {
+        self.channels =
+            channels.map(|c| c.skipping.iter().map(|(t, _)| opaque_before(t)).collect());
+        self
+    }
+
+    /// The flags of a brick of range `r` whose mixed channels' ranges are `channels` (one per
+    /// channel once read; a brick whose channels are not known is visible).
+    fn of(&self, r: [u16; 2], channels: &[[u16; 2]]) -> u32 {
+        let visible = match &self.channels {
+            Some(c) if c.len() == channels.len() => c
+                .iter()
+                .zip(channels)
+                .any(|(o, &cr)| cr == vellum_volume::bricks::UNKNOWN_RANGE || opaque_in(o, cr)),
+            Some(_) => true,
+            None => self.uses_occlusion || opaque_in(&self.opaque_before, r),
+        };
         (if visible { BRICK_VISIBLE } else { 0 })
             | (if may_focus(&r, self.focus) {
                 BRICK_FOCUS

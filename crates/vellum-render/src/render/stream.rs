@@ -182,6 +182,13 @@ impl Streamer {
         }
         let batch: Vec<Arrival> = ok.iter().map(|(e, v)| Arrival::of(*e, v)).collect();
         let placed = paged.cache.place(&batch);
+        let mixed = paged.levels.mixed_count();
+        for (e, v) in &ok {
+            let known = paged.channel_ranges.get_mut(e * mixed..(e + 1) * mixed);
+            if let Some(known) = known.filter(|k| k.len() == v.channel_ranges.len()) {
+                known.copy_from_slice(&v.channel_ranges);
+            }
+        }
         let mut out = Batch::default();
         for ((entry, voxels), p) in ok.into_iter().zip(placed) {
             match p {
