@@ -820,3 +820,36 @@ fn segment_grows_a_label_volume_that_render_draws() {
     bad("0,0,0@105:145", "outside the window");
     bad("113,150,500@105:145", "outside the 256x256x133 volume");
 }
+
+/// A hidden segment leaves nothing where it was (issue 42). The balls' intensity is 1 inside and
+/// 0 outside, so linear filtering blends a hidden ball's voxels into the id-0 voxels around it,
+/// which are drawn: before, that drew a one-voxel shell where ball 5 was. With ball 5 hidden and
+/// id 0 drawn, no pixel of ball 5's disc (as the frame of the segments alone shows it) is lit,
+/// and the other balls' pixels are those of the frame with nothing hidden.
+#[test]
+fn a_hidden_segment_leaves_no_shell() {
+    let gpu = Gpu::new();
+    let dir = tempfile::tempdir().unwrap();
+    let alone = frame(&gpu, spec(dir.path(), &[0], &[]), None);
+    let hidden = frame(&gpu, spec(dir.path(), &[5], &[]), None);
+    let shown = frame(&gpu, spec(dir.path(), &[], &[]), None);
+    let of = |id: u8| -> Vec<usize> {
+        (0..alone.composite.len())
+            .filter(|&i| ball_of(alone.composite[i]) == Some(id))
+            .collect()
+    };
+    let five = of(5);
+    assert!(five.len() > 500, "ball 5 covers {} pixels", five.len());
+    let lit = five
+        .iter()
+        .filter(|&&i| hidden.composite[i][3] > 0.02)
+        .count();
+    assert_eq!(lit, 0, "{lit} of ball 5's {} pixels are lit", five.len());
+    for i in of(2).into_iter().chain(of(9)) {
+        let (a, b) = (hidden.composite[i], shown.composite[i]);
+        assert!(
+            (0..4).all(|c| (a[c] - b[c]).abs() < 1e-3),
+            "pixel {i}: {a:?} with ball 5 hidden, {b:?} with nothing hidden"
+        );
+    }
+}

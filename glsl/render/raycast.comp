@@ -83,13 +83,31 @@ layout(push_constant) uniform Push {
 
 const float INF = 1.0 / 0.0;
 
-// The index of the segment at texture coordinate `at`: the voxel it lies in, never a blend.
-uint label_at(vec3 at) {
+// The index of the segment of voxel v (clamped into the volume).
+uint label_of(ivec3 v) {
     ivec3 d = ivec3(u.volume_dims.xyz);
-    ivec3 v = clamp(ivec3(floor(at * u.volume_dims.xyz)), ivec3(0), d - 1);
+    v = clamp(v, ivec3(0), d - 1);
     uint i = uint(v.x) + uint(d.x) * (uint(v.y) + uint(d.y) * uint(v.z));
     uint w = label_words[i >> 1u];
     return (i & 1u) == 0u ? (w & 0xffffu) : (w >> 16u);
+}
+
+// The index of the segment at texture coordinate `at`: the voxel it lies in, never a blend.
+uint label_at(vec3 at) {
+    return label_of(ivec3(floor(at * u.volume_dims.xyz)));
+}
+
+// Whether a voxel of a hidden segment is among the eight that linear filtering blends at `at`:
+// its intensity would show there (a shell where the segment was), so the sample adds nothing.
+bool screened(vec3 at) {
+    ivec3 c = ivec3(floor(at * u.volume_dims.xyz - 0.5));
+    for (int k = 0; k < 8; k++) {
+        uint i = label_of(c + ivec3(k & 1, (k >> 1) & 1, k >> 2));
+        if ((label_table[3u + 2u * i] & 8u) != 0u) {
+            return true;
+        }
+    }
+    return false;
 }
 
 // The page table's header, read once per ray (see passes/paging.rs): levels, brick edge in
@@ -684,7 +702,7 @@ void main() {
                     // decides the level.
                     label = label_at(tex);
                     uint flags = label_table[3u + 2u * label];
-                    if ((flags & 1u) == 0u) {
+                    if ((flags & 1u) == 0u || (V_LABELS_SCREEN && screened(tex))) {
                         prev_t = -1.0;
                         continue;
                     }

@@ -47,6 +47,9 @@ const bool V_MIX_ADD = (VARIANT & 8192u) != 0u;
 const bool V_MIX_MAX = (VARIANT & 16384u) != 0u;
 const bool V_CHANNELS = V_MIX_OVER || V_MIX_ADD || V_MIX_MAX;
 const bool V_WALK_BATCH = (VARIANT & 32768u) != 0u;
+// Bits 16-18 hold the channel count (below). A label volume with a hidden segment: samples whose
+// filtered intensity blends one of its voxels add nothing (raycast.comp's `screened`).
+const bool V_LABELS_SCREEN = (VARIANT & 524288u) != 0u;
 // Channels of a store mixed in one ray (classify/channels.rs): up to eight, component k of
 // `channels` (k < 4) or k - 4 of `channels_hi` over channel k's own range, with its transfer
 // function in row k of `channel_tf`. Frames without channels bind stand-ins and never read them;

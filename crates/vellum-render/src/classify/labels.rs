@@ -41,6 +41,9 @@ pub const SHOWN: u32 = 1;
 pub const FOCUS: u32 = 2;
 /// A table entry's flag: the sample keeps its transfer function's colour (id 0, no segment).
 pub const OWN_COLOUR: u32 = 4;
+/// A table entry's flag: a hidden segment (not id 0), whose voxels' intensity must not show in
+/// the samples that linear filtering blends them into.
+pub const SCREENED: u32 = 8;
 /// The table's header flag: the segments decide the level (there are focus ids).
 pub const LABELS_DECIDE_FOCUS: u32 = 1;
 
@@ -86,6 +89,7 @@ impl LabelSpec {
                 (shown, SHOWN),
                 (self.focus.contains(&id), FOCUS),
                 (id == 0 && given.is_none(), OWN_COLOUR),
+                (id != 0 && !shown, SCREENED),
             ];
             words.push(u32::from_le_bytes(c));
             words.push(flags.iter().filter(|f| f.0).map(|f| f.1).sum());
@@ -102,6 +106,9 @@ pub struct GpuLabels {
     pub table: Buffer,
     /// Whether the segments decide the level (some ids are the focus).
     pub decide_focus: bool,
+    /// Whether a segment (not id 0) is hidden: its voxels are then kept out of the samples that
+    /// blend them (the ray caster's `LABELS_SCREEN` variant).
+    pub screens: bool,
     /// The label volume on the host: ids, counts and colours, for a viewer's list.
     pub labels: Arc<Labels>,
     /// The indices of the segments whose lines a style with lines draws: the focus segments
@@ -147,6 +154,7 @@ impl GpuLabels {
             drawn: drawn(spec, &labels),
             boxes: labels.boxes(),
             decide_focus: !spec.focus.is_empty(),
+            screens: screens(spec, &labels),
             labels,
             spec: spec.clone(),
             background,
@@ -173,6 +181,7 @@ impl GpuLabels {
         if *spec != self.spec {
             self.pending = Some(spec.table(&self.labels, self.background));
             self.decide_focus = !spec.focus.is_empty();
+            self.screens = screens(spec, &self.labels);
             self.drawn = drawn(spec, &self.labels);
             self.spec = spec.clone();
         }
@@ -191,6 +200,13 @@ impl GpuLabels {
         memory_transition(&self.ctx, frame.cmd, Access::TransferWrite, next);
         Ok(())
     }
+}
+
+/// Whether `spec` hides a segment `labels` holds (not id 0).
+fn screens(spec: &LabelSpec, labels: &Labels) -> bool {
+    spec.hide
+        .iter()
+        .any(|&id| id != 0 && labels.index_of(id).is_some())
 }
 
 /// The indices of the segments whose lines a style with lines draws: the focus segments when
@@ -232,7 +248,7 @@ mod tests {
         );
         assert_eq!(t[4], u32::from_le_bytes([10, 20, 30, 255]));
         assert_eq!(t[5], SHOWN | FOCUS);
-        assert_eq!(t[7], 0, "7 is hidden");
+        assert_eq!(t[7], SCREENED, "7 is hidden, and kept out of the samples around it");
         assert_eq!(LabelSpec::default().table(&labels(), true)[1], 0);
         assert_eq!(
             spec.table(&labels(), false)[3],

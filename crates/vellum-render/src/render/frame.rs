@@ -1097,8 +1097,9 @@ fn record_rays(
                         Bind::StorageBuffer(&l.table),
                     ],
                     true,
+                    l.screens,
                 ),
-                None => ([Bind::StorageBuffer(r.stand_in); 2], false),
+                None => ([Bind::StorageBuffer(r.stand_in); 2], false, false),
             },
             channels: match r.channels {
                 Ok(c) => {

@@ -9,7 +9,7 @@
 //! that never gets there picks the segment that gave it the most opacity, and one that gathers
 //! less than [`MIN_OPACITY`] picks nothing.
 
-use crate::classify::labels::{LabelSpec, SHOWN};
+use crate::classify::labels::{LabelSpec, SCREENED, SHOWN};
 use crate::classify::transfer::TransferFunction;
 use crate::render::view::{FrameCamera, View, WorldBox};
 use glam::{Vec3, Vec4};
@@ -63,7 +63,7 @@ pub fn pick_label(input: &PickInput, view: &View, pixel: [f32; 2]) -> Option<u32
         let tc = (o + t * dir) / (2.0 * world.half) + 0.5;
         t += step;
         let k = nearest_index(input.labels, tc);
-        if table[3 + 2 * k] & SHOWN == 0 {
+        if table[3 + 2 * k] & SHOWN == 0 || screened(input.labels, &table, tc) {
             continue;
         }
         let x = ((trilinear(v, tc) - input.range[0]) / span) as f32;
@@ -94,6 +94,20 @@ fn nearest_index(labels: &Labels, tc: Vec3) -> usize {
     let d = labels.dims;
     let i = |a: usize| ((tc[a] * d[a] as f32) as usize).min(d[a] - 1);
     labels.index[i(0) + d[0] * (i(1) + d[1] * i(2))] as usize
+}
+
+/// Whether a voxel of a hidden segment is among the eight that linear filtering blends at `tc`
+/// (the ray caster's `screened`).
+fn screened(labels: &Labels, table: &[u32], tc: Vec3) -> bool {
+    let d = labels.dims;
+    let c: [i64; 3] = std::array::from_fn(|a| (tc[a] * d[a] as f32 - 0.5).floor() as i64);
+    (0..8).any(|k: usize| {
+        let v: [usize; 3] = std::array::from_fn(|a| {
+            (c[a] + (k >> a & 1) as i64).clamp(0, d[a] as i64 - 1) as usize
+        });
+        let i = labels.index[v[0] + d[0] * (v[1] + d[1] * v[2])] as usize;
+        table[3 + 2 * i] & SCREENED != 0
+    })
 }
 
 /// The volume's value at texture coordinate `tc`, interpolated between voxel centres (clamped

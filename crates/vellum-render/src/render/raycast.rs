@@ -143,6 +143,8 @@ impl Variant {
     pub(crate) const WALK_BATCH: u32 = 32768;
     /// With a mix: the channels mixed, less one, in bits 16-18 (`shade.glsl`'s `CHANNEL_COUNT`).
     pub(crate) const CHANNELS_SHIFT: u32 = 16;
+    /// A label volume hides a segment: samples that blend its voxels add nothing.
+    pub(crate) const LABELS_SCREEN: u32 = 1 << 19;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -198,7 +200,7 @@ pub(crate) struct RayRequest<'a> {
     pub bricked: bool,
     /// A label volume's voxels and table (stand-ins without one), and whether there is one
     /// (the `LABELS` variant).
-    pub(crate) labels: ([Bind<'a>; 2], bool),
+    pub(crate) labels: ([Bind<'a>; 2], bool, bool),
     /// Mixed channels' texture, transfer functions, opacity bounds and texture of channels 4–7
     /// (stand-ins without), and their mix and count.
     pub(crate) channels: (
@@ -299,6 +301,9 @@ impl RayCaster {
         }
         if r.labels.1 {
             variant.0 |= Variant::LABELS;
+        }
+        if r.labels.2 {
+            variant.0 |= Variant::LABELS_SCREEN;
         }
         if r.walk_batch {
             variant.0 |= Variant::WALK_BATCH;
