@@ -158,7 +158,7 @@ impl ChannelSpec {
         let first;
         let scales = match time.unwrap_or(0) > 0 && self.scales.is_empty() {
             true => {
-                first = self.series_scales_at(path, paged)?;
+                first = self.series_scales(path, paged)?;
                 &first
             }
             false => &self.scales,
@@ -208,12 +208,9 @@ impl ChannelSpec {
 
     /// Time point 0's scale of every channel: the range and transfer function each later frame
     /// of a series is drawn with (read once by a front end that draws many).
-    pub fn series_scales(&self, path: &Path) -> Result<Vec<ChannelScale>> {
-        self.series_scales_at(path, false)
-    }
-
-    /// [`ChannelSpec::series_scales`] as [`ChannelSpec::read_at`] reads them.
-    fn series_scales_at(&self, path: &Path, paged: bool) -> Result<Vec<ChannelScale>> {
+    /// With `paged`, as [`ChannelSpec::read_at`] reads them for the brick cache (never level 0
+    /// whole).
+    pub fn series_scales(&self, path: &Path, paged: bool) -> Result<Vec<ChannelScale>> {
         let first = ChannelSpec {
             scales: Vec::new(),
             ..self.clone()

@@ -248,7 +248,10 @@ mod tests {
         );
         assert_eq!(t[4], u32::from_le_bytes([10, 20, 30, 255]));
         assert_eq!(t[5], SHOWN | FOCUS);
-        assert_eq!(t[7], SCREENED, "7 is hidden, and kept out of the samples around it");
+        assert_eq!(
+            t[7], SCREENED,
+            "7 is hidden, and kept out of the samples around it"
+        );
         assert_eq!(LabelSpec::default().table(&labels(), true)[1], 0);
         assert_eq!(
             spec.table(&labels(), false)[3],

@@ -188,12 +188,11 @@ fn render_on(
         scene.input.range = Some(range);
         classification = c;
     }
-    if let (Some(spec), Some(s)) = (scene.channels.as_mut(), series.as_mut()) {
-        let path = std::path::Path::new(&scene.input.path);
-        match &s.channel_scales {
-            Some(scales) => spec.scales = scales.clone(),
-            None => s.channel_scales = Some(spec.series_scales(path)?),
-        }
+    if let (Some(spec), Some(scales)) = (
+        scene.channels.as_mut(),
+        series.as_ref().and_then(|s| s.channel_scales.as_ref()),
+    ) {
+        spec.scales = scales.clone();
     }
     let ctx = match series.as_ref() {
         Some(s) => s.ctx.clone(),
@@ -207,6 +206,14 @@ fn render_on(
     )?;
     if let Some(s) = series.as_mut().filter(|s| s.scale.is_none()) {
         s.take_scale(&input, &classification)?;
+    }
+    if let (Some(spec), Some(s)) = (scene.channels.as_ref(), series.as_mut()) {
+        if s.channel_scales.is_none() {
+            // Read as this first frame read them: through the brick cache, from small levels.
+            let paged = matches!(input, Opened::Bricked(_));
+            let path = std::path::Path::new(&scene.input.path);
+            s.channel_scales = Some(spec.series_scales(path, paged)?);
+        }
     }
     let grid = input.grid();
     team.same_inputs(inputs_key(&(&scene.input.path, grid.0)))?;
