@@ -1025,6 +1025,49 @@ impl Renderer {
     }
 }
 
+/// The page table (staged here, its feedback cleared), feedback, ray states and channel sums of
+/// a bricked frame; in core, the frame's tables and stand-ins.
+fn paging_binds<'a>(
+    ctx: &Arc<Context>,
+    frame: &mut vellum_gpu::Frame,
+    vol: VolumeRef<'a>,
+    r: &RayFrame<'a>,
+    state: &'a mut ViewState,
+) -> Result<[Bind<'a>; 4]> {
+    let Some(p) = vol.paged() else {
+        return Ok([
+            Bind::StorageSlice(r.tables),
+            Bind::StorageBuffer(r.stand_in),
+            Bind::StorageBuffer(r.stand_in),
+            Bind::StorageBuffer(r.stand_in),
+        ]);
+    };
+    // The header, then the entries with the flags of the bricks whose range is known, written
+    // into the frame's ring in place.
+    let header = p.header(lod_line(r.setup, vol.dims()));
+    let entries = p.cache.page_table.len();
+    let table = frame.staging.push_with(4 * (HEADER + entries), 16, |dst| {
+        let words: &mut [u32] = bytemuck::cast_slice_mut(dst);
+        words[..HEADER].copy_from_slice(&header);
+        p.page_words(&mut words[HEADER..], &|range, channels| {
+            r.flags.of(range, channels)
+        });
+    })?;
+    p.record_clear_feedback(ctx, frame);
+    // `add` and `max` keep each channel's sum while a ray waits for a brick.
+    let project = r
+        .channels
+        .is_ok_and(|c| c.mix != crate::classify::channels::Mix::Over);
+    let size = r.setup.size;
+    let (rays, sums) = state.ray_states(ctx, size[0] as u64 * size[1] as u64, project)?;
+    Ok([
+        Bind::StorageSlice(table),
+        Bind::StorageBuffer(&p.feedback),
+        Bind::StorageBuffer(rays),
+        Bind::StorageBuffer(sums.unwrap_or(r.stand_in)),
+    ])
+}
+
 /// The ray-casting step: of a volume in core, or through the brick cache's page table (staged
 /// here), with its feedback cleared before and made visible to the host after.
 fn record_rays(
@@ -1037,40 +1080,7 @@ fn record_rays(
 ) -> Result<()> {
     let two_level = r.layers.is_some();
     let size = r.setup.size;
-    let paging = match vol.paged() {
-        Some(p) => {
-            // The header, then the entries with the flags of the bricks whose range is known,
-            // written into the frame's ring in place.
-            let header = p.header(lod_line(r.setup, vol.dims()));
-            let entries = p.cache.page_table.len();
-            let table = frame.staging.push_with(4 * (HEADER + entries), 16, |dst| {
-                let words: &mut [u32] = bytemuck::cast_slice_mut(dst);
-                words[..HEADER].copy_from_slice(&header);
-                p.page_words(&mut words[HEADER..], &|range, channels| {
-                    r.flags.of(range, channels)
-                });
-            })?;
-            p.record_clear_feedback(ctx, frame);
-            // `add` and `max` keep each channel's sum while a ray waits for a brick.
-            let project = r
-                .channels
-                .is_ok_and(|c| c.mix != crate::classify::channels::Mix::Over);
-            let pixels = size[0] as u64 * size[1] as u64;
-            let (rays, sums) = state.ray_states(ctx, pixels, project)?;
-            [
-                Bind::StorageSlice(table),
-                Bind::StorageBuffer(&p.feedback),
-                Bind::StorageBuffer(rays),
-                Bind::StorageBuffer(sums.unwrap_or(r.stand_in)),
-            ]
-        }
-        None => [
-            Bind::StorageSlice(r.tables),
-            Bind::StorageBuffer(r.stand_in),
-            Bind::StorageBuffer(r.stand_in),
-            Bind::StorageBuffer(r.stand_in),
-        ],
-    };
+    let paging = paging_binds(ctx, frame, vol, r, state)?;
     // The ray states (and the stand-ins) are written by every frame's dispatch.
     vellum_gpu::commands::memory_transition(
         ctx,

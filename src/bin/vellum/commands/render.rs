@@ -132,6 +132,40 @@ struct Series {
 }
 
 impl Series {
+    /// Draws `scene` on the series' scales once they are taken (from the second frame on).
+    fn give_scales(
+        &self,
+        scene: &mut vellum::render::scene::Scene,
+        classification: &mut vellum::classify::Classification,
+    ) {
+        if let Some((range, c)) = self.scale.clone() {
+            scene.input.range = Some(range);
+            *classification = c;
+        }
+        if let (Some(spec), Some(scales)) = (scene.channels.as_mut(), &self.channel_scales) {
+            spec.scales = scales.clone();
+        }
+    }
+
+    /// Time point 0's scales, taken from the first frame's `input` (opened) and `scene`.
+    fn take_scales(
+        &mut self,
+        scene: &vellum::render::scene::Scene,
+        input: &Opened,
+        classification: &vellum::classify::Classification,
+    ) -> Result<()> {
+        if self.scale.is_none() {
+            self.take_scale(input, classification)?;
+        }
+        if let (Some(spec), None) = (&scene.channels, &self.channel_scales) {
+            // Read as this first frame read them: through the brick cache, from small levels.
+            let paged = matches!(input, Opened::Bricked(_));
+            let path = std::path::Path::new(&scene.input.path);
+            self.channel_scales = Some(spec.series_scales(path, paged)?);
+        }
+        Ok(())
+    }
+
     /// Time point 0's scale, from its volume in core (a series beyond the GPU budget keeps the
     /// brick cache's own scale).
     fn take_scale(
@@ -184,15 +218,8 @@ fn render_on(
     let mut classification = scene
         .classification()
         .map_err(|e| from("classification", e))?;
-    if let Some((range, c)) = series.as_ref().and_then(|s| s.scale.clone()) {
-        scene.input.range = Some(range);
-        classification = c;
-    }
-    if let (Some(spec), Some(scales)) = (
-        scene.channels.as_mut(),
-        series.as_ref().and_then(|s| s.channel_scales.as_ref()),
-    ) {
-        spec.scales = scales.clone();
+    if let Some(s) = series.as_ref() {
+        s.give_scales(&mut scene, &mut classification);
     }
     let ctx = match series.as_ref() {
         Some(s) => s.ctx.clone(),
@@ -204,16 +231,8 @@ fn render_on(
         team,
         Opened::open(&scene, None, budget, opts.chunk_cache_bytes).map_err(|e| from("input", e)),
     )?;
-    if let Some(s) = series.as_mut().filter(|s| s.scale.is_none()) {
-        s.take_scale(&input, &classification)?;
-    }
-    if let (Some(spec), Some(s)) = (scene.channels.as_ref(), series.as_mut()) {
-        if s.channel_scales.is_none() {
-            // Read as this first frame read them: through the brick cache, from small levels.
-            let paged = matches!(input, Opened::Bricked(_));
-            let path = std::path::Path::new(&scene.input.path);
-            s.channel_scales = Some(spec.series_scales(path, paged)?);
-        }
+    if let Some(s) = series.as_mut() {
+        s.take_scales(&scene, &input, &classification)?;
     }
     let grid = input.grid();
     team.same_inputs(inputs_key(&(&scene.input.path, grid.0)))?;
