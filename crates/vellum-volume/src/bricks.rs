@@ -126,7 +126,8 @@ pub struct BrickVoxels {
     pub data: BrickData,
     /// The range of the slot's normalised texels.
     pub range: [u16; 2],
-    /// Whether every voxel of the upload has one value (never, beside mixed channels).
+    /// Whether every voxel of the upload has one value (and, with mixed channels, every
+    /// channel's too).
     pub constant: bool,
     /// The mixed channels' voxels of the same upload box ([`BrickLevels::mix`]), channel after
     /// channel in mixing order, each normalised to 16 bits over its own range; empty without.
