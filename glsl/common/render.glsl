@@ -44,6 +44,8 @@ struct FillPush {
 
 #define NORMALS_LOCAL_X 8
 #define NORMALS_LOCAL_Y 8
-#define NORMALS_LOCAL_Z 4
+#define NORMALS_LOCAL_Z 1
+// Voxels along z that one invocation of render/sobel_normals.comp computes.
+#define NORMALS_COLUMN 16
 
 #endif

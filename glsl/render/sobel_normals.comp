@@ -9,7 +9,11 @@
 // a zero gradient, which a clear of the image wrote. Else it runs on every voxel in order. A volume of
 // sparse structure (a cell in its dish, segmented data, a phantom) is mostly such bricks, and a
 // CPU device, which runs masked lanes too, only saves their work when they are never dispatched.
-// A listed brick is 16 workgroups (x: 2 x 2 x 4 of 8 x 8 x 4); the list runs along y, then z.
+// A listed brick is 4 workgroups (x: 2 x 2 of 8 x 8 columns); the list runs along y, then z.
+// Each invocation computes a column of NORMALS_COLUMN voxels along z and reads each slice's 3 x 3
+// neighbourhood once: per slice, three sums over that plane (the x and y derivatives smoothed in
+// the plane, and the plane smoothed), which three neighbouring slices combine. That is 9 fetches
+// per voxel, not the stencil's 27; the sums, and so the gradients, are the same.
 #include "render.glsl"
 
 layout(local_size_x = NORMALS_LOCAL_X, local_size_y = NORMALS_LOCAL_Y, local_size_z = NORMALS_LOCAL_Z) in;
@@ -24,10 +28,11 @@ layout(push_constant) uniform Push { NormalsPush pc; };
 // not a test of `listed` alone: a CPU device runs both sides of a branch on a uniform.
 layout(constant_id = 0) const bool LISTED = false;
 
-// The voxel of this invocation: every voxel of the volume in order, or of the listed bricks.
-ivec3 voxel() {
+// The first voxel of this invocation's column: every column of the volume in order, or of the
+// listed bricks.
+ivec3 column_start() {
     if (!LISTED) {
-        return ivec3(gl_GlobalInvocationID);
+        return ivec3(gl_GlobalInvocationID.xy, gl_GlobalInvocationID.z * NORMALS_COLUMN);
     }
     uint k = gl_WorkGroupID.y + gl_WorkGroupID.z * gl_NumWorkGroups.y;
     if (k >= uint(pc.listed)) {
@@ -37,27 +42,41 @@ ivec3 voxel() {
     int b = int(listed_bricks[k]);
     ivec3 brick = ivec3(b % counts.x, (b / counts.x) % counts.y, b / (counts.x * counts.y));
     uint sub = gl_WorkGroupID.x;
-    ivec3 local = ivec3(NORMALS_LOCAL_X, NORMALS_LOCAL_Y, NORMALS_LOCAL_Z);
-    ivec3 group = ivec3(sub & 1u, (sub >> 1u) & 1u, sub >> 2u) * local;
-    return brick * BRICK + group + ivec3(gl_LocalInvocationID);
+    ivec2 group = ivec2(sub & 1u, sub >> 1u) * ivec2(NORMALS_LOCAL_X, NORMALS_LOCAL_Y);
+    return brick * BRICK + ivec3(group + ivec2(gl_LocalInvocationID.xy), 0);
+}
+
+// Over slice z (clamped) around column xy: x, the x difference smoothed (1, 2, 1) along y; y, the
+// y difference smoothed along x; z, the plane smoothed along both.
+vec3 plane_sums(ivec2 xy, int z) {
+    int zc = clamp(z, 0, pc.dims.z - 1);
+    vec3 s = vec3(0.0);
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 q = clamp(xy + ivec2(dx, dy), ivec2(0), pc.dims.xy - 1);
+            float v = texelFetch(volume, ivec3(q, zc), 0).r;
+            float wx = 2.0 - abs(float(dx));
+            float wy = 2.0 - abs(float(dy));
+            s += v * vec3(float(dx) * wy, float(dy) * wx, wx * wy);
+        }
+    }
+    return s;
 }
 
 void main() {
-    ivec3 p = voxel();
+    ivec3 p = column_start();
     if (any(greaterThanEqual(p, pc.dims))) {
         return;
     }
-    vec3 g = vec3(0.0);
-    for (int dz = -1; dz <= 1; ++dz) {
-        for (int dy = -1; dy <= 1; ++dy) {
-            for (int dx = -1; dx <= 1; ++dx) {
-                ivec3 d = ivec3(dx, dy, dz);
-                float v = texelFetch(volume, clamp(p + d, ivec3(0), pc.dims - 1), 0).r;
-                vec3 w = vec3(2.0) - abs(vec3(d));   // smoothing weight 1 or 2 per axis
-                g += v * vec3(d) * vec3(w.y * w.z, w.x * w.z, w.x * w.y);
-            }
-        }
+    int n = min(NORMALS_COLUMN, pc.dims.z - p.z);
+    vec3 below = plane_sums(p.xy, p.z - 1);
+    vec3 here = plane_sums(p.xy, p.z);
+    vec3 scale = pc.inv_spacing.xyz / 32.0;
+    for (int k = 0; k < n; ++k) {
+        vec3 above = plane_sums(p.xy, p.z + k + 1);
+        vec3 g = vec3(below.xy + 2.0 * here.xy + above.xy, above.z - below.z) * scale;
+        imageStore(gradient, ivec3(p.xy, p.z + k), vec4(g, length(g)));
+        below = here;
+        here = above;
     }
-    g *= pc.inv_spacing.xyz / 32.0;
-    imageStore(gradient, p, vec4(g, length(g)));
 }

@@ -25,13 +25,19 @@ pub(crate) struct NormalsPush {
     pub(crate) inv_spacing: [f32; 4],
 }
 
-/// Workgroup shape (NORMALS_LOCAL_* in render.glsl).
-pub(crate) const LOCAL_SIZE: [u32; 3] = [8, 8, 4];
+/// Workgroup shape (NORMALS_LOCAL_* in render.glsl): 8 × 8 columns.
+pub(crate) const LOCAL_SIZE: [u32; 3] = [8, 8, 1];
 
-/// Workgroups of one brick of `BRICK`³ voxels (2 × 2 × 4 of [`LOCAL_SIZE`]).
-const BRICK_GROUPS: u32 = (BRICK as u32 / LOCAL_SIZE[0])
-    * (BRICK as u32 / LOCAL_SIZE[1])
-    * (BRICK as u32 / LOCAL_SIZE[2]);
+/// Voxels along z of one invocation's column (NORMALS_COLUMN in render.glsl).
+pub(crate) const COLUMN: u32 = 16;
+
+/// Voxels of one workgroup: its columns, each `COLUMN` deep.
+const GROUP_VOXELS: [u32; 3] = [LOCAL_SIZE[0], LOCAL_SIZE[1], LOCAL_SIZE[2] * COLUMN];
+
+/// Workgroups of one brick of `BRICK`³ voxels (2 × 2 × 1 of [`GROUP_VOXELS`]).
+const BRICK_GROUPS: u32 = (BRICK as u32 / GROUP_VOXELS[0])
+    * (BRICK as u32 / GROUP_VOXELS[1])
+    * (BRICK as u32 / GROUP_VOXELS[2]);
 
 /// Workgroups along one dimension of a dispatch that every device takes.
 const MAX_GROUP_ROWS: u32 = 65_535;
@@ -370,7 +376,7 @@ impl Normals {
             None => {
                 tex.gradient.discard();
                 let extent = tex.intensity.desc.extent;
-                let groups = vellum_gpu::pipeline::group_count(extent, LOCAL_SIZE);
+                let groups = vellum_gpu::pipeline::group_count(extent, GROUP_VOXELS);
                 (&self.pipeline, groups)
             }
         };
@@ -467,5 +473,10 @@ mod tests {
         for (axis, n) in ["X", "Y", "Z"].iter().zip(LOCAL_SIZE) {
             assert!(src.contains(&format!("#define NORMALS_LOCAL_{axis} {n}")));
         }
+        assert!(src.contains(&format!("#define NORMALS_COLUMN {COLUMN}")));
+        assert_eq!(
+            GROUP_VOXELS[2], BRICK as u32,
+            "a listed brick's columns span it"
+        );
     }
 }
