@@ -53,25 +53,20 @@ pub(crate) fn auto_window(v: &Volume, range: [f64; 2]) -> [f32; 2] {
         }
     }
     let floor = BACKGROUND * BINS as f64;
-    let histogram = (0..v.len())
-        .into_par_iter()
-        .fold(
-            || vec![0u64; BINS],
-            |mut h, i| {
-                let x = (v.data.get_f64(i) - range[0]) / width * BINS as f64;
-                if x.is_finite() && x >= floor {
-                    h[(x as usize).min(BINS - 1)] += 1;
-                }
-                h
-            },
-        )
-        .reduce(
-            || vec![0u64; BINS],
-            |mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
-                a
-            },
-        );
+    let histogram = v.data.par_fold_f64(
+        || vec![0u64; BINS],
+        |mut h, value| {
+            let x = (value - range[0]) / width * BINS as f64;
+            if x.is_finite() && x >= floor {
+                h[(x as usize).min(BINS - 1)] += 1;
+            }
+            h
+        },
+        |mut a, b| {
+            a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
+            a
+        },
+    );
     let total: u64 = histogram.iter().sum();
     if total == 0 {
         return [0.0, 1.0];
