@@ -81,6 +81,8 @@ pub struct ViewOptions {
     pub gpu_budget: Option<f64>,
     /// Start playing a store's time points (`--play`).
     pub play: bool,
+    /// Time points per second while playing, at most (`--play-rate`).
+    pub play_rate: f64,
 }
 
 /// Opens the window and runs until it is closed. Returns the bench report in bench mode.

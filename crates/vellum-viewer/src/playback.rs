@@ -4,7 +4,7 @@
 //! as the current one is shown, so that a step waits only for what is left of its load.
 
 use super::session::{load, Loaded, Session};
-use super::timeline::{Prefetch, STEP};
+use super::timeline::Prefetch;
 use std::sync::mpsc;
 use std::time::Instant;
 use vellum_error::Result;
@@ -82,8 +82,8 @@ impl Session {
         });
     }
 
-    /// While playing, the next time point once this one has been shown for [`STEP`] and
-    /// nothing is loading; the one after it is read ahead as soon as a time point is shown, and
+    /// While playing, the next time point once it is due (`due_at`: one step, at most the play
+    /// rate, after this one was) and nothing is loading; the one after it is read ahead as soon as a time point is shown, and
     /// the one after that once the shell holds the next on the GPU.
     pub(crate) fn tick_playback(&mut self, now: Instant) {
         let times = self.model.times;
@@ -99,7 +99,7 @@ impl Session {
         if self.prefetch.is_none() && self.ready != Some(want) && want != self.model.time {
             self.prefetch(want);
         }
-        if now >= self.shown_at + STEP {
+        if now >= self.due_at {
             self.show_time(next);
         }
     }

@@ -134,6 +134,7 @@ impl Running {
                 bench: opts.bench_frames.map(|n| BenchLog::new(n, opts.bench_full)),
                 budget,
                 play: opts.play,
+                step: crate::timeline::step_of(opts.play_rate),
             },
         );
         session.model.segments = segments;
@@ -473,10 +474,18 @@ fn channels_of(gpu: &mut Prepared) -> Option<Vec<crate::ui::ChannelRow>> {
 pub(crate) fn prepare_gpu(ctx: &Arc<Context>, l: &mut Loaded, budget: u64) -> Result<Prepared> {
     let modulation = l.scene.modulation.clone().unwrap_or_default();
     let Some(levels) = l.levels.take() else {
+        // `auto` was windowed on the worker already, over the range the textures take: not again
+        // here, on the thread that draws.
+        let classification = match &l.classification {
+            vellum_render::classify::Classification::Auto => {
+                vellum_render::classify::Classification::Transfer(l.tf.clone())
+            }
+            c => c.clone(),
+        };
         let gpu = GpuScene::prepare_in_range(
             ctx,
             (&l.volume, l.scene.input.range),
-            &l.classification,
+            &classification,
             l.scene.focus,
             &modulation,
         )?;

@@ -87,6 +87,8 @@ pub(crate) struct SessionSetup {
     pub(crate) budget: u64,
     /// Start playing the time points of a store.
     pub(crate) play: bool,
+    /// How long a playing time point stays on screen, at least (one over the play rate).
+    pub(crate) step: std::time::Duration,
 }
 
 /// The session: the model the panels edit (with the scene), what of it is applied to the GPU
@@ -109,8 +111,11 @@ pub(crate) struct Session {
     /// The time point the shell holds on the GPU ahead of its turn, and whether its turn came.
     pub(crate) ready: Option<usize>,
     pub(crate) swap: bool,
-    /// When the current volume was shown (a playing time point stays at least `STEP`).
-    pub(crate) shown_at: Instant,
+    /// While playing, when the next time point is due: one `step` after the current one was
+    /// due, so that a late frame does not push every later time point back.
+    pub(crate) due_at: Instant,
+    /// How long a playing time point stays on screen, at least.
+    pub(crate) step: std::time::Duration,
     /// The occlusion volume being recomputed on a worker thread.
     pub(crate) pending_occlusion: Option<PendingOcclusion>,
     /// Counts the volumes loaded, so that an occlusion volume computed for an earlier one is
@@ -170,7 +175,8 @@ impl Session {
             prefetch: None,
             ready: None,
             swap: false,
-            shown_at: Instant::now(),
+            due_at: Instant::now() + setup.step,
+            step: setup.step,
             pending_occlusion: None,
             generation: 0,
             device: setup.device,
@@ -349,7 +355,7 @@ impl Session {
         self.model.oriented = l.volume.geometry.is_oriented();
         self.model.times = l.times;
         self.model.time = l.scene.input.time.unwrap_or(0);
-        self.shown_at = Instant::now();
+        self.due_at = crate::timeline::next_due(self.due_at, Instant::now(), self.step, step);
         self.model.message = format!("opened {what}");
         self.home = l.scene.camera.clone();
         self.applied = l.scene;

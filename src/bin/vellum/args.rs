@@ -385,6 +385,10 @@ pub(crate) struct ViewArgs {
     /// the time points shown.
     #[arg(long)]
     pub(crate) play: bool,
+    /// Time points per second while playing, at most: each waits for its load when that is
+    /// slower (default 10).
+    #[arg(long, value_name = "N", default_value_t = 10.0)]
+    pub(crate) play_rate: f64,
     /// GPU memory for the volume's textures in MiB; a store that needs more is streamed through
     /// the brick cache (default: half the device's largest memory heap).
     #[arg(long, value_name = "MiB")]

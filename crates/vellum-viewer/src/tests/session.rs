@@ -22,6 +22,7 @@ fn session_of(loaded: Loaded, dir: std::path::PathBuf) -> Session {
             bench: None,
             budget: 1 << 30,
             play: false,
+            step: crate::timeline::STEP,
         },
     )
 }
@@ -302,7 +303,7 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
         !s.loading() && s.prefetch.is_some(),
         "read ahead, not yet shown"
     );
-    s.tick_playback(Instant::now() + crate::timeline::STEP);
+    s.tick_playback(s.due_at);
     assert!(
         s.loading() && s.prefetch.is_none(),
         "the read-ahead became the load"
@@ -332,7 +333,7 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
         Some(2),
         "time point 1 is not read again; the one after it is"
     );
-    s.tick_playback(Instant::now() + crate::timeline::STEP);
+    s.tick_playback(s.due_at);
     assert!(s.swap && !s.loading(), "its turn swaps it in");
 }
 

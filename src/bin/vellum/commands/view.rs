@@ -47,6 +47,11 @@ pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
     );
     // The viewer's files (screenshots, scenes) land when they are made, each atomically, not at
     // the end of the command: close the command's all-or-nothing transaction.
+    anyhow::ensure!(
+        a.play_rate.is_finite() && (0.1..=1000.0).contains(&a.play_rate),
+        "--play-rate {} is out of range; expected time points per second from 0.1 to 1000",
+        a.play_rate
+    );
     vellum::output::commit()?;
     let report = vellum::viewer::run(vellum::viewer::ViewOptions {
         scene,
@@ -59,6 +64,7 @@ pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
         bench_full: a.bench_full,
         gpu_budget: a.gpu_budget,
         play: a.play,
+        play_rate: a.play_rate,
     })?;
     if let Some(r) = report {
         if a.json {
