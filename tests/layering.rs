@@ -12,7 +12,23 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// `cargo metadata` of the workspace, resolved (every feature, so that optional crates count).
+/// The triple of the machine the tests run on, from `rustc -vV`.
+fn host_triple() -> String {
+    let out = std::process::Command::new("rustc")
+        .arg("-vV")
+        .output()
+        .expect("rustc -vV runs");
+    let text = String::from_utf8_lossy(&out.stdout);
+    text.lines()
+        .find_map(|l| l.strip_prefix("host: "))
+        .expect("rustc -vV names the host")
+        .trim()
+        .to_string()
+}
+
+/// `cargo metadata` of the workspace, resolved (every feature, so that optional crates count)
+/// for this machine's platform: offline, a clean machine's registry holds only the crates its
+/// builds fetched, not those of other platforms (winit's Android crates, say).
 fn metadata() -> serde_json::Value {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let out = std::process::Command::new(cargo)
@@ -22,6 +38,8 @@ fn metadata() -> serde_json::Value {
             "1",
             "--all-features",
             "--offline",
+            "--filter-platform",
+            &host_triple(),
         ])
         .current_dir(root())
         .output()
