@@ -52,9 +52,11 @@ fn a_store_on_a_slow_server_reads_voxel_for_voxel_in_parallel_and_lands_in_the_c
     let chunks = server.asked("/0/c/");
     assert_eq!(chunks, 27, "every chunk of level 0 asked once");
     let most = server.state.max_in_flight.load(Ordering::SeqCst);
+    // A level read whole goes chunk by chunk on 16 readers (`Multiscale::read_box`), not on
+    // the decoders' pool of one thread a core, which kept 2 in flight on a 2-core machine.
     assert!(
-        most >= 2,
-        "requests ran one at a time ({most} at most in flight)"
+        most >= 8,
+        "requests ran a few at a time ({most} at most in flight)"
     );
     // Again, through the cache: no chunk is asked again, and the voxels are the same.
     let again = convert(&url, &dir.path().join("b.nrrd"), &flags).unwrap();

@@ -478,7 +478,7 @@ impl BrickLevels {
         let mut out = Volume::new(size, l.spacing, data)?;
         for (clo, c) in &got {
             match c.uniform {
-                false => copy_box(&c.volume, *clo, &mut out, lo),
+                false => out.paste(&c.volume, *clo, lo),
                 // One voxel stands for the chunk: spread it over the chunk's part of the box.
                 true => fill_box(&c.volume.data, (*clo, c.dims), &mut out, lo),
             }
@@ -668,41 +668,6 @@ fn fill_box(
         (VoxelData::F32(s), VoxelData::F32(d)) => {
             s.first().map_or((), |&v| rows(v, d, (lo, hi), dst_lo, dd))
         }
-        // A store's levels share one type (`Multiscale::open` checks it).
-        _ => {}
-    }
-}
-
-fn copy_box(src: &Volume, src_lo: [usize; 3], dst: &mut Volume, dst_lo: [usize; 3]) {
-    let lo: [usize; 3] = std::array::from_fn(|a| src_lo[a].max(dst_lo[a]));
-    let hi: [usize; 3] =
-        std::array::from_fn(|a| (src_lo[a] + src.dims[a]).min(dst_lo[a] + dst.dims[a]));
-    if (0..3).any(|a| lo[a] >= hi[a]) {
-        return;
-    }
-    let w = hi[0] - lo[0];
-    let (sd, dd) = (src.dims, dst.dims);
-    fn rows<T: Copy>(
-        s: &[T],
-        d: &mut [T],
-        (lo, hi, w): ([usize; 3], [usize; 3], usize),
-        (src_lo, sd): ([usize; 3], [usize; 3]),
-        (dst_lo, dd): ([usize; 3], [usize; 3]),
-    ) {
-        for z in lo[2]..hi[2] {
-            for y in lo[1]..hi[1] {
-                let si = (lo[0] - src_lo[0]) + sd[0] * ((y - src_lo[1]) + sd[1] * (z - src_lo[2]));
-                let di = (lo[0] - dst_lo[0]) + dd[0] * ((y - dst_lo[1]) + dd[1] * (z - dst_lo[2]));
-                d[di..di + w].copy_from_slice(&s[si..si + w]);
-            }
-        }
-    }
-    let span = (lo, hi, w);
-    match (&src.data, &mut dst.data) {
-        (VoxelData::U8(s), VoxelData::U8(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
-        (VoxelData::U16(s), VoxelData::U16(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
-        (VoxelData::I16(s), VoxelData::I16(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
-        (VoxelData::F32(s), VoxelData::F32(d)) => rows(s, d, span, (src_lo, sd), (dst_lo, dd)),
         // A store's levels share one type (`Multiscale::open` checks it).
         _ => {}
     }

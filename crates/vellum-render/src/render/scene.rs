@@ -690,8 +690,12 @@ impl PagedScene {
         }
         let transfer = match classification {
             Classification::Auto => {
-                // The window from the finest level of at most 16 M voxels.
-                let small = levels.read_small_level(1 << 24)?;
+                // The window from the finest level of at most 2 Mi voxels, as a channel's is
+                // (`DESCRIBE_VOXELS`): its percentiles are the volume's to a bin or two, and a
+                // level of 16 Mi voxels (64 MiB of floats) was read whole before the first
+                // frame, 64 requests of a store on a server.
+                let small =
+                    levels.read_small_level(crate::classify::channels::DESCRIBE_VOXELS)?;
                 crate::classify::window::auto(&small, levels.range)?
             }
             Classification::Transfer(tf) => tf.clone(),

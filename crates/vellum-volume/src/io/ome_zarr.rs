@@ -320,9 +320,49 @@ impl Multiscale {
     /// Missing chunks read as the fill value; a corrupt one is named by its key.
     pub fn read_box(&self, level: usize, lo: [usize; 3], size: [usize; 3]) -> Result<Volume> {
         let l = self.level_info(level)?;
+        let boxes = chunk_boxes(l.chunk, lo, size);
+        if boxes.len() > 1 && super::http_store::is_url(&self.root) {
+            return self.read_box_by_chunks(level, (lo, size), &boxes);
+        }
         let data = retrieve(&self.arrays[level], &self.lead, self.voxel, lo, size)
             .map_err(|e| self.read_error(level, lo, size, e))?;
         Volume::new(size, l.spacing, data)
+    }
+
+    /// [`Multiscale::read_box`] of a store on a server, chunk by chunk on
+    /// [`REMOTE_READERS`] threads: each chunk is a request, and zarrs' own parallel read, on
+    /// the decoders' pool of one thread a core, keeps only as many in flight as there are cores
+    /// (two here, so a level of 64 chunks took 32 round trips).
+    fn read_box_by_chunks(
+        &self,
+        level: usize,
+        (lo, size): ([usize; 3], [usize; 3]),
+        boxes: &[([usize; 3], [usize; 3])],
+    ) -> Result<Volume> {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        let data = VoxelData::zeros(self.voxel, size.iter().product());
+        let out = std::sync::Mutex::new(Volume::new(size, self.levels[level].spacing, data)?);
+        let next = AtomicUsize::new(0);
+        let read = || -> Result<()> {
+            while let Some(&(blo, bsize)) = boxes.get(next.fetch_add(1, Ordering::Relaxed)) {
+                let part = self.read_box(level, blo, bsize)?;
+                out.lock()
+                    .map_err(|_| Error::Invalid("a reader of the store stopped".into()))?
+                    .paste(&part, blo, lo);
+            }
+            Ok(())
+        };
+        std::thread::scope(|s| {
+            let readers: Vec<_> = (0..REMOTE_READERS.min(boxes.len()))
+                .map(|_| s.spawn(read))
+                .collect();
+            readers.into_iter().try_for_each(|r| {
+                r.join()
+                    .unwrap_or_else(|_| Err(Error::Invalid("a reader of the store stopped".into())))
+            })
+        })?;
+        out.into_inner()
+            .map_err(|_| Error::Invalid("a reader of the store stopped".into()))
     }
 
     /// The error of a box that could not be read, naming the first chunk of the box that fails
@@ -413,6 +453,37 @@ fn retrieve<S: zarrs::storage::ReadableStorageTraits + ?Sized + 'static>(
             None => VoxelData::F32(array.retrieve_array_subset(&subset)?),
         },
     })
+}
+
+/// Threads that read a box of a store on a server, a chunk each at a time
+/// (`Multiscale::read_box_by_chunks`): requests mostly wait on their answers.
+const REMOTE_READERS: usize = 16;
+
+/// The parts of the box `lo .. lo + size` in each chunk of edge `chunk` it meets (x fastest):
+/// each part's first voxel and size.
+fn chunk_boxes(
+    chunk: [usize; 3],
+    lo: [usize; 3],
+    size: [usize; 3],
+) -> Vec<([usize; 3], [usize; 3])> {
+    if size.contains(&0) || chunk.contains(&0) {
+        return Vec::new();
+    }
+    let first: [usize; 3] = std::array::from_fn(|a| lo[a] / chunk[a]);
+    let last: [usize; 3] = std::array::from_fn(|a| (lo[a] + size[a] - 1) / chunk[a]);
+    let mut boxes = Vec::new();
+    for cz in first[2]..=last[2] {
+        for cy in first[1]..=last[1] {
+            for cx in first[0]..=last[0] {
+                let c = [cx, cy, cz];
+                let blo: [usize; 3] = std::array::from_fn(|a| (c[a] * chunk[a]).max(lo[a]));
+                let bhi: [usize; 3] =
+                    std::array::from_fn(|a| ((c[a] + 1) * chunk[a]).min(lo[a] + size[a]));
+                boxes.push((blo, std::array::from_fn(|a| bhi[a] - blo[a])));
+            }
+        }
+    }
+    boxes
 }
 
 /// One level of a store, read a box at a time.
