@@ -4,7 +4,10 @@
 // normalises them, and this pass writes the slot's intensity and its Sobel gradients into the
 // pools. The gradient is sobel_normals.comp's: a texel outside the level takes the gradient of the
 // edge voxel it repeats, and neighbours clamp at the level's borders, so a slot holds exactly what
-// the in-core textures hold there. One workgroup row per brick (y), 64 texels per workgroup (x).
+// the in-core textures hold there. One workgroup row per brick (y), 64 of the slot's 34 x 34
+// columns per workgroup (x): an invocation writes a column of texels along z, reading each slice's
+// 3 x 3 once for three sums that neighbouring slices combine, as sobel_normals.comp does (9
+// fetches a texel, not 27; the sums are the same).
 #include "render.glsl"
 
 layout(local_size_x = 64) in;
@@ -35,33 +38,59 @@ float voxel(int first, ivec3 l) {
     return float(v) / 65535.0;
 }
 
+// Over level slice z (clamped) around the column's voxel cxy (clamped): x, the x difference
+// smoothed (1, 2, 1) along y; y, the y difference smoothed along x; z, the plane smoothed along
+// both.
+vec3 plane_sums(int first, ivec3 lo, ivec3 dims, ivec2 cxy, int z) {
+    vec3 s = vec3(0.0);
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 q = clamp(cxy + ivec2(dx, dy), ivec2(0), dims.xy - 1);
+            float v = voxel(first, ivec3(q, z) - lo);
+            float wx = 2.0 - abs(float(dx));
+            float wy = 2.0 - abs(float(dy));
+            s += v * vec3(float(dx) * wy, float(dy) * wx, wx * wy);
+        }
+    }
+    return s;
+}
+
 void main() {
-    int t = int(gl_GlobalInvocationID.x);
+    int column = int(gl_GlobalInvocationID.x);
     int brick = int(gl_WorkGroupID.y);
-    if (t >= SLOT * SLOT * SLOT || brick >= pc.grid.w) {
+    if (column >= SLOT * SLOT || brick >= pc.grid.w) {
         return;
     }
     BrickFill f = fills[brick];
-    ivec3 s = ivec3(t % SLOT, (t / SLOT) % SLOT, t / (SLOT * SLOT));
+    ivec2 sxy = ivec2(column % SLOT, column / SLOT);
     ivec3 lo = f.lo_slot.xyz;
     ivec3 dims = f.dims_offset.xyz;
     int first = f.dims_offset.w;
-    // The texel's voxel in the level, and the voxel whose gradient it takes.
-    ivec3 c = clamp(lo + 1 + s, ivec3(0), dims - 1);
-    vec3 g = vec3(0.0);
-    for (int dz = -1; dz <= 1; ++dz) {
-        for (int dy = -1; dy <= 1; ++dy) {
-            for (int dx = -1; dx <= 1; ++dx) {
-                ivec3 d = ivec3(dx, dy, dz);
-                float v = voxel(first, clamp(c + d, ivec3(0), dims - 1) - lo);
-                vec3 w = vec3(2.0) - abs(vec3(d));
-                g += v * vec3(d) * vec3(w.y * w.z, w.x * w.z, w.x * w.y);
-            }
-        }
-    }
-    g *= f.inv_spacing.xyz / 32.0;
     int slot = f.lo_slot.w;
-    ivec3 at = ivec3(slot % pc.grid.x, (slot / pc.grid.x) % pc.grid.y, slot / (pc.grid.x * pc.grid.y)) * SLOT + s;
-    imageStore(intensity, at, vec4(voxel(first, s + 1)));
-    imageStore(gradient, at, vec4(g, length(g)));
+    ivec3 origin = ivec3(slot % pc.grid.x, (slot / pc.grid.x) % pc.grid.y, slot / (pc.grid.x * pc.grid.y)) * SLOT;
+    // The column's voxel in the level (a texel outside it takes the edge voxel's gradient).
+    ivec2 cxy = clamp(lo.xy + 1 + sxy, ivec2(0), dims.xy - 1);
+    vec3 scale = f.inv_spacing.xyz / 32.0;
+    // The sums of the slices below, at and above the level slice `held`; the texel's slice
+    // advances by one or (clamped past the level) not at all.
+    int held = -2;
+    vec3 below = vec3(0.0), here = vec3(0.0), above = vec3(0.0);
+    for (int sz = 0; sz < SLOT; ++sz) {
+        int cz = clamp(lo.z + 1 + sz, 0, dims.z - 1);
+        if (cz != held) {
+            if (cz == held + 1) {
+                below = here;
+                here = above;
+            } else {
+                below = plane_sums(first, lo, dims, cxy, max(cz - 1, 0));
+                here = plane_sums(first, lo, dims, cxy, cz);
+            }
+            above = plane_sums(first, lo, dims, cxy, min(cz + 1, dims.z - 1));
+            held = cz;
+        }
+        vec3 g = vec3(below.xy + 2.0 * here.xy + above.xy, above.z - below.z) * scale;
+        ivec3 s = ivec3(sxy, sz);
+        imageStore(intensity, origin + s, vec4(voxel(first, s + 1)));
+        imageStore(gradient, origin + s, vec4(g, length(g)));
+    }
 }

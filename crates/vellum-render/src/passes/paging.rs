@@ -445,7 +445,8 @@ impl PagedVolume {
             16,
         )?;
         ctx.count_transfer(&self.intensity.name, true, voxels.size);
-        let slot_texels = (SLOT * SLOT * SLOT) as u32;
+        // An invocation per column of a slot (`brick_fill.comp` walks it along z).
+        let slot_columns = (SLOT * SLOT) as u32;
         let push = FillPush {
             grid: [
                 self.paged.grid[0] as i32,
@@ -463,7 +464,7 @@ impl PagedVolume {
                 Bind::StorageImage(&self.gradient),
             ],
             &push,
-            [slot_texels.div_ceil(64), part.len() as u32, 1],
+            [slot_columns.div_ceil(64), part.len() as u32, 1],
         )
     }
 }
