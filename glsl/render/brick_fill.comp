@@ -21,6 +21,9 @@ layout(set = 0, binding = 2, r16) uniform writeonly image3D intensity;
 layout(set = 0, binding = 3, rgba16f) uniform writeonly image3D gradient;
 
 layout(push_constant) uniform Push { FillPush pc; };
+// 8-bit voxels with their table, or 16-bit ones: a pipeline each (passes/paging.rs), not a test
+// of pc.grid.z per fetch, whose both sides a CPU device runs.
+layout(constant_id = 0) const bool EIGHT_BIT = false;
 
 const int UPLOAD = 36;
 const int SLOT = 34;
@@ -29,7 +32,7 @@ const int SLOT = 34;
 float voxel(int first, ivec3 l) {
     uint i = uint(first + l.x + UPLOAD * (l.y + UPLOAD * l.z));
     uint v;
-    if (pc.grid.z != 0) {
+    if (EIGHT_BIT) {
         uint b = (words[i >> 2u] >> (8u * (i & 3u))) & 0xffu;
         v = (table[b >> 1u] >> (16u * (b & 1u))) & 0xffffu;
     } else {

@@ -93,7 +93,8 @@ pub struct PagedVolume {
     pub paged: Paged,
     /// The pools of the channels mixed in the ray, when the pyramid mixes some.
     pub channels: Option<Box<ChannelPools>>,
-    fill: ComputePipeline,
+    /// `brick_fill` for 16-bit bricks and for 8-bit ones.
+    fill: [ComputePipeline; 2],
 }
 
 /// The brick cache's pools of mixed channels (issue 42): RGBA16 images of the intensity pool's
@@ -108,15 +109,17 @@ pub struct ChannelPools {
     fill: ComputePipeline,
 }
 
-/// A fill pass: `shader` reads the batch's voxels and table of fills and writes two pool images.
-fn fill_pipeline(ctx: &Arc<Context>, shader: &str) -> Result<ComputePipeline> {
+/// A fill pass: `shader` reads the batch's voxels and table of fills and writes two pool images;
+/// `constants` specialise it.
+fn fill_pipeline(ctx: &Arc<Context>, shader: &str, constants: &[u32]) -> Result<ComputePipeline> {
     use BindingKind::{StorageBuffer, StorageImage};
     let bindings = [StorageBuffer, StorageBuffer, StorageImage, StorageImage];
-    ComputePipeline::new(
+    ComputePipeline::with_constants(
         ctx,
         shader,
         &bindings,
         std::mem::size_of::<FillPush>() as u32,
+        constants,
     )
 }
 
@@ -144,7 +147,7 @@ impl ChannelPools {
                 &ImageDesc::new_3d(Format::R16G16B16A16_UNORM, extent),
             )
         };
-        let fill = fill_pipeline(ctx, "render/channel_fill.comp")?;
+        let fill = fill_pipeline(ctx, "render/channel_fill.comp", &[])?;
         Ok(Some(Box::new(ChannelPools {
             image: image("brick pool channels 0-3")?,
             image_hi: (count > 4)
@@ -280,7 +283,11 @@ impl PagedVolume {
             "brick feedback",
             &BufferDesc::storage((levels.entries().max(1) * 4) as u64).host_read(),
         )?;
-        let fill = fill_pipeline(ctx, "render/brick_fill.comp")?;
+        // 16-bit bricks, and 8-bit ones with their table (`brick_fill.comp`'s EIGHT_BIT).
+        let fill = [
+            fill_pipeline(ctx, "render/brick_fill.comp", &[0])?,
+            fill_pipeline(ctx, "render/brick_fill.comp", &[1])?,
+        ];
         let level0 = levels.levels()[0].clone();
         let channels = ChannelPools::new(ctx, mixed, extent)?;
         let channel_ranges = vec![UNKNOWN_RANGE; levels.entries() * mixed];
@@ -455,7 +462,7 @@ impl PagedVolume {
                 part.len() as i32,
             ],
         };
-        self.fill.dispatch(
+        self.fill[(!wide) as usize].dispatch(
             frame.cmd,
             &[
                 Bind::StorageSlice(voxels),
