@@ -39,7 +39,8 @@ struct BrickFill {
 };
 
 struct FillPush {
-    ivec4 grid;          // x, y: slots along x and y of the pool; z: 1 for 8-bit voxels; w: bricks
+    ivec4 grid;          // x, y: slots along x and y of the pool; z: channel_fill's channels
+                         // (brick_fill's width is its pipeline's EIGHT_BIT); w: bricks
 };
 
 #define NORMALS_LOCAL_X 8

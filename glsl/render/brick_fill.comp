@@ -21,8 +21,8 @@ layout(set = 0, binding = 2, r16) uniform writeonly image3D intensity;
 layout(set = 0, binding = 3, rgba16f) uniform writeonly image3D gradient;
 
 layout(push_constant) uniform Push { FillPush pc; };
-// 8-bit voxels with their table, or 16-bit ones: a pipeline each (passes/paging.rs), not a test
-// of pc.grid.z per fetch, whose both sides a CPU device runs.
+// 8-bit voxels with their table, or 16-bit ones: the pyramid's pipeline says which
+// (passes/paging.rs), not a test per fetch, whose both sides a CPU device runs.
 layout(constant_id = 0) const bool EIGHT_BIT = false;
 
 const int UPLOAD = 36;

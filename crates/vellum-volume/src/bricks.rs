@@ -452,22 +452,15 @@ impl BrickLevels {
     ) -> Result<Read> {
         let l = &ms.levels[level];
         let (chunk, dims) = (l.chunk, l.dims);
-        let first: [usize; 3] = std::array::from_fn(|a| lo[a] / chunk[a]);
-        let last: [usize; 3] = std::array::from_fn(|a| (lo[a] + size[a] - 1) / chunk[a]);
         let mut got = Vec::with_capacity(8);
-        for cz in first[2]..=last[2] {
-            for cy in first[1]..=last[1] {
-                for cx in first[0]..=last[0] {
-                    let c = [cx, cy, cz];
-                    let clo: [usize; 3] = std::array::from_fn(|a| c[a] * chunk[a]);
-                    let csize: [usize; 3] = std::array::from_fn(|a| chunk[a].min(dims[a] - clo[a]));
-                    let bytes = (csize.iter().product::<usize>() * ms.voxel.size()) as u64;
-                    let one = self
-                        .chunks
-                        .get((level, c), bytes, || ms.read_box(level, clo, csize))?;
-                    got.push((clo, one));
-                }
-            }
+        for c in crate::io::ome_zarr::chunks_meeting(chunk, lo, size) {
+            let clo: [usize; 3] = std::array::from_fn(|a| c[a] * chunk[a]);
+            let csize: [usize; 3] = std::array::from_fn(|a| chunk[a].min(dims[a] - clo[a]));
+            let bytes = (csize.iter().product::<usize>() * ms.voxel.size()) as u64;
+            let one = self
+                .chunks
+                .get((level, c), bytes, || ms.read_box(level, clo, csize))?;
+            got.push((clo, one));
         }
         if let Some(v) = got.first().and_then(|(_, c)| c.value()) {
             if got.iter().all(|(_, c)| c.value() == Some(v)) {

@@ -93,8 +93,10 @@ pub struct PagedVolume {
     pub paged: Paged,
     /// The pools of the channels mixed in the ray, when the pyramid mixes some.
     pub channels: Option<Box<ChannelPools>>,
-    /// `brick_fill` for 16-bit bricks and for 8-bit ones.
-    fill: [ComputePipeline; 2],
+    /// `brick_fill` for the pyramid's bricks: 8-bit with their table (`fill_eight_bit`), or
+    /// 16-bit. A pyramid's levels share one voxel type, so its bricks share one width.
+    fill: ComputePipeline,
+    fill_eight_bit: bool,
 }
 
 /// The brick cache's pools of mixed channels (issue 42): RGBA16 images of the intensity pool's
@@ -225,8 +227,8 @@ pub(crate) fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct FillPush {
-    /// x, y: pool slots along x and y; z: 1 for 8-bit voxels, 0 for 16-bit; w: bricks in this
-    /// dispatch.
+    /// x, y: pool slots along x and y; z: `channel_fill`'s channel count (unread by
+    /// `brick_fill`, whose pipeline says the voxels' width); w: bricks in this dispatch.
     pub grid: [i32; 4],
 }
 
@@ -283,11 +285,10 @@ impl PagedVolume {
             "brick feedback",
             &BufferDesc::storage((levels.entries().max(1) * 4) as u64).host_read(),
         )?;
-        // 16-bit bricks, and 8-bit ones with their table (`brick_fill.comp`'s EIGHT_BIT).
-        let fill = [
-            fill_pipeline(ctx, "render/brick_fill.comp", &[0])?,
-            fill_pipeline(ctx, "render/brick_fill.comp", &[1])?,
-        ];
+        // 8-bit bricks travel with the table that normalises them (`brick_fill.comp`'s
+        // EIGHT_BIT); every other type's, normalised to 16 bits.
+        let fill_eight_bit = levels.u8_table().is_some();
+        let fill = fill_pipeline(ctx, "render/brick_fill.comp", &[fill_eight_bit as u32])?;
         let level0 = levels.levels()[0].clone();
         let channels = ChannelPools::new(ctx, mixed, extent)?;
         let channel_ranges = vec![UNKNOWN_RANGE; levels.entries() * mixed];
@@ -317,6 +318,7 @@ impl PagedVolume {
             },
             channels,
             fill,
+            fill_eight_bit,
         })
     }
 
@@ -338,15 +340,17 @@ impl PagedVolume {
             }
             c.transition(frame.cmd, Access::ComputeSampled);
         }
-        // 8-bit bricks and normalised ones in separate dispatches (a pyramid has one kind).
-        for wide in [false, true] {
-            let batch: Vec<&Upload> = loads
-                .iter()
-                .filter(|u| matches!(u.voxels.data, BrickData::U16(_)) == wide)
-                .collect();
-            for part in batch.chunks(FILL_BATCH) {
-                self.record_fill(ctx, frame, part, wide)?;
-            }
+        if loads
+            .iter()
+            .any(|u| matches!(u.voxels.data, BrickData::U8(_)) != self.fill_eight_bit)
+        {
+            return Err(Error::Invalid(
+                "a brick arrived of another voxel width than its pyramid's".into(),
+            ));
+        }
+        let all: Vec<&Upload> = loads.iter().collect();
+        for part in all.chunks(FILL_BATCH) {
+            self.record_fill(ctx, frame, part)?;
         }
         self.intensity.transition(frame.cmd, Access::ComputeSampled);
         self.gradient.transition(frame.cmd, Access::ComputeSampled);
@@ -414,14 +418,8 @@ impl PagedVolume {
         )
     }
 
-    /// One `brick_fill` dispatch over `part`, all of one width.
-    fn record_fill(
-        &self,
-        ctx: &Context,
-        frame: &mut Frame,
-        part: &[&Upload],
-        wide: bool,
-    ) -> Result<()> {
+    /// One `brick_fill` dispatch over `part`.
+    fn record_fill(&self, ctx: &Context, frame: &mut Frame, part: &[&Upload]) -> Result<()> {
         let levels = self.paged.levels.levels();
         let per = (UPLOAD * UPLOAD * UPLOAD) as i32;
         let mut fills = Vec::with_capacity(part.len());
@@ -458,11 +456,12 @@ impl PagedVolume {
             grid: [
                 self.paged.grid[0] as i32,
                 self.paged.grid[1] as i32,
-                (!wide) as i32,
+                // Unread: the pipeline's EIGHT_BIT says the width.
+                0,
                 part.len() as i32,
             ],
         };
-        self.fill[(!wide) as usize].dispatch(
+        self.fill.dispatch(
             frame.cmd,
             &[
                 Bind::StorageSlice(voxels),

@@ -492,6 +492,21 @@ fn open_arrays(
 /// (`Multiscale::read_box_by_chunks`): requests mostly wait on their answers.
 const REMOTE_READERS: usize = 16;
 
+/// The chunks of edge `chunk` that the box `lo .. lo + size` meets, by their place in the chunk
+/// grid (x fastest); none for an empty box.
+pub(crate) fn chunks_meeting(
+    chunk: [usize; 3],
+    lo: [usize; 3],
+    size: [usize; 3],
+) -> impl Iterator<Item = [usize; 3]> {
+    let empty = size.contains(&0) || chunk.contains(&0);
+    let first: [usize; 3] = std::array::from_fn(|a| lo[a] / chunk[a].max(1));
+    let last: [usize; 3] =
+        std::array::from_fn(|a| (lo[a] + size[a]).saturating_sub(1) / chunk[a].max(1));
+    let span = move |a: usize| first[a]..if empty { first[a] } else { last[a] + 1 };
+    span(2).flat_map(move |z| span(1).flat_map(move |y| span(0).map(move |x| [x, y, z])))
+}
+
 /// The parts of the box `lo .. lo + size` in each chunk of edge `chunk` it meets (x fastest):
 /// each part's first voxel and size.
 fn chunk_boxes(
@@ -499,24 +514,14 @@ fn chunk_boxes(
     lo: [usize; 3],
     size: [usize; 3],
 ) -> Vec<([usize; 3], [usize; 3])> {
-    if size.contains(&0) || chunk.contains(&0) {
-        return Vec::new();
-    }
-    let first: [usize; 3] = std::array::from_fn(|a| lo[a] / chunk[a]);
-    let last: [usize; 3] = std::array::from_fn(|a| (lo[a] + size[a] - 1) / chunk[a]);
-    let mut boxes = Vec::new();
-    for cz in first[2]..=last[2] {
-        for cy in first[1]..=last[1] {
-            for cx in first[0]..=last[0] {
-                let c = [cx, cy, cz];
-                let blo: [usize; 3] = std::array::from_fn(|a| (c[a] * chunk[a]).max(lo[a]));
-                let bhi: [usize; 3] =
-                    std::array::from_fn(|a| ((c[a] + 1) * chunk[a]).min(lo[a] + size[a]));
-                boxes.push((blo, std::array::from_fn(|a| bhi[a] - blo[a])));
-            }
-        }
-    }
-    boxes
+    chunks_meeting(chunk, lo, size)
+        .map(|c| {
+            let blo: [usize; 3] = std::array::from_fn(|a| (c[a] * chunk[a]).max(lo[a]));
+            let bhi: [usize; 3] =
+                std::array::from_fn(|a| ((c[a] + 1) * chunk[a]).min(lo[a] + size[a]));
+            (blo, std::array::from_fn(|a| bhi[a] - blo[a]))
+        })
+        .collect()
 }
 
 /// One level of a store, read a box at a time.
