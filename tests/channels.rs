@@ -316,7 +316,7 @@ fn a_function_set_later_draws_in_the_next_frame() {
     let frame = |s: &mut Session| -> Vec<[u8; 3]> {
         let opts = vellum::render::bricked::StillOptions {
             max_wait: None,
-            progress: None,
+            ..Default::default()
         };
         let f = s.still(&view, opts).unwrap().0;
         vellum::render::targets::to_rgb8(&f.composite, [0.0; 3])

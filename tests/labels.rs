@@ -105,10 +105,7 @@ fn frame_and_view(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> (FrameImag
     .unwrap();
     let (view, note) = session.view(scene.view(false).unwrap());
     assert!(note.unwrap().contains("ray caster"));
-    let opts = StillOptions {
-        max_wait: None,
-        progress: None,
-    };
+    let opts = StillOptions::default();
     (session.still(&view, opts).unwrap().0, view)
 }
 

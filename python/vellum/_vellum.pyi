@@ -151,8 +151,9 @@ class Image:
     @property
     def streaming(self) -> dict[str, float | int | bool] | None:
         """For a frame drawn through the brick cache, what its streaming did (passes,
-        bricks_loaded, bricks_touched, bricks_evicted, capacity, complete, first_frame_ms,
-        total_ms, source_mib_per_s); None for a volume in core."""
+        bricks_loaded, bricks_touched, bricks_evicted, capacity, complete, first_frame_ms
+        (None: no coarse frame is drawn for a still frame), total_ms, source_mib_per_s); None
+        for a volume in core."""
 
 class Renderer:
     """A scene prepared once on the device and rendered many times (an orbit) with nothing

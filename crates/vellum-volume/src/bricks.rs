@@ -162,6 +162,11 @@ pub struct BrickLevels {
     chunks: ChunkCache,
     /// Channels mixed in the ray beside this pyramid's voxels, in mixing order.
     mixed: Vec<Mixed>,
+    /// The last level of at most [`RANGE_CHECK_VOXELS`] read whole, with its index: the range's
+    /// level when the store was opened, which the `auto` window and the previews read again
+    /// ([`BrickLevels::read_small_level`]); from a server, a round trip less before the first
+    /// frame.
+    small: std::sync::Mutex<Option<(usize, Volume)>>,
 }
 
 /// A channel mixed in the ray (issue 42): each brick read carries every mixed channel's voxels,
@@ -188,7 +193,11 @@ const RANGE_CHECK_VOXELS: usize = 1 << 21;
 /// level's voxels are means of level 0's, so none may fall outside level 0's extremes. A range
 /// that is not finite, whose span is not, or that its own coarse level contradicts would draw a
 /// black or saturated picture through the cache: refused in one sentence.
-fn check_recorded_range(ms: &Multiscale, r: [f64; 2]) -> Result<[f64; 2]> {
+fn check_recorded_range(
+    ms: &Multiscale,
+    r: [f64; 2],
+    (pick, level): (usize, &Volume),
+) -> Result<[f64; 2]> {
     let name = "its recorded range (attributes vellum.range)";
     if !(r[0].is_finite() && r[1].is_finite() && (r[1] - r[0]).is_finite()) {
         return Err(Error::format(
@@ -196,8 +205,7 @@ fn check_recorded_range(ms: &Multiscale, r: [f64; 2]) -> Result<[f64; 2]> {
             format!("{name} {r:?} is not a finite span; expected the smallest and largest value of level 0"),
         ));
     }
-    let pick = small_level(ms, RANGE_CHECK_VOXELS);
-    let seen = ms.read_level(pick)?.normalised_range();
+    let seen = level.normalised_range();
     let slack = 1e-6 * r[0].abs().max(r[1].abs()).max(1e-30);
     if seen[0] < r[0] - slack || seen[1] > r[1] + slack {
         return Err(Error::format(
@@ -224,8 +232,12 @@ impl BrickLevels {
     /// taken from its finest level of at most `scan_limit` voxels (said once at run time when
     /// that is not level 0: extremes thinner than that level's voxels are then clipped).
     pub fn of_store(ms: Arc<Multiscale>, scan_limit: usize) -> Result<Self> {
-        let range = match ms.range {
-            Some(r) => check_recorded_range(&ms, r)?,
+        let (range, read) = match ms.range {
+            Some(r) => {
+                let pick = small_level(&ms, RANGE_CHECK_VOXELS);
+                let level = ms.read_level(pick)?;
+                (check_recorded_range(&ms, r, (pick, &level))?, (pick, level))
+            }
             None => {
                 // The finest level small enough (level 0 when it is).
                 let pick = small_level(&ms, scan_limit);
@@ -235,14 +247,17 @@ impl BrickLevels {
                         ms.root.display()
                     );
                 }
-                ms.read_level(pick)?.normalised_range()
+                let level = ms.read_level(pick)?;
+                (level.normalised_range(), (pick, level))
             }
         };
         let geometry = ms.geometry_of(0);
         let sources = (0..ms.levels.len())
             .map(|l| LevelSource::Store(ms.clone(), l))
             .collect();
-        Self::build(sources, range, geometry)
+        let levels = Self::build(sources, range, geometry)?;
+        levels.keep_small(read);
+        Ok(levels)
     }
 
     fn build(
@@ -285,6 +300,7 @@ impl BrickLevels {
             geometry,
             chunks: ChunkCache::new(DEFAULT_CHUNK_CACHE),
             mixed: Vec::new(),
+            small: std::sync::Mutex::new(None),
         })
     }
 
@@ -320,8 +336,23 @@ impl BrickLevels {
             .iter()
             .position(|l| l.dims.iter().product::<usize>() <= voxels)
             .unwrap_or(self.levels.len() - 1);
+        let kept = self.small.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some((_, v)) = kept.as_ref().filter(|k| k.0 == i) {
+            return Ok(v.clone());
+        }
+        drop(kept);
         let dims = self.levels[i].dims;
-        self.sources[i].source()?.read_box([0; 3], dims)
+        let v = self.sources[i].source()?.read_box([0; 3], dims)?;
+        self.keep_small((i, v.clone()));
+        Ok(v)
+    }
+
+    /// Keeps `read` (a level's index and its voxels) for [`BrickLevels::read_small_level`] when
+    /// it is small enough to keep.
+    fn keep_small(&self, read: (usize, Volume)) {
+        if read.1.dims.iter().product::<usize>() <= RANGE_CHECK_VOXELS {
+            *self.small.lock().unwrap_or_else(|p| p.into_inner()) = Some(read);
+        }
     }
 
     /// Page-table entries over all levels.
@@ -1254,6 +1285,26 @@ mod tests {
         }
         assert_eq!(cache.page_table[1], s7 as u32 + 1);
         assert_eq!(cache.page_table[0], s7 as u32 + 1);
+    }
+
+    #[test]
+    fn the_level_read_for_the_range_is_not_read_again() {
+        // 140³ is past RANGE_CHECK_VOXELS: the recorded range is checked on level 1 (70³),
+        // which is then what a histogram of at most 2 Mi voxels asks for.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.ome.zarr");
+        let v = shepp_logan(140);
+        crate::io::ome_zarr::write(&path, &v, &Default::default()).unwrap();
+        let ms = Arc::new(Multiscale::open(&path).unwrap());
+        let want = ms.read_level(1).unwrap();
+        let levels = BrickLevels::of_store(ms, 1 << 26).unwrap();
+        // Gone from the store: a second read would fail or read fill values.
+        std::fs::remove_dir_all(path.join("1")).unwrap();
+        let got = levels.read_small_level(RANGE_CHECK_VOXELS).unwrap();
+        assert_eq!(got.dims, [70; 3]);
+        assert_eq!(got.data, want.data);
+        // A level not kept is read from the store.
+        assert!(levels.read_small_level(1 << 12).is_ok());
     }
 
     #[test]

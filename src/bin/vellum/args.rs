@@ -255,6 +255,10 @@ pub(crate) struct RenderArgs {
     /// the first frame drawn from the coarsest level, then one after each pass.
     #[arg(long, value_name = "DIR")]
     pub(crate) progress_frames: Option<PathBuf>,
+    /// Brick cache: draw the first coarse frame, as a window would show it, and time it
+    /// (`first_frame_ms` in --json); without it or --progress-frames none is drawn.
+    #[arg(long)]
+    pub(crate) first_frame: bool,
     /// Brick cache: host memory in MiB for decoded chunks and bricks waiting for the GPU
     /// (default 1024: 896 of chunks, 128 of bricks).
     #[arg(long, value_name = "MiB")]

@@ -101,8 +101,9 @@ pub struct StreamReport {
     /// Milliseconds until the first pass had run, until the first (coarse) frame was drawn,
     /// and until the complete frame was.
     pub(crate) first_pass_ms: f64,
-    /// Milliseconds until the first (coarse) frame was drawn.
-    pub first_frame_ms: f64,
+    /// Milliseconds until the first (coarse) frame was drawn; none when no one asked for it
+    /// ([`StillOptions::first_frame`], [`StillOptions::progress`]).
+    pub first_frame_ms: Option<f64>,
     /// Milliseconds until the complete frame was drawn: the whole frame's time.
     pub total_ms: f64,
     /// Refinements drawn on the way (progressive frames).
@@ -120,6 +121,10 @@ pub struct StillOptions<'a> {
     /// Called with every progressive frame (the first coarse one, then one after each pass).
     #[allow(clippy::type_complexity)]
     pub progress: Option<&'a mut dyn FnMut(&FrameImage) -> Result<()>>,
+    /// Draws the first coarse frame, and times it, though `progress` is not there to take it.
+    /// Without either, none is drawn: it would cost a whole frame's ray casting before the
+    /// first pass (a quarter of a second at 512² on lavapipe) for nothing.
+    pub first_frame: bool,
 }
 
 /// The state of one still frame between its passes.
@@ -240,7 +245,7 @@ impl Renderer {
     }
 
     /// The first bricks: the coarsest level, read before anything else, and the first
-    /// progressive frame over it.
+    /// progressive frame over it when it is asked for.
     fn first_frame(
         &mut self,
         s: &mut Still,
@@ -264,8 +269,11 @@ impl Renderer {
         s.frames
             .frame(|f| record_arrivals(vol, &ctx, f, &arrived))?;
         s.frames.wait_idle()?;
+        if !opts.first_frame && opts.progress.is_none() {
+            return Ok(());
+        }
         let image = self.progressive(s, vol, classify)?;
-        s.report.first_frame_ms = s.start.elapsed().as_secs_f64() * 1e3;
+        s.report.first_frame_ms = Some(s.start.elapsed().as_secs_f64() * 1e3);
         if let Some(progress) = opts.progress.as_deref_mut() {
             progress(&image)?;
         }

@@ -306,13 +306,14 @@ fn render_on(
                 r.pool_bytes as f64 / (1 << 20) as f64,
             );
             println!(
-                "  streaming: {} chunks decoded ({:.0} MiB/s of source voxels), loaders busy {:.0} ms, GPU {:.0} ms, both {:.0}% of the frame; first frame {:.0} ms, complete {:.0} ms",
+                "  streaming: {} chunks decoded ({:.0} MiB/s of source voxels), loaders busy {:.0} ms, GPU {:.0} ms, both {:.0}% of the frame; first frame {}, complete {:.0} ms",
                 r.chunks_decoded,
                 r.source_mib_per_s,
                 r.host_ms,
                 r.gpu_ms,
                 100.0 * r.both_share,
-                r.first_frame_ms,
+                r.first_frame_ms
+                    .map_or("not drawn".into(), |ms| format!("{ms:.0} ms")),
                 r.total_ms
             );
         }
@@ -440,9 +441,12 @@ fn draw(
     }
     *view = drawn;
     if !session.prepared.is_paged()
-        && (a.lod != "auto" || a.max_wait_ms.is_some() || a.progress_frames.is_some())
+        && (a.lod != "auto"
+            || a.max_wait_ms.is_some()
+            || a.progress_frames.is_some()
+            || a.first_frame)
     {
-        eprintln!("note: --lod, --max-wait-ms and --progress-frames apply to a volume drawn through the brick cache; this one fits the GPU budget and is drawn whole");
+        eprintln!("note: --lod, --max-wait-ms, --progress-frames and --first-frame apply to a volume drawn through the brick cache; this one fits the GPU budget and is drawn whole");
     }
     let mut written = 0usize;
     let background = scene.background;
@@ -466,6 +470,7 @@ fn draw(
             Some(_) => Some(&mut write),
             None => None,
         },
+        first_frame: a.first_frame,
     };
     // `VELLUM_STREAM_FLOOR=1` (bench scale): the chunks the frame decodes are recorded, and
     // decoded again plainly and uploaded after it, the floor its streaming is judged against.

@@ -18,7 +18,9 @@ fn child(args: &[&str]) -> Result<Value> {
 fn bricked(args: &[&str]) -> Result<Value> {
     let exe = std::env::current_exe().context("finding this binary")?;
     let mut c = std::process::Command::new(exe);
-    c.args(args).arg("--json").env("VELLUM_STREAM_FLOOR", "1");
+    c.args(args)
+        .args(["--json", "--first-frame"])
+        .env("VELLUM_STREAM_FLOOR", "1");
     report_of(c, &format!("vellum {}", args.join(" ")))
 }
 
