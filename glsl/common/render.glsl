@@ -46,7 +46,10 @@ struct FillPush {
 #define NORMALS_LOCAL_X 8
 #define NORMALS_LOCAL_Y 8
 #define NORMALS_LOCAL_Z 1
-// Voxels along z that one invocation of render/sobel_normals.comp computes.
+// Voxels along z that one invocation of render/sobel_normals.comp computes, in a block of
+// NORMALS_BLOCK_X x NORMALS_BLOCK_Y columns.
 #define NORMALS_COLUMN 16
+#define NORMALS_BLOCK_X 2
+#define NORMALS_BLOCK_Y 2
 
 #endif

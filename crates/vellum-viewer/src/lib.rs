@@ -207,6 +207,8 @@ struct GpuState {
     last_view: Option<View>,
     /// GPU memory for a volume's textures; a store that needs more is streamed.
     budget: u64,
+    /// The normals pass every volume put on the GPU in core goes through, built once.
+    normals: vellum_render::passes::normals::Normals,
     /// The next time point of a playing series, read and put on the GPU ahead of its turn.
     ahead: Option<(String, session::Loaded, Prepared)>,
 }

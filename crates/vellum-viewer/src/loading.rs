@@ -31,6 +31,17 @@ pub(crate) struct Loaded {
 /// beyond the budget is never read whole, and its level of at most 64³ voxels stands in for it
 /// on the host (histogram, range); a volume beyond it is drawn through the brick cache too.
 pub(crate) fn load(scene: Scene, budget: u64) -> Result<Loaded> {
+    load_with(scene, budget, None)
+}
+
+/// [`load`] of another time point of the series shown, whose transfer function (`look`, as
+/// edited) and histogram the session keeps (`SeriesLook`): on the series' scale
+/// (`input.range`), it is neither windowed nor counted again.
+pub(crate) fn load_time_point(scene: Scene, budget: u64, look: TransferFunction) -> Result<Loaded> {
+    load_with(scene, budget, Some(look))
+}
+
+fn load_with(scene: Scene, budget: u64, look: Option<TransferFunction>) -> Result<Loaded> {
     let classification = scene.classification()?;
     let (levels, volume) = match Opened::open(&scene, None, budget, None)? {
         Opened::Bricked(levels) => {
@@ -39,24 +50,13 @@ pub(crate) fn load(scene: Scene, budget: u64) -> Result<Loaded> {
         }
         Opened::InCore(v) => (None, v),
     };
-    let s = vellum_volume::stats::stats(&volume, 256);
-    // A time point of a series after the first shown is drawn on that one's scale.
-    let range = match (scene.input.range, &levels) {
-        (Some(r), _) => r,
-        (None, Some(l)) => l.range,
-        (None, None) => [s.min, s.max],
-    };
-    let tf = match &classification {
-        Classification::Transfer(tf) => tf.clone(),
-        Classification::Auto => vellum_render::classify::window::auto(&volume, range)?,
-        _ => TransferFunction::preset("grey")?,
-    };
-    let (tf, features) = match &classification {
-        Classification::Features(map) => (
-            vellum_render::classify::features::feature_transfer_function(map, [s.min, s.max])?,
-            Some(map.clone()),
-        ),
-        _ => (tf, None),
+    let kept = matches!(
+        classification,
+        Classification::Auto | Classification::Transfer(_)
+    );
+    let (tf, histogram, range, features) = match (look, scene.input.range) {
+        (Some(tf), Some(range)) if kept => (tf, Vec::new(), range, None),
+        _ => described(&scene, &classification, &volume, levels.as_deref())?,
     };
     let otf = match &classification {
         Classification::Occlusion(o) => Some(o.clone()),
@@ -68,10 +68,46 @@ pub(crate) fn load(scene: Scene, budget: u64) -> Result<Loaded> {
         scene,
         classification,
         tf,
-        histogram: s.histogram,
+        histogram,
         range,
         volume,
         levels,
         features,
     })
+}
+
+/// The transfer function the panels start from, the histogram, the range and the feature map
+/// of a volume just read (for a store streamed, its small level `volume`).
+#[allow(clippy::type_complexity)]
+fn described(
+    scene: &Scene,
+    classification: &Classification,
+    volume: &Volume,
+    levels: Option<&vellum_volume::bricks::BrickLevels>,
+) -> Result<(
+    TransferFunction,
+    Vec<u64>,
+    [f64; 2],
+    Option<vellum_volume::feature::FeatureMap>,
+)> {
+    let s = vellum_volume::stats::stats(volume, 256);
+    // A time point of a series after the first shown is drawn on that one's scale.
+    let range = match (scene.input.range, levels) {
+        (Some(r), _) => r,
+        (None, Some(l)) => l.range,
+        (None, None) => [s.min, s.max],
+    };
+    let tf = match classification {
+        Classification::Transfer(tf) => tf.clone(),
+        Classification::Auto => vellum_render::classify::window::auto(volume, range)?,
+        _ => TransferFunction::preset("grey")?,
+    };
+    let (tf, features) = match classification {
+        Classification::Features(map) => (
+            vellum_render::classify::features::feature_transfer_function(map, [s.min, s.max])?,
+            Some(map.clone()),
+        ),
+        _ => (tf, None),
+    };
+    Ok((tf, s.histogram, range, features))
 }

@@ -3,19 +3,24 @@
 //! focus, camera, style). While playing, the next time point is read on a second worker as soon
 //! as the current one is shown, so that a step waits only for what is left of its load.
 
-use super::session::{load, Loaded, Session};
+use super::session::{Loaded, Session};
 use super::timeline::Prefetch;
+use crate::loading::load_time_point;
 use std::sync::mpsc;
 use std::time::Instant;
 use vellum_error::Result;
 
 impl Session {
-    /// A store of several time points is drawn on the scale of the first one shown: later
-    /// ones load with it (`input.range`).
+    /// A store of several time points is drawn on the scale of the first one shown, and with
+    /// its `auto` line smoothing: later ones load with them (`input.range`,
+    /// `input.line_smooth`).
     pub(crate) fn fix_series_scale(&mut self) {
         if self.model.times > 1 && self.model.scene.input.range.is_none() {
-            self.model.scene.input.range = Some(self.model.range);
-            self.applied.input.range = Some(self.model.range);
+            let smooth = vellum_volume::lines::auto_smooth_radius(&self.volume);
+            for input in [&mut self.model.scene.input, &mut self.applied.input] {
+                input.range = Some(self.model.range);
+                input.line_smooth = Some(smooth);
+            }
         }
     }
 
@@ -62,7 +67,12 @@ impl Session {
             _ => {
                 let mut scene = self.model.scene.clone();
                 scene.input.time = Some(t);
-                self.start_load(what, scene);
+                let (tx, rx) = mpsc::channel();
+                let (budget, look) = (self.budget, self.model.tf.clone());
+                std::thread::spawn(move || {
+                    let _ = tx.send(load_time_point(scene, budget, look));
+                });
+                self.take_over_load(what, rx);
             }
         }
     }
@@ -72,14 +82,23 @@ impl Session {
         let mut scene = self.model.scene.clone();
         scene.input.time = Some(t);
         let (tx, rx) = mpsc::channel();
-        let budget = self.budget;
+        let (budget, look) = (self.budget, self.model.tf.clone());
         std::thread::spawn(move || {
-            let _ = tx.send(load(scene, budget));
+            let _ = tx.send(load_time_point(scene, budget, look));
         });
         self.prefetch = Some(Prefetch {
             time: t,
             answer: rx,
         });
+    }
+
+    /// Once time point `t` has been read ahead, the one after it is read meanwhile (unless it
+    /// is the one shown): its read overlaps `t`'s upload and normals on the thread that draws.
+    pub(crate) fn prefetch_after(&mut self, t: usize) {
+        let next = (t + 1) % self.model.times.max(1);
+        if self.prefetch.is_none() && next != self.model.time && next != t {
+            self.prefetch(next);
+        }
     }
 
     /// While playing, the next time point once it is due (`due_at`: one step, at most the play

@@ -4,6 +4,7 @@
 //! the GPU state.
 
 use super::*;
+use vellum_render::passes::normals::Normals;
 
 /// The window and what Vulkan needs of it: its display and window handles, and the instance
 /// extensions presenting to it takes.
@@ -119,7 +120,8 @@ impl Running {
             Some(ctx.info.max_image_dimension_2d as usize),
         );
         let renderer = Renderer::new(&ctx)?;
-        let mut gpu = prepare_gpu(&ctx, &mut loaded, budget)?;
+        let normals = Normals::new(&ctx)?;
+        let mut gpu = prepare_gpu(&normals, &mut loaded, budget)?;
         let spectrum = gpu.take_spectrum();
         let dims = gpu.volume().dims();
         let (segments, channels) = (segments_of(&mut gpu), channels_of(&mut gpu));
@@ -154,6 +156,7 @@ impl Running {
                 scene: gpu,
                 last_view: None,
                 budget,
+                normals,
                 ahead: None,
             },
             session,
@@ -327,7 +330,7 @@ impl Running {
         };
         let budget = self.gpu.budget;
         let result = got.and_then(|mut l| {
-            let gpu = prepare_gpu(&self.ctx, &mut l, budget)?;
+            let gpu = prepare_gpu(&self.gpu.normals, &mut l, budget)?;
             Ok((l, gpu))
         });
         // Whatever was read ahead belongs to the volume this load replaces.
@@ -371,9 +374,13 @@ impl Running {
     pub(crate) fn poll_ahead(&mut self) {
         if self.gpu.ahead.is_none() && self.session.playing() {
             if let Some((t, got)) = self.session.take_prefetched() {
+                // The one after it is read while this one goes on the GPU.
+                if got.is_ok() {
+                    self.session.prefetch_after(t);
+                }
                 let budget = self.gpu.budget;
                 let result = got.and_then(|mut l| {
-                    let gpu = prepare_gpu(&self.ctx, &mut l, budget)?;
+                    let gpu = prepare_gpu(&self.gpu.normals, &mut l, budget)?;
                     Ok((l, gpu))
                 });
                 match result {
@@ -471,7 +478,8 @@ fn channels_of(gpu: &mut Prepared) -> Option<Vec<crate::ui::ChannelRow>> {
 
 /// The GPU state of a loaded volume: in core, or the brick cache's pools with the streamer
 /// started on the coarsest level (and the scene made to ray-cast it).
-pub(crate) fn prepare_gpu(ctx: &Arc<Context>, l: &mut Loaded, budget: u64) -> Result<Prepared> {
+pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: u64) -> Result<Prepared> {
+    let ctx = normals.context();
     let modulation = l.scene.modulation.clone().unwrap_or_default();
     let Some(levels) = l.levels.take() else {
         // `auto` was windowed on the worker already, over the range the textures take: not again
@@ -482,9 +490,9 @@ pub(crate) fn prepare_gpu(ctx: &Arc<Context>, l: &mut Loaded, budget: u64) -> Re
             }
             c => c.clone(),
         };
-        let gpu = GpuScene::prepare_in_range(
-            ctx,
-            (&l.volume, l.scene.input.range),
+        let gpu = GpuScene::prepare_with(
+            normals,
+            (&l.volume, l.scene.input.scale()),
             &classification,
             l.scene.focus,
             &modulation,

@@ -111,9 +111,23 @@ pub struct InputSpec {
     /// those of time point 0, so that the frames of a series compare.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub range: Option<[f64; 2]>,
+    /// The `auto` line smoothing's radius (`--line-smooth auto`); left out, measured on the
+    /// volume, or for a later time point of a series time point 0's, so that its lines compare.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub line_smooth: Option<u32>,
 }
 
+pub use crate::passes::normals::Scale;
+
 impl InputSpec {
+    /// The scale the input is drawn on, as given.
+    pub fn scale(&self) -> Scale {
+        Scale {
+            range: self.range,
+            line_smooth: self.line_smooth,
+        }
+    }
+
     /// The input at `path`, which describes itself, its only time point and channel.
     pub fn new(path: impl Into<String>) -> Self {
         InputSpec {
@@ -723,23 +737,43 @@ impl GpuScene {
         focus: Focus,
         modulation: &Modulation,
     ) -> Result<GpuScene> {
-        Self::prepare_in_range(ctx, (v, None), classification, focus, modulation)
+        Self::prepare_in_range(
+            ctx,
+            (v, Scale::default()),
+            classification,
+            focus,
+            modulation,
+        )
     }
 
-    /// [`GpuScene::prepare`] with the intensity scale spanning `range` (values outside it
-    /// clamp) rather than `v`'s own smallest and largest: a time point of a series on the
-    /// series' scale.
+    /// [`GpuScene::prepare`] on `scale` where it is given: the intensity scale spanning its
+    /// range (values outside it clamp) rather than `v`'s own smallest and largest, and its line
+    /// smoothing rather than `v`'s measured: a time point of a series on the series' scale.
     pub fn prepare_in_range(
         ctx: &Arc<Context>,
-        (v, range): (&Volume, Option<[f64; 2]>),
+        input: (&Volume, Scale),
+        classification: &Classification,
+        focus: Focus,
+        modulation: &Modulation,
+    ) -> Result<GpuScene> {
+        let normals = Normals::new(ctx)?;
+        Self::prepare_with(&normals, input, classification, focus, modulation)
+    }
+
+    /// [`GpuScene::prepare_in_range`] with the pipelines of `normals`, which a caller that
+    /// prepares one volume after another (the viewer, a series' time points) builds once: on
+    /// lavapipe, building them compiles the shader, a few milliseconds each time.
+    pub fn prepare_with(
+        normals: &Normals,
+        (v, scale): (&Volume, Scale),
         classification: &Classification,
         focus: Focus,
         modulation: &Modulation,
     ) -> Result<GpuScene> {
         focus.validate()?;
         modulation.validate()?;
-        let normals = Normals::new(ctx)?;
-        let (mut volume, staging) = VolumeTextures::new_over(ctx, v, range)?;
+        let ctx = normals.context();
+        let (mut volume, staging) = VolumeTextures::new_over(ctx, v, scale)?;
         focus.check_in(volume.range)?;
         let (transfer, otf) = match classification {
             Classification::Auto => (crate::classify::window::auto(v, volume.range)?, None),

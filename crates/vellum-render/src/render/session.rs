@@ -12,7 +12,7 @@ use crate::classify::Classification;
 use crate::passes::gpu_volume::VolumeRef;
 use crate::render::bricked::{StillOptions, StreamReport};
 use crate::render::frame::Renderer;
-use crate::render::scene::{GpuScene, PagedScene, Scene};
+use crate::render::scene::{GpuScene, PagedScene, Scale, Scene};
 use crate::render::stream::{StreamOptions, Streamer};
 use crate::render::targets::FrameImage;
 use crate::render::view::View;
@@ -159,10 +159,10 @@ impl Prepared {
         let modulation = scene.modulation.clone().unwrap_or_default();
         Ok(match opened {
             Opened::InCore(v) => {
-                let (range, classification) = series_scale(scene, classification)?;
+                let (scale, classification) = series_scale(scene, classification)?;
                 Prepared::InCore(GpuScene::prepare_in_range(
                     ctx,
-                    (v, range),
+                    (v, scale),
                     &classification,
                     scene.focus,
                     &modulation,
@@ -244,15 +244,16 @@ impl Prepared {
     }
 }
 
-/// The intensity scale a volume in core is drawn on, and its classification there: the scene's
-/// `input.range` when it gives one; for a later time point of a store (`time` > 0), the
-/// smallest and largest values of time point 0, with `auto` made from time point 0, so that
-/// every frame of a series shares one scale and one transfer function (`render --time T` draws
-/// what the frame T of `render --time all` draws); else `None`, the volume's own values.
+/// The scale a volume in core is drawn on, and its classification there: the scene's
+/// `input.range` (and `input.line_smooth`) when it gives one; for a later time point of a store
+/// (`time` > 0), the smallest and largest values of time point 0 and its `auto` line smoothing,
+/// with `auto` made from time point 0, so that every frame of a series shares one scale, one
+/// transfer function and one line smoothing (`render --time T` draws what the frame T of
+/// `render --time all` draws); else the volume's own.
 pub fn series_scale(
     scene: &Scene,
     classification: &Classification,
-) -> Result<(Option<[f64; 2]>, Classification)> {
+) -> Result<(Scale, Classification)> {
     if let Some(r) = scene.input.range {
         if !(r[0].is_finite() && r[1].is_finite() && r[0] < r[1]) {
             return Err(Error::Invalid(format!(
@@ -260,10 +261,10 @@ pub fn series_scale(
                 r[0], r[1]
             )));
         }
-        return Ok((Some(r), classification.clone()));
+        return Ok((scene.input.scale(), classification.clone()));
     }
     if scene.input.time.unwrap_or(0) == 0 {
-        return Ok((None, classification.clone()));
+        return Ok((scene.input.scale(), classification.clone()));
     }
     let mut first = scene.clone();
     first.input.time = Some(0);
@@ -275,7 +276,16 @@ pub fn series_scale(
         }
         c => c.clone(),
     };
-    Ok((Some(range), classification))
+    let scale = Scale {
+        range: Some(range),
+        line_smooth: Some(
+            scene
+                .input
+                .line_smooth
+                .unwrap_or_else(|| vellum_volume::lines::auto_smooth_radius(&t0)),
+        ),
+    };
+    Ok((scale, classification))
 }
 
 /// Puts what the scene draws beside its volume on the GPU: a label volume's segments and the

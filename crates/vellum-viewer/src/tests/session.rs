@@ -273,6 +273,12 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
     // transfer function from one time point to the next.
     let scale = s.model.range;
     assert_eq!(s.model.scene.input.range, Some(scale));
+    let smooth = vellum_volume::lines::auto_smooth_radius(&s.volume);
+    assert_eq!(
+        s.model.scene.input.line_smooth,
+        Some(smooth),
+        "and its line smoothing"
+    );
     let edited = TransferFunction::preset("ct-bone").unwrap();
     s.model.tf = edited.clone();
     s.model.tf_edited = true;
@@ -289,10 +295,17 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
         (scale, &edited),
         "the look is kept"
     );
+    // The time point was read with the kept function, which its GPU state is prepared with
+    // (`prepare_gpu`): nothing is windowed on the worker, nor applied again after.
+    assert_eq!(
+        s.applied_tf, edited,
+        "loaded with the kept transfer function"
+    );
     assert!(
-        s.apply(scale, false)
-            .contains(&Edit::Transfer(edited.clone())),
-        "the kept transfer function goes to the new time point's GPU state"
+        !s.apply(scale, false)
+            .iter()
+            .any(|e| matches!(e, Edit::Transfer(_))),
+        "nothing to apply again"
     );
     assert!(voxels(&s) > at_0, "the ball grew");
     // Playing: the next time point (0, wrapping) is read ahead at once, and taken over when

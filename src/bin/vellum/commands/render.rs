@@ -126,7 +126,8 @@ pub(crate) fn render((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
 /// reads time point 0 again.
 struct Series {
     ctx: std::sync::Arc<vellum::gpu::Context>,
-    scale: Option<([f64; 2], vellum::classify::Classification)>,
+    /// Time point 0's range and `auto` line smoothing, with its classification.
+    scale: Option<([f64; 2], u32, vellum::classify::Classification)>,
     /// Time point 0's scales of the channels mixed, read once.
     channel_scales: Option<Vec<vellum::classify::channels::ChannelScale>>,
 }
@@ -138,8 +139,9 @@ impl Series {
         scene: &mut vellum::render::scene::Scene,
         classification: &mut vellum::classify::Classification,
     ) {
-        if let Some((range, c)) = self.scale.clone() {
+        if let Some((range, line_smooth, c)) = self.scale.clone() {
             scene.input.range = Some(range);
+            scene.input.line_smooth = Some(line_smooth);
             *classification = c;
         }
         if let (Some(spec), Some(scales)) = (scene.channels.as_mut(), &self.channel_scales) {
@@ -183,7 +185,8 @@ impl Series {
             ),
             c => c.clone(),
         };
-        self.scale = Some((range, c));
+        let line_smooth = vellum::volume::lines::auto_smooth_radius(v);
+        self.scale = Some((range, line_smooth, c));
         Ok(())
     }
 }
