@@ -159,6 +159,14 @@ impl Running {
             if let (false, Some(st), true) = (full, &mut v.style, seeded_pays) {
                 st.params.line_seeded = true;
             }
+            // And one plane per voxel along the longest axis, not the refined frame's two (as
+            // VTK's mapper widens its sample distance while the user interacts), for a volume
+            // in core whose scene sets no planes; the opacity correction follows the spacing.
+            // A streamed volume's planes follow its level of detail already.
+            if !full && v.slices.is_none() && !self.gpu.scene.is_paged() {
+                let longest = self.session.model.dims.into_iter().max().unwrap_or(1);
+                v.slices = Some(longest.max(1) as u32);
+            }
         }
         Ok((view.map_err(|e| Error::Invalid(e.to_string())), full))
     }

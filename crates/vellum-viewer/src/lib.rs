@@ -9,7 +9,8 @@
 //! viewer and the CLI are one renderer.
 //!
 //! Adaptive quality: while the camera moves or a control is dragged, frames render at half the
-//! window's resolution and the present pass scales them up; [`REFINE_AFTER`] after the last
+//! window's resolution (and a volume in core with one plane per voxel, not two) and the present
+//! pass scales them up; [`REFINE_AFTER`] after the last
 //! change, one frame at full resolution follows and the loop goes idle until the next event.
 
 mod bench;
