@@ -149,7 +149,7 @@ class Image:
     def size(self) -> tuple[int, int]: ...
     def _repr_png_(self) -> bytes: ...
     @property
-    def streaming(self) -> dict[str, float | int | bool] | None:
+    def streaming(self) -> dict[str, float | int | bool | None] | None:
         """For a frame drawn through the brick cache, what its streaming did (passes,
         bricks_loaded, bricks_touched, bricks_evicted, capacity, complete, first_frame_ms
         (None: no coarse frame is drawn for a still frame), total_ms, source_mib_per_s); None
