@@ -36,8 +36,15 @@ use vellum_gpu::{Frames, FramesDesc};
 pub fn gpu_budget_bytes(ctx: &vellum_gpu::Context, mib: Option<f64>) -> Result<u64> {
     match mib {
         None => Ok(ctx.info.device_local_heap_bytes / 2),
-        Some(m) if m.is_finite() && m > 0.0 => Ok((m * (1u64 << 20) as f64) as u64),
-        Some(m) => Err(Error::Invalid(format!(
+        Some(m) => gpu_budget_bytes_of(m),
+    }
+}
+
+/// A `--gpu-budget` of `mib` MiB in bytes, which needs no device.
+pub fn gpu_budget_bytes_of(mib: f64) -> Result<u64> {
+    match mib {
+        m if m.is_finite() && m > 0.0 => Ok((m * (1u64 << 20) as f64) as u64),
+        m => Err(Error::Invalid(format!(
             "`gpu_budget` {m} is invalid; expected a positive number of MiB"
         ))),
     }
