@@ -65,20 +65,14 @@ impl Session {
         match self.prefetch.take() {
             Some(p) if p.time == t => self.take_over_load(what, p.answer),
             _ => {
-                let mut scene = self.model.scene.clone();
-                scene.input.time = Some(t);
-                let (tx, rx) = mpsc::channel();
-                let (budget, look) = (self.budget, self.model.tf.clone());
-                std::thread::spawn(move || {
-                    let _ = tx.send(load_time_point(scene, budget, look));
-                });
-                self.take_over_load(what, rx);
+                let answer = self.read_time_point(t);
+                self.take_over_load(what, answer);
             }
         }
     }
 
-    /// Reads time point `t` ahead on a worker of its own.
-    pub(crate) fn prefetch(&mut self, t: usize) {
+    /// Reads time point `t` on a worker of its own, with the scene and transfer function kept.
+    fn read_time_point(&self, t: usize) -> mpsc::Receiver<Result<Loaded>> {
         let mut scene = self.model.scene.clone();
         scene.input.time = Some(t);
         let (tx, rx) = mpsc::channel();
@@ -86,10 +80,13 @@ impl Session {
         std::thread::spawn(move || {
             let _ = tx.send(load_time_point(scene, budget, look));
         });
-        self.prefetch = Some(Prefetch {
-            time: t,
-            answer: rx,
-        });
+        rx
+    }
+
+    /// Reads time point `t` ahead on a worker of its own.
+    pub(crate) fn prefetch(&mut self, t: usize) {
+        let answer = self.read_time_point(t);
+        self.prefetch = Some(Prefetch { time: t, answer });
     }
 
     /// Once time point `t` has been read ahead, the one after it is read meanwhile (unless it
