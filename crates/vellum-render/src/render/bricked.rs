@@ -16,7 +16,8 @@
 //! over them, so that its `raycast` time is a whole frame's.
 //!
 //! A progressive frame (no waiting, coarser levels where a brick is missing) is drawn once the
-//! coarsest level is resident, and after every pass when the caller asks for refinements.
+//! coarsest level is resident when the caller asks for it (`StillOptions::first_frame`), and
+//! then after every pass when it asks for refinements (`StillOptions::progress`).
 //!
 //! The samples, their order and the compositing are the in-core ray caster's, so the complete
 //! frame equals the in-core frame of the same levels.
