@@ -228,13 +228,12 @@ fn render_on(
     let open = |budget: u64| {
         Opened::open(&scene, None, budget, opts.chunk_cache_bytes).map_err(|e| from("input", e))
     };
-    let (ctx, input) = device_and_input(
+    let (ctx, budget, input) = device_and_input(
         (cli, team),
         series.as_ref().map(|s| s.ctx.clone()),
         a.gpu_budget,
         open,
     )?;
-    let budget = vellum::render::bricked::gpu_budget_bytes(&ctx, a.gpu_budget)?;
     if let Some(s) = series.as_mut() {
         s.take_scales(&scene, &input, &classification)?;
     }
@@ -579,8 +578,8 @@ fn composite(
     Ok(Some((out, report)))
 }
 
-/// The device (the series' when there is one) and the input `open` opened within the GPU
-/// budget. With `--gpu-budget` given the budget needs no device, so a new device is made on a
+/// The device (the series' when there is one), the GPU budget in bytes and the input `open`
+/// opened within it. With `--gpu-budget` given the budget needs no device, so a new device is made on a
 /// thread while the input opens: its start (about 60 ms on lavapipe) hides behind the store's
 /// metadata and small level, several round trips from a server.
 fn device_and_input(
@@ -588,16 +587,16 @@ fn device_and_input(
     device: Option<std::sync::Arc<vellum::gpu::Context>>,
     gpu_budget: Option<f64>,
     open: impl FnOnce(u64) -> Result<Opened>,
-) -> Result<(std::sync::Arc<vellum::gpu::Context>, Opened)> {
+) -> Result<(std::sync::Arc<vellum::gpu::Context>, u64, Opened)> {
     use vellum::render::bricked::{gpu_budget_bytes, gpu_budget_bytes_of};
     if let Some(ctx) = device {
         let budget = gpu_budget_bytes(&ctx, gpu_budget)?;
-        return Ok((ctx, together(team, open(budget))?));
+        return Ok((ctx, budget, together(team, open(budget))?));
     }
     let Some(mib) = gpu_budget else {
         let ctx = together(team, context(cli))?;
         let budget = gpu_budget_bytes(&ctx, None)?;
-        return Ok((ctx, together(team, open(budget))?));
+        return Ok((ctx, budget, together(team, open(budget))?));
     };
     let budget = gpu_budget_bytes_of(mib)?;
     let (ctx, input) = std::thread::scope(|s| {
@@ -609,7 +608,7 @@ fn device_and_input(
         (ctx, input)
     });
     let ctx = together(team, ctx)?;
-    Ok((ctx, together(team, input)?))
+    Ok((ctx, budget, together(team, input)?))
 }
 
 /// Level 0's dims, spacing and placement.
