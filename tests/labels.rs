@@ -77,6 +77,17 @@ fn disc_areas(labels: &Volume, axis: usize) -> Vec<usize> {
 /// One orthographic frame along z of the balls with `spec`'s segments, 192² pixels (4 per
 /// voxel), through the session as the front ends open it; and the view it was drawn with.
 fn frame_and_view(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> (FrameImage, View) {
+    frame_through(gpu, spec, style, (&SessionOptions::default(), 192))
+}
+
+/// [`frame_and_view`] at `size`² pixels, the session opened with `opts` (through the brick cache
+/// when its budget is below the volume's).
+fn frame_through(
+    gpu: &Gpu,
+    spec: LabelSpec,
+    style: Option<&str>,
+    (opts, size): (&SessionOptions, u32),
+) -> (FrameImage, View) {
     let (intensity, _) = balls();
     let overrides = SceneOverrides {
         camera: Some(CameraAngles {
@@ -85,7 +96,7 @@ fn frame_and_view(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> (FrameImag
             distance: None,
         }),
         ortho: true,
-        size: Some([192, 192]),
+        size: Some([size, size]),
         style: vellum::render::overrides::StyleOverrides {
             style: style.map(str::to_string),
             ..Default::default()
@@ -96,17 +107,68 @@ fn frame_and_view(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> (FrameImag
         .apply(Scene::new(InputSpec::new(String::from("an array"))))
         .unwrap();
     scene.labels = Some(spec);
-    let mut session = Session::open(
-        &gpu.ctx,
-        &scene,
-        Some(intensity),
-        &SessionOptions::default(),
-    )
-    .unwrap();
+    let mut session = Session::open(&gpu.ctx, &scene, Some(intensity), opts).unwrap();
     let (view, note) = session.view(scene.view(false).unwrap());
     assert!(note.unwrap().contains("ray caster"));
     let opts = StillOptions::default();
     (session.still(&view, opts).unwrap().0, view)
+}
+
+/// Through the brick cache, each brick carries its slot's segment indices: the frames are the
+/// frames in core (within 1/255 a channel), hidden segments and focus segments included; and a
+/// coarse level takes each texel's nearest level-0 label, so a frame of level 1 (24² pixels, two
+/// voxels a pixel) shows the balls' colours as the frames in core do (at least 90 % of the
+/// covered pixels; the specular highlight whitens a few), not blends of two.
+#[test]
+fn segments_through_the_brick_cache_are_the_segments_in_core() {
+    let gpu = Gpu::new();
+    let dir = tempfile::tempdir().unwrap();
+    // 48³ takes 1.1 MiB in core: 0.9 MiB holds two slots (the coarsest brick and one more).
+    let bricked = |lod| SessionOptions {
+        gpu_budget_mib: Some(0.9),
+        lod,
+        ..Default::default()
+    };
+    use vellum::render::session::Lod;
+    for (hide, focus) in [(vec![], vec![]), (vec![5], vec![]), (vec![], vec![9])] {
+        let core = frame(&gpu, spec(dir.path(), &hide, &focus), None);
+        let (paged, _) = frame_through(
+            &gpu,
+            spec(dir.path(), &hide, &focus),
+            None,
+            (&bricked(Lod::Finest), 192),
+        );
+        let mut worst = 0.0f32;
+        let mut sum = 0.0f64;
+        for (a, b) in core.composite.iter().zip(&paged.composite) {
+            for c in 0..4 {
+                worst = worst.max((a[c] - b[c]).abs());
+                sum += (a[c] - b[c]).abs() as f64;
+            }
+        }
+        let mean = sum / (4 * core.composite.len()) as f64;
+        assert!(
+            worst <= 1.0 / 255.0 && mean <= 0.1 / 255.0,
+            "hide {hide:?} focus {focus:?}: worst {worst}, mean {mean}"
+        );
+        assert!(!covered(&paged).is_empty());
+    }
+    let coarse_spec = spec(dir.path(), &[0], &[]);
+    let (coarse, _) = frame_through(&gpu, coarse_spec, None, (&bricked(Lod::Auto), 24));
+    let shown = covered(&coarse);
+    let balls: Vec<u8> = shown
+        .iter()
+        .filter_map(|&i| ball_of(coarse.composite[i]))
+        .collect();
+    let named = balls.len();
+    for (id, ..) in BALLS {
+        assert!(balls.contains(&id), "ball {id} is missing at level 1");
+    }
+    assert!(
+        named * 10 >= shown.len() * 9 && shown.len() > 50,
+        "{named} of {} covered pixels show a ball's colour",
+        shown.len()
+    );
 }
 
 fn frame(gpu: &Gpu, spec: LabelSpec, style: Option<&str>) -> FrameImage {

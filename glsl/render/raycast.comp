@@ -83,33 +83,6 @@ layout(push_constant) uniform Push {
 
 const float INF = 1.0 / 0.0;
 
-// The index of the segment of voxel v (clamped into the volume).
-uint label_of(ivec3 v) {
-    ivec3 d = ivec3(u.volume_dims.xyz);
-    v = clamp(v, ivec3(0), d - 1);
-    uint i = uint(v.x) + uint(d.x) * (uint(v.y) + uint(d.y) * uint(v.z));
-    uint w = label_words[i >> 1u];
-    return (i & 1u) == 0u ? (w & 0xffffu) : (w >> 16u);
-}
-
-// The index of the segment at texture coordinate `at`: the voxel it lies in, never a blend.
-uint label_at(vec3 at) {
-    return label_of(ivec3(floor(at * u.volume_dims.xyz)));
-}
-
-// Whether a voxel of a hidden segment is among the eight that linear filtering blends at `at`:
-// its intensity would show there (a shell where the segment was), so the sample adds nothing.
-bool screened(vec3 at) {
-    ivec3 c = ivec3(floor(at * u.volume_dims.xyz - 0.5));
-    for (int k = 0; k < 8; k++) {
-        uint i = label_of(c + ivec3(k & 1, (k >> 1) & 1, k >> 2));
-        if ((label_table[3u + 2u * i] & 8u) != 0u) {
-            return true;
-        }
-    }
-    return false;
-}
-
 // The page table's header, read once per ray (see passes/paging.rs): levels, brick edge in
 // voxels, slot edge in texels, mode, slots along x and y of the pool, the coefficients of a
 // sample's footprint in voxels (cover = a · distance + b), and the pool's size in texels.
@@ -119,6 +92,53 @@ int pt_slot_edge;
 uint pt_mode;
 float pt_cover_a, pt_cover_b;
 vec3 pool_size, inv_pool;
+
+// The index of the segment of voxel v (clamped into the volume).
+uint label_of(ivec3 v) {
+    ivec3 d = ivec3(u.volume_dims.xyz);
+    v = clamp(v, ivec3(0), d - 1);
+    uint i = uint(v.x) + uint(d.x) * (uint(v.y) + uint(d.y) * uint(v.z));
+    uint w = label_words[i >> 1u];
+    return (i & 1u) == 0u ? (w & 0xffffu) : (w >> 16u);
+}
+
+// Bricked: the index of the segment of pool texel p. The label words then hold each slot's
+// indices (passes/paging.rs), slot after slot in the pool's order, the slot's texels x fastest.
+uint pool_label(ivec3 p) {
+    int edge = pt_slot_edge;
+    ivec3 slot = p / edge;
+    ivec3 l = p - slot * edge;
+    ivec3 grid = ivec3(pool_size) / edge;
+    uint s = uint(slot.x + grid.x * (slot.y + grid.y * slot.z));
+    uint i = s * uint(edge * edge * edge) + uint(l.x + edge * (l.y + edge * l.z));
+    uint w = label_words[i >> 1u];
+    return (i & 1u) == 0u ? (w & 0xffffu) : (w >> 16u);
+}
+
+// The index of the segment at texture coordinate `at`: the voxel it lies in, never a blend.
+// Bricked, the texel of the slot locate() placed the sample in (`ptex`), at the level it reads.
+uint label_at(vec3 at) {
+    if (V_BRICKED) {
+        return pool_label(ivec3(floor(ptex * pool_size)));
+    }
+    return label_of(ivec3(floor(at * u.volume_dims.xyz)));
+}
+
+// Whether a voxel of a hidden segment is among the eight that linear filtering blends at `at`:
+// its intensity would show there (a shell where the segment was), so the sample adds nothing.
+// Bricked, the eight texels of the slot around `ptex` (its apron holds the brick's neighbours).
+bool screened(vec3 at) {
+    vec3 cell = V_BRICKED ? ptex * pool_size : at * u.volume_dims.xyz;
+    ivec3 c = ivec3(floor(cell - 0.5));
+    for (int k = 0; k < 8; k++) {
+        ivec3 q = c + ivec3(k & 1, (k >> 1) & 1, k >> 2);
+        uint i = V_BRICKED ? pool_label(q) : label_of(q);
+        if ((label_table[3u + 2u * i] & 8u) != 0u) {
+            return true;
+        }
+    }
+    return false;
+}
 
 void read_header() {
     pt_levels = int(pt[0]);

@@ -106,6 +106,43 @@ pub fn copy_slice_to_buffer(
     };
 }
 
+/// Records copies of parts of `src` (a slice of a staging buffer) into `dst`: per region,
+/// `size` bytes from `from` bytes into the slice to `to` bytes into `dst`, each within both;
+/// the caller orders them with [`memory_transition`].
+pub fn copy_slice_regions(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    src: &crate::resources::BufferSlice,
+    dst: &Buffer,
+    regions: &[CopyRegion],
+) {
+    let regions: Vec<vk::BufferCopy> = regions
+        .iter()
+        .filter(|r| r.from + r.size <= src.size && r.to + r.size <= dst.size)
+        .map(|r| {
+            vk::BufferCopy::default()
+                .src_offset(src.offset + r.from)
+                .dst_offset(r.to)
+                .size(r.size)
+        })
+        .collect();
+    if regions.is_empty() {
+        return;
+    }
+    unsafe { ctx.device.cmd_copy_buffer(cmd, src.raw, dst.raw, &regions) };
+}
+
+/// One region of [`copy_slice_regions`], in bytes.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct CopyRegion {
+    /// Where the bytes start in the source slice.
+    pub from: u64,
+    /// Where they go in the destination buffer.
+    pub to: u64,
+    /// How many.
+    pub size: u64,
+}
+
 /// Records a write of `bytes` (at most 65,536, a multiple of 4) at the start of `buffer`, in
 /// the command buffer itself; the caller orders it with [`memory_transition`].
 pub fn update_buffer(ctx: &Context, cmd: vk::CommandBuffer, buffer: &Buffer, bytes: &[u8]) {

@@ -505,7 +505,7 @@ pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: u64) -> Res
     let opts = SessionOptions::default();
     let opened = Opened::Bricked(levels);
     let mut prepared = Prepared::new(ctx, &l.scene, &l.classification, &opened, (budget, &opts))?;
-    // Refused in one sentence: labels and channels are drawn in core for now.
+    // Segments of a label volume and mixed channels: their bricks carry them.
     vellum_render::render::session::attach_beside(ctx, &l.scene, &mut prepared)?;
     // The ray caster draws bricked volumes.
     if l.scene.raycast.is_none() {

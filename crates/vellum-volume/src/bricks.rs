@@ -134,6 +134,10 @@ pub struct BrickVoxels {
     pub channels: Vec<u16>,
     /// Per mixed channel, the range of its slot's texels.
     pub channel_ranges: Vec<[u16; 2]>,
+    /// With a label volume beside the pyramid ([`BrickLevels::set_labels`]): the segment index
+    /// of each of the slot's texels ([`SLOT`]³, x fastest), read nearest from the label
+    /// volume's level 0; empty without.
+    pub labels: Vec<u16>,
 }
 
 /// What a brick's box of a store reads as: its voxels, or the one value of every chunk it touches.
@@ -162,6 +166,10 @@ pub struct BrickLevels {
     chunks: ChunkCache,
     /// Channels mixed in the ray beside this pyramid's voxels, in mixing order.
     mixed: Vec<Mixed>,
+    /// A label volume on level 0's grid, held whole on the host (2 bytes a voxel), and the
+    /// segment indices of each coarser level ([`crate::labels::coarser_index`], a seventh more):
+    /// each brick carries its slot's ([`BrickVoxels::labels`]).
+    labels: Option<(Arc<crate::labels::Labels>, Vec<Vec<u16>>)>,
     /// The last level of at most [`RANGE_CHECK_VOXELS`] read whole, with its index: the range's
     /// level when the store was opened, which the `auto` window and the previews read again
     /// ([`BrickLevels::read_small_level`]); from a server, a round trip less before the first
@@ -300,6 +308,7 @@ impl BrickLevels {
             geometry,
             chunks: ChunkCache::new(DEFAULT_CHUNK_CACHE),
             mixed: Vec::new(),
+            labels: None,
             small: std::sync::Mutex::new(None),
         })
     }
@@ -391,6 +400,11 @@ impl BrickLevels {
     /// [`BrickLevels::u8_table`]). Voxels outside the level repeat its nearest edge voxel.
     pub fn voxels(&self, key: BrickKey) -> Result<BrickVoxels> {
         let mut v = self.own_voxels(key)?;
+        if self.labels.is_some() {
+            v.labels = self.slot_labels(key);
+            let first = v.labels[0];
+            v.constant &= v.labels.iter().all(|&i| i == first);
+        }
         if self.mixed.is_empty() {
             return Ok(v);
         }
@@ -426,6 +440,63 @@ impl BrickLevels {
         }
         self.mixed = mixed;
         Ok(())
+    }
+
+    /// Makes every brick read from now on carry `labels`' segment indices for its slot
+    /// ([`BrickVoxels::labels`]), each coarser level's made here from the finer one's; the label
+    /// volume (`what` names it in a refusal) must lie on level 0's grid.
+    pub fn set_labels(&mut self, labels: Arc<crate::labels::Labels>, what: &str) -> Result<()> {
+        labels.check_grid(self.levels[0].dims, what)?;
+        let background = labels.index_of(0).map(|i| i as u16);
+        let mut coarse: Vec<Vec<u16>> = Vec::with_capacity(self.levels.len() - 1);
+        for l in 1..self.levels.len() {
+            let (fine, level) = (&self.levels[l - 1], &self.levels[l]);
+            let ratio = std::array::from_fn(|a| level.spacing[a] / fine.spacing[a]);
+            let finer = coarse.last().unwrap_or(&labels.index);
+            let next =
+                crate::labels::coarser_index(finer, fine.dims, level.dims, ratio, background);
+            coarse.push(next);
+        }
+        self.labels = Some((labels, coarse));
+        Ok(())
+    }
+
+    /// The label volume each brick carries, if any ([`BrickLevels::set_labels`]).
+    pub fn labels(&self) -> Option<&Arc<crate::labels::Labels>> {
+        self.labels.as_ref().map(|l| &l.0)
+    }
+
+    /// The segment index of each texel of brick `key`'s slot, x fastest, from its level's
+    /// indices (the slot's apron repeats the level's edge voxels, as its intensity does); empty
+    /// without a label volume.
+    fn slot_labels(&self, key: BrickKey) -> Vec<u16> {
+        let Some((labels, coarse)) = &self.labels else {
+            return Vec::new();
+        };
+        let index = match key.level {
+            0 => &labels.index,
+            l => &coarse[l - 1],
+        };
+        let dims = self.levels[key.level].dims;
+        // Slot texel s holds the level's voxel brick · BRICK − APRON + s, clamped.
+        let axis = |a: usize| -> Vec<usize> {
+            (0..SLOT)
+                .map(|s| {
+                    let v = (key.brick[a] * BRICK + s) as i64 - APRON as i64;
+                    v.clamp(0, dims[a] as i64 - 1) as usize
+                })
+                .collect()
+        };
+        let [xs, ys, zs] = [axis(0), axis(1), axis(2)];
+        let [nx, ny, _] = dims;
+        let mut out = Vec::with_capacity(SLOT * SLOT * SLOT);
+        for &z in &zs {
+            for &y in &ys {
+                let row = &index[(z * ny + y) * nx..][..nx];
+                out.extend(xs.iter().map(|&x| row[x]));
+            }
+        }
+        out
     }
 
     /// How many channels each brick carries (0: none mixed).
@@ -524,6 +595,7 @@ impl BrickLevels {
                     constant: true,
                     channels: Vec::new(),
                     channel_ranges: Vec::new(),
+                    labels: Vec::new(),
                 }
             }
             _ => {
@@ -536,6 +608,7 @@ impl BrickLevels {
                     constant: true,
                     channels: Vec::new(),
                     channel_ranges: Vec::new(),
+                    labels: Vec::new(),
                 }
             }
         }
@@ -758,6 +831,7 @@ fn to_upload(
         constant: stats.constant,
         channels: Vec::new(),
         channel_ranges: Vec::new(),
+        labels: Vec::new(),
     }
 }
 
@@ -901,13 +975,16 @@ pub struct Arrival {
 /// Mixed channels a brick carries at most (`classify::channels::MAX_CHANNELS`).
 pub const MAX_MIXED: usize = 8;
 
-/// A brick of one value: that value, then each mixed channel's (0 past the last).
-pub type ConstantKey = [u16; 1 + MAX_MIXED];
+/// A brick of one value: that value, then each mixed channel's (0 past the last), then its one
+/// segment index (0 without a label volume).
+pub type ConstantKey = [u16; 2 + MAX_MIXED];
 
-/// The key of a brick of `value` whose mixed channels hold `channels`.
-pub fn constant_key(value: u16, channels: &[u16]) -> ConstantKey {
+/// The key of a brick of `value` whose mixed channels hold `channels` and whose texels all
+/// belong to segment index `label`.
+pub fn constant_key(value: u16, channels: &[u16], label: u16) -> ConstantKey {
     std::array::from_fn(|i| match i {
         0 => value,
+        i if i == 1 + MAX_MIXED => label,
         i => channels.get(i - 1).copied().unwrap_or(0),
     })
 }
@@ -920,7 +997,11 @@ impl Arrival {
             range: v.range,
             constant: v.constant.then(|| {
                 let channels: Vec<u16> = v.channel_ranges.iter().map(|r| r[0]).collect();
-                constant_key(v.range[0], &channels)
+                constant_key(
+                    v.range[0],
+                    &channels,
+                    v.labels.first().copied().unwrap_or(0),
+                )
             }),
         }
     }
@@ -1148,6 +1229,61 @@ mod tests {
     }
 
     #[test]
+    fn bricks_carry_their_levels_segment_indices() {
+        // 70 x 40 x 40, id 5 where x >= 33 and id 9 where x < 33 (level 1: 35 x 20 x 20).
+        let dims = [70, 40, 40];
+        let ids: Vec<u8> = (0..70 * 40 * 40)
+            .map(|i| if i % 70 >= 33 { 5 } else { 9 })
+            .collect();
+        let labels = crate::labels::Labels::of_volume(
+            &Volume::new(dims, [1.0; 3], VoxelData::U8(ids)).unwrap(),
+            "l",
+        )
+        .unwrap();
+        let (five, nine) = (
+            labels.index_of(5).unwrap() as u16,
+            labels.index_of(9).unwrap() as u16,
+        );
+        let grey: Vec<u8> = (0..70 * 40 * 40).map(|i| (i % 251) as u8).collect();
+        let mut levels =
+            BrickLevels::of_volume(Volume::new(dims, [1.0; 3], VoxelData::U8(grey)).unwrap())
+                .unwrap();
+        let wrong = Arc::new(crate::labels::Labels {
+            dims: [70, 40, 39],
+            ..labels.clone()
+        });
+        let e = levels.set_labels(wrong, "m.nrrd").unwrap_err().to_string();
+        assert!(
+            e.starts_with("m.nrrd is 70 x 40 x 39") && e.contains("input's grid"),
+            "{e}"
+        );
+        levels.set_labels(Arc::new(labels), "m.nrrd").unwrap();
+        // Level 0, brick 1 along x: texel s holds voxel 31 + s; voxel 33 is the first of id 5.
+        let key = BrickKey {
+            level: 0,
+            brick: [1, 0, 0],
+        };
+        let v = levels.voxels(key).unwrap();
+        assert_eq!(v.labels.len(), SLOT * SLOT * SLOT);
+        assert_eq!(&v.labels[..4], &[nine, nine, five, five]);
+        assert!(!v.constant);
+        // Level 1, brick 0: texel s holds level-1 voxel s − 1 (clamped), level-0 voxels
+        // 2 (s − 1) and one more: voxel 16 (32 and 33) holds one of each, the first met (9)
+        // taken, so the first of id 5 is voxel 17, texel 18.
+        let coarse = levels
+            .voxels(BrickKey {
+                level: 1,
+                brick: [0; 3],
+            })
+            .unwrap();
+        let row: Vec<u16> = coarse.labels[..SLOT].to_vec();
+        assert!(row[..18].iter().all(|&i| i == nine), "{row:?}");
+        assert!(row[18..].iter().all(|&i| i == five), "{row:?}");
+        // One value with one segment shares a slot only with bricks of that segment.
+        assert_ne!(constant_key(7, &[], five), constant_key(7, &[], nine));
+    }
+
+    #[test]
     fn brick_texels_are_the_in_core_texels() {
         let v = shepp_logan(40);
         let (texels, _) = v.normalised_u16();
@@ -1269,7 +1405,7 @@ mod tests {
         let flat = |entry, v| Arrival {
             entry,
             range: [v, v],
-            constant: Some(constant_key(v, &[])),
+            constant: Some(constant_key(v, &[], 0)),
         };
         let got = cache.place(&[flat(0, 7), flat(1, 7), flat(2, 8), arrive(3), flat(4, 7)]);
         let Some(Placement::Upload(s7)) = got[0] else {

@@ -89,6 +89,19 @@ impl Labels {
         Labels::of_volume(&crate::io::load(&path, None)?, &what)
     }
 
+    /// Refuses a label volume that does not lie on a grid of `dims` voxels, in one sentence
+    /// that names it (`what`).
+    pub fn check_grid(&self, dims: [usize; 3], what: &str) -> Result<()> {
+        if self.dims == dims {
+            return Ok(());
+        }
+        let [a, b, c] = self.dims;
+        let [x, y, z] = dims;
+        Err(Error::Invalid(format!(
+            "{what} is {a} x {b} x {c} voxels and the input {x} x {y} x {z}; expected a label volume on the input's grid"
+        )))
+    }
+
     /// The index of `id`, if the volume holds it.
     pub fn index_of(&self, id: u32) -> Option<usize> {
         self.ids.binary_search(&id).ok()
@@ -125,6 +138,69 @@ impl Labels {
             .map(|p| p[0] as u32 | (p.get(1).copied().unwrap_or(0) as u32) << 16)
             .collect()
     }
+}
+
+/// The segment indices of a coarser level (`dims` voxels, each `ratio` voxels of the finer level
+/// `fine`, of `fine_dims`, along each axis), each voxel the index most of its finer voxels hold
+/// that is not `background` (id 0's index), or `background` when all of them are: a segment
+/// never vanishes from a coarse level while it holds any of the voxel, and no voxel blends two
+/// (neuroglancer downsamples segmentations by the mode likewise).
+pub fn coarser_index(
+    fine: &[u16],
+    fine_dims: [usize; 3],
+    dims: [usize; 3],
+    ratio: [f64; 3],
+    background: Option<u16>,
+) -> Vec<u16> {
+    use rayon::prelude::*;
+    // Per axis, the finer voxels each coarse voxel covers (at least one, within the level).
+    let spans: [Vec<(usize, usize)>; 3] = std::array::from_fn(|a| {
+        (0..dims[a])
+            .map(|x| {
+                let lo = ((x as f64 * ratio[a] + 1e-9).floor() as usize).min(fine_dims[a] - 1);
+                let hi = (((x + 1) as f64 * ratio[a] - 1e-9).ceil() as usize)
+                    .clamp(lo + 1, fine_dims[a]);
+                (lo, hi)
+            })
+            .collect()
+    });
+    let [nx, ny, _] = fine_dims;
+    let mut out = vec![0u16; dims[0] * dims[1] * dims[2]];
+    out.par_chunks_mut(dims[0] * dims[1])
+        .enumerate()
+        .for_each(|(z, slice)| {
+            let (z0, z1) = spans[2][z];
+            let mut counts: Vec<(u16, u32)> = Vec::with_capacity(8);
+            for (y, row) in slice.chunks_mut(dims[0]).enumerate() {
+                let (y0, y1) = spans[1][y];
+                for (x, out) in row.iter_mut().enumerate() {
+                    let (x0, x1) = spans[0][x];
+                    counts.clear();
+                    for fz in z0..z1 {
+                        for fy in y0..y1 {
+                            for &i in &fine[(fz * ny + fy) * nx..][x0..x1] {
+                                if Some(i) == background {
+                                    continue;
+                                }
+                                match counts.iter_mut().find(|c| c.0 == i) {
+                                    Some(c) => c.1 += 1,
+                                    None => counts.push((i, 1)),
+                                }
+                            }
+                        }
+                    }
+                    // The most held; of equals, the first met.
+                    let best = counts
+                        .iter()
+                        .fold(None, |b: Option<(u16, u32)>, &c| match b {
+                            Some(b) if b.1 >= c.1 => Some(b),
+                            _ => Some(c),
+                        });
+                    *out = best.map_or(background.unwrap_or(0), |b| b.0);
+                }
+            }
+        });
+    out
 }
 
 /// `path`, or the label image of that name in the `labels` group of the store `image` when
@@ -196,6 +272,24 @@ mod tests {
         assert_eq!(l.packed(), vec![2 << 16, 1 | 2 << 16]);
         assert_eq!(l.index_of(70), Some(2));
         assert_eq!(l.index_of(5), None);
+    }
+
+    #[test]
+    fn a_coarse_voxel_takes_the_segment_most_of_it_holds_over_background() {
+        // 4 x 2 x 1 to 2 x 1 x 1: (0, 1, 3, 0 | 1, 1, 0, 0) over x-pairs and y; background 0.
+        let fine = [0, 1, 3, 0, 1, 1, 0, 0];
+        let got = coarser_index(&fine, [4, 2, 1], [2, 1, 1], [2.0, 2.0, 1.0], Some(0));
+        assert_eq!(
+            got,
+            vec![1, 3],
+            "1 holds two of the first voxel, 3 the only segment of the second"
+        );
+        // Without a background every index counts: the second voxel is mostly 0.
+        let got = coarser_index(&fine, [4, 2, 1], [2, 1, 1], [2.0, 2.0, 1.0], None);
+        assert_eq!(got, vec![1, 0]);
+        // An odd edge: 3 voxels to 2, the last coarse voxel covering the last fine one alone.
+        let got = coarser_index(&[2, 2, 5], [3, 1, 1], [2, 1, 1], [2.0, 1.0, 1.0], Some(0));
+        assert_eq!(got, vec![2, 5]);
     }
 
     #[test]

@@ -100,8 +100,9 @@ impl LabelSpec {
 
 /// A label volume on the GPU: each voxel's index (16 bits, two per word) and the table.
 pub struct GpuLabels {
-    /// The indices, as `Labels::packed`.
-    pub voxels: Buffer,
+    /// The indices, as `Labels::packed`: beside a volume in core. Through the brick cache each
+    /// slot carries its own (`PagedVolume::labels`), and this is `None`.
+    pub voxels: Option<Buffer>,
     /// The table, as [`LabelSpec::table`].
     pub table: Buffer,
     /// Whether the segments decide the level (some ids are the focus).
@@ -127,19 +128,21 @@ pub struct GpuLabels {
 
 impl GpuLabels {
     /// `labels` on the GPU as `spec` draws them; `background`: whether id 0 is drawn
-    /// ([`LabelSpec::table`]).
+    /// ([`LabelSpec::table`]). `in_core`: beside a volume in core, with each voxel's index;
+    /// else beside the brick cache, whose slots carry the indices, with the table only.
     pub fn new(
         ctx: &Arc<Context>,
         labels: Arc<Labels>,
         spec: &LabelSpec,
-        background: bool,
+        (background, in_core): (bool, bool),
     ) -> Result<Self> {
         spec.check(&labels)?;
-        let voxels = Buffer::storage_from_bytes(
-            ctx,
-            "label voxels",
-            bytemuck::cast_slice(&labels.packed()),
-        )?;
+        let voxels = in_core
+            .then(|| {
+                let words = labels.packed();
+                Buffer::storage_from_bytes(ctx, "label voxels", bytemuck::cast_slice(&words))
+            })
+            .transpose()?;
         // Device-local, written by the frames that record a table ([`GpuLabels::record`]),
         // the first one included.
         let words = spec.table(&labels, background);

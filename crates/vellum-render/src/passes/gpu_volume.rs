@@ -128,6 +128,15 @@ impl<'a> VolumeRef<'a> {
         }
     }
 
+    /// The brick cache's slots of segment indices, for a volume drawn through it beside a label
+    /// volume; in core the label volume's own buffer is read.
+    pub(crate) fn label_pool(self) -> Option<&'a vellum_gpu::Buffer> {
+        match self {
+            VolumeRef::InCore(_) => None,
+            VolumeRef::Paged(p) => p.labels.as_ref(),
+        }
+    }
+
     /// The volume in core, which object-space lines and the whole-volume passes need.
     pub(crate) fn in_core(self) -> Option<&'a VolumeTextures> {
         match self {

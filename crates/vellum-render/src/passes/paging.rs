@@ -93,6 +93,10 @@ pub struct PagedVolume {
     pub paged: Paged,
     /// The pools of the channels mixed in the ray, when the pyramid mixes some.
     pub channels: Option<Box<ChannelPools>>,
+    /// With a label volume beside the pyramid: each slot's segment indices ([`SLOT`]³ of 16
+    /// bits, two a word, slot after slot), copied from each upload and read nearest by the ray
+    /// caster where the in-core path reads the label volume's.
+    pub labels: Option<Buffer>,
     /// `brick_fill` for the pyramid's bricks: 8-bit with their table (`fill_eight_bit`), or
     /// 16-bit. A pyramid's levels share one voxel type, so its bricks share one width.
     fill: ComputePipeline,
@@ -124,6 +128,9 @@ fn fill_pipeline(ctx: &Arc<Context>, shader: &str, constants: &[u32]) -> Result<
         constants,
     )
 }
+
+/// Bytes of one slot of a label volume's segment indices (16 bits a texel).
+const LABEL_SLOT_BYTES: usize = SLOT * SLOT * SLOT * 2;
 
 /// Bytes of one slot of `count` mixed channels' pools (four 16-bit components a pool).
 fn channel_slot_bytes(count: usize) -> usize {
@@ -268,8 +275,14 @@ impl PagedVolume {
         check_pool_formats(ctx)?;
         let max = ctx.info.max_image_dimension_3d as usize;
         let mixed = levels.mixed_count();
-        let slot_bytes = SLOT_BYTES + channel_slot_bytes(mixed);
-        let slots = (budget_bytes / slot_bytes as u64) as usize;
+        let labelled = levels.labels().is_some();
+        let slot_bytes =
+            SLOT_BYTES + channel_slot_bytes(mixed) + if labelled { LABEL_SLOT_BYTES } else { 0 };
+        let mut slots = (budget_bytes / slot_bytes as u64) as usize;
+        if labelled {
+            // The segment indices are one storage buffer, within the device's range.
+            slots = slots.min(ctx.info.max_storage_buffer_range as usize / LABEL_SLOT_BYTES);
+        }
         let grid = pool_grid(slots, max);
         let capacity = grid.iter().product::<usize>().min(slots);
         let mib = budget_bytes as f64 / (1 << 20) as f64;
@@ -292,6 +305,12 @@ impl PagedVolume {
         let level0 = levels.levels()[0].clone();
         let channels = ChannelPools::new(ctx, mixed, extent)?;
         let channel_ranges = vec![UNKNOWN_RANGE; levels.entries() * mixed];
+        let labels = labelled
+            .then(|| {
+                let bytes = (capacity * LABEL_SLOT_BYTES) as u64;
+                Buffer::new(ctx, "brick pool labels", &BufferDesc::storage(bytes))
+            })
+            .transpose()?;
         Ok(PagedVolume {
             intensity,
             gradient,
@@ -317,6 +336,7 @@ impl PagedVolume {
                 span: brick_span(&ctx.info),
             },
             channels,
+            labels,
             fill,
             fill_eight_bit,
         })
@@ -351,6 +371,9 @@ impl PagedVolume {
         let all: Vec<&Upload> = loads.iter().collect();
         for part in all.chunks(FILL_BATCH) {
             self.record_fill(ctx, frame, part)?;
+        }
+        if let Some(pool) = &self.labels {
+            record_label_copies(ctx, frame, pool, loads)?;
         }
         self.intensity.transition(frame.cmd, Access::ComputeSampled);
         self.gradient.transition(frame.cmd, Access::ComputeSampled);
@@ -473,6 +496,45 @@ impl PagedVolume {
             [slot_columns.div_ceil(64), part.len() as u32, 1],
         )
     }
+}
+
+/// Records the copy of each upload's segment indices into its slot of the label `pool`, ordered
+/// after earlier frames' reads and before this frame's.
+fn record_label_copies(
+    ctx: &Context,
+    frame: &mut Frame,
+    pool: &Buffer,
+    loads: &[Upload],
+) -> Result<()> {
+    use vellum_gpu::commands::{copy_slice_regions, memory_transition, CopyRegion};
+    let texels = SLOT * SLOT * SLOT;
+    if let Some(u) = loads.iter().find(|u| u.voxels.labels.len() != texels) {
+        return Err(Error::Invalid(format!(
+            "brick {} arrived with {} segment indices; expected {texels}",
+            u.entry,
+            u.voxels.labels.len()
+        )));
+    }
+    let parts: Vec<&[u8]> = loads
+        .iter()
+        .map(|u| bytemuck::cast_slice(&u.voxels.labels))
+        .collect();
+    let src = frame.staging.push_parts(&parts, 16)?;
+    let size = LABEL_SLOT_BYTES as u64;
+    let regions: Vec<CopyRegion> = loads
+        .iter()
+        .enumerate()
+        .map(|(i, u)| CopyRegion {
+            from: i as u64 * size,
+            to: u.slot as u64 * size,
+            size,
+        })
+        .collect();
+    ctx.count_transfer(&pool.name, true, src.size);
+    memory_transition(ctx, frame.cmd, Access::ComputeRead, Access::TransferWrite);
+    copy_slice_regions(ctx, frame.cmd, &src, pool, &regions);
+    memory_transition(ctx, frame.cmd, Access::TransferWrite, Access::ComputeRead);
+    Ok(())
 }
 
 /// The pools are written as storage images: R16_UNORM needs the extended storage formats.

@@ -626,7 +626,7 @@ impl Renderer {
         let vol = vol.into();
         let max = self.ctx.info.max_image_dimension_2d;
         check_paged(vol, view)?;
-        check_labels(vol, classify, view)?;
+        check_labels(classify, view)?;
         let paged_view = paged_planes(vol, view);
         let view = paged_view.as_ref().unwrap_or(view);
         let setup = FrameSetup::new(&SetupInput::of(vol, classify, max), view)?;
@@ -809,12 +809,15 @@ impl Renderer {
         let draw = match (f.style.def.lines, &self.lines) {
             (Some(kind), Some(extractor)) => {
                 let g = line_geometry(vol, f, kind);
-                let (line_state, volume, segments) = match f.labels {
-                    Some(labels) => {
+                let (line_state, volume, segments) = match f
+                    .labels
+                    .and_then(|l| Some((l, l.voxels.as_ref()?)))
+                {
+                    Some((labels, voxels)) => {
                         let (line_state, field) =
                             state.lines_and_segment_field(&self.ctx, DEFAULT_CAPACITY, vol.dims)?;
                         let segments = SegmentLines {
-                            voxels: &labels.voxels,
+                            voxels,
                             indices: &labels.drawn,
                             boxes: &labels.boxes,
                             field,
@@ -1101,14 +1104,23 @@ fn record_rays(
             paging,
             bricked: vol.paged().is_some(),
             labels: match r.labels {
-                Some(l) => (
-                    [
-                        Bind::StorageBuffer(&l.voxels),
-                        Bind::StorageBuffer(&l.table),
-                    ],
-                    true,
-                    l.screens,
-                ),
+                Some(l) => {
+                    // Through the brick cache, its slots' indices; in core, the volume's.
+                    let voxels = match vol.paged() {
+                        Some(_) => vol.label_pool(),
+                        None => l.voxels.as_ref(),
+                    };
+                    let voxels = voxels.ok_or_else(|| {
+                        Error::Invalid(
+                            "the brick cache was opened without the label volume; expected `labels` when the input is opened".into(),
+                        )
+                    })?;
+                    (
+                        [Bind::StorageBuffer(voxels), Bind::StorageBuffer(&l.table)],
+                        true,
+                        l.screens,
+                    )
+                }
                 None => ([Bind::StorageBuffer(r.stand_in); 2], false, false),
             },
             channels: match r.channels {
@@ -1282,9 +1294,9 @@ fn check_paged(vol: VolumeRef, view: &View) -> Result<()> {
     Ok(())
 }
 
-/// Segments from a label volume and mixed channels are drawn by the ray caster, of a volume in
-/// core.
-fn check_labels(vol: VolumeRef, classify: &GpuClassification, view: &View) -> Result<()> {
+/// Segments from a label volume and mixed channels are drawn by the ray caster (in core or
+/// through the brick cache).
+fn check_labels(classify: &GpuClassification, view: &View) -> Result<()> {
     if classify.channels.is_some() && view.raycast.is_none() {
         return Err(Error::Invalid(
             "channels are mixed by the ray caster; use `renderer: raycast`".into(),
@@ -1292,11 +1304,6 @@ fn check_labels(vol: VolumeRef, classify: &GpuClassification, view: &View) -> Re
     }
     if classify.labels.is_none() {
         return Ok(());
-    }
-    if vol.paged().is_some() {
-        return Err(Error::Invalid(
-            "segments from a label volume are drawn with the volume in core, and this one is larger than the GPU budget; expected a larger `gpu_budget`".into(),
-        ));
     }
     if view.raycast.is_none() {
         return Err(Error::Invalid(

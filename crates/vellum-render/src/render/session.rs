@@ -89,11 +89,18 @@ impl Opened {
         budget: u64,
         chunk_cache: Option<u64>,
     ) -> Result<Self> {
-        let bricked = |mut levels: BrickLevels| {
+        let bricked = |mut levels: BrickLevels| -> Result<Opened> {
             if let Some(bytes) = chunk_cache {
                 levels.set_chunk_budget(bytes);
             }
-            Opened::Bricked(Arc::new(levels))
+            // Each brick carries its slot's segment indices (the ray caster reads them nearest).
+            if let Some(spec) = &scene.labels {
+                let image = Path::new(&scene.input.path);
+                let labels =
+                    vellum_volume::labels::Labels::open(Path::new(&spec.path), Some(image))?;
+                levels.set_labels(Arc::new(labels), &format!("the label volume {}", spec.path))?;
+            }
+            Ok(Opened::Bricked(Arc::new(levels)))
         };
         let v = match volume {
             Some(v) => v,
@@ -106,14 +113,14 @@ impl Opened {
                         if let Some(spec) = &scene.channels {
                             mix_channels(&mut levels, scene, spec, chunk_cache)?;
                         }
-                        return Ok(bricked(levels));
+                        return bricked(levels);
                     }
                 }
                 scene.load_volume()?
             }
         };
         if in_core_bytes(v.dims) > budget {
-            return Ok(bricked(BrickLevels::of_volume(v)?));
+            return bricked(BrickLevels::of_volume(v)?);
         }
         Ok(Opened::InCore(v))
     }
@@ -339,33 +346,42 @@ fn mix_channels(
     levels.mix(mixed)
 }
 
-/// Reads the label volume `spec` names, checks that it lies on the input's grid, and puts it on
-/// the GPU beside the volume in core.
+/// Puts the label volume `spec` names on the GPU beside the volume: in core, read here and
+/// checked against the input's grid; through the brick cache, whose bricks carry its segment
+/// indices ([`Opened::open`] attached it to the pyramid), its table.
 fn attach_labels(
     ctx: &Arc<Context>,
     scene: &Scene,
     spec: &crate::classify::labels::LabelSpec,
     prepared: &mut Prepared,
 ) -> Result<()> {
-    let Prepared::InCore(g) = prepared else {
-        return Err(Error::Invalid(
-            "segments from a label volume are drawn with the volume in core, and this one is larger than the GPU budget; expected a larger `gpu_budget`".into(),
-        ));
-    };
-    let image = Path::new(&scene.input.path);
-    let labels = vellum_volume::labels::Labels::open(Path::new(&spec.path), Some(image))?;
-    if labels.dims != g.volume.dims {
-        let [a, b, c] = labels.dims;
-        let [x, y, z] = g.volume.dims;
-        return Err(Error::Invalid(format!(
-            "the label volume {} is {a} x {b} x {c} voxels and the input {x} x {y} x {z}; expected a label volume on the input's grid",
-            spec.path
-        )));
-    }
     // A label volume drawn over itself hides id 0, which would only outline each segment.
     let same = |p: &str| std::fs::canonicalize(p).ok();
     let over_itself = same(&spec.path).is_some_and(|l| Some(l) == same(&scene.input.path));
-    let gpu = crate::classify::labels::GpuLabels::new(ctx, Arc::new(labels), spec, !over_itself)?;
+    let g = match prepared {
+        Prepared::InCore(g) => g,
+        Prepared::Paged(p, _) => {
+            // The pyramid was opened with them ([`Opened::open`]): its bricks carry them.
+            let Some(labels) = p.volume.paged.levels.labels() else {
+                return Err(Error::Invalid(
+                    "the brick cache was opened without the label volume; expected `labels` when the input is opened".into(),
+                ));
+            };
+            let gpu = crate::classify::labels::GpuLabels::new(
+                ctx,
+                labels.clone(),
+                spec,
+                (!over_itself, false),
+            )?;
+            p.classify.labels = Some(gpu);
+            return Ok(());
+        }
+    };
+    let image = Path::new(&scene.input.path);
+    let labels = vellum_volume::labels::Labels::open(Path::new(&spec.path), Some(image))?;
+    labels.check_grid(g.volume.dims, &format!("the label volume {}", spec.path))?;
+    let gpu =
+        crate::classify::labels::GpuLabels::new(ctx, Arc::new(labels), spec, (!over_itself, true))?;
     g.classify.labels = Some(gpu);
     Ok(())
 }
@@ -475,7 +491,7 @@ impl Session {
         };
         let (labels, channels) = match &self.prepared {
             Prepared::InCore(g) => (g.classify.labels.is_some(), g.classify.channels.is_some()),
-            Prepared::Paged(p, _) => (false, p.classify.channels.is_some()),
+            Prepared::Paged(p, _) => (p.classify.labels.is_some(), p.classify.channels.is_some()),
         };
         if (labels || channels) && view.raycast.is_none() {
             view.raycast = Some(Default::default());
