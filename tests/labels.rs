@@ -623,6 +623,27 @@ fn the_frog_tissue_labels_show_their_organs_in_their_colours() {
     let ids: Vec<u32> = labels.ids[1..].to_vec();
     let shown = ids_shown(&png, &ids, &[]);
     assert!(shown.len() >= 6, "organs in their own colours: {shown:?}");
+    // Through the brick cache at level 0 (its 16 slots hold a twentieth of the volume), the same
+    // picture: each brick carries its slot's segment indices.
+    let paged = dir.path().join("paged.png");
+    let budget = ["--gpu-budget", "8", "--lod", "finest", "--out"];
+    let o = common::vellum(&[&args[..], &budget, &[paged.to_str().unwrap()]].concat());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stderr.contains("brick cache"), "{stderr}");
+    let (a, b) = (
+        image::open(&png).unwrap().to_rgb8(),
+        image::open(&paged).unwrap().to_rgb8(),
+    );
+    let worst = a
+        .pixels()
+        .zip(b.pixels())
+        .flat_map(|(p, q)| (0..3).map(move |c| p.0[c].abs_diff(q.0[c])))
+        .max();
+    assert!(
+        worst <= Some(1),
+        "through the brick cache: a channel {worst:?}/255 off"
+    );
     // Nearest sampling blends no labels: without the white specular highlight, at most 1 % of
     // the lit pixels (the segments' edges among them) take a colour of no label.
     let mut json: serde_json::Value =
