@@ -377,6 +377,25 @@ def test_segments_of_a_label_volume_are_keywords(tmp_path):
         vellum.render(v, labels=str(path), label_colour={3: "red"})
 
 
+def test_segments_of_a_volume_beyond_its_budget_go_through_the_brick_cache(tmp_path):
+    """Issue 42: labels= beside a volume whose textures exceed gpu_budget: its bricks carry the
+    segment indices, and the frame at level 0 is the frame in core."""
+    z, y, x = np.mgrid[0:64, 0:64, 0:64]
+    labels = np.zeros((64, 64, 64), np.uint8)
+    labels[(x - 20) ** 2 + (y - 32) ** 2 + (z - 32) ** 2 <= 100] = 3
+    labels[(x - 44) ** 2 + (y - 32) ** 2 + (z - 32) ** 2 <= 100] = 7
+    path = tmp_path / "seg.nrrd"
+    header = b"NRRD0004\ntype: uint8\ndimension: 3\nsizes: 64 64 64\nencoding: raw\n\n"
+    path.write_bytes(header + labels.tobytes())
+    v = vellum.Volume((labels > 0).astype(np.float32))
+    options = dict(labels=str(path), hide_labels=[0, 3], size=(64, 64), camera=(0, 90), ortho=True)
+    core = vellum.render(v, **options).rgba.astype(int)
+    paged = vellum.render(v, gpu_budget=1, lod="finest", **options).rgba.astype(int)
+    assert np.abs(core - paged).max() <= 1
+    lit = paged[..., :3].max(-1) > 40
+    assert 150 < lit.sum() < 500, "segment 7 alone: one disc of radius 10"
+
+
 def test_channels_are_mixed_by_keywords(tmp_path):
     """Issue 42: channels=, mix=, channel_tfs= and focus_channel= mix a store's channels as the flags do."""
     if subprocess.run(["python3", "-c", "import ome_zarr"], capture_output=True).returncode != 0:
