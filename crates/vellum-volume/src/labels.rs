@@ -36,8 +36,15 @@ impl Labels {
         let n = v.len();
         let mut ids: Vec<u32> = Vec::new();
         let mut seen = std::collections::HashSet::new();
+        // A segmentation runs along x: the last value is the next one's most of the time, and
+        // is not hashed again (hashing every voxel was most of the read).
+        let mut last = None;
         for i in 0..n {
             let x = v.data.get_f64(i);
+            if last == Some(x) {
+                continue;
+            }
+            last = Some(x);
             if x < 0.0 || x.fract() != 0.0 || x > u32::MAX as f64 {
                 return Err(Error::Invalid(format!(
                     "{what} holds {x} at voxel {i}; a label volume holds whole numbers from 0 (ids), expected a segmentation"
@@ -59,11 +66,15 @@ impl Labels {
             .map(|(i, &id)| (id, i as u16))
             .collect();
         let mut counts = vec![0u64; ids.len()];
+        let mut last = (u32::MAX as u64 + 1, 0u16);
         let index: Vec<u16> = (0..n)
             .map(|i| {
-                let k = lookup[&(v.data.get_f64(i) as u32)];
-                counts[k as usize] += 1;
-                k
+                let id = v.data.get_f64(i) as u32;
+                if last.0 != id as u64 {
+                    last = (id as u64, lookup[&id]);
+                }
+                counts[last.1 as usize] += 1;
+                last.1
             })
             .collect();
         Ok(Labels {
@@ -120,12 +131,20 @@ impl Labels {
     pub fn boxes(&self) -> Vec<[[u32; 3]; 2]> {
         let [nx, ny, _] = self.dims;
         let mut boxes = vec![[[u32::MAX; 3], [0; 3]]; self.ids.len()];
-        for (i, &k) in self.index.iter().enumerate() {
-            let v = [i % nx, (i / nx) % ny, i / (nx * ny)].map(|c| c as u32);
-            let b = &mut boxes[k as usize];
-            for a in 0..3 {
-                b[0][a] = b[0][a].min(v[a]);
-                b[1][a] = b[1][a].max(v[a]);
+        for (r, row) in self.index.chunks(nx.max(1)).enumerate() {
+            let (y, z) = ((r % ny) as u32, (r / ny) as u32);
+            // Per run of one index along the row, its first and last x.
+            let mut x0 = 0;
+            while x0 < row.len() {
+                let k = row[x0];
+                let x1 = x0 + row[x0..].iter().take_while(|&&i| i == k).count();
+                let b = &mut boxes[k as usize];
+                let (lo, hi) = ([x0 as u32, y, z], [x1 as u32 - 1, y, z]);
+                for a in 0..3 {
+                    b[0][a] = b[0][a].min(lo[a]);
+                    b[1][a] = b[1][a].max(hi[a]);
+                }
+                x0 = x1;
             }
         }
         boxes
