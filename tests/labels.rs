@@ -116,7 +116,7 @@ fn frame_through(
 
 /// Through the brick cache, each brick carries its slot's segment indices: the frames are the
 /// frames in core (within 1/255 a channel), hidden segments and focus segments included; and a
-/// coarse level takes each texel's nearest level-0 label, so a frame of level 1 (24² pixels, two
+/// coarse level's voxel takes the segment most of it holds, so a frame of level 1 (24² pixels, two
 /// voxels a pixel) shows the balls' colours as the frames in core do (at least 90 % of the
 /// covered pixels; the specular highlight whitens a few), not blends of two.
 #[test]

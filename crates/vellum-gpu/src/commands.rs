@@ -107,18 +107,25 @@ pub fn copy_slice_to_buffer(
 }
 
 /// Records copies of parts of `src` (a slice of a staging buffer) into `dst`: per region,
-/// `size` bytes from `from` bytes into the slice to `to` bytes into `dst`, each within both;
-/// the caller orders them with [`memory_transition`].
+/// `size` bytes from `from` bytes into the slice to `to` bytes into `dst`. A region that lies
+/// outside either is refused, and nothing is recorded; the caller orders the copies with
+/// [`memory_transition`].
 pub fn copy_slice_regions(
     ctx: &Context,
     cmd: vk::CommandBuffer,
     src: &crate::resources::BufferSlice,
     dst: &Buffer,
     regions: &[CopyRegion],
-) {
+) -> Result<()> {
+    let outside = |r: &&CopyRegion| r.from + r.size > src.size || r.to + r.size > dst.size;
+    if let Some(r) = regions.iter().find(outside) {
+        return Err(vellum_error::Error::Invalid(format!(
+            "a copy of {} bytes from {} to {} lies outside its {}-byte source or the {}-byte buffer {}",
+            r.size, r.from, r.to, src.size, dst.size, dst.name
+        )));
+    }
     let regions: Vec<vk::BufferCopy> = regions
         .iter()
-        .filter(|r| r.from + r.size <= src.size && r.to + r.size <= dst.size)
         .map(|r| {
             vk::BufferCopy::default()
                 .src_offset(src.offset + r.from)
@@ -126,10 +133,10 @@ pub fn copy_slice_regions(
                 .size(r.size)
         })
         .collect();
-    if regions.is_empty() {
-        return;
+    if !regions.is_empty() {
+        unsafe { ctx.device.cmd_copy_buffer(cmd, src.raw, dst.raw, &regions) };
     }
-    unsafe { ctx.device.cmd_copy_buffer(cmd, src.raw, dst.raw, &regions) };
+    Ok(())
 }
 
 /// One region of [`copy_slice_regions`], in bytes.
@@ -155,6 +162,21 @@ pub fn fill_buffer(ctx: &Context, cmd: vk::CommandBuffer, buffer: &Buffer, value
     unsafe {
         ctx.device
             .cmd_fill_buffer(cmd, buffer.raw, 0, vk::WHOLE_SIZE, value)
+    };
+}
+
+/// Records a fill of `size` bytes of `buffer` from `offset` (both multiples of 4) with the
+/// 32-bit word `value`; the caller orders it with [`memory_transition`].
+pub fn fill_buffer_range(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    buffer: &Buffer,
+    (offset, size): (u64, u64),
+    value: u32,
+) {
+    unsafe {
+        ctx.device
+            .cmd_fill_buffer(cmd, buffer.raw, offset, size, value)
     };
 }
 

@@ -127,7 +127,7 @@ pub struct BrickVoxels {
     /// The range of the slot's normalised texels.
     pub range: [u16; 2],
     /// Whether every voxel of the upload has one value (and, with mixed channels, every
-    /// channel's too).
+    /// channel's too; with a label volume, every texel one segment).
     pub constant: bool,
     /// The mixed channels' voxels of the same upload box ([`BrickLevels::mix`]), channel after
     /// channel in mixing order, each normalised to 16 bits over its own range; empty without.
@@ -135,9 +135,16 @@ pub struct BrickVoxels {
     /// Per mixed channel, the range of its slot's texels.
     pub channel_ranges: Vec<[u16; 2]>,
     /// With a label volume beside the pyramid ([`BrickLevels::set_labels`]): the segment index
-    /// of each of the slot's texels ([`SLOT`]³, x fastest), read nearest from the label
-    /// volume's level 0; empty without.
+    /// of each of the slot's texels ([`SLOT`]³, x fastest), from its level's indices (a coarse
+    /// level's by [`crate::labels::coarser_index`]); empty without.
     pub labels: Vec<u16>,
+}
+
+impl BrickVoxels {
+    /// Bytes that travel to the GPU: the voxels, the mixed channels' and the segment indices.
+    pub fn travel_bytes(&self) -> u64 {
+        (self.data.bytes().len() + 2 * (self.channels.len() + self.labels.len())) as u64
+    }
 }
 
 /// What a brick's box of a store reads as: its voxels, or the one value of every chunk it touches.

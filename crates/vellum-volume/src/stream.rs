@@ -279,9 +279,7 @@ impl Drop for BrickLoader {
 }
 
 fn ready_bytes(l: &Loaded) -> u64 {
-    l.voxels
-        .as_ref()
-        .map_or(0, |v| (v.data.bytes().len() + 2 * v.channels.len()) as u64)
+    l.voxels.as_ref().map_or(0, BrickVoxels::travel_bytes)
 }
 
 impl Shared {

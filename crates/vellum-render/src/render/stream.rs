@@ -194,8 +194,7 @@ impl Streamer {
             match p {
                 Some(Placement::Upload(slot)) => {
                     self.uploaded += 1;
-                    self.uploaded_bytes +=
-                        (voxels.data.bytes().len() + 2 * voxels.channels.len()) as u64;
+                    self.uploaded_bytes += voxels.travel_bytes();
                     out.uploads.push(Arrived {
                         slot,
                         entry,
