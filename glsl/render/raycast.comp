@@ -54,6 +54,10 @@ layout(set = 0, binding = 18) readonly buffer LabelTable { uint label_table[]; }
 const int PT_HEADER = 8 + 8 * 16;
 const uint MODE_WAIT = 1u;
 const uint MODE_RESUME = 2u;
+// A resumed pass of a bricked frame that waits runs one workgroup per tile of 8 x 8 rays that
+// ray_wake.comp listed (after its indirect dispatch's arguments and the tiles' flags): the tiles
+// with a ray that a brick let go on. Other frames bind a stand-in and never read it.
+layout(set = 0, binding = 24) readonly buffer TileList { uint tile_args[4]; uint tile_words[]; };
 // The entry this ray last asked for, and the last resident one it read, so that it says each
 // once per brick.
 uint last_wanted = 0xffffffffu;
@@ -547,9 +551,39 @@ bool walk_batch(vec3 o, vec3 dir, float a, float b, float t_in, float t_out, ino
     return false;
 }
 
+// Whether a pass that waits resumes the rays of the tiles ray_wake.comp listed.
+bool resumes_listed() {
+    return V_BRICKED && (pt[3] & (MODE_WAIT | MODE_RESUME)) == (MODE_WAIT | MODE_RESUME);
+}
+
+// In a resumed pass that waits, whether ray `ray` of a listed tile has nothing to do: it
+// finished in an earlier pass, or the brick it stopped at is still missing, its range as known
+// or unknown as then (within a frame a known range's flags do not change), so that it would stop
+// there again with the same state (ray_wake.comp asked for that brick again).
+bool resumed_waiting(uint ray) {
+    if (!resumes_listed()) {
+        return false;
+    }
+    uvec4 f = rays[ray].flags;
+    if ((f.x & 2u) != 0u) {
+        return true;
+    }
+    if (f.y == 0u) {
+        return false;
+    }
+    uint word = pt[PT_HEADER + int((f.y & 0x7fffffffu) - 1u)];
+    return (word & RESIDENT) == 0u && (word & KNOWN) << 5u == (f.y & 0x80000000u);
+}
+
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = imageSize(out_composite);
+    if (resumes_listed()) {
+        // One workgroup per listed tile (an indirect dispatch).
+        ivec2 tiles = (size + 7) / 8;
+        int tile = int(tile_words[tiles.x * tiles.y + int(gl_WorkGroupID.x)]);
+        px = ivec2(tile % tiles.x, tile / tiles.x) * 8 + ivec2(gl_LocalInvocationID.xy);
+    }
     if (px.x >= size.x || px.y >= size.y) {
         return;
     }
@@ -588,6 +622,9 @@ void main() {
     uint ray = uint(px.y * size.x + px.x);
     if (V_BRICKED) {
         read_header();
+        if (resumed_waiting(ray)) {
+            return;
+        }
         ray_tex0 = o / (2.0 * u.half_extent.xyz) + 0.5;
         ray_dtex = dir / (2.0 * u.half_extent.xyz);
         ray_inv_dtex = 1.0 / ray_dtex;
@@ -833,8 +870,17 @@ void main() {
         }
         if (wait) {
             uint flags = 1u | (stopped ? 0u : 2u) | (first ? 4u : 0u);
-            rays[ray] = RayState(fp, fd, ctx, vec4(depth, m, prev_t, prev_s), uvec4(flags, 0u, 0u, 0u));
+            // A stopped ray keeps the entry it waits for (+ 1; 0: none) and whether that
+            // brick's range was known (bit 31), for resumed_waiting.
+            uint awaits = 0u;
+            if (stopped) {
+                awaits = (last_wanted + 1u) | (pt[PT_HEADER + int(last_wanted)] & KNOWN) << 5u;
+            }
+            rays[ray] = RayState(fp, fd, ctx, vec4(depth, m, prev_t, prev_s), uvec4(flags, awaits, 0u, 0u));
         }
+    } else if (wait) {
+        // A ray that misses the box is done from the first pass (resumed_waiting reads that).
+        rays[ray].flags = uvec4(3u, 0u, 0u, 0u);
     }
     // A pass that waits for bricks keeps its results in the rays' states; only the frame that
     // ends the passes (or draws without waiting) writes the layers.

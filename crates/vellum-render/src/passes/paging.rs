@@ -532,7 +532,7 @@ fn record_label_copies(
         .collect();
     ctx.count_transfer(&pool.name, true, src.size);
     memory_transition(ctx, frame.cmd, Access::ComputeRead, Access::TransferWrite);
-    copy_slice_regions(ctx, frame.cmd, &src, pool, &regions);
+    copy_slice_regions(ctx, frame.cmd, &src, pool, &regions)?;
     memory_transition(ctx, frame.cmd, Access::TransferWrite, Access::ComputeRead);
     Ok(())
 }

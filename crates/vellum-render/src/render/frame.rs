@@ -20,7 +20,7 @@ use crate::classify::Focus;
 use crate::passes::gpu_volume::VolumeRef;
 use crate::passes::lines::{LineExtractor, RasterView, SegmentLines, DEFAULT_CAPACITY};
 use crate::passes::normals::{Bricks, VolumeTextures};
-use crate::passes::paging::HEADER;
+use crate::passes::paging::{HEADER, MODE_RESUME, MODE_WAIT};
 use crate::render::post::{LinesDraw, Post};
 use crate::render::proxy::{depth_span, view_aligned_slices_in, ProxySlices};
 use crate::render::raycast::{
@@ -40,6 +40,7 @@ use vellum_gpu::{
     Access, Bind, BufferSlice, Context, Frames, FramesDesc, Image, ImageDesc, PipelineCache,
     Sampler,
 };
+use vellum_gpu::{BindingKind, PipelineDesc};
 use vellum_gpu::{CommandBuffer, Format};
 use vellum_volume::geometry::Geometry;
 
@@ -1028,22 +1029,25 @@ impl Renderer {
     }
 }
 
-/// The page table (staged here, its feedback cleared), feedback, ray states and channel sums of
-/// a bricked frame; in core, the frame's tables and stand-ins.
+/// The page table (staged here, its feedback cleared), feedback, ray states, channel sums and
+/// tiles' list of a bricked frame, and how many tiles it has; in core, the frame's tables and
+/// stand-ins.
 fn paging_binds<'a>(
     ctx: &Arc<Context>,
     frame: &mut vellum_gpu::Frame,
     vol: VolumeRef<'a>,
     r: &RayFrame<'a>,
     state: &'a mut ViewState,
-) -> Result<[Bind<'a>; 4]> {
+) -> Result<([Bind<'a>; 5], u64)> {
     let Some(p) = vol.paged() else {
-        return Ok([
+        let binds = [
             Bind::StorageSlice(r.tables),
             Bind::StorageBuffer(r.stand_in),
             Bind::StorageBuffer(r.stand_in),
             Bind::StorageBuffer(r.stand_in),
-        ]);
+            Bind::StorageBuffer(r.stand_in),
+        ];
+        return Ok((binds, 0));
     };
     // The header, then the entries with the flags of the bricks whose range is known, written
     // into the frame's ring in place.
@@ -1061,14 +1065,70 @@ fn paging_binds<'a>(
     let project = r
         .channels
         .is_ok_and(|c| c.mix != crate::classify::channels::Mix::Over);
-    let size = r.setup.size;
-    let (rays, sums) = state.ray_states(ctx, size[0] as u64 * size[1] as u64, project)?;
-    Ok([
+    let tile = [
+        crate::render::raycast::LOCAL[0],
+        crate::render::raycast::LOCAL[1],
+    ];
+    let b = state.ray_states(ctx, (r.setup.size, tile), project)?;
+    let (tiles, count) = b.tiles;
+    let binds = [
         Bind::StorageSlice(table),
         Bind::StorageBuffer(&p.feedback),
-        Bind::StorageBuffer(rays),
-        Bind::StorageBuffer(sums.unwrap_or(r.stand_in)),
-    ])
+        Bind::StorageBuffer(b.rays),
+        Bind::StorageBuffer(b.sums.unwrap_or(r.stand_in)),
+        Bind::StorageBuffer(tiles),
+    ];
+    Ok((binds, count))
+}
+
+/// Pass `ray_wake` before a resumed pass that waits: lists the tiles (of `tiles`, an image of
+/// `size`) with a ray that a brick let go on, in the tiles' buffer of `paging`, whose dispatch
+/// arguments the ray caster's indirect dispatch then reads (returned).
+fn record_wake<'a>(
+    ctx: &Context,
+    pipelines: &mut PipelineCache,
+    frame: &mut vellum_gpu::Frame,
+    paging: &[Bind<'a>; 5],
+    (size, tiles): ([u32; 2], u64),
+) -> Result<&'a vellum_gpu::Buffer> {
+    use vellum_gpu::commands::{fill_buffer_range, memory_transition};
+    let Bind::StorageBuffer(list) = paging[4] else {
+        return Err(Error::Invalid("the tiles' list is not a buffer".into()));
+    };
+    // Dispatch arguments (0, 1, 1), and no tile listed yet.
+    memory_transition(ctx, frame.cmd, Access::IndirectRead, Access::TransferWrite);
+    fill_buffer_range(ctx, frame.cmd, list, (0, 4), 0);
+    fill_buffer_range(ctx, frame.cmd, list, (4, 8), 1);
+    fill_buffer_range(ctx, frame.cmd, list, (16, 4 * tiles), 0);
+    memory_transition(
+        ctx,
+        frame.cmd,
+        Access::TransferWrite,
+        Access::ComputeReadWrite,
+    );
+    let wake = pipelines.get(&PipelineDesc::new(
+        "render/ray_wake.comp",
+        &[BindingKind::StorageBuffer; 4],
+        16,
+    ))?;
+    let tiles_x = size[0].div_ceil(crate::render::raycast::LOCAL[0]);
+    let push: [u32; 4] = [size[0], size[1], tiles_x, tiles as u32];
+    let rays = size[0] as u64 * size[1] as u64;
+    frame.profiler.begin(frame.cmd, "ray_wake");
+    wake.dispatch(
+        frame.cmd,
+        &[paging[0], paging[1], paging[2], paging[4]],
+        &push,
+        [rays.div_ceil(64) as u32, 1, 1],
+    )?;
+    frame.profiler.end(frame.cmd);
+    memory_transition(
+        ctx,
+        frame.cmd,
+        Access::ComputeReadWrite,
+        Access::IndirectRead,
+    );
+    Ok(list)
 }
 
 /// The ray-casting step: of a volume in core, or through the brick cache's page table (staged
@@ -1083,7 +1143,7 @@ fn record_rays(
 ) -> Result<()> {
     let two_level = r.layers.is_some();
     let size = r.setup.size;
-    let paging = paging_binds(ctx, frame, vol, r, state)?;
+    let (paging, tiles) = paging_binds(ctx, frame, vol, r, state)?;
     // The ray states (and the stand-ins) are written by every frame's dispatch.
     vellum_gpu::commands::memory_transition(
         ctx,
@@ -1091,6 +1151,13 @@ fn record_rays(
         Access::ComputeReadWrite,
         Access::ComputeReadWrite,
     );
+    let waits = MODE_WAIT | MODE_RESUME;
+    let listed = match vol.paged() {
+        Some(p) if p.mode & waits == waits => {
+            Some(record_wake(ctx, pipelines, frame, &paging, (size, tiles))?)
+        }
+        _ => None,
+    };
     RayCaster.record(
         frame,
         pipelines,
@@ -1102,6 +1169,7 @@ fn record_rays(
             composite: r.composite,
             tables: r.tables,
             paging,
+            listed,
             bricked: vol.paged().is_some(),
             labels: match r.labels {
                 Some(l) => {

@@ -67,11 +67,12 @@ pub(crate) const BRICK_FOCUS: u32 = 2;
 
 /// Bindings: the slicer's eight (`shade.glsl`), then the five layers as storage images, the
 /// brick flags, the brick cache's page table, feedback and ray states (`passes::paging`), a
-/// label volume's voxels and table (`classify::labels`), and mixed channels' texture, transfer
-/// functions and opacity bounds (`classify::channels`).
-pub(crate) const RAY_BINDINGS: [BindingKind; 24] = {
+/// label volume's voxels and table (`classify::labels`), mixed channels' texture, transfer
+/// functions and opacity bounds (`classify::channels`), the channels' sums and the tiles'
+/// liveness of a bricked frame that waits.
+pub(crate) const RAY_BINDINGS: [BindingKind; 25] = {
     let slicer = SHADE_BINDINGS;
-    let mut all = [BindingKind::StorageBuffer; 24];
+    let mut all = [BindingKind::StorageBuffer; 25];
     let mut i = 0;
     while i < slicer.len() {
         all[i] = slicer[i];
@@ -193,9 +194,12 @@ pub(crate) struct RayRequest<'a> {
     pub composite: &'a Image,
     /// The opacity bounds and brick flags staged for this frame (`RayTables`).
     pub tables: BufferSlice,
-    /// The page table, feedback, ray states and the channels' sums of a bricked volume
-    /// (stand-ins in core, and for the sums without `add` or `max` mixing).
-    pub paging: [Bind<'a>; 4],
+    /// The page table, feedback, ray states, the channels' sums and the tiles' liveness of a
+    /// bricked volume (stand-ins in core, and for the sums without `add` or `max` mixing).
+    pub paging: [Bind<'a>; 5],
+    /// A resumed pass that waits: the tiles `ray_wake` listed, whose first words are the
+    /// dispatch (one workgroup per listed tile).
+    pub listed: Option<&'a vellum_gpu::Buffer>,
     /// Whether the volume is drawn through the brick cache (the `BRICKED` variant).
     pub bricked: bool,
     /// A label volume's voxels and table (stand-ins without one), and whether there is one
@@ -263,10 +267,10 @@ impl RayCaster {
         // On the stack: a steady frame allocates nothing here.
         let s = r.shading;
         let [i0, i1, i2, i3, i4] = images.map(Bind::StorageImage);
-        let [p0, p1, p2, p3] = r.paging;
+        let [p0, p1, p2, p3, p4] = r.paging;
         let [l0, l1] = r.labels.0;
         let [c0, c1, c2, c3] = r.channels.0;
-        let binds: [Bind; 24] = [
+        let binds: [Bind; 25] = [
             s[0],
             s[1],
             s[2],
@@ -291,6 +295,7 @@ impl RayCaster {
             c2,
             c3,
             p3,
+            p4,
         ];
         let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         if r.bricked && r.brick_reuse {
@@ -319,7 +324,10 @@ impl RayCaster {
         let pipeline = Self::pipeline(pipelines, variant)?;
         let groups = vellum_gpu::pipeline::group_count([r.size[0], r.size[1], 1], LOCAL);
         frame.profiler.begin(cmd, "raycast");
-        pipeline.dispatch(cmd, &binds, &r.push, groups)?;
+        match r.listed {
+            Some(list) => pipeline.dispatch_indirect(cmd, &binds, &r.push, list, 0)?,
+            None => pipeline.dispatch(cmd, &binds, &r.push, groups)?,
+        }
         frame.profiler.end(cmd);
         Ok(())
     }

@@ -84,6 +84,20 @@ pub struct ViewState {
     /// The sums of the channels that `add` or `max` mixes, per ray of such a frame (eight
     /// RGBA32F a ray), from the first one, for as many rays as it had.
     sums: Option<(u64, vellum_gpu::Buffer)>,
+    /// The tiles of 8 × 8 rays of such a frame that a resumed pass runs (`ray_wake.comp`):
+    /// its indirect dispatch, then per tile a flag and the list, for as many tiles as it had.
+    tiles: Option<(u64, vellum_gpu::Buffer)>,
+}
+
+/// A bricked frame's buffers per ray ([`ViewState::ray_states`]).
+pub(crate) struct RayBuffers<'a> {
+    /// The rays' saved states.
+    pub(crate) rays: &'a vellum_gpu::Buffer,
+    /// The channels' sums, when asked for.
+    pub(crate) sums: Option<&'a vellum_gpu::Buffer>,
+    /// The tiles' list (`ray_wake.comp`: 4 words of dispatch, a flag per tile, the list), and
+    /// how many tiles this frame has.
+    pub(crate) tiles: (&'a vellum_gpu::Buffer, u64),
 }
 
 /// Bytes of one ray's channel sums (`ChannelSums` in raycast.comp): eight RGBA32F.
@@ -148,28 +162,41 @@ impl ViewState {
         ))
     }
 
-    /// The ray states for `pixels` rays and, with `sums`, the channels' sums of as many (each
-    /// made, or remade larger, when needed).
+    /// The ray states for the rays of an image of `size` pixels, with `sums` the channels' sums
+    /// of as many, and the list of its tiles of `tile` pixels (each made, or remade larger, when
+    /// needed).
     pub(crate) fn ray_states(
         &mut self,
         ctx: &Arc<Context>,
-        pixels: u64,
+        (size, tile): ([u32; 2], [u32; 2]),
         sums: bool,
-    ) -> Result<(&vellum_gpu::Buffer, Option<&vellum_gpu::Buffer>)> {
-        let per_ray = [
-            ("ray states", crate::passes::paging::RAY_STATE_BYTES, true),
-            ("channel sums", CHANNEL_SUM_BYTES, sums),
+    ) -> Result<RayBuffers<'_>> {
+        let pixels = size[0] as u64 * size[1] as u64;
+        let tiles = (0..2).map(|a| size[a].div_ceil(tile[a]) as u64).product();
+        let wanted = [
+            (
+                "ray states",
+                pixels,
+                crate::passes::paging::RAY_STATE_BYTES,
+                true,
+            ),
+            ("channel sums", pixels, CHANNEL_SUM_BYTES, sums),
+            ("live tiles", tiles + 2, 8, true),
         ];
-        for (slot, (name, bytes, wanted)) in
-            [&mut self.rays, &mut self.sums].into_iter().zip(per_ray)
+        for (slot, (name, n, bytes, wanted)) in [&mut self.rays, &mut self.sums, &mut self.tiles]
+            .into_iter()
+            .zip(wanted)
         {
-            if wanted && slot.as_ref().is_none_or(|(n, _)| *n < pixels) {
-                let desc = vellum_gpu::BufferDesc::storage(pixels.max(1) * bytes);
-                *slot = Some((pixels, vellum_gpu::Buffer::new(ctx, name, &desc)?));
+            if wanted && slot.as_ref().is_none_or(|(had, _)| *had < n) {
+                let desc = vellum_gpu::BufferDesc::storage(n.max(1) * bytes).indirect();
+                *slot = Some((n, vellum_gpu::Buffer::new(ctx, name, &desc)?));
             }
         }
-        let rays = &self.rays.as_ref().expect("made above").1;
-        Ok((rays, self.sums.as_ref().filter(|_| sums).map(|s| &s.1)))
+        Ok(RayBuffers {
+            rays: &self.rays.as_ref().expect("made above").1,
+            sums: self.sums.as_ref().filter(|_| sums).map(|s| &s.1),
+            tiles: (&self.tiles.as_ref().expect("made above").1, tiles),
+        })
     }
 
     /// Whether the copy of volume `volume` smoothed by `radius` (> 0) is kept.
