@@ -41,6 +41,11 @@ for v in cthead_stanford engine bonsai ct_chest_lidc2 boston_teapot; do
     done
 done
 
+# The frog tissue's label volume (issue 42's segments in core and through the brick cache).
+mkdir -p "$B/data/formats/metaimage"
+cp "$DATA/formats/metaimage/frogtissue.mhd" "$DATA/formats/metaimage/frogtissue.zraw" \
+    "$B/data/formats/metaimage/"
+
 if [ "${VTK:-1}" = 1 ]; then
     whl=$(ls "$CACHE"/vtk-"$VTK_VERSION"-cp"${VTK_PYTHON/./}"-*.whl 2>/dev/null | head -1 || true)
     if [ -z "$whl" ]; then

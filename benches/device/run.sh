@@ -213,4 +213,54 @@ PY
     ;;
 esac
 
+# Issue 42 on a GPU, absolute: 1, 2 and 4 channels of a 512³ uint16 store mixed in one ray at
+# 1024² under each mix (the phantom in every channel: what mixing costs, not what each channel
+# adds), the frog tissue's segments in core and through an 8 MiB brick cache, and the first
+# complete frame of a 512³ store over HTTP with 50 ms a request (benches/http_first_frame.py, a
+# local server). Each render's `raycast` GPU ms (or its bricked passes' total) and wall seconds
+# go to issue42.json; the HTTP table to issue42_http.md. ISSUE42_N and ISSUE42_IMAGE shrink the
+# store and the image, for a rehearsal on lavapipe.
+case " ${BENCHES:-all} " in *" all "* | *" issue42 "*)
+    C=/tmp/c42 n=${ISSUE42_N:-512} img=${ISSUE42_IMAGE:-1024}
+    rm -rf "$C" && mkdir -p "$C"
+    "$V" convert "phantom:shepp-logan:$n" "$C/p.nrrd" >/dev/null 2>&1
+    "$V" convert "$C/p.nrrd" "$C/four.ome.zarr" --add-channel "$C/p.nrrd" \
+        --add-channel "$C/p.nrrd" --add-channel "$C/p.nrrd" >/dev/null 2>&1
+    frog="$B/data/formats/metaimage/frogtissue.mhd"
+    G="--size ${img}x$img --camera 30,20 --renderer raycast --json --out $C/x.png"
+    for c in "ch1|$C/four.ome.zarr --channels 0 $G" \
+        "ch2_over|$C/four.ome.zarr --channels 0,1 --mix over $G" \
+        "ch2_add|$C/four.ome.zarr --channels 0,1 --mix add $G" \
+        "ch2_max|$C/four.ome.zarr --channels 0,1 --mix max $G" \
+        "ch4_over|$C/four.ome.zarr --channels 0,1,2,3 --mix over $G" \
+        "ch4_add|$C/four.ome.zarr --channels 0,1,2,3 --mix add $G" \
+        "ch4_max|$C/four.ome.zarr --channels 0,1,2,3 --mix max $G" \
+        "frog_core|$frog --labels $frog $G" \
+        "frog_bricked|$frog --labels $frog --gpu-budget 8 --lod finest $G"; do
+        IFS='|' read -r name flags <<<"$c"
+        for i in 1 2 3; do
+            t0=$(date +%s.%N)
+            timeout 60 "$V" render $flags >"$C/o.json" 2>/dev/null
+            t1=$(date +%s.%N)
+            python3 - "$name" "$t0" "$t1" "$C/o.json" <<'PY'
+import json, sys
+name, t0, t1, path = sys.argv[1:]
+try:
+    d = json.load(open(path))
+except (OSError, ValueError):
+    d = {}
+b = d.get("bricks") or {}
+print(json.dumps({"case": name, "raycast_ms": d.get("passes", {}).get("raycast"),
+                  "bricked_gpu_ms": b.get("gpu_ms"), "passes": b.get("passes"),
+                  "wall_s": round(float(t1) - float(t0), 3)}))
+PY
+        done
+    done | python3 -c "import json,sys; print(json.dumps({'rows': [json.loads(l) for l in sys.stdin]}))" >"$R/issue42.json"
+    cat "$R/issue42.json"
+    timeout 120 python3 benches/http_first_frame.py "$V" "$n" 50 >"$R/issue42_http.md" 2>"$R/issue42_http.log"
+    cat "$R/issue42_http.md"
+    repack
+    ;;
+esac
+
 repack && tar -tvf "$OUT/results.tar"
