@@ -347,18 +347,24 @@ def test_a_store_on_a_server_reads_and_renders_as_from_disk(tmp_path):
         server.shutdown()
 
 
+def two_balls(tmp_path, n, r):
+    """An n³ label volume of two balls of radius r on the x axis (ids 3 and 7, at 10/32 and 22/32
+    of it), written as seg.nrrd in tmp_path, and their mask as a Volume."""
+    z, y, x = np.mgrid[0:n, 0:n, 0:n]
+    labels = np.zeros((n, n, n), np.uint8)
+    for id, cx in [(3, 10 * n // 32), (7, 22 * n // 32)]:
+        labels[(x - cx) ** 2 + (y - n // 2) ** 2 + (z - n // 2) ** 2 <= r * r] = id
+    path = tmp_path / "seg.nrrd"
+    header = f"NRRD0004\ntype: uint8\ndimension: 3\nsizes: {n} {n} {n}\nencoding: raw\n\n"
+    path.write_bytes(header.encode() + labels.tobytes())
+    return vellum.Volume((labels > 0).astype(np.float32)), path
+
+
 def test_segments_of_a_label_volume_are_keywords(tmp_path):
     """Issue 42: labels=, hide_labels=, focus_labels= and label_colour= draw segments as the flags do."""
     import re
 
-    z, y, x = np.mgrid[0:32, 0:32, 0:32]
-    labels = np.zeros((32, 32, 32), np.uint8)
-    labels[(x - 10) ** 2 + (y - 16) ** 2 + (z - 16) ** 2 <= 36] = 3
-    labels[(x - 22) ** 2 + (y - 16) ** 2 + (z - 16) ** 2 <= 36] = 7
-    path = tmp_path / "seg.nrrd"
-    header = b"NRRD0004\ntype: uint8\ndimension: 3\nsizes: 32 32 32\nencoding: raw\n\n"
-    path.write_bytes(header + labels.tobytes())
-    v = vellum.Volume((labels > 0).astype(np.float32))
+    v, path = two_balls(tmp_path, 32, 6)
     options = dict(size=(64, 64), camera=(0, 90), ortho=True)
     red = vellum.render(v, labels=str(path), hide_labels=0, label_colour={3: "#ff0000", 7: "#0000ff"},
                         **options).rgba.astype(int)
@@ -380,14 +386,7 @@ def test_segments_of_a_label_volume_are_keywords(tmp_path):
 def test_segments_of_a_volume_beyond_its_budget_go_through_the_brick_cache(tmp_path):
     """Issue 42: labels= beside a volume whose textures exceed gpu_budget: its bricks carry the
     segment indices, and the frame at level 0 is the frame in core."""
-    z, y, x = np.mgrid[0:64, 0:64, 0:64]
-    labels = np.zeros((64, 64, 64), np.uint8)
-    labels[(x - 20) ** 2 + (y - 32) ** 2 + (z - 32) ** 2 <= 100] = 3
-    labels[(x - 44) ** 2 + (y - 32) ** 2 + (z - 32) ** 2 <= 100] = 7
-    path = tmp_path / "seg.nrrd"
-    header = b"NRRD0004\ntype: uint8\ndimension: 3\nsizes: 64 64 64\nencoding: raw\n\n"
-    path.write_bytes(header + labels.tobytes())
-    v = vellum.Volume((labels > 0).astype(np.float32))
+    v, path = two_balls(tmp_path, 64, 10)
     options = dict(labels=str(path), hide_labels=[0, 3], size=(64, 64), camera=(0, 90), ortho=True)
     core = vellum.render(v, **options).rgba.astype(int)
     paged = vellum.render(v, gpu_budget=1, lod="finest", **options).rgba.astype(int)
