@@ -33,13 +33,7 @@ const int BRICKS_AT = 256;
 layout(set = 0, binding = 14) readonly buffer PageTable { uint pt[]; };
 layout(set = 0, binding = 15) buffer Feedback { uint wanted[]; };
 // A ray's state between the passes of one frame of a bricked volume that waits for its bricks.
-struct RayState {
-    vec4 fp;
-    vec4 fd;
-    vec4 ctx;
-    vec4 walk;   // depth, m (the next sample), prev_t, prev_s
-    uvec4 flags; // x: bit 0 started, bit 1 done, bit 2 no focus sample yet
-};
+#include "ray_state.glsl"
 layout(set = 0, binding = 16) buffer RayStates { RayState rays[]; };
 // Per ray of a bricked frame that waits and mixes channels by `add` or `max`, eight sums (one per
 // channel: `add`'s premultiplied colour and opacity, `max`'s largest value in x), kept between
@@ -51,23 +45,19 @@ layout(set = 0, binding = 23) buffer ChannelSums { vec4 channel_sums[]; };
 // Frames without labels bind one-word stand-ins and never read them.
 layout(set = 0, binding = 17) readonly buffer LabelVoxels { uint label_words[]; };
 layout(set = 0, binding = 18) readonly buffer LabelTable { uint label_table[]; };
-const int PT_HEADER = 8 + 8 * 16;
 const uint MODE_WAIT = 1u;
 const uint MODE_RESUME = 2u;
 // A resumed pass of a bricked frame that waits runs one workgroup per tile of 8 x 8 rays that
 // ray_wake.comp listed (after its indirect dispatch's arguments and the tiles' flags): the tiles
 // with a ray that a brick let go on. Other frames bind a stand-in and never read it.
 layout(set = 0, binding = 24) readonly buffer TileList { uint tile_args[4]; uint tile_words[]; };
+// tile_args: the indirect dispatch (tiles along x of the image, rows of listed tiles, 1) and the
+// count of tiles listed.
 // The entry this ray last asked for, and the last resident one it read, so that it says each
 // once per brick.
 uint last_wanted = 0xffffffffu;
 uint last_used = 0xffffffffu;
 const uint USED_BIT = 0x80000000u;
-// A page-table word: RESIDENT, with the brick's slot along x, y and z of the pool in bits 0-7,
-// 8-15 and 16-23; KNOWN: the brick's range is known, and bits 24 and 25 say whether it may hold
-// visible context (or one-pass) samples and focus.
-const uint KNOWN = 0x4000000u;
-const uint RESIDENT = 0x8000000u;
 // What locate() found: a place to sample, a missing brick the ray waits for, or a brick that
 // holds nothing for the ray, which it walks past up to `skip_t`.
 const int FOUND = 0;
@@ -557,9 +547,8 @@ bool resumes_listed() {
 }
 
 // In a resumed pass that waits, whether ray `ray` of a listed tile has nothing to do: it
-// finished in an earlier pass, or the brick it stopped at is still missing, its range as known
-// or unknown as then (within a frame a known range's flags do not change), so that it would stop
-// there again with the same state (ray_wake.comp asked for that brick again).
+// finished in an earlier pass, or it would stop again where it stopped (waits_still;
+// ray_wake.comp asked for that brick again).
 bool resumed_waiting(uint ray) {
     if (!resumes_listed()) {
         return false;
@@ -568,20 +557,20 @@ bool resumed_waiting(uint ray) {
     if ((f.x & 2u) != 0u) {
         return true;
     }
-    if (f.y == 0u) {
-        return false;
-    }
-    uint word = pt[PT_HEADER + int((f.y & 0x7fffffffu) - 1u)];
-    return (word & RESIDENT) == 0u && (word & KNOWN) << 5u == (f.y & 0x80000000u);
+    return f.y != 0u && waits_still(f.y, pt[PT_HEADER + int(awaited_entry(f.y))]);
 }
 
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = imageSize(out_composite);
     if (resumes_listed()) {
-        // One workgroup per listed tile (an indirect dispatch).
+        // One workgroup per listed tile (an indirect dispatch, rows of the image's tiles along x).
         ivec2 tiles = (size + 7) / 8;
-        int tile = int(tile_words[tiles.x * tiles.y + int(gl_WorkGroupID.x)]);
+        uint listed = gl_WorkGroupID.y * uint(tiles.x) + gl_WorkGroupID.x;
+        if (listed >= tile_args[3]) {
+            return;
+        }
+        int tile = int(tile_words[tiles.x * tiles.y + int(listed)]);
         px = ivec2(tile % tiles.x, tile / tiles.x) * 8 + ivec2(gl_LocalInvocationID.xy);
     }
     if (px.x >= size.x || px.y >= size.y) {
@@ -872,10 +861,7 @@ void main() {
             uint flags = 1u | (stopped ? 0u : 2u) | (first ? 4u : 0u);
             // A stopped ray keeps the entry it waits for (+ 1; 0: none) and whether that
             // brick's range was known (bit 31), for resumed_waiting.
-            uint awaits = 0u;
-            if (stopped) {
-                awaits = (last_wanted + 1u) | (pt[PT_HEADER + int(last_wanted)] & KNOWN) << 5u;
-            }
+            uint awaits = stopped ? awaits_of(last_wanted, pt[PT_HEADER + int(last_wanted)]) : 0u;
             rays[ray] = RayState(fp, fd, ctx, vec4(depth, m, prev_t, prev_s), uvec4(flags, awaits, 0u, 0u));
         }
     } else if (wait) {

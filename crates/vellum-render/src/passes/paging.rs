@@ -44,7 +44,8 @@ pub(crate) type BrickFlagsOf<'a> = dyn Fn([u16; 2], &[[u16; 2]]) -> u32 + 'a;
 pub(crate) const HEADER: usize = 8 + 8 * MAX_LEVELS;
 /// Mode bit: rays stop at a missing brick (and ask for it) instead of sampling a coarser level.
 pub(crate) const MODE_WAIT: u32 = 1;
-/// Mode bit: rays continue from the state the previous pass of this frame saved.
+/// Mode bit: rays continue from the state the previous pass of this frame saved (with
+/// [`MODE_WAIT`], only the tiles `ray_wake.comp` listed).
 pub(crate) const MODE_RESUME: u32 = 2;
 /// Feedback flag: a resident brick was read (`USED_BIT` in raycast.comp); a missing brick some
 /// ray asked for reads 1. (Plain stores, not counts: a CPU device runs atomics lane by lane.)

@@ -4,7 +4,9 @@
 //!
 //! A frame runs in passes. Each pass continues every ray from where the last one stopped it
 //! (its colours, depth and next sample are saved per pixel) up to the first brick it needs and
-//! the cache does not hold, and asks for that brick. The streamer's loaders read the bricks
+//! the cache does not hold, and asks for that brick. A pass after the first runs only the tiles
+//! of 8 × 8 rays with a ray that an arrived brick lets go on (`ray_wake.comp` lists them; the
+//! others would stop where they stopped, and only ask for their bricks again). The streamer's loaders read the bricks
 //! asked for, nearest the eye first, while the GPU runs the pass; the next pass uploads what has
 //! arrived (into free slots, or in place of the least recently used ones; the coarsest level
 //! stays) and goes on. Host and GPU work at once: the loaders never wait for a pass, and a pass

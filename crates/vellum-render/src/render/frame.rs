@@ -1029,16 +1029,19 @@ impl Renderer {
     }
 }
 
+/// A bricked frame's list of tiles for `ray_wake` and how many tiles the frame has.
+type ListedTiles<'a> = Option<(&'a vellum_gpu::Buffer, u64)>;
+
 /// The page table (staged here, its feedback cleared), feedback, ray states, channel sums and
-/// tiles' list of a bricked frame, and how many tiles it has; in core, the frame's tables and
-/// stand-ins.
+/// tiles' list of a bricked frame, and that list with how many tiles the frame has; in core,
+/// the frame's tables and stand-ins.
 fn paging_binds<'a>(
     ctx: &Arc<Context>,
     frame: &mut vellum_gpu::Frame,
     vol: VolumeRef<'a>,
     r: &RayFrame<'a>,
     state: &'a mut ViewState,
-) -> Result<([Bind<'a>; 5], u64)> {
+) -> Result<([Bind<'a>; 5], ListedTiles<'a>)> {
     let Some(p) = vol.paged() else {
         let binds = [
             Bind::StorageSlice(r.tables),
@@ -1047,7 +1050,7 @@ fn paging_binds<'a>(
             Bind::StorageBuffer(r.stand_in),
             Bind::StorageBuffer(r.stand_in),
         ];
-        return Ok((binds, 0));
+        return Ok((binds, None));
     };
     // The header, then the entries with the flags of the bricks whose range is known, written
     // into the frame's ring in place.
@@ -1078,28 +1081,27 @@ fn paging_binds<'a>(
         Bind::StorageBuffer(b.sums.unwrap_or(r.stand_in)),
         Bind::StorageBuffer(tiles),
     ];
-    Ok((binds, count))
+    Ok((binds, Some((tiles, count))))
 }
 
-/// Pass `ray_wake` before a resumed pass that waits: lists the tiles (of `tiles`, an image of
-/// `size`) with a ray that a brick let go on, in the tiles' buffer of `paging`, whose dispatch
-/// arguments the ray caster's indirect dispatch then reads (returned).
-fn record_wake<'a>(
+/// Pass `ray_wake` before a resumed pass that waits: lists the tiles (`tiles` of them, of an
+/// image of `size`) with a ray that a brick let go on in `list`, whose first words the ray
+/// caster's indirect dispatch then reads; `paging` gives the page table, feedback and ray states.
+fn record_wake(
     ctx: &Context,
     pipelines: &mut PipelineCache,
     frame: &mut vellum_gpu::Frame,
-    paging: &[Bind<'a>; 5],
-    (size, tiles): ([u32; 2], u64),
-) -> Result<&'a vellum_gpu::Buffer> {
+    paging: &[Bind; 5],
+    (list, size, tiles): (&vellum_gpu::Buffer, [u32; 2], u64),
+) -> Result<()> {
     use vellum_gpu::commands::{fill_buffer_range, memory_transition};
-    let Bind::StorageBuffer(list) = paging[4] else {
-        return Err(Error::Invalid("the tiles' list is not a buffer".into()));
-    };
-    // Dispatch arguments (0, 1, 1), and no tile listed yet.
+    let [tx, ty] = [0, 1].map(|a| size[a].div_ceil(crate::render::raycast::LOCAL[a]));
+    // The dispatch (the tiles along x, no row yet, 1), no tile counted, none listed.
     memory_transition(ctx, frame.cmd, Access::IndirectRead, Access::TransferWrite);
-    fill_buffer_range(ctx, frame.cmd, list, (0, 4), 0);
-    fill_buffer_range(ctx, frame.cmd, list, (4, 8), 1);
-    fill_buffer_range(ctx, frame.cmd, list, (16, 4 * tiles), 0);
+    fill_buffer_range(ctx, frame.cmd, list, (0, 4), tx);
+    fill_buffer_range(ctx, frame.cmd, list, (4, 4), 0);
+    fill_buffer_range(ctx, frame.cmd, list, (8, 4), 1);
+    fill_buffer_range(ctx, frame.cmd, list, (12, 4 + 4 * tiles), 0);
     memory_transition(
         ctx,
         frame.cmd,
@@ -1111,24 +1113,25 @@ fn record_wake<'a>(
         &[BindingKind::StorageBuffer; 4],
         16,
     ))?;
-    let tiles_x = size[0].div_ceil(crate::render::raycast::LOCAL[0]);
-    let push: [u32; 4] = [size[0], size[1], tiles_x, tiles as u32];
-    let rays = size[0] as u64 * size[1] as u64;
+    let push: [u32; 4] = [size[0], size[1], tx, tiles as u32];
     frame.profiler.begin(frame.cmd, "ray_wake");
-    wake.dispatch(
-        frame.cmd,
-        &[paging[0], paging[1], paging[2], paging[4]],
-        &push,
-        [rays.div_ceil(64) as u32, 1, 1],
-    )?;
+    let binds = [paging[0], paging[1], paging[2], Bind::StorageBuffer(list)];
+    wake.dispatch(frame.cmd, &binds, &push, [tx, ty, 1])?;
     frame.profiler.end(frame.cmd);
+    // The ray caster writes the feedback too, and reads the list and its dispatch.
+    memory_transition(
+        ctx,
+        frame.cmd,
+        Access::ComputeReadWrite,
+        Access::ComputeReadWrite,
+    );
     memory_transition(
         ctx,
         frame.cmd,
         Access::ComputeReadWrite,
         Access::IndirectRead,
     );
-    Ok(list)
+    Ok(())
 }
 
 /// The ray-casting step: of a volume in core, or through the brick cache's page table (staged
@@ -1152,9 +1155,10 @@ fn record_rays(
         Access::ComputeReadWrite,
     );
     let waits = MODE_WAIT | MODE_RESUME;
-    let listed = match vol.paged() {
-        Some(p) if p.mode & waits == waits => {
-            Some(record_wake(ctx, pipelines, frame, &paging, (size, tiles))?)
+    let listed = match (vol.paged(), tiles) {
+        (Some(p), Some((list, count))) if p.mode & waits == waits => {
+            record_wake(ctx, pipelines, frame, &paging, (list, size, count))?;
+            Some(list)
         }
         _ => None,
     };

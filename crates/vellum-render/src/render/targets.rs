@@ -181,14 +181,18 @@ impl ViewState {
                 true,
             ),
             ("channel sums", pixels, CHANNEL_SUM_BYTES, sums),
-            ("live tiles", tiles + 2, 8, true),
+            // The dispatch and the count (four words), then a flag and a place a tile.
+            ("listed tiles", tiles + 2, 8, true),
         ];
         for (slot, (name, n, bytes, wanted)) in [&mut self.rays, &mut self.sums, &mut self.tiles]
             .into_iter()
             .zip(wanted)
         {
             if wanted && slot.as_ref().is_none_or(|(had, _)| *had < n) {
-                let desc = vellum_gpu::BufferDesc::storage(n.max(1) * bytes).indirect();
+                let mut desc = vellum_gpu::BufferDesc::storage(n.max(1) * bytes);
+                if name == "listed tiles" {
+                    desc = desc.indirect();
+                }
                 *slot = Some((n, vellum_gpu::Buffer::new(ctx, name, &desc)?));
             }
         }
