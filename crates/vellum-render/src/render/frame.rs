@@ -1094,14 +1094,17 @@ fn record_wake(
     paging: &[Bind; 5],
     (list, size, tiles): (&vellum_gpu::Buffer, [u32; 2], u64),
 ) -> Result<()> {
-    use vellum_gpu::commands::{fill_buffer_range, memory_transition};
+    use vellum_gpu::commands::{fill_buffer_range, memory_transition, update_buffer};
     let [tx, ty] = [0, 1].map(|a| size[a].div_ceil(crate::render::raycast::LOCAL[a]));
-    // The dispatch (the tiles along x, no row yet, 1), no tile counted, none listed.
+    // The dispatch (the tiles along x, no row yet, 1) and no tile counted; then none listed.
     memory_transition(ctx, frame.cmd, Access::IndirectRead, Access::TransferWrite);
-    fill_buffer_range(ctx, frame.cmd, list, (0, 4), tx);
-    fill_buffer_range(ctx, frame.cmd, list, (4, 4), 0);
-    fill_buffer_range(ctx, frame.cmd, list, (8, 4), 1);
-    fill_buffer_range(ctx, frame.cmd, list, (12, 4 + 4 * tiles), 0);
+    update_buffer(
+        ctx,
+        frame.cmd,
+        list,
+        bytemuck::cast_slice(&[tx, 0, 1, 0u32]),
+    );
+    fill_buffer_range(ctx, frame.cmd, list, (16, 4 * tiles), 0);
     memory_transition(
         ctx,
         frame.cmd,
