@@ -537,6 +537,11 @@ fn a_coarse_view_of_a_store_is_its_coarse_level_rendered_in_core() {
         want.slices, got.slices,
         "two planes per voxel of the level read"
     );
+    // A frame while the user drags takes one plane per voxel of the level it reads, in core and
+    // through the cache alike.
+    let planes = |v| vellum::render::frame::voxel_planes(v, &view);
+    assert_eq!(planes((&core.volume).into()), 64);
+    assert_eq!(2 * planes((&bricked.scene.volume).into()), want.slices);
     let (mean, max) = diff8(&want, &got);
     println!("level {level} in core against the store: mean {mean:.4}/255, max {max}/255");
     assert!(mean <= 1.0, "mean {mean}/255");

@@ -3,6 +3,7 @@
 //! and what the frame leaves behind (the streamer's requests, a screenshot).
 
 use super::*;
+use vellum_render::render::frame::voxel_planes;
 
 impl PresentPass<'_> {
     pub(crate) fn record(
@@ -159,13 +160,12 @@ impl Running {
             if let (false, Some(st), true) = (full, &mut v.style, seeded_pays) {
                 st.params.line_seeded = true;
             }
-            // And one plane per voxel along the longest axis, not the refined frame's two (as
-            // VTK's mapper widens its sample distance while the user interacts), for a volume
-            // in core whose scene sets no planes; the opacity correction follows the spacing.
-            // A streamed volume's planes follow its level of detail already.
-            if !full && v.slices.is_none() && !self.gpu.scene.is_paged() {
-                let longest = self.session.model.dims.into_iter().max().unwrap_or(1);
-                v.slices = Some(longest.max(1) as u32);
+            // And one plane per voxel along the longest axis of the finest level read, not the
+            // refined frame's two (as VTK's mapper widens its sample distance while the user
+            // interacts), when the scene sets no planes; the opacity correction follows the
+            // spacing.
+            if !full && v.slices.is_none() {
+                v.slices = Some(voxel_planes(self.gpu.scene.volume(), v));
             }
         }
         Ok((view.map_err(|e| Error::Invalid(e.to_string())), full))

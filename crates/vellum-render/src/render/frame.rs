@@ -1413,16 +1413,31 @@ fn lod_of(camera: &FrameCamera, world: &WorldBox, size: [u32; 2], dims: [usize; 
 }
 
 /// A bricked frame that chooses levels by projected voxel size samples no finer than the finest
-/// level any of its samples reads (the one at the box's point nearest the eye): two planes per
-/// voxel of that level instead of level 0's, unless the view sets its planes. A frame that does
-/// not wait for its bricks nor resume rays (the viewer's) reads nothing finer than what is resident, so it takes
-/// no more planes than that either: the first frames of a store, with its coarsest level only,
-/// are quick, and the planes follow the bricks in. `None`: the view as it is.
+/// level it reads (see [`voxel_planes`]): two planes per voxel of that level instead of level
+/// 0's, unless the view sets its planes. The first frames of a store, with its coarsest level
+/// only, are quick, and the planes follow the bricks in. `None`: the view as it is.
 fn paged_planes(vol: VolumeRef, view: &View) -> Option<View> {
-    let p = vol.paged().filter(|p| !p.finest)?;
+    vol.paged().filter(|p| !p.finest)?;
     if view.slices.is_some() || view.raycast.is_none() {
         return None;
     }
+    Some(View {
+        slices: Some(2 * voxel_planes(vol, view)),
+        ..view.clone()
+    })
+}
+
+/// One plane per voxel along the longest axis of the finest level a frame of `vol` seen by
+/// `view` reads: level 0 in core or through a cache that reads it only; else the level the
+/// sample at the box's point nearest the eye wants, and for a frame that neither waits for its
+/// bricks nor resumes rays (the viewer's), no finer than what is resident. A frame while the
+/// user drags takes this many planes, half the refined frame's, as VTK's mapper widens its
+/// sample distance while the user interacts.
+pub fn voxel_planes(vol: VolumeRef, view: &View) -> u32 {
+    let longest = |dims: [usize; 3]| dims.into_iter().max().unwrap_or(1).max(1) as u32;
+    let Some(p) = vol.paged().filter(|p| !p.finest) else {
+        return longest(vol.dims());
+    };
     let world = WorldBox::new(vol.dims(), vol.spacing(), &vol.geometry());
     let camera = FrameCamera::new(&world, view);
     let (a, b) = lod_of(&camera, &world, view.size, vol.dims());
@@ -1439,11 +1454,7 @@ fn paged_planes(vol: VolumeRef, view: &View) -> Option<View> {
                 .unwrap_or(levels.len() - 1),
         );
     }
-    let longest = levels[level].dims.into_iter().max().unwrap_or(1);
-    Some(View {
-        slices: Some(2 * longest as u32),
-        ..view.clone()
-    })
+    longest(levels[level].dims)
 }
 
 /// What the style passes of one frame work on: the frame's setup, the style, the layers and the
