@@ -971,6 +971,10 @@ pub struct BrickCache {
     pub shared_loads: u64,
     /// Bricks evicted since the cache was made.
     pub evicted: u64,
+    /// The entries whose slot or range changed, in order (see [`BrickCache::changes`]).
+    changes: Vec<usize>,
+    /// Bumped each time `changes` is emptied.
+    changes_epoch: u64,
 }
 
 /// The range of an entry whose brick has not been read yet.
@@ -1074,7 +1078,17 @@ impl BrickCache {
             loaded: 0,
             shared_loads: 0,
             evicted: 0,
+            changes: Vec::new(),
+            changes_epoch: 0,
         })
+    }
+
+    /// The entries whose slot or range changed since the log was last emptied, in order, with
+    /// the log's epoch: a reader that keeps words made from the page table and the ranges
+    /// remakes those of the entries past the last it read, or all of them when the epoch
+    /// moved. (The log is emptied when it grows past one change per entry.)
+    pub fn changes(&self) -> (u64, &[usize]) {
+        (self.changes_epoch, &self.changes)
     }
 
     /// Slots in the pool.
@@ -1114,6 +1128,10 @@ impl BrickCache {
     /// bricks before the frame that reads it). `None` for a brick that found no slot.
     pub fn place(&mut self, batch: &[Arrival]) -> Vec<Option<Placement>> {
         self.clock += 1;
+        if self.changes.len() > self.page_table.len() {
+            self.changes.clear();
+            self.changes_epoch += 1;
+        }
         batch.iter().map(|a| self.place_one(a)).collect()
     }
 
@@ -1123,6 +1141,7 @@ impl BrickCache {
             return None;
         }
         self.ranges[e] = a.range;
+        self.changes.push(e);
         if let Some(&s) = self.slot_of.get(&e) {
             self.last_used[s] = self.clock;
             return None;
@@ -1139,6 +1158,7 @@ impl BrickCache {
         if let Some(old) = self.owner[slot].take() {
             self.slot_of.remove(&old);
             self.page_table[old] = 0;
+            self.changes.push(old);
             self.evicted += 1;
         }
         let share = a
@@ -1440,6 +1460,29 @@ mod tests {
                 .ranges[0],
             UNKNOWN_RANGE
         );
+    }
+
+    /// The change log names every entry whose word or range changed: placed, evicted, or read
+    /// again; and starts a new epoch once it outgrows the page table.
+    #[test]
+    fn the_cache_logs_the_entries_it_changes() {
+        let levels = BrickLevels::of_volume(shepp_logan(64)).unwrap();
+        let mut cache = BrickCache::new(&levels, 3, (1.2, SLOT_BYTES)).unwrap();
+        cache.place(&[arrive(8), arrive(1), arrive(0)]);
+        assert_eq!(cache.changes(), (0, &[8, 1, 0][..]));
+        // 2 takes 1's slot (the least recently used), and 0 is read again where it is.
+        cache.place(&[arrive(2)]);
+        cache.place(&[arrive(0)]);
+        assert_eq!(cache.changes().1[3..], [2, 1, 0]);
+        assert_eq!(cache.page_table[1], 0);
+        // Past one change per entry (9 here), the log empties into a new epoch.
+        while cache.changes().1.len() <= cache.page_table.len() {
+            cache.place(&[arrive(3)]);
+        }
+        assert_eq!(cache.changes().0, 0);
+        cache.place(&[arrive(5)]);
+        assert_eq!(cache.changes().0, 1);
+        assert_eq!(cache.changes().1.first(), Some(&5));
     }
 
     #[test]

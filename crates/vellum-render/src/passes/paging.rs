@@ -207,6 +207,19 @@ pub struct Paged {
     /// variant). On by default on a GPU, where it beat `reuse` (1.23 against 1.41 ms on an H200,
     /// BENCHMARKS.md); off on lavapipe, like `reuse`. `VELLUM_BRICK_SPAN=0|1` overrides.
     pub span: bool,
+    /// The page table's words as the last frame staged them (see [`Paged::page_words`]).
+    words: std::sync::Mutex<PageWords>,
+}
+
+/// The page table's words kept between frames, so that a frame remakes only the words of the
+/// entries the cache changed since (a 2048³ store has 300,000 entries, and a still frame stages
+/// the table for each of its passes).
+#[derive(Default)]
+struct PageWords {
+    words: Vec<u32>,
+    /// What the words were made under: the flags' key, and the cache's change-log epoch and
+    /// length then.
+    made: Option<(u64, u64, usize)>,
 }
 
 /// The default of [`Paged::reuse`] on the device `info` describes.
@@ -335,6 +348,7 @@ impl PagedVolume {
                 pool_bytes: (capacity * slot_bytes) as u64,
                 reuse: brick_reuse(&ctx.info),
                 span: brick_span(&ctx.info),
+                words: Default::default(),
             },
             channels,
             labels,
@@ -592,32 +606,47 @@ impl Paged {
         words
     }
 
-    /// The page table's entries for this frame into `dst` (one word each): the slot's place for
-    /// a resident brick, and for a brick whose range is known [`KNOWN_BIT`] and `flags(range,
-    /// its mixed channels' ranges)` (bit 0: may hold visible context or one-pass samples, bit 1:
-    /// may hold focus) in bits 24 and 25.
-    pub(crate) fn page_words(&self, dst: &mut [u32], flags: &BrickFlagsOf) {
+    /// The page table's words into `dst` (one per entry): the slot's place with
+    /// [`RESIDENT_BIT`], and for a brick whose range is known [`KNOWN_BIT`] and its `flags`
+    /// (visible, may be in focus) in bits 24 and 25. `key` names the flags: words made under the
+    /// same key are kept, and only those of entries the cache changed since are made again.
+    pub(crate) fn page_words(&self, dst: &mut [u32], flags: &BrickFlagsOf, key: u64) {
+        let mut kept = self.words.lock().unwrap_or_else(|e| e.into_inner());
+        let (epoch, changes) = self.cache.changes();
+        let n = self.cache.page_table.len();
+        match kept.made {
+            Some((k, e, seen))
+                if (k, e) == (key, epoch) && seen <= changes.len() && kept.words.len() == n =>
+            {
+                for &entry in &changes[seen..] {
+                    kept.words[entry] = self.page_word(entry, flags);
+                }
+            }
+            _ => kept.words = (0..n).map(|e| self.page_word(e, flags)).collect(),
+        }
+        kept.made = Some((key, epoch, changes.len()));
+        dst.copy_from_slice(&kept.words);
+    }
+
+    /// The page-table word of entry `e`.
+    fn page_word(&self, e: usize, flags: &BrickFlagsOf) -> u32 {
         let c = &self.cache;
         let [gx, gy, _] = self.grid;
-        let mixed = self.levels.mixed_count();
-        let entries = dst.iter_mut().zip(&c.page_table).zip(&c.ranges).enumerate();
-        for (e, ((w, &slot), &range)) in entries {
-            let place = match slot {
-                0 => 0,
-                s => {
-                    let s = s as usize - 1;
-                    let at = [s % gx, (s / gx) % gy, s / (gx * gy)].map(|v| v as u32);
-                    RESIDENT_BIT | at[0] | at[1] << 8 | at[2] << 16
-                }
-            };
-            *w = match range == UNKNOWN_RANGE {
-                true => place,
-                false => {
-                    let channels = self.channel_ranges.get(e * mixed..(e + 1) * mixed);
-                    place | KNOWN_BIT | (flags(range, channels.unwrap_or(&[])) & 3) << 24
-                }
-            };
+        let place = match c.page_table[e] {
+            0 => 0,
+            s => {
+                let s = s as usize - 1;
+                let at = [s % gx, (s / gx) % gy, s / (gx * gy)].map(|v| v as u32);
+                RESIDENT_BIT | at[0] | at[1] << 8 | at[2] << 16
+            }
+        };
+        let range = c.ranges[e];
+        if range == UNKNOWN_RANGE {
+            return place;
         }
+        let mixed = self.levels.mixed_count();
+        let channels = self.channel_ranges.get(e * mixed..(e + 1) * mixed);
+        place | KNOWN_BIT | (flags(range, channels.unwrap_or(&[])) & 3) << 24
     }
 
     /// What the rays of the last completed frame said: the missing bricks they asked for (with

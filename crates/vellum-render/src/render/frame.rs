@@ -1059,9 +1059,11 @@ fn paging_binds<'a>(
     let table = frame.staging.push_with(4 * (HEADER + entries), 16, |dst| {
         let words: &mut [u32] = bytemuck::cast_slice_mut(dst);
         words[..HEADER].copy_from_slice(&header);
-        p.page_words(&mut words[HEADER..], &|range, channels| {
-            r.flags.of(range, channels)
-        });
+        p.page_words(
+            &mut words[HEADER..],
+            &|range, channels| r.flags.of(range, channels),
+            r.flags.key(),
+        );
     })?;
     p.record_clear_feedback(ctx, frame);
     // `add` and `max` keep each channel's sum while a ray waits for a brick.
@@ -1312,6 +1314,18 @@ fn opaque_in(opaque_before: &[u32], r: [u16; 2]) -> bool {
 }
 
 impl BrickFlags {
+    /// What the flags depend on, hashed: a page table whose words were made under the same key
+    /// keeps them.
+    fn key(&self) -> u64 {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        self.opaque_before.hash(&mut h);
+        self.focus.map(f32::to_bits).hash(&mut h);
+        self.uses_occlusion.hash(&mut h);
+        self.channels.hash(&mut h);
+        h.finish()
+    }
+
     fn new(table: &[[f32; 4]], focus: [f32; 3], uses_occlusion: bool) -> Self {
         BrickFlags {
             opaque_before: opaque_before(table),
