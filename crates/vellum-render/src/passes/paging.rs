@@ -207,19 +207,17 @@ pub struct Paged {
     /// variant). On by default on a GPU, where it beat `reuse` (1.23 against 1.41 ms on an H200,
     /// BENCHMARKS.md); off on lavapipe, like `reuse`. `VELLUM_BRICK_SPAN=0|1` overrides.
     pub span: bool,
-    /// The page table's words as the last frame staged them (see [`Paged::page_words`]).
-    words: std::sync::Mutex<PageWords>,
 }
 
-/// The page table's words kept between frames, so that a frame remakes only the words of the
-/// entries the cache changed since (a 2048³ store has 300,000 entries, and a still frame stages
-/// the table for each of its passes).
+/// The page table's words kept between frames (by the view's state, `render::targets`), so
+/// that a frame remakes only the words of the entries the cache changed since (a 2048³ store
+/// has 300,000 entries, and a still frame stages the table for each of its passes).
 #[derive(Default)]
-struct PageWords {
+pub(crate) struct PageWords {
     words: Vec<u32>,
-    /// What the words were made under: the flags' key, and the cache's change-log epoch and
-    /// length then.
-    made: Option<(u64, u64, usize)>,
+    /// What the words were made under: the volume's id, the flags' key, and the cache's
+    /// change-log epoch and length then.
+    made: Option<(u64, u64, u64, usize)>,
 }
 
 /// The default of [`Paged::reuse`] on the device `info` describes.
@@ -348,7 +346,6 @@ impl PagedVolume {
                 pool_bytes: (capacity * slot_bytes) as u64,
                 reuse: brick_reuse(&ctx.info),
                 span: brick_span(&ctx.info),
-                words: Default::default(),
             },
             channels,
             labels,
@@ -608,15 +605,23 @@ impl Paged {
 
     /// The page table's words into `dst` (one per entry): the slot's place with
     /// [`RESIDENT_BIT`], and for a brick whose range is known [`KNOWN_BIT`] and its `flags`
-    /// (visible, may be in focus) in bits 24 and 25. `key` names the flags: words made under the
-    /// same key are kept, and only those of entries the cache changed since are made again.
-    pub(crate) fn page_words(&self, dst: &mut [u32], flags: &BrickFlagsOf, key: u64) {
-        let mut kept = self.words.lock().unwrap_or_else(|e| e.into_inner());
+    /// (visible, may be in focus) in bits 24 and 25. `id` names the volume and `key` the flags:
+    /// the words `kept` made for the same two are kept, and only those of entries the cache
+    /// changed since are made again.
+    pub(crate) fn page_words(
+        &self,
+        dst: &mut [u32],
+        flags: &BrickFlagsOf,
+        (id, key): (u64, u64),
+        kept: &mut PageWords,
+    ) {
         let (epoch, changes) = self.cache.changes();
         let n = self.cache.page_table.len();
         match kept.made {
-            Some((k, e, seen))
-                if (k, e) == (key, epoch) && seen <= changes.len() && kept.words.len() == n =>
+            Some((i, k, e, seen))
+                if (i, k, e) == (id, key, epoch)
+                    && seen <= changes.len()
+                    && kept.words.len() == n =>
             {
                 for &entry in &changes[seen..] {
                     kept.words[entry] = self.page_word(entry, flags);
@@ -624,7 +629,7 @@ impl Paged {
             }
             _ => kept.words = (0..n).map(|e| self.page_word(e, flags)).collect(),
         }
-        kept.made = Some((key, epoch, changes.len()));
+        kept.made = Some((id, key, epoch, changes.len()));
         dst.copy_from_slice(&kept.words);
     }
 

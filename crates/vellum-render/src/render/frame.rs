@@ -1056,13 +1056,15 @@ fn paging_binds<'a>(
     // into the frame's ring in place.
     let header = p.header(lod_line(r.setup, vol.dims()));
     let entries = p.cache.page_table.len();
+    let kept = state.page_words();
     let table = frame.staging.push_with(4 * (HEADER + entries), 16, |dst| {
         let words: &mut [u32] = bytemuck::cast_slice_mut(dst);
         words[..HEADER].copy_from_slice(&header);
         p.page_words(
             &mut words[HEADER..],
             &|range, channels| r.flags.of(range, channels),
-            r.flags.key(),
+            (vol.id(), r.flags.key()),
+            kept,
         );
     })?;
     p.record_clear_feedback(ctx, frame);

@@ -87,6 +87,8 @@ pub struct ViewState {
     /// The tiles of 8 × 8 rays of such a frame that a resumed pass runs (`ray_wake.comp`):
     /// its indirect dispatch, then per tile a flag and the list, for as many tiles as it had.
     tiles: Option<(u64, vellum_gpu::Buffer)>,
+    /// A bricked volume's page-table words as the last frame staged them.
+    page_words: crate::passes::paging::PageWords,
 }
 
 /// A bricked frame's buffers per ray ([`ViewState::ray_states`]).
@@ -120,6 +122,12 @@ impl Smoothed {
 }
 
 impl ViewState {
+    /// The page-table words the last bricked frame of this view staged
+    /// (`passes::paging::Paged::page_words`).
+    pub(crate) fn page_words(&mut self) -> &mut crate::passes::paging::PageWords {
+        &mut self.page_words
+    }
+
     /// The lines' state, made with a buffer of `capacity` segments when this view has none yet,
     /// and the copy of volume `volume` smoothed by `radius` when kept (never for radius 0).
     pub(crate) fn lines_and_smoothed(
