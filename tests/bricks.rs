@@ -392,6 +392,18 @@ fn a_store_renders_through_the_cache_as_it_renders_in_core() {
     // bricks twice.
     let per = b["loads_per_touched"].as_f64().unwrap();
     assert!((1.0..=1.5).contains(&per), "{per} loads per brick touched");
+    // The main thread's time over the passes: each part measured, together within the frame.
+    let main = ["record_ms", "gpu_wait_ms", "feedback_ms", "batch_ms"].map(|k| {
+        b["main"][k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{k} in {}", b["main"]))
+    });
+    assert!(main.iter().all(|&ms| ms > 0.0), "{main:?}");
+    let total = b["total_ms"].as_f64().unwrap();
+    assert!(
+        main.iter().sum::<f64>() <= total,
+        "{main:?} within {total} ms"
+    );
     let read = |p: &str| image::open(p).unwrap().to_rgb8().into_raw();
     let (x, y) = (read(&png("core.png")), read(&png("bricked.png")));
     let mean = x

@@ -118,9 +118,26 @@ pub struct StreamReport {
     pub total_ms: f64,
     /// Refinements drawn on the way (progressive frames).
     pub progress_frames: usize,
+    /// Where the main thread's time between the first pass and the last went.
+    pub main: MainThread,
     /// The floor measured after the frame when asked (`render::stream::Floor`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub floor: Option<crate::render::stream::Floor>,
+}
+
+/// The main thread's milliseconds over a still frame's passes, summed: what the passes leave
+/// between the GPU's work and the loaders', for reading a frame's time against its floor.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct MainThread {
+    /// Recording and submitting the passes: the bricks that arrived staged, the page table's
+    /// words, the commands.
+    pub record_ms: f64,
+    /// Waiting for the passes to finish on the GPU.
+    pub gpu_wait_ms: f64,
+    /// Reading what the rays asked for and asking the loaders for it.
+    pub feedback_ms: f64,
+    /// Waiting for the next batch of bricks from the loaders, and placing it in the cache.
+    pub batch_ms: f64,
 }
 
 /// What a still frame may do besides waiting for its bricks.
@@ -199,12 +216,14 @@ impl Renderer {
                 s.report.first_pass_ms = s.start.elapsed().as_secs_f64() * 1e3;
             }
             mode |= MODE_RESUME;
+            let asking = Instant::now();
             let wanted = vol.paged.take_feedback()?.wanted;
             if wanted.is_empty() {
                 s.report.complete = true;
                 break;
             }
             stream.request(&vol.paged, &s.plain, &wanted, Order::FrontToBack);
+            s.report.main.feedback_ms += asking.elapsed().as_secs_f64() * 1e3;
             if let Some(progress) = opts.progress.as_deref_mut() {
                 let image = self.progressive(&mut s, vol, classify)?;
                 progress(&image)?;
@@ -214,7 +233,9 @@ impl Renderer {
             if left.is_some_and(|l| l.is_zero()) {
                 break;
             }
+            let batching = Instant::now();
             let batch = self.next_batch(vol, stream, wanted.len(), left)?;
+            s.report.main.batch_ms += batching.elapsed().as_secs_f64() * 1e3;
             if batch.placed == 0 && stream.outstanding() == 0 {
                 // Nothing asked can be read (every brick asked for is resident already, or
                 // known to hold nothing): finish with what is resident rather than spin.
@@ -318,11 +339,15 @@ impl Renderer {
         let ctx = s.ctx.clone();
         let view = &s.plain;
         let targets = &mut s.targets;
+        let recording = Instant::now();
         s.frames.frame(|f| {
             record_arrivals(vol, &ctx, f, arrived)?;
             self.record(f, vol, classify, view, targets).map(|_| ())
         })?;
+        let waiting = Instant::now();
         s.frames.wait_idle()?;
+        s.report.main.record_ms += (waiting - recording).as_secs_f64() * 1e3;
+        s.report.main.gpu_wait_ms += waiting.elapsed().as_secs_f64() * 1e3;
         let done = s.start.elapsed().as_secs_f64();
         let ms: f64 = s
             .frames

@@ -319,6 +319,11 @@ fn render_on(
                     .map_or("not drawn".into(), |ms| format!("{ms:.0} ms")),
                 r.total_ms
             );
+            let m = &r.main;
+            println!(
+                "  main thread over the passes: recording {:.0} ms, waiting for the GPU {:.0} ms, reading the feedback and asking {:.0} ms, waiting for and placing bricks {:.0} ms",
+                m.record_ms, m.gpu_wait_ms, m.feedback_ms, m.batch_ms
+            );
         }
         if let Some(c) = &composited {
             println!("  composited by {} ranks: {c}", team.size());
