@@ -880,9 +880,8 @@ impl Default for UploadStats {
 
 /// The [`UPLOAD`]³ voxels of `src` (of `dims`) at `map`'s indices, each turned by `convert` into
 /// what travels, and `value` of that its normalised value, for `stats`: row by row, each row
-/// converted and then measured in plain loops over slices, which the compiler vectorises (a
-/// brick's rows are contiguous in the source except where the apron is clamped at the volume's
-/// faces).
+/// converted and then measured in plain loops over slices without a branch per voxel (a brick's
+/// rows are contiguous in the source except where the apron is clamped at the volume's faces).
 fn gather<T: Copy, U: Copy>(
     dims: [usize; 3],
     map: &[Vec<usize>; 3],
