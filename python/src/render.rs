@@ -123,8 +123,9 @@ impl PyImage {
     }
 
     /// For a frame drawn through the brick cache, what its streaming did (passes, bricks loaded
-    /// and touched, complete, the time to the first and to the complete frame, ...: `vellum
-    /// render --json`'s `bricks`); None for a volume in core.
+    /// and touched, complete, the time to the first and to the complete frame, chunks decoded,
+    /// the loaders' and the GPU's busy ms and the share when both were, the main thread's ms
+    /// over the passes, ...: `vellum render --json`'s `bricks`); None for a volume in core.
     #[getter]
     fn streaming<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
         let Some(r) = &self.stream else {
@@ -140,6 +141,16 @@ impl PyImage {
         d.set_item("first_frame_ms", r.first_frame_ms)?;
         d.set_item("total_ms", r.total_ms)?;
         d.set_item("source_mib_per_s", r.source_mib_per_s)?;
+        d.set_item("chunks_decoded", r.chunks_decoded)?;
+        d.set_item("bytes_streamed", r.bytes_streamed)?;
+        d.set_item("loaders_ms", r.host_ms)?;
+        d.set_item("gpu_ms", r.gpu_ms)?;
+        d.set_item("both_share", r.both_share)?;
+        // The main thread's time over the passes (`--json`'s `bricks.main`).
+        d.set_item("record_ms", r.main.record_ms)?;
+        d.set_item("gpu_wait_ms", r.main.gpu_wait_ms)?;
+        d.set_item("feedback_ms", r.main.feedback_ms)?;
+        d.set_item("batch_ms", r.main.batch_ms)?;
         Ok(Some(d))
     }
 
