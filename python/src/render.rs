@@ -143,7 +143,7 @@ impl PyImage {
         d.set_item("source_mib_per_s", r.source_mib_per_s)?;
         d.set_item("chunks_decoded", r.chunks_decoded)?;
         d.set_item("bytes_streamed", r.bytes_streamed)?;
-        d.set_item("loaders_ms", r.host_ms)?;
+        d.set_item("host_ms", r.host_ms)?;
         d.set_item("gpu_ms", r.gpu_ms)?;
         d.set_item("both_share", r.both_share)?;
         // The main thread's time over the passes (`--json`'s `bricks.main`).

@@ -243,6 +243,7 @@ def test_a_store_beyond_its_budget_streams_through_the_session(tmp_path):
     assert streaming is not None and streaming["complete"]
     assert streaming["bricks_loaded"] > streaming["capacity"], "a one-MiB pool is refilled"
     assert 0.0 <= streaming["both_share"] <= 1.0 and streaming["chunks_decoded"] > 0
+    assert streaming["host_ms"] > 0, "the same keys as render --json's bricks"
     main = [streaming[k] for k in ("record_ms", "gpu_wait_ms", "feedback_ms", "batch_ms")]
     assert all(ms > 0 for ms in main) and sum(main) <= streaming["total_ms"], main
     np.testing.assert_array_equal(image.rgba[..., :3], theirs)

@@ -153,9 +153,9 @@ class Image:
         """For a frame drawn through the brick cache, what its streaming did (passes,
         bricks_loaded, bricks_touched, bricks_evicted, capacity, complete, first_frame_ms
         (None: no coarse frame is drawn for a still frame), total_ms, source_mib_per_s,
-        chunks_decoded, bytes_streamed, loaders_ms and gpu_ms (busy), both_share (of the frame,
-        both busy), and the main thread's ms over the passes: record_ms, gpu_wait_ms,
-        feedback_ms, batch_ms); None for a volume in core."""
+        chunks_decoded, bytes_streamed, host_ms (the loaders busy) and gpu_ms, both_share
+        (of the frame, both busy), and the main thread's ms over the passes: record_ms,
+        gpu_wait_ms, feedback_ms, batch_ms); None for a volume in core."""
 
 class Renderer:
     """A scene prepared once on the device and rendered many times (an orbit) with nothing
