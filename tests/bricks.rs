@@ -469,6 +469,33 @@ fn grey_pyramid(gpu: &Gpu, levels: BrickLevels) -> Bricked {
     bricked(gpu, levels, &c, (Focus::Iso(0.9), 64 << 20, false))
 }
 
+/// Rays walk past the empty sub-blocks of bricks that are not all empty (and past empty bricks),
+/// at every level a close view reads, in a two-level frame that needs context and focus: the
+/// frame is the one drawn sampling every brick.
+#[test]
+fn walking_past_empty_sub_blocks_draws_what_sampling_them_draws() {
+    let gpu = Gpu::new();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let levels = BrickLevels::of_volume(phantom::shepp_logan(256)).unwrap();
+    let mut bricked = grey_pyramid(&gpu, levels);
+    let mut frames = Vec::new();
+    for skip_empty in [true, false] {
+        let mut v = View {
+            size: [96, 96],
+            ..view("30,20,1.6", false, Some("canny"), None)
+        };
+        if let Some(r) = v.raycast.as_mut() {
+            r.skip_empty = skip_empty;
+        }
+        let (frame, report) = bricked.render(&mut renderer, &v, None);
+        assert!(report.complete, "{report:?}");
+        frames.push(frame);
+    }
+    let (mean, max) = diff8(&frames[0], &frames[1]);
+    println!("skipping against sampling every brick: mean {mean:.4}/255, max {max}/255");
+    assert!(mean <= 0.01 && max <= 2, "mean {mean}/255, max {max}/255");
+}
+
 /// A store's pyramid seen close up, so that rays cross from level to level along their paths:
 /// a ray that keeps the stretch its lookup holds for (`Paged::span`) draws what one that looks
 /// every sample up draws.

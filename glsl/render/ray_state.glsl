@@ -10,11 +10,14 @@ struct RayState {
     uvec4 flags;
 };
 
-// Words of the page table before its first entry.
+// Words of the page table before its first entry, and per entry.
 const int PT_HEADER = 8 + 8 * 16;
-// A page-table word: RESIDENT, with the brick's slot along x, y and z of the pool in bits 0-7,
-// 8-15 and 16-23; KNOWN: the brick's range is known, and bits 24 and 25 say whether it may hold
-// visible context (or one-pass) samples and focus.
+const int PT_ENTRY_WORDS = 2;
+// An entry's first word: RESIDENT, with the brick's slot along x, y and z of the pool in bits
+// 0-7, 8-15 and 16-23; KNOWN: the brick's range is known, and bits 24 and 25 say whether it may
+// hold visible context (or one-pass) samples and focus. Its second word, read when KNOWN: the same
+// per sub-block of the brick's 2 x 2 x 2, bit i visible and bit 8 + i focus for sub-block
+// qx + 2 qy + 4 qz.
 const uint KNOWN = 0x4000000u;
 const uint RESIDENT = 0x8000000u;
 

@@ -220,16 +220,20 @@ int level_at(float t) {
     return want;
 }
 
-// The stretch [from, until) of the ray parameter over which the samples stay in brick b of level
-// `want` (whose texture coordinates scale to its voxels by c_scale) and keep wanting that level.
-vec2 lookup_span(int want, ivec3 b) {
+// The stretch [from, until) of the ray parameter over which the samples stay in sub-block q of
+// brick b of level `want` (whose texture coordinates scale to its voxels by c_scale) and keep
+// wanting that level; with `whole`, in the brick (q unread).
+vec2 lookup_span(int want, ivec3 b, ivec3 q, bool whole) {
     float from = want > 0 ? level_from[want] : -INF;
     float until = want + 1 < pt_levels ? level_from[want + 1] : INF;
-    // The brick: the slab of voxels [32 b, 32 (b + 1)) on each axis, open outwards at the
-    // volume's faces, where the lookup clamps.
+    // The brick: the slab of voxels [32 b, 32 (b + 1)) on each axis, or its sub-block's half
+    // [32 b + 16 q, 32 b + 16 (q + 1)), open outwards at the volume's faces, where the lookup
+    // clamps.
     vec3 v0 = ray_tex0 * c_scale, inv_dv = ray_inv_dtex * c_inv_scale;
-    vec3 lo = mix(vec3(b) * pt_brick, vec3(-1e30), equal(b, ivec3(0)));
-    vec3 hi = mix(vec3(b + 1) * pt_brick, vec3(1e30), equal(b, c_counts - 1));
+    float h = 0.5 * pt_brick;
+    ivec3 q0 = whole ? ivec3(0) : q, q1 = whole ? ivec3(1) : q;
+    vec3 lo = mix(vec3(b) * pt_brick + vec3(q0) * h, vec3(-1e30), equal(2 * b + q0, ivec3(0)));
+    vec3 hi = mix(vec3(b) * pt_brick + vec3(q1 + 1) * h, vec3(1e30), equal(2 * b + q1, 2 * c_counts - 1));
     vec3 ta = (lo - v0) * inv_dv, tb = (hi - v0) * inv_dv;
     // An axis the ray does not move along bounds nothing.
     bvec3 moves = notEqual(ray_dtex, vec3(0.0));
@@ -239,9 +243,10 @@ vec2 lookup_span(int want, ivec3 b) {
     return vec2(from, until);
 }
 
-// Sets the span of the lookup just made: brick b of level `want`, placed at `offset` in the pool.
-void set_span(int want, ivec3 b, vec3 offset) {
-    vec2 span = lookup_span(want, b);
+// Sets the span of the lookup just made: brick b of level `want` (or only its sub-block q, unless
+// `whole`), placed at `offset` in the pool.
+void set_span(int want, ivec3 b, ivec3 q, bool whole, vec3 offset) {
+    vec2 span = lookup_span(want, b, q, whole);
     c_from = span.x;
     c_until = span.y;
     c_base = (offset + ray_tex0 * c_scale) / pool_size;
@@ -292,21 +297,40 @@ int locate(uint skip) {
     }
     c_hit = false;
     uint e = c_first + uint(b.x + c_counts.x * (b.y + c_counts.y * b.z));
-    uint word = pt[PT_HEADER + e];
-    if (skip != 0u && (word & KNOWN) != 0u && ((word >> 24u) & skip) == 0u) {
-        skip_t = lookup_span(want, b).y;
-        return EMPTY;
+    int at = PT_HEADER + PT_ENTRY_WORDS * int(e);
+    uint word = pt[at];
+    // Whether the brick holds all the ray needs throughout, else the sub-block q the sample is in.
+    bool whole = true;
+    ivec3 q = ivec3(0);
+    if (skip != 0u && (word & KNOWN) != 0u) {
+        if (((word >> 24u) & skip) == 0u) {
+            skip_t = lookup_span(want, b, q, true).y;
+            return EMPTY;
+        }
+        // The sub-blocks that may hold what the ray needs (bit i for sub-block i).
+        uint subs = pt[at + 1];
+        uint needed = ((skip & 1u) != 0u ? subs : 0u) | ((skip & 2u) != 0u ? subs >> 8u : 0u);
+        if ((needed & 0xffu) != 0xffu) {
+            whole = false;
+            q = ivec3(greaterThanEqual(v, (vec3(b) + 0.5) * brick));
+            if (((needed >> uint(q.x + 2 * q.y + 4 * q.z)) & 1u) == 0u) {
+                skip_t = lookup_span(want, b, q, false).y;
+                return EMPTY;
+            }
+        }
     }
     if ((word & RESIDENT) != 0u) {
         mark_used(e);
         vec3 offset = slot_origin(word) - vec3(b) * brick;
         ptex = (offset + v) * inv_pool;
         level_ratio = c_ratio;
-        c_hit = true;
+        // A brick with a sub-block to walk past is looked up again at each sample (or, with
+        // V_BRICK_SPAN, holds over its sub-block only), so that the ray meets that sub-block.
+        c_hit = whole;
         c_brick = b;
         c_offset = offset;
         if (V_BRICK_SPAN) {
-            set_span(want, b, offset);
+            set_span(want, b, q, whole, offset);
         }
         return FOUND;
     }
@@ -321,10 +345,11 @@ int locate(uint skip) {
     for (int l = want + 1; l < pt_levels; ++l) {
         int h = 8 + 8 * l;
         ivec3 counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
-        vec3 vl = t * vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
-        ivec3 bl = clamp(ivec3(floor(vl / brick)), ivec3(0), counts - 1);
+        vec3 scale = vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
+        vec3 vl = t * scale;
+        ivec3 bl = clamp(ivec3(floor(vl * (1.0 / brick))), ivec3(0), counts - 1);
         uint el = pt[h] + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
-        uint wl = pt[PT_HEADER + el];
+        uint wl = pt[PT_HEADER + PT_ENTRY_WORDS * int(el)];
         if ((wl & RESIDENT) != 0u) {
             mark_used(el);
             ptex = (slot_origin(wl) - vec3(bl) * brick + vl) * inv_pool;
@@ -557,7 +582,7 @@ bool resumed_waiting(uint ray) {
     if ((f.x & 2u) != 0u) {
         return true;
     }
-    return f.y != 0u && waits_still(f.y, pt[PT_HEADER + int(awaited_entry(f.y))]);
+    return f.y != 0u && waits_still(f.y, pt[PT_HEADER + PT_ENTRY_WORDS * int(awaited_entry(f.y))]);
 }
 
 void main() {
@@ -861,7 +886,7 @@ void main() {
             uint flags = 1u | (stopped ? 0u : 2u) | (first ? 4u : 0u);
             // A stopped ray keeps the entry it waits for (+ 1; 0: none) and whether that
             // brick's range was known (bit 31), for resumed_waiting.
-            uint awaits = stopped ? awaits_of(last_wanted, pt[PT_HEADER + int(last_wanted)]) : 0u;
+            uint awaits = stopped ? awaits_of(last_wanted, pt[PT_HEADER + PT_ENTRY_WORDS * int(last_wanted)]) : 0u;
             rays[ray] = RayState(fp, fd, ctx, vec4(depth, m, prev_t, prev_s), uvec4(flags, awaits, 0u, 0u));
         }
     } else if (wait) {

@@ -38,6 +38,16 @@ pub const BRICK: usize = 32;
 pub(crate) const APRON: usize = 1;
 /// Edge of a pool slot in texels.
 pub const SLOT: usize = BRICK + 2 * APRON;
+/// Edge of a sub-block in voxels: a brick is cut into 2×2×2 of them, each with its own range, so
+/// that a ray walks past the empty part of a brick that is not all empty (the in-core skipping
+/// grid's edge, `passes::normals::BRICK`).
+pub const SUB: usize = BRICK / 2;
+/// A brick's sub-blocks' ranges, sub-block qx + 2 qy + 4 qz (each q 0 or 1 along its axis): each
+/// over the texels a trilinear sample inside the sub-block blends, its voxels and one more on each
+/// side. Together they cover the slot's texels, so their union is the brick's range.
+pub type SubRanges = [[u16; 2]; 8];
+/// The sub-blocks' ranges of an entry whose brick has not been read yet.
+pub const UNKNOWN_SUB_RANGES: SubRanges = [UNKNOWN_RANGE; 8];
 /// Bytes a voxel takes in the renderer's textures: R16 intensity and RGBA16F gradient.
 pub(crate) const TEXTURE_BYTES_PER_VOXEL: u64 = 2 + 8;
 /// Bytes of one slot.
@@ -126,6 +136,8 @@ pub struct BrickVoxels {
     pub data: BrickData,
     /// The range of the slot's normalised texels.
     pub range: [u16; 2],
+    /// The ranges of the brick's sub-blocks' texels ([`SubRanges`]).
+    pub sub_ranges: SubRanges,
     /// Whether every voxel of the upload has one value (and, with mixed channels, every
     /// channel's too; with a label volume, every texel one segment).
     pub constant: bool,
@@ -599,6 +611,7 @@ impl BrickLevels {
                 BrickVoxels {
                     data: BrickData::U8(vec![raw; n]),
                     range: [u, u],
+                    sub_ranges: [[u, u]; 8],
                     constant: true,
                     channels: Vec::new(),
                     channel_ranges: Vec::new(),
@@ -612,6 +625,7 @@ impl BrickLevels {
                 BrickVoxels {
                     data: BrickData::U16(vec![u; n]),
                     range: [u, u],
+                    sub_ranges: [[u, u]; 8],
                     constant: true,
                     channels: Vec::new(),
                     channel_ranges: Vec::new(),
@@ -835,7 +849,8 @@ fn to_upload(
     };
     BrickVoxels {
         data,
-        range: [stats.min, stats.max],
+        range: union(&stats.sub),
+        sub_ranges: stats.sub,
         constant: stats.constant,
         channels: Vec::new(),
         channel_ranges: Vec::new(),
@@ -859,11 +874,25 @@ fn box_stats(values: &[u16]) -> ([u16; 2], bool) {
     (range, constant)
 }
 
+/// The range that holds every range of `ranges`.
+fn union(ranges: &SubRanges) -> [u16; 2] {
+    ranges
+        .iter()
+        .fold([u16::MAX, 0], |[lo, hi], r| [lo.min(r[0]), hi.max(r[1])])
+}
+
+/// Whether sub-block `q` (0 or 1) along an axis takes the upload's row or plane `u` (x, y or z
+/// of the upload box): its voxels and one more on each side, `q·SUB − 1 ..= q·SUB + SUB` in the
+/// brick's voxels, which are the upload's less [`APRON`] + 1.
+fn sub_takes(q: usize, u: usize) -> bool {
+    (q * SUB + 1..=q * SUB + SUB + 2).contains(&u)
+}
+
 /// What [`gather`] learns of a brick's normalised values on the way.
 struct UploadStats {
-    /// Over the slot's texels (the upload less its outer layer).
-    min: u16,
-    max: u16,
+    /// Per sub-block, the range of its texels (within the slot's: the upload less its outer
+    /// layer).
+    sub: SubRanges,
     /// Whether every value of the upload is the first.
     constant: bool,
 }
@@ -871,8 +900,7 @@ struct UploadStats {
 impl Default for UploadStats {
     fn default() -> Self {
         UploadStats {
-            min: u16::MAX,
-            max: 0,
+            sub: [[u16::MAX, 0]; 8],
             constant: true,
         }
     }
@@ -896,7 +924,14 @@ fn gather<T: Copy, U: Copy>(
     ));
     let x0 = map[0][0];
     let contiguous = map[0].iter().enumerate().all(|(i, &x)| x == x0 + i);
-    let (mut lo, mut hi, mut same) = (u16::MAX, 0u16, true);
+    let mut same = true;
+    // The row's range over each sub-block's x (1 ..= 18 and 17 ..= 34 of the upload).
+    let row_range = |row: &[U]| {
+        row.iter().fold([u16::MAX, 0], |[lo, hi], &u| {
+            let v = value(u);
+            [lo.min(v), hi.max(v)]
+        })
+    };
     for (z, &mz) in map[2].iter().enumerate() {
         for (y, &my) in map[1].iter().enumerate() {
             let row = &src[dims[0] * (my + dims[1] * mz)..];
@@ -908,16 +943,19 @@ fn gather<T: Copy, U: Copy>(
             let written = &out[start..];
             same &= written.iter().fold(true, |s, &u| s & (value(u) == first));
             if (1..UPLOAD - 1).contains(&y) && (1..UPLOAD - 1).contains(&z) {
-                for &u in &written[1..UPLOAD - 1] {
-                    let v = value(u);
-                    lo = lo.min(v);
-                    hi = hi.max(v);
+                let halves = [
+                    row_range(&written[1..SUB + 3]),
+                    row_range(&written[SUB + 1..UPLOAD - 1]),
+                ];
+                for (i, r) in stats.sub.iter_mut().enumerate() {
+                    if sub_takes((i >> 1) & 1, y) && sub_takes(i >> 2, z) {
+                        let h = halves[i & 1];
+                        *r = [r[0].min(h[0]), r[1].max(h[1])];
+                    }
                 }
             }
         }
     }
-    stats.min = stats.min.min(lo);
-    stats.max = stats.max.max(hi);
     stats.constant &= same;
     out
 }
@@ -964,6 +1002,9 @@ pub struct BrickCache {
     /// [`UNKNOWN_RANGE`]; kept when the brick leaves, so that a frame can skip a brick it knows
     /// to be empty without reading it again.
     pub ranges: Vec<[u16; 2]>,
+    /// Per page-table entry: its sub-blocks' ranges once it has been read, else
+    /// [`UNKNOWN_SUB_RANGES`]; kept as `ranges` are.
+    pub sub_ranges: Vec<SubRanges>,
     /// Bricks placed since the cache was made (uploaded, or sharing a constant slot).
     pub loaded: u64,
     /// Of those, bricks that shared a constant slot and uploaded nothing.
@@ -991,6 +1032,8 @@ pub struct Arrival {
     pub entry: usize,
     /// The range of its slot's normalised texels.
     pub range: [u16; 2],
+    /// Its sub-blocks' ranges.
+    pub sub_ranges: SubRanges,
     /// The value of every voxel, when the brick has one (with each mixed channel's after it).
     pub constant: Option<ConstantKey>,
 }
@@ -1018,6 +1061,7 @@ impl Arrival {
         Arrival {
             entry,
             range: v.range,
+            sub_ranges: v.sub_ranges,
             constant: v.constant.then(|| {
                 let channels: Vec<u16> = v.channel_ranges.iter().map(|r| r[0]).collect();
                 constant_key(
@@ -1074,6 +1118,7 @@ impl BrickCache {
             clock: 1,
             page_table: vec![0; levels.entries()],
             ranges: vec![UNKNOWN_RANGE; levels.entries()],
+            sub_ranges: vec![UNKNOWN_SUB_RANGES; levels.entries()],
             loaded: 0,
             shared_loads: 0,
             evicted: 0,
@@ -1140,6 +1185,7 @@ impl BrickCache {
             return None;
         }
         self.ranges[e] = a.range;
+        self.sub_ranges[e] = a.sub_ranges;
         self.changes.push(e);
         if let Some(&s) = self.slot_of.get(&e) {
             self.last_used[s] = self.clock;
@@ -1349,8 +1395,8 @@ mod tests {
         assert_ne!(b.gradient.iter().filter(|g| g[3] != 0).count(), 0);
     }
 
-    /// The range and one-value flag gathered row by row are those of the whole upload, at the
-    /// volume's corner (where the apron is clamped), inside it and at its far edge.
+    /// The range, the sub-blocks' ranges and the one-value flag gathered row by row are those of the
+    /// whole upload, at the volume's corner (where the apron is clamped), inside it and at its far edge.
     #[test]
     fn a_bricks_range_is_that_of_its_slot_texels() {
         // A ramp, whose smallest and largest slot texels lie on the slot's faces.
@@ -1367,6 +1413,19 @@ mod tests {
                 };
                 let (range, constant) = box_stats(data);
                 assert_eq!((v.range, v.constant), (range, constant), "brick {brick:?}");
+                // Each sub-block's range over its texels, counted out of the whole upload:
+                // upload rows 1 ..= 18 for the lower half along an axis, 17 ..= 34 for the upper.
+                let takes = |q: usize, u: usize| [1..=18, 17..=34][q].contains(&u);
+                for (i, &got) in v.sub_ranges.iter().enumerate() {
+                    let mut want = [u16::MAX, 0];
+                    for (at, &u) in data.iter().enumerate() {
+                        let c = [at % UPLOAD, at / UPLOAD % UPLOAD, at / (UPLOAD * UPLOAD)];
+                        if (0..3).all(|a| takes((i >> a) & 1, c[a])) {
+                            want = [want[0].min(u), want[1].max(u)];
+                        }
+                    }
+                    assert_eq!(got, want, "brick {brick:?}, sub-block {i}");
+                }
                 seen[constant as usize] = true;
             }
         }
@@ -1412,6 +1471,7 @@ mod tests {
         Arrival {
             entry,
             range: [0, 9],
+            sub_ranges: [[0, 9]; 8],
             constant: None,
         }
     }
@@ -1491,6 +1551,7 @@ mod tests {
         let flat = |entry, v| Arrival {
             entry,
             range: [v, v],
+            sub_ranges: [[v, v]; 8],
             constant: Some(constant_key(v, &[], 0)),
         };
         let got = cache.place(&[flat(0, 7), flat(1, 7), flat(2, 8), arrive(3), flat(4, 7)]);

@@ -11,11 +11,14 @@
 //! - words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its texture to
 //!   voxel scale along x, y, z, and level 0's voxel over its own (f32 bits): opacity is corrected
 //!   per voxel of the level sampled, so that a coarse level looks as that level rendered in core;
-//! - from word `HEADER`: per entry, when the brick is resident (`RESIDENT_BIT`) its slot's
-//!   place along x, y and z of the pool in bits 0-7, 8-15 and 16-23, and when the brick's range is
-//!   known (`KNOWN_BIT`) what it may hold under this frame's classification (bit 24: visible
-//!   context or one-pass samples, bit 25: focus), so that a ray walks past a brick that holds
-//!   nothing for it, resident or not, without asking for it.
+//! - from word `HEADER`: two words per entry. The first: when the brick is resident
+//!   (`RESIDENT_BIT`) its slot's place along x, y and z of the pool in bits 0-7, 8-15 and 16-23,
+//!   and when the brick's range is known (`KNOWN_BIT`) what it may hold under this frame's
+//!   classification (bit 24: visible context or one-pass samples, bit 25: focus), so that a ray
+//!   walks past a brick that holds nothing for it, resident or not, without asking for it. The
+//!   second, read only when the range is known: the same for each of the brick's 2×2×2
+//!   sub-blocks (`volume::bricks::SUB`), bit i visible and bit 8 + i focus for sub-block i, so
+//!   that a ray also walks past the empty half or quarter of a brick that is not all empty.
 //!
 //! ## Uploads
 //! A brick travels as its slot's texels and one more voxel on every side, at 16 bits (8 for
@@ -55,6 +58,8 @@ pub(crate) const KNOWN_BIT: u32 = 1 << 26;
 /// Page-table word: the brick is resident, its slot along x, y, z of the pool in bits 0-7, 8-15
 /// and 16-23 (so that the shader finds its texels without dividing).
 pub(crate) const RESIDENT_BIT: u32 = 1 << 27;
+/// Page-table sub-block word: every sub-block may hold anything.
+const SUB_ALL: u32 = 0xffff;
 /// Bricks one dispatch of `brick_fill` writes at most (its workgroup rows).
 pub(crate) const FILL_BATCH: usize = 4096;
 
@@ -209,15 +214,28 @@ pub struct Paged {
     pub span: bool,
 }
 
+/// Words of the page table per entry.
+pub(crate) const ENTRY_WORDS: usize = 2;
+
 /// The page table's words kept between frames (by the view's state, `render::targets`), so
 /// that a frame remakes only the words of the entries the cache changed since (a 2048³ store
 /// has 300,000 entries, and a still frame stages the table for each of its passes).
 #[derive(Default)]
 pub(crate) struct PageWords {
+    /// [`ENTRY_WORDS`] per entry.
     words: Vec<u32>,
     /// What the words were made under: the volume's id, the flags' key, and the cache's
     /// change-log epoch and length then.
     made: Option<(u64, u64, u64, usize)>,
+}
+
+/// A page-table entry's second word: per sub-block i of ranges `subs`, its `flags` (visible in
+/// bit i, may be in focus in bit 8 + i).
+fn sub_mask(subs: &vellum_volume::bricks::SubRanges, flags: &BrickFlagsOf) -> u32 {
+    subs.iter().enumerate().fold(0, |m, (i, &r)| {
+        let f = flags(r, &[]);
+        m | (f & 1) << i | ((f >> 1) & 1) << (8 + i)
+    })
 }
 
 /// The default of [`Paged::reuse`] on the device `info` describes.
@@ -603,9 +621,8 @@ impl Paged {
         words
     }
 
-    /// The page table's words into `dst` (one per entry): the slot's place with
-    /// [`RESIDENT_BIT`], and for a brick whose range is known [`KNOWN_BIT`] and its `flags`
-    /// (visible, may be in focus) in bits 24 and 25. `id` names the volume and `key` the flags:
+    /// The page table's words into `dst` ([`ENTRY_WORDS`] per entry, see [`Paged::page_word`]).
+    /// `id` names the volume and `key` the flags:
     /// the words `kept` made for the same two are kept, and only those of entries the cache
     /// changed since are made again.
     pub(crate) fn page_words(
@@ -621,20 +638,24 @@ impl Paged {
             Some((i, k, e, seen))
                 if (i, k, e) == (id, key, epoch)
                     && seen <= changes.len()
-                    && kept.words.len() == n =>
+                    && kept.words.len() == ENTRY_WORDS * n =>
             {
                 for &entry in &changes[seen..] {
-                    kept.words[entry] = self.page_word(entry, flags);
+                    let at = ENTRY_WORDS * entry;
+                    kept.words[at..at + ENTRY_WORDS].copy_from_slice(&self.page_word(entry, flags));
                 }
             }
-            _ => kept.words = (0..n).map(|e| self.page_word(e, flags)).collect(),
+            _ => kept.words = (0..n).flat_map(|e| self.page_word(e, flags)).collect(),
         }
         kept.made = Some((id, key, epoch, changes.len()));
         dst.copy_from_slice(&kept.words);
     }
 
-    /// The page-table word of entry `e`.
-    fn page_word(&self, e: usize, flags: &BrickFlagsOf) -> u32 {
+    /// The page-table words of entry `e`: the slot's place with [`RESIDENT_BIT`], and for a
+    /// brick whose range is known [`KNOWN_BIT`] and its `flags` (visible, may be in focus) in
+    /// bits 24 and 25; then its sub-blocks' flags (bits i and 8 + i for sub-block i; all set with
+    /// mixed channels, whose ranges are kept per brick only).
+    fn page_word(&self, e: usize, flags: &BrickFlagsOf) -> [u32; ENTRY_WORDS] {
         let c = &self.cache;
         let [gx, gy, _] = self.grid;
         let place = match c.page_table[e] {
@@ -647,11 +668,15 @@ impl Paged {
         };
         let range = c.ranges[e];
         if range == UNKNOWN_RANGE {
-            return place;
+            return [place, SUB_ALL];
         }
         let mixed = self.levels.mixed_count();
         let channels = self.channel_ranges.get(e * mixed..(e + 1) * mixed);
-        place | KNOWN_BIT | (flags(range, channels.unwrap_or(&[])) & 3) << 24
+        let word = place | KNOWN_BIT | (flags(range, channels.unwrap_or(&[])) & 3) << 24;
+        if mixed > 0 {
+            return [word, SUB_ALL];
+        }
+        [word, sub_mask(&c.sub_ranges[e], flags)]
     }
 
     /// What the rays of the last completed frame said: the missing bricks they asked for (with
@@ -694,6 +719,19 @@ impl Paged {
 mod tests {
     use super::*;
     use vellum_gpu::interface::assert_glsl_layout;
+
+    /// Each sub-block's flags land in its own bits: visible in bit i, focus in bit 8 + i.
+    #[test]
+    fn a_sub_blocks_flags_are_its_own() {
+        // Visible above 30,000, in focus above 50,000: by each range's top.
+        let flags =
+            |r: [u16; 2], _: &[[u16; 2]]| (r[1] > 30_000) as u32 | ((r[1] > 50_000) as u32) << 1;
+        let mut subs = [[0, 100]; 8];
+        subs[3] = [0, 40_000];
+        subs[6] = [20_000, 60_000];
+        assert_eq!(sub_mask(&subs, &flags), 1 << 3 | 1 << 6 | 1 << (8 + 6));
+        assert_eq!(sub_mask(&[[0, 65_535]; 8], &flags), SUB_ALL);
+    }
 
     #[test]
     fn pool_grids_stay_within_the_budget_and_the_device() {

@@ -20,7 +20,7 @@ use crate::classify::Focus;
 use crate::passes::gpu_volume::VolumeRef;
 use crate::passes::lines::{LineExtractor, RasterView, SegmentLines, DEFAULT_CAPACITY};
 use crate::passes::normals::{Bricks, VolumeTextures};
-use crate::passes::paging::{HEADER, MODE_RESUME, MODE_WAIT};
+use crate::passes::paging::{ENTRY_WORDS, HEADER, MODE_RESUME, MODE_WAIT};
 use crate::render::post::{LinesDraw, Post};
 use crate::render::proxy::{depth_span, view_aligned_slices_in, ProxySlices};
 use crate::render::raycast::{
@@ -1057,16 +1057,18 @@ fn paging_binds<'a>(
     let header = p.header(lod_line(r.setup, vol.dims()));
     let entries = p.cache.page_table.len();
     let kept = state.page_words();
-    let table = frame.staging.push_with(4 * (HEADER + entries), 16, |dst| {
-        let words: &mut [u32] = bytemuck::cast_slice_mut(dst);
-        words[..HEADER].copy_from_slice(&header);
-        p.page_words(
-            &mut words[HEADER..],
-            &|range, channels| r.flags.of(range, channels),
-            (vol.id(), r.flags.key()),
-            kept,
-        );
-    })?;
+    let table = frame
+        .staging
+        .push_with(4 * (HEADER + ENTRY_WORDS * entries), 16, |dst| {
+            let words: &mut [u32] = bytemuck::cast_slice_mut(dst);
+            words[..HEADER].copy_from_slice(&header);
+            p.page_words(
+                &mut words[HEADER..],
+                &|range, channels| r.flags.of(range, channels),
+                (vol.id(), r.flags.key()),
+                kept,
+            );
+        })?;
     p.record_clear_feedback(ctx, frame);
     // `add` and `max` keep each channel's sum while a ray waits for a brick.
     let project = r
