@@ -646,26 +646,28 @@ impl BrickLevels {
     }
 
     /// The floor of reading bricks: `keys` (chunks of the store's levels) decoded again plainly,
-    /// in parallel on every core, and dropped. Seconds and voxel bytes; nothing for levels in
-    /// memory.
-    pub fn plain_decode(&self, keys: &[crate::chunks::ChunkKey]) -> Result<(f64, u64)> {
+    /// in parallel on every core, and dropped. Seconds, the decoding's CPU milliseconds summed
+    /// over the threads, and voxel bytes; nothing for levels in memory.
+    pub fn plain_decode(&self, keys: &[crate::chunks::ChunkKey]) -> Result<(f64, f64, u64)> {
         use rayon::prelude::*;
         let start = std::time::Instant::now();
-        let bytes = keys
+        let (cpu, bytes) = keys
             .par_iter()
-            .map(|&(level, c)| -> Result<u64> {
+            .map(|&(level, c)| -> Result<(f64, u64)> {
                 let LevelSource::Store(ms, l) = &self.sources[level] else {
-                    return Ok(0);
+                    return Ok((0.0, 0));
                 };
+                let cpu = crate::chunks::thread_cpu_ms();
                 let info = &ms.levels[*l];
                 let lo: [usize; 3] = std::array::from_fn(|a| c[a] * info.chunk[a]);
                 let size: [usize; 3] =
                     std::array::from_fn(|a| info.chunk[a].min(info.dims[a] - lo[a]));
                 let v = ms.read_box(*l, lo, size)?;
-                Ok(v.data.as_bytes().len() as u64)
+                let cpu = crate::chunks::thread_cpu_ms() - cpu;
+                Ok((cpu, v.data.as_bytes().len() as u64))
             })
-            .sum::<Result<u64>>()?;
-        Ok((start.elapsed().as_secs_f64(), bytes))
+            .try_reduce(|| (0.0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))?;
+        Ok((start.elapsed().as_secs_f64(), cpu, bytes))
     }
 
     /// The edge along x, y, z of the cells level `level` is read in: its store's chunks, or a

@@ -286,6 +286,8 @@ pub struct Floor {
     pub bytes: u64,
     /// Milliseconds to decode them again in parallel on every core.
     pub(crate) decode_ms: f64,
+    /// The CPU time of that decoding, summed over the threads.
+    pub(crate) decode_cpu_ms: f64,
     /// Milliseconds to copy `bytes` from host-visible to device-local memory.
     pub upload_ms: f64,
 }
@@ -295,11 +297,12 @@ impl Floor {
     /// (`ChunkCache::record_keys`).
     pub fn measure(ctx: &Arc<vellum_gpu::Context>, levels: &BrickLevels) -> Result<Self> {
         let keys = levels.chunks().recorded_keys();
-        let (decode_s, bytes) = levels.plain_decode(&keys)?;
+        let (decode_s, decode_cpu_ms, bytes) = levels.plain_decode(&keys)?;
         Ok(Floor {
             chunks: keys.len(),
             bytes,
             decode_ms: decode_s * 1e3,
+            decode_cpu_ms,
             upload_ms: upload_seconds(ctx, bytes)? * 1e3,
         })
     }
