@@ -18,7 +18,7 @@
 //!   walks past a brick that holds nothing for it, resident or not, without asking for it. The
 //!   second, read only when the range is known: the same for each of the brick's 2×2×2
 //!   sub-blocks (`volume::bricks::SUB`), bit i visible and bit 8 + i focus for sub-block i, so
-//!   that a ray also walks past the empty half or quarter of a brick that is not all empty.
+//!   that a ray also walks past the empty eighths of a brick that is not all empty.
 //!
 //! ## Uploads
 //! A brick travels as its slot's texels and one more voxel on every side, at 16 bits (8 for
