@@ -1229,6 +1229,15 @@ impl BrickCache {
         self.loaded += 1;
     }
 
+    /// Whether a brick of these voxels would share a slot already made for its value (or one
+    /// the cache still makes for a value), uploading nothing beyond the first of its value.
+    pub fn shares_a_slot(&self, v: &BrickVoxels) -> bool {
+        let Some(key) = Arrival::of(0, v).constant else {
+            return false;
+        };
+        self.constant.contains_key(&key) || self.constant.len() < self.capacity / CONSTANT_SHARE
+    }
+
     /// Marks the resident bricks of `entries` as used now: the last to be evicted.
     pub fn touch(&mut self, entries: &[usize]) {
         self.clock += 1;

@@ -179,10 +179,12 @@ impl BrickLoader {
         self.shared.work.notify_all();
     }
 
-    /// The bricks ready now, at most `max`, without waiting.
-    pub fn take(&self, max: usize) -> Vec<Loaded> {
+    /// The bricks ready now, without waiting: at most `max` that upload, and with them the ready
+    /// bricks `free` says upload nothing (of one value, sharing a slot already made),
+    /// [`FREE_PER_UPLOAD`] for each that uploads at most.
+    pub fn take(&self, max: usize, free: &dyn Fn(&BrickVoxels) -> bool) -> Vec<Loaded> {
         let mut st = self.shared.lock();
-        self.take_locked(&mut st, max)
+        self.take_locked(&mut st, max, Some(free))
     }
 
     /// The bricks ready, at most `max`, waiting until at least `min` are (or everything asked
@@ -208,17 +210,43 @@ impl BrickLoader {
                 .map(|(g, _)| g)
                 .unwrap_or_else(|p| p.into_inner().0);
         }
-        self.take_locked(&mut st, max)
+        self.take_locked(&mut st, max, None)
     }
 
-    fn take_locked(&self, st: &mut MutexGuard<State>, max: usize) -> Vec<Loaded> {
-        let n = st.ready.len().min(max);
+    /// The ready bricks in order, up to the `max`-th that uploads; bricks `free` says upload
+    /// nothing do not count, [`FREE_PER_UPLOAD`] of them for each that does at most.
+    fn take_locked(
+        &self,
+        st: &mut MutexGuard<State>,
+        max: usize,
+        free: Option<&dyn Fn(&BrickVoxels) -> bool>,
+    ) -> Vec<Loaded> {
+        let all = max.saturating_mul(if free.is_some() {
+            FREE_PER_UPLOAD + 1
+        } else {
+            1
+        });
+        let (mut uploads, mut n) = (0, 0);
+        for l in st.ready.iter().take(all) {
+            if uploads == max {
+                break;
+            }
+            n += 1;
+            let costs_nothing = free.is_some_and(|f| l.voxels.as_ref().is_ok_and(f));
+            uploads += usize::from(!costs_nothing);
+        }
         let got: Vec<Loaded> = st.ready.drain(..n).collect();
         st.ready_bytes = st.ready.iter().map(ready_bytes).sum();
         if n > 0 {
             self.shared.work.notify_all();
         }
         got
+    }
+
+    /// Bricks ready to be taken.
+    #[cfg(test)]
+    fn stats_ready(&self) -> usize {
+        self.shared.lock().ready.len()
     }
 
     /// Bricks asked for and not yet taken: queued, being read or ready.
@@ -277,6 +305,11 @@ impl Drop for BrickLoader {
         }
     }
 }
+
+/// Bricks that upload nothing [`Loader::take`] hands out at most for each brick it counts: a view
+/// that turns into empty space takes its bricks of one value at once (on lavapipe a frame took
+/// 24 bricks, most of them of one value, while its rays sampled coarser levels around the rest).
+pub const FREE_PER_UPLOAD: usize = 7;
 
 fn ready_bytes(l: &Loaded) -> u64 {
     l.voxels.as_ref().map_or(0, BrickVoxels::travel_bytes)
@@ -404,6 +437,35 @@ mod tests {
         assert_eq!(l.stats().bricks, 3);
         let t = l.timeline(Instant::now() - Duration::from_secs(100));
         assert!(!t.is_empty() && t.iter().all(|&(a, b)| b >= a && a > 0.0));
+    }
+
+    /// Without waiting, bricks that upload nothing do not count against the most taken, within
+    /// [`FREE_PER_UPLOAD`] for each that does.
+    #[test]
+    fn bricks_that_upload_nothing_come_on_top_of_those_that_do() {
+        let l = loader(2, 1 << 30);
+        let levels = l.levels().clone();
+        let counts = levels.levels()[0].counts;
+        let all: Vec<(usize, u64)> = (0..counts.iter().product::<usize>())
+            .map(|e| (e, e as u64))
+            .collect();
+        l.request(&all);
+        while l.outstanding() > l.stats_ready() {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(l.stats_ready(), 27);
+        // Every brick free: as many as the bound on them.
+        assert_eq!(l.take(2, &|_| true).len(), 2 * (FREE_PER_UPLOAD + 1));
+        // One brick in two free: up to the second that uploads, with those before it.
+        let flip = std::cell::Cell::new(false);
+        let got = l.take(2, &|_| flip.replace(!flip.get()));
+        assert_eq!(
+            got.len(),
+            3,
+            "upload, free, upload: the second upload ends it"
+        );
+        // Every brick counting: two.
+        assert_eq!(l.take(2, &|_| false).len(), 2);
     }
 
     #[test]

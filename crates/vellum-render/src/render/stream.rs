@@ -155,7 +155,9 @@ impl Streamer {
     }
 
     /// The bricks that arrived, at most `max`, placed in `paged`'s cache; with `wait`, waiting
-    /// until at least that many are ready (or all that was asked for, or the time is out). A brick
+    /// until at least that many are ready (or all that was asked for, or the time is out).
+    /// Without, bricks that would share a slot already made for their value do not count
+    /// against `max` (`BrickLoader::take`): they upload nothing. A brick
     /// that could not be read is an error when `strict`, else left out (and never asked again,
     /// [`Streamer::failure`] saying why).
     pub fn arrivals(
@@ -167,7 +169,10 @@ impl Streamer {
     ) -> Result<Batch> {
         let got: Vec<Loaded> = match wait {
             Some((min, timeout)) => self.loader.take_at_least(min, max, timeout),
-            None => self.loader.take(max),
+            None => {
+                let cache = &paged.cache;
+                self.loader.take(max, &|v| cache.shares_a_slot(v))
+            }
         };
         let mut ok = Vec::with_capacity(got.len());
         for l in got {
