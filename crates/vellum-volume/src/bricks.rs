@@ -1229,13 +1229,12 @@ impl BrickCache {
         self.loaded += 1;
     }
 
-    /// Whether a brick of these voxels would share a slot already made for its value (or one
-    /// the cache still makes for a value), uploading nothing beyond the first of its value.
+    /// Whether a brick of these voxels would share the slot already made for its one value, and
+    /// so upload nothing and evict nothing (the first brick of a value takes a slot of its own).
     pub fn shares_a_slot(&self, v: &BrickVoxels) -> bool {
-        let Some(key) = Arrival::of(0, v).constant else {
-            return false;
-        };
-        self.constant.contains_key(&key) || self.constant.len() < self.capacity / CONSTANT_SHARE
+        Arrival::of(0, v)
+            .constant
+            .is_some_and(|key| self.constant.contains_key(&key))
     }
 
     /// Marks the resident bricks of `entries` as used now: the last to be evicted.
