@@ -883,11 +883,11 @@ fn union(ranges: &SubRanges) -> [u16; 2] {
         .fold([u16::MAX, 0], |[lo, hi], r| [lo.min(r[0]), hi.max(r[1])])
 }
 
-/// Whether sub-block `q` (0 or 1) along an axis takes the upload's row or plane `u` (x, y or z
-/// of the upload box): its voxels and one more on each side, `q·SUB − 1 ..= q·SUB + SUB` in the
-/// brick's voxels, which are the upload's less [`APRON`] + 1.
-fn sub_takes(q: usize, u: usize) -> bool {
-    (q * SUB + 1..=q * SUB + SUB + 2).contains(&u)
+/// The upload's rows or planes (x, y or z of the upload box) sub-block `q` (0 or 1) along an
+/// axis takes: its voxels and one more on each side, `q·SUB − 1 ..= q·SUB + SUB` in the brick's
+/// voxels, which are the upload's less [`APRON`] + 1.
+fn sub_rows(q: usize) -> std::ops::RangeInclusive<usize> {
+    q * SUB + 1..=q * SUB + SUB + 2
 }
 
 /// What [`gather`] learns of a brick's normalised values on the way.
@@ -927,7 +927,7 @@ fn gather<T: Copy, U: Copy>(
     let x0 = map[0][0];
     let contiguous = map[0].iter().enumerate().all(|(i, &x)| x == x0 + i);
     let mut same = true;
-    // The row's range over each sub-block's x (1 ..= 18 and 17 ..= 34 of the upload).
+    // The row's range over each sub-block's x.
     let row_range = |row: &[U]| {
         row.iter().fold([u16::MAX, 0], |[lo, hi], &u| {
             let v = value(u);
@@ -945,12 +945,9 @@ fn gather<T: Copy, U: Copy>(
             let written = &out[start..];
             same &= written.iter().fold(true, |s, &u| s & (value(u) == first));
             if (1..UPLOAD - 1).contains(&y) && (1..UPLOAD - 1).contains(&z) {
-                let halves = [
-                    row_range(&written[1..SUB + 3]),
-                    row_range(&written[SUB + 1..UPLOAD - 1]),
-                ];
+                let halves = [0, 1].map(|q| row_range(&written[sub_rows(q)]));
                 for (i, r) in stats.sub.iter_mut().enumerate() {
-                    if sub_takes((i >> 1) & 1, y) && sub_takes(i >> 2, z) {
+                    if sub_rows((i >> 1) & 1).contains(&y) && sub_rows(i >> 2).contains(&z) {
                         let h = halves[i & 1];
                         *r = [r[0].min(h[0]), r[1].max(h[1])];
                     }
