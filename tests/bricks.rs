@@ -531,6 +531,71 @@ fn keeping_a_lookup_along_the_ray_draws_what_looking_up_every_sample_draws() {
     assert!(max > 0, "the frame with span on equals the one without");
 }
 
+/// A store's pyramid seen close up in one translucent pass, rays crossing from level to level:
+/// samples that want a coarser level than the planes', taken on every second (fourth, ...) plane
+/// with their opacity corrected for the longer step (`Paged::lod_steps`), draw what samples on
+/// every plane draw, as opaque and within the noise of fewer samples.
+#[test]
+fn coarse_levels_sampled_at_their_own_spacing_draw_what_every_plane_draws() {
+    use vellum::classify::transfer::ControlPoint;
+    let gpu = Gpu::new();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let levels = BrickLevels::of_volume(phantom::shepp_logan(256)).unwrap();
+    // Clear below 0.1 (the phantom's background), the brain's 0.2-0.3 faint, the skull
+    // half-opaque: rays cross translucent matter at every level.
+    let point = |x, a| ControlPoint {
+        x,
+        rgba: [x, x, x, a],
+    };
+    let tf = TransferFunction::new("faint", vec![point(0.1, 0.0), point(1.0, 0.5)]).unwrap();
+    let c = Classification::Transfer(tf);
+    let mut bricked = bricked(&gpu, levels, &c, (Focus::Iso(0.9), 64 << 20, false));
+    let view = View {
+        size: [96, 96],
+        ..view("30,20,1.6", true, None, None)
+    };
+    let mut frames = Vec::new();
+    for steps in [false, true] {
+        bricked.paged().lod_steps = steps;
+        let (frame, report) = bricked.render(&mut renderer, &view, None);
+        assert!(report.complete, "{report:?}");
+        frames.push((frame, report.loaded_per_level.clone()));
+    }
+    let ((every, levels), (stepped, _)) = (&frames[0], &frames[1]);
+    assert!(
+        levels.iter().filter(|&&n| n > 0).count() >= 3,
+        "the view should read several levels: {levels:?}"
+    );
+    // Against the same frame on four times the planes: fewer samples are noisier, so the stepped
+    // frame's error may be larger than the frame's on every plane, but not by more than the
+    // halved (quartered, ...) sample counts explain.
+    bricked.paged().lod_steps = false;
+    let fine = View {
+        slices: Some(4 * every.slices),
+        ..view.clone()
+    };
+    let (reference, _) = bricked.render(&mut renderer, &fine, None);
+    let (err_every, err_stepped) = (diff8(every, &reference).0, diff8(stepped, &reference).0);
+    let opacity = |f: &FrameImage| f.composite.iter().map(|p| p[3] as f64).sum::<f64>();
+    let moved = opacity(stepped) / opacity(every) - 1.0;
+    println!(
+        "against {} planes: every plane mean {err_every:.3}/255, stepped {err_stepped:.3}/255; opacity {moved:+.4}",
+        fine.slices.unwrap_or(0)
+    );
+    assert!(
+        err_stepped <= 2.0 * err_every && err_stepped <= 8.0,
+        "stepped {err_stepped}/255 against every plane {err_every}/255"
+    );
+    // Without the correction for the longer step, the coarse samples' opacity would be that of
+    // half (a quarter, ...) as many samples.
+    assert!(moved.abs() <= 0.01, "the frame's opacity moved by {moved}");
+    // Fewer samples change the image, so an identical one would say no sample stepped.
+    assert!(
+        diff8(every, stepped).1 > 0,
+        "the stepped frame equals the one on every plane"
+    );
+}
+
 #[test]
 fn a_coarse_view_of_a_store_is_its_coarse_level_rendered_in_core() {
     use vellum::volume::io::ome_zarr::{write, Multiscale, WriteOptions};

@@ -47,6 +47,8 @@ layout(set = 0, binding = 17) readonly buffer LabelVoxels { uint label_words[]; 
 layout(set = 0, binding = 18) readonly buffer LabelTable { uint label_table[]; };
 const uint MODE_WAIT = 1u;
 const uint MODE_RESUME = 2u;
+// A level coarser than the planes is sampled on every `steps_of(level)`-th plane only.
+const uint MODE_LOD_STEPS = 4u;
 // A resumed pass of a bricked frame that waits runs one workgroup per tile of 8 x 8 rays that
 // ray_wake.comp listed (after its indirect dispatch's arguments and the tiles' flags): the tiles
 // with a ray that a brick let go on. Other frames bind a stand-in and never read it.
@@ -220,6 +222,33 @@ int level_at(float t) {
     return want;
 }
 
+// MODE_LOD_STEPS: the samples that want a level coarser than the one the planes are chosen for
+// lie on every `ray_step`-th plane only (plane indices m a multiple of it, from a phase of the
+// pixel's), so that each level is sampled as densely, per its voxel, as the planes sample theirs
+// (GigaVoxels and the ray-guided renderers widen their steps with the level); the opacity
+// correction takes the longer step (locate's `level_ratio`). `step_level` is the level
+// `ray_step` was made for.
+float ray_step = 1.0;
+int step_level = 0;
+// Which of its step's planes a pixel's coarse samples take, a fraction in [0, 1) drawn per
+// pixel: neighbouring rays sample different planes (interleaved sampling), so the coarser
+// spacing shows as fine noise instead of rings across a surface.
+float step_phase;
+
+// A level's voxel over level 0's, as a power of two's exponent (a margin keeps an exact power of
+// two from rounding down; a level coarser along some axes only counts as level 0's voxel).
+float voxel_exponent(int level) {
+    return floor(log2(1.0 / uintBitsToFloat(pt[8 + 8 * level + 7])) + 0.05);
+}
+
+// The planes between the samples of level `level`: its voxel over the voxel of the level the
+// frame's planes are chosen for (bits 8-11 of the mode word, the finest level the frame reads),
+// at least one. Powers of two, so that the samples of the levels along a ray share planes.
+float steps_of(int level) {
+    int planes = int((pt_mode >> 8u) & 0xfu);
+    return exp2(max(voxel_exponent(level) - voxel_exponent(min(planes, pt_levels - 1)), 0.0));
+}
+
 // The stretch [from, until) of the ray parameter over which the samples stay in sub-block q of
 // brick b of level `want` (whose texture coordinates scale to its voxels by c_scale) and keep
 // wanting that level; with `whole`, in the brick (q unread).
@@ -267,7 +296,7 @@ int locate(uint skip) {
     if (V_BRICK_SPAN) {
         if (ray_t >= c_from && ray_t < c_until) {
             ptex = c_base + ray_t * c_step;
-            level_ratio = c_ratio;
+            level_ratio = c_ratio * ray_step;
             return FOUND;
         }
         // Until a lookup of the wanted level succeeds (set_span), there is no stretch.
@@ -292,7 +321,7 @@ int locate(uint skip) {
     // (With V_BRICK_SPAN every lookup goes on to set the stretch again.)
     if (V_BRICK_REUSE && !V_BRICK_SPAN && c_hit && b == c_brick) {
         ptex = (c_offset + v) * inv_pool;
-        level_ratio = c_ratio;
+        level_ratio = c_ratio * ray_step;
         return FOUND;
     }
     c_hit = false;
@@ -323,7 +352,7 @@ int locate(uint skip) {
         mark_used(e);
         vec3 offset = slot_origin(word) - vec3(b) * brick;
         ptex = (offset + v) * inv_pool;
-        level_ratio = c_ratio;
+        level_ratio = c_ratio * ray_step;
         // A brick with a sub-block to walk past is looked up again at each sample (or, with
         // V_BRICK_SPAN, holds over its sub-block only), so that the ray meets that sub-block.
         c_hit = whole;
@@ -353,7 +382,7 @@ int locate(uint skip) {
         if ((wl & RESIDENT) != 0u) {
             mark_used(el);
             ptex = (slot_origin(wl) - vec3(bl) * brick + vl) * inv_pool;
-            level_ratio = uintBitsToFloat(pt[h + 7]);
+            level_ratio = uintBitsToFloat(pt[h + 7]) * ray_step;
             return FOUND;
         }
     }
@@ -646,6 +675,7 @@ void main() {
         ray_k = dot(dir, eo);
         ray_q = dot(eo, eo);
         level_thresholds();
+        step_phase = float(pcg3d(uvec3(px, 0x51u)).x >> 8u) / 16777216.0;
     }
     bool wait = V_BRICKED && (pt_mode & MODE_WAIT) != 0u;
     bool stopped = false;
@@ -733,6 +763,22 @@ void main() {
             }
             for (; m <= m_last; m += 1.0) {
                 t = a + b * m;
+                if (V_BRICKED && (pt_mode & MODE_LOD_STEPS) != 0u) {
+                    // On to the next plane of the step of the level this sample wants.
+                    int want = level_at(t);
+                    if (want != step_level) {
+                        step_level = want;
+                        ray_step = steps_of(want);
+                    }
+                    if (ray_step > 1.0) {
+                        float o = floor(step_phase * ray_step);
+                        m = ceil((m - o) / ray_step) * ray_step + o;
+                        if (m > m_last) {
+                            break;
+                        }
+                        t = a + b * m;
+                    }
+                }
                 if (t < t_in || t > t_out) {
                     have_s = false;
                     continue;

@@ -50,6 +50,10 @@ pub(crate) const MODE_WAIT: u32 = 1;
 /// Mode bit: rays continue from the state the previous pass of this frame saved (with
 /// [`MODE_WAIT`], only the tiles `ray_wake.comp` listed).
 pub(crate) const MODE_RESUME: u32 = 2;
+/// Mode bit, set by [`Paged::header`] from [`Paged::lod_steps`]: samples that want a level
+/// coarser than the planes' lie on every few planes only (`steps_of` in raycast.comp). Bits 8-11
+/// of the mode word hold the planes' level.
+pub(crate) const MODE_LOD_STEPS: u32 = 4;
 /// Feedback flag: a resident brick was read (`USED_BIT` in raycast.comp); a missing brick some
 /// ray asked for reads 1. (Plain stores, not counts: a CPU device runs atomics lane by lane.)
 pub(crate) const USED_BIT: u32 = 1 << 31;
@@ -199,6 +203,12 @@ pub struct Paged {
     pub mode: u32,
     /// Sample level 0 everywhere instead of choosing the level by projected voxel size.
     pub finest: bool,
+    /// Where the level-of-detail rule reads a level coarser than the planes, sample it at its own
+    /// voxel's spacing (every second plane at level 1, every fourth at level 2, ...) instead of at
+    /// every plane: a coarse level's texels then cost what its voxels are worth, as in the
+    /// ray-guided renderers. The image changes only where a coarse level is read, never at
+    /// `finest`. On by default; `VELLUM_LOD_STEPS=0` samples every plane, for measuring.
+    pub lod_steps: bool,
     /// Bytes the pool images take.
     pub pool_bytes: u64,
     /// Each ray keeps its last brick's place in the pool and reuses it while its samples stay in
@@ -361,6 +371,7 @@ impl PagedVolume {
                 channel_ranges,
                 mode: 0,
                 finest,
+                lod_steps: std::env::var("VELLUM_LOD_STEPS").as_deref() != Ok("0"),
                 pool_bytes: (capacity * slot_bytes) as u64,
                 reuse: brick_reuse(&ctx.info),
                 span: brick_span(&ctx.info),
@@ -582,9 +593,10 @@ fn check_pool_formats(ctx: &Context) -> Result<()> {
 
 impl Paged {
     /// The page table's header for a frame whose samples at distance d from the eye cover
-    /// `lod.0 · d + lod.1` level-0 voxels (see the module's documentation); the entries,
-    /// [`Paged::page_words`], follow it.
-    pub(crate) fn header(&self, lod: (f32, f32)) -> [u32; HEADER] {
+    /// `lod.0 · d + lod.1` level-0 voxels (see the module's documentation) and whose planes are
+    /// chosen for level `planes` (the finest it reads); the entries, [`Paged::page_words`],
+    /// follow it.
+    pub(crate) fn header(&self, lod: (f32, f32), planes: usize) -> [u32; HEADER] {
         let levels = self.levels.levels();
         let (a, b) = if self.finest { (0.0, 0.0) } else { lod };
         let mut words = [0u32; HEADER];
@@ -594,7 +606,7 @@ impl Paged {
             levels.len() as u32,
             vellum_volume::bricks::BRICK as u32,
             SLOT as u32,
-            self.mode,
+            self.mode | if self.lod_steps { MODE_LOD_STEPS } else { 0 } | (planes as u32) << 8,
             self.grid[0] as u32,
             self.grid[1] as u32,
             a.to_bits(),

@@ -1054,7 +1054,9 @@ fn paging_binds<'a>(
     };
     // The header, then the entries with the flags of the bricks whose range is known, written
     // into the frame's ring in place.
-    let header = p.header(lod_line(r.setup, vol.dims()));
+    let setup = r.setup;
+    let planes = planes_level(p, &setup.camera, &setup.world, setup.size, vol.dims());
+    let header = p.header(lod_line(setup, vol.dims()), planes);
     let entries = p.cache.page_table.len();
     let kept = state.page_words();
     let table = frame
@@ -1446,11 +1448,9 @@ fn paged_planes(vol: VolumeRef, view: &View) -> Option<View> {
 }
 
 /// One plane per voxel along the longest axis of the finest level a frame of `vol` seen by
-/// `view` reads: level 0 in core or through a cache that reads it only; else the level the
-/// sample at the box's point nearest the eye wants, and for a frame that neither waits for its
-/// bricks nor resumes rays (the viewer's), no finer than what is resident. A frame while the
-/// user drags takes this many planes, half the refined frame's, as VTK's mapper widens its
-/// sample distance while the user interacts.
+/// `view` reads: level 0 in core or through a cache that reads it only; else [`planes_level`].
+/// A frame while the user drags takes this many planes, half the refined frame's, as VTK's
+/// mapper widens its sample distance while the user interacts.
 pub fn voxel_planes(vol: VolumeRef, view: &View) -> u32 {
     let longest = |dims: [usize; 3]| dims.into_iter().max().unwrap_or(1).max(1) as u32;
     let Some(p) = vol.paged().filter(|p| !p.finest) else {
@@ -1458,21 +1458,39 @@ pub fn voxel_planes(vol: VolumeRef, view: &View) -> u32 {
     };
     let world = WorldBox::new(vol.dims(), vol.spacing(), &vol.geometry());
     let camera = FrameCamera::new(&world, view);
-    let (a, b) = lod_of(&camera, &world, view.size, vol.dims());
+    let level = planes_level(p, &camera, &world, view.size, vol.dims());
+    longest(p.levels.levels()[level].dims)
+}
+
+/// The finest level a bricked frame reads, for which its planes are chosen: the level the sample
+/// at the box's point nearest the eye wants, and for a frame that neither waits for its bricks
+/// nor resumes rays (the viewer's), no finer than what is resident. Samples that want a coarser
+/// level step over planes (`Paged::lod_steps`).
+fn planes_level(
+    p: &crate::passes::paging::Paged,
+    camera: &FrameCamera,
+    world: &WorldBox,
+    size: [u32; 2],
+    dims: [usize; 3],
+) -> usize {
+    let levels = p.levels.levels();
+    if p.finest {
+        return 0;
+    }
+    let (a, b) = lod_of(camera, world, size, dims);
     let nearest = (camera.eye - camera.eye.clamp(-world.half, world.half)).length();
     let cover = (a * nearest + b).max(1.0);
-    let levels = p.levels.levels();
-    let mut level = (cover.log2().floor() as usize).min(levels.len() - 1);
+    let level = (cover.log2().floor() as usize).min(levels.len() - 1);
     // Waiting or resumed rays keep the planes their passes began with.
     let waits = crate::passes::paging::MODE_WAIT | crate::passes::paging::MODE_RESUME;
-    if p.mode & waits == 0 {
-        level = level.max(
-            p.cache
-                .finest_resident(&p.levels)
-                .unwrap_or(levels.len() - 1),
-        );
+    if p.mode & waits != 0 {
+        return level;
     }
-    longest(levels[level].dims)
+    level.max(
+        p.cache
+            .finest_resident(&p.levels)
+            .unwrap_or(levels.len() - 1),
+    )
 }
 
 /// What the style passes of one frame work on: the frame's setup, the style, the layers and the
