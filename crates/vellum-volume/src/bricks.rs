@@ -194,6 +194,10 @@ pub struct BrickLevels {
     /// ([`BrickLevels::read_small_level`]); from a server, a round trip less before the first
     /// frame.
     small: std::sync::Mutex<Option<(usize, Volume)>>,
+    /// Per level of a store in a folder, the chunks it leaves out
+    /// ([`crate::io::ome_zarr::Multiscale::absent_chunks`]): a brick that meets only those holds
+    /// their fill value, known before it is read ([`BrickLevels::known_uniform`]).
+    absent: Vec<Option<crate::io::ome_zarr::AbsentChunks>>,
 }
 
 /// A channel mixed in the ray (issue 42): each brick read carries every mixed channel's voxels,
@@ -282,8 +286,13 @@ impl BrickLevels {
         let sources = (0..ms.levels.len())
             .map(|l| LevelSource::Store(ms.clone(), l))
             .collect();
-        let levels = Self::build(sources, range, geometry)?;
+        let mut levels = Self::build(sources, range, geometry)?;
         levels.keep_small(read);
+        // Not knowing them only costs reading those bricks: a level whose chunks cannot be
+        // looked for reads as before.
+        levels.absent = (0..ms.levels.len())
+            .map(|l| ms.absent_chunks(l).ok().flatten())
+            .collect();
         Ok(levels)
     }
 
@@ -329,6 +338,7 @@ impl BrickLevels {
             mixed: Vec::new(),
             labels: None,
             small: std::sync::Mutex::new(None),
+            absent: Vec::new(),
         })
     }
 
@@ -532,8 +542,10 @@ impl BrickLevels {
         }
     }
 
-    /// [`BrickLevels::voxels`] of this pyramid alone.
-    fn own_voxels(&self, key: BrickKey) -> Result<BrickVoxels> {
+    /// The box of level voxels brick `key`'s upload reads (its slot and one more voxel on every
+    /// side, clamped into the level): first voxel and size; and the upload's first voxel, which
+    /// may lie outside the level.
+    fn upload_box(&self, key: BrickKey) -> ([usize; 3], [usize; 3], [i64; 3]) {
         let dims = self.levels[key.level].dims;
         let lo: [i64; 3] =
             std::array::from_fn(|a| (key.brick[a] * BRICK) as i64 - APRON as i64 - 1);
@@ -541,6 +553,33 @@ impl BrickLevels {
         let inner_lo: [usize; 3] = std::array::from_fn(|a| clamp(lo[a], a));
         let inner_hi: [usize; 3] = std::array::from_fn(|a| clamp(lo[a] + UPLOAD as i64 - 1, a) + 1);
         let size: [usize; 3] = std::array::from_fn(|a| inner_hi[a] - inner_lo[a]);
+        (inner_lo, size, lo)
+    }
+
+    /// The normalised value of brick `key`'s every texel when that is known without reading it:
+    /// a brick of a store in a folder whose upload meets only chunks the store leaves out holds
+    /// their fill value (what [`BrickLevels::voxels`] would read, range and all). `None` with
+    /// mixed channels or a label volume, whose bricks carry more than this pyramid's voxels.
+    pub fn known_uniform(&self, key: BrickKey) -> Option<u16> {
+        if !self.mixed.is_empty() || self.labels.is_some() {
+            return None;
+        }
+        let absent = self.absent.get(key.level)?.as_ref()?;
+        let LevelSource::Store(ms, l) = &self.sources[key.level] else {
+            return None;
+        };
+        let (lo, size, _) = self.upload_box(key);
+        let chunk = ms.levels[*l].chunk;
+        crate::io::ome_zarr::chunks_meeting(chunk, lo, size)
+            .all(|c| absent.is_absent(c))
+            .then(|| self.uniform_u16(absent.value, ms.voxel))
+    }
+
+    /// [`BrickLevels::voxels`] of this pyramid alone.
+    fn own_voxels(&self, key: BrickKey) -> Result<BrickVoxels> {
+        let dims = self.levels[key.level].dims;
+        let clamp = |v: i64, a: usize| v.clamp(0, dims[a] as i64 - 1) as usize;
+        let (inner_lo, size, lo) = self.upload_box(key);
         let inner = match &self.sources[key.level] {
             LevelSource::Store(ms, l) => match self.read_chunked(ms, *l, inner_lo, size)? {
                 Read::Voxels(v) => v,
@@ -604,33 +643,32 @@ impl BrickLevels {
     /// [`BrickLevels::voxels`] would make of it voxel by voxel.
     fn uniform_brick(&self, value: f64, voxel: crate::VoxelType) -> BrickVoxels {
         let n = UPLOAD * UPLOAD * UPLOAD;
+        let u = self.uniform_u16(value, voxel);
+        let data = match self.u8_table() {
+            Some(_) if voxel == crate::VoxelType::U8 => BrickData::U8(vec![value as u8; n]),
+            _ => BrickData::U16(vec![u; n]),
+        };
+        BrickVoxels {
+            data,
+            range: [u, u],
+            sub_ranges: [[u, u]; 8],
+            constant: true,
+            channels: Vec::new(),
+            channel_ranges: Vec::new(),
+            labels: Vec::new(),
+        }
+    }
+
+    /// The normalised texel of voxel value `value` (of a store of type `voxel`): through
+    /// [`BrickLevels::u8_table`] for 8-bit data, else over [`BrickLevels::range`] as the loaders
+    /// normalise.
+    fn uniform_u16(&self, value: f64, voxel: crate::VoxelType) -> u16 {
         match self.u8_table() {
-            Some(t) if voxel == crate::VoxelType::U8 => {
-                let raw = value as u8;
-                let u = t[raw as usize];
-                BrickVoxels {
-                    data: BrickData::U8(vec![raw; n]),
-                    range: [u, u],
-                    sub_ranges: [[u, u]; 8],
-                    constant: true,
-                    channels: Vec::new(),
-                    channel_ranges: Vec::new(),
-                    labels: Vec::new(),
-                }
-            }
+            Some(t) if voxel == crate::VoxelType::U8 => t[value as u8 as usize],
             _ => {
                 let [lo, hi] = self.range;
                 let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
-                let u = normalise_scaled(value, lo, scale);
-                BrickVoxels {
-                    data: BrickData::U16(vec![u; n]),
-                    range: [u, u],
-                    sub_ranges: [[u, u]; 8],
-                    constant: true,
-                    channels: Vec::new(),
-                    channel_ranges: Vec::new(),
-                    labels: Vec::new(),
-                }
+                normalise_scaled(value, lo, scale)
             }
         }
     }
@@ -1090,7 +1128,8 @@ pub fn min_slots(levels: &BrickLevels) -> usize {
 impl BrickCache {
     /// A cache of `capacity` slots for `levels`; refused in one sentence when that cannot hold
     /// the coarsest level and one more brick. The coarsest level's bricks are the first to load
-    /// (see [`BrickCache::pinned_entries`]).
+    /// (see [`BrickCache::pinned_entries`]). Bricks whose value is known unread
+    /// ([`BrickLevels::known_uniform`]) start with their ranges known.
     /// Each slot takes `slot_bytes` of the budget (for the sentence).
     pub fn new(
         levels: &BrickLevels,
@@ -1105,6 +1144,11 @@ impl BrickCache {
                 ((need * slot_bytes) as f64 / (1 << 20) as f64 * 10.0).ceil() / 10.0
             )));
         }
+        // Bricks whose value is known unread start with their ranges known, so that a frame
+        // walks past the empty ones without asking for them.
+        let known: Vec<Option<u16>> = (0..levels.entries())
+            .map(|e| levels.key(e).and_then(|k| levels.known_uniform(k)))
+            .collect();
         Ok(BrickCache {
             capacity,
             pinned: need - 1,
@@ -1116,8 +1160,14 @@ impl BrickCache {
             last_used: vec![0; capacity],
             clock: 1,
             page_table: vec![0; levels.entries()],
-            ranges: vec![UNKNOWN_RANGE; levels.entries()],
-            sub_ranges: vec![UNKNOWN_SUB_RANGES; levels.entries()],
+            ranges: known
+                .iter()
+                .map(|k| k.map_or(UNKNOWN_RANGE, |u| [u, u]))
+                .collect(),
+            sub_ranges: known
+                .iter()
+                .map(|k| k.map_or(UNKNOWN_SUB_RANGES, |u| [[u, u]; 8]))
+                .collect(),
             loaded: 0,
             shared_loads: 0,
             evicted: 0,
@@ -1623,6 +1673,56 @@ mod tests {
         // once however many bricks read it.
         let st = from_store.chunks().stats();
         assert_eq!((st.decoded, st.hits), (12, 1));
+    }
+
+    #[test]
+    fn bricks_known_unread_are_what_reading_them_gives() {
+        // The phantom's corners are empty: the writer leaves out their chunks, and the bricks
+        // that meet only those (their boxes within a chunk of twice their edge) hold the fill
+        // value before anyone reads them.
+        let v = shepp_logan(256);
+        let u: Vec<u8> = (0..v.len())
+            .map(|i| (v.data.get_f64(i) * 250.0) as u8)
+            .collect();
+        let bytes = Volume::new(v.dims, v.spacing, VoxelData::U8(u)).unwrap();
+        for v in [v, bytes] {
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("s.ome.zarr");
+            let opts = crate::io::ome_zarr::WriteOptions {
+                chunk: 64,
+                ..Default::default()
+            };
+            crate::io::ome_zarr::write(&path, &v, &opts).unwrap();
+            let ms = Arc::new(Multiscale::open(&path).unwrap());
+            let absent = ms.absent_chunks(0).unwrap().unwrap();
+            assert!(absent.count() > 0, "the writer left no chunk out");
+
+            let mut levels = BrickLevels::of_store(ms, 1 << 26).unwrap();
+            // A range below the fill value, so that it does not normalise to 0.
+            levels.range = [-0.5, levels.range[1]];
+            let (mut known, mut unknown) = (0, 0);
+            for e in 0..levels.entries() {
+                let key = levels.key(e).unwrap();
+                let Some(u) = levels.known_uniform(key) else {
+                    unknown += 1;
+                    continue;
+                };
+                known += 1;
+                let read = levels.voxels(key).unwrap();
+                assert!(read.constant, "{key:?}");
+                assert_eq!(
+                    (read.range, read.sub_ranges),
+                    ([u, u], [[u, u]; 8]),
+                    "{key:?}"
+                );
+                assert!(u > 0 || levels.u8_table().is_some(), "{key:?}");
+            }
+            assert!(known > 0 && unknown > 0, "{known} known, {unknown} not");
+            // The cache starts with those ranges, and no other.
+            let cache = BrickCache::new(&levels, 64, (1.0, SLOT_BYTES)).unwrap();
+            let starts_known = cache.ranges.iter().filter(|r| **r != UNKNOWN_RANGE).count();
+            assert_eq!(starts_known, known);
+        }
     }
 
     #[test]

@@ -241,6 +241,16 @@ fn check_zstd(value: &[u8], bound: u64) -> Result<(), String> {
 }
 
 impl GuardedStore {
+    /// Whether the store holds a value at `key`, when that can be told without reading it: in a
+    /// folder, by the file's presence; `None` on a server, where asking is a request. A key the
+    /// guards refuse counts as held, so that its reader names what is wrong with it.
+    pub(crate) fn holds_locally(&self, key: &StoreKey) -> Option<bool> {
+        match &self.inner {
+            Backend::Files(files) => Some(!matches!(self.check_file(files, key), Ok(None))),
+            Backend::Http(_) => None,
+        }
+    }
+
     /// The values of `ranges` of `key`, read from the backend under the bounds.
     fn read(
         &self,

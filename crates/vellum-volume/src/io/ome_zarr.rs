@@ -428,10 +428,86 @@ impl Multiscale {
         })
     }
 
+    /// The chunks of level `level` the store does not hold, which read as its fill value
+    /// (Zarr writers, vellum's and zarr-python's by default, leave out chunks of the fill value
+    /// alone): `None` on a server, where each chunk would be a request, and for levels of more
+    /// than [`MAX_LISTED_CHUNKS`] chunks.
+    pub fn absent_chunks(&self, level: usize) -> Result<Option<AbsentChunks>> {
+        let l = self.level_info(level)?;
+        let grid: [usize; 3] = std::array::from_fn(|a| l.dims[a].div_ceil(l.chunk[a].max(1)));
+        let n = grid.iter().product::<usize>();
+        let array = &self.arrays[level];
+        let store = array.storage();
+        let held = |i: usize| {
+            let mut index = self.lead.clone();
+            let c = [
+                i % grid[0],
+                (i / grid[0]) % grid[1],
+                i / (grid[0] * grid[1]),
+            ];
+            index.extend([c[2], c[1], c[0]].map(|v| v as u64));
+            store.holds_locally(&array.chunk_key(&index))
+        };
+        if n > MAX_LISTED_CHUNKS || held(0).is_none() {
+            return Ok(None);
+        }
+        let absent: Vec<bool> = (0..n).map(|i| held(i) == Some(false)).collect();
+        // The fill value as the readers see it: an absent chunk read.
+        let Some(i) = absent.iter().position(|&a| a) else {
+            return Ok(Some(AbsentChunks {
+                grid,
+                absent,
+                value: 0.0,
+            }));
+        };
+        let c = [
+            i % grid[0],
+            (i / grid[0]) % grid[1],
+            i / (grid[0] * grid[1]),
+        ];
+        let lo: [usize; 3] = std::array::from_fn(|a| c[a] * l.chunk[a]);
+        let one: [usize; 3] = std::array::from_fn(|a| l.chunk[a].min(1));
+        let voxel = self.read_box(level, lo, one)?;
+        let value = crate::chunks::Chunk::new(voxel).value();
+        Ok(value.map(|value| AbsentChunks {
+            grid,
+            absent,
+            value,
+        }))
+    }
+
     /// Level `level` as a [`BoxSource`].
     pub fn level(&self, level: usize) -> Result<StoreLevel<'_>> {
         self.level_info(level)?;
         Ok(StoreLevel { ms: self, level })
+    }
+}
+
+/// Chunks per level at most that [`Multiscale::absent_chunks`] looks for: a file's presence
+/// each (a 4096³ level of 64³ chunks has this many).
+pub const MAX_LISTED_CHUNKS: usize = 1 << 18;
+
+/// The chunks of a level that a store does not hold ([`Multiscale::absent_chunks`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct AbsentChunks {
+    /// Chunks along x, y, z.
+    pub grid: [usize; 3],
+    /// Per chunk (x fastest), whether the store leaves it out.
+    absent: Vec<bool>,
+    /// The value every voxel of an absent chunk reads as.
+    pub value: f64,
+}
+
+impl AbsentChunks {
+    /// Whether chunk `c` (its place in the grid) is left out.
+    pub fn is_absent(&self, c: [usize; 3]) -> bool {
+        (0..3).all(|a| c[a] < self.grid[a])
+            && self.absent[c[0] + self.grid[0] * (c[1] + self.grid[1] * c[2])]
+    }
+
+    /// Chunks left out.
+    pub fn count(&self) -> usize {
+        self.absent.iter().filter(|&&a| a).count()
     }
 }
 
