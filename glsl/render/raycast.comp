@@ -226,10 +226,10 @@ int level_at(float t) {
 // lie on every `ray_step`-th plane only (plane indices m a multiple of it, from a phase of the
 // pixel's), so that each level is sampled as densely, per its voxel, as the planes sample theirs
 // (GigaVoxels and the ray-guided renderers widen their steps with the level); the opacity
-// correction takes the longer step (locate's `level_ratio`). `step_level` is the level
-// `ray_step` was made for.
+// correction takes the longer step (locate's `level_ratio`). `ray_step` holds for the samples
+// before `step_until`, where the next level begins (a ray's levels only grow along it).
 float ray_step = 1.0;
-int step_level = 0;
+float step_until = -INF;
 // Which of its step's planes a pixel's coarse samples take, a fraction in [0, 1) drawn per
 // pixel: neighbouring rays sample different planes (interleaved sampling), so the coarser
 // spacing shows as fine noise instead of rings across a surface.
@@ -765,10 +765,10 @@ void main() {
                 t = a + b * m;
                 if (V_BRICKED && (pt_mode & MODE_LOD_STEPS) != 0u) {
                     // On to the next plane of the step of the level this sample wants.
-                    int want = level_at(t);
-                    if (want != step_level) {
-                        step_level = want;
+                    if (t >= step_until) {
+                        int want = level_at(t);
                         ray_step = steps_of(want);
+                        step_until = want + 1 < pt_levels ? level_from[want + 1] : INF;
                     }
                     if (ray_step > 1.0) {
                         float o = floor(step_phase * ray_step);
