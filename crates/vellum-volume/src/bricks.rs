@@ -644,9 +644,9 @@ impl BrickLevels {
     fn uniform_brick(&self, value: f64, voxel: crate::VoxelType) -> BrickVoxels {
         let n = UPLOAD * UPLOAD * UPLOAD;
         let u = self.uniform_u16(value, voxel);
-        let data = match self.u8_table() {
-            Some(_) if voxel == crate::VoxelType::U8 => BrickData::U8(vec![value as u8; n]),
-            _ => BrickData::U16(vec![u; n]),
+        let data = match self.eight_bit() && voxel == crate::VoxelType::U8 {
+            true => BrickData::U8(vec![value as u8; n]),
+            false => BrickData::U16(vec![u; n]),
         };
         BrickVoxels {
             data,
@@ -663,24 +663,28 @@ impl BrickLevels {
     /// [`BrickLevels::u8_table`] for 8-bit data, else over [`BrickLevels::range`] as the loaders
     /// normalise.
     fn uniform_u16(&self, value: f64, voxel: crate::VoxelType) -> u16 {
-        match self.u8_table() {
-            Some(t) if voxel == crate::VoxelType::U8 => t[value as u8 as usize],
-            _ => {
-                let [lo, hi] = self.range;
-                let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
-                normalise_scaled(value, lo, scale)
-            }
+        if self.eight_bit() && voxel == crate::VoxelType::U8 {
+            // The table's entry, made alone.
+            return normalise(value as u8 as f64, self.range);
+        }
+        let [lo, hi] = self.range;
+        let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+        normalise_scaled(value, lo, scale)
+    }
+
+    /// Whether the pyramid's voxels are 8-bit (see [`BrickLevels::u8_table`]).
+    fn eight_bit(&self) -> bool {
+        match &self.sources[0] {
+            LevelSource::Store(ms, _) => ms.voxel == crate::VoxelType::U8,
+            LevelSource::Memory(v) => v.voxel_type() == crate::VoxelType::U8,
         }
     }
 
     /// For 8-bit data, the normalised value of each voxel value (what [`Volume::normalised_u16`]
     /// gives it over [`BrickLevels::range`]); `None` for wider data, normalised on the host.
     pub fn u8_table(&self) -> Option<[u16; 256]> {
-        let u8_data = match &self.sources[0] {
-            LevelSource::Store(ms, _) => ms.voxel == crate::VoxelType::U8,
-            LevelSource::Memory(v) => v.voxel_type() == crate::VoxelType::U8,
-        };
-        u8_data.then(|| std::array::from_fn(|v| normalise(v as f64, self.range)))
+        self.eight_bit()
+            .then(|| std::array::from_fn(|v| normalise(v as f64, self.range)))
     }
 
     /// The floor of reading bricks: `keys` (chunks of the store's levels) decoded again plainly,
