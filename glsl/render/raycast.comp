@@ -763,7 +763,7 @@ void main() {
             }
             for (; m <= m_last; m += 1.0) {
                 t = a + b * m;
-                if (V_BRICKED && (pt_mode & MODE_LOD_STEPS) != 0u) {
+                if (V_LOD_STEPS && (pt_mode & MODE_LOD_STEPS) != 0u) {
                     // On to the next plane of the step of the level this sample wants.
                     if (t >= step_until) {
                         int want = level_at(t);

@@ -50,6 +50,9 @@ const bool V_WALK_BATCH = (VARIANT & 32768u) != 0u;
 // Bits 16-18 hold the channel count (below). A label volume with a hidden segment: samples whose
 // filtered intensity blends one of its voxels add nothing (raycast.comp's `screened`).
 const bool V_LABELS_SCREEN = (VARIANT & 524288u) != 0u;
+// Bricked, by the level-of-detail rule: samples that want a coarser level than the planes' step
+// over planes (raycast.comp's MODE_LOD_STEPS, which it still checks).
+const bool V_LOD_STEPS = (VARIANT & 1048576u) != 0u;
 // Channels of a store mixed in one ray (classify/channels.rs): up to eight, component k of
 // `channels` (k < 4) or k - 4 of `channels_hi` over channel k's own range, with its transfer
 // function in row k of `channel_tf`. Frames without channels bind stand-ins and never read them;
