@@ -193,15 +193,18 @@ PY
     done
     s "info $big"; tm timeout 30 "$V" info "$S/p$big.ome.zarr" >>"$L" 2>&1
     repack
-    for c in "big_auto|$big|2048|auto|60" "small_auto|$small|512|auto|60" "small_finest|$small|512|finest|90" \
-        "big_finest|$big|2048|finest|150"; do
-        IFS='|' read -r name n budget lod limit <<<"$c"
+    # big_auto_every: the same frame with every plane sampled (VELLUM_LOD_STEPS=0), against which
+    # big_auto's steps over planes at coarse levels are judged.
+    for c in "big_auto|$big|2048|auto|60|1" "big_auto_every|$big|2048|auto|60|0" \
+        "small_auto|$small|512|auto|60|1" "small_finest|$small|512|finest|90|1" \
+        "big_finest|$big|2048|finest|150|1"; do
+        IFS='|' read -r name n budget lod limit steps <<<"$c"
         s "render $name"
-        VELLUM_STREAM_FLOOR=1 tm timeout "$limit" "$V" render "$S/p$n.ome.zarr" $V_ARGS \
+        VELLUM_LOD_STEPS=$steps VELLUM_STREAM_FLOOR=1 tm timeout "$limit" "$V" render "$S/p$n.ome.zarr" $V_ARGS \
             --gpu-budget "$budget" --lod "$lod" --json --out "$S/$name.png" \
             >"$R/stream_$name.json" 2>>"$L"
         tail -1 "$R/stream_$name.json" >>"$L"
-        [ "$name" = big_auto ] && cp "$S/$name.png" "$R/stream_big_auto.png" 2>/dev/null
+        case $name in big_auto*) cp "$S/$name.png" "$R/stream_$name.png" 2>/dev/null ;; esac
         repack
     done
     # STREAM_CHUNKED=0 leaves the chunked passes out (a rerun of the renders alone).
