@@ -438,13 +438,17 @@ impl Multiscale {
         let n = grid.iter().product::<usize>();
         let array = &self.arrays[level];
         let store = array.storage();
-        let held = |i: usize| {
-            let mut index = self.lead.clone();
-            let c = [
+        // Chunk i's place in the grid (x fastest).
+        let place = |i: usize| {
+            [
                 i % grid[0],
                 (i / grid[0]) % grid[1],
                 i / (grid[0] * grid[1]),
-            ];
+            ]
+        };
+        let held = |i: usize| {
+            let mut index = self.lead.clone();
+            let c = place(i);
             index.extend([c[2], c[1], c[0]].map(|v| v as u64));
             store.holds_locally(&array.chunk_key(&index))
         };
@@ -460,11 +464,7 @@ impl Multiscale {
                 value: 0.0,
             }));
         };
-        let c = [
-            i % grid[0],
-            (i / grid[0]) % grid[1],
-            i / (grid[0] * grid[1]),
-        ];
+        let c = place(i);
         let lo: [usize; 3] = std::array::from_fn(|a| c[a] * l.chunk[a]);
         let one: [usize; 3] = std::array::from_fn(|a| l.chunk[a].min(1));
         let voxel = self.read_box(level, lo, one)?;
