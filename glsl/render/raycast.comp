@@ -47,8 +47,6 @@ layout(set = 0, binding = 17) readonly buffer LabelVoxels { uint label_words[]; 
 layout(set = 0, binding = 18) readonly buffer LabelTable { uint label_table[]; };
 const uint MODE_WAIT = 1u;
 const uint MODE_RESUME = 2u;
-// A level coarser than the planes is sampled on every `steps_of(level)`-th plane only.
-const uint MODE_LOD_STEPS = 4u;
 // A resumed pass of a bricked frame that waits runs one workgroup per tile of 8 x 8 rays that
 // ray_wake.comp listed (after its indirect dispatch's arguments and the tiles' flags): the tiles
 // with a ray that a brick let go on. Other frames bind a stand-in and never read it.
@@ -222,7 +220,7 @@ int level_at(float t) {
     return want;
 }
 
-// MODE_LOD_STEPS: the samples that want a level coarser than the one the planes are chosen for
+// V_LOD_STEPS: the samples that want a level coarser than the one the planes are chosen for
 // lie on every `ray_step`-th plane only (plane indices m a multiple of it, from a phase of the
 // pixel's), so that each level is sampled as densely, per its voxel, as the planes sample theirs
 // (GigaVoxels and the ray-guided renderers widen their steps with the level); the opacity
@@ -763,7 +761,7 @@ void main() {
             }
             for (; m <= m_last; m += 1.0) {
                 t = a + b * m;
-                if (V_LOD_STEPS && (pt_mode & MODE_LOD_STEPS) != 0u) {
+                if (V_LOD_STEPS) {
                     // On to the next plane of the step of the level this sample wants.
                     if (t >= step_until) {
                         int want = level_at(t);

@@ -51,7 +51,7 @@ const bool V_WALK_BATCH = (VARIANT & 32768u) != 0u;
 // filtered intensity blends one of its voxels add nothing (raycast.comp's `screened`).
 const bool V_LABELS_SCREEN = (VARIANT & 524288u) != 0u;
 // Bricked, by the level-of-detail rule: samples that want a coarser level than the planes' step
-// over planes (raycast.comp's MODE_LOD_STEPS, which it still checks).
+// over planes (raycast.comp's `steps_of`, from the planes' level in the page table's header).
 const bool V_LOD_STEPS = (VARIANT & 1048576u) != 0u;
 // Channels of a store mixed in one ray (classify/channels.rs): up to eight, component k of
 // `channels` (k < 4) or k - 4 of `channels_hi` over channel k's own range, with its transfer

@@ -50,10 +50,6 @@ pub(crate) const MODE_WAIT: u32 = 1;
 /// Mode bit: rays continue from the state the previous pass of this frame saved (with
 /// [`MODE_WAIT`], only the tiles `ray_wake.comp` listed).
 pub(crate) const MODE_RESUME: u32 = 2;
-/// Mode bit, set by [`Paged::header`] from [`Paged::lod_steps`]: samples that want a level
-/// coarser than the planes' lie on every few planes only (`steps_of` in raycast.comp). Bits 8-11
-/// of the mode word hold the planes' level.
-pub(crate) const MODE_LOD_STEPS: u32 = 4;
 /// Feedback flag: a resident brick was read (`USED_BIT` in raycast.comp); a missing brick some
 /// ray asked for reads 1. (Plain stores, not counts: a CPU device runs atomics lane by lane.)
 pub(crate) const USED_BIT: u32 = 1 << 31;
@@ -606,7 +602,9 @@ impl Paged {
             levels.len() as u32,
             vellum_volume::bricks::BRICK as u32,
             SLOT as u32,
-            self.mode | if self.lod_steps { MODE_LOD_STEPS } else { 0 } | (planes as u32) << 8,
+            // Bits 8-11: the planes' level, from which the ray caster's `LOD_STEPS` variant
+            // (`Paged::lod_steps`) steps the samples of coarser levels (`steps_of`).
+            self.mode | (planes as u32) << 8,
             self.grid[0] as u32,
             self.grid[1] as u32,
             a.to_bits(),
