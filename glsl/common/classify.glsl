@@ -23,9 +23,22 @@ float correct_opacity(float alpha, float ratio) {
     return 1.0 - pow(max(1.0 - alpha, 0.0), ratio);
 }
 
+// Transfer-function tables hold their function at the knots i / 255 (src/classify/transfer.rs,
+// `table`), so a value of 0 reads exactly the function at 0 and 1 reads it at 1. This maps a value
+// in [0, 1] onto the texture coordinate that interpolates between those knots.
+const float TF_TEXELS = 256.0;
+float tf_coord(float s) {
+    return (clamp(s, 0.0, 1.0) * (TF_TEXELS - 1.0) + 0.5) / TF_TEXELS;
+}
+
+// Texel pair (i, i + 1) whose knots enclose value s: the entry of a bounds table for s.
+int tf_pair(float s) {
+    return clamp(int(floor(s * (TF_TEXELS - 1.0))), 0, 255);
+}
+
 // Texture coordinate of the occlusion transfer function for intensity s and occlusion o (OS4).
 vec2 occlusion_tf_coord(float s, float occlusion) {
-    return vec2(s, occlusion);
+    return vec2(tf_coord(s), tf_coord(occlusion));
 }
 
 // Colour (straight) and opacity of a sample whose transfer function (1D, or the occlusion one)

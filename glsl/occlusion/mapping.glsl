@@ -6,7 +6,7 @@ float visibility(float s, OcclusionPush pc) {
         return clamp((s - pc.t0) / max(pc.t1 - pc.t0, 1e-6), 0.0, 1.0);
     }
     if (pc.mapping == 2) {
-        return tf_alpha[clamp(int(s * 256.0), 0, 255)];
+        return tf_alpha[clamp(int(floor(s * 255.0 + 0.5)), 0, 255)]; // the nearest knot i / 255
     }
     return clamp(s, 0.0, 1.0);
 }

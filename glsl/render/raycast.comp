@@ -522,9 +522,9 @@ vec4 channel_projection(vec3 o, vec3 dir, float a, float b, inout float m, float
 }
 
 // The bounds table's opacity bound for a sample of value s (the larger of the two transfer-function
-// texels linear filtering blends there).
+// knots linear filtering blends there).
 float opacity_bound(float s) {
-    return uintBitsToFloat(ray_tables[clamp(int(floor(s * 256.0 - 0.5)), 0, 255)]);
+    return uintBitsToFloat(ray_tables[tf_pair(s)]);
 }
 
 // Whether a sample of value s, with opacity bound `bound`, may add to a layer: it counts (one

@@ -94,7 +94,7 @@ bool channels_may_show(float a_min) {
     int n = CHANNEL_COUNT;
     float bound = 0.0;
     for (int k = 0; k < n; k++) {
-        int i = clamp(int(floor(channel_value(k) * 256.0 - 0.5)), 0, 255);
+        int i = tf_pair(channel_value(k));
         bound = max(bound, uintBitsToFloat(channel_bounds[256 * k + i]));
     }
     return bound * float(n) >= a_min;
@@ -102,7 +102,7 @@ bool channels_may_show(float a_min) {
 
 // Channel k's class of value v (straight colour, opacity).
 vec4 channel_class(int k, float v) {
-    return textureLod(channel_tf, vec2(v, (float(k) + 0.5) / float(CHANNEL_COUNT)), 0.0);
+    return textureLod(channel_tf, vec2(tf_coord(v), (float(k) + 0.5) / float(CHANNEL_COUNT)), 0.0);
 }
 
 // The channels' classes of the fetched sample mixed by `over` into one sample's straight colour
@@ -158,9 +158,9 @@ vec4 classify(float s, bool focus) {
         rgba = textureLod(occlusion_tf, occlusion_tf_coord(s, textureLod(occlusion, tex, 0.0).r), 0.0);
     } else {
 #ifdef RAYCAST
-        rgba = V_CHANNELS ? mixed_channels() : textureLod(transfer, vec2(s, 0.5), 0.0);
+        rgba = V_CHANNELS ? mixed_channels() : textureLod(transfer, vec2(tf_coord(s), 0.5), 0.0);
 #else
-        rgba = textureLod(transfer, vec2(s, 0.5), 0.0);
+        rgba = textureLod(transfer, vec2(tf_coord(s), 0.5), 0.0);
 #endif
     }
     if (V_MOD_OPACITY && u.mod_flags.y != 0 && modulated(focus)) {

@@ -258,10 +258,10 @@ fn default_tf(
 }
 
 /// A ramp in `colour`: transparent up to `lo`, opacity rising to 1 at `hi` (both on the
-/// channel's normalised range). The lowest texel (centred at 1/512) stays transparent, so that
-/// the empty background of a channel adds nothing along a ray.
+/// channel's normalised range). The two lowest texels (knots 0 and 1/255) stay transparent, so
+/// that the empty background of a channel adds nothing along a ray and its bricks are skipped.
 pub fn ramp(colour: [f32; 3], [lo, hi]: [f32; 2]) -> Result<TransferFunction> {
-    let lo = lo.max(1.0 / crate::classify::transfer::TF_SIZE as f32);
+    let lo = lo.max(1.0 / (crate::classify::transfer::TF_SIZE - 1) as f32);
     let hi = hi.max(lo + 1e-3).min(1.0);
     let mut points = vec![ControlPoint {
         x: 0.0,

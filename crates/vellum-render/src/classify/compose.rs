@@ -72,9 +72,9 @@ fn unit(x: f64) -> f32 {
     x.clamp(0.0, 1.0) as f32
 }
 
-/// The centre of bin `i` of a 256-entry axis on [0, 1], as the textures sample it.
+/// Knot `i` of a 256-entry axis on [0, 1]: the value entry `i` holds (`TransferFunction::table`).
 fn centre(i: usize) -> f64 {
-    (i as f64 + 0.5) / TABLE_SIZE as f64
+    i as f64 / (TABLE_SIZE - 1) as f64
 }
 
 /// Checks the map and the feature volume's range before composing.
@@ -132,10 +132,10 @@ enum Column {
     Feature([f32; 4]),
 }
 
-/// One row of an occlusion TF at normalised intensity `u`, linear between bin centres and
-/// clamped at the ends, as a linearly filtered texture reads it.
+/// One row of an occlusion TF at normalised intensity `u`, linear between knots and clamped at
+/// the ends, as the shaders read it.
 fn along_intensity(row: &[[f32; 4]], u: f32) -> [f32; 4] {
-    let x = (u * TABLE_SIZE as f32 - 0.5).clamp(0.0, (TABLE_SIZE - 1) as f32);
+    let x = (u * (TABLE_SIZE - 1) as f32).clamp(0.0, (TABLE_SIZE - 1) as f32);
     let (i, t) = (x.floor() as usize, x.fract());
     let j = (i + 1).min(TABLE_SIZE - 1);
     std::array::from_fn(|k| row[i][k] + t * (row[j][k] - row[i][k]))
@@ -202,8 +202,8 @@ mod tests {
                 let got = table[oi * TABLE_SIZE + si];
                 let u = (v / 255.0) as f32;
                 let o = centre(oi) as f32;
-                // Linear between bin centres: exact for this table, which is linear in s.
-                let want = [u.clamp(0.5 / 256.0, 255.5 / 256.0), o, 0.5];
+                // Linear between knots: exact for this table, which is linear in s.
+                let want = [u, o, 0.5];
                 for k in 0..3 {
                     assert!(
                         (got[k] - want[k]).abs() < 1e-5,
@@ -221,7 +221,7 @@ mod tests {
         let tf = feature_transfer_function(&map(), range)
             .unwrap()
             .table(TABLE_SIZE);
-        let bin = |v: f64| ((v / 318.0) * 256.0) as usize;
+        let bin = |v: f64| ((v / 318.0) * 255.0).round() as usize;
         for v in [270.0, 290.0, 317.0] {
             for oi in [0usize, 77, 255] {
                 let got = table[oi * TABLE_SIZE + bin(v)];

@@ -167,7 +167,7 @@ mod tests {
         assert_eq!(at(290.0)[3], 0.0);
         // The 256-entry table the renderer uploads resolves the steps to one bin.
         let table = tf.table(256);
-        let bin = |v: f32| table[(v / 1000.0 * 256.0) as usize];
+        let bin = |v: f32| table[(v / 1000.0 * 255.0).round() as usize];
         assert_eq!(bin(400.0), [1.0, 0.9, 0.6, FEATURE_OPACITY]);
         assert_eq!(bin(280.0)[3], 0.0);
     }

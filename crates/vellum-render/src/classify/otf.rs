@@ -197,7 +197,7 @@ impl OcclusionTf {
             .map(TransferFunction::from_arg)
             .transpose()?;
         let mut table = vec![[0f32; 4]; TABLE_SIZE * TABLE_SIZE];
-        let at = |i: usize| (i as f32 + 0.5) / TABLE_SIZE as f32;
+        let at = |i: usize| i as f32 / (TABLE_SIZE - 1) as f32; // knots, as `TransferFunction::table`
         for oi in 0..TABLE_SIZE {
             for si in 0..TABLE_SIZE {
                 let (s, o) = (at(si), at(oi));
@@ -265,7 +265,7 @@ mod tests {
         // Under the curve: opaque near occlusion 0.8, transparent far from it.
         assert!(at(200, 204)[3] > 0.7 && at(200, 50)[3] < 1e-3);
         // Outside the curve's interval, α_o = 1: the grey ramp's alpha is untouched.
-        assert!((at(64, 10)[3] - (64.5 / 256.0)).abs() < 0.01);
+        assert!((at(64, 10)[3] - (64.0 / 255.0)).abs() < 1e-6);
     }
 
     #[test]

@@ -193,18 +193,19 @@ impl TransferFunction {
         std::array::from_fn(|c| a.rgba[c] + t * (b.rgba[c] - a.rgba[c]))
     }
 
-    /// `n` entries sampled at bin centres `(i + 0.5) / n`, for a 1D texture of width `n` addressed
-    /// with normalised coordinates.
+    /// `n` entries sampled at the knots `i / (n − 1)`, so that entry 0 is the function at 0 and
+    /// the last at 1. The shaders read the texture at `(s (n − 1) + 0.5) / n` (`tf_coord` in
+    /// glsl/common/classify.glsl), which interpolates linearly between knots: a value of 0 gets
+    /// exactly the function's opacity at 0, not the opacity half a texel above it.
     pub fn table(&self, n: usize) -> Vec<[f32; 4]> {
-        (0..n)
-            .map(|i| self.sample((i as f32 + 0.5) / n as f32))
-            .collect()
+        let last = n.saturating_sub(1).max(1) as f32;
+        (0..n).map(|i| self.sample(i as f32 / last)).collect()
     }
 }
 
 /// Per texel i of a 256-texel transfer function, the larger opacity of texels i and i + 1: a
-/// bound on every opacity linear filtering returns for intensities between their centres (and
-/// below the first centre or above the last, where it clamps). The ray caster's walk tests samples
+/// bound on every opacity linear filtering returns for intensities between their knots i / 255
+/// and (i + 1) / 255 (`tf_pair` in glsl/common/classify.glsl picks the entry). The ray caster's walk tests samples
 /// against it before classifying them (`render::raycast`; per channel, `classify::channels`).
 pub(crate) fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
     let mut out = [0.0f32; 256];
@@ -269,14 +270,17 @@ mod tests {
     }
 
     #[test]
-    fn table_samples_bin_centres() {
+    fn table_samples_knots() {
         let grey = TransferFunction::preset("grey").unwrap();
         let t = grey.table(4);
         assert_eq!(t.len(), 4);
         for (i, v) in t.iter().enumerate() {
-            let x = (i as f32 + 0.5) / 4.0;
+            let x = i as f32 / 3.0;
             assert!(close(*v, [x; 4]));
         }
+        // A ramp from 0 is transparent at 0: empty space adds nothing.
+        assert_eq!(grey.table(256)[0][3], 0.0);
+        assert_eq!(grey.table(256)[255][3], 1.0);
         assert!(grey.table(0).is_empty());
     }
 

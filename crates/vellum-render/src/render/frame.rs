@@ -383,14 +383,22 @@ fn all_focus(r: &[u16; 2], focus: [f32; 3]) -> bool {
     }
 }
 
+/// The first and last entries of an `n`-entry transfer-function table (knots at i / (n − 1))
+/// that linear filtering blends for samples in the u16 range `r`. Filtering never leaves the range
+/// of the texels it blends, and the ranges are of the very texels the GPU samples, so no margin is
+/// needed: a brick of zeros touches knot 0 alone. (At n = 256, knot i is the u16 value 257 i.)
+fn knots_touched(n: usize, r: [u16; 2]) -> (usize, usize) {
+    let m = n.saturating_sub(1) as u64;
+    let first = (r[0] as u64 * m / 65535) as usize;
+    let last = ((r[1] as u64 * m).div_ceil(65535) as usize).min(n.saturating_sub(1));
+    (first.min(last), last)
+}
+
 /// Whether the 1D transfer function gives any opacity to intensities in range `r`: the table
 /// entries that linear filtering blends for samples in the range.
 fn any_opacity(table: &[[f32; 4]], r: &[u16; 2]) -> bool {
-    let (mn, mx) = widened(r);
-    let n = table.len() as f32;
-    let first = ((mn * n - 0.5).floor().max(0.0)) as usize;
-    let last = ((mx * n + 0.5).ceil() as usize).min(table.len() - 1);
-    table[first.min(last)..=last].iter().any(|c| c[3] > 0.0)
+    let (first, last) = knots_touched(table.len(), *r);
+    table[first..=last].iter().any(|c| c[3] > 0.0)
 }
 
 /// Bricks kept above this fraction are drawn as the whole box instead: rasterising many small
@@ -1310,13 +1318,9 @@ fn opaque_before(table: &[[f32; 4]]) -> Vec<u32> {
     out
 }
 
-/// Whether a table of `opaque_before` gives some value of the widened range `r` opacity.
+/// Whether a table of `opaque_before` gives some value of the range `r` opacity.
 fn opaque_in(opaque_before: &[u32], r: [u16; 2]) -> bool {
-    let n = opaque_before.len() - 1;
-    let (mn, mx) = widened(&r);
-    let first = ((mn * n as f32 - 0.5).floor().max(0.0)) as usize;
-    let last = ((mx * n as f32 + 0.5).ceil() as usize).min(n - 1);
-    let first = first.min(last);
+    let (first, last) = knots_touched(opaque_before.len() - 1, r);
     opaque_before[last + 1] > opaque_before[first]
 }
 
@@ -1717,5 +1721,16 @@ mod tests {
             .collect();
         assert!(!any_opacity(&table, &[0, 30000]));
         assert!(any_opacity(&table, &[0, 33000]));
+        // A ramp from 0: a brick of zeros is empty, one reaching a step above is not.
+        let ramp: Vec<[f32; 4]> = (0..256)
+            .map(|i| [1.0, 1.0, 1.0, i as f32 / 255.0])
+            .collect();
+        assert!(!any_opacity(&ramp, &[0, 0]));
+        assert!(any_opacity(&ramp, &[0, 1]));
+        assert_eq!(knots_touched(256, [257, 514]), (1, 2));
+        assert_eq!(knots_touched(256, [256, 515]), (0, 3));
+        assert_eq!(knots_touched(256, [65535, 65535]), (255, 255));
+        let before = opaque_before(&ramp);
+        assert!(!opaque_in(&before, [0, 0]) && opaque_in(&before, [0, 1]));
     }
 }

@@ -16,7 +16,7 @@ pub enum Visibility {
         /// The upper cut-off.
         t1: f32,
     },
-    /// M(s) = opacity of a transfer function, 256 entries over [0, 1].
+    /// M(s) = opacity of a transfer function, 256 entries at the knots i / 255, the nearest taken.
     Table(Vec<f32>),
 }
 
@@ -26,7 +26,7 @@ impl Visibility {
         match self {
             Visibility::Ramp => s.clamp(0.0, 1.0),
             Visibility::Truncated { t0, t1 } => ((s - t0) / (t1 - t0).max(1e-6)).clamp(0.0, 1.0),
-            Visibility::Table(t) => t[((s * 256.0) as i64).clamp(0, 255) as usize],
+            Visibility::Table(t) => t[((s * 255.0 + 0.5).floor() as i64).clamp(0, 255) as usize],
         }
     }
 }
