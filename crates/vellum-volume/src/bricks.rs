@@ -1193,6 +1193,13 @@ impl BrickCache {
         self.capacity
     }
 
+    /// Slots that no brick holds yet (outside the pinned ones): placing this many evicts nothing.
+    pub fn free_slots(&self) -> usize {
+        (self.pinned..self.capacity)
+            .filter(|&s| !self.shared[s] && self.owner[s].is_none())
+            .count()
+    }
+
     /// Bricks resident now (those sharing a constant slot included).
     pub fn resident(&self) -> usize {
         self.slot_of.len()
@@ -1549,7 +1556,9 @@ mod tests {
         assert_eq!(pinned, vec![8]);
         let up = |s| Some(Placement::Upload(s));
         assert_eq!(cache.place(&[arrive(8)]), vec![up(0)]);
+        assert_eq!(cache.free_slots(), 2, "the pinned slot is not counted");
         assert_eq!(cache.place(&[arrive(1), arrive(0)]), vec![up(1), up(2)]);
+        assert_eq!(cache.free_slots(), 0);
         // Brick 1 used again, 2 new: 0 is the victim; then 3 replaces 1, never 8.
         cache.touch(&[1]);
         assert_eq!(cache.place(&[arrive(2)]), vec![up(2)]);
