@@ -33,7 +33,7 @@ float tf_coord(float s) {
 
 // Texel pair (i, i + 1) whose knots enclose value s: the entry of a bounds table for s.
 int tf_pair(float s) {
-    return clamp(int(floor(s * (TF_TEXELS - 1.0))), 0, 255);
+    return clamp(int(floor(s * (TF_TEXELS - 1.0))), 0, int(TF_TEXELS) - 1);
 }
 
 // Texture coordinate of the occlusion transfer function for intensity s and occlusion o (OS4).

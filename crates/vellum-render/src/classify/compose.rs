@@ -73,7 +73,7 @@ fn unit(x: f64) -> f32 {
 }
 
 /// Knot `i` of a 256-entry axis on [0, 1]: the value entry `i` holds (`TransferFunction::table`).
-fn centre(i: usize) -> f64 {
+fn knot(i: usize) -> f64 {
     i as f64 / (TABLE_SIZE - 1) as f64
 }
 
@@ -107,7 +107,7 @@ pub(crate) fn composed_table(
     let origin = Origin::new(map);
     let columns: Vec<Column> = (0..TABLE_SIZE)
         .map(|si| {
-            let v = range[0] + centre(si) * (range[1] - range[0]);
+            let v = range[0] + knot(si) * (range[1] - range[0]);
             match origin.context(v) {
                 Some(u) => Column::Context(u),
                 None => Column::Feature(features[si]),
@@ -153,7 +153,7 @@ pub(crate) fn composed_visibility(
     let origin = Origin::new(map);
     Ok(Visibility::Table(
         (0..TABLE_SIZE)
-            .map(|i| original.apply(origin.original(range[0] + centre(i) * (range[1] - range[0]))))
+            .map(|i| original.apply(origin.original(range[0] + knot(i) * (range[1] - range[0]))))
             .collect(),
     ))
 }
@@ -182,7 +182,7 @@ mod tests {
 
     /// An occlusion TF table whose colour encodes (s, o): rgba = (s, o, 0.5, s·o).
     fn otf() -> Vec<[f32; 4]> {
-        let c = |i: usize| centre(i) as f32;
+        let c = |i: usize| knot(i) as f32;
         (0..TABLE_SIZE * TABLE_SIZE)
             .map(|k| {
                 let (o, s) = (c(k / TABLE_SIZE), c(k % TABLE_SIZE));
@@ -196,12 +196,12 @@ mod tests {
         let range = [0.0, 318.0];
         let table = composed_table(&map(), &otf(), range).unwrap();
         for si in [0usize, 40, 100, 203] {
-            let v = range[0] + centre(si) * 318.0;
+            let v = range[0] + knot(si) * 318.0;
             assert!(v <= 255.0);
             for oi in [0usize, 128, 255] {
                 let got = table[oi * TABLE_SIZE + si];
                 let u = (v / 255.0) as f32;
-                let o = centre(oi) as f32;
+                let o = knot(oi) as f32;
                 // Linear between knots: exact for this table, which is linear in s.
                 let want = [u, o, 0.5];
                 for k in 0..3 {

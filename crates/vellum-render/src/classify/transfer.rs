@@ -205,8 +205,9 @@ impl TransferFunction {
 
 /// Per texel i of a 256-texel transfer function, the larger opacity of texels i and i + 1: a
 /// bound on every opacity linear filtering returns for intensities between their knots i / 255
-/// and (i + 1) / 255 (`tf_pair` in glsl/common/classify.glsl picks the entry). The ray caster's walk tests samples
-/// against it before classifying them (`render::raycast`; per channel, `classify::channels`).
+/// and (i + 1) / 255 (`tf_pair` in glsl/common/classify.glsl picks the entry). The ray caster's
+/// walk tests samples against it before classifying them (`render::raycast`; per channel,
+/// `classify::channels`).
 pub(crate) fn opacity_bounds(table: &[[f32; 4]]) -> [f32; 256] {
     let mut out = [0.0f32; 256];
     let n = table.len();
