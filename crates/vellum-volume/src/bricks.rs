@@ -1660,17 +1660,24 @@ mod tests {
         assert!(levels.read_small_level(1 << 12).is_ok());
     }
 
-    #[test]
-    fn brick_voxels_of_a_store_are_those_of_the_volume() {
+    /// `v` written as an OME-Zarr store of `chunk`³ chunks in a new temporary folder (kept alive
+    /// by the first), and opened.
+    fn store_of(v: &Volume, chunk: usize) -> (tempfile::TempDir, Arc<Multiscale>) {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("s.ome.zarr");
-        let v = shepp_logan(70);
         let opts = crate::io::ome_zarr::WriteOptions {
-            chunk: 24,
+            chunk,
             ..Default::default()
         };
-        crate::io::ome_zarr::write(&path, &v, &opts).unwrap();
+        crate::io::ome_zarr::write(&path, v, &opts).unwrap();
         let ms = Arc::new(Multiscale::open(&path).unwrap());
+        (dir, ms)
+    }
+
+    #[test]
+    fn brick_voxels_of_a_store_are_those_of_the_volume() {
+        let v = shepp_logan(70);
+        let (_dir, ms) = store_of(&v, 24);
         let from_store = BrickLevels::of_store(ms, 1 << 26).unwrap();
         let in_memory = BrickLevels::of_volume(v).unwrap();
         for brick in [[0, 0, 0], [1, 2, 1], [2, 2, 2]] {
@@ -1699,14 +1706,7 @@ mod tests {
             .collect();
         let bytes = Volume::new(v.dims, v.spacing, VoxelData::U8(u)).unwrap();
         for v in [v, bytes] {
-            let dir = tempfile::tempdir().unwrap();
-            let path = dir.path().join("s.ome.zarr");
-            let opts = crate::io::ome_zarr::WriteOptions {
-                chunk: 64,
-                ..Default::default()
-            };
-            crate::io::ome_zarr::write(&path, &v, &opts).unwrap();
-            let ms = Arc::new(Multiscale::open(&path).unwrap());
+            let (_dir, ms) = store_of(&v, 64);
             let absent = ms.absent_chunks(0).unwrap().unwrap();
             assert!(absent.count() > 0, "the writer left no chunk out");
 
@@ -1756,14 +1756,7 @@ mod tests {
         let u: Vec<u8> = f.iter().map(|&v| (v * 200.0) as u8).collect();
         for data in [VoxelData::F32(f), VoxelData::U8(u)] {
             let v = Volume::new([n; 3], [1.0; 3], data).unwrap();
-            let dir = tempfile::tempdir().unwrap();
-            let path = dir.path().join("s.ome.zarr");
-            let opts = crate::io::ome_zarr::WriteOptions {
-                chunk: 20,
-                ..Default::default()
-            };
-            crate::io::ome_zarr::write(&path, &v, &opts).unwrap();
-            let ms = Arc::new(Multiscale::open(&path).unwrap());
+            let (_dir, ms) = store_of(&v, 20);
             let mut from_store = BrickLevels::of_store(ms, 1 << 26).unwrap();
             let mut in_memory = BrickLevels::of_volume(v).unwrap();
             // The same range for both (the store's comes from its scan), not starting at 0.
