@@ -22,8 +22,9 @@ layout(set = 0, binding = 7) readonly buffer ImportanceMax { uint max_abs_bits; 
 vec3 tex;
 vec3 ptex;
 vec3 world;
-// The sampled level's voxel over level 0's (1 in core): opacity is corrected per voxel of the
-// level a bricked sample reads, so a coarse level looks as that level rendered in core.
+// Level 0's voxel over the wanted level's (1 in core): opacity is corrected per voxel of the
+// level a bricked sample wants, so a coarse level looks as that level rendered in core. A sample
+// whose brick is missing reads a coarser level in its stead, at the opacity of the level it wants.
 float level_ratio = 1.0;
 // The ray caster is specialised per frame set-up (render/raycast.rs, `Variant`): a CPU rasteriser
 // runs both sides of every branch its lanes diverge on, and cannot skip one whose condition is a

@@ -10,7 +10,8 @@
 //!   covers a·d + b level-0 voxels; its level is ⌊log2⌋ of that, clamped);
 //! - words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its texture to
 //!   voxel scale along x, y, z, and level 0's voxel over its own (f32 bits): opacity is corrected
-//!   per voxel of the level sampled, so that a coarse level looks as that level rendered in core;
+//!   per voxel of the level a sample wants, so that a coarse level looks as that level rendered
+//!   in core (a sample drawn from a coarser level, its brick missing, keeps its own level's);
 //! - from word `HEADER`: two words per entry. The first: when the brick is resident
 //!   (`RESIDENT_BIT`) its slot's place along x, y and z of the pool in bits 0-7, 8-15 and 16-23,
 //!   and when the brick's range is known (`KNOWN_BIT`) what it may hold under this frame's
