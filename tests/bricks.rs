@@ -6,7 +6,8 @@
 //!   an image-space style and jitter, on the phantoms, the CT head and the chest;
 //! - a frame cut short by `max_wait` is not complete and says so, and still covers the volume
 //!   (from coarser levels, each at the opacity of the level its rays want: as opaque as the
-//!   complete frame, within 2 % of its summed alpha);
+//!   complete frame, within 2 % of its summed alpha); a missing brick drawn from the coarser
+//!   brick its page-table word names draws what the walk over the levels draws;
 //! - a phantom streamed into a store chunk by chunk equals the same phantom written whole, and
 //!   converting it stays far below its size in memory;
 //! - a store rendered through the cache from the command line equals the in-core render;
@@ -314,6 +315,41 @@ fn a_missing_brick_drawn_from_a_coarser_level_keeps_the_opacity_of_its_own() {
     let ratio = alpha(&got) / alpha(&want);
     println!("cut short against complete, summed alpha: {ratio:.4}");
     assert!((0.98..=1.02).contains(&ratio), "{ratio}");
+}
+
+/// A missing brick's page-table word names the finest resident coarser brick that holds it,
+/// where the ray caster's walk over the coarser levels starts: with level-1 bricks resident and
+/// level-0 bricks missing under them, the frame drawn so equals, texel for texel, the one whose
+/// walks all start at the level above (`Paged::held` off).
+#[test]
+fn a_walk_from_the_named_holder_draws_what_a_walk_from_the_level_above_draws() {
+    let gpu = Gpu::new();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let levels = BrickLevels::of_volume(phantom::shepp_logan(128)).unwrap();
+    let mut bricked = grey_pyramid(&gpu, levels);
+    // Close up, so that rays want level 0 near the eye and level 1 further on.
+    let view = View {
+        size: [96, 96],
+        ..view("30,20,1.6", true, None, None)
+    };
+    // Two frames cut short: the second places the bricks the first asked for, of both levels.
+    let zero = Some(std::time::Duration::ZERO);
+    bricked.render(&mut renderer, &view, zero);
+    bricked.render(&mut renderer, &view, zero);
+    let named = bricked.paged().holders_named();
+    assert!(
+        named[1] > 0 && named[2] > 0,
+        "holders named per level: {named:?}"
+    );
+    let mut draw = |b: &mut Bricked| {
+        let (vol, classify) = (&b.scene.volume, &mut b.scene.classify);
+        renderer.render_frame(vol, classify, &view, true).unwrap()
+    };
+    let named_first = draw(&mut bricked);
+    bricked.paged().held = false;
+    let above_first = draw(&mut bricked);
+    let (mean, max) = diff8(&named_first, &above_first);
+    assert_eq!(max, 0, "mean {mean}/255");
 }
 
 #[test]

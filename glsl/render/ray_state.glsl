@@ -15,9 +15,10 @@ const int PT_HEADER = 8 + 8 * 16;
 const int PT_ENTRY_WORDS = 2;
 // An entry's first word: RESIDENT, with the brick's slot along x, y and z of the pool in bits
 // 0-7, 8-15 and 16-23; KNOWN: the brick's range is known, and bits 24 and 25 say whether it may
-// hold visible context (or one-pass) samples and focus. Its second word, read when KNOWN: the same
-// per sub-block of the brick's 2 x 2 x 2, bit i visible and bit 8 + i focus for sub-block
-// qx + 2 qy + 4 qz.
+// hold visible context (or one-pass) samples and focus; not RESIDENT, bits 28-31 may name the
+// level of a resident coarser brick that holds the whole brick. Its second word, read when
+// KNOWN: the same per sub-block of the brick's 2 x 2 x 2, bit i visible and bit 8 + i focus for
+// sub-block qx + 2 qy + 4 qz.
 const uint KNOWN = 0x4000000u;
 const uint RESIDENT = 0x8000000u;
 

@@ -1362,6 +1362,8 @@ pub fn widened_ranges(
     (counts, range)
 }
 
+mod nesting;
+
 #[cfg(test)]
 mod tests {
     use super::*;

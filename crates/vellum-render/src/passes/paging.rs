@@ -16,8 +16,12 @@
 //!   (`RESIDENT_BIT`) its slot's place along x, y and z of the pool in bits 0-7, 8-15 and 16-23,
 //!   and when the brick's range is known (`KNOWN_BIT`) what it may hold under this frame's
 //!   classification (bit 24: visible context or one-pass samples, bit 25: focus), so that a ray
-//!   walks past a brick that holds nothing for it, resident or not, without asking for it. The
-//!   second, read only when the range is known: the same for each of the brick's 2×2×2
+//!   walks past a brick that holds nothing for it, resident or not, without asking for it. When
+//!   the brick is missing, bits 28-31 may name the level of the finest resident coarser brick
+//!   that holds all of its samples (`HELD_SHIFT`, `volume::bricks::BrickLevels::holder`): the
+//!   ray caster's walk over the coarser levels for a sample of
+//!   the missing brick starts at that level, and ends there (with none named, 0, it starts at
+//!   the level above). The second, read only when the range is known: the same for each of the brick's 2×2×2
 //!   sub-blocks (`volume::bricks::SUB`), bit i visible and bit 8 + i focus for sub-block i, so
 //!   that a ray also walks past the empty eighths of a brick that is not all empty.
 //!
@@ -36,8 +40,8 @@ use vellum_gpu::{
     ImageDesc,
 };
 use vellum_volume::bricks::{
-    BrickCache, BrickData, BrickLevels, BrickVoxels, MAX_LEVELS, SLOT, SLOT_BYTES, UNKNOWN_RANGE,
-    UPLOAD,
+    BrickCache, BrickData, BrickKey, BrickLevels, BrickVoxels, MAX_LEVELS, SLOT, SLOT_BYTES,
+    UNKNOWN_RANGE, UPLOAD,
 };
 
 /// What a brick may hold under a frame's classification, from its range and its mixed channels'
@@ -59,6 +63,12 @@ pub(crate) const KNOWN_BIT: u32 = 1 << 26;
 /// Page-table word: the brick is resident, its slot along x, y, z of the pool in bits 0-7, 8-15
 /// and 16-23 (so that the shader finds its texels without dividing).
 pub(crate) const RESIDENT_BIT: u32 = 1 << 27;
+/// Page-table word of a missing brick: bits from here on hold the level of the finest resident
+/// coarser brick that holds the missing one whole, so that the ray caster's walk over the levels starts there and ends at its first step (0: none found;
+/// the walk starts at the level above).
+pub(crate) const HELD_SHIFT: u32 = 28;
+/// The bits of a missing brick's word that name its holder's level.
+const HELD_BITS: u32 = 0xf000_0000;
 /// Page-table sub-block word: every sub-block may hold anything.
 const SUB_ALL: u32 = 0xffff;
 /// Bricks one dispatch of `brick_fill` writes at most (its workgroup rows).
@@ -219,6 +229,11 @@ pub struct Paged {
     /// variant). On by default on a GPU, where it beat `reuse` (1.23 against 1.41 ms on an H200,
     /// BENCHMARKS.md); off on lavapipe, like `reuse`. `VELLUM_BRICK_SPAN=0|1` overrides.
     pub span: bool,
+    /// A missing brick's page-table word names the finest resident coarser brick that holds it
+    /// whole (`HELD_SHIFT`), where the ray caster's walk over the coarser levels then starts.
+    /// On by default; `VELLUM_BRICK_HELD=0` starts every walk at the level above, for measuring
+    /// and for the tests that compare the two.
+    pub held: bool,
 }
 
 /// Words of the page table per entry.
@@ -372,6 +387,7 @@ impl PagedVolume {
                 pool_bytes: (capacity * slot_bytes) as u64,
                 reuse: brick_reuse(&ctx.info),
                 span: brick_span(&ctx.info),
+                held: std::env::var("VELLUM_BRICK_HELD").as_deref() != Ok("0"),
             },
             channels,
             labels,
@@ -597,7 +613,6 @@ impl Paged {
         let levels = self.levels.levels();
         let (a, b) = if self.finest { (0.0, 0.0) } else { lod };
         let mut words = [0u32; HEADER];
-        let dims0 = levels[0].dims;
         let s0 = levels[0].spacing;
         words[..8].copy_from_slice(&[
             levels.len() as u32,
@@ -613,8 +628,7 @@ impl Paged {
         ]);
         for (i, l) in levels.iter().enumerate() {
             // Texture coordinate (0..1 over level 0's box) to this level's voxel units.
-            let scale: [f32; 3] =
-                std::array::from_fn(|k| (dims0[k] as f64 * s0[k] / l.spacing[k]) as f32);
+            let scale = self.levels.texture_scale(i);
             let w = &mut words[8 + 8 * i..16 + 8 * i];
             w[..4].copy_from_slice(&[
                 l.first as u32,
@@ -645,6 +659,8 @@ impl Paged {
     ) {
         let (epoch, changes) = self.cache.changes();
         let n = self.cache.page_table.len();
+        // Words made with holders named and without are not each other's.
+        let key = key ^ u64::from(self.held);
         match kept.made {
             Some((i, k, e, seen))
                 if (i, k, e) == (id, key, epoch)
@@ -652,11 +668,24 @@ impl Paged {
                     && kept.words.len() == ENTRY_WORDS * n =>
             {
                 for &entry in &changes[seen..] {
-                    let at = ENTRY_WORDS * entry;
-                    kept.words[at..at + ENTRY_WORDS].copy_from_slice(&self.page_word(entry, flags));
+                    self.remake(entry, flags, &mut kept.words);
+                    // A brick that came or went changes what the finer missing bricks it holds
+                    // are drawn from (coarser ones first: each reads its holder's word).
+                    let Some(k) = self.levels.key(entry).filter(|k| k.level > 0) else {
+                        continue;
+                    };
+                    for e in self.levels.finer_overlapping(k) {
+                        self.remake(e, flags, &mut kept.words);
+                    }
                 }
             }
-            _ => kept.words = (0..n).flat_map(|e| self.page_word(e, flags)).collect(),
+            _ => {
+                kept.words = vec![0; ENTRY_WORDS * n];
+                // The coarsest level's entries come last: make them first.
+                for e in (0..n).rev() {
+                    self.remake(e, flags, &mut kept.words);
+                }
+            }
         }
         kept.made = Some((id, key, epoch, changes.len()));
         dst.copy_from_slice(&kept.words);
@@ -666,16 +695,12 @@ impl Paged {
     /// brick whose range is known [`KNOWN_BIT`] and its `flags` (visible, may be in focus) in
     /// bits 24 and 25; then its sub-blocks' flags (bits i and 8 + i for sub-block i; all set with
     /// mixed channels, whose ranges are kept per brick only).
-    fn page_word(&self, e: usize, flags: &BrickFlagsOf) -> [u32; ENTRY_WORDS] {
+    fn page_word(&self, e: usize, flags: &BrickFlagsOf, words: &[u32]) -> [u32; ENTRY_WORDS] {
         let c = &self.cache;
-        let [gx, gy, _] = self.grid;
         let place = match c.page_table[e] {
+            0 if self.held => self.held_by(e, words),
             0 => 0,
-            s => {
-                let s = s as usize - 1;
-                let at = [s % gx, (s / gx) % gy, s / (gx * gy)].map(|v| v as u32);
-                RESIDENT_BIT | at[0] | at[1] << 8 | at[2] << 16
-            }
+            s => RESIDENT_BIT | self.slot_place(s as usize - 1),
         };
         let range = c.ranges[e];
         if range == UNKNOWN_RANGE {
@@ -688,6 +713,60 @@ impl Paged {
             return [word, SUB_ALL];
         }
         [word, sub_mask(&c.sub_ranges[e], flags)]
+    }
+
+    /// Slot `s`'s place along x, y and z of the pool, in bits 0-7, 8-15 and 16-23.
+    fn slot_place(&self, s: usize) -> u32 {
+        let [gx, gy, _] = self.grid;
+        let at = [s % gx, (s / gx) % gy, s / (gx * gy)].map(|v| v as u32);
+        at[0] | at[1] << 8 | at[2] << 16
+    }
+
+    /// Per level, how many missing bricks have a resident brick of that level named as their
+    /// holder now (the words made afresh, as a frame's first pass makes them).
+    pub fn holders_named(&self) -> Vec<usize> {
+        let n = self.cache.page_table.len();
+        let mut words = vec![0; ENTRY_WORDS * n];
+        let none = |_: [u16; 2], _: &[[u16; 2]]| 0;
+        let mut named = vec![0; self.levels.levels().len()];
+        for e in (0..n).rev() {
+            self.remake(e, &none, &mut words);
+            let w = words[ENTRY_WORDS * e];
+            if w & RESIDENT_BIT == 0 && w >> HELD_SHIFT != 0 {
+                named[(w >> HELD_SHIFT) as usize] += 1;
+            }
+        }
+        named
+    }
+
+    /// Makes entry `e`'s words in `words` again.
+    fn remake(&self, e: usize, flags: &BrickFlagsOf, words: &mut [u32]) {
+        let w = self.page_word(e, flags, words);
+        words[ENTRY_WORDS * e..ENTRY_WORDS * (e + 1)].copy_from_slice(&w);
+    }
+
+    /// For missing brick `e`: the finest resident coarser brick that holds all of its samples
+    /// (`BrickLevels::holder`), as its level from bit [`HELD_SHIFT`] on;
+    /// 0 when none is found (a level on the way does not hold it whole in one brick, which
+    /// happens only where levels do not halve exactly), and the ray caster walks from the level
+    /// above. Its holder one level up is that brick when resident, else
+    /// that brick's own holder, read from `words` (which holds the coarser levels' words).
+    fn held_by(&self, e: usize, words: &[u32]) -> u32 {
+        let Some(key) = self.levels.key(e) else {
+            return 0;
+        };
+        let level = key.level + 1;
+        if level >= self.levels.levels().len() {
+            return 0;
+        }
+        let Some(brick) = self.levels.holder(key, level) else {
+            return 0;
+        };
+        let holder = self.levels.entry(BrickKey { level, brick });
+        match self.cache.page_table[holder] {
+            0 => words[ENTRY_WORDS * holder] & HELD_BITS,
+            _ => (level as u32) << HELD_SHIFT,
+        }
     }
 
     /// What the rays of the last completed frame said: the missing bricks they asked for (with
