@@ -19,11 +19,11 @@
 //!   walks past a brick that holds nothing for it, resident or not, without asking for it. When
 //!   the brick is missing, bits 28-31 may name the level of the finest resident coarser brick
 //!   that holds all of its samples (`HELD_SHIFT`, `volume::bricks::BrickLevels::holder`): the
-//!   ray caster's walk over the coarser levels for a sample of
-//!   the missing brick starts at that level, and ends there (with none named, 0, it starts at
-//!   the level above). The second, read only when the range is known: the same for each of the brick's 2×2×2
-//!   sub-blocks (`volume::bricks::SUB`), bit i visible and bit 8 + i focus for sub-block i, so
-//!   that a ray also walks past the empty eighths of a brick that is not all empty.
+//!   ray caster's walk over the coarser levels for a sample of the missing brick starts at that
+//!   level, and ends there (with none named, 0, it starts at the level above). The second, read
+//!   only when the range is known: the same for each of the brick's 2×2×2 sub-blocks
+//!   (`volume::bricks::SUB`), bit i visible and bit 8 + i focus for sub-block i, so that a ray
+//!   also walks past the empty eighths of a brick that is not all empty.
 //!
 //! ## Uploads
 //! A brick travels as its slot's texels and one more voxel on every side, at 16 bits (8 for
@@ -64,11 +64,19 @@ pub(crate) const KNOWN_BIT: u32 = 1 << 26;
 /// and 16-23 (so that the shader finds its texels without dividing).
 pub(crate) const RESIDENT_BIT: u32 = 1 << 27;
 /// Page-table word of a missing brick: bits from here on hold the level of the finest resident
-/// coarser brick that holds the missing one whole, so that the ray caster's walk over the levels starts there and ends at its first step (0: none found;
-/// the walk starts at the level above).
+/// coarser brick that holds the missing one whole, so that the ray caster's walk over the
+/// levels starts there and ends at its first step (0: none found; the walk starts at the level
+/// above).
 pub(crate) const HELD_SHIFT: u32 = 28;
 /// The bits of a missing brick's word that name its holder's level.
 const HELD_BITS: u32 = 0xf000_0000;
+
+/// Whether a missing brick's holder is found again or kept from the word it had.
+#[derive(Copy, Clone)]
+enum Holder {
+    Find,
+    Keep,
+}
 /// Page-table sub-block word: every sub-block may hold anything.
 const SUB_ALL: u32 = 0xffff;
 /// Bricks one dispatch of `brick_fill` writes at most (its workgroup rows).
@@ -647,9 +655,11 @@ impl Paged {
     }
 
     /// The page table's words into `dst` ([`ENTRY_WORDS`] per entry, see [`Paged::page_word`]).
-    /// `id` names the volume and `key` the flags:
-    /// the words `kept` made for the same two are kept, and only those of entries the cache
-    /// changed since are made again.
+    /// `id` names the volume and `key` the flags. The words `kept` made for the same volume are
+    /// kept: those of the entries the cache changed since are made again, with those of the finer
+    /// bricks they overlap (whose holders may have changed), and when the flags moved every
+    /// word's flags are, its holder kept (holders do not depend on the flags, and finding them
+    /// all again costs a 2048³ store's 300,000 entries a walk up the levels each).
     pub(crate) fn page_words(
         &self,
         dst: &mut [u32],
@@ -660,22 +670,27 @@ impl Paged {
         let (epoch, changes) = self.cache.changes();
         let n = self.cache.page_table.len();
         // Words made with holders named and without are not each other's.
-        let key = key ^ u64::from(self.held);
+        let id = id ^ u64::from(self.held) << 63;
         match kept.made {
             Some((i, k, e, seen))
-                if (i, k, e) == (id, key, epoch)
+                if (i, e) == (id, epoch)
                     && seen <= changes.len()
                     && kept.words.len() == ENTRY_WORDS * n =>
             {
                 for &entry in &changes[seen..] {
-                    self.remake(entry, flags, &mut kept.words);
+                    self.remake(entry, flags, &mut kept.words, Holder::Find);
                     // A brick that came or went changes what the finer missing bricks it holds
                     // are drawn from (coarser ones first: each reads its holder's word).
-                    let Some(k) = self.levels.key(entry).filter(|k| k.level > 0) else {
+                    let Some(b) = self.levels.key(entry).filter(|b| b.level > 0) else {
                         continue;
                     };
-                    for e in self.levels.finer_overlapping(k) {
-                        self.remake(e, flags, &mut kept.words);
+                    for e in self.levels.finer_overlapping(b) {
+                        self.remake(e, flags, &mut kept.words, Holder::Find);
+                    }
+                }
+                if k != key {
+                    for e in 0..n {
+                        self.remake(e, flags, &mut kept.words, Holder::Keep);
                     }
                 }
             }
@@ -683,7 +698,7 @@ impl Paged {
                 kept.words = vec![0; ENTRY_WORDS * n];
                 // The coarsest level's entries come last: make them first.
                 for e in (0..n).rev() {
-                    self.remake(e, flags, &mut kept.words);
+                    self.remake(e, flags, &mut kept.words, Holder::Find);
                 }
             }
         }
@@ -695,12 +710,24 @@ impl Paged {
     /// brick whose range is known [`KNOWN_BIT`] and its `flags` (visible, may be in focus) in
     /// bits 24 and 25; then its sub-blocks' flags (bits i and 8 + i for sub-block i; all set with
     /// mixed channels, whose ranges are kept per brick only).
-    fn page_word(&self, e: usize, flags: &BrickFlagsOf, words: &[u32]) -> [u32; ENTRY_WORDS] {
+    fn page_word(
+        &self,
+        e: usize,
+        flags: &BrickFlagsOf,
+        words: &[u32],
+        h: Holder,
+    ) -> [u32; ENTRY_WORDS] {
         let c = &self.cache;
-        let place = match c.page_table[e] {
-            0 if self.held => self.held_by(e, words),
-            0 => 0,
-            s => RESIDENT_BIT | self.slot_place(s as usize - 1),
+        let [gx, gy, _] = self.grid;
+        let place = match (c.page_table[e], h) {
+            (0, _) if !self.held => 0,
+            (0, Holder::Find) => self.held_by(e, words),
+            (0, Holder::Keep) => words[ENTRY_WORDS * e] & HELD_BITS,
+            (s, _) => {
+                let s = s as usize - 1;
+                let at = [s % gx, (s / gx) % gy, s / (gx * gy)].map(|v| v as u32);
+                RESIDENT_BIT | at[0] | at[1] << 8 | at[2] << 16
+            }
         };
         let range = c.ranges[e];
         if range == UNKNOWN_RANGE {
@@ -715,13 +742,6 @@ impl Paged {
         [word, sub_mask(&c.sub_ranges[e], flags)]
     }
 
-    /// Slot `s`'s place along x, y and z of the pool, in bits 0-7, 8-15 and 16-23.
-    fn slot_place(&self, s: usize) -> u32 {
-        let [gx, gy, _] = self.grid;
-        let at = [s % gx, (s / gx) % gy, s / (gx * gy)].map(|v| v as u32);
-        at[0] | at[1] << 8 | at[2] << 16
-    }
-
     /// Per level, how many missing bricks have a resident brick of that level named as their
     /// holder now (the words made afresh, as a frame's first pass makes them).
     pub fn holders_named(&self) -> Vec<usize> {
@@ -730,7 +750,7 @@ impl Paged {
         let none = |_: [u16; 2], _: &[[u16; 2]]| 0;
         let mut named = vec![0; self.levels.levels().len()];
         for e in (0..n).rev() {
-            self.remake(e, &none, &mut words);
+            self.remake(e, &none, &mut words, Holder::Find);
             let w = words[ENTRY_WORDS * e];
             if w & RESIDENT_BIT == 0 && w >> HELD_SHIFT != 0 {
                 named[(w >> HELD_SHIFT) as usize] += 1;
@@ -740,17 +760,17 @@ impl Paged {
     }
 
     /// Makes entry `e`'s words in `words` again.
-    fn remake(&self, e: usize, flags: &BrickFlagsOf, words: &mut [u32]) {
-        let w = self.page_word(e, flags, words);
+    fn remake(&self, e: usize, flags: &BrickFlagsOf, words: &mut [u32], h: Holder) {
+        let w = self.page_word(e, flags, words, h);
         words[ENTRY_WORDS * e..ENTRY_WORDS * (e + 1)].copy_from_slice(&w);
     }
 
     /// For missing brick `e`: the finest resident coarser brick that holds all of its samples
-    /// (`BrickLevels::holder`), as its level from bit [`HELD_SHIFT`] on;
-    /// 0 when none is found (a level on the way does not hold it whole in one brick, which
-    /// happens only where levels do not halve exactly), and the ray caster walks from the level
-    /// above. Its holder one level up is that brick when resident, else
-    /// that brick's own holder, read from `words` (which holds the coarser levels' words).
+    /// (`BrickLevels::holder`), as its level from bit [`HELD_SHIFT`] on; 0 when none is found (a
+    /// level on the way does not hold it whole in one brick, which happens only where levels do
+    /// not halve exactly), and the ray caster walks from the level above. Its holder one level up
+    /// is that brick when resident, else that brick's own holder, read from `words` (which holds
+    /// the coarser levels' words).
     fn held_by(&self, e: usize, words: &[u32]) -> u32 {
         let Some(key) = self.levels.key(e) else {
             return 0;
