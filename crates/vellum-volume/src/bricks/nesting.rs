@@ -1,8 +1,8 @@
 //! How the bricks of a pyramid's levels nest, as the ray caster's lookup sees them: which brick
 //! of a coarser level holds every sample of a finer brick, and which finer bricks a coarse one
-//! overlaps. A missing brick's samples are drawn from the finest resident coarser brick that
-//! holds it whole, named in its page-table word, so that the ray caster finds it in one lookup
-//! instead of a walk over the levels; when a brick comes or goes, the words of the finer bricks
+//! overlaps. A missing brick's page-table word names the finest resident coarser brick that
+//! holds it whole, so that the ray caster's walk over the coarser levels for its samples starts
+//! there and ends at its first step; when a brick comes or goes, the words of the finer bricks
 //! it overlaps are made again.
 //!
 //! The lookup of level l places texture coordinate t (clamped into [0, 1]) at voxel
@@ -30,17 +30,10 @@ impl BrickLevels {
     /// places in brick `key` (of a finer level), or `None` when those samples may fall in more
     /// than one.
     pub fn holder(&self, key: BrickKey, coarse: usize) -> Option<[usize; 3]> {
-        let (fine, wide) = (self.texture_scale(key.level), self.texture_scale(coarse));
-        let (counts, wide_counts) = (self.levels[key.level].counts, self.levels[coarse].counts);
+        let axes = self.axes(key.level, coarse);
         let mut held = [0; 3];
         for a in 0..3 {
-            let axis = Axis {
-                fine: fine[a] as f64,
-                coarse: wide[a] as f64,
-                counts: counts[a],
-                coarse_counts: wide_counts[a],
-            };
-            held[a] = axis.holder(key.brick[a])?;
+            held[a] = axes[a].holder(key.brick[a])?;
         }
         Some(held)
     }
@@ -48,20 +41,11 @@ impl BrickLevels {
     /// The page-table entries of the levels finer than `key`'s whose bricks overlap brick
     /// `key` (a few more at the margins, never fewer), the coarser levels' first.
     pub fn finer_overlapping(&self, key: BrickKey) -> Vec<usize> {
-        let wide = self.texture_scale(key.level);
-        let wide_counts = self.levels[key.level].counts;
         let mut out = Vec::new();
         for level in (0..key.level).rev() {
-            let (fine, counts) = (self.texture_scale(level), self.levels[level].counts);
-            let span: [(usize, usize); 3] = std::array::from_fn(|a| {
-                let axis = Axis {
-                    fine: fine[a] as f64,
-                    coarse: wide[a] as f64,
-                    counts: counts[a],
-                    coarse_counts: wide_counts[a],
-                };
-                axis.overlapping(key.brick[a])
-            });
+            let axes = self.axes(level, key.level);
+            let span: [(usize, usize); 3] =
+                std::array::from_fn(|a| axes[a].overlapping(key.brick[a]));
             for z in span[2].0..=span[2].1 {
                 for y in span[1].0..=span[1].1 {
                     for x in span[0].0..=span[0].1 {
@@ -74,6 +58,17 @@ impl BrickLevels {
             }
         }
         out
+    }
+
+    /// Levels `fine` and `coarse` along x, y and z.
+    fn axes(&self, fine: usize, coarse: usize) -> [Axis; 3] {
+        let (f, c) = (self.texture_scale(fine), self.texture_scale(coarse));
+        std::array::from_fn(|a| Axis {
+            fine: f[a] as f64,
+            coarse: c[a] as f64,
+            counts: self.levels[fine].counts[a],
+            coarse_counts: self.levels[coarse].counts[a],
+        })
     }
 }
 
