@@ -21,6 +21,8 @@ const int PT_ENTRY_WORDS = 2;
 // sub-block qx + 2 qy + 4 qz.
 const uint KNOWN = 0x4000000u;
 const uint RESIDENT = 0x8000000u;
+// A missing brick's word from this bit on: the level of its holder (passes/paging.rs HELD_SHIFT).
+const uint HELD_SHIFT = 28u;
 
 // What a ray that stops at entry `entry` (page-table word `word`) keeps in flags.y.
 uint awaits_of(uint entry, uint word) {

@@ -372,12 +372,11 @@ int locate(uint skip) {
     // level wanted: it stands in for that level, so a ray through it stops about where it will
     // once the brick is in. (At the coarser level's own opacity the medium was 2^k times
     // thinner, rays went on deeper, and a view's first frames took 1.4-1.8 times as long.) The
-    // host names that level in the missing brick's word (bits 28-31, passes/paging.rs's
-    // HELD_SHIFT) where one brick of it holds the whole missing brick, as each level of a
-    // pyramid that halves exactly holds the finer one: the walk over the levels starts there and
-    // ends at its first step. (One straight lookup in the loop's place made every frame 5 %
+    // host names that level in the missing brick's word (from bit HELD_SHIFT) where one brick
+    // of it holds the whole missing brick, as each level of a pyramid that halves exactly holds
+    // the finer one: the walk over the levels starts there and ends at its first step. (One straight lookup in the loop's place made every frame 5 %
     // slower on lavapipe, even frames with nothing missing.)
-    uint held = word >> 28u;
+    uint held = word >> HELD_SHIFT;
     for (int l = held != 0u ? int(held) : want + 1; l < pt_levels; ++l) {
         int h = 8 + 8 * l;
         ivec3 counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
