@@ -317,6 +317,41 @@ fn a_missing_brick_drawn_from_a_coarser_level_keeps_the_opacity_of_its_own() {
     assert!((0.98..=1.02).contains(&ratio), "{ratio}");
 }
 
+/// A frame drawn around missing bricks takes the samples that a coarser level stands in for at
+/// that level's spacing, with their opacity corrected for the longer step (`Paged::widen`).
+/// Under a veil of one opacity, cut short at once (every sample from the coarsest level), its
+/// summed alpha is within 2 % of the frame whose samples keep the wanted level's step, and the
+/// two frames differ: the widened walk ran.
+#[test]
+fn a_frame_drawn_around_missing_bricks_samples_coarser_levels_at_their_spacing() {
+    use vellum::classify::transfer::ControlPoint;
+    let gpu = Gpu::new();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let veil = |x| ControlPoint {
+        x,
+        rgba: [1.0, 1.0, 1.0, 0.01],
+    };
+    let tf = TransferFunction::new("veil", vec![veil(0.0), veil(1.0)]).unwrap();
+    let c = Classification::Transfer(tf);
+    let pyramid = || {
+        let levels = BrickLevels::of_volume(phantom::shepp_logan(128)).unwrap();
+        bricked(&gpu, levels, &c, (Focus::None, BUDGET, false))
+    };
+    let (mut widened, mut stepped) = (pyramid(), pyramid());
+    stepped.paged().widen = false;
+    let view = view("30,20,2.5", true, None, None);
+    let zero = Some(std::time::Duration::ZERO);
+    let (a, report_a) = widened.render(&mut renderer, &view, zero);
+    let (b, report_b) = stepped.render(&mut renderer, &view, zero);
+    assert!(!report_a.complete && !report_b.complete);
+    let alpha = |f: &FrameImage| f.composite.iter().map(|p| p[3] as f64).sum::<f64>();
+    let ratio = alpha(&a) / alpha(&b);
+    let (mean, max) = diff8(&a, &b);
+    println!("widened against stepped: summed alpha {ratio:.4}, mean {mean:.3}/255, max {max}");
+    assert!((0.98..=1.02).contains(&ratio), "{ratio}");
+    assert!(max > 0, "the widened walk drew the same frame");
+}
+
 /// A missing brick's page-table word names the finest resident coarser brick that holds it,
 /// where the ray caster's walk over the coarser levels starts: with level-1 bricks resident and
 /// level-0 bricks missing under them, the frame drawn so equals, texel for texel, the one whose

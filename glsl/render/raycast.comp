@@ -232,6 +232,15 @@ float step_until = -INF;
 // pixel: neighbouring rays sample different planes (interleaved sampling), so the coarser
 // spacing shows as fine noise instead of rings across a surface.
 float step_phase;
+// A sample that a coarser level stands in for (its brick missing) is that level's voxel long, as
+// the samples that want that level are: the walk goes on from `m_next` (see widen_step), so a
+// view's first frames, drawn mostly from the coarsest level, take as many samples as that
+// level's voxels are worth, not as many as the finest level's. The planes are at ray parameter
+// plane_a + plane_b m. Only frames drawn around missing bricks take it (V_WIDEN): a CPU device
+// runs every branch of a sample's code, masked, whether a lane takes it or not, and the one
+// compare at each step cost complete frames 5 % on lavapipe.
+float m_next = -INF;
+float plane_a, plane_b;
 
 // A level's voxel over level 0's, as a power of two's exponent (a margin keeps an exact power of
 // two from rounding down; a level coarser along some axes only counts as level 0's voxel).
@@ -245,6 +254,19 @@ float voxel_exponent(int level) {
 float steps_of(int level) {
     int planes = int((pt_mode >> 8u) & 0xfu);
     return exp2(max(voxel_exponent(level) - voxel_exponent(min(planes, pt_levels - 1)), 0.0));
+}
+
+// Where the walk goes on after the sample at ray_t, on a plane, read from level `level` in place
+// of the wanted one: that level's step on (a multiple of the wanted level's), or where the walk
+// did not come to this sample by such a step, a part of it drawn per pixel, so that neighbouring
+// rays entering a missing brick together take their coarse samples on different planes. The
+// sample's opacity is corrected for the planes to there.
+void widen_step(int level) {
+    float m = round((ray_t - plane_a) / plane_b);
+    float k = max(steps_of(level) / ray_step, 1.0);
+    float gap = (m == m_next ? k : 1.0 + floor(step_phase * k)) * ray_step;
+    level_ratio = c_ratio * gap;
+    m_next = m + gap;
 }
 
 // The stretch [from, until) of the ray parameter over which the samples stay in sub-block q of
@@ -286,7 +308,7 @@ void set_span(int want, ivec3 b, ivec3 q, bool whole, vec3 offset) {
 // of its stretch. When it is resident, its place in the pool. Else the brick is asked for and,
 // when the frame waits for bricks, WAITS (the ray stops here); otherwise the finest resident
 // coarser level is sampled (the coarsest is always resident).
-int locate(uint skip) {
+int locate(uint skip, bool on_plane) {
     if (!V_BRICKED) {
         ptex = tex;
         return FOUND;
@@ -389,6 +411,9 @@ int locate(uint skip) {
             mark_used(el);
             ptex = (slot_origin(wl) - vec3(bl) * brick + vl) * inv_pool;
             level_ratio = c_ratio * ray_step;
+            if (V_LOD_STEPS && V_WIDEN && on_plane) {
+                widen_step(l);
+            }
             return FOUND;
         }
     }
@@ -489,7 +514,7 @@ vec4 channel_projection(vec3 o, vec3 dir, float a, float b, inout float m, float
         world = o + t * dir;
         tex = world / (2.0 * u.half_extent.xyz) + 0.5;
         ray_t = t;
-        if (locate(0u) != FOUND) {
+        if (locate(0u, false) != FOUND) {
             stopped = true;
             break;
         }
@@ -708,6 +733,8 @@ void main() {
             m = 0.0;
             m_last = floor((t_out - a) / b);
         }
+        plane_a = a;
+        plane_b = b;
         bool first = true;
         float ert = p.planes.w;
         bool skip = V_SKIP_EMPTY && p.flags.y != 0;
@@ -767,7 +794,8 @@ void main() {
             if (batch) {
                 have_s = walk_batch(o, dir, a, b, t_in, t_out, m, m_last, first && ctx.a < ert, iso, a_min, prev_t, prev_s, s);
             }
-            for (; m <= m_last; m += 1.0) {
+            // (After a sample a coarser level stood in for, on from where widen_step says.)
+            for (; m <= m_last; m = V_LOD_STEPS && V_WIDEN ? max(m + 1.0, m_next) : m + 1.0) {
                 t = a + b * m;
                 if (V_LOD_STEPS) {
                     // On to the next plane of the step of the level this sample wants.
@@ -799,7 +827,7 @@ void main() {
                 // One pass needs visible bricks; two levels need visible context in front of
                 // the first focus sample, or focus.
                 uint need = V_TWO_LEVEL ? (first && ctx.a < ert ? 3u : 2u) : 1u;
-                int found = locate(skip ? need : 0u);
+                int found = locate(skip ? need : 0u, true);
                 if (found == EMPTY) {
                     // As above, from the end of the brick's stretch.
                     m = max(ceil((skip_t - 1e-4 * b - a) / b), m + 1.0) - 1.0;
@@ -857,7 +885,7 @@ void main() {
             }
             // Where to go on from if the refinement below meets a missing brick.
             float m_hit = m, keep_t = prev_t, keep_s = prev_s;
-            m += 1.0;
+            m = V_LOD_STEPS && V_WIDEN ? max(m + 1.0, m_next) : m + 1.0;
             if (refine_on && focus && first && prev_t >= 0.0 && s > prev_s) {
                 // Regula falsi between the previous sample (below the isovalue) and this one.
                 float ta = prev_t, sa = prev_s, tb = t, sb = s;
@@ -866,7 +894,7 @@ void main() {
                     world = o + tm * dir;
                     tex = world / (2.0 * u.half_extent.xyz) + 0.5;
                     ray_t = tm;
-                    if (locate(0u) != FOUND) {
+                    if (locate(0u, false) != FOUND) {
                         stopped = true;
                         break;
                     }
@@ -883,7 +911,7 @@ void main() {
                 world = o + t * dir;
                 tex = world / (2.0 * u.half_extent.xyz) + 0.5;
                 ray_t = t;
-                stopped = stopped || locate(0u) != FOUND;
+                stopped = stopped || locate(0u, false) != FOUND;
                 if (V_CHANNELS && !stopped) {
                     fetch_channels(ptex);
                 }

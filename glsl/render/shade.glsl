@@ -54,6 +54,10 @@ const bool V_LABELS_SCREEN = (VARIANT & 524288u) != 0u;
 // Bricked, by the level-of-detail rule: samples that want a coarser level than the planes' step
 // over planes (raycast.comp's `steps_of`, from the planes' level in the page table's header).
 const bool V_LOD_STEPS = (VARIANT & 1048576u) != 0u;
+// With V_LOD_STEPS, in a frame drawn around missing bricks: a sample a coarser level stands in
+// for is that level's voxel long (raycast.comp's `widen_step`). Only such frames take it: a CPU
+// device pays for the code at every sample, needed or not.
+const bool V_WIDEN = (VARIANT & 2097152u) != 0u;
 // Channels of a store mixed in one ray (classify/channels.rs): up to eight, component k of
 // `channels` (k < 4) or k - 4 of `channels_hi` over channel k's own range, with its transfer
 // function in row k of `channel_tf`. Frames without channels bind stand-ins and never read them;

@@ -242,6 +242,15 @@ pub struct Paged {
     /// On by default; `VELLUM_BRICK_HELD=0` starts every walk at the level above, for measuring
     /// and for the tests that compare the two.
     pub held: bool,
+    /// In a frame that does not wait, drawn while bricks are missing, a sample that a coarser
+    /// level stands in for is that level's voxel long (the ray caster's `WIDEN` variant, with
+    /// `lod_steps`): a view's first frames, read mostly from the coarsest level, then take as
+    /// many samples as its voxels are worth. On by default; `VELLUM_WIDEN=0` turns it off, for
+    /// measuring.
+    pub widen: bool,
+    /// Whether the last frame's rays asked for bricks (true until a frame's feedback is read):
+    /// the next frame is likely drawn around missing bricks too.
+    pub asked: bool,
 }
 
 /// Words of the page table per entry.
@@ -396,6 +405,8 @@ impl PagedVolume {
                 reuse: brick_reuse(&ctx.info),
                 span: brick_span(&ctx.info),
                 held: std::env::var("VELLUM_BRICK_HELD").as_deref() != Ok("0"),
+                widen: std::env::var("VELLUM_WIDEN").as_deref() != Ok("0"),
+                asked: true,
             },
             channels,
             labels,
@@ -613,6 +624,12 @@ fn check_pool_formats(ctx: &Context) -> Result<()> {
 }
 
 impl Paged {
+    /// Whether the next frame takes the ray caster's `WIDEN` variant: its samples step over
+    /// planes, it does not wait for bricks, and the last frame's rays asked for some.
+    pub(crate) fn widens(&self) -> bool {
+        self.lod_steps && !self.finest && self.widen && self.asked && self.mode & MODE_WAIT == 0
+    }
+
     /// The page table's header for a frame whose samples at distance d from the eye cover
     /// `lod.0 · d + lod.1` level-0 voxels (see the module's documentation) and whose planes are
     /// chosen for level `planes` (the finest it reads); the entries, [`Paged::page_words`],
@@ -804,6 +821,7 @@ impl Paged {
                 f.wanted.push((e, c & !USED_BIT));
             }
         }
+        self.asked = !f.wanted.is_empty();
         Ok(f)
     }
 

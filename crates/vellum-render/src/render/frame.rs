@@ -1244,6 +1244,7 @@ fn record_rays(
             brick_reuse: vol.paged().is_some_and(|p| p.reuse),
             brick_span: vol.paged().is_some_and(|p| p.span),
             lod_steps: vol.paged().is_some_and(|p| p.lod_steps && !p.finest),
+            widen: vol.paged().is_some_and(|p| p.widens()),
             walk_batch: r
                 .options
                 .walk_batch

@@ -150,6 +150,9 @@ impl Variant {
     /// planes' step over planes (`Paged::lod_steps`; a frame at `--lod finest` never does, and
     /// the test per sample cost it 5-8 % on lavapipe).
     pub(crate) const LOD_STEPS: u32 = 1 << 20;
+    /// With LOD_STEPS, in a frame drawn around missing bricks: a sample that a coarser level
+    /// stands in for is that level's voxel long (`Paged::widen`).
+    pub(crate) const WIDEN: u32 = 1 << 21;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -221,6 +224,8 @@ pub(crate) struct RayRequest<'a> {
     pub(crate) brick_span: bool,
     /// With `bricked`: its samples may step over planes (`Paged::lod_steps`, not at finest).
     pub(crate) lod_steps: bool,
+    /// With `lod_steps`: the frame is drawn around missing bricks (`Paged::widens`).
+    pub(crate) widen: bool,
     /// Rays in core walk four samples at a time to their next contributing one ([`walk_batch`]).
     pub(crate) walk_batch: bool,
     /// The push constants of `raycast.comp`.
@@ -312,6 +317,9 @@ impl RayCaster {
         }
         if r.bricked && r.lod_steps {
             variant.0 |= Variant::LOD_STEPS;
+            if r.widen {
+                variant.0 |= Variant::WIDEN;
+            }
         }
         if r.labels.1 {
             variant.0 |= Variant::LABELS;
