@@ -286,6 +286,22 @@ fn a_frame_cut_short_says_so_and_draws_coarser_levels() {
     );
 }
 
+/// A medium of one opacity per voxel whatever its values (0.01), in white: only the opacity
+/// correction can change a ray's alpha.
+fn veil() -> Classification {
+    use vellum::classify::transfer::ControlPoint;
+    let veil = |x| ControlPoint {
+        x,
+        rgba: [1.0, 1.0, 1.0, 0.01],
+    };
+    Classification::Transfer(TransferFunction::new("veil", vec![veil(0.0), veil(1.0)]).unwrap())
+}
+
+/// The alpha of a frame's pixels, summed.
+fn summed_alpha(f: &FrameImage) -> f64 {
+    f.composite.iter().map(|p| p[3] as f64).sum()
+}
+
 /// A missing brick drawn from a coarser level stands in for the level its rays want, at that
 /// level's opacity, so a frame cut short is as opaque as the complete one. The medium has one
 /// opacity per voxel whatever its values (0.01), so only the opacity correction can change a
@@ -293,16 +309,10 @@ fn a_frame_cut_short_says_so_and_draws_coarser_levels() {
 /// cut-short frame's summed alpha was 0.36 of the complete one's.
 #[test]
 fn a_missing_brick_drawn_from_a_coarser_level_keeps_the_opacity_of_its_own() {
-    use vellum::classify::transfer::ControlPoint;
     let gpu = Gpu::new();
     let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     let v = phantom::shepp_logan(128);
-    let veil = |x| ControlPoint {
-        x,
-        rgba: [1.0, 1.0, 1.0, 0.01],
-    };
-    let tf = TransferFunction::new("veil", vec![veil(0.0), veil(1.0)]).unwrap();
-    let c = Classification::Transfer(tf);
+    let c = veil();
     let focus = Focus::None;
     let mut core = GpuScene::prepare(&gpu.ctx, &v, &c, focus, &Default::default()).unwrap();
     let levels = BrickLevels::of_volume(v).unwrap();
@@ -311,8 +321,7 @@ fn a_missing_brick_drawn_from_a_coarser_level_keeps_the_opacity_of_its_own() {
     let wait = Some(std::time::Duration::ZERO);
     let (want, got, report) = both_ways(&mut renderer, (&mut core, &mut bricked), &view, wait);
     assert!(!report.complete);
-    let alpha = |f: &FrameImage| f.composite.iter().map(|p| p[3] as f64).sum::<f64>();
-    let ratio = alpha(&got) / alpha(&want);
+    let ratio = summed_alpha(&got) / summed_alpha(&want);
     println!("cut short against complete, summed alpha: {ratio:.4}");
     assert!((0.98..=1.02).contains(&ratio), "{ratio}");
 }
@@ -324,15 +333,9 @@ fn a_missing_brick_drawn_from_a_coarser_level_keeps_the_opacity_of_its_own() {
 /// two frames differ: the widened walk ran.
 #[test]
 fn a_frame_drawn_around_missing_bricks_samples_coarser_levels_at_their_spacing() {
-    use vellum::classify::transfer::ControlPoint;
     let gpu = Gpu::new();
     let mut renderer = Renderer::new(&gpu.ctx).unwrap();
-    let veil = |x| ControlPoint {
-        x,
-        rgba: [1.0, 1.0, 1.0, 0.01],
-    };
-    let tf = TransferFunction::new("veil", vec![veil(0.0), veil(1.0)]).unwrap();
-    let c = Classification::Transfer(tf);
+    let c = veil();
     let pyramid = || {
         let levels = BrickLevels::of_volume(phantom::shepp_logan(128)).unwrap();
         bricked(&gpu, levels, &c, (Focus::None, BUDGET, false))
@@ -344,8 +347,7 @@ fn a_frame_drawn_around_missing_bricks_samples_coarser_levels_at_their_spacing()
     let (a, report_a) = widened.render(&mut renderer, &view, zero);
     let (b, report_b) = stepped.render(&mut renderer, &view, zero);
     assert!(!report_a.complete && !report_b.complete);
-    let alpha = |f: &FrameImage| f.composite.iter().map(|p| p[3] as f64).sum::<f64>();
-    let ratio = alpha(&a) / alpha(&b);
+    let ratio = summed_alpha(&a) / summed_alpha(&b);
     let (mean, max) = diff8(&a, &b);
     println!("widened against stepped: summed alpha {ratio:.4}, mean {mean:.3}/255, max {max}");
     assert!((0.98..=1.02).contains(&ratio), "{ratio}");
