@@ -849,8 +849,36 @@ fn a_store_larger_than_the_budget_streams_while_the_view_orbits() {
     };
     let dir = tempfile::tempdir().unwrap();
     let store = head_store(dir.path());
-    let (line, report, lit) = view_streamed(&x, dir.path(), store.to_str().unwrap(), "40", &[]);
+    let log = dir.path().join("frames.csv");
+    let flags = ["--bench-log".as_ref(), log.as_os_str()];
+    let (line, report, lit) = view_streamed(&x, dir.path(), store.to_str().unwrap(), "40", &flags);
     println!("{line}; first frame {} ms", report["first_frame_ms"]);
+    // `--bench-log`: a row per presented frame, the ray cast of every completed one, and what
+    // the streamed frames' rays asked for.
+    let csv = std::fs::read_to_string(&log).expect("the bench's frames");
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some("kind,frame,name,value"));
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let values = |kind: &str, name: &str| -> Vec<f64> {
+        rows.iter()
+            .filter(|r| r[0] == kind && r[2] == name)
+            .map(|r| r[3].parse().expect("a number"))
+            .collect()
+    };
+    let presented = values("present", "frame_ms");
+    assert_eq!(
+        presented.len() as u64,
+        report["frames_presented"].as_u64().unwrap(),
+        "one row per frame presented"
+    );
+    assert!(presented.iter().all(|&ms| ms > 0.0), "{csv}");
+    let raycast = values("gpu", "raycast");
+    assert!(
+        raycast.len() >= 40 && raycast.iter().all(|&ms| ms > 0.0),
+        "{csv}"
+    );
+    let asked: f64 = values("bricks", "asked").iter().sum();
+    assert!(asked > 16.0, "the frames asked for {asked} bricks");
     // "bricks R/C resident, Q requested, S streamed (M MiB)"
     let streamed: u64 = line
         .split(", ")

@@ -52,6 +52,38 @@ pub struct BenchReport {
     pub time_points_shown: u64,
     /// Time points shown per second, from the first step to the last.
     pub time_points_per_s: Option<f64>,
+    /// Every frame's figures, warm-up included, when the log keeps them (`--bench-log`).
+    #[serde(skip)]
+    pub rows: Vec<FrameRow>,
+}
+
+/// One figure of one frame, as `view --bench-log` writes it: `present` rows give the time since
+/// the frame before (`frame_ms`), `gpu` rows a pass's GPU ms, and `bricks` rows the bricks the
+/// frame's rays asked for (`asked`) and the resident ones they read (`read`). Presented and
+/// completed frames are counted apart: with frames in flight, a frame completes after others
+/// are presented.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameRow {
+    /// `present`, `gpu` or `bricks`.
+    pub kind: &'static str,
+    /// The frame's number among those presented (`present`) or completed (`gpu`, `bricks`),
+    /// from 1.
+    pub frame: u64,
+    /// The figure's name: `frame_ms`, a pass's, `asked` or `read`.
+    pub name: String,
+    /// Its value.
+    pub value: f64,
+}
+
+impl FrameRow {
+    /// The rows as CSV, with a header line.
+    pub fn write_csv(rows: &[FrameRow], w: &mut impl std::io::Write) -> std::io::Result<()> {
+        writeln!(w, "kind,frame,name,value")?;
+        for r in rows {
+            writeln!(w, "{},{},{},{}", r.kind, r.frame, r.name, r.value)?;
+        }
+        Ok(())
+    }
 }
 
 /// What the report is made of, gathered frame by frame.
@@ -71,6 +103,9 @@ pub struct BenchLog {
     /// Time points shown while playing, and when the first and the last were.
     time_points: u64,
     time_span: Option<(std::time::Instant, std::time::Instant)>,
+    /// Every frame's figures, kept only when asked ([`BenchLog::keeping_rows`]): a bench of N
+    /// frames keeps a few rows per frame.
+    rows: Option<Vec<FrameRow>>,
 }
 
 impl BenchLog {
@@ -87,7 +122,33 @@ impl BenchLog {
             heap_bytes: Vec::new(),
             time_points: 0,
             time_span: None,
+            rows: None,
         }
+    }
+
+    /// The same log, keeping every frame's figures for the report's `rows`.
+    pub fn keeping_rows(mut self) -> Self {
+        self.rows = Some(Vec::new());
+        self
+    }
+
+    fn row(&mut self, kind: &'static str, frame: u64, name: &str, value: f64) {
+        if let Some(rows) = &mut self.rows {
+            rows.push(FrameRow {
+                kind,
+                frame,
+                name: name.to_string(),
+                value,
+            });
+        }
+    }
+
+    /// The rays of the last completed frame asked for `asked` missing bricks and read `read`
+    /// resident ones.
+    pub fn streamed(&mut self, asked: usize, read: usize) {
+        let frame = self.completed;
+        self.row("bricks", frame, "asked", asked as f64);
+        self.row("bricks", frame, "read", read as f64);
     }
 
     /// Another time point is on screen (playing), at `now`.
@@ -100,6 +161,7 @@ impl BenchLog {
     /// A frame was presented `ms` after the one before it.
     pub fn presented(&mut self, ms: f64) {
         self.presented += 1;
+        self.row("present", self.presented, "frame_ms", ms);
         if self.presented > WARM_UP {
             push_bounded(&mut self.frame_ms, ms);
         }
@@ -116,6 +178,9 @@ impl BenchLog {
     /// A frame completed on the GPU with these pass times.
     pub fn completed(&mut self, passes: &[vellum_gpu::PassTime]) {
         self.completed += 1;
+        for p in passes {
+            self.row("gpu", self.completed, &p.name, p.ms);
+        }
         if self.completed <= WARM_UP {
             return;
         }
@@ -168,6 +233,7 @@ impl BenchLog {
                 let s = (b - a).as_secs_f64();
                 (self.time_points > 1 && s > 0.0).then(|| (self.time_points - 1) as f64 / s)
             }),
+            rows: self.rows.clone().unwrap_or_default(),
             ..base
         }
     }
@@ -210,7 +276,31 @@ mod tests {
             streaming: None,
             time_points_shown: 0,
             time_points_per_s: None,
+            rows: Vec::new(),
         }
+    }
+
+    #[test]
+    fn rows_are_kept_only_when_asked_and_written_as_csv() {
+        let pass = vec![vellum_gpu::PassTime {
+            name: "raycast".into(),
+            ms: 2.5,
+        }];
+        let run = |log: &mut BenchLog| {
+            log.presented(16.0);
+            log.completed(&pass);
+            log.streamed(3, 7);
+            log.report(base()).rows
+        };
+        assert!(run(&mut BenchLog::new(1, false)).is_empty());
+        let rows = run(&mut BenchLog::new(1, false).keeping_rows());
+        let mut csv = Vec::new();
+        FrameRow::write_csv(&rows, &mut csv).unwrap();
+        assert_eq!(
+            String::from_utf8(csv).unwrap(),
+            "kind,frame,name,value\npresent,1,frame_ms,16\ngpu,1,raycast,2.5\n\
+             bricks,1,asked,3\nbricks,1,read,7\n"
+        );
     }
 
     #[test]

@@ -343,6 +343,9 @@ impl Running {
         };
         let paged = &mut p.volume.paged;
         let feedback = paged.take_feedback()?;
+        if let Some(b) = &mut self.session.bench {
+            b.streamed(feedback.wanted.len(), feedback.used.len());
+        }
         paged.cache.touch(&feedback.used);
         s.request(paged, view, &feedback.wanted, Order::CoarseFirst);
         self.session.model.streaming = Some(stream_status(s, paged));
@@ -449,6 +452,7 @@ impl Running {
             streaming: self.session.model.streaming.clone(),
             time_points_shown: 0,
             time_points_per_s: None,
+            rows: Vec::new(),
         };
         match &self.session.bench {
             Some(b) => b.report(base),

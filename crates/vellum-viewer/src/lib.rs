@@ -27,7 +27,7 @@ mod ui;
 // format, the command buffer of the frame and its extent, and the stage the present waits at.
 use ash::vk;
 use bench::BenchLog;
-pub use bench::BenchReport;
+pub use bench::{BenchReport, FrameRow};
 pub use frame::UPLOADS_PER_FRAME;
 use session::{Drag, DrawnKey, Edit, KeyPress, Loaded, Session, SessionSetup};
 use std::path::PathBuf;
@@ -77,6 +77,8 @@ pub struct ViewOptions {
     pub bench_frames: Option<u32>,
     /// Orbit at full resolution; otherwise at the interactive resolution of a drag.
     pub bench_full: bool,
+    /// Keep every frame's figures in the report's `rows` (`--bench-log`).
+    pub bench_rows: bool,
     /// GPU memory for the volume's textures in MiB; a store that needs more is streamed through
     /// the brick cache (default: half the device's largest heap).
     pub gpu_budget: Option<f64>,

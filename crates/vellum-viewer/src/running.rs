@@ -133,7 +133,13 @@ impl Running {
                 device: opts.device.clone(),
                 device_name: ctx.info.name.clone(),
                 screenshot_dir: opts.screenshot_dir.clone(),
-                bench: opts.bench_frames.map(|n| BenchLog::new(n, opts.bench_full)),
+                bench: opts.bench_frames.map(|n| {
+                    let log = BenchLog::new(n, opts.bench_full);
+                    match opts.bench_rows {
+                        true => log.keeping_rows(),
+                        false => log,
+                    }
+                }),
                 budget,
                 play: opts.play,
                 step: crate::timeline::step_of(opts.play_rate),

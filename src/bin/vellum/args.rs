@@ -400,6 +400,10 @@ pub(crate) struct ViewArgs {
     /// With --bench: print the report as JSON.
     #[arg(long)]
     pub(crate) json: bool,
+    /// With --bench: write every frame's figures to this CSV, warm-up included, one per row:
+    /// kind (present, gpu, bricks), frame, name (frame_ms, a pass, asked, read), value.
+    #[arg(long, value_name = "CSV")]
+    pub(crate) bench_log: Option<PathBuf>,
 }
 
 /// `vellum styles`: the gallery of the 15 styles.

@@ -33,8 +33,22 @@ pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
         a.bench_full <= a.bench.is_some(),
         "--bench-full changes the orbit of --bench N; add --bench"
     );
+    anyhow::ensure!(
+        a.bench_log.is_none() || a.bench.is_some(),
+        "--bench-log writes the frames of --bench N; add --bench"
+    );
     if let Some(p) = &a.screenshot_on_exit {
         vellum::output::check_extension(p, &["png"], "a PNG image")?;
+    }
+    if let Some(p) = &a.bench_log {
+        vellum::output::check_extension(p, &["csv"], "the bench's frames as CSV")?;
+        // Refused before the window opens, not after the orbit.
+        let folder = p.parent().filter(|f| !f.as_os_str().is_empty());
+        anyhow::ensure!(
+            folder.is_none_or(|f| f.is_dir()),
+            "--bench-log {}: its folder does not exist; expected a path in an existing folder",
+            p.display()
+        );
     }
     let screenshot_dir = a
         .screenshot_dir
@@ -62,11 +76,15 @@ pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
         vsync: !a.no_vsync,
         bench_frames: a.bench.map(|n| n + 5),
         bench_full: a.bench_full,
+        bench_rows: a.bench_log.is_some(),
         gpu_budget: a.gpu_budget,
         play: a.play,
         play_rate: a.play_rate,
     })?;
     if let Some(r) = report {
+        if let Some(p) = &a.bench_log {
+            vellum::output::write_atomic(p, |w| vellum::viewer::FrameRow::write_csv(&r.rows, w))?;
+        }
         if a.json {
             println!("{}", serde_json::to_string_pretty(&r)?);
         } else {
