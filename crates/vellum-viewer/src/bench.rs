@@ -126,6 +126,16 @@ impl BenchLog {
         }
     }
 
+    /// The log `opts` asks for: none without `--bench`, rows kept with `--bench-log`.
+    pub fn of_view(opts: &crate::ViewOptions) -> Option<Self> {
+        let log = BenchLog::new(opts.bench_frames?, opts.bench_full);
+        Some(if opts.bench_rows {
+            log.keeping_rows()
+        } else {
+            log
+        })
+    }
+
     /// The same log, keeping every frame's figures for the report's `rows`.
     pub fn keeping_rows(mut self) -> Self {
         self.rows = Some(Vec::new());

@@ -68,6 +68,25 @@ pub(crate) fn egui_renderer(
     Ok((egui_renderer, egui_pool))
 }
 
+/// The pipeline that draws the volume view's image into the swapchain's.
+fn present_pipeline(ctx: &Arc<Context>, format: vk::Format) -> Result<GraphicsPipeline> {
+    GraphicsPipeline::new(
+        ctx,
+        &GraphicsDesc {
+            name: "present",
+            vertex_shader: "render/fullscreen.vert",
+            fragment_shader: "viewer/present.frag",
+            bindings: &[BindingKind::SampledImage],
+            push_constant_bytes: 32,
+            vertex_stride: 0,
+            color_formats: &[format],
+            blend: &[vellum_gpu::graphics::Blend::Replace],
+            depth: None,
+            fragment_constants: &[],
+        },
+    )
+}
+
 impl Running {
     pub(crate) fn new(event_loop: &ActiveEventLoop, opts: &ViewOptions) -> Result<Self> {
         let (window, display, handle, present) = open_window(event_loop, opts)?;
@@ -94,21 +113,7 @@ impl Running {
                 opts.vsync,
             )?
         };
-        let present = GraphicsPipeline::new(
-            &ctx,
-            &GraphicsDesc {
-                name: "present",
-                vertex_shader: "render/fullscreen.vert",
-                fragment_shader: "viewer/present.frag",
-                bindings: &[BindingKind::SampledImage],
-                push_constant_bytes: 32,
-                vertex_stride: 0,
-                color_formats: &[swapchain.format],
-                blend: &[vellum_gpu::graphics::Blend::Replace],
-                depth: None,
-                fragment_constants: &[],
-            },
-        )?;
+        let present = present_pipeline(&ctx, swapchain.format)?;
         let (egui_renderer, egui_pool) = egui_renderer(&ctx, swapchain.format, frames.len())?;
         let egui_ctx = egui::Context::default();
         let egui_state = egui_winit::State::new(
@@ -133,13 +138,7 @@ impl Running {
                 device: opts.device.clone(),
                 device_name: ctx.info.name.clone(),
                 screenshot_dir: opts.screenshot_dir.clone(),
-                bench: opts.bench_frames.map(|n| {
-                    let log = BenchLog::new(n, opts.bench_full);
-                    match opts.bench_rows {
-                        true => log.keeping_rows(),
-                        false => log,
-                    }
-                }),
+                bench: BenchLog::of_view(opts),
                 budget,
                 play: opts.play,
                 step: crate::timeline::step_of(opts.play_rate),
