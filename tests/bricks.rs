@@ -389,6 +389,49 @@ fn a_walk_from_the_named_holder_draws_what_a_walk_from_the_level_above_draws() {
     assert_eq!(max, 0, "mean {mean}/255");
 }
 
+/// A ray passes the bricks and sub-blocks known to hold nothing it needs in front of it before its
+/// walk (`Paged::trim`), to the plane the walk would have come to: with every brick resident, in
+/// two levels and in one pass, close up (rays crossing from level 0 to level 1) and from further
+/// away (samples stepping over planes), the frame equals, value for value, the one whose walk
+/// steps past them itself.
+#[test]
+fn passing_the_empty_bricks_in_front_before_the_walk_draws_what_the_walk_draws() {
+    let gpu = Gpu::new();
+    let mut renderer = Renderer::new(&gpu.ctx).unwrap();
+    let levels = BrickLevels::of_volume(phantom::shepp_logan(256)).unwrap();
+    let mut bricked = grey_pyramid(&gpu, levels);
+    // (With planes 10 voxels apart, a step one plane too far misses a sample that adds.)
+    let cases = [
+        ("30,20,1.6", false, None),
+        ("75,20,2.5", false, None),
+        ("30,20,1.6", true, None),
+        ("30,20,1.6", true, Some(25)),
+    ];
+    for (camera, one_pass, slices) in cases {
+        let view = View {
+            size: [96, 96],
+            slices,
+            ..view(camera, one_pass, None, None)
+        };
+        let (_, report) = bricked.render(&mut renderer, &view, None);
+        assert!(report.complete, "{report:?}");
+        let mut draw = |b: &mut Bricked, trim: bool| {
+            b.paged().trim = trim;
+            let (vol, classify) = (&b.scene.volume, &mut b.scene.classify);
+            renderer.render_frame(vol, classify, &view, true).unwrap()
+        };
+        let trimmed = draw(&mut bricked, true);
+        let walked = draw(&mut bricked, false);
+        let (mean, max) = diff8(&trimmed, &walked);
+        let case = format!("{camera}, one pass {one_pass}, {slices:?} planes");
+        println!("{case}: mean {mean}/255, max {max}/255");
+        assert!(
+            trimmed.composite == walked.composite,
+            "{case}: {mean}/255, max {max}/255"
+        );
+    }
+}
+
 #[test]
 fn a_streamed_phantom_store_is_the_phantom_written_whole() {
     use vellum::volume::io::ome_zarr::{write, Multiscale, WriteOptions};

@@ -269,6 +269,23 @@ void widen_step(int level) {
     m_next = m + gap;
 }
 
+// V_LOD_STEPS: plane m, or the next plane after it of the step of the level its sample wants
+// (`ray_step`, made again where the next level begins, `step_until`: a ray's levels only grow
+// along it), from the pixel's phase.
+float on_level_step(float m, float a, float b) {
+    float t = a + b * m;
+    if (t >= step_until) {
+        int want = level_at(t);
+        ray_step = steps_of(want);
+        step_until = want + 1 < pt_levels ? level_from[want + 1] : INF;
+    }
+    if (ray_step > 1.0) {
+        float phase = floor(step_phase * ray_step);
+        m = ceil((m - phase) / ray_step) * ray_step + phase;
+    }
+    return m;
+}
+
 // The stretch [from, until) of the ray parameter over which the samples stay in sub-block q of
 // brick b of level `want` (whose texture coordinates scale to its voxels by c_scale) and keep
 // wanting that level; with `whole`, in the brick (q unread).
@@ -302,6 +319,101 @@ void set_span(int want, ivec3 b, ivec3 q, bool whole, vec3 offset) {
     c_step = ray_dtex * c_scale / pool_size;
 }
 
+// The header of level `want` into the c_ cache, when it is not the level cached.
+void load_level(int want) {
+    if (want != c_level) {
+        int h = 8 + 8 * want;
+        c_level = want;
+        c_first = pt[h];
+        c_counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
+        c_scale = vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
+        c_inv_scale = 1.0 / c_scale;
+        c_ratio = uintBitsToFloat(pt[h + 7]);
+        c_hit = false;
+    }
+}
+
+// The page-table entry of the brick of level `want` (its header cached) that holds the sample at
+// `tex`: the brick's place b in the level's grid and the sample's place v in the level's voxels.
+uint brick_at(int want, out vec3 v, out ivec3 b) {
+    load_level(want);
+    v = clamp(tex, 0.0, 1.0) * c_scale;
+    // (The brick edge is a power of two: its reciprocal is exact.)
+    b = clamp(ivec3(floor(v * (1.0 / pt_brick))), ivec3(0), c_counts - 1);
+    return c_first + uint(b.x + c_counts.x * (b.y + c_counts.y * b.z));
+}
+
+// Whether brick b of level `want` (entry e, whose first word is `word`; the sample at v in that
+// level's voxels) is known to hold nothing the ray needs (`skip`'s flags) where the sample is:
+// the whole brick, or the sub-block q the sample is in. Then `skip_t` is the end of that
+// stretch. Else `whole` says whether the brick holds what the ray needs throughout, and q is the
+// sample's sub-block where it does not.
+bool empty_here(uint skip, int want, ivec3 b, vec3 v, uint e, uint word, out bool whole, out ivec3 q) {
+    whole = true;
+    q = ivec3(0);
+    if ((word & KNOWN) == 0u) {
+        return false;
+    }
+    bool empty = ((word >> 24u) & skip) == 0u;
+    if (!empty) {
+        // The sub-blocks that may hold what the ray needs (bit i for sub-block i).
+        uint subs = pt[PT_HEADER + PT_ENTRY_WORDS * int(e) + 1];
+        uint needed = ((skip & 1u) != 0u ? subs : 0u) | ((skip & 2u) != 0u ? subs >> 8u : 0u);
+        if ((needed & 0xffu) != 0xffu) {
+            whole = false;
+            q = ivec3(greaterThanEqual(v, (vec3(b) + 0.5) * pt_brick));
+            empty = ((needed >> uint(q.x + 2 * q.y + 4 * q.z)) & 1u) == 0u;
+        }
+    }
+    if (empty) {
+        // (One lookup for both: lavapipe runs the code of each, masked, at every step.)
+        skip_t = lookup_span(want, b, q, whole).y;
+    }
+    return empty;
+}
+
+// V_TRIM: the plane m from which the walk goes on as it would have from plane m0, having stepped
+// past the stretches in front of the ray that locate() finds EMPTY (known to hold nothing it
+// needs, `need`'s flags): the same steps to the same planes, but in a loop that only looks them
+// up. In the walk each such step carries the sampling code too, which a CPU device runs, masked,
+// for every lane while any lane walks (the in-core walk trims the same way, in occupied_span).
+// It stays within the level that the sample at m0 wants: with V_LOD_STEPS the walk's planes
+// follow each level's step, and a step that ends in the next level's stretch is the walk's to
+// take, from the plane where it began. `passed`: whether it stepped past any stretch.
+float past_empty(float a, float b, float m0, float m_last, vec3 o, vec3 dir, float t_in, float t_out, uint need, out bool passed) {
+    passed = false;
+    int want = level_at(a + b * m0);
+    float until = want + 1 < pt_levels ? level_from[want + 1] : INF;
+    float step = V_LOD_STEPS ? steps_of(want) : 1.0;
+    float phase = floor(step_phase * step);
+    float m = m0;
+    for (; m <= m_last;) {
+        if (a + b * m >= until) {
+            break;
+        }
+        // The plane the walk samples from m (on_level_step, at the same level).
+        float at = step > 1.0 ? ceil((m - phase) / step) * step + phase : m;
+        float t = a + b * at;
+        if (at > m_last || t < t_in || t > t_out || t >= until) {
+            break;
+        }
+        world = o + t * dir;
+        tex = world / (2.0 * u.half_extent.xyz) + 0.5;
+        ray_t = t;
+        vec3 v;
+        ivec3 bk, q;
+        bool whole;
+        uint e = brick_at(want, v, bk);
+        if (!empty_here(need, want, bk, v, e, pt[PT_HEADER + PT_ENTRY_WORDS * int(e)], whole, q)) {
+            break;
+        }
+        // As the walk steps on from an EMPTY sample at `at`.
+        m = max(ceil((skip_t - 1e-4 * b - a) / b), at + 1.0);
+        passed = true;
+    }
+    return m;
+}
+
 // Sets `ptex` for the sample at `tex` and `world`. In core, the two are the same. Bricked: the
 // sample's level is chosen by its projected voxel size. When that level's brick is known to hold
 // nothing the ray needs (`skip`: the flags it needs, 0 never to skip), EMPTY, with `skip_t` the end
@@ -323,21 +435,11 @@ int locate(uint skip, bool on_plane) {
         c_from = INF;
     }
     float brick = pt_brick;
-    int want = level_at(ray_t);
     vec3 t = clamp(tex, 0.0, 1.0);
-    if (want != c_level) {
-        int h = 8 + 8 * want;
-        c_level = want;
-        c_first = pt[h];
-        c_counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
-        c_scale = vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
-        c_inv_scale = 1.0 / c_scale;
-        c_ratio = uintBitsToFloat(pt[h + 7]);
-        c_hit = false;
-    }
-    vec3 v = t * c_scale;
-    // (The brick edge is a power of two: its reciprocal is exact.)
-    ivec3 b = clamp(ivec3(floor(v * (1.0 / brick))), ivec3(0), c_counts - 1);
+    int want = level_at(ray_t);
+    vec3 v;
+    ivec3 b;
+    uint e = brick_at(want, v, b);
     // (With V_BRICK_SPAN every lookup goes on to set the stretch again.)
     if (V_BRICK_REUSE && !V_BRICK_SPAN && c_hit && b == c_brick) {
         ptex = (c_offset + v) * inv_pool;
@@ -345,28 +447,12 @@ int locate(uint skip, bool on_plane) {
         return FOUND;
     }
     c_hit = false;
-    uint e = c_first + uint(b.x + c_counts.x * (b.y + c_counts.y * b.z));
-    int at = PT_HEADER + PT_ENTRY_WORDS * int(e);
-    uint word = pt[at];
+    uint word = pt[PT_HEADER + PT_ENTRY_WORDS * int(e)];
     // Whether the brick holds all the ray needs throughout, else the sub-block q the sample is in.
     bool whole = true;
     ivec3 q = ivec3(0);
-    if (skip != 0u && (word & KNOWN) != 0u) {
-        if (((word >> 24u) & skip) == 0u) {
-            skip_t = lookup_span(want, b, q, true).y;
-            return EMPTY;
-        }
-        // The sub-blocks that may hold what the ray needs (bit i for sub-block i).
-        uint subs = pt[at + 1];
-        uint needed = ((skip & 1u) != 0u ? subs : 0u) | ((skip & 2u) != 0u ? subs >> 8u : 0u);
-        if ((needed & 0xffu) != 0xffu) {
-            whole = false;
-            q = ivec3(greaterThanEqual(v, (vec3(b) + 0.5) * brick));
-            if (((needed >> uint(q.x + 2 * q.y + 4 * q.z)) & 1u) == 0u) {
-                skip_t = lookup_span(want, b, q, false).y;
-                return EMPTY;
-            }
-        }
+    if (skip != 0u && empty_here(skip, want, b, v, e, word, whole, q)) {
+        return EMPTY;
     }
     if ((word & RESIDENT) != 0u) {
         mark_used(e);
@@ -781,6 +867,13 @@ void main() {
         // its intensity and class; the outer one shades and composites it. A CPU rasteriser runs
         // a loop body for all its lanes while any is active, so shading in the walk would be paid
         // at every sample of every lane; here it is paid once per contributing sample.
+        if (V_TRIM && skip && !done && !region) {
+            // Past the empty bricks in front of the ray (a resumed ray: in front of where it
+            // stopped), as the walk would step past them.
+            bool passed;
+            m = past_empty(a, b, m, m_last, o, dir, t_in, t_out, V_TWO_LEVEL ? (first && ctx.a < ert ? 3u : 2u) : 1u, passed);
+            prev_t = passed ? -1.0 : prev_t;
+        }
         // The walk four samples at a time (in core, the bounds table deciding): see walk_batch.
         bool batch = V_WALK_BATCH && !V_BRICKED && !V_LABELS && !V_CHANNELS && !V_OTF && !V_MOD_OPACITY && !region;
         for (; !done;) {
@@ -796,23 +889,14 @@ void main() {
             }
             // (After a sample a coarser level stood in for, on from where widen_step says.)
             for (; m <= m_last; m = V_LOD_STEPS && V_WIDEN ? max(m + 1.0, m_next) : m + 1.0) {
-                t = a + b * m;
                 if (V_LOD_STEPS) {
                     // On to the next plane of the step of the level this sample wants.
-                    if (t >= step_until) {
-                        int want = level_at(t);
-                        ray_step = steps_of(want);
-                        step_until = want + 1 < pt_levels ? level_from[want + 1] : INF;
-                    }
-                    if (ray_step > 1.0) {
-                        float o = floor(step_phase * ray_step);
-                        m = ceil((m - o) / ray_step) * ray_step + o;
-                        if (m > m_last) {
-                            break;
-                        }
-                        t = a + b * m;
+                    m = on_level_step(m, a, b);
+                    if (m > m_last) {
+                        break;
                     }
                 }
+                t = a + b * m;
                 if (t < t_in || t > t_out) {
                     have_s = false;
                     continue;

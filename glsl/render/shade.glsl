@@ -58,6 +58,10 @@ const bool V_LOD_STEPS = (VARIANT & 1048576u) != 0u;
 // for is that level's voxel long (raycast.comp's `widen_step`). Only such frames take it: a CPU
 // device pays for the code at every sample, needed or not.
 const bool V_WIDEN = (VARIANT & 2097152u) != 0u;
+// With BRICKED and skipping: a ray passes the bricks and sub-blocks known to hold nothing it
+// needs in front of it in a loop that only looks them up, before its walk (raycast.comp's
+// past_empty; `Paged::trim`).
+const bool V_TRIM = (VARIANT & 4194304u) != 0u;
 // Channels of a store mixed in one ray (classify/channels.rs): up to eight, component k of
 // `channels` (k < 4) or k - 4 of `channels_hi` over channel k's own range, with its transfer
 // function in row k of `channel_tf`. Frames without channels bind stand-ins and never read them;

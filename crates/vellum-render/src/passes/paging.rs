@@ -248,6 +248,12 @@ pub struct Paged {
     /// many samples as its voxels are worth. On by default; `VELLUM_WIDEN=0` turns it off, for
     /// measuring.
     pub widen: bool,
+    /// With skipping, a ray passes the bricks and sub-blocks known to hold nothing it needs in
+    /// front of it in a loop that only looks them up, before its walk (the ray caster's `TRIM`
+    /// variant), to the plane the walk would step to: the frame is the same. On lavapipe, where
+    /// each of the walk's steps carries its sampling code for every lane, the viewer's ray cast
+    /// took about 5 % less. On by default; `VELLUM_BRICK_TRIM=0` turns it off, for measuring.
+    pub trim: bool,
     /// Whether the last frame's rays asked for bricks (true until a frame's feedback is read):
     /// the next frame is likely drawn around missing bricks too.
     pub asked: bool,
@@ -406,6 +412,7 @@ impl PagedVolume {
                 span: brick_span(&ctx.info),
                 held: std::env::var("VELLUM_BRICK_HELD").as_deref() != Ok("0"),
                 widen: std::env::var("VELLUM_WIDEN").as_deref() != Ok("0"),
+                trim: std::env::var("VELLUM_BRICK_TRIM").as_deref() != Ok("0"),
                 asked: true,
             },
             channels,

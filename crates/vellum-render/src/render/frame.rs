@@ -1245,6 +1245,7 @@ fn record_rays(
             brick_span: vol.paged().is_some_and(|p| p.span),
             lod_steps: vol.paged().is_some_and(|p| p.lod_steps && !p.finest),
             widen: vol.paged().is_some_and(|p| p.widens()),
+            trim: vol.paged().is_some_and(|p| p.trim),
             walk_batch: r
                 .options
                 .walk_batch

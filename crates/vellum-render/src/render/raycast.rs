@@ -153,6 +153,9 @@ impl Variant {
     /// With LOD_STEPS, in a frame drawn around missing bricks: a sample that a coarser level
     /// stands in for is that level's voxel long (`Paged::widen`).
     pub(crate) const WIDEN: u32 = 1 << 21;
+    /// With BRICKED and skipping: a ray passes the bricks and sub-blocks known to hold nothing it
+    /// needs in front of it in a loop that only looks them up, before its walk (`Paged::trim`).
+    pub(crate) const TRIM: u32 = 1 << 22;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -226,6 +229,9 @@ pub(crate) struct RayRequest<'a> {
     pub(crate) lod_steps: bool,
     /// With `lod_steps`: the frame is drawn around missing bricks (`Paged::widens`).
     pub(crate) widen: bool,
+    /// With `bricked` and skipping: rays pass the empty bricks in front of them before their walk
+    /// (`Paged::trim`).
+    pub(crate) trim: bool,
     /// Rays in core walk four samples at a time to their next contributing one ([`walk_batch`]).
     pub(crate) walk_batch: bool,
     /// The push constants of `raycast.comp`.
@@ -320,6 +326,9 @@ impl RayCaster {
             if r.widen {
                 variant.0 |= Variant::WIDEN;
             }
+        }
+        if r.bricked && r.trim && r.options.skip_empty {
+            variant.0 |= Variant::TRIM;
         }
         if r.labels.1 {
             variant.0 |= Variant::LABELS;
