@@ -252,7 +252,7 @@ pub struct Paged {
     /// front of it in a loop that only looks them up, before its walk (the ray caster's `TRIM`
     /// variant), to the plane the walk would step to: the frame is the same. On lavapipe, where
     /// each of the walk's steps carries its sampling code for every lane, the viewer's ray cast
-    /// took about 5 % less. On by default; `VELLUM_BRICK_TRIM=0` turns it off, for measuring.
+    /// took about 4 % less. On by default; `VELLUM_BRICK_TRIM=0` turns it off, for measuring.
     pub trim: bool,
     /// Whether the last frame's rays asked for bricks (true until a frame's feedback is read):
     /// the next frame is likely drawn around missing bricks too.
