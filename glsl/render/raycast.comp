@@ -269,6 +269,11 @@ void widen_step(int level) {
     m_next = m + gap;
 }
 
+// Plane m, or the first plane after it that lies on a step of `step` planes from `phase`.
+float on_step(float m, float step, float phase) {
+    return step > 1.0 ? ceil((m - phase) / step) * step + phase : m;
+}
+
 // V_LOD_STEPS: plane m, or the next plane after it of the step of the level its sample wants
 // (`ray_step`, made again where the next level begins, `step_until`: a ray's levels only grow
 // along it), from the pixel's phase.
@@ -279,11 +284,7 @@ float on_level_step(float m, float a, float b) {
         ray_step = steps_of(want);
         step_until = want + 1 < pt_levels ? level_from[want + 1] : INF;
     }
-    if (ray_step > 1.0) {
-        float phase = floor(step_phase * ray_step);
-        m = ceil((m - phase) / ray_step) * ray_step + phase;
-    }
-    return m;
+    return on_step(m, ray_step, floor(step_phase * ray_step));
 }
 
 // The stretch [from, until) of the ray parameter over which the samples stay in sub-block q of
@@ -392,7 +393,7 @@ float past_empty(float a, float b, float m0, float m_last, vec3 o, vec3 dir, flo
             break;
         }
         // The plane the walk samples from m (on_level_step, at the same level).
-        float at = step > 1.0 ? ceil((m - phase) / step) * step + phase : m;
+        float at = on_step(m, step, phase);
         float t = a + b * at;
         if (at > m_last || t < t_in || t > t_out || t >= until) {
             break;
