@@ -108,9 +108,11 @@ done
 # each, the ray caster's GPU ms (in core with and without empty-space skipping; through a pool
 # just below the in-core need at level 0, each ray looking its brick up at every sample, reusing
 # its last lookup, or keeping the stretch of its path that lookup holds for: Paged::span, a GPU's
-# default since it won here on an H200); and empty-space skipping against none in core on the
-# four volumes of issue 43, two levels and one pass, with the walk batched (a GPU's default) and,
-# for two of them, one sample at a time (VELLUM_WALK_BATCH=0).
+# default since it won here on an H200; and the same without passing the empty bricks in front of
+# a ray before its walk, Paged::trim, a default measured only on lavapipe); and empty-space
+# skipping against none in core on the four volumes of issue 43, two levels and one pass, with
+# the walk batched (a GPU's default) and, for two of them, one sample at a time
+# (VELLUM_WALK_BATCH=0).
 case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
     "$V" convert phantom:shepp-logan:256 /tmp/b.ome.zarr >/dev/null 2>&1
     mib=$(python3 -c "print(256**3*10/2**20)")
@@ -126,7 +128,7 @@ case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
     for c in "core_skip|$A $core" "core_noskip|$A $core --no-skip-empty" \
         "core1p_skip|${A/--iso 0.9 /} $core" "core1p_noskip|${A/--iso 0.9 /} $core --no-skip-empty" \
         "bricked_lookup|$A $brick|VELLUM_BRICK_REUSE=0 VELLUM_BRICK_SPAN=0" "bricked_reuse|$A $brick|VELLUM_BRICK_REUSE=1 VELLUM_BRICK_SPAN=0" \
-        "bricked_span|$A $brick" \
+        "bricked_span|$A $brick" "bricked_span_notrim|$A $brick|VELLUM_BRICK_TRIM=0" \
         "head_skip|$head --iso 1300 $F" "head_noskip|$head --iso 1300 $F --no-skip-empty" \
         "head1p_skip|$head $F" "head1p_noskip|$head $F --no-skip-empty" \
         "engine_skip|$engine --iso 180 $F" "engine_noskip|$engine --iso 180 $F --no-skip-empty" \
