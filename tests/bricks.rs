@@ -123,6 +123,12 @@ impl Bricked {
             .unwrap()
     }
 
+    /// One frame of `view` drawn from what is resident, without waiting or loading.
+    fn draw(&mut self, renderer: &mut Renderer, view: &View) -> FrameImage {
+        let (vol, classify) = (&self.scene.volume, &mut self.scene.classify);
+        renderer.render_frame(vol, classify, view, true).unwrap()
+    }
+
     fn paged(&mut self) -> &mut vellum::passes::paging::Paged {
         &mut self.scene.volume.paged
     }
@@ -378,13 +384,9 @@ fn a_walk_from_the_named_holder_draws_what_a_walk_from_the_level_above_draws() {
         named[1] > 0 && named[2] > 0,
         "holders named per level: {named:?}"
     );
-    let mut draw = |b: &mut Bricked| {
-        let (vol, classify) = (&b.scene.volume, &mut b.scene.classify);
-        renderer.render_frame(vol, classify, &view, true).unwrap()
-    };
-    let named_first = draw(&mut bricked);
+    let named_first = bricked.draw(&mut renderer, &view);
     bricked.paged().held = false;
-    let above_first = draw(&mut bricked);
+    let above_first = bricked.draw(&mut renderer, &view);
     let (mean, max) = diff8(&named_first, &above_first);
     assert_eq!(max, 0, "mean {mean}/255");
 }
@@ -415,13 +417,11 @@ fn passing_the_empty_bricks_in_front_before_the_walk_draws_what_the_walk_draws()
         };
         let (_, report) = bricked.render(&mut renderer, &view, None);
         assert!(report.complete, "{report:?}");
-        let mut draw = |b: &mut Bricked, trim: bool| {
-            b.paged().trim = trim;
-            let (vol, classify) = (&b.scene.volume, &mut b.scene.classify);
-            renderer.render_frame(vol, classify, &view, true).unwrap()
-        };
-        let trimmed = draw(&mut bricked, true);
-        let walked = draw(&mut bricked, false);
+        bricked.paged().trim = true;
+        let trimmed = bricked.draw(&mut renderer, &view);
+        bricked.paged().trim = false;
+        let walked = bricked.draw(&mut renderer, &view);
+        bricked.paged().trim = true;
         let (mean, max) = diff8(&trimmed, &walked);
         let case = format!("{camera}, one pass {one_pass}, {slices:?} planes");
         println!("{case}: mean {mean}/255, max {max}/255");
