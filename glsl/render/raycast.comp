@@ -310,12 +310,8 @@ vec2 lookup_span(int want, ivec3 b, ivec3 q, bool whole) {
     return vec2(from, until);
 }
 
-// Sets the span of the lookup just made: brick b of level `want` (or only its sub-block q, unless
-// `whole`), placed at `offset` in the pool.
-void set_span(int want, ivec3 b, ivec3 q, bool whole, vec3 offset) {
-    vec2 span = lookup_span(want, b, q, whole);
-    c_from = span.x;
-    c_until = span.y;
+// Sets where the stretch of the lookup just made reads the pool: its brick placed at `offset`.
+void set_base(vec3 offset) {
     c_base = (offset + ray_tex0 * c_scale) / pool_size;
     c_step = ray_dtex * c_scale / pool_size;
 }
@@ -349,7 +345,7 @@ uint brick_at(int want, out vec3 v, out ivec3 b) {
 // the whole brick, or the sub-block q the sample is in. Then `skip_t` is the end of that
 // stretch. Else `whole` says whether the brick holds what the ray needs throughout, and q is the
 // sample's sub-block where it does not.
-bool empty_here(uint skip, int want, ivec3 b, vec3 v, uint e, uint word, out bool whole, out ivec3 q) {
+bool empty_flags(uint skip, int want, ivec3 b, vec3 v, uint e, uint word, out bool whole, out ivec3 q) {
     whole = true;
     q = ivec3(0);
     if ((word & KNOWN) == 0u) {
@@ -366,6 +362,12 @@ bool empty_here(uint skip, int want, ivec3 b, vec3 v, uint e, uint word, out boo
             empty = ((needed >> uint(q.x + 2 * q.y + 4 * q.z)) & 1u) == 0u;
         }
     }
+    return empty;
+}
+
+// empty_flags(), and for an empty stretch its end in `skip_t`.
+bool empty_here(uint skip, int want, ivec3 b, vec3 v, uint e, uint word, out bool whole, out ivec3 q) {
+    bool empty = empty_flags(skip, want, b, v, e, word, whole, q);
     if (empty) {
         // (One lookup for both: lavapipe runs the code of each, masked, at every step.)
         skip_t = lookup_span(want, b, q, whole).y;
@@ -452,10 +454,20 @@ int locate(uint skip, bool on_plane) {
     // Whether the brick holds all the ray needs throughout, else the sub-block q the sample is in.
     bool whole = true;
     ivec3 q = ivec3(0);
-    if (skip != 0u && empty_here(skip, want, b, v, e, word, whole, q)) {
+    bool empty = skip != 0u && empty_flags(skip, want, b, v, e, word, whole, q);
+    bool resident = (word & RESIDENT) != 0u;
+    if (empty || (V_BRICK_SPAN && resident)) {
+        // The stretch of the lookup: where the empty one ends, or the resident brick's (one
+        // lookup_span for both: lavapipe runs the code of each, masked, at every step).
+        vec2 span = lookup_span(want, b, q, whole);
+        skip_t = span.y;
+        c_from = empty ? INF : span.x;
+        c_until = span.y;
+    }
+    if (empty) {
         return EMPTY;
     }
-    if ((word & RESIDENT) != 0u) {
+    if (resident) {
         mark_used(e);
         vec3 offset = slot_origin(word) - vec3(b) * brick;
         ptex = (offset + v) * inv_pool;
@@ -466,7 +478,7 @@ int locate(uint skip, bool on_plane) {
         c_brick = b;
         c_offset = offset;
         if (V_BRICK_SPAN) {
-            set_span(want, b, q, whole, offset);
+            set_base(offset);
         }
         return FOUND;
     }
