@@ -35,6 +35,10 @@ layout(set = 0, binding = 15) buffer Feedback { uint wanted[]; };
 // A ray's state between the passes of one frame of a bricked volume that waits for its bricks.
 #include "ray_state.glsl"
 layout(set = 0, binding = 16) buffer RayStates { RayState rays[]; };
+// The page table's header again, as uniforms (its first PT_HEADER words; passes/paging.rs):
+// lavapipe loads a storage buffer lane by lane, a loop at every load, and gathers uniforms. The
+// lookups read the levels' words at every step.
+layout(set = 0, binding = 25) uniform PageHeader { uvec4 pt_head[PT_HEADER / 4]; };
 // Per ray of a bricked frame that waits and mixes channels by `add` or `max`, eight sums (one per
 // channel: `add`'s premultiplied colour and opacity, `max`'s largest value in x), kept between
 // its passes as the ray's state is. Other frames bind a stand-in and never read it.
@@ -134,13 +138,18 @@ bool screened(vec3 at) {
     return false;
 }
 
+// Word i of the page table's header.
+uint head(int i) {
+    return pt_head[i >> 2][i & 3];
+}
+
 void read_header() {
-    pt_levels = int(pt[0]);
-    pt_brick = float(pt[1]);
-    pt_slot_edge = int(pt[2]);
-    pt_mode = pt[3];
-    pt_cover_a = uintBitsToFloat(pt[6]);
-    pt_cover_b = uintBitsToFloat(pt[7]);
+    pt_levels = int(head(0));
+    pt_brick = float(head(1));
+    pt_slot_edge = int(head(2));
+    pt_mode = head(3);
+    pt_cover_a = uintBitsToFloat(head(6));
+    pt_cover_b = uintBitsToFloat(head(7));
     pool_size = vec3(textureSize(volume, 0));
     inv_pool = 1.0 / pool_size;
 }
@@ -245,7 +254,7 @@ float plane_a, plane_b;
 // A level's voxel over level 0's, as a power of two's exponent (a margin keeps an exact power of
 // two from rounding down; a level coarser along some axes only counts as level 0's voxel).
 float voxel_exponent(int level) {
-    return floor(log2(1.0 / uintBitsToFloat(pt[8 + 8 * level + 7])) + 0.05);
+    return floor(log2(1.0 / uintBitsToFloat(head(8 + 8 * level + 7))) + 0.05);
 }
 
 // The planes between the samples of level `level`: its voxel over the voxel of the level the
@@ -321,11 +330,11 @@ void load_level(int want) {
     if (want != c_level) {
         int h = 8 + 8 * want;
         c_level = want;
-        c_first = pt[h];
-        c_counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
-        c_scale = vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
+        c_first = head(h);
+        c_counts = ivec3(head(h + 1), head(h + 2), head(h + 3));
+        c_scale = vec3(uintBitsToFloat(head(h + 4)), uintBitsToFloat(head(h + 5)), uintBitsToFloat(head(h + 6)));
         c_inv_scale = 1.0 / c_scale;
-        c_ratio = uintBitsToFloat(pt[h + 7]);
+        c_ratio = uintBitsToFloat(head(h + 7));
         c_hit = false;
     }
 }
@@ -500,11 +509,11 @@ int locate(uint skip, bool on_plane) {
     uint held = word >> HELD_SHIFT;
     for (int l = held != 0u ? int(held) : want + 1; l < pt_levels; ++l) {
         int h = 8 + 8 * l;
-        ivec3 counts = ivec3(pt[h + 1], pt[h + 2], pt[h + 3]);
-        vec3 scale = vec3(uintBitsToFloat(pt[h + 4]), uintBitsToFloat(pt[h + 5]), uintBitsToFloat(pt[h + 6]));
+        ivec3 counts = ivec3(head(h + 1), head(h + 2), head(h + 3));
+        vec3 scale = vec3(uintBitsToFloat(head(h + 4)), uintBitsToFloat(head(h + 5)), uintBitsToFloat(head(h + 6)));
         vec3 vl = t * scale;
         ivec3 bl = clamp(ivec3(floor(vl * (1.0 / brick))), ivec3(0), counts - 1);
-        uint el = pt[h] + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
+        uint el = head(h) + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
         uint wl = pt[PT_HEADER + PT_ENTRY_WORDS * int(el)];
         if ((wl & RESIDENT) != 0u) {
             mark_used(el);
@@ -727,7 +736,7 @@ bool walk_batch(vec3 o, vec3 dir, float a, float b, float t_in, float t_out, ino
 
 // Whether a pass that waits resumes the rays of the tiles ray_wake.comp listed.
 bool resumes_listed() {
-    return V_BRICKED && (pt[3] & (MODE_WAIT | MODE_RESUME)) == (MODE_WAIT | MODE_RESUME);
+    return V_BRICKED && (head(3) & (MODE_WAIT | MODE_RESUME)) == (MODE_WAIT | MODE_RESUME);
 }
 
 // In a resumed pass that waits, whether ray `ray` of a listed tile has nothing to do: it

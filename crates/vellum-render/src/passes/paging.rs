@@ -4,6 +4,9 @@
 //! what it missed into the feedback buffer.
 //!
 //! ## Page table (what `raycast.comp` reads, one u32 array staged per frame)
+//! The header (the words before `HEADER`) is staged a second time as uniforms: the lookups read
+//! the levels' words at every step, and a CPU device loads a storage buffer lane by lane but
+//! gathers uniforms. The entries stay a storage buffer (a 2048³ store's are 2.4 MB).
 //! - words 0..8: levels, brick edge, slot edge, mode (bit 0: rays stop at a missing brick and
 //!   wait for it, bit 1: rays continue from the state the previous pass saved), pool slots along
 //!   x and y, and the level-of-detail line (a, b as f32 bits: a sample at distance d from the eye

@@ -69,10 +69,10 @@ pub(crate) const BRICK_FOCUS: u32 = 2;
 /// brick flags, the brick cache's page table, feedback and ray states (`passes::paging`), a
 /// label volume's voxels and table (`classify::labels`), mixed channels' texture, transfer
 /// functions and opacity bounds (`classify::channels`), the channels' sums and the tiles'
-/// liveness of a bricked frame that waits.
-pub(crate) const RAY_BINDINGS: [BindingKind; 25] = {
+/// liveness of a bricked frame that waits, and the page table's header as uniforms.
+pub(crate) const RAY_BINDINGS: [BindingKind; 26] = {
     let slicer = SHADE_BINDINGS;
-    let mut all = [BindingKind::StorageBuffer; 25];
+    let mut all = [BindingKind::StorageBuffer; 26];
     let mut i = 0;
     while i < slicer.len() {
         all[i] = slicer[i];
@@ -85,6 +85,7 @@ pub(crate) const RAY_BINDINGS: [BindingKind; 25] = {
     all[19] = BindingKind::SampledImage;
     all[20] = BindingKind::SampledImage;
     all[22] = BindingKind::SampledImage;
+    all[25] = BindingKind::UniformBuffer;
     all
 };
 
@@ -204,9 +205,10 @@ pub(crate) struct RayRequest<'a> {
     pub composite: &'a Image,
     /// The opacity bounds and brick flags staged for this frame (`RayTables`).
     pub tables: BufferSlice,
-    /// The page table, feedback, ray states, the channels' sums and the tiles' liveness of a
-    /// bricked volume (stand-ins in core, and for the sums without `add` or `max` mixing).
-    pub paging: [Bind<'a>; 5],
+    /// The page table, feedback, ray states, the channels' sums, the tiles' liveness and the page
+    /// table's header as uniforms of a bricked volume (stand-ins in core, and for the sums
+    /// without `add` or `max` mixing).
+    pub paging: [Bind<'a>; 6],
     /// A resumed pass that waits: the tiles `ray_wake` listed, whose first words are the
     /// dispatch (one workgroup per listed tile).
     pub listed: Option<&'a vellum_gpu::Buffer>,
@@ -284,10 +286,10 @@ impl RayCaster {
         // On the stack: a steady frame allocates nothing here.
         let s = r.shading;
         let [i0, i1, i2, i3, i4] = images.map(Bind::StorageImage);
-        let [p0, p1, p2, p3, p4] = r.paging;
+        let [p0, p1, p2, p3, p4, p5] = r.paging;
         let [l0, l1] = r.labels.0;
         let [c0, c1, c2, c3] = r.channels.0;
-        let binds: [Bind; 25] = [
+        let binds: [Bind; 26] = [
             s[0],
             s[1],
             s[2],
@@ -313,6 +315,7 @@ impl RayCaster {
             c3,
             p3,
             p4,
+            p5,
         ];
         let mut variant = Variant::of(&r.options, r.layers.is_some(), r.uniforms, r.bricked);
         if r.bricked && r.brick_reuse {
