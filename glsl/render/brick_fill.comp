@@ -74,20 +74,20 @@ void main() {
     // The column's voxel in the level (a texel outside it takes the edge voxel's gradient).
     ivec2 cxy = clamp(lo.xy + 1 + sxy, ivec2(0), dims.xy - 1);
     vec3 scale = f.inv_spacing.xyz / 32.0;
-    // The sums of the slices below, at and above the level slice `held`; the texel's slice
-    // advances by one or (clamped past the level) not at all.
-    int held = -2;
-    vec3 below = vec3(0.0), here = vec3(0.0), above = vec3(0.0);
+    // The sums of the slices below, at and above the level slice `held`, made for the first
+    // texel's slice before the loop: from one texel to the next the slice advances by one or
+    // (clamped past the level) not at all, so the loop makes one slice's sums at most. (A CPU
+    // device runs a branch's code, masked, whether a lane takes it or not: a first-slice branch
+    // in the loop cost every texel 27 fetches, not 9.)
+    int held = clamp(lo.z + 1, 0, dims.z - 1);
+    vec3 below = plane_sums(first, lo, dims, cxy, max(held - 1, 0));
+    vec3 here = plane_sums(first, lo, dims, cxy, held);
+    vec3 above = plane_sums(first, lo, dims, cxy, min(held + 1, dims.z - 1));
     for (int sz = 0; sz < SLOT; ++sz) {
         int cz = clamp(lo.z + 1 + sz, 0, dims.z - 1);
         if (cz != held) {
-            if (cz == held + 1) {
-                below = here;
-                here = above;
-            } else {
-                below = plane_sums(first, lo, dims, cxy, max(cz - 1, 0));
-                here = plane_sums(first, lo, dims, cxy, cz);
-            }
+            below = here;
+            here = above;
             above = plane_sums(first, lo, dims, cxy, min(cz + 1, dims.z - 1));
             held = cz;
         }
