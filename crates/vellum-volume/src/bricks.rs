@@ -198,6 +198,8 @@ pub struct BrickLevels {
     /// ([`crate::io::ome_zarr::Multiscale::absent_chunks`]): a brick that meets only those holds
     /// their fill value, known before it is read ([`BrickLevels::known_uniform`]).
     absent: Vec<Option<crate::io::ome_zarr::AbsentChunks>>,
+    /// How the levels' bricks nest, per pair of levels.
+    nesting: nesting::Nesting,
 }
 
 /// A channel mixed in the ray (issue 42): each brick read carries every mixed channel's voxels,
@@ -329,7 +331,7 @@ impl BrickLevels {
                 )));
             }
         }
-        Ok(BrickLevels {
+        let mut pyramid = BrickLevels {
             levels,
             sources,
             range,
@@ -339,7 +341,10 @@ impl BrickLevels {
             labels: None,
             small: std::sync::Mutex::new(None),
             absent: Vec::new(),
-        })
+            nesting: nesting::Nesting::default(),
+        };
+        pyramid.nesting = nesting::Nesting::of(&pyramid);
+        Ok(pyramid)
     }
 
     /// The pyramid of the store at `path` (the time point and channel of `pick`) when `path` is

@@ -60,27 +60,71 @@ impl BrickLevels {
         out
     }
 
-    /// Levels `fine` and `coarse` along x, y and z.
+    /// Levels `fine` and `coarse` along x, y and z: from [`Nesting`], made with the pyramid (a
+    /// page table's words ask for them at each of a 2048³ store's 300,000 entries).
     fn axes(&self, fine: usize, coarse: usize) -> [Axis; 3] {
+        match self.nesting.pairs.get(fine * self.nesting.levels + coarse) {
+            Some(a) => *a,
+            None => self.axes_made(fine, coarse),
+        }
+    }
+
+    /// [`BrickLevels::axes`], made from the levels' scales and brick counts.
+    fn axes_made(&self, fine: usize, coarse: usize) -> [Axis; 3] {
         let (f, c) = (self.texture_scale(fine), self.texture_scale(coarse));
-        std::array::from_fn(|a| Axis {
-            fine: f[a] as f64,
-            coarse: c[a] as f64,
-            counts: self.levels[fine].counts[a],
-            coarse_counts: self.levels[coarse].counts[a],
+        std::array::from_fn(|a| {
+            let counts = [self.levels[fine].counts[a], self.levels[coarse].counts[a]];
+            Axis::new(f[a] as f64, c[a] as f64, counts)
         })
     }
 }
 
-/// One axis of a finer level and a coarser one: their scales (f32 values) and brick counts.
+/// Every pair of a pyramid's levels along x, y and z ([`BrickLevels::axes`]), made once.
+#[derive(Default)]
+pub(super) struct Nesting {
+    levels: usize,
+    /// Per pair (finer, coarser), at finer · levels + coarser.
+    pairs: Vec<[Axis; 3]>,
+}
+
+impl Nesting {
+    /// The pairs of `levels`' levels.
+    pub(super) fn of(levels: &BrickLevels) -> Self {
+        let n = levels.levels.len();
+        let pairs = (0..n * n).map(|i| levels.axes_made(i / n, i % n)).collect();
+        Nesting { levels: n, pairs }
+    }
+}
+
+/// One axis of a finer level and a coarser one: their scales (f32 values) and brick counts, and
+/// whether the coarser scale is the finer one over a power of two, exactly: then a voxel's
+/// coordinate in the coarser level is the finer one's scaled by that power, with no rounding.
+#[derive(Copy, Clone)]
 struct Axis {
     fine: f64,
     coarse: f64,
     counts: usize,
     coarse_counts: usize,
+    exact: bool,
+    /// With `exact`, that power of two's exponent.
+    shift: u32,
 }
 
 impl Axis {
+    /// The axis of scales `fine` and `coarse` (f32 values) and `counts` bricks (finer, coarser).
+    fn new(fine: f64, coarse: f64, [counts, coarse_counts]: [usize; 2]) -> Self {
+        let k = (fine / coarse).log2().round();
+        let exact = k >= 0.0 && coarse * 2f64.powi(k as i32) == fine;
+        Axis {
+            fine,
+            coarse,
+            counts,
+            coarse_counts,
+            exact,
+            shift: if exact { k as u32 } else { 0 },
+        }
+    }
+
     /// The voxels of the finer level whose samples the lookup places in brick `b`: from 32 b
     /// to 32 (b + 1), or to the level's scale for the last brick, which takes every sample up to
     /// t = 1 (the lookup clamps t into [0, 1]).
@@ -94,30 +138,33 @@ impl Axis {
         (b as f64 * edge, hi)
     }
 
-    /// Whether the coarser scale is the finer one over a power of two, exactly: then a voxel's
-    /// coordinate in the coarser level is the finer one's scaled by that power, with no rounding.
-    fn exact(&self) -> bool {
-        let k = (self.fine / self.coarse).log2().round();
-        k >= 0.0 && self.coarse * 2f64.powi(k as i32) == self.fine
-    }
-
     fn clamp(&self, brick: f64) -> usize {
         (brick.max(0.0) as usize).min(self.coarse_counts - 1)
     }
 
     /// The coarser brick that holds finer brick `b` on this axis, if one does.
     fn holder(&self, b: usize) -> Option<usize> {
+        if self.exact && b + 1 < self.counts {
+            // What the arithmetic below gives there: the first and last coarser voxel are
+            // ⌊32 b / 2^k⌋ and ⌈32 (b + 1) / 2^k⌉ - 1, in one brick, b >> k.
+            return Some((b >> self.shift).min(self.coarse_counts - 1));
+        }
+        self.holder_by_voxels(b)
+    }
+
+    /// [`Axis::holder`] from the finer brick's voxels scaled into the coarser level.
+    fn holder_by_voxels(&self, b: usize) -> Option<usize> {
         let (lo, hi) = self.fine_voxels(b);
         let r = self.coarse / self.fine / BRICK as f64;
         let (x_lo, x_hi) = (lo * r, hi * r);
         let last = b + 1 >= self.counts;
-        let first = if b == 0 || self.exact() {
+        let first = if b == 0 || self.exact {
             x_lo.floor()
         } else {
             (x_lo - MARGIN).floor()
         };
         // The finer brick's samples stop short of `hi`, except the last brick's, which reach it.
-        let end = if !last && self.exact() {
+        let end = if !last && self.exact {
             x_hi.ceil() - 1.0
         } else {
             (x_hi + MARGIN).floor()
@@ -137,7 +184,7 @@ impl Axis {
         } else {
             (c + 1) as f64 * edge * r
         };
-        let (first, end) = match self.exact() {
+        let (first, end) = match self.exact {
             true => (lo.floor(), hi.ceil() - 1.0),
             false => ((lo - MARGIN).floor(), (hi + MARGIN).floor()),
         };
@@ -229,12 +276,7 @@ mod tests {
         for (fine, coarse) in pairs {
             let counts = (fine as usize).div_ceil(BRICK);
             let coarse_counts = (coarse.ceil() as usize).div_ceil(BRICK);
-            let axis = Axis {
-                fine: fine as f64,
-                coarse: coarse as f64,
-                counts,
-                coarse_counts,
-            };
+            let axis = Axis::new(fine as f64, coarse as f64, [counts, coarse_counts]);
             let brick = |t: f32, scale: f32, n: usize| {
                 ((t * scale * (1.0 / BRICK as f32)).floor().max(0.0) as usize).min(n - 1)
             };
@@ -305,5 +347,32 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Where two levels' scales are a power of two apart, a finer brick's holder is its index
+    /// shifted by that power, as the voxels scaled into the coarser level say, for every pair of
+    /// levels and every brick but the last along an axis (which takes the voxels up to the
+    /// level's end).
+    #[test]
+    fn a_holder_of_levels_a_power_of_two_apart_is_the_shifted_index() {
+        let mut shifted = 0;
+        for dims in [[256, 128, 64], [200, 97, 75], [1000, 520, 130]] {
+            let l = levels(dims);
+            let n = l.levels().len();
+            for fine in 0..n {
+                for coarse in fine + 1..n {
+                    for axis in l.axes(fine, coarse) {
+                        if !axis.exact {
+                            continue;
+                        }
+                        for b in 0..axis.counts - 1 {
+                            assert_eq!(axis.holder(b), axis.holder_by_voxels(b), "{dims:?}");
+                            shifted += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(shifted > 100, "{shifted}");
     }
 }
