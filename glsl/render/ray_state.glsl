@@ -10,7 +10,8 @@ struct RayState {
     uvec4 flags;
 };
 
-// Words of the page table before its first entry, and per entry.
+// Words of the page table's header (bound as uniforms), and per entry (a storage buffer of the
+// entries alone).
 const int PT_HEADER = 8 + 8 * 16;
 const int PT_ENTRY_WORDS = 2;
 // An entry's first word: RESIDENT, with the brick's slot along x, y and z of the pool in bits

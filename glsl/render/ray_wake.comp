@@ -31,7 +31,7 @@ void main() {
     }
     if (f.y != 0u) {
         uint entry = awaited_entry(f.y);
-        if (waits_still(f.y, pt[PT_HEADER + PT_ENTRY_WORDS * int(entry)])) {
+        if (waits_still(f.y, pt[PT_ENTRY_WORDS * int(entry)])) {
             wanted[entry] = 1u;
             return;
         }

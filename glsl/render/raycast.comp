@@ -35,9 +35,9 @@ layout(set = 0, binding = 15) buffer Feedback { uint wanted[]; };
 // A ray's state between the passes of one frame of a bricked volume that waits for its bricks.
 #include "ray_state.glsl"
 layout(set = 0, binding = 16) buffer RayStates { RayState rays[]; };
-// The page table's header again, as uniforms (its first PT_HEADER words; passes/paging.rs):
-// lavapipe loads a storage buffer lane by lane, a loop at every load, and gathers uniforms. The
-// lookups read the levels' words at every step.
+// The page table's header, as uniforms (PT_HEADER words; passes/paging.rs): the lookups read the
+// levels' words at every step, and lavapipe loads a storage buffer lane by lane, a loop at every
+// load, where it gathers uniforms. The entries are the storage buffer `pt`.
 layout(set = 0, binding = 25) uniform PageHeader { uvec4 pt_head[PT_HEADER / 4]; };
 // Per ray of a bricked frame that waits and mixes channels by `add` or `max`, eight sums (one per
 // channel: `add`'s premultiplied colour and opacity, `max`'s largest value in x), kept between
@@ -363,7 +363,7 @@ bool empty_flags(uint skip, int want, ivec3 b, vec3 v, uint e, uint word, out bo
     bool empty = ((word >> 24u) & skip) == 0u;
     if (!empty) {
         // The sub-blocks that may hold what the ray needs (bit i for sub-block i).
-        uint subs = pt[PT_HEADER + PT_ENTRY_WORDS * int(e) + 1];
+        uint subs = pt[PT_ENTRY_WORDS * int(e) + 1];
         uint needed = ((skip & 1u) != 0u ? subs : 0u) | ((skip & 2u) != 0u ? subs >> 8u : 0u);
         if ((needed & 0xffu) != 0xffu) {
             whole = false;
@@ -416,7 +416,7 @@ float past_empty(float a, float b, float m0, float m_last, vec3 o, vec3 dir, flo
         ivec3 bk, q;
         bool whole;
         uint e = brick_at(want, v, bk);
-        if (!empty_here(need, want, bk, v, e, pt[PT_HEADER + PT_ENTRY_WORDS * int(e)], whole, q)) {
+        if (!empty_here(need, want, bk, v, e, pt[PT_ENTRY_WORDS * int(e)], whole, q)) {
             break;
         }
         // As the walk steps on from an EMPTY sample at `at`.
@@ -459,7 +459,7 @@ int locate(uint skip, bool on_plane) {
         return FOUND;
     }
     c_hit = false;
-    uint word = pt[PT_HEADER + PT_ENTRY_WORDS * int(e)];
+    uint word = pt[PT_ENTRY_WORDS * int(e)];
     // Whether the brick holds all the ray needs throughout, else the sub-block q the sample is in.
     bool whole = true;
     ivec3 q = ivec3(0);
@@ -514,7 +514,7 @@ int locate(uint skip, bool on_plane) {
         vec3 vl = t * scale;
         ivec3 bl = clamp(ivec3(floor(vl * (1.0 / brick))), ivec3(0), counts - 1);
         uint el = head(h) + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
-        uint wl = pt[PT_HEADER + PT_ENTRY_WORDS * int(el)];
+        uint wl = pt[PT_ENTRY_WORDS * int(el)];
         if ((wl & RESIDENT) != 0u) {
             mark_used(el);
             ptex = (slot_origin(wl) - vec3(bl) * brick + vl) * inv_pool;
@@ -750,7 +750,7 @@ bool resumed_waiting(uint ray) {
     if ((f.x & 2u) != 0u) {
         return true;
     }
-    return f.y != 0u && waits_still(f.y, pt[PT_HEADER + PT_ENTRY_WORDS * int(awaited_entry(f.y))]);
+    return f.y != 0u && waits_still(f.y, pt[PT_ENTRY_WORDS * int(awaited_entry(f.y))]);
 }
 
 void main() {
@@ -1072,7 +1072,7 @@ void main() {
             uint flags = 1u | (stopped ? 0u : 2u) | (first ? 4u : 0u);
             // A stopped ray keeps the entry it waits for (+ 1; 0: none) and whether that
             // brick's range was known (bit 31), for resumed_waiting.
-            uint awaits = stopped ? awaits_of(last_wanted, pt[PT_HEADER + PT_ENTRY_WORDS * int(last_wanted)]) : 0u;
+            uint awaits = stopped ? awaits_of(last_wanted, pt[PT_ENTRY_WORDS * int(last_wanted)]) : 0u;
             rays[ray] = RayState(fp, fd, ctx, vec4(depth, m, prev_t, prev_s), uvec4(flags, awaits, 0u, 0u));
         }
     } else if (wait) {

@@ -3,19 +3,19 @@
 //! (`volume::bricks`); the ray caster reads the page table, staged with each frame, and writes
 //! what it missed into the feedback buffer.
 //!
-//! ## Page table (what `raycast.comp` reads, one u32 array staged per frame)
-//! The header (the words before `HEADER`) is staged a second time as uniforms: the lookups read
-//! the levels' words at every step, and a CPU device loads a storage buffer lane by lane but
-//! gathers uniforms. The entries stay a storage buffer (a 2048³ store's are 2.4 MB).
-//! - words 0..8: levels, brick edge, slot edge, mode (bit 0: rays stop at a missing brick and
+//! ## Page table (what `raycast.comp` reads, staged per frame)
+//! A header of `HEADER` words, bound as uniforms (the lookups read the levels' words at every
+//! step, and a CPU device loads a storage buffer lane by lane but gathers uniforms), and the
+//! entries, a storage buffer (a 2048³ store's are 2.4 MB).
+//! - header words 0..8: levels, brick edge, slot edge, mode (bit 0: rays stop at a missing brick and
 //!   wait for it, bit 1: rays continue from the state the previous pass saved), pool slots along
 //!   x and y, and the level-of-detail line (a, b as f32 bits: a sample at distance d from the eye
 //!   covers a·d + b level-0 voxels; its level is ⌊log2⌋ of that, clamped);
-//! - words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its texture to
+//! - header words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its texture to
 //!   voxel scale along x, y, z, and level 0's voxel over its own (f32 bits): opacity is corrected
 //!   per voxel of the level a sample wants, so that a coarse level looks as that level rendered
 //!   in core (a sample drawn from a coarser level, its brick missing, keeps its own level's);
-//! - from word `HEADER`: two words per entry. The first: when the brick is resident
+//! - the entries, two words each. The first: when the brick is resident
 //!   (`RESIDENT_BIT`) its slot's place along x, y and z of the pool in bits 0-7, 8-15 and 16-23,
 //!   and when the brick's range is known (`KNOWN_BIT`) what it may hold under this frame's
 //!   classification (bit 24: visible context or one-pass samples, bit 25: focus), so that a ray
@@ -51,7 +51,7 @@ use vellum_volume::bricks::{
 /// ranges (bit 0: visible context or one-pass samples, bit 1: focus).
 pub(crate) type BrickFlagsOf<'a> = dyn Fn([u16; 2], &[[u16; 2]]) -> u32 + 'a;
 
-/// Words before the first page-table entry.
+/// Words of the page table's header (staged as uniforms; the entries are a storage buffer).
 pub(crate) const HEADER: usize = 8 + 8 * MAX_LEVELS;
 /// Mode bit: rays stop at a missing brick (and ask for it) instead of sampling a coarser level.
 pub(crate) const MODE_WAIT: u32 = 1;
