@@ -143,6 +143,21 @@ uint head(int i) {
     return pt_head[i >> 2][i & 3];
 }
 
+// Level l's words of the header (from word 8 + 8 l): its first entry, its bricks along x, y, z,
+// its texture-to-voxel scale along x, y, z, and level 0's voxel over its own.
+uint level_first(int l) {
+    return head(8 + 8 * l);
+}
+ivec3 level_counts(int l) {
+    return ivec3(head(9 + 8 * l), head(10 + 8 * l), head(11 + 8 * l));
+}
+vec3 level_scale(int l) {
+    return uintBitsToFloat(uvec3(head(12 + 8 * l), head(13 + 8 * l), head(14 + 8 * l)));
+}
+float level_voxel_ratio(int l) {
+    return uintBitsToFloat(head(15 + 8 * l));
+}
+
 void read_header() {
     pt_levels = int(head(0));
     pt_brick = float(head(1));
@@ -254,7 +269,7 @@ float plane_a, plane_b;
 // A level's voxel over level 0's, as a power of two's exponent (a margin keeps an exact power of
 // two from rounding down; a level coarser along some axes only counts as level 0's voxel).
 float voxel_exponent(int level) {
-    return floor(log2(1.0 / uintBitsToFloat(head(8 + 8 * level + 7))) + 0.05);
+    return floor(log2(1.0 / level_voxel_ratio(level)) + 0.05);
 }
 
 // The planes between the samples of level `level`: its voxel over the voxel of the level the
@@ -328,13 +343,12 @@ void set_base(vec3 offset) {
 // The header of level `want` into the c_ cache, when it is not the level cached.
 void load_level(int want) {
     if (want != c_level) {
-        int h = 8 + 8 * want;
         c_level = want;
-        c_first = head(h);
-        c_counts = ivec3(head(h + 1), head(h + 2), head(h + 3));
-        c_scale = vec3(uintBitsToFloat(head(h + 4)), uintBitsToFloat(head(h + 5)), uintBitsToFloat(head(h + 6)));
+        c_first = level_first(want);
+        c_counts = level_counts(want);
+        c_scale = level_scale(want);
         c_inv_scale = 1.0 / c_scale;
-        c_ratio = uintBitsToFloat(head(h + 7));
+        c_ratio = level_voxel_ratio(want);
         c_hit = false;
     }
 }
@@ -508,12 +522,11 @@ int locate(uint skip, bool on_plane) {
     // slower on lavapipe, even frames with nothing missing.)
     uint held = word >> HELD_SHIFT;
     for (int l = held != 0u ? int(held) : want + 1; l < pt_levels; ++l) {
-        int h = 8 + 8 * l;
-        ivec3 counts = ivec3(head(h + 1), head(h + 2), head(h + 3));
-        vec3 scale = vec3(uintBitsToFloat(head(h + 4)), uintBitsToFloat(head(h + 5)), uintBitsToFloat(head(h + 6)));
+        ivec3 counts = level_counts(l);
+        vec3 scale = level_scale(l);
         vec3 vl = t * scale;
         ivec3 bl = clamp(ivec3(floor(vl * (1.0 / brick))), ivec3(0), counts - 1);
-        uint el = head(h) + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
+        uint el = level_first(l) + uint(bl.x + counts.x * (bl.y + counts.y * bl.z));
         uint wl = pt[PT_ENTRY_WORDS * int(el)];
         if ((wl & RESIDENT) != 0u) {
             mark_used(el);

@@ -7,14 +7,15 @@
 //! A header of `HEADER` words, bound as uniforms (the lookups read the levels' words at every
 //! step, and a CPU device loads a storage buffer lane by lane but gathers uniforms), and the
 //! entries, a storage buffer (a 2048³ store's are 2.4 MB).
-//! - header words 0..8: levels, brick edge, slot edge, mode (bit 0: rays stop at a missing brick and
-//!   wait for it, bit 1: rays continue from the state the previous pass saved), pool slots along
-//!   x and y, and the level-of-detail line (a, b as f32 bits: a sample at distance d from the eye
-//!   covers a·d + b level-0 voxels; its level is ⌊log2⌋ of that, clamped);
-//! - header words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its texture to
-//!   voxel scale along x, y, z, and level 0's voxel over its own (f32 bits): opacity is corrected
-//!   per voxel of the level a sample wants, so that a coarse level looks as that level rendered
-//!   in core (a sample drawn from a coarser level, its brick missing, keeps its own level's);
+//! - header words 0..8: levels, brick edge, slot edge, mode (bit 0: rays stop at a missing
+//!   brick and wait for it, bit 1: rays continue from the state the previous pass saved), pool
+//!   slots along x and y, and the level-of-detail line (a, b as f32 bits: a sample at distance d
+//!   from the eye covers a·d + b level-0 voxels; its level is ⌊log2⌋ of that, clamped);
+//! - header words 8 + 8·l ..: per level l, its first entry, its bricks along x, y, z, its
+//!   texture to voxel scale along x, y, z, and level 0's voxel over its own (f32 bits): opacity
+//!   is corrected per voxel of the level a sample wants, so that a coarse level looks as that
+//!   level rendered in core (a sample drawn from a coarser level, its brick missing, keeps its
+//!   own level's);
 //! - the entries, two words each. The first: when the brick is resident
 //!   (`RESIDENT_BIT`) its slot's place along x, y and z of the pool in bits 0-7, 8-15 and 16-23,
 //!   and when the brick's range is known (`KNOWN_BIT`) what it may hold under this frame's
