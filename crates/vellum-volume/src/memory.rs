@@ -53,7 +53,22 @@ fn counted(bytes: i64) {
     if !COUNTING.load(Ordering::Relaxed) {
         COUNTING.store(true, Ordering::Relaxed);
     }
-    LIVE.fetch_add(bytes, Ordering::Relaxed);
+    let now = LIVE.fetch_add(bytes, Ordering::Relaxed) + bytes;
+    if now > PEAK.load(Ordering::Relaxed) {
+        PEAK.fetch_max(now, Ordering::Relaxed);
+    }
+}
+
+static PEAK: std::sync::atomic::AtomicI64 = std::sync::atomic::AtomicI64::new(0);
+
+/// The most bytes of Rust heap live at once so far, where [`Counting`] counts them: beside the
+/// peak resident set, it tells what vellum kept at its peak from what the driver and the layers
+/// kept (`render --json`'s `peak_heap_mib`).
+pub fn peak_heap_bytes() -> Option<u64> {
+    use std::sync::atomic::Ordering;
+    COUNTING
+        .load(Ordering::Relaxed)
+        .then(|| PEAK.load(Ordering::Relaxed).max(0) as u64)
 }
 
 /// The system allocator, counting the bytes live ([`live_heap_bytes`]): one relaxed atomic add
@@ -79,8 +94,26 @@ unsafe impl std::alloc::GlobalAlloc for Counting {
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new: usize) -> *mut u8 {
         let grown = new as i64 - layout.size() as i64;
-        LIVE.fetch_add(grown, std::sync::atomic::Ordering::Relaxed);
+        counted(grown);
         // SAFETY: as for `realloc`.
         unsafe { std::alloc::System.realloc(ptr, layout, new) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::Ordering;
+
+    /// The peak follows the live count up and stays when it falls. (The test binary does not
+    /// install `Counting`, so only these calls move the counts.)
+    #[test]
+    fn the_peak_keeps_the_most_live_at_once() {
+        let base = LIVE.load(Ordering::Relaxed);
+        counted(1 << 40);
+        counted(-(1 << 40));
+        assert_eq!(LIVE.load(Ordering::Relaxed), base);
+        assert!(PEAK.load(Ordering::Relaxed) >= base + (1 << 40));
+        assert_eq!(peak_heap_bytes(), Some(PEAK.load(Ordering::Relaxed) as u64));
     }
 }
