@@ -37,10 +37,15 @@ pub fn peak_resident_kib() -> Option<u64> {
 /// themselves (the Vulkan driver and the validation layer) is not in it, which is the point:
 /// it tells what vellum's own code keeps, where the resident set also moves with theirs.
 pub fn live_heap_bytes() -> Option<u64> {
+    counted_bytes(&LIVE)
+}
+
+/// `counter`'s bytes, where [`Counting`] counts them.
+fn counted_bytes(counter: &std::sync::atomic::AtomicI64) -> Option<u64> {
     use std::sync::atomic::Ordering;
     COUNTING
         .load(Ordering::Relaxed)
-        .then(|| LIVE.load(Ordering::Relaxed).max(0) as u64)
+        .then(|| counter.load(Ordering::Relaxed).max(0) as u64)
 }
 
 static LIVE: std::sync::atomic::AtomicI64 = std::sync::atomic::AtomicI64::new(0);
@@ -65,14 +70,17 @@ static PEAK: std::sync::atomic::AtomicI64 = std::sync::atomic::AtomicI64::new(0)
 /// peak resident set, it tells what vellum kept at its peak from what the driver and the layers
 /// kept (`render --json`'s `peak_heap_mib`).
 pub fn peak_heap_bytes() -> Option<u64> {
-    use std::sync::atomic::Ordering;
-    COUNTING
-        .load(Ordering::Relaxed)
-        .then(|| PEAK.load(Ordering::Relaxed).max(0) as u64)
+    counted_bytes(&PEAK)
 }
 
-/// The system allocator, counting the bytes live ([`live_heap_bytes`]): one relaxed atomic add
-/// per allocation and per free.
+/// [`peak_heap_bytes`] in MiB, as the reports give it.
+pub fn peak_heap_mib() -> Option<f64> {
+    peak_heap_bytes().map(|b| b as f64 / (1u64 << 20) as f64)
+}
+
+/// The system allocator, counting the bytes live ([`live_heap_bytes`]) and their peak
+/// ([`peak_heap_bytes`]): one relaxed atomic add per allocation and per free, and a relaxed load
+/// of the peak per allocation (a store only when the peak rises).
 pub struct Counting;
 
 // SAFETY: every call is forwarded to the system allocator unchanged; the counter only adds.

@@ -163,7 +163,7 @@ pub(crate) fn report(
         "seconds": secs,
         "voxels_per_second": voxels / secs.max(1e-9),
         "peak_rss_mib": vellum::memory::peak_resident_kib().map(|k| k as f64 / 1024.0),
-        "peak_heap_mib": vellum::memory::peak_heap_bytes().map(|b| b as f64 / (1 << 20) as f64),
+        "peak_heap_mib": vellum::memory::peak_heap_mib(),
         "peak_device_mib": ctx.peak_allocated_bytes() as f64 / (1 << 20) as f64,
         "device": ctx.info.name,
     })

@@ -287,7 +287,7 @@ fn render_on(
                 &json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map, "bricks": stream,
                     "ranks": team.size(), "compositing": composited,
                     "peak_rss_mib": vellum::memory::peak_resident_kib().map(|k| k as f64 / 1024.0),
-                    "peak_heap_mib": vellum::memory::peak_heap_bytes().map(|b| b as f64 / (1 << 20) as f64),
+                    "peak_heap_mib": vellum::memory::peak_heap_mib(),
                     "peak_device_mib": ctx.peak_allocated_bytes() as f64 / (1 << 20) as f64 })
             )?
         );
