@@ -1492,26 +1492,12 @@ fn store_chunks(
 /// The 2×2×2 mean of `v` (odd edges average what they have), in the same voxel type, with
 /// doubled spacing and the origin moved to the first output voxel's centre.
 pub fn halve(v: &Volume) -> Result<Volume> {
-    let d = v.dims;
-    let out = d.map(|n| n.div_ceil(2));
-    let mut sums = vec![0f64; out[0] * out[1] * out[2]];
-    let mut counts = vec![0u32; sums.len()];
-    for z in 0..d[2] {
-        for y in 0..d[1] {
-            for x in 0..d[0] {
-                let o = x / 2 + out[0] * (y / 2 + out[1] * (z / 2));
-                sums[o] += v.data.get_f64(x + d[0] * (y + d[1] * z));
-                counts[o] += 1;
-            }
-        }
-    }
-    let mean = |i: usize| sums[i] / counts[i] as f64;
-    let n = sums.len();
+    let (d, out) = (v.dims, v.dims.map(|n| n.div_ceil(2)));
     let data = match &v.data {
-        VoxelData::U8(_) => VoxelData::U8((0..n).map(|i| mean(i).round() as u8).collect()),
-        VoxelData::U16(_) => VoxelData::U16((0..n).map(|i| mean(i).round() as u16).collect()),
-        VoxelData::I16(_) => VoxelData::I16((0..n).map(|i| mean(i).round() as i16).collect()),
-        VoxelData::F32(_) => VoxelData::F32((0..n).map(|i| mean(i) as f32).collect()),
+        VoxelData::U8(s) => VoxelData::U8(halved(s, d, |m| m.round() as u8)),
+        VoxelData::U16(s) => VoxelData::U16(halved(s, d, |m| m.round() as u16)),
+        VoxelData::I16(s) => VoxelData::I16(halved(s, d, |m| m.round() as i16)),
+        VoxelData::F32(s) => VoxelData::F32(halved(s, d, |m| m as f32)),
     };
     let spacing = v.spacing.map(|s| 2.0 * s);
     let geometry = Geometry {
@@ -1519,4 +1505,94 @@ pub fn halve(v: &Volume) -> Result<Volume> {
         ..v.geometry
     };
     Volume::new(out, spacing, data)?.with_geometry(geometry)
+}
+
+/// The 2×2×2 means of `s` (of `dims`), each block's voxels summed in f64 in memory order and
+/// turned back by `back`; one output slab of z per task. Each voxel is read as its own type,
+/// where a loop through `get_f64` matched the type at every voxel: the store writers halve
+/// every chunk of every channel, and that loop was a tenth of a chunked pass's CPU time.
+fn halved<T: Copy + Into<f64> + Sync, U: Copy + Default + Send>(
+    s: &[T],
+    d: [usize; 3],
+    back: impl Fn(f64) -> U + Sync,
+) -> Vec<U> {
+    use rayon::prelude::*;
+    let out = d.map(|n| n.div_ceil(2));
+    let pair = |o: usize, a: usize| 2 * o..(2 * o + 2).min(d[a]);
+    let mut res = vec![U::default(); out.iter().product()];
+    res.par_chunks_mut((out[0] * out[1]).max(1))
+        .enumerate()
+        .for_each(|(oz, slab)| {
+            for (oy, row) in slab.chunks_mut(out[0].max(1)).enumerate() {
+                for (ox, r) in row.iter_mut().enumerate() {
+                    let (mut sum, mut count) = (0f64, 0u32);
+                    for z in pair(oz, 2) {
+                        for y in pair(oy, 1) {
+                            let at = d[0] * (y + d[1] * z);
+                            for x in pair(ox, 0) {
+                                sum += s[at + x].into();
+                                count += 1;
+                            }
+                        }
+                    }
+                    *r = back(sum / count as f64);
+                }
+            }
+        });
+    res
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `halve` against the plain sum per output voxel in f64 (in voxel order, through
+    /// `get_f64`), for each type and odd sizes, a NaN included: equal value for value.
+    #[test]
+    fn halving_is_the_plain_mean_of_each_block() {
+        fn plain(v: &Volume) -> Vec<f64> {
+            let (d, out) = (v.dims, v.dims.map(|n| n.div_ceil(2)));
+            let mut sums = vec![0f64; out.iter().product()];
+            let mut counts = vec![0u32; sums.len()];
+            for z in 0..d[2] {
+                for y in 0..d[1] {
+                    for x in 0..d[0] {
+                        let o = x / 2 + out[0] * (y / 2 + out[1] * (z / 2));
+                        sums[o] += v.data.get_f64(x + d[0] * (y + d[1] * z));
+                        counts[o] += 1;
+                    }
+                }
+            }
+            sums.iter()
+                .zip(&counts)
+                .map(|(s, &c)| s / c as f64)
+                .collect()
+        }
+        let dims = [7, 4, 5];
+        let n: usize = dims.iter().product();
+        let mut f: Vec<f32> = (0..n).map(|i| (i * 37 % 101) as f32 / 3.0 - 9.0).collect();
+        f[11] = f32::NAN;
+        for data in [
+            VoxelData::F32(f),
+            VoxelData::U16((0..n).map(|i| (i * 7919 % 65536) as u16).collect()),
+            VoxelData::I16((0..n).map(|i| (i * 7919 % 65536) as u16 as i16).collect()),
+            VoxelData::U8((0..n).map(|i| (i * 13 % 256) as u8).collect()),
+        ] {
+            let v = Volume::new(dims, [1.0; 3], data).unwrap();
+            let (got, want) = (halve(&v).unwrap(), plain(&v));
+            assert_eq!(got.dims, [4, 2, 3]);
+            for (i, w) in want.iter().enumerate() {
+                let expected = match v.voxel_type() {
+                    VoxelType::F32 => *w as f32 as f64,
+                    _ => w.round(),
+                };
+                let g = got.data.get_f64(i);
+                assert!(
+                    g == expected || (g.is_nan() && expected.is_nan()),
+                    "{:?} voxel {i}: {g} against {expected}",
+                    v.voxel_type()
+                );
+            }
+        }
+    }
 }
