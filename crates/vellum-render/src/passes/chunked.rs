@@ -140,15 +140,16 @@ pub fn importance_store(
     let map = Mutex::new(team.together(ImportanceMap::new(ctx))?);
     let f = |v: &Volume, offset: [usize; 3], size: [usize; 3]| -> Result<Volume> {
         let staged = ImportanceMap::stage(ctx, v)?;
-        let mut pass = locked(&map)?;
-        pass.run(&staged, radius)?;
-        let dd = staged.delta_d();
-        // Dropped while the lock is held no recording is open, so the chunk's images and
-        // staging are freed now rather than deferred to another worker's submission: the
-        // memory budget counts the chunks being worked on, not garbage waiting on a serial.
+        locked(&map)?.run(&staged, radius)?;
+        // Read back outside the lock, so that another chunk's passes run meanwhile. Dropped
+        // while the lock is held no recording is open, so the chunk's images and staging are
+        // freed now rather than deferred to another worker's submission: the memory budget
+        // counts the chunks being worked on, not garbage waiting on a serial.
+        let dd = staged.delta_d_in((offset, size));
+        let pass = locked(&map)?;
         drop(staged);
         drop(pass);
-        dd?.read_box(offset, size)
+        dd
     };
     let halo = Halo {
         src,
@@ -254,18 +255,15 @@ pub fn normals_store(
     let read = |lo: [usize; 3], size: [usize; 3]| -> Result<Vec<Volume>> {
         let (v, offset) = read_widened(src, NORMALS_HALO, lo, size)?;
         let staged = Normals::stage(ctx, &v, range)?;
+        locked(&normals)?.run(&staged)?;
+        // Read back outside the lock, so that another chunk's passes run meanwhile; freed under
+        // it, with no recording open (see `importance_store`).
+        let g = staged.channels_in(v.dims, (offset, size));
         let pass = locked(&normals)?;
-        pass.run(&staged)?;
-        let g = staged.gradients();
-        // Freed under the lock, with no recording open (see `importance_store`).
         drop(staged);
         drop(pass);
-        let g = g?;
-        (0..4)
-            .map(|c| {
-                let one = g.iter().map(|t| t[c]).collect();
-                Volume::new(v.dims, v.spacing, VoxelData::F32(one))?.read_box(offset, size)
-            })
+        g?.into_iter()
+            .map(|one| Volume::new(size, v.spacing, VoxelData::F32(one)))
             .collect()
     };
     let channels = Channels::over(src, (4, VoxelType::F32), &read);

@@ -163,6 +163,32 @@ impl StagedImportance {
         Self::read(&self.staging, self.dims, self.spacing, self.geometry)
     }
 
+    /// ΔD over the box `lo .. lo + size` of the chunk, read row by row from the readback
+    /// without the whole chunk's first (a chunked pass keeps only its chunk of the box it
+    /// reads with a halo); with the chunk's spacing.
+    pub fn delta_d_in(&self, (lo, size): ([usize; 3], [usize; 3])) -> Result<Volume> {
+        let out = self
+            .staging
+            .mapped()
+            .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
+        let packed: &[f32] = bytemuck::try_cast_slice(out)
+            .map_err(|e| Error::Invalid(format!("readback memory does not hold floats: {e}")))?;
+        let (d, px) = (self.dims, self.dims[0].div_ceil(4) * 4);
+        if packed.len() < px * d[1] * d[2] || (0..3).any(|a| lo[a] + size[a] > d[a]) {
+            return Err(Error::Invalid(format!(
+                "a box at {lo:?} of {size:?} does not lie in the {d:?} ΔD read back"
+            )));
+        }
+        let mut kept = Vec::with_capacity(size.iter().product());
+        for z in lo[2]..lo[2] + size[2] {
+            for y in lo[1]..lo[1] + size[1] {
+                let row = px * (y + d[1] * z) + lo[0];
+                kept.extend_from_slice(&packed[row..row + size[0]]);
+            }
+        }
+        Volume::new(size, self.spacing, VoxelData::F32(kept))
+    }
+
     fn read(
         staging: &Buffer,
         dims: [usize; 3],

@@ -296,6 +296,50 @@ impl StagedNormals {
     }
 }
 
+impl StagedNormals {
+    /// The gradients [`Normals::run`] read back over the box `lo .. lo + size` of the staged
+    /// volume of `dims`: its four channels (x, y, z and length), each as floats, x fastest.
+    /// Row by row from the readback, each row's half floats converted at once, without the whole
+    /// box's floats first (host work, beside other threads'; a chunked pass keeps only its
+    /// chunk of the box it reads with a halo).
+    pub fn channels_in(
+        &self,
+        dims: [usize; 3],
+        (lo, size): ([usize; 3], [usize; 3]),
+    ) -> Result<[Vec<f32>; 4]> {
+        use half::slice::{HalfBitsSliceExt, HalfFloatSliceExt};
+        let bytes = self.readback.mapped().ok_or_else(|| {
+            vellum_error::Error::Invalid("the readback buffer is not host-visible".into())
+        })?;
+        let halves: &[u16] = bytemuck::try_cast_slice(bytes).map_err(|e| {
+            vellum_error::Error::Invalid(format!("readback memory does not hold halves: {e}"))
+        })?;
+        if halves.len() != 4 * dims.iter().product::<usize>()
+            || (0..3).any(|a| lo[a] + size[a] > dims[a])
+        {
+            return Err(vellum_error::Error::Invalid(format!(
+                "a box at {lo:?} of {size:?} does not lie in the {dims:?} gradients read back"
+            )));
+        }
+        let n = size.iter().product::<usize>();
+        let mut out: [Vec<f32>; 4] = std::array::from_fn(|_| Vec::with_capacity(n));
+        let mut row = vec![0f32; 4 * size[0]];
+        for z in lo[2]..lo[2] + size[2] {
+            for y in lo[1]..lo[1] + size[1] {
+                let at = 4 * (lo[0] + dims[0] * (y + dims[1] * z));
+                let texels = &halves[at..at + 4 * size[0]];
+                texels
+                    .reinterpret_cast::<half::f16>()
+                    .convert_to_f32_slice(&mut row);
+                for (c, channel) in out.iter_mut().enumerate() {
+                    channel.extend(row.iter().skip(c).step_by(4));
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
 /// The `sobel_normals` pipelines: over every voxel, and over listed bricks (built when a volume
 /// first needs it).
 pub struct Normals {
