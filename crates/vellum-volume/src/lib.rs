@@ -136,6 +136,16 @@ impl VoxelData {
         }
     }
 
+    /// The voxels as bytes to write in place (the layout of [`VoxelData::as_bytes`]).
+    pub(crate) fn as_bytes_mut(&mut self) -> &mut [u8] {
+        match self {
+            VoxelData::U8(v) => v,
+            VoxelData::U16(v) => bytemuck::cast_slice_mut(v),
+            VoxelData::I16(v) => bytemuck::cast_slice_mut(v),
+            VoxelData::F32(v) => bytemuck::cast_slice_mut(v),
+        }
+    }
+
     /// Builds voxels of type `ty` from little-endian bytes. The length must be a multiple of the size.
     pub fn from_le_bytes(ty: VoxelType, bytes: &[u8]) -> Self {
         debug_assert_eq!(bytes.len() % ty.size(), 0);
