@@ -558,15 +558,21 @@ fn box_subset(lead: &[u64], lo: [usize; 3], size: [usize; 3]) -> ArraySubset {
 
 /// The voxel type an array's values are held in as they are, with no converting.
 fn stored_as(t: &zarrs::array::DataType) -> Option<VoxelType> {
-    [
+    let table = [
         (data_type::uint8(), VoxelType::U8),
         (data_type::uint16(), VoxelType::U16),
         (data_type::int16(), VoxelType::I16),
         (data_type::float32(), VoxelType::F32),
-    ]
-    .into_iter()
-    .find(|(d, _)| d == t)
-    .map(|(_, v)| v)
+    ];
+    look_up(t, table)
+}
+
+/// What `table` pairs with data type `t`, if anything.
+fn look_up<T, const N: usize>(
+    t: &zarrs::array::DataType,
+    table: [(zarrs::array::DataType, T); N],
+) -> Option<T> {
+    table.into_iter().find(|(d, _)| d == t).map(|(_, v)| v)
 }
 
 /// [`retrieve`] of `subset` decoded straight into `out`, voxels in the array's own type
@@ -811,16 +817,14 @@ enum Wide {
 }
 
 fn wide(t: &zarrs::array::DataType) -> Option<Wide> {
-    [
+    let table = [
         (data_type::uint32(), Wide::U32),
         (data_type::int32(), Wide::I32),
         (data_type::uint64(), Wide::U64),
         (data_type::int64(), Wide::I64),
         (data_type::float64(), Wide::F64),
-    ]
-    .into_iter()
-    .find(|(d, _)| d == t)
-    .map(|(_, w)| w)
+    ];
+    look_up(t, table)
 }
 
 /// The voxels of `subset` of an array of a type wider than float32, as float32; a value that
