@@ -167,12 +167,7 @@ impl StagedImportance {
     /// without the whole chunk's first (a chunked pass keeps only its chunk of the box it
     /// reads with a halo); with the chunk's spacing.
     pub fn delta_d_in(&self, (lo, size): ([usize; 3], [usize; 3])) -> Result<Volume> {
-        let out = self
-            .staging
-            .mapped()
-            .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
-        let packed: &[f32] = bytemuck::try_cast_slice(out)
-            .map_err(|e| Error::Invalid(format!("readback memory does not hold floats: {e}")))?;
+        let packed = Self::packed(&self.staging)?;
         let (d, px) = (self.dims, self.dims[0].div_ceil(4) * 4);
         if packed.len() < px * d[1] * d[2] || (0..3).any(|a| lo[a] + size[a] > d[a]) {
             return Err(Error::Invalid(format!(
@@ -189,18 +184,22 @@ impl StagedImportance {
         Volume::new(size, self.spacing, VoxelData::F32(kept))
     }
 
+    /// The floats `staging` holds once read back (ΔD packed as `pack_rows` packs).
+    fn packed(staging: &Buffer) -> Result<&[f32]> {
+        let out = staging
+            .mapped()
+            .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
+        bytemuck::try_cast_slice(out)
+            .map_err(|e| Error::Invalid(format!("readback memory does not hold floats: {e}")))
+    }
+
     fn read(
         staging: &Buffer,
         dims: [usize; 3],
         spacing: [f64; 3],
         geometry: vellum_volume::geometry::Geometry,
     ) -> Result<Volume> {
-        let out = staging
-            .mapped()
-            .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
-        let packed: &[f32] = bytemuck::try_cast_slice(out)
-            .map_err(|e| Error::Invalid(format!("readback memory does not hold floats: {e}")))?;
-        let delta = unpack_rows(packed, dims);
+        let delta = unpack_rows(Self::packed(staging)?, dims);
         Volume::new(dims, spacing, VoxelData::F32(delta))?.with_geometry(geometry)
     }
 }

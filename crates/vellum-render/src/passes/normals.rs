@@ -294,9 +294,7 @@ impl StagedNormals {
             })
             .collect())
     }
-}
 
-impl StagedNormals {
     /// The gradients [`Normals::run`] read back over the box `lo .. lo + size` of the staged
     /// volume of `dims`: its four channels (x, y, z and length), each as floats, x fastest.
     /// Row by row from the readback, each row's half floats converted at once, without the whole
