@@ -199,13 +199,14 @@ pub fn occlusion_store(
         let (input, staging) = OcclusionInput::stage_in_range(ctx, v, Some(range))?;
         let mut pass = locked(&occlusion)?;
         input.upload_staged(ctx, &staging)?;
-        let o = pass.compute_on(&input, &params)?.occlusion;
+        let kept = pass
+            .compute_within(&input, &params, Some((offset, size)))?
+            .occlusion;
         // Freed under the lock, with no recording open (see `importance_store`).
         drop(staging);
         let host = input.host.clone();
         drop(input);
         drop(pass);
-        let kept = o.read_box(offset, size)?;
         if let (Some(b), Some(host)) = (bins, &host) {
             let s = Volume::new(v.dims, v.spacing, VoxelData::F32(host.to_vec()))?
                 .read_box(offset, size)?;

@@ -174,13 +174,7 @@ impl StagedImportance {
                 "a box at {lo:?} of {size:?} does not lie in the {d:?} ΔD read back"
             )));
         }
-        let mut kept = Vec::with_capacity(size.iter().product());
-        for z in lo[2]..lo[2] + size[2] {
-            for y in lo[1]..lo[1] + size[1] {
-                let row = px * (y + d[1] * z) + lo[0];
-                kept.extend_from_slice(&packed[row..row + size[0]]);
-            }
-        }
+        let kept = super::box_rows(packed, (px, d[1]), (lo, size));
         Volume::new(size, self.spacing, VoxelData::F32(kept))
     }
 

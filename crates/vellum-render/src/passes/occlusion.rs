@@ -436,10 +436,27 @@ impl Occlusion {
         input: &OcclusionInput,
         p: &OcclusionParams,
     ) -> Result<OcclusionOutput> {
+        self.compute_within(input, p, None)
+    }
+
+    /// [`Occlusion::compute_on`], the occlusion read back over the box `keep` (first voxel and
+    /// size, at stride 1) alone when given: a chunked pass keeps only its chunk of the box it
+    /// reads with a halo, and so never holds the whole box's floats.
+    pub(crate) fn compute_within(
+        &mut self,
+        input: &OcclusionInput,
+        p: &OcclusionParams,
+        keep: Option<([usize; 3], [usize; 3])>,
+    ) -> Result<OcclusionOutput> {
         check_radius_stride(p.radius, p.stride)?;
         let method = self.choose(input.dims, p, false)?;
         if method == Method::FftCpu {
-            return self.compute_cpu(input, p);
+            let mut out = self.compute_cpu(input, p)?;
+            if let Some((lo, size)) = keep {
+                use vellum_volume::source::BoxSource;
+                out.occlusion = out.occlusion.read_box(lo, size)?;
+            }
+            return Ok(out);
         }
         let ctx = &self.ctx.clone();
         let mut targets = self.targets_for(input, p, method)?;
@@ -451,11 +468,10 @@ impl Occlusion {
             });
             Ok(())
         })?;
-        let o: Vec<f32> = bytemuck::pod_collect_to_vec(
-            readback
-                .mapped()
-                .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?,
-        );
+        let floats = readback
+            .mapped()
+            .ok_or_else(|| Error::Invalid("readback buffer is not host-visible".into()))?;
+        let (out_dims, o) = kept_floats(floats, targets.out_dims, keep)?;
         let spacing = input.spacing.map(|s| s * p.stride as f64);
         let spectrum =
             match (&targets.spectrum, p.spectrum_bins) {
@@ -468,7 +484,6 @@ impl Occlusion {
                 }),
                 _ => None,
             };
-        let out_dims = targets.out_dims;
         // The FFT work (with its kernel spectrum) serves the next call with the same shape.
         if let Some(work) = targets.fft {
             self.fft_work = Some(work);
@@ -1049,6 +1064,29 @@ pub(crate) fn normalised_f32_in(v: &Volume, range: Option<[f64; 2]>) -> (Vec<f32
         .map(|i| ((v.data.get_f64(i) - min) * scale) as f32)
         .collect();
     (out, [min, max])
+}
+
+/// The floats of a volume of `dims` read back as `bytes`, or of its box `keep` (first voxel and
+/// size) alone, row by row; with the dims of what they hold.
+fn kept_floats(
+    bytes: &[u8],
+    dims: [usize; 3],
+    keep: Option<([usize; 3], [usize; 3])>,
+) -> Result<([usize; 3], Vec<f32>)> {
+    let Some((lo, size)) = keep else {
+        return Ok((dims, bytemuck::pod_collect_to_vec(bytes)));
+    };
+    let floats: &[f32] = bytemuck::try_cast_slice(bytes)
+        .map_err(|e| Error::Invalid(format!("readback memory does not hold floats: {e}")))?;
+    if floats.len() != dims.iter().product::<usize>() || (0..3).any(|a| lo[a] + size[a] > dims[a]) {
+        return Err(Error::Invalid(format!(
+            "a box at {lo:?} of {size:?} does not lie in the {dims:?} occlusion read back"
+        )));
+    }
+    Ok((
+        size,
+        super::box_rows(floats, (dims[0], dims[1]), (lo, size)),
+    ))
 }
 
 #[cfg(test)]
