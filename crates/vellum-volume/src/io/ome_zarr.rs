@@ -521,8 +521,8 @@ fn retrieve<S: zarrs::storage::ReadableStorageTraits + ?Sized + 'static>(
 ) -> std::result::Result<VoxelData, Box<dyn std::error::Error>> {
     let subset = box_subset(lead, lo, size);
     // A box of several chunks is decoded in place. A chunk alone is not: zarrs' owned read of
-    // one chunk was the faster on lavapipe's 16 MiB frame (decoding 121-145 against 148-153 ms
-    // of the brick loaders' CPU).
+    // one chunk was the faster on lavapipe's 16 MiB frame (the brick loaders' decoding took
+    // 124-130 against 132-142 ms of CPU, four runs of each interleaved).
     let chunks = array.chunks_in_array_subset(&subset)?;
     let several = chunks.is_some_and(|c| c.num_elements() > 1);
     if several && Some(voxel) == stored_as(array.data_type()) {
