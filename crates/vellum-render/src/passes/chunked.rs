@@ -208,8 +208,8 @@ pub fn occlusion_store(
         drop(input);
         drop(pass);
         if let (Some(b), Some(host)) = (bins, &host) {
-            let s = Volume::new(v.dims, v.spacing, VoxelData::F32(host.to_vec()))?
-                .read_box(offset, size)?;
+            let s = super::box_rows(host, (v.dims[0], v.dims[1]), (offset, size));
+            let s = Volume::new(size, v.spacing, VoxelData::F32(s))?;
             add_to_spectrum(&mut locked(&counts)?, b, &s, &kept);
         }
         Ok(kept)

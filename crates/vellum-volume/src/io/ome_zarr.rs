@@ -523,9 +523,11 @@ fn retrieve<S: zarrs::storage::ReadableStorageTraits + ?Sized + 'static>(
     // A box of several chunks is decoded in place. A chunk alone is not: zarrs' owned read of
     // one chunk was the faster on lavapipe's 16 MiB frame (the brick loaders' decoding took
     // 124-130 against 132-142 ms of CPU, four runs of each interleaved).
-    let chunks = array.chunks_in_array_subset(&subset)?;
-    let several = chunks.is_some_and(|c| c.num_elements() > 1);
-    if several && Some(voxel) == stored_as(array.data_type()) {
+    let several = || -> std::result::Result<bool, zarrs::array::ArrayError> {
+        let chunks = array.chunks_in_array_subset(&subset)?;
+        Ok(chunks.is_some_and(|c| c.num_elements() > 1))
+    };
+    if Some(voxel) == stored_as(array.data_type()) && several()? {
         let mut data = VoxelData::zeros(voxel, size.iter().product());
         retrieve_into(array, &subset, &mut data)?;
         return Ok(data);
