@@ -203,7 +203,7 @@ PY
         IFS='|' read -r name n budget lod limit steps <<<"$c"
         s "render $name"
         VELLUM_LOD_STEPS=$steps VELLUM_STREAM_FLOOR=1 tm timeout "$limit" "$V" render "$S/p$n.ome.zarr" $V_ARGS \
-            --gpu-budget "$budget" --lod "$lod" --json --out "$S/$name.png" \
+            --gpu-budget "$budget" --lod "$lod" --json --first-frame --out "$S/$name.png" \
             >"$R/stream_$name.json" 2>>"$L"
         tail -1 "$R/stream_$name.json" >>"$L"
         case $name in big_auto*) cp "$S/$name.png" "$R/stream_$name.png" 2>/dev/null ;; esac
