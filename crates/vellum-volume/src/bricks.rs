@@ -24,7 +24,7 @@
 //! frame asks for most, evicting the least recently used bricks no ray asked for this time
 //! (used: loaded, or read by a frame that said so, [`BrickCache::touch`]).
 
-use crate::chunks::ChunkCache;
+use crate::chunks::{Chunk, ChunkCache};
 use crate::io::ome_zarr::Multiscale;
 use crate::source::BoxSource;
 use crate::{Volume, VoxelData};
@@ -607,7 +607,8 @@ impl BrickLevels {
 
     /// Voxels `lo .. lo + size` of level `level` of `ms`, copied from its decoded chunks, each
     /// decoded once while it stays in [`BrickLevels::chunks`]; or, when every chunk the box
-    /// touches holds one and the same value, that value alone.
+    /// touches holds one and the same value, that value alone. Chunks the store left out when
+    /// it was opened are their fill value, unread.
     fn read_chunked(
         &self,
         ms: &Multiscale,
@@ -617,14 +618,15 @@ impl BrickLevels {
     ) -> Result<Read> {
         let l = &ms.levels[level];
         let (chunk, dims) = (l.chunk, l.dims);
+        let listed = self.absent.get(level).and_then(Option::as_ref);
         let mut got = Vec::with_capacity(8);
         for c in crate::io::ome_zarr::chunks_meeting(chunk, lo, size) {
             let clo: [usize; 3] = std::array::from_fn(|a| c[a] * chunk[a]);
             let csize: [usize; 3] = std::array::from_fn(|a| chunk[a].min(dims[a] - clo[a]));
-            let bytes = (csize.iter().product::<usize>() * ms.voxel.size()) as u64;
-            let one = self
-                .chunks
-                .get((level, c), bytes, || ms.read_box(level, clo, csize))?;
+            let one = match listed.filter(|a| a.is_absent(c)) {
+                Some(a) => Arc::new(Chunk::of_value(a.value, ms.voxel, csize, l.spacing)?),
+                None => self.read_chunk(ms, (level, c), (clo, csize), listed)?,
+            };
             got.push((clo, one));
         }
         if let Some(v) = got.first().and_then(|(_, c)| c.value()) {
@@ -642,6 +644,29 @@ impl BrickLevels {
             }
         }
         Ok(Read::Voxels(out))
+    }
+
+    /// Chunk `c` of level `level` (its voxels `clo .. clo + csize`) through the chunk cache.
+    /// Where the store's chunks were `listed` when it was opened (and this one was in it), a
+    /// chunk that reads as one value and is no longer in the store vanished while it was read
+    /// (zarrs reads a missing chunk as the fill value): its sentence.
+    fn read_chunk(
+        &self,
+        ms: &Multiscale,
+        (level, c): (usize, [usize; 3]),
+        (clo, csize): ([usize; 3], [usize; 3]),
+        listed: Option<&crate::io::ome_zarr::AbsentChunks>,
+    ) -> Result<Arc<Chunk>> {
+        let spacing = ms.levels[level].spacing;
+        let shape = (ms.voxel, csize.iter().product());
+        self.chunks.get_decoded((level, c), shape, |buf| {
+            ms.read_box_into(level, clo, csize, buf)?;
+            let chunk = Chunk::of_decoded(buf, csize, spacing)?;
+            if listed.is_some() && chunk.uniform && ms.holds_chunk(level, c) == Some(false) {
+                return Err(ms.vanished(level, c));
+            }
+            Ok(chunk)
+        })
     }
 
     /// A brick whose voxels, apron included, all hold `value` (of a store of type `voxel`): what
@@ -693,26 +718,34 @@ impl BrickLevels {
     }
 
     /// The floor of reading bricks: `keys` (chunks of the store's levels) decoded again plainly,
-    /// in parallel on every core, and dropped. Seconds, the decoding's CPU milliseconds summed
-    /// over the threads, and voxel bytes; nothing for levels in memory.
+    /// in parallel on every core, each thread into one buffer it reuses. Seconds, the
+    /// decoding's CPU milliseconds summed over the threads, and voxel bytes; nothing for levels
+    /// in memory.
     pub fn plain_decode(&self, keys: &[crate::chunks::ChunkKey]) -> Result<(f64, f64, u64)> {
         use rayon::prelude::*;
         let start = std::time::Instant::now();
         let (cpu, bytes) = keys
             .par_iter()
-            .map(|&(level, c)| -> Result<(f64, u64)> {
-                let LevelSource::Store(ms, l) = &self.sources[level] else {
-                    return Ok((0.0, 0));
-                };
-                let cpu = crate::chunks::thread_cpu_ms();
-                let info = &ms.levels[*l];
-                let lo: [usize; 3] = std::array::from_fn(|a| c[a] * info.chunk[a]);
-                let size: [usize; 3] =
-                    std::array::from_fn(|a| info.chunk[a].min(info.dims[a] - lo[a]));
-                let v = ms.read_box(*l, lo, size)?;
-                let cpu = crate::chunks::thread_cpu_ms() - cpu;
-                Ok((cpu, v.data.as_bytes().len() as u64))
-            })
+            .map_init(
+                || VoxelData::U8(Vec::new()),
+                |buf, &(level, c)| -> Result<(f64, u64)> {
+                    let LevelSource::Store(ms, l) = &self.sources[level] else {
+                        return Ok((0.0, 0));
+                    };
+                    let cpu = crate::chunks::thread_cpu_ms();
+                    let info = &ms.levels[*l];
+                    let lo: [usize; 3] = std::array::from_fn(|a| c[a] * info.chunk[a]);
+                    let size: [usize; 3] =
+                        std::array::from_fn(|a| info.chunk[a].min(info.dims[a] - lo[a]));
+                    let n = size.iter().product();
+                    if buf.len() != n || buf.voxel_type() != ms.voxel {
+                        *buf = VoxelData::zeros(ms.voxel, n);
+                    }
+                    ms.read_box_into(*l, lo, size, buf)?;
+                    let cpu = crate::chunks::thread_cpu_ms() - cpu;
+                    Ok((cpu, buf.as_bytes().len() as u64))
+                },
+            )
             .try_reduce(|| (0.0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))?;
         Ok((start.elapsed().as_secs_f64(), cpu, bytes))
     }
@@ -1743,6 +1776,42 @@ mod tests {
             let starts_known = cache.ranges.iter().filter(|r| **r != UNKNOWN_RANGE).count();
             assert_eq!(starts_known, known);
         }
+    }
+
+    #[test]
+    fn a_chunk_gone_from_the_store_after_it_was_opened_is_named() {
+        // A store in chunks of 32³: the phantom's middle chunks hold voxels, and reading a brick
+        // there after its chunk file went reads the fill value, which must not be drawn as air.
+        let v = shepp_logan(128);
+        let (dir, ms) = store_of(&v, 32);
+        let levels = BrickLevels::of_store(ms.clone(), 1 << 26).unwrap();
+        let key = BrickKey {
+            level: 0,
+            brick: [2, 2, 2],
+        };
+        let before = levels.voxels(key).unwrap();
+        assert!(!before.constant, "the middle brick holds the phantom");
+        let chunk = dir.path().join("s.ome.zarr/0/c/2/2/2");
+        std::fs::remove_file(&chunk).unwrap();
+        // The cache still holds the chunk: the brick reads as before.
+        assert_eq!(levels.voxels(key).unwrap().data, before.data);
+        let fresh = BrickLevels::of_store(ms.clone(), 1 << 26).unwrap();
+        assert!(
+            fresh.voxels(key).unwrap().data != before.data,
+            "opened without it: fill"
+        );
+        // Read anew (the cache emptied), the brick's chunk is missed and named.
+        let mut levels = levels;
+        levels.set_chunk_budget(DEFAULT_CHUNK_CACHE);
+        let e = levels
+            .voxels(key)
+            .map(|_| ())
+            .expect_err("a chunk gone")
+            .to_string();
+        assert!(
+            e.contains("chunk 0/c/2/2/2 of level 0") && e.contains("gone"),
+            "{e}"
+        );
     }
 
     #[test]

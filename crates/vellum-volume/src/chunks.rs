@@ -39,45 +39,59 @@ impl Chunk {
     /// `volume`, its uniformity found (a scan that stops at the first block of voxels that
     /// differs from the first voxel).
     pub fn new(volume: Volume) -> Self {
-        fn same<T: PartialEq + Copy>(s: &[T]) -> bool {
-            // Blocks compared without a branch per voxel, which the compiler vectorises: a chunk
-            // of one value is scanned whole, and most chunks of a phantom or of CT air are.
-            s.first().is_none_or(|&f| {
-                s.chunks(1024)
-                    .all(|b| b.iter().fold(true, |same, &v| same & (v == f)))
-            })
-        }
-        let uniform = !volume.data.is_empty()
-            && match &volume.data {
-                VoxelData::U8(s) => same(s),
-                VoxelData::U16(s) => same(s),
-                VoxelData::I16(s) => same(s),
-                VoxelData::F32(s) => same(s),
-            };
         let dims = volume.dims;
-        if !uniform {
-            return Chunk {
+        match one_value(&volume.data) {
+            Some(one) => Chunk {
+                volume: Volume {
+                    dims: [1; 3],
+                    data: one,
+                    ..volume
+                },
+                dims,
+                uniform: true,
+            },
+            None => Chunk {
                 volume,
                 dims,
-                uniform,
-            };
+                uniform: false,
+            },
         }
-        let one = match &volume.data {
-            VoxelData::U8(s) => VoxelData::U8(s[..1].to_vec()),
-            VoxelData::U16(s) => VoxelData::U16(s[..1].to_vec()),
-            VoxelData::I16(s) => VoxelData::I16(s[..1].to_vec()),
-            VoxelData::F32(s) => VoxelData::F32(s[..1].to_vec()),
+    }
+
+    /// The chunk of `dims` voxels decoded into `data` (a buffer the cache reuses): its one
+    /// value, or a copy of its voxels.
+    pub fn of_decoded(data: &VoxelData, dims: [usize; 3], spacing: [f64; 3]) -> Result<Self> {
+        let (size, data, uniform) = match one_value(data) {
+            Some(one) => ([1; 3], one, true),
+            None => (dims, data.clone(), false),
         };
-        let single = Volume {
-            dims: [1; 3],
-            data: one,
-            ..volume
-        };
-        Chunk {
-            volume: single,
+        Ok(Chunk {
+            volume: Volume::new(size, spacing, data)?,
             dims,
             uniform,
-        }
+        })
+    }
+
+    /// A chunk of `dims` voxels of type `voxel` that all hold `value` (a value of that type: a
+    /// store's fill value).
+    pub fn of_value(
+        value: f64,
+        voxel: crate::VoxelType,
+        dims: [usize; 3],
+        spacing: [f64; 3],
+    ) -> Result<Self> {
+        use crate::VoxelType as T;
+        let one = match voxel {
+            T::U8 => VoxelData::U8(vec![value as u8]),
+            T::U16 => VoxelData::U16(vec![value as u16]),
+            T::I16 => VoxelData::I16(vec![value as i16]),
+            T::F32 => VoxelData::F32(vec![value as f32]),
+        };
+        Ok(Chunk {
+            volume: Volume::new([1; 3], spacing, one)?,
+            dims,
+            uniform: true,
+        })
     }
 
     /// The value of every voxel, when there is one.
@@ -91,17 +105,54 @@ impl Chunk {
     }
 }
 
+/// The first voxel alone, when every voxel holds its value (blocks compared without a branch
+/// per voxel, which the compiler vectorises: a chunk of one value is scanned whole, and most
+/// chunks of a phantom or of CT air are).
+fn one_value(data: &VoxelData) -> Option<VoxelData> {
+    fn same<T: PartialEq + Copy>(s: &[T]) -> bool {
+        s.first().is_none_or(|&f| {
+            s.chunks(1024)
+                .all(|b| b.iter().fold(true, |same, &v| same & (v == f)))
+        })
+    }
+    let uniform = !data.is_empty()
+        && match data {
+            VoxelData::U8(s) => same(s),
+            VoxelData::U16(s) => same(s),
+            VoxelData::I16(s) => same(s),
+            VoxelData::F32(s) => same(s),
+        };
+    uniform.then(|| match data {
+        VoxelData::U8(s) => VoxelData::U8(s[..1].to_vec()),
+        VoxelData::U16(s) => VoxelData::U16(s[..1].to_vec()),
+        VoxelData::I16(s) => VoxelData::I16(s[..1].to_vec()),
+        VoxelData::F32(s) => VoxelData::F32(s[..1].to_vec()),
+    })
+}
+
 struct Entry {
     cell: Cell,
     tick: u64,
     bytes: u64,
+    /// Whether the chunk holds one value, and so sits in [`Inner::small`].
+    small: bool,
 }
+
+/// What the cache counts for an entry besides its voxels: its places in the maps, its cell and
+/// its chunk's header (about this much; a chunk of one value is mostly this).
+const ENTRY_BYTES: u64 = 256;
 
 #[derive(Default)]
 struct Inner {
     entries: HashMap<ChunkKey, Entry>,
-    /// Entries by last use, oldest first.
+    /// Entries by last use, oldest first: chunks being decoded or holding voxels, which leave
+    /// first beyond the budget ...
     order: BTreeMap<u64, ChunkKey>,
+    /// ... and then chunks of one value, which cost next to nothing to keep (a few hundred
+    /// bytes, where a chunk of voxels holds a MiB) and something to decode again: in the room
+    /// of one chunk of voxels the cache keeps thousands of them. Evicted by plain LRU, a large
+    /// frame's absent chunks (the fill value, air) were decoded 2.4 times each.
+    small: BTreeMap<u64, ChunkKey>,
     bytes: u64,
     tick: u64,
     /// Every chunk decoded, in order (kept only when asked: `ChunkCache::record_keys`).
@@ -151,6 +202,8 @@ pub struct ChunkCache {
     decode_ns: AtomicU64,
     decode_cpu_ns: AtomicU64,
     hits: AtomicU64,
+    /// Buffers chunks were decoded into, for the next decodes ([`ChunkCache::get_decoded`]).
+    spares: Mutex<Vec<VoxelData>>,
 }
 
 impl ChunkCache {
@@ -164,6 +217,7 @@ impl ChunkCache {
             decode_ns: AtomicU64::new(0),
             decode_cpu_ns: AtomicU64::new(0),
             hits: AtomicU64::new(0),
+            spares: Mutex::new(Vec::new()),
         }
     }
 
@@ -180,14 +234,64 @@ impl ChunkCache {
         bytes: u64,
         decode: impl FnOnce() -> Result<Volume>,
     ) -> Result<Arc<Chunk>> {
+        self.get_chunk(key, bytes, || decode().map(Chunk::new))
+    }
+
+    /// Chunk `key`, of `n` voxels of type `voxel`, as [`ChunkCache::get`] gives it, but made by
+    /// `make` from a buffer the cache reuses, which it decodes the chunk into
+    /// ([`Chunk::of_decoded`]): a chunk of one value is then kept without a buffer of its own
+    /// ever being made for it, and one of many values is copied out once.
+    pub fn get_decoded(
+        &self,
+        key: ChunkKey,
+        (voxel, n): (crate::VoxelType, usize),
+        make: impl FnOnce(&mut VoxelData) -> Result<Chunk>,
+    ) -> Result<Arc<Chunk>> {
+        let bytes = (n * voxel.size()) as u64;
+        self.get_chunk(key, bytes, || {
+            let mut buf = self.spare(voxel, n);
+            let chunk = make(&mut buf);
+            self.keep_spare(buf);
+            chunk
+        })
+    }
+
+    /// A buffer of `n` voxels of type `voxel` from the spares (its old voxels are overwritten
+    /// by the decode), else a new one.
+    fn spare(&self, voxel: crate::VoxelType, n: usize) -> VoxelData {
+        let mut spares = self.spares.lock().unwrap_or_else(|p| p.into_inner());
+        match spares
+            .iter()
+            .position(|b| b.voxel_type() == voxel && b.len() == n)
+        {
+            Some(i) => spares.swap_remove(i),
+            None => VoxelData::zeros(voxel, n),
+        }
+    }
+
+    /// Keeps `buf` for the next decode, while the spares hold at most a sixteenth of the budget
+    /// (one buffer for each loader decoding at once, on sixteen cores, with chunks of a MiB).
+    fn keep_spare(&self, buf: VoxelData) {
+        let mut spares = self.spares.lock().unwrap_or_else(|p| p.into_inner());
+        let held: usize = spares.iter().map(|b| b.as_bytes().len()).sum();
+        if (held + buf.as_bytes().len()) as u64 <= self.budget / 16 {
+            spares.push(buf);
+        }
+    }
+
+    /// [`ChunkCache::get`] with the chunk made by `make`.
+    fn get_chunk(
+        &self,
+        key: ChunkKey,
+        bytes: u64,
+        make: impl FnOnce() -> Result<Chunk>,
+    ) -> Result<Arc<Chunk>> {
         let (cell, fresh) = self.cell(key, bytes);
         let mut ran = false;
         let got = cell.get_or_init(|| {
             ran = true;
             let (start, cpu) = (Instant::now(), thread_cpu_ms());
-            let r = decode()
-                .map(|v| Arc::new(Chunk::new(v)))
-                .map_err(|e| e.to_string());
+            let r = make().map(Arc::new).map_err(|e| e.to_string());
             self.decode_ns
                 .fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
             let cpu_ns = ((thread_cpu_ms() - cpu) * 1e6) as u64;
@@ -202,15 +306,16 @@ impl ChunkCache {
             self.hits.fetch_add(1, Ordering::Relaxed);
         }
         if let (true, Ok(c)) = (ran, got) {
-            self.settle(key, &cell, c.bytes());
+            self.settle(key, &cell, c);
         }
         got.clone().map_err(Error::Invalid)
     }
 
-    /// Counts `key`'s entry at the `bytes` its decode holds (a chunk of one value keeps one
-    /// voxel), if the entry is still the one holding `cell`.
-    fn settle(&self, key: ChunkKey, cell: &Cell, bytes: u64) {
+    /// Counts `key`'s entry at what its decoded `chunk` holds (a chunk of one value keeps one
+    /// voxel, and moves to [`Inner::small`]), if the entry is still the one holding `cell`.
+    fn settle(&self, key: ChunkKey, cell: &Cell, chunk: &Chunk) {
         let mut inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        let bytes = chunk.bytes() + ENTRY_BYTES;
         let Some(e) = inner.entries.get_mut(&key) else {
             return;
         };
@@ -218,7 +323,12 @@ impl ChunkCache {
             return;
         }
         let old = std::mem::replace(&mut e.bytes, bytes);
+        let tick = e.tick;
+        e.small = chunk.uniform;
         inner.bytes = inner.bytes - old + bytes;
+        if chunk.uniform && inner.order.remove(&tick).is_some() {
+            inner.small.insert(tick, key);
+        }
     }
 
     /// The cell of `key`, made (and the cache trimmed to its budget) when it was missing; and
@@ -229,9 +339,13 @@ impl ChunkCache {
         let tick = inner.tick;
         if let Some(e) = inner.entries.get_mut(&key) {
             let old = std::mem::replace(&mut e.tick, tick);
-            let cell = e.cell.clone();
-            inner.order.remove(&old);
-            inner.order.insert(tick, key);
+            let (cell, small) = (e.cell.clone(), e.small);
+            let order = match small {
+                true => &mut inner.small,
+                false => &mut inner.order,
+            };
+            order.remove(&old);
+            order.insert(tick, key);
             return (cell, false);
         }
         let cell: Cell = Arc::new(OnceLock::new());
@@ -244,12 +358,18 @@ impl ChunkCache {
                 cell: cell.clone(),
                 tick,
                 bytes,
+                small: false,
             },
         );
         inner.order.insert(tick, key);
         inner.bytes += bytes;
-        while inner.bytes > self.budget && inner.order.len() > 1 {
-            let Some((_, oldest)) = inner.order.pop_first() else {
+        // The new entry is the last of `order`, and stays.
+        while inner.bytes > self.budget {
+            let oldest = match inner.order.len() > 1 {
+                true => inner.order.pop_first(),
+                false => inner.small.pop_first(),
+            };
+            let Some((_, oldest)) = oldest else {
                 break;
             };
             if let Some(e) = inner.entries.remove(&oldest) {
@@ -360,14 +480,14 @@ mod tests {
 
     #[test]
     fn the_least_recently_used_chunks_leave_beyond_the_budget() {
-        let cache = ChunkCache::new(24);
+        let cache = ChunkCache::new(3 * (8 + ENTRY_BYTES));
         for i in 0..3 {
             cache.get((0, [i, 0, 0]), 8, || chunk(i as u8)).unwrap();
         }
         // Chunk 0 used again: chunk 1 is now the oldest, and the fourth pushes it out.
         cache.get((0, [0, 0, 0]), 8, || chunk(9)).unwrap();
         cache.get((0, [3, 0, 0]), 8, || chunk(3)).unwrap();
-        assert_eq!(cache.held(), (3, 24));
+        assert_eq!(cache.held(), (3, 3 * (8 + ENTRY_BYTES)));
         let again = cache.get((0, [1, 0, 0]), 8, || chunk(11)).unwrap();
         assert_eq!(first(&again), 11.0, "decoded anew");
         let kept = cache.get((0, [0, 0, 0]), 8, || chunk(12)).unwrap();
@@ -394,17 +514,84 @@ mod tests {
         assert_eq!(runs.load(Ordering::Relaxed), 1);
     }
 
+    /// A chunk of 16³ voxels of one value `v`.
+    fn flat(v: u8) -> Result<Volume> {
+        Volume::new([16; 3], [1.0; 3], VoxelData::U8(vec![v; 4096]))
+    }
+
+    /// A chunk of 16³ voxels, `v` first (not one value).
+    fn many(v: u8) -> Result<Volume> {
+        let d = (0..4096).map(|i| v.wrapping_add(i as u8)).collect();
+        Volume::new([16; 3], [1.0; 3], VoxelData::U8(d))
+    }
+
     #[test]
-    fn chunks_of_one_value_are_held_as_one_voxel() {
-        let cache = ChunkCache::new(24);
-        let flat = |v: u8| Volume::new([2, 2, 2], [1.0; 3], VoxelData::U8(vec![v; 8]));
+    fn chunks_of_one_value_are_held_as_one_voxel_and_leave_after_the_others() {
+        // Room for three chunks of many values.
+        let cache = ChunkCache::new(3 * (4096 + ENTRY_BYTES));
         for i in 0..10 {
-            let c = cache.get((0, [i, 0, 0]), 8, || flat(i as u8)).unwrap();
-            assert_eq!((c.value(), c.dims, c.bytes()), (Some(i as f64), [2; 3], 1));
+            let c = cache.get((0, [i, 0, 0]), 4096, || flat(i as u8)).unwrap();
+            assert_eq!((c.value(), c.dims, c.bytes()), (Some(i as f64), [16; 3], 1));
         }
-        assert_eq!(cache.held(), (10, 10), "ten chunks in the room of three");
-        cache.get((0, [10, 0, 0]), 8, || chunk(1)).unwrap();
-        assert_eq!(cache.held(), (11, 18));
+        let small = 10 * (1 + ENTRY_BYTES);
+        assert_eq!(cache.held(), (10, small), "ten chunks in the room of one");
+        // Beyond the budget, the chunks of many values leave, oldest first: those of one value,
+        // older still, stay.
+        for i in 10..14 {
+            cache.get((0, [i, 0, 0]), 4096, || many(i as u8)).unwrap();
+        }
+        assert_eq!(cache.held(), (12, small + 2 * (4096 + ENTRY_BYTES)));
+        for i in 0..10 {
+            let c = cache.get((0, [i, 0, 0]), 4096, || flat(99)).unwrap();
+            assert_eq!(c.value(), Some(i as f64), "chunk {i} decoded again");
+        }
+        let again = cache.get((0, [10, 0, 0]), 4096, || many(99)).unwrap();
+        assert_eq!(first(&again), 99.0, "the oldest chunk of many values left");
+    }
+
+    #[test]
+    fn chunks_of_one_value_leave_by_last_use_when_they_fill_the_budget() {
+        // Room for three of them and a chunk being decoded, counted at its full size until it
+        // is known to hold one value.
+        let cache = ChunkCache::new(3 * (1 + ENTRY_BYTES) + 4096);
+        for i in 0..5 {
+            cache.get((0, [i, 0, 0]), 4096, || flat(i as u8)).unwrap();
+        }
+        assert_eq!(cache.held(), (4, 4 * (1 + ENTRY_BYTES)));
+        let again = cache.get((0, [0, 0, 0]), 4096, || flat(99)).unwrap();
+        assert_eq!(again.value(), Some(99.0), "decoded anew");
+    }
+
+    #[test]
+    fn chunks_decoded_into_a_reused_buffer_are_what_was_decoded() {
+        let cache = ChunkCache::new(1 << 20);
+        let shape = (crate::VoxelType::U8, 4096);
+        let decode = |v: fn(u8) -> Result<Volume>, x: u8| {
+            move |buf: &mut VoxelData| {
+                *buf = v(x)?.data;
+                Chunk::of_decoded(buf, [16; 3], [1.0; 3])
+            }
+        };
+        let a = cache
+            .get_decoded((0, [0; 3]), shape, decode(many, 5))
+            .unwrap();
+        assert_eq!(
+            (a.uniform, a.volume.data.clone()),
+            (false, many(5).unwrap().data)
+        );
+        // The second decode is handed the first one's buffer, voxels and all.
+        let b = cache
+            .get_decoded((0, [1, 0, 0]), shape, |buf| {
+                assert_eq!(*buf, many(5).unwrap().data, "a buffer of its own");
+                decode(flat, 3)(buf)
+            })
+            .unwrap();
+        assert_eq!((b.value(), b.dims, b.bytes()), (Some(3.0), [16; 3], 1));
+        let c = Chunk::of_value(3.0, crate::VoxelType::U8, [16; 3], [1.0; 3]).unwrap();
+        assert_eq!(
+            (c.value(), c.dims, c.volume.data),
+            (b.value(), b.dims, b.volume.data.clone())
+        );
     }
 
     #[test]

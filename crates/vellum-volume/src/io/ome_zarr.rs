@@ -338,6 +338,30 @@ impl Multiscale {
         Volume::new(size, l.spacing, data)
     }
 
+    /// [`Multiscale::read_box`] into `out` (`size`'s voxels of the store's type), whose memory is
+    /// reused: a type the store holds as it is decodes there in place, with no buffer of its
+    /// own; one converted on the way (`int8`, the wide types) is read and then moved in.
+    pub fn read_box_into(
+        &self,
+        level: usize,
+        lo: [usize; 3],
+        size: [usize; 3],
+        out: &mut VoxelData,
+    ) -> Result<()> {
+        let l = self.level_info(level)?;
+        let n: usize = size.iter().product();
+        let array = &self.arrays[level];
+        let plain = Some(self.voxel) == stored_as(array.data_type());
+        let remote =
+            chunk_boxes(l.chunk, lo, size).len() > 1 && super::http_store::is_url(&self.root);
+        if !plain || remote || out.voxel_type() != self.voxel || out.len() != n {
+            *out = self.read_box(level, lo, size)?.data;
+            return Ok(());
+        }
+        retrieve_into(array, &box_subset(&self.lead, lo, size), out)
+            .map_err(|e| self.read_error(level, lo, size, e))
+    }
+
     /// [`Multiscale::read_box`] of a store on a server, chunk by chunk on
     /// [`REMOTE_READERS`] threads: each chunk is a request, and zarrs' own parallel read, on
     /// the decoders' pool of one thread a core, keeps only as many in flight as there are cores
@@ -392,13 +416,7 @@ impl Multiscale {
                     index.extend([z, y, x].map(|i| i as u64));
                     let chunk = array.retrieve_chunk::<zarrs::array::ArrayBytes<'static>>(&index);
                     if let Err(e) = chunk {
-                        // The key in the store, from its root.
-                        let key = array.chunk_key(&index);
-                        let key = key.as_str().trim_start_matches('/');
-                        let key = match key.starts_with(&format!("{}/", l.path)) {
-                            true => key.to_string(),
-                            false => format!("{}/{key}", l.path),
-                        };
+                        let key = self.chunk_name(level, [x, y, z]);
                         return invalid(
                             &self.root,
                             format!("chunk {key} of level {} could not be read ({e})", l.path),
@@ -410,6 +428,42 @@ impl Multiscale {
         invalid(
             &self.root,
             format!("level {} could not be read ({cause})", l.path),
+        )
+    }
+
+    /// The key of chunk `c` (its place in level `level`'s chunk grid, x y z) in the store, from
+    /// its root: `0/c/3/1/2`.
+    fn chunk_name(&self, level: usize, c: [usize; 3]) -> String {
+        let (l, array) = (&self.levels[level], &self.arrays[level]);
+        let mut index = self.lead.clone();
+        index.extend([c[2], c[1], c[0]].map(|i| i as u64));
+        let key = array.chunk_key(&index);
+        let key = key.as_str().trim_start_matches('/');
+        match key.starts_with(&format!("{}/", l.path)) {
+            true => key.to_string(),
+            false => format!("{}/{key}", l.path),
+        }
+    }
+
+    /// Whether the store holds chunk `c` of level `level` now, when that can be told without
+    /// reading it (in a folder; `None` on a server).
+    pub fn holds_chunk(&self, level: usize, c: [usize; 3]) -> Option<bool> {
+        let array = self.arrays.get(level)?;
+        let mut index = self.lead.clone();
+        index.extend([c[2], c[1], c[0]].map(|i| i as u64));
+        array.storage().holds_locally(&array.chunk_key(&index))
+    }
+
+    /// The sentence for chunk `c` of level `level`, which the store held when it was opened and
+    /// no longer holds.
+    pub fn vanished(&self, level: usize, c: [usize; 3]) -> Error {
+        invalid(
+            &self.root,
+            format!(
+                "chunk {} of level {} was in the store when it was opened and is gone now; the store changed while it was read",
+                self.chunk_name(level, c),
+                self.levels[level].path
+            ),
         )
     }
 
