@@ -850,7 +850,13 @@ fn a_store_larger_than_the_budget_streams_while_the_view_orbits() {
     let dir = tempfile::tempdir().unwrap();
     let store = head_store(dir.path());
     let log = dir.path().join("frames.csv");
-    let flags = ["--bench-log".as_ref(), log.as_os_str()];
+    // Host memory of 2 MiB for the chunks and bricks (the store's level 0 is 27 MiB).
+    let flags = [
+        "--bench-log".as_ref(),
+        log.as_os_str(),
+        "--memory-budget".as_ref(),
+        "2".as_ref(),
+    ];
     let (line, report, lit) = view_streamed(&x, dir.path(), store.to_str().unwrap(), "40", &flags);
     println!("{line}; first frame {} ms", report["first_frame_ms"]);
     // `--bench-log`: a row per presented frame, the ray cast of every completed one, and what

@@ -174,10 +174,11 @@ use image::ImageEncoder;
 
 /// The keyword options of `render` and `Renderer`: the command line's scene flags in snake case,
 /// each filling the field of [`SceneOverrides`] its flag fills, and the session's two.
-const OPTIONS: &str = "time, channels, mix, channel_tfs, focus_channel, labels, hide_labels, focus_labels, label_colour, iso, focus, tf, otf, features, camera, view, ortho, pan, size, slices, one_pass, renderer, jitter, ert, no_skip_empty, refine_iso, sampling, background, style, edge_color, edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation, line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, color_mod, gamma, opacity_mod, stipple, seed, stipple_white, stipple_black, importance_radius, modulate, modulate_lighting, gpu_budget, lod";
+const OPTIONS: &str = "time, channels, mix, channel_tfs, focus_channel, labels, hide_labels, focus_labels, label_colour, iso, focus, tf, otf, features, camera, view, ortho, pan, size, slices, one_pass, renderer, jitter, ert, no_skip_empty, refine_iso, sampling, background, style, edge_color, edge_opacity, edge_width, edge_threshold, sigma, dog_k, kuwahara_radius, saturation, line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, color_mod, gamma, opacity_mod, stipple, seed, stipple_white, stipple_black, importance_radius, modulate, modulate_lighting, gpu_budget, lod, memory_budget";
 
 /// `scene` with the keyword `options` applied over it by the overrides the command line's flags
-/// fill too, and the session's options among them (`gpu_budget` in MiB, `lod`).
+/// fill too, and the session's options among them (`gpu_budget` in MiB, `lod`,
+/// `memory_budget` in MiB).
 fn apply(scene: Scene, options: Option<&Bound<'_, PyDict>>) -> PyResult<(Scene, SessionOptions)> {
     let mut o = SceneOverrides {
         front: Front::Python,
@@ -226,7 +227,7 @@ impl<'py> Value<'_, 'py> {
         v.try_into().map_err(|_| self.bad(what))
     }
 
-    /// `gpu_budget` and `lod`; whether the key is one of them.
+    /// `gpu_budget`, `lod` and `memory_budget`; whether the key is one of them.
     fn session(&self, session: &mut SessionOptions) -> PyResult<bool> {
         match self.key {
             "gpu_budget" => {
@@ -239,6 +240,11 @@ impl<'py> Value<'_, 'py> {
             "lod" => {
                 let lod: String = self.get("\"auto\" or \"finest\"")?;
                 session.lod = Lod::parse(&lod).map_err(|_| self.bad("\"auto\" or \"finest\""))?;
+            }
+            "memory_budget" => {
+                let mib: f64 = self.get("a number of MiB")?;
+                let opts = std::mem::take(session).with_memory_budget(Some(mib), "memory_budget");
+                *session = opts.map_err(|_| self.bad("a number of MiB, at least 1"))?;
             }
             _ => return Ok(false),
         }
@@ -442,7 +448,8 @@ impl PyRenderer {
     /// input's path (a volume file, a DICOM folder, an OME-Zarr store, `phantom:NAME:N`) or a
     /// `vellum.Volume`, with options named as the command line's scene flags in snake case
     /// (iso, focus, tf, ..., edge_threshold, ..., stipple, ...: every one `vellum render` takes
-    /// but those of its output, and gpu_budget in MiB, lod). A volume whose textures exceed `gpu_budget` is ray-cast through
+    /// but those of its output, and gpu_budget in MiB, lod, memory_budget in MiB). A volume
+    /// whose textures exceed `gpu_budget` is ray-cast through
     /// the brick cache, a store beyond it without reading it whole.
     #[new]
     #[pyo3(signature = (scene, **options))]

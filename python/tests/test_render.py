@@ -251,13 +251,18 @@ def test_a_store_beyond_its_budget_streams_through_the_session(tmp_path):
     assert whole.streaming is None, "96³ fits the default budget"
     diff = np.abs(whole.rgba.astype(float) - image.rgba.astype(float))[..., :3]
     assert diff.mean() <= 0.5, f"mean {diff.mean():.3f}/255"
+    # Through 1 MiB of host memory (a fraction of the store's 3.4 MiB of chunks): the same frame.
+    tight = vellum.render(str(store), gpu_budget=1, lod="finest", memory_budget=1, **options)
+    np.testing.assert_array_equal(tight.rgba, image.rgba)
+    assert tight.streaming["chunks_decoded"] >= streaming["chunks_decoded"]
     # A Renderer keeps the pools and the bricks between frames.
     r = vellum.Renderer(str(store), gpu_budget=1, lod="finest", **options)
     np.testing.assert_array_equal(r.render().rgba, image.rgba)
     assert r.render(camera=(60, 20, 2.5)).rgba[..., :3].max() > 0
     r.close()
     for bad, phrase in [(dict(gpu_budget=0), "gpu_budget"), (dict(lod="sharpest"), "lod"),
-                        (dict(gpu_budget=0.1), "gpu_budget. 0.8 or more")]:
+                        (dict(gpu_budget=0.1), "gpu_budget. 0.8 or more"),
+                        (dict(memory_budget=0.5), "memory_budget=0.5 is invalid")]:
         with pytest.raises(vellum.Error, match=phrase) as raised:
             vellum.render(str(store), **bad)
         assert "\n" not in str(raised.value)

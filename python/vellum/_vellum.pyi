@@ -176,7 +176,9 @@ class Renderer:
         stipple_white, stipple_black, importance_radius, modulate, modulate_lighting; and
         gpu_budget (MiB of GPU memory for the volume's textures; a volume that needs more is
         ray-cast through the brick cache, a store without reading it whole; default: half the
-        device's largest heap), lod ("auto" or "finest": the levels a bricked frame samples)."""
+        device's largest heap), lod ("auto" or "finest": the levels a bricked frame samples),
+        memory_budget (MiB of host memory for a streamed volume's decoded chunks and the bricks
+        waiting for the GPU; default 1024)."""
     def render(
         self,
         camera: tuple[float, float] | tuple[float, float, float] | None = None,

@@ -29,7 +29,7 @@ use ash::vk;
 use bench::BenchLog;
 pub use bench::{BenchReport, FrameRow};
 pub use frame::UPLOADS_PER_FRAME;
-use session::{Drag, DrawnKey, Edit, KeyPress, Loaded, Session, SessionSetup};
+use session::{Budget, Drag, DrawnKey, Edit, KeyPress, Loaded, Session, SessionSetup};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -82,6 +82,9 @@ pub struct ViewOptions {
     /// GPU memory for the volume's textures in MiB; a store that needs more is streamed through
     /// the brick cache (default: half the device's largest heap).
     pub gpu_budget: Option<f64>,
+    /// Host memory in MiB for a streamed store's decoded chunks and the bricks waiting for the
+    /// GPU (default 1024).
+    pub memory_budget: Option<f64>,
     /// Start playing a store's time points (`--play`).
     pub play: bool,
     /// Time points per second while playing, at most (`--play-rate`).
@@ -209,7 +212,7 @@ struct GpuState {
     /// The view of the last frame drawn, whose eye orders the bricks its rays asked for.
     last_view: Option<View>,
     /// GPU memory for a volume's textures; a store that needs more is streamed.
-    budget: u64,
+    budget: Budget,
     /// The normals pass every volume put on the GPU in core goes through, built once.
     normals: vellum_render::passes::normals::Normals,
     /// The next time point of a playing series, read and put on the GPU ahead of its turn.

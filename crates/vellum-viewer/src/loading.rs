@@ -7,8 +7,27 @@ use vellum_render::classify::otf::OcclusionTf;
 use vellum_render::classify::transfer::TransferFunction;
 use vellum_render::classify::Classification;
 use vellum_render::render::scene::Scene;
-use vellum_render::render::session::Opened;
+use vellum_render::render::session::{Opened, SessionOptions};
 use vellum_volume::Volume;
+
+/// What a volume opens within: bytes of GPU memory for its textures (a store that needs more is
+/// streamed), and the session's options (host memory for a streamed one: `--memory-budget`).
+#[derive(Clone, Debug)]
+pub(crate) struct Budget {
+    pub(crate) gpu: u64,
+    pub(crate) session: SessionOptions,
+}
+
+impl Budget {
+    /// `gpu` bytes, and the session's defaults.
+    #[cfg(test)]
+    pub(crate) fn gpu(gpu: u64) -> Self {
+        Budget {
+            gpu,
+            session: SessionOptions::default(),
+        }
+    }
+}
 
 /// A volume loaded on a worker thread.
 pub(crate) struct Loaded {
@@ -27,23 +46,28 @@ pub(crate) struct Loaded {
     pub(crate) times: usize,
 }
 
-/// Opens `scene`'s input by the session's rule within `budget` bytes of GPU memory: a store
+/// Opens `scene`'s input by the session's rule within `budget`'s bytes of GPU memory: a store
 /// beyond the budget is never read whole, and its level of at most 64³ voxels stands in for it
 /// on the host (histogram, range); a volume beyond it is drawn through the brick cache too.
-pub(crate) fn load(scene: Scene, budget: u64) -> Result<Loaded> {
+pub(crate) fn load(scene: Scene, budget: &Budget) -> Result<Loaded> {
     load_with(scene, budget, None)
 }
 
 /// [`load`] of another time point of the series shown, whose transfer function (`look`, as
 /// edited) and histogram the session keeps (`SeriesLook`): on the series' scale
 /// (`input.range`), it is neither windowed nor counted again.
-pub(crate) fn load_time_point(scene: Scene, budget: u64, look: TransferFunction) -> Result<Loaded> {
+pub(crate) fn load_time_point(
+    scene: Scene,
+    budget: &Budget,
+    look: TransferFunction,
+) -> Result<Loaded> {
     load_with(scene, budget, Some(look))
 }
 
-fn load_with(scene: Scene, budget: u64, look: Option<TransferFunction>) -> Result<Loaded> {
+fn load_with(scene: Scene, budget: &Budget, look: Option<TransferFunction>) -> Result<Loaded> {
     let classification = scene.classification()?;
-    let (levels, volume) = match Opened::open(&scene, None, budget, None)? {
+    let cache = budget.session.chunk_cache_bytes;
+    let (levels, volume) = match Opened::open(&scene, None, budget.gpu, cache)? {
         Opened::Bricked(levels) => {
             let small = levels.read_small_level(64 * 64 * 64)?;
             (Some(levels), small)

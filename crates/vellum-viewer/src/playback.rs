@@ -76,9 +76,9 @@ impl Session {
         let mut scene = self.model.scene.clone();
         scene.input.time = Some(t);
         let (tx, rx) = mpsc::channel();
-        let (budget, look) = (self.budget, self.model.tf.clone());
+        let (budget, look) = (self.budget.clone(), self.model.tf.clone());
         std::thread::spawn(move || {
-            let _ = tx.send(load_time_point(scene, budget, look));
+            let _ = tx.send(load_time_point(scene, &budget, look));
         });
         rx
     }

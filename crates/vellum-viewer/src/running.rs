@@ -98,8 +98,12 @@ impl Running {
             &present,
         )?;
         let opened = Instant::now();
-        let budget = vellum_render::render::bricked::gpu_budget_bytes(&ctx, opts.gpu_budget)?;
-        let mut loaded = session::load(opts.scene.clone(), budget)?;
+        let budget = Budget {
+            gpu: vellum_render::render::bricked::gpu_budget_bytes(&ctx, opts.gpu_budget)?,
+            session: SessionOptions::default()
+                .with_memory_budget(opts.memory_budget, "--memory-budget")?,
+        };
+        let mut loaded = session::load(opts.scene.clone(), &budget)?;
         let size = window.inner_size();
         let frames = Frames::new(&ctx, &FramesDesc::interactive("view"))?;
         // SAFETY: the window (held in `Running` after the swapchain) outlives it.
@@ -126,7 +130,7 @@ impl Running {
         );
         let renderer = Renderer::new(&ctx)?;
         let normals = Normals::new(&ctx)?;
-        let mut gpu = prepare_gpu(&normals, &mut loaded, budget)?;
+        let mut gpu = prepare_gpu(&normals, &mut loaded, &budget)?;
         let spectrum = gpu.take_spectrum();
         let dims = gpu.volume().dims();
         let (segments, channels) = (segments_of(&mut gpu), channels_of(&mut gpu));
@@ -139,7 +143,7 @@ impl Running {
                 device_name: ctx.info.name.clone(),
                 screenshot_dir: opts.screenshot_dir.clone(),
                 bench: BenchLog::of_view(opts),
-                budget,
+                budget: budget.clone(),
                 play: opts.play,
                 step: crate::timeline::step_of(opts.play_rate),
             },
@@ -333,9 +337,8 @@ impl Running {
         let Some((what, got)) = self.session.take_load() else {
             return;
         };
-        let budget = self.gpu.budget;
         let result = got.and_then(|mut l| {
-            let gpu = prepare_gpu(&self.gpu.normals, &mut l, budget)?;
+            let gpu = prepare_gpu(&self.gpu.normals, &mut l, &self.gpu.budget)?;
             Ok((l, gpu))
         });
         // Whatever was read ahead belongs to the volume this load replaces.
@@ -383,9 +386,8 @@ impl Running {
                 if got.is_ok() {
                     self.session.prefetch_after(t);
                 }
-                let budget = self.gpu.budget;
                 let result = got.and_then(|mut l| {
-                    let gpu = prepare_gpu(&self.gpu.normals, &mut l, budget)?;
+                    let gpu = prepare_gpu(&self.gpu.normals, &mut l, &self.gpu.budget)?;
                     Ok((l, gpu))
                 });
                 match result {
@@ -483,7 +485,7 @@ fn channels_of(gpu: &mut Prepared) -> Option<Vec<crate::ui::ChannelRow>> {
 
 /// The GPU state of a loaded volume: in core, or the brick cache's pools with the streamer
 /// started on the coarsest level (and the scene made to ray-cast it).
-pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: u64) -> Result<Prepared> {
+pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: &Budget) -> Result<Prepared> {
     let ctx = normals.context();
     let modulation = l.scene.modulation.clone().unwrap_or_default();
     let Some(levels) = l.levels.take() else {
@@ -507,14 +509,15 @@ pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: u64) -> Res
         vellum_render::render::session::attach_beside(ctx, &l.scene, &mut prepared)?;
         return Ok(prepared);
     };
-    let opts = SessionOptions::default();
     let opened = Opened::Bricked(levels);
-    let mut prepared = Prepared::new(ctx, &l.scene, &l.classification, &opened, (budget, &opts))?;
+    let opts = (budget.gpu, &budget.session);
+    let mut prepared = Prepared::new(ctx, &l.scene, &l.classification, &opened, opts)?;
     // Segments of a label volume and mixed channels: their bricks carry them.
     vellum_render::render::session::attach_beside(ctx, &l.scene, &mut prepared)?;
-    // The ray caster draws bricked volumes.
-    if l.scene.raycast.is_none() {
-        l.scene.raycast = Some(Default::default());
+    // The session's rule: the ray caster draws bricked volumes.
+    let said = vellum_render::render::session::bricked_ray_cast(&mut l.scene.raycast, budget.gpu);
+    if let Some(said) = said {
+        log::info!("{said}");
     }
     Ok(prepared)
 }

@@ -6,7 +6,7 @@
 //! resolved. Its unit tests run without a window or a device.
 
 use crate::bench::BenchLog;
-pub(crate) use crate::loading::{load, Loaded};
+pub(crate) use crate::loading::{load, Budget, Loaded};
 use crate::ui::{self, Model};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
@@ -83,8 +83,9 @@ pub(crate) struct SessionSetup {
     pub(crate) device_name: String,
     pub(crate) screenshot_dir: PathBuf,
     pub(crate) bench: Option<BenchLog>,
-    /// GPU memory for a volume's textures; a store that needs more is streamed.
-    pub(crate) budget: u64,
+    /// What a volume opens within: GPU memory for its textures (a store that needs more is
+    /// streamed), and host memory for a streamed one.
+    pub(crate) budget: Budget,
     /// Start playing the time points of a store.
     pub(crate) play: bool,
     /// How long a playing time point stays on screen, at least (one over the play rate).
@@ -131,7 +132,7 @@ pub(crate) struct Session {
     pub(crate) screenshot_dir: PathBuf,
     /// The `--bench` orbit's bookkeeping, in bench mode.
     pub(crate) bench: Option<BenchLog>,
-    pub(crate) budget: u64,
+    pub(crate) budget: Budget,
 }
 
 impl Session {
@@ -291,9 +292,9 @@ impl Session {
     /// Starts loading `scene` on a worker thread; `what` names it in the messages.
     pub(crate) fn start_load(&mut self, what: String, scene: Scene) {
         let (tx, rx) = mpsc::channel();
-        let budget = self.budget;
+        let budget = self.budget.clone();
         std::thread::spawn(move || {
-            let _ = tx.send(load(scene, budget));
+            let _ = tx.send(load(scene, &budget));
         });
         self.model.loading = Some(what);
         self.pending_load = Some(rx);

@@ -397,6 +397,10 @@ pub(crate) struct ViewArgs {
     /// the brick cache (default: half the device's largest memory heap).
     #[arg(long, value_name = "MiB")]
     pub(crate) gpu_budget: Option<f64>,
+    /// Host memory in MiB for a streamed store's decoded chunks and the bricks waiting for the
+    /// GPU (default 1024: 896 of chunks, 128 of bricks).
+    #[arg(long, value_name = "MiB")]
+    pub(crate) memory_budget: Option<f64>,
     /// With --bench: print the report as JSON.
     #[arg(long)]
     pub(crate) json: bool,

@@ -71,6 +71,27 @@ pub struct SessionOptions {
     pub chunk_cache_bytes: Option<u64>,
 }
 
+impl SessionOptions {
+    /// These options with `mib` MiB of host memory for a streamed volume (`None`: the
+    /// default, [`DEFAULT_MEMORY`]): seven eighths for decoded chunks, an eighth for bricks
+    /// waiting for the GPU. At least 1 MiB; `what` names the option in the sentence refusing
+    /// less (`--memory-budget`, `memory_budget`).
+    pub fn with_memory_budget(mut self, mib: Option<f64>, what: &str) -> Result<Self> {
+        let memory = match mib {
+            None => DEFAULT_MEMORY,
+            Some(m) if m.is_finite() && m >= 1.0 => (m * (1u64 << 20) as f64) as u64,
+            Some(m) => {
+                return Err(Error::Invalid(format!(
+                    "{what} {m} is invalid; expected at least 1 MiB"
+                )))
+            }
+        };
+        self.stream.ready_bytes = memory / 8;
+        self.chunk_cache_bytes = Some(memory - memory / 8);
+        Ok(self)
+    }
+}
+
 /// An input opened on the host: whole, or as the pyramid the brick cache reads.
 pub enum Opened {
     /// The whole volume, read into host memory.
@@ -428,13 +449,16 @@ fn attach_channels(
     Ok(())
 }
 
-/// The ray caster draws a volume in the brick cache: `view` made so, with the sentence that says
-/// so when it was not (`budget` bytes, for the sentence).
-pub(crate) fn bricked_view(view: &mut View, budget: u64) -> Option<String> {
-    if view.raycast.is_some() {
+/// The ray caster draws a volume in the brick cache: `raycast` (a view's or a scene's) made so,
+/// with the sentence that says so when it was not (`budget` bytes, for the sentence).
+pub fn bricked_ray_cast(
+    raycast: &mut Option<crate::render::raycast::RayOptions>,
+    budget: u64,
+) -> Option<String> {
+    if raycast.is_some() {
         return None;
     }
-    view.raycast = Some(Default::default());
+    *raycast = Some(Default::default());
     let mib = budget as f64 / (1 << 20) as f64;
     Some(format!(
         "the volume is larger than the GPU budget ({mib:.0} MiB): the ray caster draws it through the brick cache"
@@ -486,7 +510,7 @@ impl Session {
     /// volume made it a ray-cast view.
     pub fn view(&self, mut view: View) -> (View, Option<String>) {
         let note = match self.prepared.is_paged() {
-            true => bricked_view(&mut view, self.budget),
+            true => bricked_ray_cast(&mut view.raycast, self.budget),
             false => None,
         };
         let (labels, channels) = match &self.prepared {
@@ -528,6 +552,33 @@ impl Session {
                 )?;
                 Ok((frame, Some(report)))
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_memory_budget_splits_into_chunks_and_bricks() {
+        let opts = SessionOptions::default().with_memory_budget(Some(64.0), "--memory-budget");
+        let opts = opts.unwrap();
+        assert_eq!(opts.chunk_cache_bytes, Some(56 << 20));
+        assert_eq!(opts.stream.ready_bytes, 8 << 20);
+        let default = SessionOptions::default()
+            .with_memory_budget(None, "x")
+            .unwrap();
+        assert_eq!(default.chunk_cache_bytes, Some(DEFAULT_MEMORY / 8 * 7));
+        for bad in [0.5, f64::NAN, -3.0] {
+            let e = SessionOptions::default()
+                .with_memory_budget(Some(bad), "memory_budget")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.starts_with("memory_budget ") && e.contains("at least 1 MiB"),
+                "{e}"
+            );
         }
     }
 }

@@ -4,7 +4,7 @@ use super::*;
 
 /// A session on `input` (a phantom), as the shell makes one, without a window or device.
 fn session(input: &str) -> Session {
-    let loaded = load(Scene::new(InputSpec::new(input)), 1 << 30).unwrap();
+    let loaded = load(Scene::new(InputSpec::new(input)), &Budget::gpu(1 << 30)).unwrap();
     session_of(loaded, std::env::temp_dir())
 }
 
@@ -20,7 +20,7 @@ fn session_of(loaded: Loaded, dir: std::path::PathBuf) -> Session {
             device_name: "no device".into(),
             screenshot_dir: dir,
             bench: None,
-            budget: 1 << 30,
+            budget: Budget::gpu(1 << 30),
             play: false,
             step: crate::timeline::STEP,
         },
@@ -252,14 +252,14 @@ fn time_points_play_through_the_loader_with_the_next_one_read_ahead() {
     time_series(&store, 3);
     let path = store.to_str().unwrap();
     // The store has three time points: it opens only at one.
-    let refused = load(Scene::new(InputSpec::new(path)), 1 << 30)
+    let refused = load(Scene::new(InputSpec::new(path)), &Budget::gpu(1 << 30))
         .err()
         .unwrap();
     assert!(refused.to_string().contains("3 time points"), "{refused}");
     let mut first = Scene::new(InputSpec::new(path));
     first.input.time = Some(0);
     first.focus = Focus::Iso(0.5);
-    let loaded = load(first, 1 << 30).unwrap();
+    let loaded = load(first, &Budget::gpu(1 << 30)).unwrap();
     assert_eq!(loaded.times, 3);
     let dims = loaded.volume.dims;
     let mut s = session_of(loaded, dir.path().to_path_buf());

@@ -414,20 +414,12 @@ fn render_every_time((cli, team): (&Cli, &dyn Team), a: &RenderArgs) -> Result<(
 }
 
 fn session_options(a: &RenderArgs) -> Result<SessionOptions> {
-    let memory = match a.memory_budget {
-        None => vellum::render::session::DEFAULT_MEMORY,
-        Some(m) if m.is_finite() && m >= 1.0 => (m * (1u64 << 20) as f64) as u64,
-        Some(m) => anyhow::bail!("--memory-budget {m} is invalid; expected at least 1 MiB"),
-    };
-    Ok(SessionOptions {
+    let opts = SessionOptions {
         gpu_budget_mib: a.gpu_budget,
         lod: vellum::render::session::Lod::parse(&a.lod)?,
-        stream: vellum::render::stream::StreamOptions {
-            ready_bytes: memory / 8,
-            ..Default::default()
-        },
-        chunk_cache_bytes: Some(memory - memory / 8),
-    })
+        ..Default::default()
+    };
+    Ok(opts.with_memory_budget(a.memory_budget, "--memory-budget")?)
 }
 
 /// Draws the frame of `view` through the session: in core, or through the brick cache (waiting

@@ -78,6 +78,7 @@ pub(crate) fn view(cli: &Cli, a: &ViewArgs) -> Result<()> {
         bench_full: a.bench_full,
         bench_rows: a.bench_log.is_some(),
         gpu_budget: a.gpu_budget,
+        memory_budget: a.memory_budget,
         play: a.play,
         play_rate: a.play_rate,
     })?;
