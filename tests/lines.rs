@@ -526,6 +526,23 @@ fn the_lines_command_writes_a_png_and_an_svg_of_the_visible_lines() {
         "give a focus",
     );
     assert!(!dir.path().join("x.png").exists() && !dir.path().join("y.png").exists());
+    // Lines are drawn in core: a store beyond the GPU budget is refused by the session's rule,
+    // in one sentence, before it is read (issue 39).
+    let store = common::phantom_store(dir.path(), "s.ome.zarr", "sphere:64", 32);
+    let store = store.to_str().unwrap();
+    for budget in ["0.5", "4"] {
+        let args = ["lines", store, "--iso", "0.5", "--gpu-budget", budget];
+        let out = common::vellum(&[&args[..], &["--out", &p("z.png")]].concat());
+        match budget {
+            "0.5" => common::fails_with(&out, "lines draws the whole volume in core, and"),
+            _ => assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            ),
+        }
+        assert_eq!(dir.path().join("z.png").exists(), budget == "4");
+    }
 }
 
 /// Reference images of the line styles 4-12 (silhouettes or suggestive contours, alone or with

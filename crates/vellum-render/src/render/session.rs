@@ -71,6 +71,38 @@ pub struct SessionOptions {
     pub chunk_cache_bytes: Option<u64>,
 }
 
+/// The input of a command that draws in core only (`lines`, `styles`: the slicer's two-level
+/// frames and their image-space passes): `load`'s volume when it fits `budget` bytes by the
+/// session's rule. Beyond it, one sentence naming the command (`what`) and the budget; a store
+/// (at `path`, its time point and channel picked by `pick`) is refused before it is read.
+pub fn in_core_only(
+    (path, pick): (&str, vellum_volume::io::ome_zarr::Pick),
+    budget: u64,
+    what: &str,
+    load: impl FnOnce() -> Result<Volume>,
+) -> Result<Volume> {
+    use vellum_volume::io::ome_zarr;
+    let refuse = |dims: [usize; 3]| {
+        let mib = budget as f64 / (1 << 20) as f64;
+        Error::Invalid(format!(
+            "{what} draws the whole volume in core, and {path} ({}x{}x{}) is larger than the GPU budget ({mib:.0} MiB); raise --gpu-budget, or draw it through the brick cache with `vellum render --renderer raycast`",
+            dims[0], dims[1], dims[2]
+        ))
+    };
+    if ome_zarr::is_store(Path::new(path)) {
+        let ms = ome_zarr::Multiscale::open_picked(Path::new(path), pick)?;
+        let dims = ms.levels[0].dims;
+        if in_core_bytes(dims) > budget {
+            return Err(refuse(dims));
+        }
+    }
+    let v = load()?;
+    match in_core_bytes(v.dims) > budget {
+        true => Err(refuse(v.dims)),
+        false => Ok(v),
+    }
+}
+
 impl SessionOptions {
     /// These options with `mib` MiB of host memory for a streamed volume (`None`: the
     /// default, [`DEFAULT_MEMORY`]): seven eighths for decoded chunks, an eighth for bricks

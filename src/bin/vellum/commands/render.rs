@@ -38,9 +38,11 @@ pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
         params,
     });
     let classification = scene.classification()?;
-    let v = scene.load_volume()?;
-    let view = scene.view(v.geometry.is_oriented())?;
     let ctx = context(cli)?;
+    let budget = vellum::render::bricked::gpu_budget_bytes(&ctx, a.render.gpu_budget)?;
+    let input = (scene.input.path.as_str(), scene.input.pick());
+    let v = vellum::render::session::in_core_only(input, budget, "lines", || scene.load_volume())?;
+    let view = scene.view(v.geometry.is_oriented())?;
     let modulation = scene.modulation.clone().unwrap_or_default();
     let mut gpu = GpuScene::prepare(&ctx, &v, &classification, scene.focus, &modulation)?;
     let mut renderer = Renderer::new(&ctx)?;

@@ -46,8 +46,14 @@ pub(crate) fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
             }
         },
     };
-    let v = a.input.load()?;
     let ctx = context(cli)?;
+    let budget = vellum::render::bricked::gpu_budget_bytes(&ctx, None)?;
+    let input = (a.input.input.as_str(), a.input.pick());
+    let v = vellum::render::session::in_core_only(input, budget, "styles", || {
+        a.input
+            .load()
+            .map_err(|e| vellum::error::Error::Invalid(format!("{e:#}")))
+    })?;
     let mut scene = GpuScene::prepare(&ctx, &v, &classification, focus, &Modulation::default())?;
     let (sheet, tiles) = vellum_tools::figures::style_gallery(
         &ctx,
