@@ -876,6 +876,42 @@ fn a_slot_holds_what_the_in_core_textures_hold() {
     }
 }
 
+/// A streamed frame's report (`render --json`'s `bricks`) carries what issue 39 asks of it, each
+/// consistent with the others: bricks loaded against touched, source bytes decoded per second,
+/// the host's and the GPU's ms per pass and in all, the share both were busy, and the times to
+/// the first frame and the complete one.
+fn report_has_its_numbers(b: &serde_json::Value) {
+    let num = |k: &str| b[k].as_f64().unwrap_or_else(|| panic!("no {k} in {b}"));
+    let per_pass = |k: &str| -> Vec<f64> {
+        let v = b[k].as_array().unwrap_or_else(|| panic!("no {k} in {b}"));
+        v.iter().map(|x| x.as_f64().unwrap()).collect()
+    };
+    let passes = num("passes") as usize;
+    assert!(passes > 1, "a multi-pass frame: {b}");
+    assert!(num("bricks_loaded") >= num("bricks_touched") && num("bricks_touched") > 0.0);
+    let ratio = num("bricks_loaded") / num("bricks_touched");
+    assert!((num("loads_per_touched") - ratio).abs() < 1e-9, "{b}");
+    let rate = num("source_bytes") / (1 << 20) as f64 / (num("total_ms") / 1e3);
+    assert!(
+        (num("source_mib_per_s") - rate).abs() <= 1e-6 * rate && rate > 0.0,
+        "{b}"
+    );
+    let (gpu, host) = (per_pass("pass_gpu_ms"), per_pass("pass_host_ms"));
+    assert_eq!((gpu.len(), host.len()), (passes, passes), "{b}");
+    assert!(gpu.iter().chain(&host).all(|&ms| ms >= 0.0), "{b}");
+    assert!((gpu.iter().sum::<f64>() - num("gpu_ms")).abs() < 0.01 * num("gpu_ms") + 0.01);
+    // The loaders' time within the passes' windows: all of it but what came after the last.
+    assert!(
+        host.iter().sum::<f64>() <= num("host_ms") + 0.01 && num("host_ms") > 0.0,
+        "{b}"
+    );
+    let (both, share) = (num("both_ms"), num("both_share"));
+    assert!(both <= num("host_ms").min(num("gpu_ms")) + 0.01, "{b}");
+    assert!((share - both / num("total_ms")).abs() < 1e-9 && (0.0..=1.0).contains(&share));
+    let first = num("first_frame_ms");
+    assert!(first > 0.0 && first <= num("total_ms"), "{b}");
+}
+
 /// A still frame through a memory budget an eighth of the store's decoded voxels keeps vellum's
 /// own heap within that budget and the session's few MiB, and draws the frame it draws with room
 /// to spare: the chunk cache and the bricks waiting ready are the queue the budget bounds, and a
@@ -901,10 +937,12 @@ fn a_still_frame_keeps_its_heap_within_the_memory_budget() {
             "--memory-budget",
             budget,
             "--json",
+            "--first-frame",
             "--out",
             png.to_str().unwrap(),
         ]));
         assert_eq!(r["bricks"]["complete"], true, "{budget} MiB");
+        report_has_its_numbers(&r["bricks"]);
         (r, image::open(&png).unwrap().to_rgb8().into_raw())
     };
     let (tight, a) = frame("2");

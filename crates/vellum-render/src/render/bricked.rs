@@ -95,8 +95,11 @@ pub struct StreamReport {
     pub(crate) both_ms: f64,
     /// `both_ms` over `total_ms`, in [0, 1].
     pub both_share: f64,
-    /// Per pass: GPU ms, and bricks uploaded before it.
+    /// Per pass: GPU ms.
     pub(crate) pass_gpu_ms: Vec<f64>,
+    /// Per pass: ms the loaders were reading (at least one of them) from the end of the pass
+    /// before (the frame's start for the first) to the end of this one.
+    pub(crate) pass_host_ms: Vec<f64>,
     /// Per pass: bricks uploaded before it.
     pub(crate) pass_bricks: Vec<usize>,
     /// Whether every ray reached its end with the bricks it asked for (false: the wait was cut
@@ -275,6 +278,11 @@ impl Renderer {
         r.host_ms = host.iter().map(|(a, b)| b - a).sum::<f64>() * 1e3;
         r.gpu_ms = s.gpu.iter().map(|(a, b)| b - a).sum::<f64>() * 1e3;
         r.both_ms = vellum_volume::stream::overlap(&host, &s.gpu) * 1e3;
+        let ends = s.gpu.iter().map(|&(_, b)| b);
+        let windows = std::iter::once(0.0).chain(ends.clone()).zip(ends);
+        r.pass_host_ms = windows
+            .map(|w| vellum_volume::stream::overlap(&host, &[w]) * 1e3)
+            .collect();
         r.both_share = r.both_ms / r.total_ms.max(1e-9);
         Ok((image, s.report))
     }
@@ -420,8 +428,14 @@ impl Renderer {
         s.report.whole_frame = s.report.complete && evicted == 0;
         vol.paged.mode = if s.report.whole_frame { 0 } else { MODE_RESUME };
         let image = self.read_frame(s, vol, classify);
-        s.report.passes += 1;
         vol.paged.mode = 0;
-        image
+        let image = image?;
+        // Its GPU time (the ray cast, the style's passes and the readback) as the last pass's.
+        let done = s.start.elapsed().as_secs_f64();
+        let ms: f64 = image.passes.iter().map(|p| p.ms).sum();
+        s.gpu.push(((done - ms / 1e3).max(0.0), done));
+        s.report.pass_gpu_ms.push(ms);
+        s.report.passes += 1;
+        Ok(image)
     }
 }
