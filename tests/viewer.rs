@@ -943,6 +943,69 @@ fn a_server_whose_finest_chunks_break_or_stall_leaves_the_view_on_the_coarser_le
     }
 }
 
+/// A store whose finest chunks vanish while the viewer reads it (issue 39): once the store is
+/// open (the log's line that it is streamed), level 0's chunk files are deleted. The
+/// view keeps orbiting on the coarser levels, its corner names a chunk that went, and the
+/// finest bricks are never drawn as the fill value (air) in their place.
+#[test]
+fn a_store_whose_chunks_vanish_leaves_the_view_on_the_coarser_level() {
+    let Some((x, _guard)) = xvfb() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let store = head_store(dir.path());
+    let shot = dir.path().join("last.png");
+    let mut child = validated_view(&x, dir.path())
+        .arg(&store)
+        .args(["--iso", "0.9", "--tf", "grey", "--gpu-budget", "6", "-v"])
+        .args(["--size", "320x240", "--bench", "40", "--json", "--no-vsync"])
+        .arg("--screenshot-on-exit")
+        .arg(&shot)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("running vellum view --bench");
+    let stderr = child.stderr.take().unwrap();
+    let finest = store.join("0/c");
+    let reader = std::thread::spawn(move || {
+        let mut all = String::new();
+        for line in BufReader::new(stderr).lines().map_while(|l| l.ok()) {
+            if line.contains("streamed through the brick cache") && finest.exists() {
+                std::fs::remove_dir_all(&finest).unwrap();
+            }
+            all.push_str(&line);
+            all.push('\n');
+        }
+        all
+    });
+    let mut stdout = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut stdout)
+        .unwrap();
+    let status = child.wait().unwrap();
+    let stderr = reader.join().unwrap();
+    assert!(status.success(), "{stderr}");
+    assert!(
+        !store.join("0/c").exists(),
+        "the store was never opened: {stderr}"
+    );
+    assert!(!stderr.contains("validation layer reported"), "{stderr}");
+    let report: serde_json::Value = serde_json::from_str(&stdout).expect("a JSON report");
+    let line = report["streaming"].as_str().expect("a brick line");
+    println!("{line}");
+    assert!(
+        line.contains("drawn from coarser levels where bricks are missing")
+            && line.contains("0/c/")
+            && line.contains("is gone now"),
+        "the corner does not name the vanished chunk: {line}"
+    );
+    let lit = rgb(&shot).pixels().filter(|p| p[0] > 60).count();
+    assert!(lit > 2000, "{lit} lit pixels on the last view");
+}
+
 /// The soak: 6,000 bench frames of a small phantom, with validation and synchronization
 /// validation on (20,000 until CI's time ran short; a leak of 13 bytes a frame still fails the
 /// heap bound, one of 1.6 KiB the resident set's). From frame 1,000 to 6,000:

@@ -69,6 +69,11 @@ fn load_with(scene: Scene, budget: &Budget, look: Option<TransferFunction>) -> R
     let cache = budget.session.chunk_cache_bytes;
     let (levels, volume) = match Opened::open(&scene, None, budget.gpu, cache)? {
         Opened::Bricked(levels) => {
+            let mib = budget.gpu as f64 / (1 << 20) as f64;
+            log::info!(
+                "{}: larger than the GPU budget ({mib:.0} MiB); streamed through the brick cache",
+                scene.input.path
+            );
             let small = levels.read_small_level(64 * 64 * 64)?;
             (Some(levels), small)
         }
