@@ -585,24 +585,34 @@ impl BrickLevels {
         let dims = self.levels[key.level].dims;
         let clamp = |v: i64, a: usize| v.clamp(0, dims[a] as i64 - 1) as usize;
         let (inner_lo, size, lo) = self.upload_box(key);
-        let inner = match &self.sources[key.level] {
+        let (inner, normalised) = match &self.sources[key.level] {
             LevelSource::Store(ms, l) => match self.read_chunked(ms, *l, inner_lo, size)? {
-                Read::Voxels(v) => v,
+                Read::Voxels(v) => (v, self.normalises(ms)),
                 Read::Uniform(value) => return Ok(self.uniform_brick(value, ms.voxel)),
             },
-            LevelSource::Memory(v) => v.read_box(inner_lo, size)?,
+            LevelSource::Memory(v) => (v.read_box(inner_lo, size)?, false),
         };
         let map: [Vec<usize>; 3] = std::array::from_fn(|a| {
             (0..UPLOAD as i64)
                 .map(|i| clamp(lo[a] + i, a) - inner_lo[a])
                 .collect()
         });
-        Ok(to_upload(
-            &inner,
-            &map,
-            self.range,
-            self.u8_table().as_ref(),
-        ))
+        let table = self.u8_table();
+        let convert = match normalised {
+            true => Convert::Normalised,
+            false => table
+                .as_ref()
+                .map_or(Convert::Range(self.range), Convert::Table),
+        };
+        Ok(to_upload(&inner, &map, convert))
+    }
+
+    /// Whether the chunk cache keeps `ms`'s chunks of many values normalised to 16 bits (as
+    /// the bricks travel), converted once when decoded rather than at each of the eight bricks
+    /// and the apron reads of the 56 around that read them: every store but an 8-bit one, whose
+    /// voxels travel as they are.
+    fn normalises(&self, ms: &Multiscale) -> bool {
+        ms.voxel != crate::VoxelType::U8
     }
 
     /// Voxels `lo .. lo + size` of level `level` of `ms`, copied from its decoded chunks, each
@@ -634,19 +644,31 @@ impl BrickLevels {
                 return Ok(Read::Uniform(v));
             }
         }
-        let data = VoxelData::zeros(ms.voxel, size.iter().product());
+        // The box in the type the cache keeps the chunks in.
+        let normalised = self.normalises(ms);
+        let voxel = match normalised {
+            true => crate::VoxelType::U16,
+            false => ms.voxel,
+        };
+        let data = VoxelData::zeros(voxel, size.iter().product());
         let mut out = Volume::new(size, l.spacing, data)?;
         for (clo, c) in &got {
-            match c.uniform {
-                false => out.paste(&c.volume, *clo, lo),
+            match (c.uniform, c.value()) {
                 // One voxel stands for the chunk: spread it over the chunk's part of the box.
-                true => fill_box(&c.volume.data, (*clo, c.dims), &mut out, lo),
+                (true, Some(v)) if normalised => {
+                    let one = VoxelData::U16(vec![self.uniform_u16(v, ms.voxel)]);
+                    fill_box(&one, (*clo, c.dims), &mut out, lo)
+                }
+                (true, _) => fill_box(&c.volume.data, (*clo, c.dims), &mut out, lo),
+                (false, _) => out.paste(&c.volume, *clo, lo),
             }
         }
         Ok(Read::Voxels(out))
     }
 
-    /// Chunk `c` of level `level` (its voxels `clo .. clo + csize`) through the chunk cache.
+    /// Chunk `c` of level `level` (its voxels `clo .. clo + csize`) through the chunk cache: a
+    /// chunk of many values normalised to 16 bits where [`BrickLevels::normalises`] says so, one
+    /// of one value as its value.
     /// Where the store's chunks were `listed` when it was opened (and this one was in it), a
     /// chunk that reads as one value and is no longer in the store vanished while it was read
     /// (zarrs reads a missing chunk as the fill value): its sentence.
@@ -659,9 +681,16 @@ impl BrickLevels {
     ) -> Result<Arc<Chunk>> {
         let spacing = ms.levels[level].spacing;
         let shape = (ms.voxel, csize.iter().product());
+        let [lo, hi] = self.range;
+        let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+        let normalised = self.normalises(ms);
         self.chunks.get_decoded((level, c), shape, |buf| {
             ms.read_box_into(level, clo, csize, buf)?;
-            let chunk = Chunk::of_decoded(buf, csize, spacing)?;
+            let keep = |d: &VoxelData| match normalised {
+                true => VoxelData::U16(normalised_u16(d, lo, scale)),
+                false => d.clone(),
+            };
+            let chunk = Chunk::of_decoded(buf, csize, spacing, keep)?;
             if listed.is_some() && chunk.uniform && ms.holds_chunk(level, c) == Some(false) {
                 return Err(ms.vanished(level, c));
             }
@@ -825,6 +854,17 @@ fn normalise_scaled(v: f64, lo: f64, scale: f64) -> u16 {
     (((v - lo) * scale).clamp(0.0, 65535.0) + 0.5) as u16
 }
 
+/// `data` normalised to 16 bits as [`normalise_scaled`] does it, in a loop per type.
+fn normalised_u16(data: &VoxelData, lo: f64, scale: f64) -> Vec<u16> {
+    let norm = move |v: f64| normalise_scaled(v, lo, scale);
+    match data {
+        VoxelData::U8(s) => s.iter().map(|&v| norm(v as f64)).collect(),
+        VoxelData::U16(s) => s.iter().map(|&v| norm(v as f64)).collect(),
+        VoxelData::I16(s) => s.iter().map(|&v| norm(v as f64)).collect(),
+        VoxelData::F32(s) => s.iter().map(|&v| norm(v as f64)).collect(),
+    }
+}
+
 /// Copies the part of `src` (placed at `src_lo` in the level) that overlaps `dst` (at `dst_lo`).
 /// Fills the part of `dst` (at `dst_lo`) that the region `src_lo .. src_lo + dims` covers with
 /// `value`'s one voxel (of `dst`'s type).
@@ -873,31 +913,39 @@ fn fill_box(
     }
 }
 
+/// How a brick's voxels become the texels that travel.
+#[derive(Clone, Copy)]
+enum Convert<'a> {
+    /// Normalised to 16 bits over the range.
+    Range([f64; 2]),
+    /// 8-bit as they are; the GPU maps them through this table.
+    Table(&'a [u16; 256]),
+    /// Already normalised to 16 bits (chunks the cache keeps so): copied.
+    Normalised,
+}
+
 /// The upload of a brick from its `inner` voxels (the box clamped into the level), `map` giving
-/// for each of the [`UPLOAD`] positions per axis its index in `inner`: normalised over `range`,
-/// or 8-bit as it is with `table`. Also the range of the slot's texels and whether all are one.
-fn to_upload(
-    inner: &Volume,
-    map: &[Vec<usize>; 3],
-    range: [f64; 2],
-    table: Option<&[u16; 256]>,
-) -> BrickVoxels {
-    let [lo, hi] = range;
+/// for each of the [`UPLOAD`] positions per axis its index in `inner`, converted by `convert`.
+/// Also the range of the slot's texels and whether all are one.
+fn to_upload(inner: &Volume, map: &[Vec<usize>; 3], convert: Convert) -> BrickVoxels {
+    let [lo, hi] = match convert {
+        Convert::Range(r) => r,
+        _ => [0.0, 1.0],
+    };
     let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
     // (By value, so that the loops keep the two in registers.)
     let norm = move |v: f64| normalise_scaled(v, lo, scale);
     let mut stats = UploadStats::default();
-    let data = match (&inner.data, table) {
-        (VoxelData::U8(s), Some(t)) => BrickData::U8(gather(
-            inner.dims,
-            map,
-            s,
-            |v| v,
-            |v| t[v as usize],
-            &mut stats,
-        )),
-        (VoxelData::U8(s), None) => BrickData::U16(gather(
-            inner.dims,
+    let d = inner.dims;
+    let data = match (&inner.data, convert) {
+        (VoxelData::U8(s), Convert::Table(t)) => {
+            BrickData::U8(gather(d, map, s, |v| v, |v| t[v as usize], &mut stats))
+        }
+        (VoxelData::U16(s), Convert::Normalised) => {
+            BrickData::U16(gather(d, map, s, |v| v, |v| v, &mut stats))
+        }
+        (VoxelData::U8(s), _) => BrickData::U16(gather(
+            d,
             map,
             s,
             move |v| norm(v as f64),
@@ -905,7 +953,7 @@ fn to_upload(
             &mut stats,
         )),
         (VoxelData::U16(s), _) => BrickData::U16(gather(
-            inner.dims,
+            d,
             map,
             s,
             move |v| norm(v as f64),
@@ -913,7 +961,7 @@ fn to_upload(
             &mut stats,
         )),
         (VoxelData::I16(s), _) => BrickData::U16(gather(
-            inner.dims,
+            d,
             map,
             s,
             move |v| norm(v as f64),
@@ -921,7 +969,7 @@ fn to_upload(
             &mut stats,
         )),
         (VoxelData::F32(s), _) => BrickData::U16(gather(
-            inner.dims,
+            d,
             map,
             s,
             move |v| norm(v as f64),
@@ -1716,23 +1764,44 @@ mod tests {
 
     #[test]
     fn brick_voxels_of_a_store_are_those_of_the_volume() {
-        let v = shepp_logan(70);
-        let (_dir, ms) = store_of(&v, 24);
-        let from_store = BrickLevels::of_store(ms, 1 << 26).unwrap();
-        let in_memory = BrickLevels::of_volume(v).unwrap();
-        for brick in [[0, 0, 0], [1, 2, 1], [2, 2, 2]] {
-            let key = BrickKey { level: 0, brick };
-            let (a, b) = (
-                from_store.voxels(key).unwrap(),
-                in_memory.voxels(key).unwrap(),
-            );
-            assert_eq!(a.data, b.data, "{brick:?}");
-            assert_eq!(a.range, b.range);
+        // A store's chunks are kept normalised to 16 bits; a volume in memory is normalised
+        // brick by brick: the same texels, in every type.
+        let f = shepp_logan(70);
+        let typed = |t: crate::VoxelType| {
+            let data = match t {
+                crate::VoxelType::U16 => VoxelData::U16(
+                    (0..f.len())
+                        .map(|i| (f.data.get_f64(i) * 3000.0) as u16)
+                        .collect(),
+                ),
+                crate::VoxelType::I16 => VoxelData::I16(
+                    (0..f.len())
+                        .map(|i| (f.data.get_f64(i) * 3000.0 - 1024.0) as i16)
+                        .collect(),
+                ),
+                _ => f.data.clone(),
+            };
+            Volume::new(f.dims, f.spacing, data).unwrap()
+        };
+        use crate::VoxelType::{F32, I16, U16};
+        for v in [F32, U16, I16].map(typed) {
+            let (_dir, ms) = store_of(&v, 24);
+            let from_store = BrickLevels::of_store(ms, 1 << 26).unwrap();
+            let in_memory = BrickLevels::of_volume(v).unwrap();
+            for brick in [[0, 0, 0], [1, 2, 1], [2, 2, 2]] {
+                let key = BrickKey { level: 0, brick };
+                let (a, b) = (
+                    from_store.voxels(key).unwrap(),
+                    in_memory.voxels(key).unwrap(),
+                );
+                assert_eq!(a.data, b.data, "{brick:?}");
+                assert_eq!(a.range, b.range);
+            }
+            // The 12 chunks of level 0 the three bricks touch (8, 4 more, none more), each
+            // decoded once however many bricks read it.
+            let st = from_store.chunks().stats();
+            assert_eq!((st.decoded, st.hits), (12, 1));
         }
-        // The 12 chunks of level 0 the three bricks touch (8, 4 more, none more), each decoded
-        // once however many bricks read it.
-        let st = from_store.chunks().stats();
-        assert_eq!((st.decoded, st.hits), (12, 1));
     }
 
     #[test]

@@ -59,11 +59,16 @@ impl Chunk {
     }
 
     /// The chunk of `dims` voxels decoded into `data` (a buffer the cache reuses): its one
-    /// value, or a copy of its voxels.
-    pub fn of_decoded(data: &VoxelData, dims: [usize; 3], spacing: [f64; 3]) -> Result<Self> {
+    /// value, or the voxels `keep` makes of them (a copy, or a copy converted).
+    pub fn of_decoded(
+        data: &VoxelData,
+        dims: [usize; 3],
+        spacing: [f64; 3],
+        keep: impl FnOnce(&VoxelData) -> VoxelData,
+    ) -> Result<Self> {
         let (size, data, uniform) = match one_value(data) {
             Some(one) => ([1; 3], one, true),
-            None => (dims, data.clone(), false),
+            None => (dims, keep(data), false),
         };
         Ok(Chunk {
             volume: Volume::new(size, spacing, data)?,
@@ -569,7 +574,7 @@ mod tests {
         let decode = |v: fn(u8) -> Result<Volume>, x: u8| {
             move |buf: &mut VoxelData| {
                 *buf = v(x)?.data;
-                Chunk::of_decoded(buf, [16; 3], [1.0; 3])
+                Chunk::of_decoded(buf, [16; 3], [1.0; 3], VoxelData::clone)
             }
         };
         let a = cache
