@@ -684,18 +684,19 @@ impl BrickLevels {
         let [lo, hi] = self.range;
         let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
         let normalised = self.normalises(ms);
-        self.chunks.get_decoded((level, c), shape, |buf| {
-            ms.read_box_into(level, clo, csize, buf)?;
-            let keep = |d: &VoxelData| match normalised {
+        let decode = |buf: &mut VoxelData| ms.read_box_into(level, clo, csize, buf);
+        let keep = |buf: &VoxelData| {
+            let kept = |d: &VoxelData| match normalised {
                 true => VoxelData::U16(normalised_u16(d, lo, scale)),
                 false => d.clone(),
             };
-            let chunk = Chunk::of_decoded(buf, csize, spacing, keep)?;
+            let chunk = Chunk::of_decoded(buf, csize, spacing, kept)?;
             if listed.is_some() && chunk.uniform && ms.holds_chunk(level, c) == Some(false) {
                 return Err(ms.vanished(level, c));
             }
             Ok(chunk)
-        })
+        };
+        self.chunks.get_decoded((level, c), shape, decode, keep)
     }
 
     /// A brick whose voxels, apron included, all hold `value` (of a store of type `voxel`): what

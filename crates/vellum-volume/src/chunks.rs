@@ -189,11 +189,15 @@ pub struct ChunkStats {
     pub decoded: u64,
     /// Their voxel bytes.
     pub decoded_bytes: u64,
-    /// Milliseconds spent decoding, summed over the threads.
+    /// Milliseconds spent decoding chunks and keeping them, summed over the threads.
     pub decode_ms: f64,
     /// The CPU time of that decoding, summed over the threads: below `decode_ms` by the time
     /// the threads waited for a core ([`thread_cpu_ms`]).
     pub decode_cpu_ms: f64,
+    /// The CPU time spent keeping the decoded chunks ([`ChunkCache::get_decoded`]'s `keep`: a
+    /// copy, or a conversion, into memory of their own, which the process touches for the first
+    /// time while the cache grows), summed over the threads; not in `decode_cpu_ms`.
+    pub keep_cpu_ms: f64,
     /// Lookups answered from the cache.
     pub(crate) hits: u64,
 }
@@ -206,6 +210,7 @@ pub struct ChunkCache {
     decoded_bytes: AtomicU64,
     decode_ns: AtomicU64,
     decode_cpu_ns: AtomicU64,
+    keep_cpu_ns: AtomicU64,
     hits: AtomicU64,
     /// Buffers chunks were decoded into, for the next decodes ([`ChunkCache::get_decoded`]).
     spares: Mutex<Vec<VoxelData>>,
@@ -221,6 +226,7 @@ impl ChunkCache {
             decoded_bytes: AtomicU64::new(0),
             decode_ns: AtomicU64::new(0),
             decode_cpu_ns: AtomicU64::new(0),
+            keep_cpu_ns: AtomicU64::new(0),
             hits: AtomicU64::new(0),
             spares: Mutex::new(Vec::new()),
         }
@@ -239,26 +245,40 @@ impl ChunkCache {
         bytes: u64,
         decode: impl FnOnce() -> Result<Volume>,
     ) -> Result<Arc<Chunk>> {
-        self.get_chunk(key, bytes, || decode().map(Chunk::new))
+        self.get_chunk(key, bytes, || {
+            self.timed(&self.decode_cpu_ns, || decode().map(Chunk::new))
+        })
     }
 
-    /// Chunk `key`, of `n` voxels of type `voxel`, as [`ChunkCache::get`] gives it, but made by
-    /// `make` from a buffer the cache reuses, which it decodes the chunk into
+    /// Chunk `key`, of `n` voxels of type `voxel`, as [`ChunkCache::get`] gives it, but
+    /// decoded by `decode` into a buffer the cache reuses, and then kept by `keep`
     /// ([`Chunk::of_decoded`]): a chunk of one value is then kept without a buffer of its own
-    /// ever being made for it, and one of many values is copied out once.
+    /// ever being made for it, and one of many values is copied (or converted) out once. The
+    /// two are timed apart ([`ChunkStats::keep_cpu_ms`]).
     pub fn get_decoded(
         &self,
         key: ChunkKey,
         (voxel, n): (crate::VoxelType, usize),
-        make: impl FnOnce(&mut VoxelData) -> Result<Chunk>,
+        decode: impl FnOnce(&mut VoxelData) -> Result<()>,
+        keep: impl FnOnce(&VoxelData) -> Result<Chunk>,
     ) -> Result<Arc<Chunk>> {
         let bytes = (n * voxel.size()) as u64;
         self.get_chunk(key, bytes, || {
             let mut buf = self.spare(voxel, n);
-            let chunk = make(&mut buf);
+            let decoded = self.timed(&self.decode_cpu_ns, || decode(&mut buf));
+            let chunk = decoded.and_then(|()| self.timed(&self.keep_cpu_ns, || keep(&buf)));
             self.keep_spare(buf);
             chunk
         })
+    }
+
+    /// `f`, its CPU time added to `cpu_ns`.
+    fn timed<R>(&self, cpu_ns: &AtomicU64, f: impl FnOnce() -> R) -> R {
+        let cpu = thread_cpu_ms();
+        let r = f();
+        let ns = ((thread_cpu_ms() - cpu) * 1e6) as u64;
+        cpu_ns.fetch_add(ns, Ordering::Relaxed);
+        r
     }
 
     /// A buffer of `n` voxels of type `voxel` from the spares (its old voxels are overwritten
@@ -295,12 +315,10 @@ impl ChunkCache {
         let mut ran = false;
         let got = cell.get_or_init(|| {
             ran = true;
-            let (start, cpu) = (Instant::now(), thread_cpu_ms());
+            let start = Instant::now();
             let r = make().map(Arc::new).map_err(|e| e.to_string());
             self.decode_ns
                 .fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
-            let cpu_ns = ((thread_cpu_ms() - cpu) * 1e6) as u64;
-            self.decode_cpu_ns.fetch_add(cpu_ns, Ordering::Relaxed);
             if r.is_ok() {
                 self.decoded.fetch_add(1, Ordering::Relaxed);
                 self.decoded_bytes.fetch_add(bytes, Ordering::Relaxed);
@@ -391,6 +409,7 @@ impl ChunkCache {
             decoded_bytes: self.decoded_bytes.load(Ordering::Relaxed),
             decode_ms: self.decode_ns.load(Ordering::Relaxed) as f64 / 1e6,
             decode_cpu_ms: self.decode_cpu_ns.load(Ordering::Relaxed) as f64 / 1e6,
+            keep_cpu_ms: self.keep_cpu_ns.load(Ordering::Relaxed) as f64 / 1e6,
             hits: self.hits.load(Ordering::Relaxed),
         }
     }
@@ -571,14 +590,15 @@ mod tests {
     fn chunks_decoded_into_a_reused_buffer_are_what_was_decoded() {
         let cache = ChunkCache::new(1 << 20);
         let shape = (crate::VoxelType::U8, 4096);
-        let decode = |v: fn(u8) -> Result<Volume>, x: u8| {
+        let keep = |buf: &VoxelData| Chunk::of_decoded(buf, [16; 3], [1.0; 3], VoxelData::clone);
+        let into = |v: fn(u8) -> Result<Volume>, x: u8| {
             move |buf: &mut VoxelData| {
                 *buf = v(x)?.data;
-                Chunk::of_decoded(buf, [16; 3], [1.0; 3], VoxelData::clone)
+                Ok(())
             }
         };
         let a = cache
-            .get_decoded((0, [0; 3]), shape, decode(many, 5))
+            .get_decoded((0, [0; 3]), shape, into(many, 5), keep)
             .unwrap();
         assert_eq!(
             (a.uniform, a.volume.data.clone()),
@@ -586,10 +606,15 @@ mod tests {
         );
         // The second decode is handed the first one's buffer, voxels and all.
         let b = cache
-            .get_decoded((0, [1, 0, 0]), shape, |buf| {
-                assert_eq!(*buf, many(5).unwrap().data, "a buffer of its own");
-                decode(flat, 3)(buf)
-            })
+            .get_decoded(
+                (0, [1, 0, 0]),
+                shape,
+                |buf| {
+                    assert_eq!(*buf, many(5).unwrap().data, "a buffer of its own");
+                    into(flat, 3)(buf)
+                },
+                keep,
+            )
             .unwrap();
         assert_eq!((b.value(), b.dims, b.bytes()), (Some(3.0), [16; 3], 1));
         let c = Chunk::of_value(3.0, crate::VoxelType::U8, [16; 3], [1.0; 3]).unwrap();
@@ -597,6 +622,10 @@ mod tests {
             (c.value(), c.dims, c.volume.data),
             (b.value(), b.dims, b.volume.data.clone())
         );
+        // A decode that fails is not kept, and says why.
+        let bad = |_: &mut VoxelData| Err(Error::Invalid("chunk 0/c/9 is broken".into()));
+        let e = cache.get_decoded((0, [9, 0, 0]), shape, bad, keep).err();
+        assert!(e.is_some_and(|e| e.to_string().contains("0/c/9")));
     }
 
     #[test]

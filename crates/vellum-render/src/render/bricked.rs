@@ -81,11 +81,15 @@ pub struct StreamReport {
     pub(crate) source_bytes: u64,
     /// `source_bytes` in MiB per second of the whole frame (`total_ms`).
     pub source_mib_per_s: f64,
-    /// Milliseconds the loaders spent decoding chunks, summed over the loaders.
+    /// Milliseconds the loaders spent decoding chunks and keeping them, summed over the loaders.
     pub(crate) decode_ms: f64,
     /// The CPU time of that decoding, summed over the loaders: `decode_ms` less the time they
-    /// waited for a core (on lavapipe, the GPU's work shares the cores).
+    /// waited for a core (on lavapipe, the GPU's work shares the cores) and the time they kept
+    /// the chunks (`keep_cpu_ms`).
     pub(crate) decode_cpu_ms: f64,
+    /// The CPU time the loaders spent keeping the decoded chunks: converting them to 16 bits
+    /// into the chunk cache's memory.
+    pub(crate) keep_cpu_ms: f64,
     /// Milliseconds the loaders were reading (at least one of them), the GPU was busy, and both
     /// at once; the share of the frame during which both were busy.
     pub host_ms: f64,
@@ -271,6 +275,7 @@ impl Renderer {
         r.source_bytes = chunks.decoded_bytes - chunks_before.decoded_bytes;
         r.decode_ms = chunks.decode_ms - chunks_before.decode_ms;
         r.decode_cpu_ms = chunks.decode_cpu_ms - chunks_before.decode_cpu_ms;
+        r.keep_cpu_ms = chunks.keep_cpu_ms - chunks_before.keep_cpu_ms;
         r.total_ms = s.start.elapsed().as_secs_f64() * 1e3;
         r.source_mib_per_s =
             r.source_bytes as f64 / (1 << 20) as f64 / (r.total_ms / 1e3).max(1e-9);
