@@ -392,6 +392,23 @@ fn channels_through_the_brick_cache_draw_what_the_channels_in_core_draw() {
     let o = common::vellum(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let store = dir.path().join("six.ome.zarr");
+    // Through the brick cache, the channels share the chunks' memory, each its part.
+    let mut scene = vellum::render::scene::Scene::new(vellum::render::scene::InputSpec::new(
+        store.to_str().unwrap(),
+    ));
+    scene.input.channel = Some(0);
+    scene.channels = Some(vellum::classify::channels::ChannelSpec {
+        channels: vec![0, 1, 2],
+        ..Default::default()
+    });
+    let opened = vellum::render::session::Opened::open(&scene, None, 1 << 20, Some(30 << 20));
+    match opened.unwrap() {
+        vellum::render::session::Opened::Bricked(levels) => {
+            assert_eq!(levels.chunks().budget(), 10 << 20, "a third each");
+            assert_eq!(levels.mixed_count(), 3);
+        }
+        _ => panic!("a store beyond 1 MiB opens bricked"),
+    }
     let frame = |channels: &str, mix: &str, budget: &str| -> Vec<[u8; 3]> {
         let png = dir.path().join(format!("{channels}-{mix}-{budget}.png"));
         let o = common::vellum(&[

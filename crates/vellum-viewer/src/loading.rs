@@ -123,7 +123,7 @@ fn described(
     // A time point of a series after the first shown is drawn on that one's scale.
     let range = match (scene.input.range, levels) {
         (Some(r), _) => r,
-        (None, Some(l)) => l.range,
+        (None, Some(l)) => l.range(),
         (None, None) => [s.min, s.max],
     };
     let tf = match classification {

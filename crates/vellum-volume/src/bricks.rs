@@ -177,8 +177,8 @@ pub struct BrickTexels {
 pub struct BrickLevels {
     levels: Vec<PagedLevel>,
     sources: Vec<LevelSource>,
-    /// Data values that map to normalised 0 and 1.
-    pub range: [f64; 2],
+    /// Data values that map to normalised 0 and 1 ([`BrickLevels::range`]).
+    range: [f64; 2],
     /// Level 0's placement (origin; a store has no directions).
     pub geometry: crate::geometry::Geometry,
     /// The store's decoded chunks, shared by the threads that read bricks.
@@ -365,6 +365,18 @@ impl BrickLevels {
         }
         // A level is read whole for the range only when it is small (16 Mi voxels).
         Ok(Some(Self::of_store(Arc::new(ms), 1 << 24)?))
+    }
+
+    /// The data values that map to normalised 0 and 1.
+    pub fn range(&self) -> [f64; 2] {
+        self.range
+    }
+
+    /// Maps `range` to normalised 0 and 1 from now on. The chunk cache, which keeps chunks
+    /// normalised over the range, is emptied.
+    pub fn set_range(&mut self, range: [f64; 2]) {
+        self.range = range;
+        self.chunks = ChunkCache::new(self.chunks.budget());
     }
 
     /// The levels, finest first.
@@ -748,9 +760,10 @@ impl BrickLevels {
     }
 
     /// The floor of reading bricks: `keys` (chunks of the store's levels) decoded again plainly,
-    /// in parallel on every core, each thread into one buffer it reuses. Seconds, the
-    /// decoding's CPU milliseconds summed over the threads, and voxel bytes; nothing for levels
-    /// in memory.
+    /// in parallel on every core, each of rayon's tasks into one buffer it reuses for its
+    /// chunks. Seconds, the decoding's CPU milliseconds summed over the threads (a buffer's
+    /// allocation left out, as the loaders' spare buffers leave it out), and voxel bytes;
+    /// nothing for levels in memory.
     pub fn plain_decode(&self, keys: &[crate::chunks::ChunkKey]) -> Result<(f64, f64, u64)> {
         use rayon::prelude::*;
         let start = std::time::Instant::now();
@@ -762,7 +775,6 @@ impl BrickLevels {
                     let LevelSource::Store(ms, l) = &self.sources[level] else {
                         return Ok((0.0, 0));
                     };
-                    let cpu = crate::chunks::thread_cpu_ms();
                     let info = &ms.levels[*l];
                     let lo: [usize; 3] = std::array::from_fn(|a| c[a] * info.chunk[a]);
                     let size: [usize; 3] =
@@ -771,6 +783,7 @@ impl BrickLevels {
                     if buf.len() != n || buf.voxel_type() != ms.voxel {
                         *buf = VoxelData::zeros(ms.voxel, n);
                     }
+                    let cpu = crate::chunks::thread_cpu_ms();
                     ms.read_box_into(*l, lo, size, buf)?;
                     let cpu = crate::chunks::thread_cpu_ms() - cpu;
                     Ok((cpu, buf.as_bytes().len() as u64))
@@ -1822,7 +1835,7 @@ mod tests {
 
             let mut levels = BrickLevels::of_store(ms, 1 << 26).unwrap();
             // A range below the fill value, so that it does not normalise to 0.
-            levels.range = [-0.5, levels.range[1]];
+            levels.set_range([-0.5, levels.range[1]]);
             let (mut known, mut unknown) = (0, 0);
             for e in 0..levels.entries() {
                 let key = levels.key(e).unwrap();
@@ -1906,8 +1919,8 @@ mod tests {
             let mut from_store = BrickLevels::of_store(ms, 1 << 26).unwrap();
             let mut in_memory = BrickLevels::of_volume(v).unwrap();
             // The same range for both (the store's comes from its scan), not starting at 0.
-            from_store.range = [0.1, 200.0 * 0.95];
-            in_memory.range = from_store.range;
+            from_store.set_range([0.1, 200.0 * 0.95]);
+            in_memory.set_range(from_store.range);
             let (mut uniform, mut varied) = (0, 0);
             // Level 0: the coarser levels of a store are the writer's, not the pyramid's.
             let counts = from_store.levels()[0].counts;

@@ -393,7 +393,7 @@ impl PagedVolume {
         Ok(PagedVolume {
             intensity,
             gradient,
-            range: levels.range,
+            range: levels.range(),
             dims: level0.dims,
             spacing: level0.spacing,
             geometry: levels.geometry,

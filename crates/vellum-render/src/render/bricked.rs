@@ -87,8 +87,9 @@ pub struct StreamReport {
     /// waited for a core (on lavapipe, the GPU's work shares the cores) and the time they kept
     /// the chunks (`keep_cpu_ms`).
     pub(crate) decode_cpu_ms: f64,
-    /// The CPU time the loaders spent keeping the decoded chunks: converting them to 16 bits
-    /// into the chunk cache's memory.
+    /// The CPU time the loaders spent keeping the decoded chunks: finding whether each holds
+    /// one value, converting it to 16 bits into the chunk cache's memory (an 8-bit store's:
+    /// copying it), and for a chunk of one value, whether it is still in the store.
     pub(crate) keep_cpu_ms: f64,
     /// Milliseconds the loaders were reading (at least one of them), the GPU was busy, and both
     /// at once; the share of the frame during which both were busy.
@@ -104,7 +105,7 @@ pub struct StreamReport {
     /// Per pass: ms the loaders were reading (at least one of them) from the end of the pass
     /// before (the frame's start for the first) to the end of this one.
     pub(crate) pass_host_ms: Vec<f64>,
-    /// Per pass: bricks uploaded before it.
+    /// Per pass: bricks uploaded before it (none before the last frame).
     pub(crate) pass_bricks: Vec<usize>,
     /// Whether every ray reached its end with the bricks it asked for (false: the wait was cut
     /// short and missing bricks were sampled from coarser levels).
@@ -173,6 +174,8 @@ struct Still<'a> {
     start: Instant,
     /// The GPU's busy intervals (seconds since `start`).
     gpu: Vec<(f64, f64)>,
+    /// When the last frame read back had finished on the GPU (seconds since `start`).
+    finished: f64,
     plain: View,
     view: &'a View,
 }
@@ -198,6 +201,7 @@ impl Renderer {
             },
             start: Instant::now(),
             gpu: Vec::new(),
+            finished: 0.0,
             // The passes draw no style; the last frame draws it over the finished rays.
             plain: View {
                 style: None,
@@ -415,6 +419,7 @@ impl Renderer {
             Ok((r, rb))
         })?;
         let passes = s.frames.finish()?;
+        s.finished = s.start.elapsed().as_secs_f64();
         Ok(recorded.image(view.size, readback.read()?, passes, None))
     }
 
@@ -435,11 +440,13 @@ impl Renderer {
         let image = self.read_frame(s, vol, classify);
         vol.paged.mode = 0;
         let image = image?;
-        // Its GPU time (the ray cast, the style's passes and the readback) as the last pass's.
-        let done = s.start.elapsed().as_secs_f64();
+        // Its GPU time (the ray cast, the style's passes and the readback) as the last pass's,
+        // ending when the frame's work was waited for.
+        let done = s.finished;
         let ms: f64 = image.passes.iter().map(|p| p.ms).sum();
         s.gpu.push(((done - ms / 1e3).max(0.0), done));
         s.report.pass_gpu_ms.push(ms);
+        s.report.pass_bricks.push(0);
         s.report.passes += 1;
         Ok(image)
     }

@@ -710,10 +710,10 @@ impl PagedScene {
                 // frame, 64 requests of a store on a server.
                 let small =
                     levels.read_small_level(crate::classify::channels::DESCRIBE_VOXELS)?;
-                crate::classify::window::auto(&small, levels.range)?
+                crate::classify::window::auto(&small, levels.range())?
             }
             Classification::Transfer(tf) => tf.clone(),
-            Classification::Features(map) => feature_transfer_function(map, levels.range)?,
+            Classification::Features(map) => feature_transfer_function(map, levels.range())?,
             Classification::Occlusion(_) | Classification::Composed(..) => {
                 return Err(Error::Invalid(format!(
                     "an occlusion transfer function needs the occlusion volume of the whole volume, which is larger than the GPU budget ({budget:.0} MiB); raise --gpu-budget or use a transfer function"

@@ -73,19 +73,21 @@ pub struct SessionOptions {
 
 /// The input of a command that draws in core only (`lines`, `styles`: the slicer's two-level
 /// frames and their image-space passes): `load`'s volume when it fits `budget` bytes by the
-/// session's rule. Beyond it, one sentence naming the command (`what`) and the budget; a store
-/// (at `path`, its time point and channel picked by `pick`) is refused before it is read.
+/// session's rule. Beyond it, one sentence naming the command (`what`), the budget and the
+/// command's `flag` that raises it if it has one; a store (at `path`, its time point and channel
+/// picked by `pick`) is refused before it is read.
 pub fn in_core_only(
     (path, pick): (&str, vellum_volume::io::ome_zarr::Pick),
-    budget: u64,
+    (budget, flag): (u64, Option<&str>),
     what: &str,
     load: impl FnOnce() -> Result<Volume>,
 ) -> Result<Volume> {
     use vellum_volume::io::ome_zarr;
     let refuse = |dims: [usize; 3]| {
         let mib = budget as f64 / (1 << 20) as f64;
+        let raise = flag.map(|f| format!("raise {f}, or ")).unwrap_or_default();
         Error::Invalid(format!(
-            "{what} draws the whole volume in core, and {path} ({}x{}x{}) is larger than the GPU budget ({mib:.0} MiB); raise --gpu-budget, or draw it through the brick cache with `vellum render --renderer raycast`",
+            "{what} draws the whole volume in core, and {path} ({}x{}x{}) is larger than the GPU budget ({mib:.0} MiB); {raise}draw it through the brick cache with `vellum render --renderer raycast`",
             dims[0], dims[1], dims[2]
         ))
     };
@@ -143,7 +145,8 @@ impl Opened {
         chunk_cache: Option<u64>,
     ) -> Result<Self> {
         let bricked = |mut levels: BrickLevels| -> Result<Opened> {
-            if let Some(bytes) = chunk_cache {
+            // (Mixed channels share it, each its part: `mix_channels`.)
+            if let (Some(bytes), None) = (chunk_cache, &scene.channels) {
                 levels.set_chunk_budget(bytes);
             }
             // Each brick carries its slot's segment indices (the ray caster reads them nearest).
@@ -382,7 +385,7 @@ fn mix_channels(
     let mut mixed = Vec::with_capacity(channels.len());
     for c in &channels {
         if c.index == focus {
-            levels.range = c.range;
+            levels.set_range(c.range);
             mixed.push(Mixed::Own);
             continue;
         }
@@ -392,7 +395,7 @@ fn mix_channels(
         };
         let mut other =
             BrickLevels::of_store(Arc::new(Multiscale::open_picked(path, pick)?), 1 << 24)?;
-        other.range = c.range;
+        other.set_range(c.range);
         other.set_chunk_budget(share);
         mixed.push(Mixed::Other(Box::new(other)));
     }

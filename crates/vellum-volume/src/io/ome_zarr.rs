@@ -575,8 +575,9 @@ fn retrieve<S: zarrs::storage::ReadableStorageTraits + ?Sized + 'static>(
 ) -> std::result::Result<VoxelData, Box<dyn std::error::Error>> {
     let subset = box_subset(lead, lo, size);
     // A box of several chunks is decoded in place. A chunk alone is not: zarrs' owned read of
-    // one chunk was the faster on lavapipe's 16 MiB frame (the brick loaders' decoding took
-    // 124-130 against 132-142 ms of CPU, four runs of each interleaved).
+    // one chunk was the faster into a new buffer (the brick loaders' decoding took 124-130
+    // against 132-142 ms of CPU on lavapipe's 16 MiB frame, four runs of each interleaved,
+    // before they decoded into buffers they reuse through `Multiscale::read_box_into`).
     let several = || -> std::result::Result<bool, zarrs::array::ArrayError> {
         let chunks = array.chunks_in_array_subset(&subset)?;
         Ok(chunks.is_some_and(|c| c.num_elements() > 1))

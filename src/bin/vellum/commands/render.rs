@@ -41,6 +41,7 @@ pub(crate) fn lines(cli: &Cli, a: &LinesArgs) -> Result<()> {
     let ctx = context(cli)?;
     let budget = vellum::render::bricked::gpu_budget_bytes(&ctx, a.render.gpu_budget)?;
     let input = (scene.input.path.as_str(), scene.input.pick());
+    let budget = (budget, Some("--gpu-budget"));
     let v = vellum::render::session::in_core_only(input, budget, "lines", || scene.load_volume())?;
     let view = scene.view(v.geometry.is_oriented())?;
     let modulation = scene.modulation.clone().unwrap_or_default();

@@ -49,7 +49,7 @@ pub(crate) fn styles(cli: &Cli, a: &StylesArgs) -> Result<()> {
     let ctx = context(cli)?;
     let budget = vellum::render::bricked::gpu_budget_bytes(&ctx, None)?;
     let input = (a.input.input.as_str(), a.input.pick());
-    let v = vellum::render::session::in_core_only(input, budget, "styles", || {
+    let v = vellum::render::session::in_core_only(input, (budget, None), "styles", || {
         a.input
             .load()
             .map_err(|e| vellum::error::Error::Invalid(format!("{e:#}")))
