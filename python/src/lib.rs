@@ -344,19 +344,21 @@ impl PyVolume {
 
 /// Reads a volume as the command line does: NRRD (.nrrd, .nhdr), NIfTI (.nii, .nii.gz),
 /// MetaImage (.mhd, .mha), a folder of one DICOM series, or an OME-Zarr store (its full
-/// resolution; `time` and `channel` pick one of a store's time points and channels, as
-/// `--time` and `--channel` do). The GIL is released while it reads.
+/// resolution, or the pyramid's `level`; `time` and `channel` pick one of a store's time points
+/// and channels, as `--time` and `--channel` do). The GIL is released while it reads.
 #[pyfunction]
-#[pyo3(signature = (path, time = None, channel = None))]
+#[pyo3(signature = (path, time = None, channel = None, level = None))]
 fn read(
     py: Python<'_>,
     path: PathBuf,
     time: Option<usize>,
     channel: Option<usize>,
+    level: Option<usize>,
 ) -> PyResult<PyVolume> {
     let pick = vellum_volume::io::ome_zarr::Pick { time, channel };
-    let inner = detached(py, move || {
-        vellum_volume::io::load_picked(&path, None, pick)
+    let inner = detached(py, move || match level {
+        Some(l) => vellum_volume::io::load_level(&path, pick, l),
+        None => vellum_volume::io::load_picked(&path, None, pick),
     })?;
     Ok(PyVolume { inner })
 }

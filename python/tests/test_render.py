@@ -251,6 +251,16 @@ def test_a_store_beyond_its_budget_streams_through_the_session(tmp_path):
     assert whole.streaming is None, "96³ fits the default budget"
     diff = np.abs(whole.rgba.astype(float) - image.rgba.astype(float))[..., :3]
     assert diff.mean() <= 0.5, f"mean {diff.mean():.3f}/255"
+    # A level of the pyramid, read whole from Python: half the voxels along each axis, twice as
+    # far apart; and a level the store lacks, or a level of a file, in one sentence.
+    whole, half = vellum.read(str(store)), vellum.read(str(store), level=1)
+    assert half.array.shape == tuple(n // 2 for n in whole.array.shape)
+    assert half.spacing == tuple(2 * s for s in whole.spacing)
+    np.testing.assert_allclose(half.array.mean(), whole.array.mean(), rtol=0.01)
+    for bad, phrase in [(str(store), "level 9 is not one of them"), (str(png), "is not one")]:
+        with pytest.raises(vellum.Error, match=phrase) as raised:
+            vellum.read(bad, level=9)
+        assert "\n" not in str(raised.value)
     # Through 1 MiB of host memory (a fraction of the store's 3.4 MiB of chunks): the same frame.
     tight = vellum.render(str(store), gpu_budget=1, lod="finest", memory_budget=1, **options)
     np.testing.assert_array_equal(tight.rgba, image.rgba)

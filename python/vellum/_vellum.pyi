@@ -57,13 +57,17 @@ class Volume:
         """The voxels' dtype: uint8, uint16, int16 or float32."""
 
 def read(
-    path: Union[str, "os.PathLike[str]"], time: Optional[int] = None, channel: Optional[int] = None
+    path: Union[str, "os.PathLike[str]"],
+    time: Optional[int] = None,
+    channel: Optional[int] = None,
+    level: Optional[int] = None,
 ) -> Volume:
     """Reads a volume as the command line does.
 
     NRRD (.nrrd, .nhdr), NIfTI (.nii, .nii.gz), MetaImage (.mhd, .mha), a folder of one DICOM
-    series, or an OME-Zarr store (its full resolution; `time` and `channel` pick one of its time
-    points and channels, as `--time` and `--channel` do).
+    series, or an OME-Zarr store (its full resolution, or its pyramid's `level` with that
+    level's spacing: a look at a store too large to read whole; `time` and `channel` pick one
+    of its time points and channels, as `--time` and `--channel` do).
     """
 
 def remote(

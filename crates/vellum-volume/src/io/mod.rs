@@ -66,18 +66,40 @@ pub fn write(path: &Path, volume: &Volume) -> Result<()> {
 /// Level 0 of the OME-Zarr store at `path` (a folder or a URL), in core. `render` streams larger
 /// ones through the brick cache without coming here; anything else must fit in memory.
 fn load_store(path: &Path, pick: ome_zarr::Pick) -> Result<Volume> {
+    load_level(path, pick, 0)
+}
+
+/// Level `level` of the OME-Zarr store at `path` (the time point and channel of `pick`), read
+/// whole with its spacing and placement; refused in one sentence when it is not a store, has no
+/// such level, or the level would take more than half of this machine's memory.
+pub fn load_level(path: &Path, pick: ome_zarr::Pick, level: usize) -> Result<Volume> {
+    if !ome_zarr::is_store(path) {
+        return Err(Error::Invalid(format!(
+            "`level` picks a level of an OME-Zarr store's pyramid; {} is not one",
+            path.display()
+        )));
+    }
     let ms = ome_zarr::Multiscale::open_picked(path, pick)?;
-    let bytes = ms.level_bytes(0);
+    if level >= ms.levels.len() {
+        return Err(Error::format(
+            path,
+            format!(
+                "has levels 0 to {}; level {level} is not one of them",
+                ms.levels.len() - 1
+            ),
+        ));
+    }
+    let bytes = ms.level_bytes(level);
     if !crate::memory::fits_in_memory(bytes) {
         return Err(Error::format(
             path,
             format!(
-                "level 0 holds {:.1} GiB, more than half of this machine's memory; expected a store that fits, or `vellum render` (which streams it through the brick cache)",
+                "level {level} holds {:.1} GiB, more than half of this machine's memory; expected a level that fits (a coarser one), or `vellum render` (which streams it through the brick cache)",
                 bytes as f64 / (1u64 << 30) as f64
             ),
         ));
     }
-    ms.read_level(0)
+    ms.read_level(level)
 }
 
 /// Loads a volume. With `raw` the file is read as headerless voxels; otherwise a folder is read as
