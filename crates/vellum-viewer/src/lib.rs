@@ -42,7 +42,7 @@ use vellum_gpu::{
     SubmitSync,
 };
 use vellum_render::render::frame::Renderer;
-use vellum_render::render::scene::{GpuScene, Scene};
+use vellum_render::render::scene::Scene;
 use vellum_render::render::session::{Opened, Prepared, SessionOptions};
 use vellum_render::render::stream::{Order, Streamer};
 use vellum_render::render::targets::to_rgb8;

@@ -487,7 +487,6 @@ fn channels_of(gpu: &mut Prepared) -> Option<Vec<crate::ui::ChannelRow>> {
 /// started on the coarsest level (and the scene made to ray-cast it).
 pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: &Budget) -> Result<Prepared> {
     let ctx = normals.context();
-    let modulation = l.scene.modulation.clone().unwrap_or_default();
     let Some(levels) = l.levels.take() else {
         // `auto` was windowed on the worker already, over the range the textures take: not again
         // here, on the thread that draws.
@@ -497,14 +496,8 @@ pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: &Budget) ->
             }
             c => c.clone(),
         };
-        let gpu = GpuScene::prepare_with(
-            normals,
-            (&l.volume, l.scene.input.scale()),
-            &classification,
-            l.scene.focus,
-            &modulation,
-        )?;
-        let mut prepared = Prepared::InCore(gpu);
+        let input = (&l.volume, l.scene.input.scale());
+        let mut prepared = Prepared::in_core(normals, input, &l.scene, &classification)?;
         // Segments of a label volume and mixed channels, as `render` draws them.
         vellum_render::render::session::attach_beside(ctx, &l.scene, &mut prepared)?;
         return Ok(prepared);

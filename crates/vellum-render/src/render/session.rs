@@ -223,13 +223,8 @@ impl Prepared {
         Ok(match opened {
             Opened::InCore(v) => {
                 let (scale, classification) = series_scale(scene, classification)?;
-                Prepared::InCore(GpuScene::prepare_in_range(
-                    ctx,
-                    (v, scale),
-                    &classification,
-                    scene.focus,
-                    &modulation,
-                )?)
+                let normals = crate::passes::normals::Normals::new(ctx)?;
+                Self::in_core(&normals, (v, scale), scene, &classification)?
             }
             Opened::Bricked(levels) => {
                 let finest = opts.lod == Lod::Finest;
@@ -254,6 +249,20 @@ impl Prepared {
                 Prepared::Paged(paged, Box::new(stream))
             }
         })
+    }
+
+    /// A volume in core on the GPU, as [`Prepared::new`] makes one, on `scale` and with the
+    /// pipelines of `normals`: a front end that prepares one volume after another (the viewer)
+    /// builds them once, and knows a series' scale already.
+    pub fn in_core(
+        normals: &crate::passes::normals::Normals,
+        input: (&Volume, crate::render::scene::Scale),
+        scene: &Scene,
+        classification: &Classification,
+    ) -> Result<Self> {
+        let modulation = scene.modulation.clone().unwrap_or_default();
+        let gpu = GpuScene::prepare_with(normals, input, classification, scene.focus, &modulation)?;
+        Ok(Prepared::InCore(gpu))
     }
 
     /// The volume as the renderer draws it.
