@@ -412,8 +412,7 @@ impl Multiscale {
         for z in range(2) {
             for y in range(1) {
                 for x in range(0) {
-                    let mut index = self.lead.clone();
-                    index.extend([z, y, x].map(|i| i as u64));
+                    let index = self.chunk_index([x, y, z]);
                     let chunk = array.retrieve_chunk::<zarrs::array::ArrayBytes<'static>>(&index);
                     if let Err(e) = chunk {
                         let key = self.chunk_name(level, [x, y, z]);
@@ -435,9 +434,7 @@ impl Multiscale {
     /// its root: `0/c/3/1/2`.
     fn chunk_name(&self, level: usize, c: [usize; 3]) -> String {
         let (l, array) = (&self.levels[level], &self.arrays[level]);
-        let mut index = self.lead.clone();
-        index.extend([c[2], c[1], c[0]].map(|i| i as u64));
-        let key = array.chunk_key(&index);
+        let key = array.chunk_key(&self.chunk_index(c));
         let key = key.as_str().trim_start_matches('/');
         match key.starts_with(&format!("{}/", l.path)) {
             true => key.to_string(),
@@ -449,9 +446,17 @@ impl Multiscale {
     /// reading it (in a folder; `None` on a server).
     pub fn holds_chunk(&self, level: usize, c: [usize; 3]) -> Option<bool> {
         let array = self.arrays.get(level)?;
+        array
+            .storage()
+            .holds_locally(&array.chunk_key(&self.chunk_index(c)))
+    }
+
+    /// The zarrs index of chunk `c` (its place in a level's chunk grid, x y z): the leading
+    /// axes' picked indices, then z, y, x.
+    fn chunk_index(&self, c: [usize; 3]) -> Vec<u64> {
         let mut index = self.lead.clone();
         index.extend([c[2], c[1], c[0]].map(|i| i as u64));
-        array.storage().holds_locally(&array.chunk_key(&index))
+        index
     }
 
     /// The sentence for chunk `c` of level `level`, which the store held when it was opened and
@@ -500,12 +505,7 @@ impl Multiscale {
                 i / (grid[0] * grid[1]),
             ]
         };
-        let held = |i: usize| {
-            let mut index = self.lead.clone();
-            let c = place(i);
-            index.extend([c[2], c[1], c[0]].map(|v| v as u64));
-            store.holds_locally(&array.chunk_key(&index))
-        };
+        let held = |i: usize| store.holds_locally(&array.chunk_key(&self.chunk_index(place(i))));
         if n > MAX_LISTED_CHUNKS || held(0).is_none() {
             return Ok(None);
         }
