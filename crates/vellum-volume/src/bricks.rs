@@ -699,7 +699,7 @@ impl BrickLevels {
         let decode = |buf: &mut VoxelData| ms.read_box_into(level, clo, csize, buf);
         let keep = |buf: &VoxelData| {
             let kept = |d: &VoxelData| match normalised {
-                true => VoxelData::U16(normalised_u16(d, lo, scale)),
+                true => VoxelData::U16(d.map_f64(|v| normalise_scaled(v, lo, scale))),
                 false => d.clone(),
             };
             let chunk = Chunk::of_decoded(buf, csize, spacing, kept)?;
@@ -866,17 +866,6 @@ fn normalise(v: f64, [lo, hi]: [f64; 2]) -> u16 {
 /// clamped to 0..=65535, adding a half and truncating rounds them as `round` does.
 fn normalise_scaled(v: f64, lo: f64, scale: f64) -> u16 {
     (((v - lo) * scale).clamp(0.0, 65535.0) + 0.5) as u16
-}
-
-/// `data` normalised to 16 bits as [`normalise_scaled`] does it, in a loop per type.
-fn normalised_u16(data: &VoxelData, lo: f64, scale: f64) -> Vec<u16> {
-    let norm = move |v: f64| normalise_scaled(v, lo, scale);
-    match data {
-        VoxelData::U8(s) => s.iter().map(|&v| norm(v as f64)).collect(),
-        VoxelData::U16(s) => s.iter().map(|&v| norm(v as f64)).collect(),
-        VoxelData::I16(s) => s.iter().map(|&v| norm(v as f64)).collect(),
-        VoxelData::F32(s) => s.iter().map(|&v| norm(v as f64)).collect(),
-    }
 }
 
 /// Copies the part of `src` (placed at `src_lo` in the level) that overlaps `dst` (at `dst_lo`).

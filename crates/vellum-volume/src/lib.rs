@@ -207,6 +207,17 @@ impl VoxelData {
         }
     }
 
+    /// [`VoxelData::par_map_f64`] on the calling thread alone (for work that is already one of
+    /// many threads', such as a brick loader's).
+    pub fn map_f64<T>(&self, f: impl Fn(f64) -> T) -> Vec<T> {
+        match self {
+            VoxelData::U8(v) => v.iter().map(|&x| f(x as f64)).collect(),
+            VoxelData::U16(v) => v.iter().map(|&x| f(x as f64)).collect(),
+            VoxelData::I16(v) => v.iter().map(|&x| f(x as f64)).collect(),
+            VoxelData::F32(v) => v.iter().map(|&x| f(x as f64)).collect(),
+        }
+    }
+
     /// Voxel `i` as f64 (exact for every stored type).
     #[inline]
     pub fn get_f64(&self, i: usize) -> f64 {
