@@ -679,7 +679,10 @@ fn keeping_a_lookup_along_the_ray_draws_what_looking_up_every_sample_draws() {
     );
     let (mean, max) = diff8(each, kept);
     println!("kept against each sample: mean {mean:.4}/255, max {max}/255");
-    assert!(mean <= 0.05 && max <= 8, "mean {mean}/255, max {max}/255");
+    // (A pixel or two where a sample's gradient is nearly flat, its direction turned by the last
+    // bits and the Canny edges following: up to 41/255 since the normal is the interpolated
+    // gradient made unit length, 8/255 when it was divided by the interpolated lengths.)
+    assert!(mean <= 0.05 && max <= 64, "mean {mean}/255, max {max}/255");
     // Samples placed by the stretch's line differ from looked-up ones in the last bits, so a
     // frame identical to the last would say the variant never ran.
     assert!(max > 0, "the frame with span on equals the one without");
