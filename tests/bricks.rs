@@ -20,54 +20,20 @@
 mod common;
 
 use common::Gpu;
+use common::{diff8, ray_view as view};
 use std::sync::Arc;
 use vellum::classify::transfer::TransferFunction;
 use vellum::classify::{Classification, Focus};
 use vellum::render::bricked::StillOptions;
-use vellum::render::camera::Camera;
 use vellum::render::frame::Renderer;
-use vellum::render::raycast::RayOptions;
 use vellum::render::scene::{GpuScene, PagedScene};
 use vellum::render::stream::{StreamOptions, Streamer};
-use vellum::render::style::Style;
-use vellum::render::targets::{to_rgb8, FrameImage};
-use vellum::render::view::{Lighting, View};
+use vellum::render::targets::FrameImage;
+use vellum::render::view::View;
 use vellum::volume::bricks::BrickLevels;
 use vellum::volume::{phantom, Volume};
 
 const BUDGET: u64 = 2 << 20;
-
-fn view(camera: &str, one_pass: bool, style: Option<&str>, jitter: Option<u32>) -> View {
-    View {
-        camera: Camera::parse(camera).unwrap(),
-        size: [160, 160],
-        slices: None,
-        one_pass,
-        lighting: Lighting::default(),
-        style: style.map(|s| Style::new(s, Default::default()).unwrap()),
-        fit: false,
-        raycast: Some(RayOptions {
-            jitter,
-            ..RayOptions::default()
-        }),
-    }
-}
-
-/// Mean and max absolute difference of the 8-bit composites over black, in 1/255 units.
-fn diff8(a: &FrameImage, b: &FrameImage) -> (f64, u8) {
-    let (x, y) = (
-        to_rgb8(&a.composite, [0.0; 3]),
-        to_rgb8(&b.composite, [0.0; 3]),
-    );
-    let sum: u64 = x.iter().zip(&y).map(|(p, q)| p.abs_diff(*q) as u64).sum();
-    let max = x
-        .iter()
-        .zip(&y)
-        .map(|(p, q)| p.abs_diff(*q))
-        .max()
-        .unwrap_or(0);
-    (sum as f64 / x.len() as f64, max)
-}
 
 fn classification(tf: &str) -> Classification {
     Classification::Transfer(TransferFunction::preset(tf).unwrap())

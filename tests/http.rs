@@ -164,7 +164,8 @@ fn a_server_that_never_mends_is_one_sentence_and_leaves_nothing() {
 #[test]
 fn a_store_on_a_server_renders_the_picture_it_renders_from_disk() {
     let dir = tempfile::tempdir().unwrap();
-    let local = store(dir.path());
+    // 96³: its intensity alone (1.7 MiB) exceeds a budget of 1 MiB, so that budget bricks it.
+    let local = common::phantom_store(dir.path(), "s.ome.zarr", "shepp-logan:96", 32);
     let server = Server::start(dir.path(), 0, |_, _| Fault::None);
     let render = |input: &str, out: &str, budget: &str| {
         let out = dir.path().join(out);

@@ -493,9 +493,11 @@ fn scales_ranges_and_levels_that_do_not_hold_are_refused() {
         "same extent",
     );
     // A recorded range the store's own values contradict, or not finite: refused where the
-    // bricked render would have drawn black.
+    // bricked render would have drawn black (96³: its intensity alone, 1.7 MiB, exceeds the
+    // budget, so the store is bricked).
     for (i, range) in [[0.0, 0.0], [-1e308, 1e308]].into_iter().enumerate() {
-        let root = phantom_store(d, &format!("range{i}.ome.zarr"));
+        let name = format!("range{i}.ome.zarr");
+        let root = common::phantom_store(d, &name, "shepp-logan:96", 32);
         edit_json(&root.join("zarr.json"), |v| {
             v["attributes"]["vellum"]["range"] = serde_json::json!(range);
         });
@@ -506,7 +508,7 @@ fn scales_ranges_and_levels_that_do_not_hold_are_refused() {
             "--renderer",
             "raycast",
             "--gpu-budget",
-            "0.3",
+            "1",
             "--size",
             "32x32",
             "--out",

@@ -25,7 +25,7 @@ fn textures(gpu: &Gpu, v: &Volume) -> VolumeTextures {
 
 fn check_normals(gpu: &Gpu, name: &str, v: &Volume) {
     let tex = textures(gpu, v);
-    let bytes = readback(&gpu.ctx, &tex.gradient).unwrap();
+    let bytes = readback(&gpu.ctx, tex.gradient.image().unwrap()).unwrap();
     let halves: Vec<u16> = bytemuck::pod_collect_to_vec(&bytes);
     let (normalised, _) = v.normalised_u16();
     let data: Vec<f64> = normalised.iter().map(|&x| x as f64 / 65535.0).collect();

@@ -13,7 +13,7 @@ struct NormalsPush {
 // Per-frame uniforms of the slice renderer.
 struct SliceUniforms {
     mat4 view_proj;      // world -> clip
-    vec4 half_extent;    // xyz: half size of the volume box in world units (box centred at 0)
+    vec4 half_extent;    // xyz: half size of the volume box in world units (box centred at 0); w: one world unit in the volume's units (its longest edge)
     vec4 eye;            // xyz: camera position (world)
     vec4 view_dir;       // xyz: unit direction from the eye into the scene; w: 1 for ortho
     vec4 light;          // xyz: unit direction towards the light (world); w: specular exponent

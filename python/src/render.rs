@@ -71,6 +71,8 @@ pub struct PyImage {
     rgb: Vec<u8>,
     /// What streaming the frame through the brick cache did, when it did.
     stream: Option<vellum_render::render::bricked::StreamReport>,
+    /// Where its shading's gradients came from (`Prepared::gradients`).
+    gradients: &'static str,
 }
 
 fn rgba_of(rgb: &[u8]) -> Vec<u8> {
@@ -110,6 +112,15 @@ impl PyImage {
             d.set_item("focus.depth", depth.into_any())?;
         }
         Ok(d)
+    }
+
+    /// Where the frame's shading took its gradients from: `"stored"` (a texture made once),
+    /// `"at_sample"` (made from the intensity at each shaded sample, for a volume whose intensity
+    /// fits `gpu_budget` and whose stored gradients would not) or `"pool"` (the brick cache's),
+    /// as `vellum render --json` names it.
+    #[getter]
+    fn gradients(&self) -> &'static str {
+        self.gradients
     }
 
     /// GPU milliseconds per pass of the frame.
@@ -470,9 +481,14 @@ impl PyRenderer {
         camera: Option<Vec<f32>>,
         size: Option<(u32, u32)>,
     ) -> PyResult<PyImage> {
-        let (frame, background, stream) = self.frame(py, camera, size)?;
+        let (frame, background, stream, gradients) = self.frame(py, camera, size)?;
         let rgb = to_rgb8(&frame.composite, background);
-        Ok(PyImage { frame, rgb, stream })
+        Ok(PyImage {
+            frame,
+            rgb,
+            stream,
+            gradients,
+        })
     }
 
     /// Releases the device memory the renderer holds; later `render` calls raise vellum.Error.
@@ -511,6 +527,7 @@ impl PyRenderer {
         FrameImage,
         [f32; 3],
         Option<vellum_render::render::bricked::StreamReport>,
+        &'static str,
     )> {
         let mut slot = self.kept.lock().unwrap_or_else(|p| p.into_inner());
         let kept = slot
@@ -533,12 +550,13 @@ impl PyRenderer {
             kept.view.size = [w, h];
         }
         let background = kept.background;
+        let gradients = kept.session.prepared.gradients();
         let (frame, stream) = on_gpu(py, |_| {
             let k = &mut *kept;
             k.view.camera.validate()?;
             k.session.still(&k.view, Default::default())
         })?;
-        Ok((frame, background, stream))
+        Ok((frame, background, stream, gradients))
     }
 }
 
@@ -582,7 +600,7 @@ pub fn lines<'py>(
         params,
     });
     let r = PyRenderer::prepare(py, (scene, vol, session))?;
-    let (frame, _, _) = r.frame(py, None, None)?;
+    let (frame, ..) = r.frame(py, None, None)?;
     r.close();
     let (segments, _) = frame.segments.unwrap_or_default();
     let out = PyDict::new(py);

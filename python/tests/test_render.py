@@ -225,7 +225,8 @@ def test_a_store_beyond_its_budget_streams_through_the_session(tmp_path):
     """Issue 39: a path is an input, opened as the command line opens it. A store whose textures
     exceed gpu_budget goes through the brick cache and the ray caster, and its complete frame at
     level 0 equals the command line's (pixel for pixel) and the in-core render (within a mean of
-    0.5/255)."""
+    0.5/255); one whose intensity fits and whose stored gradients would not is drawn in core with
+    them made at each sample, the same frame (within 0.05/255)."""
     from PIL import Image as PilImage
 
     store = tmp_path / "s.ome.zarr"
@@ -251,6 +252,13 @@ def test_a_store_beyond_its_budget_streams_through_the_session(tmp_path):
     assert whole.streaming is None, "96³ fits the default budget"
     diff = np.abs(whole.rgba.astype(float) - image.rgba.astype(float))[..., :3]
     assert diff.mean() <= 0.5, f"mean {diff.mean():.3f}/255"
+    assert (whole.gradients, image.gradients) == ("stored", "pool")
+    # Between its intensity (1.7 MiB) and its stored gradients (8.4 MiB): in core, the gradients
+    # made at each sample, and the frame of the stored ones.
+    sampled = vellum.render(str(store), gpu_budget=4, **options)
+    assert sampled.streaming is None and sampled.gradients == "at_sample"
+    diff = np.abs(whole.rgba.astype(float) - sampled.rgba.astype(float))[..., :3]
+    assert diff.mean() <= 0.05, f"mean {diff.mean():.4f}/255"
     # A level of the pyramid, read whole from Python: half the voxels along each axis, twice as
     # far apart; and a level the store lacks, or a level of a file, in one sentence.
     whole, half = vellum.read(str(store)), vellum.read(str(store), level=1)

@@ -160,6 +160,11 @@ class Image:
         chunks_decoded, bytes_streamed, host_ms (the loaders busy) and gpu_ms, both_share
         (of the frame, both busy), and the main thread's ms over the passes: record_ms,
         gpu_wait_ms, feedback_ms, batch_ms); None for a volume in core."""
+    @property
+    def gradients(self) -> str:
+        """Where the shading's gradients came from: "stored", "at_sample" (made from the
+        intensity at each shaded sample: its intensity fits gpu_budget, its stored gradients
+        would not) or "pool" (the brick cache's), as `vellum render --json` names it."""
 
 class Renderer:
     """A scene prepared once on the device and rendered many times (an orbit) with nothing

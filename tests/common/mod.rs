@@ -264,3 +264,42 @@ pub fn mkfifo(path: &std::path::Path) {
         .success();
     assert!(ok, "mkfifo {}", path.display());
 }
+
+/// A 160² ray-cast view from `camera` (`"AZ,EL,DIST"`), one pass or two levels, with an
+/// image-space `style` and a `jitter` seed if given.
+pub fn ray_view(
+    camera: &str,
+    one_pass: bool,
+    style: Option<&str>,
+    jitter: Option<u32>,
+) -> vellum::render::view::View {
+    use vellum::render::style::Style;
+    vellum::render::view::View {
+        camera: vellum::render::camera::Camera::parse(camera).unwrap(),
+        size: [160, 160],
+        slices: None,
+        one_pass,
+        lighting: vellum::render::view::Lighting::default(),
+        style: style.map(|s| Style::new(s, Default::default()).unwrap()),
+        fit: false,
+        raycast: Some(vellum::render::raycast::RayOptions {
+            jitter,
+            ..Default::default()
+        }),
+    }
+}
+
+/// Mean and max absolute difference of two frames' 8-bit composites over black, in 1/255 units.
+pub fn diff8(
+    a: &vellum::render::targets::FrameImage,
+    b: &vellum::render::targets::FrameImage,
+) -> (f64, u8) {
+    use vellum::render::targets::to_rgb8;
+    let (x, y) = (
+        to_rgb8(&a.composite, [0.0; 3]),
+        to_rgb8(&b.composite, [0.0; 3]),
+    );
+    let sum: u64 = x.iter().zip(&y).map(|(p, q)| p.abs_diff(*q) as u64).sum();
+    let max = x.iter().zip(&y).map(|(p, q)| p.abs_diff(*q)).max();
+    (sum as f64 / x.len() as f64, max.unwrap_or(0))
+}

@@ -483,8 +483,10 @@ fn channels_of(gpu: &mut Prepared) -> Option<Vec<crate::ui::ChannelRow>> {
     Some(c.info.iter().map(crate::ui::ChannelRow::of).collect())
 }
 
-/// The GPU state of a loaded volume: in core, or the brick cache's pools with the streamer
-/// started on the coarsest level (and the scene made to ray-cast it).
+/// The GPU state of a loaded volume: in core (with its gradients stored, or made at each sample
+/// where only its intensity fits the budget, the scene then made to ray-cast it), or the brick
+/// cache's pools with the streamer started on the coarsest level (and the scene made to
+/// ray-cast it).
 pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: &Budget) -> Result<Prepared> {
     let ctx = normals.context();
     let Some(levels) = l.levels.take() else {
@@ -496,10 +498,20 @@ pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: &Budget) ->
             }
             c => c.clone(),
         };
-        let input = (&l.volume, l.scene.input.scale());
+        use vellum_render::render::session::{gradient_source, ray_cast_only, RayCastOnly};
+        let source = gradient_source(l.volume.dims, budget.gpu);
+        let input = (&l.volume, l.scene.input.scale(), source);
         let mut prepared = Prepared::in_core(normals, input, &l.scene, &classification)?;
         // Segments of a label volume and mixed channels, as `render` draws them.
         vellum_render::render::session::attach_beside(ctx, &l.scene, &mut prepared)?;
+        // The session's rule: the ray caster draws a volume whose gradients are made at each
+        // sample.
+        if source == vellum_render::passes::normals::GradientSource::AtSample {
+            let why = RayCastOnly::GradientsAtSample;
+            if let Some(said) = ray_cast_only(&mut l.scene.raycast, budget.gpu, why) {
+                log::info!("{said}");
+            }
+        }
         return Ok(prepared);
     };
     let opened = Opened::Bricked(levels);
@@ -508,7 +520,8 @@ pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: &Budget) ->
     // Segments of a label volume and mixed channels: their bricks carry them.
     vellum_render::render::session::attach_beside(ctx, &l.scene, &mut prepared)?;
     // The session's rule: the ray caster draws bricked volumes.
-    let said = vellum_render::render::session::bricked_ray_cast(&mut l.scene.raycast, budget.gpu);
+    use vellum_render::render::session::{ray_cast_only, RayCastOnly};
+    let said = ray_cast_only(&mut l.scene.raycast, budget.gpu, RayCastOnly::Bricked);
     if let Some(said) = said {
         log::info!("{said}");
     }

@@ -50,12 +50,21 @@ pub type SubRanges = [[u16; 2]; 8];
 pub const UNKNOWN_SUB_RANGES: SubRanges = [UNKNOWN_RANGE; 8];
 /// Bytes a voxel takes in the renderer's textures: R16 intensity and RGBA16F gradient.
 pub(crate) const TEXTURE_BYTES_PER_VOXEL: u64 = 2 + 8;
+/// Bytes a voxel takes in core with no gradient texture: its R16 intensity alone (the ray caster
+/// then makes each shaded sample's gradient from it).
+pub(crate) const INTENSITY_BYTES_PER_VOXEL: u64 = 2;
 /// Bytes of one slot.
 pub const SLOT_BYTES: usize = SLOT * SLOT * SLOT * TEXTURE_BYTES_PER_VOXEL as usize;
 
 /// Bytes the renderer's textures of a volume of `dims` take in core.
 pub fn in_core_bytes(dims: [usize; 3]) -> u64 {
     dims.iter().map(|&n| n as u64).product::<u64>() * TEXTURE_BYTES_PER_VOXEL
+}
+
+/// Bytes the intensity texture alone of a volume of `dims` takes in core: the least a volume
+/// drawn whole needs.
+pub fn intensity_bytes(dims: [usize; 3]) -> u64 {
+    dims.iter().map(|&n| n as u64).product::<u64>() * INTENSITY_BYTES_PER_VOXEL
 }
 /// Most levels a pyramid may have (the page table's header has room for this many).
 pub const MAX_LEVELS: usize = 16;
@@ -348,11 +357,11 @@ impl BrickLevels {
     }
 
     /// The pyramid of the store at `path` (the time point and channel of `pick`) when `path` is
-    /// a store whose in-core textures exceed `budget` bytes; `None` when it is not a store or
-    /// fits (level 0 is never read here).
+    /// a store whose level 0 does not `fit` (given its voxels along x, y, z); `None` when it is
+    /// not a store or fits (level 0 is never read here).
     pub fn of_store_beyond(
         path: &std::path::Path,
-        budget: u64,
+        fits: impl FnOnce([usize; 3]) -> bool,
         pick: crate::io::ome_zarr::Pick,
     ) -> Result<Option<Self>> {
         use crate::io::ome_zarr;
@@ -360,7 +369,7 @@ impl BrickLevels {
             return Ok(None);
         }
         let ms = ome_zarr::Multiscale::open_picked(path, pick)?;
-        if in_core_bytes(ms.levels[0].dims) <= budget {
+        if fits(ms.levels[0].dims) {
             return Ok(None);
         }
         // A level is read whole for the range only when it is small (16 Mi voxels).

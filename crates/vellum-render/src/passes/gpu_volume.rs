@@ -70,11 +70,12 @@ impl<'a> VolumeRef<'a> {
         }
     }
 
-    /// The gradients the shaders sample: the volume's, or the pool's.
-    pub fn gradient(self) -> &'a Image {
+    /// The gradients the shaders sample: the volume's, or the pool's; none for a volume in core
+    /// whose gradients are made at each sample.
+    pub fn gradient(self) -> Option<&'a Image> {
         match self {
-            VolumeRef::InCore(v) => &v.gradient,
-            VolumeRef::Paged(p) => &p.gradient,
+            VolumeRef::InCore(v) => v.gradient.image(),
+            VolumeRef::Paged(p) => Some(&p.gradient),
         }
     }
 

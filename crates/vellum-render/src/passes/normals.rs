@@ -63,12 +63,43 @@ pub struct Scale {
     pub line_smooth: Option<u32>,
 }
 
+/// Where the shading's gradients of a volume in core come from.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum GradientSource {
+    /// A texture of every voxel's Sobel gradient, made once (`sobel_normals`): 8 bytes a voxel
+    /// beside the intensity's 2.
+    Stored,
+    /// None kept: the ray caster makes each shaded sample's Sobel gradient from 26 fetches of the
+    /// intensity (`shade.glsl`'s `sobel_at`), the gradient the stored ones interpolate to. A volume whose intensity fits the GPU budget
+    /// and whose stored gradients would not is drawn so, in core, rather than through the brick
+    /// cache (`render::session`). Only the ray caster draws it.
+    AtSample,
+}
+
+/// The gradients of a volume in core, as its [`GradientSource`] says.
+pub enum Gradients {
+    /// RGBA16F: the gradient in world units and its length, per voxel.
+    Stored(Image),
+    /// Made at each shaded sample from the intensity; no texture.
+    AtSample,
+}
+
+impl Gradients {
+    /// The texture of stored gradients, if any.
+    pub fn image(&self) -> Option<&Image> {
+        match self {
+            Gradients::Stored(i) => Some(i),
+            Gradients::AtSample => None,
+        }
+    }
+}
+
 /// The volume as the renderer sees it: a normalised R16_UNORM 3D texture and its gradients.
 pub struct VolumeTextures {
     /// Intensity mapped from `[range[0], range[1]]` to `[0, 1]`.
     pub intensity: Image,
-    /// RGBA16F gradient (world units) and its length.
-    pub gradient: Image,
+    /// The gradients: stored per voxel, or made at each sample.
+    pub gradient: Gradients,
     /// Data values that map to 0 and 1.
     pub range: [f64; 2],
     /// Voxels along x, y, z.
@@ -157,19 +188,20 @@ impl VolumeTextures {
     /// A whole volume, which a renderer may draw lines of: its `auto` line smoothing is measured
     /// here (a chunk of `VolumeTextures::new_in_range` is never drawn, and skips it).
     pub fn new(ctx: &Arc<Context>, v: &Volume) -> Result<(Self, vellum_gpu::Buffer)> {
-        Self::new_over(ctx, v, Default::default())
+        Self::new_over(ctx, v, Default::default(), GradientSource::Stored)
     }
 
     /// [`VolumeTextures::new`] on `scale` where it is given (a time point on its series'
     /// scale): over its range, else `v`'s own smallest and largest values, and with its line
-    /// smoothing, else `v`'s measured.
+    /// smoothing, else `v`'s measured; its gradients from `source`.
     pub fn new_over(
         ctx: &Arc<Context>,
         v: &Volume,
         scale: Scale,
+        source: GradientSource,
     ) -> Result<(Self, vellum_gpu::Buffer)> {
         let range = scale.range.unwrap_or_else(|| v.normalised_range());
-        let (mut textures, staging) = Self::new_in_range(ctx, v, range)?;
+        let (mut textures, staging) = Self::new_in_range(ctx, v, range, source)?;
         textures.auto_line_smooth = scale
             .line_smooth
             .unwrap_or_else(|| vellum_volume::lines::auto_smooth_radius(v));
@@ -182,8 +214,10 @@ impl VolumeTextures {
         ctx: &Arc<Context>,
         v: &Volume,
         range: [f64; 2],
+        source: GradientSource,
     ) -> Result<(Self, vellum_gpu::Buffer)> {
-        let extent = extent_of(ctx, v.dims, 2 + 8, 1)?;
+        let stored = source == GradientSource::Stored;
+        let extent = extent_of(ctx, v.dims, if stored { 2 + 8 } else { 2 }, 1)?;
         // R16_UNORM: intensity normalised to 65536 levels (more than 12-bit CT needs) at half the
         // bytes of float, sampled with trilinear filtering.
         let intensity = Image::new(
@@ -193,11 +227,14 @@ impl VolumeTextures {
         )?;
         // RGBA16F: the gradient's xyz and length in half floats; shading needs no more, at half the
         // bytes of RGBA32F.
-        let gradient = Image::new(
-            ctx,
-            "volume gradient",
-            &ImageDesc::new_3d(Format::R16G16B16A16_SFLOAT, extent),
-        )?;
+        let gradient = match source {
+            GradientSource::Stored => Gradients::Stored(Image::new(
+                ctx,
+                "volume gradient",
+                &ImageDesc::new_3d(Format::R16G16B16A16_SFLOAT, extent),
+            )?),
+            GradientSource::AtSample => Gradients::AtSample,
+        };
         let (texels, range) = v.normalised_u16_in(range);
         let bricks = Bricks::new(&texels, v.dims);
         let list = bricks.varying();
@@ -229,6 +266,16 @@ impl VolumeTextures {
             },
             staging,
         ))
+    }
+
+    /// The texture of stored gradients; a volume whose gradients are made at each sample has
+    /// none, which is said.
+    pub(crate) fn stored_gradient(&self) -> Result<&Image> {
+        self.gradient.image().ok_or_else(|| {
+            vellum_error::Error::Invalid(
+                "this volume's gradients are made at each sample, not stored".into(),
+            )
+        })
     }
 
     /// Records pass `upload`: `staging` (from [`VolumeTextures::new`]) into the intensity texture.
@@ -404,14 +451,16 @@ impl Normals {
         range: [f64; 2],
     ) -> Result<(VolumeTextures, Vec<PassTime>)> {
         let ctx = &self.ctx;
-        let (textures, staging) = VolumeTextures::new_in_range(ctx, v, range)?;
+        let source = GradientSource::Stored;
+        let (textures, staging) = VolumeTextures::new_in_range(ctx, v, range, source)?;
+        let gradient = textures.stored_gradient()?;
         let ((), times) = vellum_gpu::submit_timed(ctx, "volume textures", |f| {
             textures.record_upload(ctx, f, &staging);
             self.record(f, &textures)?;
             textures
                 .intensity
                 .transition(f.cmd, Access::FragmentSampled);
-            textures.gradient.transition(f.cmd, Access::FragmentSampled);
+            gradient.transition(f.cmd, Access::FragmentSampled);
             Ok(())
         })?;
         Ok((textures, times))
@@ -419,7 +468,11 @@ impl Normals {
 
     /// Records pass `sobel_normals`: the gradients of `tex.intensity` into `tex.gradient`, which is
     /// left writable-then-readable by later passes (they transition it to their own access).
+    /// Nothing for a volume whose gradients are made at each sample.
     pub fn record(&self, frame: &mut Frame, tex: &VolumeTextures) -> Result<()> {
+        let Gradients::Stored(gradient) = &tex.gradient else {
+            return Ok(());
+        };
         let (cmd, profiler) = (frame.cmd, &mut *frame.profiler);
         let (list, active) = &tex.active;
         let push = NormalsPush {
@@ -439,24 +492,24 @@ impl Normals {
                 // The bricks of one value: zero gradients. A listed brick is BRICK_GROUPS
                 // workgroups (x); the list runs along y, then z past the 65,535 workgroups of
                 // one dimension every device takes.
-                vellum_gpu::commands::clear_image(&self.ctx, cmd, &tex.gradient);
+                vellum_gpu::commands::clear_image(&self.ctx, cmd, gradient);
                 let rows = (n as u32).clamp(1, MAX_GROUP_ROWS);
                 let groups = [BRICK_GROUPS, rows, (n as u32).div_ceil(rows).max(1)];
                 (self.listed_pipeline()?, groups)
             }
             None => {
-                tex.gradient.discard();
+                gradient.discard();
                 let extent = tex.intensity.desc.extent;
                 let groups = vellum_gpu::pipeline::group_count(extent, GROUP_VOXELS);
                 (&self.pipeline, groups)
             }
         };
-        tex.gradient.transition(cmd, Access::ComputeWrite);
+        gradient.transition(cmd, Access::ComputeWrite);
         pipeline.dispatch(
             cmd,
             &[
                 Bind::Sampled(&tex.intensity, &self.nearest),
-                Bind::StorageImage(&tex.gradient),
+                Bind::StorageImage(gradient),
                 Bind::StorageBuffer(list),
             ],
             &push,
@@ -478,11 +531,12 @@ impl Normals {
     /// thread's passes): `v` normalised over `range` into a staging buffer, its textures and a
     /// readback buffer allocated.
     pub(crate) fn stage(ctx: &Arc<Context>, v: &Volume, range: [f64; 2]) -> Result<StagedNormals> {
-        let (textures, upload) = VolumeTextures::new_in_range(ctx, v, range)?;
+        let (textures, upload) =
+            VolumeTextures::new_in_range(ctx, v, range, GradientSource::Stored)?;
         let readback = vellum_gpu::transfer::staging_buffer(
             ctx,
             "normals readback",
-            textures.gradient.byte_size(),
+            textures.stored_gradient()?.byte_size(),
         )?;
         Ok(StagedNormals {
             textures,
@@ -495,11 +549,12 @@ impl Normals {
     /// submission: the only part that records, for the caller to serialise.
     pub fn run(&self, s: &StagedNormals) -> Result<Vec<PassTime>> {
         let ctx = &self.ctx;
+        let gradient = s.textures.stored_gradient()?;
         let ((), times) = vellum_gpu::submit_timed(ctx, "volume gradients", |f| {
             s.textures.record_upload(ctx, f, &s.upload);
             self.record(f, &s.textures)?;
             f.profiler.pass(f.cmd, "readback", |cmd| {
-                vellum_gpu::transfer::record_readback(ctx, cmd, &s.textures.gradient, &s.readback)
+                vellum_gpu::transfer::record_readback(ctx, cmd, gradient, &s.readback)
             });
             Ok(())
         })?;

@@ -316,7 +316,7 @@ fn shading_uniforms(
     let l = &view.lighting;
     SliceUniforms {
         view_proj: camera.view_proj.to_cols_array_2d(),
-        half_extent: [half.x, half.y, half.z, 0.0],
+        half_extent: [half.x, half.y, half.z, world.longest as f32],
         eye: [eye.x, eye.y, eye.z, 0.0],
         view_dir: [
             view_dir.x,
@@ -558,7 +558,9 @@ impl StandIns {
             _ => &self.volume,
         };
         vol.intensity().transition(cmd, sampled);
-        vol.gradient().transition(cmd, sampled);
+        if let Some(g) = vol.gradient() {
+            g.transition(cmd, sampled);
+        }
         if let Some((lo, hi)) = vol.channel_pools() {
             lo.transition(cmd, sampled);
             if let Some(hi) = hi {
@@ -653,7 +655,8 @@ impl Renderer {
         let binds = [
             Bind::UniformSlice(staged.ubo),
             Bind::Sampled(vol.intensity(), &self.linear),
-            Bind::Sampled(vol.gradient(), &self.linear),
+            // (Gradients made at each sample: the intensity stands in, never read.)
+            Bind::Sampled(vol.gradient().unwrap_or(vol.intensity()), &self.linear),
             Bind::Sampled(classify.transfer_image(), &self.linear),
             Bind::Sampled(occlusion, &self.linear),
             Bind::Sampled(classify.occlusion_image(), &self.linear),
@@ -1254,6 +1257,7 @@ fn record_rays(
                 .options
                 .walk_batch
                 .unwrap_or_else(|| walk_batch(&ctx.info)),
+            gradient_at_sample: vol.gradient().is_none(),
             push: {
                 let mut push = r.setup.ray_push(&r.options, vol.bricks().counts, two_level);
                 // Mixed channels: the focus channel's component, where a sample's intensity is
@@ -1382,6 +1386,11 @@ impl BrickFlags {
 /// A volume in the brick cache is drawn by the ray caster, without object-space lines (their
 /// extraction reads the whole volume); say so in one sentence.
 fn check_paged(vol: VolumeRef, view: &View) -> Result<()> {
+    if vol.gradient().is_none() && view.raycast.is_none() {
+        return Err(Error::Invalid(
+            "the volume's gradients do not fit the GPU budget, so only the ray caster draws it (making them at each sample); use `renderer: raycast`".into(),
+        ));
+    }
     let Some(p) = vol.paged() else {
         return Ok(());
     };

@@ -157,6 +157,9 @@ impl Variant {
     /// With BRICKED and skipping: a ray passes the bricks and sub-blocks known to hold nothing it
     /// needs in front of it in a loop that only looks them up, before its walk (`Paged::trim`).
     pub(crate) const TRIM: u32 = 1 << 22;
+    /// In core with no gradient texture: each shaded sample's Sobel gradient is made from 26
+    /// fetches of the intensity (`shade.glsl`'s `sobel_at`).
+    pub(crate) const GRADIENT_AT_SAMPLE: u32 = 1 << 23;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
     /// or one in core.
@@ -236,6 +239,9 @@ pub(crate) struct RayRequest<'a> {
     pub(crate) trim: bool,
     /// Rays in core walk four samples at a time to their next contributing one ([`walk_batch`]).
     pub(crate) walk_batch: bool,
+    /// In core with no gradient texture: each shaded sample's gradient is made from the
+    /// intensity (`GradientSource::AtSample`, the `GRADIENT_AT_SAMPLE` variant).
+    pub(crate) gradient_at_sample: bool,
     /// The push constants of `raycast.comp`.
     pub push: RayPush,
     /// The image size in pixels, width and height: one invocation per pixel.
@@ -341,6 +347,9 @@ impl RayCaster {
         }
         if r.walk_batch {
             variant.0 |= Variant::WALK_BATCH;
+        }
+        if r.gradient_at_sample {
+            variant.0 |= Variant::GRADIENT_AT_SAMPLE;
         }
         if let Some((mix, count)) = r.channels.1 {
             variant.0 |= match mix {

@@ -47,7 +47,7 @@ use crate::classify::textures::GpuClassification;
 use crate::classify::transfer::TransferFunction;
 use crate::classify::{Classification, Focus};
 use crate::passes::importance::ImportanceMap;
-use crate::passes::normals::{Normals, VolumeTextures};
+use crate::passes::normals::{GradientSource, Normals, VolumeTextures};
 use crate::passes::occlusion::{Occlusion, OcclusionParams};
 use crate::render::camera::Camera;
 use crate::render::style::{Style, StyleParams};
@@ -757,15 +757,18 @@ impl GpuScene {
         modulation: &Modulation,
     ) -> Result<GpuScene> {
         let normals = Normals::new(ctx)?;
+        let (v, scale) = input;
+        let input = (v, scale, GradientSource::Stored);
         Self::prepare_with(&normals, input, classification, focus, modulation)
     }
 
     /// [`GpuScene::prepare_in_range`] with the pipelines of `normals`, which a caller that
     /// prepares one volume after another (the viewer, a series' time points) builds once: on
-    /// lavapipe, building them compiles the shader, a few milliseconds each time.
+    /// lavapipe, building them compiles the shader, a few milliseconds each time. Its gradients
+    /// come from `source` (`sobel_normals` runs only for stored ones).
     pub fn prepare_with(
         normals: &Normals,
-        (v, scale): (&Volume, Scale),
+        (v, scale, source): (&Volume, Scale, GradientSource),
         classification: &Classification,
         focus: Focus,
         modulation: &Modulation,
@@ -773,7 +776,7 @@ impl GpuScene {
         focus.validate()?;
         modulation.validate()?;
         let ctx = normals.context();
-        let (mut volume, staging) = VolumeTextures::new_over(ctx, v, scale)?;
+        let (mut volume, staging) = VolumeTextures::new_over(ctx, v, scale, source)?;
         focus.check_in(volume.range)?;
         let (transfer, otf) = match classification {
             Classification::Auto => (crate::classify::window::auto(v, volume.range)?, None),

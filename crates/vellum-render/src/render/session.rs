@@ -4,12 +4,21 @@
 //! through the brick cache, holds the rule that the ray caster draws a bricked volume, and draws
 //! still frames. `render`, `view`, the ranks of an MPI job and Python all open their inputs here.
 //!
-//! The decision: a store whose in-core textures exceed the budget is never read whole (its
-//! pyramid goes to the brick cache as it is on disk); any other input is read, and goes to the
-//! brick cache when its textures exceed the budget (its pyramid is made in memory).
+//! The decision, by the bytes of the textures in core:
+//! - intensity and stored gradients (10 bytes a voxel) within the budget: in core, as every
+//!   renderer draws it;
+//! - the intensity alone (2 bytes a voxel) within it: in core with no gradient texture, the ray
+//!   caster making each shaded sample's gradient from the intensity
+//!   ([`GradientSource::AtSample`]); not for a scene that mixes channels or draws a label
+//!   volume, whose own textures the rule does not count;
+//! - beyond that, the brick cache: a store is never read whole (its pyramid goes to the cache as
+//!   it is on disk); any other input is read, and its pyramid is made in memory.
+//!
+//! Only the ray caster draws the last two, and the session says so when it makes a view one.
 
 use crate::classify::Classification;
 use crate::passes::gpu_volume::VolumeRef;
+use crate::passes::normals::GradientSource;
 use crate::render::bricked::{StillOptions, StreamReport};
 use crate::render::frame::Renderer;
 use crate::render::scene::{GpuScene, PagedScene, Scale, Scene};
@@ -20,7 +29,7 @@ use std::path::Path;
 use std::sync::Arc;
 use vellum_error::{Error, Result};
 use vellum_gpu::{Context, PassTime};
-use vellum_volume::bricks::{in_core_bytes, BrickLevels};
+use vellum_volume::bricks::{in_core_bytes, intensity_bytes, BrickLevels};
 use vellum_volume::geometry::Geometry;
 use vellum_volume::Volume;
 
@@ -163,8 +172,9 @@ impl Opened {
             None => {
                 let path = Path::new(&scene.input.path);
                 if scene.input.raw.is_none() {
+                    let fits = |dims| fits_in_core(scene, dims, budget);
                     if let Some(mut levels) =
-                        BrickLevels::of_store_beyond(path, budget, scene.input.pick())?
+                        BrickLevels::of_store_beyond(path, fits, scene.input.pick())?
                     {
                         if let Some(spec) = &scene.channels {
                             mix_channels(&mut levels, scene, spec, chunk_cache)?;
@@ -175,7 +185,7 @@ impl Opened {
                 scene.load_volume()?
             }
         };
-        if in_core_bytes(v.dims) > budget {
+        if !fits_in_core(scene, v.dims, budget) {
             return bricked(BrickLevels::of_volume(v)?);
         }
         Ok(Opened::InCore(v))
@@ -224,7 +234,8 @@ impl Prepared {
             Opened::InCore(v) => {
                 let (scale, classification) = series_scale(scene, classification)?;
                 let normals = crate::passes::normals::Normals::new(ctx)?;
-                Self::in_core(&normals, (v, scale), scene, &classification)?
+                let source = gradient_source(v.dims, budget);
+                Self::in_core(&normals, (v, scale, source), scene, &classification)?
             }
             Opened::Bricked(levels) => {
                 let finest = opts.lod == Lod::Finest;
@@ -251,12 +262,13 @@ impl Prepared {
         })
     }
 
-    /// A volume in core on the GPU, as [`Prepared::new`] makes one, on `scale` and with the
-    /// pipelines of `normals`: a front end that prepares one volume after another (the viewer)
-    /// builds them once, and knows a series' scale already.
+    /// A volume in core on the GPU, as [`Prepared::new`] makes one, on `scale`, with its
+    /// gradients from `source` ([`gradient_source`]) and the pipelines of `normals`: a front end
+    /// that prepares one volume after another (the viewer) builds them once, and knows a
+    /// series' scale already.
     pub fn in_core(
         normals: &crate::passes::normals::Normals,
-        input: (&Volume, crate::render::scene::Scale),
+        input: (&Volume, crate::render::scene::Scale, GradientSource),
         scene: &Scene,
         classification: &Classification,
     ) -> Result<Self> {
@@ -305,6 +317,19 @@ impl Prepared {
     /// Whether the volume goes through the brick cache.
     pub fn is_paged(&self) -> bool {
         matches!(self, Prepared::Paged(..))
+    }
+
+    /// Where the shading's gradients come from, as reports name it: `stored` (a texture made
+    /// once), `at_sample` (made from the intensity at each shaded sample) or `pool` (made for
+    /// each brick as it enters the brick cache's pool).
+    pub fn gradients(&self) -> &'static str {
+        match self {
+            Prepared::InCore(g) => match g.volume.gradient.image() {
+                Some(_) => "stored",
+                None => "at_sample",
+            },
+            Prepared::Paged(..) => "pool",
+        }
     }
 
     /// The occlusion spectrum made while preparing, taken out (an occlusion TF in core only).
@@ -493,20 +518,56 @@ fn attach_channels(
     Ok(())
 }
 
-/// The ray caster draws a volume in the brick cache: `raycast` (a view's or a scene's) made so,
-/// with the sentence that says so when it was not (`budget` bytes, for the sentence).
-pub fn bricked_ray_cast(
+/// Whether the `scene`'s volume of `dims` goes to the GPU whole within `budget` bytes: its
+/// intensity alone fits, or, for a scene that mixes channels or draws a label volume, its
+/// intensity and stored gradients do. `VELLUM_GRADIENTS_AT_SAMPLE=0` holds every scene to the
+/// second rule, for measuring the brick cache against gradients made at each sample.
+fn fits_in_core(scene: &Scene, dims: [usize; 3], budget: u64) -> bool {
+    let at_sample = std::env::var("VELLUM_GRADIENTS_AT_SAMPLE").as_deref() != Ok("0");
+    match at_sample && scene.channels.is_none() && scene.labels.is_none() {
+        true => intensity_bytes(dims) <= budget,
+        false => in_core_bytes(dims) <= budget,
+    }
+}
+
+/// Where a volume of `dims` that goes to the GPU whole takes its gradients from within a budget
+/// of `budget` bytes: stored when its intensity and gradients fit, else made at each sample.
+pub fn gradient_source(dims: [usize; 3], budget: u64) -> GradientSource {
+    match in_core_bytes(dims) <= budget {
+        true => GradientSource::Stored,
+        false => GradientSource::AtSample,
+    }
+}
+
+/// Why only the ray caster draws a volume.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum RayCastOnly {
+    /// It goes through the brick cache.
+    Bricked,
+    /// It is in core with its gradients made at each sample.
+    GradientsAtSample,
+}
+
+/// The ray caster draws a volume for `why`: `raycast` (a view's or a scene's) made so, with the
+/// sentence that says so when it was not (`budget` bytes, for the sentence).
+pub fn ray_cast_only(
     raycast: &mut Option<crate::render::raycast::RayOptions>,
     budget: u64,
+    why: RayCastOnly,
 ) -> Option<String> {
     if raycast.is_some() {
         return None;
     }
     *raycast = Some(Default::default());
     let mib = budget as f64 / (1 << 20) as f64;
-    Some(format!(
-        "the volume is larger than the GPU budget ({mib:.0} MiB): the ray caster draws it through the brick cache"
-    ))
+    Some(match why {
+        RayCastOnly::Bricked => format!(
+            "the volume is larger than the GPU budget ({mib:.0} MiB): the ray caster draws it through the brick cache"
+        ),
+        RayCastOnly::GradientsAtSample => format!(
+            "the volume's gradients do not fit the GPU budget ({mib:.0} MiB): the ray caster draws it in core, making them at each sample"
+        ),
+    })
 }
 
 /// One input opened for rendering: its volume on the GPU, and a renderer.
@@ -553,10 +614,12 @@ impl Session {
     /// `view` as this session draws it, and the sentence to say when the brick cache or a label
     /// volume made it a ray-cast view.
     pub fn view(&self, mut view: View) -> (View, Option<String>) {
-        let note = match self.prepared.is_paged() {
-            true => bricked_ray_cast(&mut view.raycast, self.budget),
-            false => None,
+        let why = match self.prepared.gradients() {
+            "pool" => Some(RayCastOnly::Bricked),
+            "at_sample" => Some(RayCastOnly::GradientsAtSample),
+            _ => None,
         };
+        let note = why.and_then(|why| ray_cast_only(&mut view.raycast, self.budget, why));
         let (labels, channels) = match &self.prepared {
             Prepared::InCore(g) => (g.classify.labels.is_some(), g.classify.channels.is_some()),
             Prepared::Paged(p, _) => (p.classify.labels.is_some(), p.classify.channels.is_some()),

@@ -11,7 +11,8 @@ use vellum_gpu::BindingKind;
 pub(crate) struct SliceUniforms {
     /// Box frame → clip space (`FrameCamera::view_proj`), column-major.
     pub view_proj: [[f32; 4]; 4],
-    /// xyz: half size of the volume's box in world units (longest edge 1), centred at 0; w unused.
+    /// xyz: half size of the volume's box in world units (longest edge 1), centred at 0; w: one
+    /// world unit in the volume's units (its longest edge, in millimetres for medical data).
     pub(crate) half_extent: [f32; 4],
     /// xyz: the eye in the box frame; w unused.
     pub eye: [f32; 4],

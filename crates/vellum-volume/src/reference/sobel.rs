@@ -1,6 +1,10 @@
 //! CPU reference of the Sobel gradient (SPEC TL1): central difference (−1, 0, 1) along an axis,
 //! smoothed by (1, 2, 1) along the other two, divided by 32 so that a unit ramp has a unit
 //! gradient, then divided by the voxel spacing. Borders are clamped. f64 throughout.
+//!
+//! [`sobel_at`] is the reference of the gradient the ray caster makes at a sample when a volume's
+//! gradients are not stored (`shade.glsl`'s `sobel_at`): the same operator on the trilinear
+//! reconstruction, which is the trilinear interpolation of [`sobel_gradient`].
 
 use rayon::prelude::*;
 
@@ -46,9 +50,88 @@ pub fn sobel_gradient(data: &[f64], dims: [usize; 3], spacing: [f64; 3]) -> Vec<
         .collect()
 }
 
+/// The value of `data` (x fastest, of `dims`) at `p` in voxel units (voxel i's centre at i), by
+/// trilinear interpolation with the borders clamped, as a texture's linear filter reads it.
+pub fn trilinear(data: &[f64], dims: [usize; 3], p: [f64; 3]) -> f64 {
+    let at = |c: [i64; 3]| {
+        let i: [usize; 3] = std::array::from_fn(|a| c[a].clamp(0, dims[a] as i64 - 1) as usize);
+        data[i[0] + dims[0] * (i[1] + dims[1] * i[2])]
+    };
+    let base = p.map(|v| v.floor());
+    let f: [f64; 3] = std::array::from_fn(|a| p[a] - base[a]);
+    let b = base.map(|v| v as i64);
+    let mut sum = 0.0;
+    for k in 0..8 {
+        let o = [k & 1, (k >> 1) & 1, (k >> 2) & 1];
+        let w: f64 = (0..3)
+            .map(|a| if o[a] == 1 { f[a] } else { 1.0 - f[a] })
+            .product();
+        sum += w * at(std::array::from_fn(|a| b[a] + o[a] as i64));
+    }
+    sum
+}
+
+/// The Sobel gradient (x, y, z, length) at `p` in voxel units made from the trilinear
+/// reconstruction of `data`: the operator's 26 weights times the reconstruction at whole voxels
+/// from `p`. Shifting the reconstruction by whole voxels commutes with it, so inside the volume
+/// this is the trilinear interpolation of [`sobel_gradient`] at `p` (in its outer half voxel,
+/// where both clamp, the two may differ).
+pub fn sobel_at(data: &[f64], dims: [usize; 3], spacing: [f64; 3], p: [f64; 3]) -> [f64; 4] {
+    let mut g = [0.0f64; 3];
+    for k in 0..27 {
+        let o = [k % 3, (k / 3) % 3, k / 9].map(|v| v as f64 - 1.0);
+        let w = o.map(|v| 2.0 - v.abs());
+        let v = trilinear(data, dims, std::array::from_fn(|a| p[a] + o[a]));
+        g[0] += v * o[0] * w[1] * w[2];
+        g[1] += v * o[1] * w[0] * w[2];
+        g[2] += v * o[2] * w[0] * w[1];
+    }
+    let g: [f64; 3] = std::array::from_fn(|a| g[a] / (32.0 * spacing[a]));
+    [
+        g[0],
+        g[1],
+        g[2],
+        (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt(),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// At every voxel's centre, borders included, the gradient made at a sample is the stored
+    /// one; between the centres, away from the borders, it is the trilinear interpolation of the
+    /// stored ones (to rounding).
+    #[test]
+    fn the_gradient_at_a_sample_is_the_stored_ones_interpolated() {
+        let dims = [7, 6, 5];
+        let spacing = [1.0, 0.5, 2.0];
+        let data: Vec<f64> = (0..dims.iter().product::<usize>())
+            .map(|i| {
+                let (x, y, z) = (i % 7, (i / 7) % 6, i / 42);
+                ((x * 31 + y * 17 + z * 7) % 11) as f64 / 11.0
+            })
+            .collect();
+        let stored = sobel_gradient(&data, dims, spacing);
+        for (i, want) in stored.iter().enumerate() {
+            let p = [i % 7, (i / 7) % 6, i / 42].map(|v| v as f64);
+            let got = sobel_at(&data, dims, spacing, p);
+            for a in 0..4 {
+                assert!((got[a] - want[a]).abs() < 1e-12, "{i}: {got:?} {want:?}");
+            }
+        }
+        for p in [[3.3, 2.7, 2.4], [1.5, 1.5, 1.5], [4.9, 1.1, 2.0]] {
+            let got = sobel_at(&data, dims, spacing, p);
+            for a in 0..3 {
+                let axis: Vec<f64> = stored.iter().map(|g| g[a]).collect();
+                let want = trilinear(&axis, dims, p);
+                assert!(
+                    (got[a] - want).abs() < 1e-12,
+                    "{p:?} axis {a}: {got:?} against {want}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn unit_ramp_has_unit_gradient_scaled_by_spacing() {

@@ -262,7 +262,7 @@ fn render_on(
             (a, budget, &opts),
         ),
     );
-    let (frame, prepare_passes, stream) = drawn?;
+    let (frame, prepare_passes, stream, gradients) = drawn?;
     if series.is_none() {
         report_validation(&ctx);
     }
@@ -287,7 +287,7 @@ fn render_on(
         println!(
             "{}",
             serde_json::to_string_pretty(
-                &json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map, "bricks": stream,
+                &json!({ "device": ctx.info.name, "size": frame.size, "slices": frame.slices, "passes": map, "bricks": stream, "gradients": gradients,
                     "ranks": team.size(), "compositing": composited,
                     "peak_rss_mib": vellum::memory::peak_resident_kib().map(|k| k as f64 / 1024.0),
                     "peak_heap_mib": vellum::memory::peak_heap_mib(),
@@ -347,10 +347,13 @@ fn render_on(
     Ok(grid.2.is_oriented())
 }
 
+/// A frame, the passes that prepared its volume, what the streaming did, and where its
+/// gradients came from (`Prepared::gradients`).
 type Drawn = (
     vellum::render::targets::FrameImage,
     Vec<vellum::gpu::PassTime>,
     Option<vellum::render::bricked::StreamReport>,
+    &'static str,
 );
 
 /// The session's options from the flags: the GPU budget, the level of detail, and the host
@@ -495,7 +498,8 @@ fn draw(
             r.passes
         );
     }
-    Ok((frame, session.prepared.passes().to_vec(), report))
+    let gradients = session.prepared.gradients();
+    Ok((frame, session.prepared.passes().to_vec(), report, gradients))
 }
 
 /// This rank's part of a shared frame: the style kept for rank 0, the ranks' order.
