@@ -11,6 +11,8 @@
 //! - The session picks it by the budget: stored gradients when they fit, made at each sample
 //!   when only the intensity does, the brick cache below that; `render --json` names it, runs no
 //!   `sobel_normals` pass for it, and a slicer view of it is made a ray-cast one with a sentence.
+//!   A scene that makes another whole-volume texture (here a style's object-space lines) is held
+//!   to stored gradients.
 
 mod common;
 
@@ -136,6 +138,24 @@ fn the_session_makes_gradients_at_each_sample_where_only_the_intensity_fits() {
     let (r, said) = render(dir.path(), "1", &raycast);
     assert_eq!(r["gradients"], "pool", "{said}");
     assert!(r["bricks"]["complete"].as_bool().unwrap());
+    // A style with object-space lines makes another whole-volume texture, which the rule does not
+    // count: the scene is held to stored gradients, so 4 MiB sends it to the brick cache, which
+    // refuses the lines in one sentence.
+    let out = dir.path().join("lines.png");
+    let o = common::vellum(&[
+        "render",
+        "phantom:shepp-logan:96",
+        "--iso",
+        "0.9",
+        "--style",
+        "11",
+        "--gpu-budget",
+        "4",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    common::fails_with(&o, "object-space lines");
+    assert!(!out.exists());
     // The slicer is asked for: the ray caster draws it, and says why.
     let (r, said) = render(dir.path(), "4", &[]);
     assert_eq!(r["gradients"], "at_sample");

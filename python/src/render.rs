@@ -460,8 +460,9 @@ impl PyRenderer {
     /// `vellum.Volume`, with options named as the command line's scene flags in snake case
     /// (iso, focus, tf, ..., edge_threshold, ..., stipple, ...: every one `vellum render` takes
     /// but those of its output, and gpu_budget in MiB, lod, memory_budget in MiB). A volume
-    /// whose textures exceed `gpu_budget` is ray-cast through
-    /// the brick cache, a store beyond it without reading it whole.
+    /// whose intensity alone exceeds `gpu_budget` is ray-cast through the brick cache, a store
+    /// beyond it without reading it whole; one whose intensity fits and whose stored gradients
+    /// would not is ray-cast in core, its gradients made at each sample (`Image.gradients`).
     #[new]
     #[pyo3(signature = (scene, **options))]
     fn new(
@@ -550,7 +551,7 @@ impl PyRenderer {
             kept.view.size = [w, h];
         }
         let background = kept.background;
-        let gradients = kept.session.prepared.gradients();
+        let gradients = kept.session.prepared.gradients().name();
         let (frame, stream) = on_gpu(py, |_| {
             let k = &mut *kept;
             k.view.camera.validate()?;

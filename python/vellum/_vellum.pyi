@@ -183,9 +183,10 @@ class Renderer:
         line_angle, line_threshold, line_bias, line_stride, line_smooth, line_seeded, the
         modulation's color_mod, gamma, opacity_mod=(t_l, t_h, k_l, k_h), stipple=(t, f), seed,
         stipple_white, stipple_black, importance_radius, modulate, modulate_lighting; and
-        gpu_budget (MiB of GPU memory for the volume's textures; a volume that needs more is
-        ray-cast through the brick cache, a store without reading it whole; default: half the
-        device's largest heap), lod ("auto" or "finest": the levels a bricked frame samples),
+        gpu_budget (MiB of GPU memory for the volume's textures; a volume whose intensity alone
+        needs more is ray-cast through the brick cache, a store without reading it whole, and one
+        whose intensity fits and whose stored gradients would not is ray-cast in core with its
+        gradients made at each sample; default: half the device's largest heap), lod ("auto" or "finest": the levels a bricked frame samples),
         memory_budget (MiB of host memory for a streamed volume's decoded chunks and the bricks
         waiting for the GPU; default 1024)."""
     def render(

@@ -499,7 +499,7 @@ pub(crate) fn prepare_gpu(normals: &Normals, l: &mut Loaded, budget: &Budget) ->
             c => c.clone(),
         };
         use vellum_render::render::session::{gradient_source, ray_cast_only, RayCastOnly};
-        let source = gradient_source(l.volume.dims, budget.gpu);
+        let source = gradient_source(&l.scene, l.volume.dims, budget.gpu);
         let input = (&l.volume, l.scene.input.scale(), source);
         let mut prepared = Prepared::in_core(normals, input, &l.scene, &classification)?;
         // Segments of a label volume and mixed channels, as `render` draws them.

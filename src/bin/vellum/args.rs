@@ -239,8 +239,10 @@ pub(crate) struct RenderArgs {
     pub(crate) exr: Option<PathBuf>,
     #[arg(long)]
     pub(crate) json: bool,
-    /// GPU memory for the volume's textures in MiB; a volume that needs more is rendered through
-    /// the brick cache (default: half the device's largest memory heap).
+    /// GPU memory for the volume's textures in MiB; a volume whose intensity alone needs more is
+    /// rendered through the brick cache, one whose intensity fits and whose stored gradients would
+    /// not is ray-cast in core with its gradients made at each sample (default: half the device's
+    /// largest memory heap).
     #[arg(long, value_name = "MiB")]
     pub(crate) gpu_budget: Option<f64>,
     /// Brick cache: wait at most this long for bricks; the image then holds what was resident,
@@ -393,8 +395,10 @@ pub(crate) struct ViewArgs {
     /// slower (default 10).
     #[arg(long, value_name = "N", default_value_t = 10.0)]
     pub(crate) play_rate: f64,
-    /// GPU memory for the volume's textures in MiB; a store that needs more is streamed through
-    /// the brick cache (default: half the device's largest memory heap).
+    /// GPU memory for the volume's textures in MiB; a store whose intensity alone needs more is
+    /// streamed through the brick cache, one whose intensity fits and whose stored gradients would
+    /// not is drawn in core with its gradients made at each sample (default: half the device's
+    /// largest memory heap).
     #[arg(long, value_name = "MiB")]
     pub(crate) gpu_budget: Option<f64>,
     /// Host memory in MiB for a streamed store's decoded chunks and the bricks waiting for the

@@ -9,8 +9,8 @@
 //!   renderer draws it;
 //! - the intensity alone (2 bytes a voxel) within it: in core with no gradient texture, the ray
 //!   caster making each shaded sample's gradient from the intensity
-//!   ([`GradientSource::AtSample`]); not for a scene that mixes channels or draws a label
-//!   volume, whose own textures the rule does not count;
+//!   ([`GradientSource::AtSample`]); not for a scene that makes another whole-volume texture the
+//!   rule does not count (mixed channels, labels, occlusion, modulation, object-space lines);
 //! - beyond that, the brick cache: a store is never read whole (its pyramid goes to the cache as
 //!   it is on disk); any other input is read, and its pyramid is made in memory.
 //!
@@ -81,8 +81,8 @@ pub struct SessionOptions {
 }
 
 /// The input of a command that draws in core only (`lines`, `styles`: the slicer's two-level
-/// frames and their image-space passes): `load`'s volume when it fits `budget` bytes by the
-/// session's rule. Beyond it, one sentence naming the command (`what`), the budget and the
+/// frames and their image-space passes): `load`'s volume when its intensity and stored gradients
+/// fit `budget` bytes (the slicer reads the stored gradients). Beyond it, one sentence naming the command (`what`), the budget and the
 /// command's `flag` that raises it if it has one; a store (at `path`, its time point and channel
 /// picked by `pick`) is refused before it is read.
 pub fn in_core_only(
@@ -96,7 +96,7 @@ pub fn in_core_only(
         let mib = budget as f64 / (1 << 20) as f64;
         let raise = flag.map(|f| format!("raise {f}, or ")).unwrap_or_default();
         Error::Invalid(format!(
-            "{what} draws the whole volume in core, and {path} ({}x{}x{}) is larger than the GPU budget ({mib:.0} MiB); {raise}draw it through the brick cache with `vellum render --renderer raycast`",
+            "{what} draws the whole volume in core, and {path} ({}x{}x{}) is larger than the GPU budget ({mib:.0} MiB); {raise}draw it with `vellum render --renderer raycast`, in core with its gradients made at each sample or through the brick cache",
             dims[0], dims[1], dims[2]
         ))
     };
@@ -234,7 +234,7 @@ impl Prepared {
             Opened::InCore(v) => {
                 let (scale, classification) = series_scale(scene, classification)?;
                 let normals = crate::passes::normals::Normals::new(ctx)?;
-                let source = gradient_source(v.dims, budget);
+                let source = gradient_source(scene, v.dims, budget);
                 Self::in_core(&normals, (v, scale, source), scene, &classification)?
             }
             Opened::Bricked(levels) => {
@@ -319,16 +319,14 @@ impl Prepared {
         matches!(self, Prepared::Paged(..))
     }
 
-    /// Where the shading's gradients come from, as reports name it: `stored` (a texture made
-    /// once), `at_sample` (made from the intensity at each shaded sample) or `pool` (made for
-    /// each brick as it enters the brick cache's pool).
-    pub fn gradients(&self) -> &'static str {
+    /// Where the shading's gradients come from.
+    pub fn gradients(&self) -> ShadingGradients {
         match self {
             Prepared::InCore(g) => match g.volume.gradient.image() {
-                Some(_) => "stored",
-                None => "at_sample",
+                Some(_) => ShadingGradients::Stored,
+                None => ShadingGradients::AtSample,
             },
-            Prepared::Paged(..) => "pool",
+            Prepared::Paged(..) => ShadingGradients::Pool,
         }
     }
 
@@ -518,22 +516,60 @@ fn attach_channels(
     Ok(())
 }
 
+/// Where a frame's shading takes its gradients from, as reports name it
+/// ([`ShadingGradients::name`]).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum ShadingGradients {
+    /// A texture of them, made once (`stored`).
+    Stored,
+    /// Made from the intensity at each shaded sample (`at_sample`).
+    AtSample,
+    /// The brick cache's, made for each brick as it enters the pool (`pool`).
+    Pool,
+}
+
+impl ShadingGradients {
+    /// The name `render --json` and Python give it.
+    pub fn name(self) -> &'static str {
+        match self {
+            ShadingGradients::Stored => "stored",
+            ShadingGradients::AtSample => "at_sample",
+            ShadingGradients::Pool => "pool",
+        }
+    }
+}
+
+/// Whether the `scene` may be drawn in core with its gradients made at each sample: it makes no
+/// other whole-volume texture that the rule does not count (mixed channels, a label volume, an
+/// occlusion transfer function's occlusion volume, importance modulation's ΔD, a style's
+/// object-space lines), and `VELLUM_GRADIENTS_AT_SAMPLE` is not 0 (which holds every scene to
+/// the stored gradients' rule, for measuring the brick cache against this).
+fn at_sample_allowed(scene: &Scene) -> bool {
+    use crate::render::scene::ClassificationSpec::{Composed, Occlusion};
+    let occlusion = matches!(scene.classification, Occlusion(_) | Composed { .. });
+    let modulated = scene.modulation.as_ref().is_some_and(|m| m.is_active());
+    let lines = (scene.style.as_ref().and_then(|s| s.resolve().ok()))
+        .is_some_and(|s| s.def.lines.is_some());
+    std::env::var("VELLUM_GRADIENTS_AT_SAMPLE").as_deref() != Ok("0")
+        && scene.channels.is_none()
+        && scene.labels.is_none()
+        && !(occlusion || modulated || lines)
+}
+
 /// Whether the `scene`'s volume of `dims` goes to the GPU whole within `budget` bytes: its
-/// intensity alone fits, or, for a scene that mixes channels or draws a label volume, its
-/// intensity and stored gradients do. `VELLUM_GRADIENTS_AT_SAMPLE=0` holds every scene to the
-/// second rule, for measuring the brick cache against gradients made at each sample.
+/// intensity alone fits where [`at_sample_allowed`], else its intensity and stored gradients.
 fn fits_in_core(scene: &Scene, dims: [usize; 3], budget: u64) -> bool {
-    let at_sample = std::env::var("VELLUM_GRADIENTS_AT_SAMPLE").as_deref() != Ok("0");
-    match at_sample && scene.channels.is_none() && scene.labels.is_none() {
+    match at_sample_allowed(scene) {
         true => intensity_bytes(dims) <= budget,
         false => in_core_bytes(dims) <= budget,
     }
 }
 
-/// Where a volume of `dims` that goes to the GPU whole takes its gradients from within a budget
-/// of `budget` bytes: stored when its intensity and gradients fit, else made at each sample.
-pub fn gradient_source(dims: [usize; 3], budget: u64) -> GradientSource {
-    match in_core_bytes(dims) <= budget {
+/// Where the `scene`'s volume of `dims`, going to the GPU whole, takes its gradients from within
+/// a budget of `budget` bytes: stored when its intensity and gradients fit (or the scene may not
+/// make them at each sample), else made at each sample.
+pub fn gradient_source(scene: &Scene, dims: [usize; 3], budget: u64) -> GradientSource {
+    match in_core_bytes(dims) <= budget || !at_sample_allowed(scene) {
         true => GradientSource::Stored,
         false => GradientSource::AtSample,
     }
@@ -615,9 +651,9 @@ impl Session {
     /// volume made it a ray-cast view.
     pub fn view(&self, mut view: View) -> (View, Option<String>) {
         let why = match self.prepared.gradients() {
-            "pool" => Some(RayCastOnly::Bricked),
-            "at_sample" => Some(RayCastOnly::GradientsAtSample),
-            _ => None,
+            ShadingGradients::Pool => Some(RayCastOnly::Bricked),
+            ShadingGradients::AtSample => Some(RayCastOnly::GradientsAtSample),
+            ShadingGradients::Stored => None,
         };
         let note = why.and_then(|why| ray_cast_only(&mut view.raycast, self.budget, why));
         let (labels, channels) = match &self.prepared {

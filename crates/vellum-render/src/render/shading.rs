@@ -40,7 +40,7 @@ pub(crate) struct SliceUniforms {
     pub stipple_white: [f32; 4],
     /// rgb: eq. 6's black stipple colour; w 1.
     pub stipple_black: [f32; 4],
-    /// Volume size in voxels (xyz), for the stipple grid.
+    /// Volume size in voxels (xyz), for the stipple grid and the gradients made at each sample.
     pub(crate) volume_dims: [f32; 4],
     /// The ray caster's region in texture coordinates, samples in [lo, hi) only (`region_hi[3]`
     /// = 1 when set): one rank's box of an MPI job.

@@ -442,10 +442,8 @@ fn draw(
 ) -> Result<Drawn> {
     use vellum::render::bricked::StillOptions;
     let mut session = Session::prepare(ctx, scene, classification, input, (budget, opts))?;
+    // (The note is said once the frame is drawn: a failure says its one sentence alone.)
     let (drawn, note) = session.view(view.clone());
-    if let Some(note) = note {
-        eprintln!("{note}");
-    }
     *view = drawn;
     if !session.prepared.is_paged()
         && (a.lod != "auto"
@@ -489,6 +487,9 @@ fn draw(
         _ => None,
     };
     let (frame, mut report) = session.still(view, still)?;
+    if let Some(note) = note {
+        eprintln!("{note}");
+    }
     if let (Some(levels), Some(r)) = (floor_of, report.as_mut()) {
         r.floor = Some(vellum::render::stream::Floor::measure(ctx, levels)?);
     }
@@ -498,7 +499,7 @@ fn draw(
             r.passes
         );
     }
-    let gradients = session.prepared.gradients();
+    let gradients = session.prepared.gradients().name();
     Ok((frame, session.prepared.passes().to_vec(), report, gradients))
 }
 

@@ -14,13 +14,16 @@ fn child(args: &[&str]) -> Result<Value> {
 }
 
 /// A bricked render's step: its report with the floor of its streaming measured after the frame
-/// (the same chunks decoded plainly, and their bytes uploaded).
+/// (the same chunks decoded plainly, and their bytes uploaded). Its budgets hold the store's
+/// intensity, so the session is held to stored gradients (`VELLUM_GRADIENTS_AT_SAMPLE=0`): else it
+/// would draw it in core with the gradients made at each sample.
 fn bricked(args: &[&str]) -> Result<Value> {
     let exe = std::env::current_exe().context("finding this binary")?;
     let mut c = std::process::Command::new(exe);
     c.args(args)
         .args(["--json", "--first-frame"])
-        .env("VELLUM_STREAM_FLOOR", "1");
+        .env("VELLUM_STREAM_FLOOR", "1")
+        .env("VELLUM_GRADIENTS_AT_SAMPLE", "0");
     report_of(c, &format!("vellum {}", args.join(" ")))
 }
 
@@ -54,8 +57,9 @@ pub(crate) fn render_args<'a>(store: &'a str, size: &'a str, png: &'a str) -> Ve
     a
 }
 
-/// One size: the store written, rendered through the cache (where it fits in core, at level 0
-/// everywhere through a pool just below (0.99×) the in-core need, against the in-core frame; above,
+/// One size: the store written, rendered through the cache (held to stored gradients, [`bricked`])
+/// (where it fits in core, at level 0 everywhere through a pool just below (0.99×) the in-core
+/// need of intensity and stored gradients, against the in-core frame; above,
 /// through 2 GiB (or half the level's need, when that is less) at level 0 everywhere and by the
 /// level-of-detail rule), and the importance map chunked against in core where it fits.
 fn row(n: usize, image: u32, dir: &Path) -> Result<Value> {
