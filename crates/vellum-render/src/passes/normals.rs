@@ -70,9 +70,10 @@ pub enum GradientSource {
     /// beside the intensity's 2.
     Stored,
     /// None kept: the ray caster makes each shaded sample's Sobel gradient from 26 fetches of the
-    /// intensity (`shade.glsl`'s `sobel_at`), the gradient the stored ones interpolate to. A volume whose intensity fits the GPU budget
-    /// and whose stored gradients would not is drawn so, in core, rather than through the brick
-    /// cache (`render::session`). Only the ray caster draws it.
+    /// intensity (`shade.glsl`'s `sobel_at`), the gradient the stored ones interpolate to. A
+    /// volume whose intensity fits the GPU budget and whose stored gradients would not is drawn
+    /// so, in core, rather than through the brick cache (`render::session`). Only the ray caster
+    /// draws it.
     AtSample,
 }
 

@@ -82,9 +82,9 @@ pub struct SessionOptions {
 
 /// The input of a command that draws in core only (`lines`, `styles`: the slicer's two-level
 /// frames and their image-space passes): `load`'s volume when its intensity and stored gradients
-/// fit `budget` bytes (the slicer reads the stored gradients). Beyond it, one sentence naming the command (`what`), the budget and the
-/// command's `flag` that raises it if it has one; a store (at `path`, its time point and channel
-/// picked by `pick`) is refused before it is read.
+/// fit `budget` bytes (the slicer reads the stored gradients). Beyond it, one sentence naming the
+/// command (`what`), the budget and the command's `flag` that raises it if it has one; a store
+/// (at `path`, its time point and channel picked by `pick`) is refused before it is read.
 pub fn in_core_only(
     (path, pick): (&str, vellum_volume::io::ome_zarr::Pick),
     (budget, flag): (u64, Option<&str>),
