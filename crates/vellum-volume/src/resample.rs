@@ -5,6 +5,31 @@ use crate::{check_dims, Volume, VoxelData};
 use rayon::prelude::*;
 use vellum_error::Result;
 
+/// The value at `p` (in voxels, voxel i's centre at i) of the grid of `dims` whose voxel i (x
+/// fastest) is `value(i)`, by trilinear interpolation, clamped at the edges as a texture's
+/// sampler clamps: what a linear filter reads there. Corners of weight 0 are not read.
+pub fn trilinear_at(value: impl Fn(usize) -> f64, dims: [usize; 3], p: [f64; 3]) -> f64 {
+    let mut lo = [0usize; 3];
+    let mut f = [0f64; 3];
+    for a in 0..3 {
+        let x = p[a].clamp(0.0, (dims[a] - 1) as f64);
+        lo[a] = (x.floor() as usize).min(dims[a].saturating_sub(2));
+        f[a] = x - lo[a] as f64;
+    }
+    let mut sum = 0.0;
+    for corner in 0..8 {
+        let b = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+        let w: f64 = (0..3)
+            .map(|a| if b[a] == 1 { f[a] } else { 1.0 - f[a] })
+            .product();
+        if w > 0.0 {
+            let c: [usize; 3] = std::array::from_fn(|a| (lo[a] + b[a]).min(dims[a] - 1));
+            sum += w * value(c[0] + dims[0] * (c[1] + dims[1] * c[2]));
+        }
+    }
+    sum
+}
+
 /// `v` resampled to `dims` with trilinear interpolation. The physical extent is kept, so the
 /// spacing changes; the voxel type is kept (integers are rounded).
 pub fn trilinear(v: &Volume, dims: [usize; 3]) -> Result<Volume> {

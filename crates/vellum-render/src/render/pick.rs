@@ -113,30 +113,8 @@ fn screened(labels: &Labels, table: &[u32], tc: Vec3) -> bool {
 /// The volume's value at texture coordinate `tc`, interpolated between voxel centres (clamped
 /// at the edges, as the sampler is).
 fn trilinear(v: &Volume, tc: Vec3) -> f64 {
-    let d = v.dims;
-    let mut lo = [0usize; 3];
-    let mut f = [0f64; 3];
-    for a in 0..3 {
-        let x = (tc[a] as f64 * d[a] as f64 - 0.5).clamp(0.0, (d[a] - 1) as f64);
-        lo[a] = (x.floor() as usize).min(d[a].saturating_sub(2));
-        f[a] = x - lo[a] as f64;
-    }
-    let at = |x: usize, y: usize, z: usize| {
-        let c = [lo[0] + x, lo[1] + y, lo[2] + z];
-        let c: [usize; 3] = std::array::from_fn(|a| c[a].min(d[a] - 1));
-        v.data.get_f64(c[0] + d[0] * (c[1] + d[1] * c[2]))
-    };
-    let mut sum = 0.0;
-    for corner in 0..8 {
-        let b = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
-        let w: f64 = (0..3)
-            .map(|a| if b[a] == 1 { f[a] } else { 1.0 - f[a] })
-            .product();
-        if w > 0.0 {
-            sum += w * at(b[0], b[1], b[2]);
-        }
-    }
-    sum
+    let p = std::array::from_fn(|a| tc[a] as f64 * v.dims[a] as f64 - 0.5);
+    vellum_volume::resample::trilinear_at(|i| v.data.get_f64(i), v.dims, p)
 }
 
 #[cfg(test)]

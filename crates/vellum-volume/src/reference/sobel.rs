@@ -53,22 +53,7 @@ pub fn sobel_gradient(data: &[f64], dims: [usize; 3], spacing: [f64; 3]) -> Vec<
 /// The value of `data` (x fastest, of `dims`) at `p` in voxel units (voxel i's centre at i), by
 /// trilinear interpolation with the borders clamped, as a texture's linear filter reads it.
 pub fn trilinear(data: &[f64], dims: [usize; 3], p: [f64; 3]) -> f64 {
-    let at = |c: [i64; 3]| {
-        let i: [usize; 3] = std::array::from_fn(|a| c[a].clamp(0, dims[a] as i64 - 1) as usize);
-        data[i[0] + dims[0] * (i[1] + dims[1] * i[2])]
-    };
-    let base = p.map(|v| v.floor());
-    let f: [f64; 3] = std::array::from_fn(|a| p[a] - base[a]);
-    let b = base.map(|v| v as i64);
-    let mut sum = 0.0;
-    for k in 0..8 {
-        let o = [k & 1, (k >> 1) & 1, (k >> 2) & 1];
-        let w: f64 = (0..3)
-            .map(|a| if o[a] == 1 { f[a] } else { 1.0 - f[a] })
-            .product();
-        sum += w * at(std::array::from_fn(|a| b[a] + o[a] as i64));
-    }
-    sum
+    crate::resample::trilinear_at(|i| data[i], dims, p)
 }
 
 /// The Sobel gradient (x, y, z, length) at `p` in voxel units made from the trilinear
