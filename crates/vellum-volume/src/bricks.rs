@@ -703,12 +703,12 @@ impl BrickLevels {
         let spacing = ms.levels[level].spacing;
         let shape = (ms.voxel, csize.iter().product());
         let [lo, hi] = self.range;
-        let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+        let scale = crate::normalise::scale_of([lo, hi]);
         let normalised = self.normalises(ms);
         let decode = |buf: &mut VoxelData| ms.read_box_into(level, clo, csize, buf);
         let keep = |buf: &VoxelData| {
             let kept = |d: &VoxelData| match normalised {
-                true => VoxelData::U16(d.map_f64(|v| normalise_scaled(v, lo, scale))),
+                true => VoxelData::U16(d.normalised(lo, scale)),
                 false => d.clone(),
             };
             let chunk = Chunk::of_decoded(buf, csize, spacing, kept)?;
@@ -748,9 +748,7 @@ impl BrickLevels {
             // The table's entry, made alone.
             return normalise(value as u8 as f64, self.range);
         }
-        let [lo, hi] = self.range;
-        let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
-        normalise_scaled(value, lo, scale)
+        normalise(value, self.range)
     }
 
     /// Whether the pyramid's voxels are 8-bit (see [`BrickLevels::u8_table`]).
@@ -866,15 +864,8 @@ impl BrickLevels {
 }
 
 /// `v` normalised to 0..=65535 over `[lo, hi]`, as [`Volume::normalised_u16_in`] maps it.
-fn normalise(v: f64, [lo, hi]: [f64; 2]) -> u16 {
-    let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
-    ((v - lo) * scale).round().clamp(0.0, 65535.0) as u16
-}
-
-/// [`normalise`] with its scale made once, and without a call to `round` per voxel: for values
-/// clamped to 0..=65535, adding a half and truncating rounds them as `round` does.
-fn normalise_scaled(v: f64, lo: f64, scale: f64) -> u16 {
-    (((v - lo) * scale).clamp(0.0, 65535.0) + 0.5) as u16
+fn normalise(v: f64, range: [f64; 2]) -> u16 {
+    crate::normalise::normalise_one(v, range[0], crate::normalise::scale_of(range))
 }
 
 /// Copies the part of `src` (placed at `src_lo` in the level) that overlaps `dst` (at `dst_lo`).
@@ -944,9 +935,9 @@ fn to_upload(inner: &Volume, map: &[Vec<usize>; 3], convert: Convert) -> BrickVo
         Convert::Range(r) => r,
         _ => [0.0, 1.0],
     };
-    let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
+    let scale = crate::normalise::scale_of([lo, hi]);
     // (By value, so that the loops keep the two in registers.)
-    let norm = move |v: f64| normalise_scaled(v, lo, scale);
+    let norm = move |v: f64| crate::normalise::normalise_one(v, lo, scale);
     let mut stats = UploadStats::default();
     let d = inner.dims;
     let data = match (&inner.data, convert) {
@@ -1598,41 +1589,6 @@ mod tests {
             }
         }
         assert_eq!(seen, [true, true], "bricks of one value and of many");
-    }
-
-    #[test]
-    fn normalising_without_round_rounds_as_round_does() {
-        for range in [
-            [0.0, 1.0],
-            [-1024.0, 3071.0],
-            [0.0, 255.0],
-            [0.25, 0.75],
-            [7.0, 7.0],
-        ] {
-            let scale = if range[1] > range[0] {
-                65535.0 / (range[1] - range[0])
-            } else {
-                0.0
-            };
-            let span = range[1] - range[0];
-            for i in -1000..=1_001_000 {
-                let v = range[0] + span * i as f64 / 1e6;
-                assert_eq!(
-                    normalise_scaled(v, range[0], scale),
-                    normalise(v, range),
-                    "{v} in {range:?}"
-                );
-            }
-            // Exact halves of a step.
-            for k in 0..65535 {
-                let v = range[0] + (k as f64 + 0.5) / scale.max(1e-300);
-                assert_eq!(
-                    normalise_scaled(v, range[0], scale),
-                    normalise(v, range),
-                    "{v}"
-                );
-            }
-        }
     }
 
     fn arrive(entry: usize) -> Arrival {

@@ -17,6 +17,7 @@ pub mod io;
 pub mod labels;
 pub mod lines;
 pub mod memory;
+pub mod normalise;
 pub mod output;
 pub mod phantom;
 pub mod reference;
@@ -192,29 +193,6 @@ impl VoxelData {
             VoxelData::U16(v) => runs(v, &init, |a, x: u16| fold(a, x as f64), &reduce),
             VoxelData::I16(v) => runs(v, &init, |a, x: i16| fold(a, x as f64), &reduce),
             VoxelData::F32(v) => runs(v, &init, |a, x: f32| fold(a, x as f64), &reduce),
-        }
-    }
-
-    /// Every voxel's value (as f64, exact) mapped by `f`, in parallel and in order, with a loop
-    /// per stored type (as [`VoxelData::par_fold_f64`]).
-    pub fn par_map_f64<T: Send>(&self, f: impl Fn(f64) -> T + Sync + Send) -> Vec<T> {
-        use rayon::prelude::*;
-        match self {
-            VoxelData::U8(v) => v.par_iter().map(|&x| f(x as f64)).collect(),
-            VoxelData::U16(v) => v.par_iter().map(|&x| f(x as f64)).collect(),
-            VoxelData::I16(v) => v.par_iter().map(|&x| f(x as f64)).collect(),
-            VoxelData::F32(v) => v.par_iter().map(|&x| f(x as f64)).collect(),
-        }
-    }
-
-    /// [`VoxelData::par_map_f64`] on the calling thread alone (for work that is already one of
-    /// many threads', such as a brick loader's).
-    pub fn map_f64<T>(&self, f: impl Fn(f64) -> T) -> Vec<T> {
-        match self {
-            VoxelData::U8(v) => v.iter().map(|&x| f(x as f64)).collect(),
-            VoxelData::U16(v) => v.iter().map(|&x| f(x as f64)).collect(),
-            VoxelData::I16(v) => v.iter().map(|&x| f(x as f64)).collect(),
-            VoxelData::F32(v) => v.iter().map(|&x| f(x as f64)).collect(),
         }
     }
 
@@ -415,12 +393,7 @@ impl Volume {
     /// [`Volume::normalised_u16`] over a given `[lo, hi]`, such as a whole grid's range for one
     /// of its chunks (values outside it clamp).
     pub fn normalised_u16_in(&self, [lo, hi]: [f64; 2]) -> (Vec<u16>, [f64; 2]) {
-        let scale = if hi > lo { 65535.0 / (hi - lo) } else { 0.0 };
-        // Rounded to nearest as `(y + 0.5) as u16` after the clamp: the same as `y.round()`
-        // there (y ≥ 0, and NaN goes to 0 either way), without a call to libm's `round` per voxel.
-        let out = self
-            .data
-            .par_map_f64(|x| (((x - lo) * scale).clamp(0.0, 65535.0) + 0.5) as u16);
-        (out, [lo, hi])
+        let scale = normalise::scale_of([lo, hi]);
+        (self.data.normalised_par(lo, scale), [lo, hi])
     }
 }
