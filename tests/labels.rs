@@ -624,9 +624,11 @@ fn the_frog_tissue_labels_show_their_organs_in_their_colours() {
     let shown = ids_shown(&png, &ids, &[]);
     assert!(shown.len() >= 6, "organs in their own colours: {shown:?}");
     // Through the brick cache at level 0 (its 16 slots hold a twentieth of the volume), the same
-    // picture: each brick carries its slot's segment indices.
+    // picture: each brick carries its slot's segment indices. (In core a label volume keeps
+    // stored gradients; the pool's are made at each sample, the same up to single pixels where a
+    // gradient is nearly flat, tests/gradients.rs.)
     let paged = dir.path().join("paged.png");
-    let budget = ["--gpu-budget", "8", "--lod", "finest", "--out"];
+    let budget = ["--gpu-budget", "3", "--lod", "finest", "--out"];
     let o = common::vellum(&[&args[..], &budget, &[paged.to_str().unwrap()]].concat());
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stderr = String::from_utf8_lossy(&o.stderr);
@@ -635,14 +637,17 @@ fn the_frog_tissue_labels_show_their_organs_in_their_colours() {
         image::open(&png).unwrap().to_rgb8(),
         image::open(&paged).unwrap().to_rgb8(),
     );
-    let worst = a
+    let diffs: Vec<u8> = a
         .pixels()
         .zip(b.pixels())
         .flat_map(|(p, q)| (0..3).map(move |c| p.0[c].abs_diff(q.0[c])))
-        .max();
+        .collect();
+    let mean = diffs.iter().map(|&d| d as f64).sum::<f64>() / diffs.len() as f64;
+    let off = diffs.iter().filter(|&&d| d > 1).count();
+    println!("through the brick cache: mean {mean:.4}/255, {off} channels more than 1/255 off");
     assert!(
-        worst <= Some(1),
-        "through the brick cache: a channel {worst:?}/255 off"
+        mean <= 0.05 && off * 1000 <= diffs.len(),
+        "through the brick cache: a mean of {mean}/255, {off} channels more than 1/255 off"
     );
     // Nearest sampling blends no labels: without the white specular highlight, at most 1 % of
     // the lit pixels (the segments' edges among them) take a colour of no label.

@@ -803,7 +803,7 @@ fn head_store(dir: &Path) -> PathBuf {
     store
 }
 
-/// `view INPUT --bench FRAMES` through a 6 MiB budget at 320×240 with `flags`: the report's
+/// `view INPUT --bench FRAMES` through a 1.5 MiB budget (16 slots) at 320×240 with `flags`: the report's
 /// brick line, the report, and the lit pixels of the exit screenshot.
 fn view_streamed(
     x: &Xvfb,
@@ -814,7 +814,7 @@ fn view_streamed(
 ) -> (String, serde_json::Value, usize) {
     let shot = dir.join("last.png");
     let out = validated_view(x, dir)
-        .args([input, "--iso", "0.9", "--tf", "grey", "--gpu-budget", "6"])
+        .args([input, "--iso", "0.9", "--tf", "grey", "--gpu-budget", "1.5"])
         .args([
             "--size",
             "320x240",
@@ -895,7 +895,7 @@ fn a_store_larger_than_the_budget_streams_while_the_view_orbits() {
     assert!(streamed > 16, "more bricks than slots went up: {line}");
     assert!(
         line.contains("/16 resident"),
-        "6 MiB holds 16 slots: {line}"
+        "1.5 MiB holds 16 slots: {line}"
     );
     assert!(lit > 2000, "{lit} lit pixels on the last view");
 }

@@ -33,9 +33,7 @@ struct SliceUniforms {
 
 // One brick of the brick cache's upload (render/brick_fill.comp, passes/paging.rs).
 struct BrickFill {
-    ivec4 lo_slot;       // xyz: the level's voxel at the upload's first voxel; w: the pool slot
-    ivec4 dims_offset;   // xyz: the level's size in voxels; w: the upload's first voxel in the batch
-    vec4 inv_spacing;    // 1 / the level's voxel spacing (xyz), w unused
+    ivec4 slot_offset;   // x: the pool slot; y: the upload's first voxel in the batch; zw unused
 };
 
 struct FillPush {

@@ -1,6 +1,6 @@
 #version 460
-// The brick cache's mixed channels (issue 42): each brick's channels arrive as its upload box
-// (36³ voxels, x fastest), one channel after another, normalised to 16 bits over each channel's
+// The brick cache's mixed channels (issue 42): each brick's channels arrive as its slot's texels
+// (36³, x fastest), one channel after another, normalised to 16 bits over each channel's
 // range, and this pass writes the slot's texels of channels 0-3 and 4-7 into the two channel
 // pools (component k % 4), which the ray caster samples where it samples the intensity pool.
 // One workgroup row per brick (y), 64 texels per workgroup (x), as brick_fill.comp.
@@ -19,9 +19,8 @@ layout(set = 0, binding = 3, rgba16) uniform writeonly image3D channels_hi;
 // grid.x, grid.y: pool slots along x and y; grid.z: channels; grid.w: bricks in this dispatch.
 layout(push_constant) uniform Push { FillPush pc; };
 
-const int UPLOAD = 36;
-const int SLOT = 34;
-const uint BOX = uint(UPLOAD * UPLOAD * UPLOAD);
+const int SLOT = 36;
+const uint BOX = uint(SLOT * SLOT * SLOT);
 
 float value(uint i) {
     return float((words[i >> 1u] >> (16u * (i & 1u))) & 0xffffu) / 65535.0;
@@ -35,8 +34,7 @@ void main() {
     }
     int n = pc.grid.z;
     ivec3 s = ivec3(t % SLOT, (t / SLOT) % SLOT, t / (SLOT * SLOT));
-    // The slot's texel s is the upload's voxel s + 1 (the upload has one more voxel a side).
-    uint at = uint(brick) * uint(n) * BOX + uint((s.x + 1) + UPLOAD * ((s.y + 1) + UPLOAD * (s.z + 1)));
+    uint at = uint(brick) * uint(n) * BOX + uint(t);
     vec4 lo = vec4(0.0), hi = vec4(0.0);
     for (int k = 0; k < n; k++) {
         float v = value(at + uint(k) * BOX);
@@ -46,7 +44,7 @@ void main() {
             hi[k - 4] = v;
         }
     }
-    int slot = fills[brick].lo_slot.w;
+    int slot = fills[brick].slot_offset.x;
     ivec3 place = ivec3(slot % pc.grid.x, (slot / pc.grid.x) % pc.grid.y, slot / (pc.grid.x * pc.grid.y)) * SLOT + s;
     imageStore(channels_lo, place, lo);
     if (n > 4) {

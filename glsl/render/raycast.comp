@@ -167,13 +167,14 @@ void read_header() {
     pt_cover_b = uintBitsToFloat(head(7));
     pool_size = vec3(textureSize(volume, 0));
     inv_pool = 1.0 / pool_size;
+    p_voxel_step = inv_pool;
 }
 
-// The texel of the pool where the brick of page-table word `w` starts (its slot's first texel is
-// its apron's).
+// The texel of the pool where the brick of page-table word `w` starts (its slot's first two
+// texels along each axis are its apron's).
 vec3 slot_origin(uint w) {
     uvec3 s = uvec3(w, w >> 8u, w >> 16u) & 0xffu;
-    return vec3(s) * float(pt_slot_edge) + 1.0;
+    return vec3(s) * float(pt_slot_edge) + 2.0;
 }
 
 // A frame that does not wait says which resident bricks it read, so that the cache evicts the
@@ -455,6 +456,7 @@ int locate(uint skip, bool on_plane) {
         if (ray_t >= c_from && ray_t < c_until) {
             ptex = c_base + ray_t * c_step;
             level_ratio = c_ratio * ray_step;
+            p_level_dims = c_scale;
             return FOUND;
         }
         // Until a lookup of the wanted level succeeds (set_span), there is no stretch.
@@ -470,6 +472,7 @@ int locate(uint skip, bool on_plane) {
     if (V_BRICK_REUSE && !V_BRICK_SPAN && c_hit && b == c_brick) {
         ptex = (c_offset + v) * inv_pool;
         level_ratio = c_ratio * ray_step;
+        p_level_dims = c_scale;
         return FOUND;
     }
     c_hit = false;
@@ -495,6 +498,7 @@ int locate(uint skip, bool on_plane) {
         vec3 offset = slot_origin(word) - vec3(b) * brick;
         ptex = (offset + v) * inv_pool;
         level_ratio = c_ratio * ray_step;
+        p_level_dims = c_scale;
         // A brick with a sub-block to walk past is looked up again at each sample (or, with
         // V_BRICK_SPAN, holds over its sub-block only), so that the ray meets that sub-block.
         c_hit = whole;
@@ -532,6 +536,7 @@ int locate(uint skip, bool on_plane) {
             mark_used(el);
             ptex = (slot_origin(wl) - vec3(bl) * brick + vl) * inv_pool;
             level_ratio = c_ratio * ray_step;
+            p_level_dims = scale;
             if (V_LOD_STEPS && V_WIDEN && on_plane) {
                 widen_step(l);
             }

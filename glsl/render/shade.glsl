@@ -22,6 +22,11 @@ layout(set = 0, binding = 7) readonly buffer ImportanceMax { uint max_abs_bits; 
 vec3 tex;
 vec3 ptex;
 vec3 world;
+// Bricked (V_BRICKED), for `sobel_at`: a voxel's step in the pool's texture coordinates, set once
+// (raycast.comp's read_header), and the voxels per unit of `tex` of the level `ptex` reads, set
+// with each sample's place (its `locate`).
+vec3 p_voxel_step;
+vec3 p_level_dims;
 // Level 0's voxel over the wanted level's (1 in core): opacity is corrected per voxel of the
 // level a bricked sample wants, so a coarse level looks as that level rendered in core. A sample
 // whose brick is missing reads a coarser level in its stead, at the opacity of the level it wants.
@@ -62,9 +67,9 @@ const bool V_WIDEN = (VARIANT & 2097152u) != 0u;
 // needs in front of it in a loop that only looks them up, before its walk (raycast.comp's
 // past_empty; `Paged::trim`).
 const bool V_TRIM = (VARIANT & 4194304u) != 0u;
-// In core with no gradient texture (a volume whose intensity fits the GPU budget and whose
-// gradients would not): each shaded sample's Sobel gradient is made from 26 intensity fetches
-// (`sobel_at`); `gradient` is a stand-in, never read.
+// No gradient texture: in core, a volume whose intensity fits the GPU budget and whose gradients
+// would not; bricked, always (the pool holds intensity alone). Each shaded sample's Sobel
+// gradient is made from 26 intensity fetches (`sobel_at`); `gradient` is a stand-in, never read.
 const bool V_GRADIENT_AT_SAMPLE = (VARIANT & 8388608u) != 0u;
 // Channels of a store mixed in one ray (classify/channels.rs): up to eight, component k of
 // `channels` (k < 4) or k - 4 of `channels_hi` over channel k's own range, with its transfer
@@ -192,8 +197,10 @@ vec4 classify(float s, bool focus) {
 // outer half voxel). Eight fetches at half voxels would be cheaper, but they reconstruct a
 // different gradient between the voxels' centres: frames differed by 1.1/255 on average on the CT
 // head and 1.4/255 on the chest. Only shaded samples pay for it, once each.
+// Bricked, the fetches stay in the sample's slot: its apron is two voxels deep.
 vec4 sobel_at(vec3 at) {
-    vec3 h = 1.0 / u.volume_dims.xyz;
+    vec3 dims = V_BRICKED ? p_level_dims : u.volume_dims.xyz;
+    vec3 h = V_BRICKED ? p_voxel_step : 1.0 / u.volume_dims.xyz;
     vec3 g = vec3(0.0);
     for (int k = 0; k < 27; ++k) {
         ivec3 o = ivec3(k % 3, (k / 3) % 3, k / 9) - 1;
@@ -207,7 +214,7 @@ vec4 sobel_at(vec3 at) {
     }
     // Over 32 and the spacing: the box's edges are the voxels times their spacing, in units of
     // its longest edge (half_extent.w, in the volume's units).
-    g *= (1.0 / 32.0) * u.volume_dims.xyz / (2.0 * u.half_extent.xyz * u.half_extent.w);
+    g *= (1.0 / 32.0) * dims / (2.0 * u.half_extent.xyz * u.half_extent.w);
     return vec4(g, length(g));
 }
 #endif

@@ -116,8 +116,8 @@ impl PyImage {
 
     /// Where the frame's shading took its gradients from: `"stored"` (a texture made once),
     /// `"at_sample"` (made from the intensity at each shaded sample, for a volume whose intensity
-    /// fits `gpu_budget` and whose stored gradients would not) or `"pool"` (the brick cache's),
-    /// as `vellum render --json` names it.
+    /// fits `gpu_budget` and whose stored gradients would not) or `"pool"` (made at each shaded
+    /// sample from the brick cache's intensity pool), as `vellum render --json` names it.
     #[getter]
     fn gradients(&self) -> &'static str {
         self.gradients

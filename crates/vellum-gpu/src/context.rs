@@ -128,6 +128,9 @@ pub struct DeviceInfo {
     pub(crate) timestamp_period_ns: f32,
     /// Size of the largest device-local heap in bytes.
     pub device_local_heap_bytes: u64,
+    /// The most bytes one allocation may take (Vulkan 1.1's `maxMemoryAllocationSize`; 2 GiB on
+    /// lavapipe): an image larger than that cannot be made, whatever the heap holds.
+    pub max_memory_allocation_bytes: u64,
     /// Alignment of uniform-buffer offsets.
     pub(crate) min_uniform_buffer_offset_alignment: u64,
     /// Bytes of shared memory a compute workgroup may declare.
@@ -905,6 +908,10 @@ fn device_info(
     extended_formats: bool,
 ) -> DeviceInfo {
     let props = unsafe { instance.get_physical_device_properties(physical) };
+    let mut maintenance3 = vk::PhysicalDeviceMaintenance3Properties::default();
+    let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut maintenance3);
+    unsafe { instance.get_physical_device_properties2(physical, &mut props2) };
+    let max_memory_allocation_bytes = maintenance3.max_memory_allocation_size;
     let mem = unsafe { instance.get_physical_device_memory_properties(physical) };
     let device_local_heap_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
         .iter()
@@ -923,6 +930,7 @@ fn device_info(
         max_compute_work_group_count: props.limits.max_compute_work_group_count,
         timestamp_period_ns: props.limits.timestamp_period,
         device_local_heap_bytes,
+        max_memory_allocation_bytes,
         min_uniform_buffer_offset_alignment: props.limits.min_uniform_buffer_offset_alignment,
         max_compute_shared_memory: props.limits.max_compute_shared_memory_size,
         storage_image_extended_formats: extended_formats,

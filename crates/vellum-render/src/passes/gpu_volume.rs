@@ -70,12 +70,12 @@ impl<'a> VolumeRef<'a> {
         }
     }
 
-    /// The gradients the shaders sample: the volume's, or the pool's; none for a volume in core
-    /// whose gradients are made at each sample.
+    /// The gradients the shaders sample: the volume's; none where the ray caster makes them at
+    /// each sample (a volume in core whose gradients do not fit, and every bricked volume).
     pub fn gradient(self) -> Option<&'a Image> {
         match self {
             VolumeRef::InCore(v) => v.gradient.image(),
-            VolumeRef::Paged(p) => Some(&p.gradient),
+            VolumeRef::Paged(_) => None,
         }
     }
 

@@ -30,10 +30,13 @@
 //!   also walks past the empty eighths of a brick that is not all empty.
 //!
 //! ## Uploads
-//! A brick travels as its slot's texels and one more voxel on every side, at 16 bits (8 for
-//! 8-bit data), and `render/brick_fill.comp` writes the slot's intensity and Sobel gradients on
-//! the GPU: a quarter of the bytes the host once made and sent (intensity and four half-floats
-//! of gradient per texel), and no per-voxel arithmetic on the host but the type's conversion.
+//! A brick travels as its slot's texels, at 16 bits (8 for 8-bit data), and
+//! `render/brick_fill.comp` writes them into the intensity pool (through the table for 8-bit
+//! data): no per-voxel arithmetic on the host but the type's conversion. The pool holds no
+//! gradients; the ray caster makes each shaded sample's from the slot's intensity, whose
+//! two-voxel apron holds all its Sobel operator reads (`shade.glsl`'s `sobel_at`). A slot then
+//! takes 2 bytes a texel, where intensity and a gradient pool took 10: a budget holds four times
+//! the bricks, and no pass makes gradients for each brick that arrives.
 
 use crate::passes::normals::Bricks;
 use std::sync::Arc;
@@ -103,8 +106,6 @@ pub(crate) const RAY_STATE_BYTES: u64 = 80;
 pub struct PagedVolume {
     /// The intensity pool: R16_UNORM, slots of [`SLOT`]³ texels.
     pub intensity: Image,
-    /// The gradient pool: RGBA16F, the same slots.
-    pub gradient: Image,
     /// Data values that map to normalised 0 and 1.
     pub range: [f64; 2],
     /// Level 0's voxels, spacing and placement.
@@ -144,11 +145,17 @@ pub struct ChannelPools {
     fill: ComputePipeline,
 }
 
-/// A fill pass: `shader` reads the batch's voxels and table of fills and writes two pool images;
-/// `constants` specialise it.
-fn fill_pipeline(ctx: &Arc<Context>, shader: &str, constants: &[u32]) -> Result<ComputePipeline> {
+/// A fill pass: `shader` reads the batch's voxels and table of fills and writes `images` pool
+/// images; `constants` specialise it.
+fn fill_pipeline(
+    ctx: &Arc<Context>,
+    shader: &str,
+    images: usize,
+    constants: &[u32],
+) -> Result<ComputePipeline> {
     use BindingKind::{StorageBuffer, StorageImage};
-    let bindings = [StorageBuffer, StorageBuffer, StorageImage, StorageImage];
+    let mut bindings = vec![StorageBuffer, StorageBuffer];
+    bindings.extend(std::iter::repeat_n(StorageImage, images));
     ComputePipeline::with_constants(
         ctx,
         shader,
@@ -185,7 +192,7 @@ impl ChannelPools {
                 &ImageDesc::new_3d(Format::R16G16B16A16_UNORM, extent),
             )
         };
-        let fill = fill_pipeline(ctx, "render/channel_fill.comp", &[])?;
+        let fill = fill_pipeline(ctx, "render/channel_fill.comp", 2, &[])?;
         Ok(Some(Box::new(ChannelPools {
             image: image("brick pool channels 0-3")?,
             image_hi: (count > 4)
@@ -322,13 +329,8 @@ pub(crate) struct FillPush {
 #[repr(C)]
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct BrickFill {
-    /// xyz: the level's voxel at the upload's first voxel (the brick's corner − 2); w: the pool
-    /// slot.
-    pub(crate) lo_slot: [i32; 4],
-    /// xyz: the level's size in voxels; w: the upload's first voxel in the batch's voxel buffer.
-    pub(crate) dims_offset: [i32; 4],
-    /// 1 / the level's voxel spacing along x, y, z, for the Sobel gradient; w unused.
-    pub(crate) inv_spacing: [f32; 4],
+    /// x: the pool slot; y: the upload's first voxel in the batch's voxel buffer; z, w unused.
+    pub(crate) slot_offset: [i32; 4],
 }
 
 /// A brick to upload: its slot, its page-table entry and its voxels.
@@ -358,6 +360,15 @@ impl PagedVolume {
         let slot_bytes =
             SLOT_BYTES + channel_slot_bytes(mixed) + if labelled { LABEL_SLOT_BYTES } else { 0 };
         let mut slots = (budget_bytes / slot_bytes as u64) as usize;
+        // Each pool image is one allocation, within the device's largest (a few texels of its
+        // rows' padding left over).
+        let image_slot_bytes = (SLOT_BYTES as u64).max(if mixed > 0 {
+            4 * 2 * SLOT.pow(3) as u64
+        } else {
+            0
+        });
+        let most = ctx.info.max_memory_allocation_bytes / 64 * 63 / image_slot_bytes;
+        slots = slots.min(most as usize);
         if labelled {
             // The segment indices are one storage buffer, within the device's range.
             slots = slots.min(ctx.info.max_storage_buffer_range as usize / LABEL_SLOT_BYTES);
@@ -368,10 +379,8 @@ impl PagedVolume {
         let cache = BrickCache::new(&levels, capacity, (mib, slot_bytes))?;
         let extent = grid.map(|g| (g * SLOT) as u32);
         let image = |name: &str, format| Image::new(ctx, name, &ImageDesc::new_3d(format, extent));
-        // The in-core textures' formats, so that the shaders sample both alike: R16_UNORM intensity
-        // and RGBA16F gradient (xyz and length).
+        // The in-core texture's format, so that the shaders sample both alike.
         let intensity = image("brick pool intensity", Format::R16_UNORM)?;
-        let gradient = image("brick pool gradient", Format::R16G16B16A16_SFLOAT)?;
         let feedback = Buffer::new(
             ctx,
             "brick feedback",
@@ -380,7 +389,7 @@ impl PagedVolume {
         // 8-bit bricks travel with the table that normalises them (`brick_fill.comp`'s
         // EIGHT_BIT); every other type's, normalised to 16 bits.
         let fill_eight_bit = levels.u8_table().is_some();
-        let fill = fill_pipeline(ctx, "render/brick_fill.comp", &[fill_eight_bit as u32])?;
+        let fill = fill_pipeline(ctx, "render/brick_fill.comp", 1, &[fill_eight_bit as u32])?;
         let level0 = levels.levels()[0].clone();
         let channels = ChannelPools::new(ctx, mixed, extent)?;
         let channel_ranges = vec![UNKNOWN_RANGE; levels.entries() * mixed];
@@ -392,7 +401,6 @@ impl PagedVolume {
             .transpose()?;
         Ok(PagedVolume {
             intensity,
-            gradient,
             range: levels.range(),
             dims: level0.dims,
             spacing: level0.spacing,
@@ -428,14 +436,13 @@ impl PagedVolume {
 
     /// Records the upload of `loads` through the frame's staging ring (pass `brick_upload`):
     /// their voxels and a table of where each goes, then `brick_fill`, which writes each slot's
-    /// intensity and gradients. The pools end ready for sampling in compute.
+    /// intensity. The pools end ready for sampling in compute.
     pub fn record_loads(&self, ctx: &Context, frame: &mut Frame, loads: &[Upload]) -> Result<()> {
         if loads.is_empty() {
             return Ok(());
         }
         frame.profiler.begin(frame.cmd, "brick_upload");
         self.intensity.transition(frame.cmd, Access::ComputeWrite);
-        self.gradient.transition(frame.cmd, Access::ComputeWrite);
         if let Some(c) = &self.channels {
             c.transition(frame.cmd, Access::ComputeWrite);
             let all: Vec<&Upload> = loads.iter().collect();
@@ -460,7 +467,6 @@ impl PagedVolume {
             record_label_copies(ctx, frame, pool, loads)?;
         }
         self.intensity.transition(frame.cmd, Access::ComputeSampled);
-        self.gradient.transition(frame.cmd, Access::ComputeSampled);
         frame.profiler.end(frame.cmd);
         Ok(())
     }
@@ -481,14 +487,7 @@ impl PagedVolume {
                 u.voxels.channels.len()
             )));
         }
-        let fills: Vec<BrickFill> = part
-            .iter()
-            .map(|u| BrickFill {
-                lo_slot: [0, 0, 0, u.slot as i32],
-                dims_offset: [0; 4],
-                inv_spacing: [0.0; 4],
-            })
-            .collect();
+        let fills = fills_of(part);
         let voxels: Vec<&[u8]> = part
             .iter()
             .map(|u| bytemuck::cast_slice(&u.voxels.channels))
@@ -527,25 +526,7 @@ impl PagedVolume {
 
     /// One `brick_fill` dispatch over `part`.
     fn record_fill(&self, ctx: &Context, frame: &mut Frame, part: &[&Upload]) -> Result<()> {
-        let levels = self.paged.levels.levels();
-        let per = (UPLOAD * UPLOAD * UPLOAD) as i32;
-        let mut fills = Vec::with_capacity(part.len());
-        for (i, u) in part.iter().enumerate() {
-            let key = self.paged.levels.key(u.entry).ok_or_else(|| {
-                Error::Invalid(format!("page-table entry {} names no brick", u.entry))
-            })?;
-            let l = &levels[key.level];
-            let lo = key
-                .brick
-                .map(|b| (b * vellum_volume::bricks::BRICK) as i32 - 2);
-            let dims = l.dims.map(|d| d as i32);
-            let inv = l.spacing.map(|s| (1.0 / s) as f32);
-            fills.push(BrickFill {
-                lo_slot: [lo[0], lo[1], lo[2], u.slot as i32],
-                dims_offset: [dims[0], dims[1], dims[2], per * i as i32],
-                inv_spacing: [inv[0], inv[1], inv[2], 0.0],
-            });
-        }
+        let fills = fills_of(part);
         let table: [u32; 128] = match self.paged.levels.u8_table() {
             Some(t) => std::array::from_fn(|i| t[2 * i] as u32 | (t[2 * i + 1] as u32) << 16),
             None => [0; 128],
@@ -557,8 +538,7 @@ impl PagedVolume {
             16,
         )?;
         ctx.count_transfer(&self.intensity.name, true, voxels.size);
-        // An invocation per column of a slot (`brick_fill.comp` walks it along z).
-        let slot_columns = (SLOT * SLOT) as u32;
+        let slot_texels = (SLOT * SLOT * SLOT) as u32;
         let push = FillPush {
             grid: [
                 self.paged.grid[0] as i32,
@@ -574,12 +554,23 @@ impl PagedVolume {
                 Bind::StorageSlice(voxels),
                 Bind::StorageSlice(fills),
                 Bind::StorageImage(&self.intensity),
-                Bind::StorageImage(&self.gradient),
             ],
             &push,
-            [slot_columns.div_ceil(64), part.len() as u32, 1],
+            [slot_texels.div_ceil(64), part.len() as u32, 1],
         )
     }
+}
+
+/// Where each brick of `part` goes and where its voxels start in the batch's buffer (they follow
+/// one another, [`UPLOAD`]³ each).
+fn fills_of(part: &[&Upload]) -> Vec<BrickFill> {
+    let per = (UPLOAD * UPLOAD * UPLOAD) as i32;
+    part.iter()
+        .enumerate()
+        .map(|(i, u)| BrickFill {
+            slot_offset: [u.slot as i32, per * i as i32, 0, 0],
+        })
+        .collect()
 }
 
 /// Records the copy of each upload's segment indices into its slot of the label `pool`, ordered
@@ -886,11 +877,6 @@ mod tests {
     #[test]
     fn fill_interfaces_match_glsl() {
         assert_glsl_layout!(FillPush, "render.glsl", "FillPush", [grid]);
-        assert_glsl_layout!(
-            BrickFill,
-            "render.glsl",
-            "BrickFill",
-            [lo_slot, dims_offset, inv_spacing]
-        );
+        assert_glsl_layout!(BrickFill, "render.glsl", "BrickFill", [slot_offset]);
     }
 }

@@ -1386,12 +1386,12 @@ impl BrickFlags {
 /// A volume in the brick cache is drawn by the ray caster, without object-space lines (their
 /// extraction reads the whole volume); say so in one sentence.
 fn check_paged(vol: VolumeRef, view: &View) -> Result<()> {
-    if vol.gradient().is_none() && view.raycast.is_none() {
-        return Err(Error::Invalid(
-            "the volume's gradients do not fit the GPU budget, so only the ray caster draws it (making them at each sample); use `renderer: raycast`".into(),
-        ));
-    }
     let Some(p) = vol.paged() else {
+        if vol.gradient().is_none() && view.raycast.is_none() {
+            return Err(Error::Invalid(
+                "the volume's gradients do not fit the GPU budget, so only the ray caster draws it (making them at each sample); use `renderer: raycast`".into(),
+            ));
+        }
         return Ok(());
     };
     let budget = p.pool_bytes as f64 / (1 << 20) as f64;

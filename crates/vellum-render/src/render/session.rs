@@ -12,7 +12,9 @@
 //!   ([`GradientSource::AtSample`]); not for a scene that makes another whole-volume texture the
 //!   rule does not count (mixed channels, labels, occlusion, modulation, object-space lines);
 //! - beyond that, the brick cache: a store is never read whole (its pyramid goes to the cache as
-//!   it is on disk); any other input is read, and its pyramid is made in memory.
+//!   it is on disk); any other input is read, and its pyramid is made in memory. Its pool holds
+//!   intensity alone (2 bytes a texel), and the ray caster makes the gradients at each sample
+//!   there too.
 //!
 //! Only the ray caster draws the last two, and the session says so when it makes a view one.
 
@@ -524,7 +526,7 @@ pub enum ShadingGradients {
     Stored,
     /// Made from the intensity at each shaded sample (`at_sample`).
     AtSample,
-    /// The brick cache's, made for each brick as it enters the pool (`pool`).
+    /// Made at each shaded sample from the brick cache's intensity pool (`pool`).
     Pool,
 }
 
