@@ -279,7 +279,7 @@ def test_a_store_beyond_its_budget_streams_through_the_session(tmp_path):
     assert r.render(camera=(60, 20, 2.5)).rgba[..., :3].max() > 0
     r.close()
     for bad, phrase in [(dict(gpu_budget=0), "gpu_budget"), (dict(lod="sharpest"), "lod"),
-                        (dict(gpu_budget=0.1), "gpu_budget. 0.8 or more"),
+                        (dict(gpu_budget=0.1), "gpu_budget. 0.2 or more"),
                         (dict(memory_budget=0.5), "memory_budget=0.5 is invalid")]:
         with pytest.raises(vellum.Error, match=phrase) as raised:
             vellum.render(str(store), **bad)
