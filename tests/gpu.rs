@@ -132,3 +132,68 @@ fn device_selection_by_name_and_index() {
     .to_string();
     assert!(err.contains("no device matches 'no-such-gpu'"), "{err}");
 }
+
+/// `record_upload_boxes` (how the brick cache's 16-bit bricks reach their slots): boxes of a
+/// staging slice land at their places in a 3D image texel for texel, and a box past the image's
+/// edge is refused in one sentence with nothing recorded.
+#[test]
+fn boxes_of_texels_land_where_they_are_sent() {
+    use vellum::gpu::transfer::{readback, record_upload_boxes, TexelBox};
+    use vellum::gpu::{submit_once, Access, Format, Image, ImageDesc};
+    let gpu = Gpu::new();
+    let ctx = &gpu.ctx;
+    let desc = ImageDesc::new_3d(Format::R16_UNORM, [8, 4, 4]);
+    let image = Image::new(ctx, "boxes", &desc).unwrap();
+    let a: Vec<u16> = (0..27).collect();
+    let b: Vec<u16> = (100..164).collect();
+    submit_once(ctx, "boxes", |f| {
+        let parts = [bytemuck::cast_slice(&a), bytemuck::cast_slice(&b)];
+        let src = f.staging.push_parts(&parts, 16)?;
+        image.transition(f.cmd, Access::TransferWrite);
+        let boxes = [
+            TexelBox {
+                from: 0,
+                origin: [0, 1, 1],
+                extent: [3, 3, 3],
+            },
+            TexelBox {
+                from: 54,
+                origin: [4, 0, 0],
+                extent: [4, 4, 4],
+            },
+        ];
+        record_upload_boxes(ctx, f.cmd, src, &image, &boxes)?;
+        let past = TexelBox {
+            from: 0,
+            origin: [6, 0, 0],
+            extent: [3, 3, 3],
+        };
+        let refused = record_upload_boxes(ctx, f.cmd, src, &image, &[past]);
+        let said = refused.err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(
+            said.contains("lies outside") && !said.contains('\n'),
+            "{said}"
+        );
+        Ok(())
+    })
+    .unwrap();
+    let bytes = readback(ctx, &image).unwrap();
+    let at = |x: usize, y: usize, z: usize| {
+        let i = 2 * (x + 8 * (y + 4 * z));
+        u16::from_le_bytes([bytes[i], bytes[i + 1]])
+    };
+    for z in 0..3 {
+        for y in 0..3 {
+            for x in 0..3 {
+                assert_eq!(at(x, y + 1, z + 1), a[x + 3 * (y + 3 * z)], "{x} {y} {z}");
+            }
+        }
+    }
+    for z in 0..4 {
+        for y in 0..4 {
+            for x in 0..4 {
+                assert_eq!(at(x + 4, y, z), b[x + 4 * (y + 4 * z)], "{x} {y} {z}");
+            }
+        }
+    }
+}

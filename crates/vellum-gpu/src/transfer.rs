@@ -79,6 +79,71 @@ pub fn record_upload_from(
     image.transition(cmd, next);
 }
 
+/// A box of texels tightly packed in a staging slice (x fastest), and where it goes in an image.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct TexelBox {
+    /// Where the box's texels start, in bytes into the slice.
+    pub from: u64,
+    /// The image texel of the box's first texel.
+    pub origin: [u32; 3],
+    /// Texels along x, y, z.
+    pub extent: [u32; 3],
+}
+
+/// Records copies of `boxes` of `src` (a slice of a staging ring) into `image`, which the caller
+/// has made ready for transfer writes ([`Access::TransferWrite`]) and orders after them. A box
+/// that lies outside the slice or the image is refused, and nothing is recorded. Counted as an
+/// upload of `image`.
+pub fn record_upload_boxes(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    src: BufferSlice,
+    image: &Image,
+    boxes: &[TexelBox],
+) -> Result<()> {
+    let texel = crate::resources::format_size(image.desc.format) as u64;
+    let bytes = |b: &TexelBox| b.extent.iter().map(|&e| e as u64).product::<u64>() * texel;
+    let outside = |b: &&TexelBox| {
+        b.from + bytes(b) > src.size
+            || (0..3).any(|a| b.origin[a] as u64 + b.extent[a] as u64 > image.desc.extent[a] as u64)
+    };
+    if let Some(b) = boxes.iter().find(outside) {
+        return Err(Error::Invalid(format!(
+            "a box of {:?} texels at {:?} from byte {} lies outside its {}-byte source or the image {} of {:?}",
+            b.extent, b.origin, b.from, src.size, image.name, image.desc.extent
+        )));
+    }
+    let regions: Vec<vk::BufferImageCopy> = boxes
+        .iter()
+        .map(|b| {
+            region(image, src.offset + b.from)
+                .image_offset(vk::Offset3D {
+                    x: b.origin[0] as i32,
+                    y: b.origin[1] as i32,
+                    z: b.origin[2] as i32,
+                })
+                .image_extent(vk::Extent3D {
+                    width: b.extent[0],
+                    height: b.extent[1],
+                    depth: b.extent[2],
+                })
+        })
+        .collect();
+    ctx.count_transfer(&image.name, true, boxes.iter().map(bytes).sum());
+    if !regions.is_empty() {
+        unsafe {
+            ctx.device.cmd_copy_buffer_to_image(
+                cmd,
+                src.raw,
+                image.raw,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                &regions,
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Records a copy of `image` into `staging`, made visible to the host. The copy first waits for
 /// earlier copies that read `staging` in the same command buffer (a staging buffer often serves
 /// as upload source and readback destination of one submission).

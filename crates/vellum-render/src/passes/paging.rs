@@ -127,10 +127,10 @@ pub struct PagedVolume {
     /// bits, two a word, slot after slot), copied from each upload and read nearest by the ray
     /// caster where the in-core path reads the label volume's.
     pub labels: Option<Buffer>,
-    /// `brick_fill` for the pyramid's bricks: 8-bit with their table (`fill_eight_bit`), or
-    /// 16-bit. A pyramid's levels share one voxel type, so its bricks share one width.
-    fill: ComputePipeline,
-    fill_eight_bit: bool,
+    /// `brick_fill` for an 8-bit pyramid's bricks, which it normalises through their table on
+    /// the way; none for 16-bit bricks, which are copied into their slots as they are. A
+    /// pyramid's levels share one voxel type, so its bricks share one width.
+    fill: Option<ComputePipeline>,
 }
 
 /// The brick cache's pools of mixed channels (issue 42): RGBA16 images of the intensity pool's
@@ -386,10 +386,12 @@ impl PagedVolume {
             "brick feedback",
             &BufferDesc::storage((levels.entries().max(1) * 4) as u64).host_read(),
         )?;
-        // 8-bit bricks travel with the table that normalises them (`brick_fill.comp`'s
-        // EIGHT_BIT); every other type's, normalised to 16 bits.
-        let fill_eight_bit = levels.u8_table().is_some();
-        let fill = fill_pipeline(ctx, "render/brick_fill.comp", 1, &[fill_eight_bit as u32])?;
+        // 8-bit bricks travel with the table that normalises them (`brick_fill.comp`); every
+        // other type's, normalised to 16 bits, are copied.
+        let fill = match levels.u8_table() {
+            Some(_) => Some(fill_pipeline(ctx, "render/brick_fill.comp", 1, &[])?),
+            None => None,
+        };
         let level0 = levels.levels()[0].clone();
         let channels = ChannelPools::new(ctx, mixed, extent)?;
         let channel_ranges = vec![UNKNOWN_RANGE; levels.entries() * mixed];
@@ -430,19 +432,17 @@ impl PagedVolume {
             channels,
             labels,
             fill,
-            fill_eight_bit,
         })
     }
 
     /// Records the upload of `loads` through the frame's staging ring (pass `brick_upload`):
-    /// their voxels and a table of where each goes, then `brick_fill`, which writes each slot's
-    /// intensity. The pools end ready for sampling in compute.
+    /// their voxels, copied into their slots (16-bit) or written there by `brick_fill` through
+    /// their table (8-bit). The pools end ready for sampling in compute.
     pub fn record_loads(&self, ctx: &Context, frame: &mut Frame, loads: &[Upload]) -> Result<()> {
         if loads.is_empty() {
             return Ok(());
         }
         frame.profiler.begin(frame.cmd, "brick_upload");
-        self.intensity.transition(frame.cmd, Access::ComputeWrite);
         if let Some(c) = &self.channels {
             c.transition(frame.cmd, Access::ComputeWrite);
             let all: Vec<&Upload> = loads.iter().collect();
@@ -453,15 +453,24 @@ impl PagedVolume {
         }
         if loads
             .iter()
-            .any(|u| matches!(u.voxels.data, BrickData::U8(_)) != self.fill_eight_bit)
+            .any(|u| matches!(u.voxels.data, BrickData::U8(_)) != self.fill.is_some())
         {
             return Err(Error::Invalid(
                 "a brick arrived of another voxel width than its pyramid's".into(),
             ));
         }
-        let all: Vec<&Upload> = loads.iter().collect();
-        for part in all.chunks(FILL_BATCH) {
-            self.record_fill(ctx, frame, part)?;
+        match &self.fill {
+            Some(fill) => {
+                self.intensity.transition(frame.cmd, Access::ComputeWrite);
+                let all: Vec<&Upload> = loads.iter().collect();
+                for part in all.chunks(FILL_BATCH) {
+                    self.record_fill(ctx, frame, fill, part)?;
+                }
+            }
+            None => {
+                self.intensity.transition(frame.cmd, Access::TransferWrite);
+                self.record_copies(ctx, frame, loads)?;
+            }
         }
         if let Some(pool) = &self.labels {
             record_label_copies(ctx, frame, pool, loads)?;
@@ -524,8 +533,38 @@ impl PagedVolume {
         )
     }
 
-    /// One `brick_fill` dispatch over `part`.
-    fn record_fill(&self, ctx: &Context, frame: &mut Frame, part: &[&Upload]) -> Result<()> {
+    /// 16-bit bricks into their slots: one copy of a box each, the bricks travelling as the
+    /// slots hold them.
+    fn record_copies(&self, ctx: &Context, frame: &mut Frame, loads: &[Upload]) -> Result<()> {
+        let voxels: Vec<&[u8]> = loads.iter().map(|u| u.voxels.data.bytes()).collect();
+        let src = frame.staging.push_parts(&voxels, 16)?;
+        let g = self.paged.grid;
+        let mut from = 0;
+        let mut boxes = Vec::with_capacity(loads.len());
+        for (u, bytes) in loads.iter().zip(&voxels) {
+            let at = [
+                u.slot % g[0],
+                (u.slot / g[0]) % g[1],
+                u.slot / (g[0] * g[1]),
+            ];
+            boxes.push(vellum_gpu::transfer::TexelBox {
+                from,
+                origin: at.map(|a| (a * SLOT) as u32),
+                extent: [SLOT as u32; 3],
+            });
+            from += bytes.len() as u64;
+        }
+        vellum_gpu::transfer::record_upload_boxes(ctx, frame.cmd, src, &self.intensity, &boxes)
+    }
+
+    /// One `brick_fill` dispatch over `part` (8-bit bricks).
+    fn record_fill(
+        &self,
+        ctx: &Context,
+        frame: &mut Frame,
+        fill: &ComputePipeline,
+        part: &[&Upload],
+    ) -> Result<()> {
         let fills = fills_of(part);
         let table: [u32; 128] = match self.paged.levels.u8_table() {
             Some(t) => std::array::from_fn(|i| t[2 * i] as u32 | (t[2 * i + 1] as u32) << 16),
@@ -548,7 +587,7 @@ impl PagedVolume {
                 part.len() as i32,
             ],
         };
-        self.fill.dispatch(
+        fill.dispatch(
             frame.cmd,
             &[
                 Bind::StorageSlice(voxels),
