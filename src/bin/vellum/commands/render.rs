@@ -301,7 +301,7 @@ fn render_on(
         );
         if let Some(r) = &stream {
             println!(
-                "  brick cache: {} passes, {} bricks loaded for {} touched ({} of one value, sharing a slot), {:.1} MiB uploaded, {} evicted, {} of {} slots resident ({:.1} MiB pool)",
+                "  brick cache: {} passes, {} bricks loaded for {} touched ({} of one value, sharing a slot), {:.1} MiB uploaded, {} evicted, {} bricks resident in {} slots ({:.1} MiB pool; bricks of one value share one)",
                 r.passes,
                 r.bricks_loaded,
                 r.bricks_touched,
