@@ -392,29 +392,48 @@ pub struct Image {
     discarded: Cell<bool>,
 }
 
+/// How `desc`'s image is created (one mip level and layer, optimal tiling).
+fn create_info(desc: &ImageDesc) -> vk::ImageCreateInfo<'static> {
+    let [w, h, d] = desc.extent;
+    vk::ImageCreateInfo::default()
+        .image_type(desc.image_type)
+        .format(desc.format)
+        .extent(vk::Extent3D {
+            width: w,
+            height: h,
+            depth: d,
+        })
+        .mip_levels(1)
+        .array_layers(1)
+        .samples(vk::SampleCountFlags::TYPE_1)
+        .tiling(vk::ImageTiling::OPTIMAL)
+        .usage(desc.usage)
+        .sharing_mode(vk::SharingMode::EXCLUSIVE)
+        .initial_layout(vk::ImageLayout::UNDEFINED)
+        .flags(match desc.alias {
+            Some(_) => vk::ImageCreateFlags::MUTABLE_FORMAT,
+            None => vk::ImageCreateFlags::empty(),
+        })
+}
+
+/// The bytes the device would allocate for an image of `desc`, asked without making one (Vulkan
+/// 1.3's `vkGetDeviceImageMemoryRequirements`): its texels and the driver's padding.
+pub fn image_memory_bytes(ctx: &Context, desc: &ImageDesc) -> u64 {
+    let info = create_info(desc);
+    let query = vk::DeviceImageMemoryRequirements::default().create_info(&info);
+    let mut out = vk::MemoryRequirements2::default();
+    unsafe {
+        ctx.device
+            .get_device_image_memory_requirements(&query, &mut out)
+    };
+    out.memory_requirements.size
+}
+
 impl Image {
     /// Creates an image with a view covering it, named `name`.
     pub fn new(ctx: &Arc<Context>, name: &str, desc: &ImageDesc) -> Result<Self> {
         let [w, h, d] = desc.extent;
-        let info = vk::ImageCreateInfo::default()
-            .image_type(desc.image_type)
-            .format(desc.format)
-            .extent(vk::Extent3D {
-                width: w,
-                height: h,
-                depth: d,
-            })
-            .mip_levels(1)
-            .array_layers(1)
-            .samples(vk::SampleCountFlags::TYPE_1)
-            .tiling(vk::ImageTiling::OPTIMAL)
-            .usage(desc.usage)
-            .sharing_mode(vk::SharingMode::EXCLUSIVE)
-            .initial_layout(vk::ImageLayout::UNDEFINED)
-            .flags(match desc.alias {
-                Some(_) => vk::ImageCreateFlags::MUTABLE_FORMAT,
-                None => vk::ImageCreateFlags::empty(),
-            });
+        let info = create_info(desc);
         let raw = unsafe { ctx.device.create_image(&info, None) }.vk(format!(
             "creating image {name} ({w}x{h}x{d} {:?})",
             desc.format

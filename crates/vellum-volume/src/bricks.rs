@@ -444,8 +444,8 @@ impl BrickLevels {
         })
     }
 
-    /// The voxels of brick `key` as they travel to the GPU: the slot's texels and one more
-    /// voxel on every side (which the GPU's Sobel operator reads), normalised to u16 over
+    /// The voxels of brick `key` as they travel to the GPU: the slot's texels (the brick and
+    /// its two-voxel apron, which the ray caster's Sobel fetches read), normalised to u16 over
     /// [`BrickLevels::range`] or, for 8-bit data, as they are (the GPU maps them through
     /// [`BrickLevels::u8_table`]). Voxels outside the level repeat its nearest edge voxel.
     pub fn voxels(&self, key: BrickKey) -> Result<BrickVoxels> {
@@ -563,8 +563,8 @@ impl BrickLevels {
         }
     }
 
-    /// The box of level voxels brick `key`'s upload reads (its slot, clamped into the level): first voxel and size; and the upload's first voxel, which
-    /// may lie outside the level.
+    /// The box of level voxels brick `key`'s upload reads (its slot, clamped into the level):
+    /// first voxel and size; and the upload's first voxel, which may lie outside the level.
     fn upload_box(&self, key: BrickKey) -> ([usize; 3], [usize; 3], [i64; 3]) {
         let dims = self.levels[key.level].dims;
         let lo: [i64; 3] = std::array::from_fn(|a| (key.brick[a] * BRICK) as i64 - APRON as i64);

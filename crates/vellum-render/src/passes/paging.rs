@@ -30,9 +30,9 @@
 //!   also walks past the empty eighths of a brick that is not all empty.
 //!
 //! ## Uploads
-//! A brick travels as its slot's texels, at 16 bits (8 for 8-bit data), and
-//! `render/brick_fill.comp` writes them into the intensity pool (through the table for 8-bit
-//! data): no per-voxel arithmetic on the host but the type's conversion. The pool holds no
+//! A brick travels as its slot's texels, at 16 bits (8 for 8-bit data): a 16-bit brick is copied
+//! into its slot as it is, and `render/brick_fill.comp` writes an 8-bit one there through the
+//! table that normalises it. No per-voxel arithmetic on the host but the type's conversion. The pool holds no
 //! gradients; the ray caster makes each shaded sample's from the slot's intensity, whose
 //! two-voxel apron holds all its Sobel operator reads (`shade.glsl`'s `sobel_at`). A slot then
 //! takes 2 bytes a texel, where intensity and a gradient pool took 10: a budget holds four times
@@ -304,6 +304,28 @@ pub(crate) fn brick_span(info: &vellum_gpu::DeviceInfo) -> bool {
     info.on_gpu_unless("VELLUM_BRICK_SPAN")
 }
 
+/// At most `slots`, fewer where the largest pool image of that many (the channels' RGBA16 with
+/// `mixed` channels, else the intensity) would pass the device's largest allocation: each pool
+/// image is one, of the size the driver asks for it (2 GiB at most on lavapipe).
+fn fitting_slots(ctx: &Context, mut slots: usize, mixed: usize) -> usize {
+    let max = ctx.info.max_image_dimension_3d as usize;
+    let limit = ctx.info.max_memory_allocation_bytes;
+    let format = match mixed {
+        0 => Format::R16_UNORM,
+        _ => Format::R16G16B16A16_UNORM,
+    };
+    for _ in 0..8 {
+        let extent = pool_grid(slots, max).map(|g| (g * SLOT) as u32);
+        let desc = ImageDesc::new_3d(format, extent);
+        let bytes = vellum_gpu::resources::image_memory_bytes(ctx, &desc);
+        if bytes <= limit || slots <= 1 {
+            break;
+        }
+        slots = (slots as f64 * limit as f64 / bytes as f64 * 0.99) as usize;
+    }
+    slots
+}
+
 /// Slots per axis for a pool of at most `capacity` slots, each axis within `max_texels`.
 pub(crate) fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
     // A page-table word holds a slot's place in 8 bits per axis.
@@ -321,7 +343,7 @@ pub(crate) fn pool_grid(capacity: usize, max_texels: usize) -> [usize; 3] {
 #[derive(Copy, Clone, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct FillPush {
     /// x, y: pool slots along x and y; z: `channel_fill`'s channel count (unread by
-    /// `brick_fill`, whose pipeline says the voxels' width); w: bricks in this dispatch.
+    /// `brick_fill`); w: bricks in this dispatch.
     pub grid: [i32; 4],
 }
 
@@ -359,16 +381,7 @@ impl PagedVolume {
         let labelled = levels.labels().is_some();
         let slot_bytes =
             SLOT_BYTES + channel_slot_bytes(mixed) + if labelled { LABEL_SLOT_BYTES } else { 0 };
-        let mut slots = (budget_bytes / slot_bytes as u64) as usize;
-        // Each pool image is one allocation, within the device's largest (a few texels of its
-        // rows' padding left over).
-        let image_slot_bytes = (SLOT_BYTES as u64).max(if mixed > 0 {
-            4 * 2 * SLOT.pow(3) as u64
-        } else {
-            0
-        });
-        let most = ctx.info.max_memory_allocation_bytes / 64 * 63 / image_slot_bytes;
-        slots = slots.min(most as usize);
+        let mut slots = fitting_slots(ctx, (budget_bytes / slot_bytes as u64) as usize, mixed);
         if labelled {
             // The segment indices are one storage buffer, within the device's range.
             slots = slots.min(ctx.info.max_storage_buffer_range as usize / LABEL_SLOT_BYTES);

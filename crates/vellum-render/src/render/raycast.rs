@@ -157,8 +157,9 @@ impl Variant {
     /// With BRICKED and skipping: a ray passes the bricks and sub-blocks known to hold nothing it
     /// needs in front of it in a loop that only looks them up, before its walk (`Paged::trim`).
     pub(crate) const TRIM: u32 = 1 << 22;
-    /// In core with no gradient texture: each shaded sample's Sobel gradient is made from 26
-    /// fetches of the intensity (`shade.glsl`'s `sobel_at`).
+    /// No gradient texture (in core where the gradients do not fit, and every bricked frame):
+    /// each shaded sample's Sobel gradient is made from 26 fetches of the intensity
+    /// (`shade.glsl`'s `sobel_at`).
     pub(crate) const GRADIENT_AT_SAMPLE: u32 = 1 << 23;
 
     /// The variant for a frame with these options, level mode and uniforms, of a bricked volume
@@ -239,8 +240,8 @@ pub(crate) struct RayRequest<'a> {
     pub(crate) trim: bool,
     /// Rays in core walk four samples at a time to their next contributing one ([`walk_batch`]).
     pub(crate) walk_batch: bool,
-    /// In core with no gradient texture: each shaded sample's gradient is made from the
-    /// intensity (`GradientSource::AtSample`, the `GRADIENT_AT_SAMPLE` variant).
+    /// No gradient texture: each shaded sample's gradient is made from the intensity (in core,
+    /// `GradientSource::AtSample`; bricked, always), the `GRADIENT_AT_SAMPLE` variant.
     pub(crate) gradient_at_sample: bool,
     /// The push constants of `raycast.comp`.
     pub push: RayPush,
