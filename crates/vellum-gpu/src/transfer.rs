@@ -67,16 +67,30 @@ pub fn record_upload_from(
     ctx.count_transfer(&image.name, true, image.byte_size() as u64);
     image.discard();
     image.transition(cmd, Access::TransferWrite);
+    copy_into(ctx, cmd, src, image, &[region(image, src.offset)]);
+    image.transition(cmd, next);
+}
+
+/// Records `regions` of `src`'s buffer into `image`, which is ready for transfer writes.
+fn copy_into(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    src: BufferSlice,
+    image: &Image,
+    regions: &[vk::BufferImageCopy],
+) {
+    if regions.is_empty() {
+        return;
+    }
     unsafe {
         ctx.device.cmd_copy_buffer_to_image(
             cmd,
             src.raw,
             image.raw,
             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-            &[region(image, src.offset)],
+            regions,
         );
     }
-    image.transition(cmd, next);
 }
 
 /// A box of texels tightly packed in a staging slice (x fastest), and where it goes in an image.
@@ -130,17 +144,7 @@ pub fn record_upload_boxes(
         })
         .collect();
     ctx.count_transfer(&image.name, true, boxes.iter().map(bytes).sum());
-    if !regions.is_empty() {
-        unsafe {
-            ctx.device.cmd_copy_buffer_to_image(
-                cmd,
-                src.raw,
-                image.raw,
-                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                &regions,
-            );
-        }
-    }
+    copy_into(ctx, cmd, src, image, &regions);
     Ok(())
 }
 
