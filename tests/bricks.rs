@@ -933,9 +933,11 @@ fn a_still_frame_keeps_its_heap_within_the_memory_budget() {
         decoded(&tight),
         decoded(&roomy)
     );
-    // The same frame, up to a rounding: the budgets end the passes at different places, and
-    // about one run in six a pixel of the 96² then differs by 1/255 in a channel (3 of 27,648
-    // channels seen, never more than 1/255).
+    // The same frame, up to a rounding: the bricks arrive in another order, so they land in
+    // other slots, and a sample's place in the pool (slot origin plus its offset in the brick, in
+    // f32) rounds differently; about one run in six a pixel of the 96² then differs by 1/255 in a
+    // channel (3 of 27,648 channels seen, never more than 1/255). Two runs of one frame differ so
+    // too, even one drawn over resident bricks in a single pass.
     let differ: Vec<u8> = a
         .iter()
         .zip(&b)
