@@ -83,13 +83,13 @@ const float INF = 1.0 / 0.0;
 
 // The page table's header, read once per ray (see passes/paging.rs): levels, brick edge in
 // voxels, slot edge in texels, mode, slots along x and y of the pool, the coefficients of a
-// sample's footprint in voxels (cover = a · distance + b), and the pool's size in texels.
+// sample's footprint in voxels (cover = a · distance + b); and the pool's size in texels
+// (`pool_size`, `inv_pool`, declared in shade.glsl, whose sobel_at steps by a texel).
 int pt_levels;
 float pt_brick;
 int pt_slot_edge;
 uint pt_mode;
 float pt_cover_a, pt_cover_b;
-vec3 pool_size, inv_pool;
 
 // The index of the segment of voxel v (clamped into the volume).
 uint label_of(ivec3 v) {
@@ -167,7 +167,6 @@ void read_header() {
     pt_cover_b = uintBitsToFloat(head(7));
     pool_size = vec3(textureSize(volume, 0));
     inv_pool = 1.0 / pool_size;
-    p_voxel_step = inv_pool;
 }
 
 // The texel of the pool where the brick of page-table word `w` starts (its slot's first two

@@ -22,10 +22,10 @@ layout(set = 0, binding = 7) readonly buffer ImportanceMax { uint max_abs_bits; 
 vec3 tex;
 vec3 ptex;
 vec3 world;
-// Bricked (V_BRICKED), for `sobel_at`: a voxel's step in the pool's texture coordinates, set once
-// (raycast.comp's read_header), and the voxels per unit of `tex` of the level `ptex` reads, set
-// with each sample's place (its `locate`).
-vec3 p_voxel_step;
+// Bricked (V_BRICKED): the pool's size in texels and its reciprocal, a voxel's step where `ptex`
+// reads (raycast.comp's read_header sets them), and the voxels per unit of `tex` of the level
+// `ptex` reads, set with each sample's place (its `locate`), for `sobel_at`.
+vec3 pool_size, inv_pool;
 vec3 p_level_dims;
 // Level 0's voxel over the wanted level's (1 in core): opacity is corrected per voxel of the
 // level a bricked sample wants, so a coarse level looks as that level rendered in core. A sample
@@ -200,7 +200,7 @@ vec4 classify(float s, bool focus) {
 // Bricked, the fetches stay in the sample's slot: its apron is two voxels deep.
 vec4 sobel_at(vec3 at) {
     vec3 dims = V_BRICKED ? p_level_dims : u.volume_dims.xyz;
-    vec3 h = V_BRICKED ? p_voxel_step : 1.0 / u.volume_dims.xyz;
+    vec3 h = V_BRICKED ? inv_pool : 1.0 / u.volume_dims.xyz;
     vec3 g = vec3(0.0);
     for (int k = 0; k < 27; ++k) {
         ivec3 o = ivec3(k % 3, (k / 3) % 3, k / 9) - 1;
