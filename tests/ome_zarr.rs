@@ -67,6 +67,69 @@ fn a_written_store_reads_back_voxel_for_voxel_with_its_pyramid() {
     assert_eq!(loaded.data, v.data);
 }
 
+/// The brick cache's reads (`read_box_into`, into a buffer it reuses) decode a whole chunk of a
+/// store vellum wrote (the bytes codec and zstd alone) straight into that buffer, past zarrs:
+/// each chunk, whole or at the store's edge, absent or present, is what zarrs' own read gives,
+/// and a chunk that decodes to fewer bytes than its shape holds is named.
+#[test]
+fn a_chunk_read_into_a_reused_buffer_is_what_zarrs_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sample.ome.zarr");
+    let v = sample(40);
+    let opts = WriteOptions {
+        chunk: 16,
+        levels: Some(1),
+        threads: None,
+    };
+    write(&path, &v, &opts).unwrap();
+    // An absent chunk reads as the fill value.
+    std::fs::remove_file(path.join("0/c/1/1/1")).unwrap();
+    let m = Multiscale::open(&path).unwrap();
+    let mut buf = VoxelData::U16(Vec::new());
+    let mut chunks = 0;
+    for z in (0..v.dims[2]).step_by(16) {
+        for y in (0..v.dims[1]).step_by(16) {
+            for x in (0..v.dims[0]).step_by(16) {
+                let lo = [x, y, z];
+                let size: [usize; 3] = std::array::from_fn(|a| 16.min(v.dims[a] - lo[a]));
+                let n = size.iter().product();
+                if buf.len() != n {
+                    buf = VoxelData::U16(vec![7; n]);
+                }
+                m.read_box_into(0, lo, size, &mut buf).unwrap();
+                assert_eq!(
+                    buf,
+                    m.read_box(0, lo, size).unwrap().data,
+                    "chunk at {lo:?}"
+                );
+                chunks += 1;
+            }
+        }
+    }
+    assert_eq!(chunks, 27);
+    // The absent chunk's box holds the fill value, and a present one the input's voxels.
+    let mut buf = VoxelData::U16(vec![7; 16 * 16 * 16]);
+    m.read_box_into(0, [16; 3], [16; 3], &mut buf).unwrap();
+    assert_eq!(buf, VoxelData::U16(vec![0; 16 * 16 * 16]));
+    m.read_box_into(0, [0; 3], [16; 3], &mut buf).unwrap();
+    let VoxelData::U16(got) = &buf else { panic!() };
+    assert_eq!(
+        got[16 * 16 * 15 + 16 * 15 + 15],
+        v.data.get_f64(v.index(15, 15, 15)) as u16
+    );
+    // A zstd frame of a chunk too short for its shape: one sentence naming the chunk.
+    let short = zstd::bulk::compress(&[1u8; 100], 1).unwrap();
+    std::fs::write(path.join("0/c/0/0/0"), short).unwrap();
+    let e = m
+        .read_box_into(0, [0; 3], [16; 3], &mut buf)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        e.contains("chunk 0/c/0/0/0 of level 0 could not be read"),
+        "{e}"
+    );
+}
+
 #[test]
 fn halving_averages_each_block_and_what_an_odd_edge_has() {
     let v = Volume::new(

@@ -54,6 +54,9 @@ pub struct Multiscale {
     lead: Vec<u64>,
     /// The levels' arrays, opened once, read through the store's guards.
     arrays: Vec<Array<GuardedStore>>,
+    /// By level, whether a whole chunk decodes with zstd alone into a caller's buffer
+    /// ([`zstd_alone`]).
+    zstd_alone: Vec<bool>,
 }
 
 /// Whether `path` names an OME-Zarr store: a folder whose name ends in `.zarr` or that holds a
@@ -212,6 +215,7 @@ impl Multiscale {
         ngff_checks::datasets(path, datasets)?;
         let mut levels = Vec::new();
         let mut arrays = Vec::new();
+        let mut direct = Vec::new();
         let mut voxel = None;
         let names = datasets
             .iter()
@@ -240,6 +244,7 @@ impl Multiscale {
             }
             voxel = Some(t);
             levels.push(level(path, name, &array, d, leading)?);
+            direct.push(zstd_alone(&array, leading));
             arrays.push(array);
         }
         ngff_checks::multiscale_transforms(path, ms, leading, &mut levels)?;
@@ -286,6 +291,7 @@ impl Multiscale {
             times,
             lead,
             arrays,
+            zstd_alone: direct,
         })
     }
 
@@ -357,6 +363,19 @@ impl Multiscale {
         if !plain || remote || out.voxel_type() != self.voxel || out.len() != n {
             *out = self.read_box(level, lo, size)?.data;
             return Ok(());
+        }
+        if self.zstd_alone[level]
+            && lo.iter().zip(l.chunk).all(|(o, c)| o % c == 0)
+            && size == l.chunk
+        {
+            let mut at = self.lead.clone();
+            at.extend([2, 1, 0].map(|a| (lo[a] / l.chunk[a]) as u64));
+            match decode_zstd_into(array, &at, out) {
+                Ok(true) => return Ok(()),
+                // Absent: the fill value, as zarrs reads it.
+                Ok(false) => {}
+                Err(e) => return Err(self.read_error(level, lo, size, e)),
+            }
         }
         retrieve_into(array, &box_subset(&self.lead, lo, size), out)
             .map_err(|e| self.read_error(level, lo, size, e))
@@ -650,6 +669,66 @@ fn retrieve_into<S: zarrs::storage::ReadableStorageTraits + ?Sized + 'static>(
     let mut view = unsafe { ArrayBytesFixedDisjointView::new(bytes, voxel, &shape, whole) }?;
     array.retrieve_array_subset_into(subset, (&mut view).into())?;
     Ok(())
+}
+
+/// Whether `array`'s chunks are its voxels as they lie in memory (the `bytes` codec,
+/// little-endian on a little-endian machine) compressed by zstd alone, through no storage
+/// transformer, each chunk one index deep on the `leading` axes (time, channel): a whole chunk
+/// then decodes with zstd straight into a reader's buffer ([`decode_zstd_into`]). vellum writes
+/// its stores so.
+fn zstd_alone(array: &Array<GuardedStore>, leading: usize) -> bool {
+    let zarrs::array::ArrayMetadata::V3(m) = array.metadata() else {
+        return false;
+    };
+    let little = |c: &zarrs::metadata::v3::MetadataV3| {
+        c.configuration()
+            .and_then(|c| c.get("endian"))
+            .is_none_or(|e| e == "little")
+    };
+    let codecs = matches!(m.codecs.as_slice(),
+        [b, z] if b.name() == "bytes" && little(b) && z.name() == "zstd");
+    let one_deep = array
+        .chunk_shape(&vec![0; leading + 3])
+        .is_ok_and(|s| s[..leading].iter().all(|n| n.get() == 1));
+    cfg!(target_endian = "little") && codecs && m.storage_transformers.is_empty() && one_deep
+}
+
+thread_local! {
+    /// A zstd decoder for each thread that reads chunks, made once and kept.
+    static ZSTD: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Decodes chunk `at` (its index on every axis) of `array`, whose chunks are [`zstd_alone`],
+/// straight into `out`, which it must fill: `Ok(false)` when the store holds no such chunk.
+/// zarrs' own read decodes into a buffer of its own, in memory touched for the first time
+/// whenever a cache holds what was read before, and copies it out; this writes each voxel once,
+/// into memory the reader reuses.
+fn decode_zstd_into(
+    array: &Array<GuardedStore>,
+    at: &[u64],
+    out: &mut VoxelData,
+) -> std::result::Result<bool, Box<dyn std::error::Error>> {
+    let Some(encoded) = array.retrieve_encoded_chunk(at)? else {
+        return Ok(false);
+    };
+    let dst = out.as_bytes_mut();
+    let n = ZSTD.with(|z| -> std::io::Result<usize> {
+        let mut z = z.borrow_mut();
+        let d = match z.as_mut() {
+            Some(d) => d,
+            None => z.insert(zstd::bulk::Decompressor::new()?),
+        };
+        d.decompress_to_buffer(&encoded[..], dst)
+    })?;
+    if n != dst.len() {
+        return Err(format!(
+            "it decodes to {n} bytes, where its chunk holds {}",
+            dst.len()
+        )
+        .into());
+    }
+    Ok(true)
 }
 
 /// The levels' arrays `names` of `store`, in order: on a server, each level's metadata asked for
