@@ -160,6 +160,15 @@ struct Inner {
     small: BTreeMap<u64, ChunkKey>,
     bytes: u64,
     tick: u64,
+    /// The bytes kept at most for now: the budget, or less while no chunk that left is asked
+    /// for again ([`ChunkCache::new`]).
+    limit: u64,
+    /// Chunks that left, by the tick they left at, with the bytes they held ...
+    ghosts: BTreeMap<u64, (ChunkKey, u64)>,
+    /// ... found by key ...
+    ghost_ticks: HashMap<ChunkKey, u64>,
+    /// ... and those bytes summed: at most the budget's worth are remembered.
+    ghost_bytes: u64,
     /// Every chunk decoded, in order (kept only when asked: `ChunkCache::record_keys`).
     keys: Option<Vec<ChunkKey>>,
 }
@@ -202,6 +211,9 @@ pub struct ChunkStats {
     pub(crate) hits: u64,
 }
 
+/// The bytes a cache of a larger budget keeps at first ([`ChunkCache::new`]).
+const FIRST_LIMIT: u64 = 64 << 20;
+
 /// Decoded chunks, at most about `budget` bytes of them.
 pub struct ChunkCache {
     budget: u64,
@@ -218,10 +230,27 @@ pub struct ChunkCache {
 
 impl ChunkCache {
     /// An empty cache that keeps about `budget` bytes of decoded voxels.
+    ///
+    /// It keeps less at first: an eighth of the budget, or 64 MiB where that is more (the whole
+    /// budget, below). It grows toward the budget by twice a chunk's bytes whenever a chunk that
+    /// left is asked for again, as a larger cache would have kept it; a chunk asked for once is
+    /// never a reason to grow. Memory a cache takes for the first time costs the kernel's page
+    /// faults (on the 2-core VM of BENCHMARKS.md, 0.4 ms a MiB, more than decoding the chunk
+    /// that fills it); a still frame of a 2048³ store asks for each of its chunks in turn,
+    /// mostly once, and filled 896 MiB of fresh memory where about 250 MiB held what it asked
+    /// for again.
     pub fn new(budget: u64) -> Self {
+        Self::starting_at(budget, budget.min((budget / 8).max(FIRST_LIMIT)))
+    }
+
+    /// An empty cache of `budget` bytes that keeps `limit` at first ([`ChunkCache::new`]).
+    fn starting_at(budget: u64, limit: u64) -> Self {
         ChunkCache {
             budget,
-            inner: Mutex::new(Inner::default()),
+            inner: Mutex::new(Inner {
+                limit,
+                ..Inner::default()
+            }),
             decoded: AtomicU64::new(0),
             decoded_bytes: AtomicU64::new(0),
             decode_ns: AtomicU64::new(0),
@@ -385,6 +414,11 @@ impl ChunkCache {
         if let Some(keys) = &mut inner.keys {
             keys.push(key);
         }
+        if let Some(left) = inner.ghost_ticks.remove(&key) {
+            let (_, held) = inner.ghosts.remove(&left).unwrap_or_default();
+            inner.ghost_bytes -= held;
+            inner.limit = self.budget.min(inner.limit + 2 * held);
+        }
         inner.entries.insert(
             key,
             Entry {
@@ -397,7 +431,7 @@ impl ChunkCache {
         inner.order.insert(tick, key);
         inner.bytes += bytes;
         // The new entry is the last of `order`, and stays.
-        while inner.bytes > self.budget {
+        while inner.bytes > inner.limit {
             let oldest = match inner.order.len() > 1 {
                 true => inner.order.pop_first(),
                 false => inner.small.pop_first(),
@@ -407,9 +441,32 @@ impl ChunkCache {
             };
             if let Some(e) = inner.entries.remove(&oldest) {
                 inner.bytes -= e.bytes;
+                self.remember(&mut inner, oldest, e.bytes);
             }
         }
         (cell, true)
+    }
+
+    /// Remembers that `key`, of `bytes`, left, forgetting the chunks that left longest ago
+    /// beyond the budget's worth.
+    fn remember(&self, inner: &mut Inner, key: ChunkKey, bytes: u64) {
+        inner.tick += 1;
+        let tick = inner.tick;
+        inner.ghosts.insert(tick, (key, bytes));
+        inner.ghost_ticks.insert(key, tick);
+        inner.ghost_bytes += bytes;
+        while inner.ghost_bytes > self.budget {
+            let Some((_, (old, held))) = inner.ghosts.pop_first() else {
+                break;
+            };
+            inner.ghost_ticks.remove(&old);
+            inner.ghost_bytes -= held;
+        }
+    }
+
+    /// The bytes the cache keeps at most for now (at most its budget).
+    pub fn limit(&self) -> u64 {
+        self.inner.lock().unwrap_or_else(|p| p.into_inner()).limit
     }
 
     /// What the cache has done so far.
@@ -526,6 +583,46 @@ mod tests {
         assert_eq!(first(&again), 11.0, "decoded anew");
         let kept = cache.get((0, [0, 0, 0]), 8, || chunk(12)).unwrap();
         assert_eq!(first(&kept), 0.0, "still the first decode");
+    }
+
+    /// The cache keeps less than its budget until chunks that left are asked for again: a
+    /// scan of chunks asked for once stays within the first limit, and a cycle over more chunks
+    /// than that grows it until the cycle fits, never beyond the budget.
+    #[test]
+    fn the_cache_grows_toward_its_budget_when_chunks_that_left_come_back() {
+        let one = 4096 + ENTRY_BYTES;
+        let cache = ChunkCache::starting_at(8 * one, 3 * one);
+        for i in 0..20 {
+            cache.get((0, [i, 0, 0]), 4096, || many(i as u8)).unwrap();
+        }
+        assert_eq!((cache.limit(), cache.held()), (3 * one, (3, 3 * one)));
+        // Five chunks in turn, again and again: each one that left and comes back grows the
+        // limit by two chunks, until all five stay.
+        let runs = AtomicUsize::new(0);
+        for _ in 0..4 {
+            for i in 100..105 {
+                cache
+                    .get((0, [i, 0, 0]), 4096, || {
+                        runs.fetch_add(1, Ordering::Relaxed);
+                        many(i as u8)
+                    })
+                    .unwrap();
+            }
+        }
+        assert_eq!(cache.limit(), 7 * one, "grown by two chunks twice");
+        assert_eq!(
+            runs.load(Ordering::Relaxed),
+            7,
+            "five, then two decoded again"
+        );
+        // Ten in turn: it grows to the budget and no further.
+        for _ in 0..3 {
+            for i in 200..210 {
+                cache.get((0, [i, 0, 0]), 4096, || many(i as u8)).unwrap();
+            }
+        }
+        assert_eq!(cache.limit(), 8 * one);
+        assert!(cache.held().1 <= 8 * one);
     }
 
     #[test]
