@@ -45,6 +45,8 @@ fn classification(tf: &str) -> Classification {
 struct Bricked {
     scene: PagedScene,
     stream: Streamer,
+    /// Draw the last frame whole when the bricks fit (`StillOptions::time_whole_frame`).
+    whole: bool,
 }
 
 fn bricked(
@@ -66,6 +68,7 @@ fn bricked(
     Bricked {
         scene,
         stream: Streamer::new(levels, StreamOptions::default()),
+        whole: false,
     }
 }
 
@@ -78,6 +81,7 @@ impl Bricked {
     ) -> (FrameImage, vellum::render::bricked::StreamReport) {
         let opts = StillOptions {
             max_wait,
+            time_whole_frame: self.whole,
             ..Default::default()
         };
         renderer
@@ -575,13 +579,22 @@ fn a_frame_whose_bricks_fit_is_drawn_whole_from_them() {
     let mut renderer = Renderer::new(&gpu.ctx).unwrap();
     let (mut core, mut bricked) = shepp_logan_both_ways(&gpu, 64 << 20);
     let view = view("30,20,2.5", false, None, None);
-    let (want, got, report) = both_ways(&mut renderer, (&mut core, &mut bricked), &view, None);
+    // By default the last frame keeps the rays the passes finished.
+    let (want, kept, report) = both_ways(&mut renderer, (&mut core, &mut bricked), &view, None);
+    assert!(report.complete && !report.whole_frame, "{report:?}");
+    // Asked (`--time-whole-frame`), it draws every ray again over the resident bricks.
+    bricked.whole = true;
+    let (_, got, report) = both_ways(&mut renderer, (&mut core, &mut bricked), &view, None);
     assert!(report.complete && report.whole_frame, "{report:?}");
     assert_eq!(report.bricks_evicted, 0);
     let (mean, max) = diff8(&want, &got);
     println!("whole frame: mean {mean:.4}/255, max {max}/255");
     assert!(mean <= 1.0, "mean {mean}/255");
     assert!(got.passes.iter().any(|p| p.name == "raycast"));
+    // The same picture either way.
+    let (mean, max) = diff8(&kept, &got);
+    println!("kept rays against the whole frame: mean {mean:.4}/255, max {max}/255");
+    assert!(max <= 1, "max {max}/255");
 }
 
 /// A pyramid at isovalue 0.9 under the grey ramp, through a 64 MiB cache, each sample's level by

@@ -121,7 +121,7 @@ case " ${BENCHES:-all} " in *" all "* | *" bricked "*)
     A="/tmp/b.ome.zarr --iso 0.9 --tf grey --camera 30,20,2.5 --size 1024x1024 --renderer raycast --out /tmp/b.png"
     core="--gpu-budget $(python3 -c "print($mib*1.5)")"
     sample="--gpu-budget $(python3 -c "print($mib*0.99)")"
-    brick="$sample --lod finest"
+    brick="$sample --lod finest --time-whole-frame"
     D="$B/data/volumes"
     head="$D/cthead_stanford/cthead_stanford.nhdr --tf ct-skin-bone"
     engine="$D/engine/engine.nhdr --tf grey"

@@ -261,6 +261,11 @@ pub(crate) struct RenderArgs {
     /// (`first_frame_ms` in --json); without it or --progress-frames none is drawn.
     #[arg(long)]
     pub(crate) first_frame: bool,
+    /// Brick cache: when the frame's bricks all fit the pool, draw the last frame whole over
+    /// them, so that its ray cast (`passes.raycast` in --json) is timed as a whole frame's
+    /// (bench scale does); without it the last frame keeps the rays the passes finished.
+    #[arg(long)]
+    pub(crate) time_whole_frame: bool,
     /// Brick cache: host memory in MiB for decoded chunks and bricks waiting for the GPU
     /// (default 1024: 896 of chunks, 128 of bricks).
     #[arg(long, value_name = "MiB")]

@@ -110,8 +110,9 @@ pub struct StreamReport {
     /// Whether every ray reached its end with the bricks it asked for (false: the wait was cut
     /// short and missing bricks were sampled from coarser levels).
     pub complete: bool,
-    /// Whether the last frame drew every ray from its start over resident bricks (the frame's
-    /// bricks all fit the pool), so that its `raycast` time is a whole frame's.
+    /// Whether the last frame drew every ray from its start over resident bricks (asked for,
+    /// [`StillOptions::time_whole_frame`], and the frame's bricks all fit the pool), so that
+    /// its `raycast` time is a whole frame's.
     pub whole_frame: bool,
     /// Slots in the pool, and bricks resident at the end.
     pub capacity: usize,
@@ -163,6 +164,13 @@ pub struct StillOptions<'a> {
     /// Without either, none is drawn: it would cost a whole frame's ray casting before the
     /// first pass (a quarter of a second at 512² on lavapipe) for nothing.
     pub first_frame: bool,
+    /// When the frame's bricks all fit (none was evicted), draws the last frame whole over them,
+    /// every ray from its start, so that its `raycast` is timed as one frame's (`bench scale`
+    /// and the device bench compare it with the in-core frame). Without it the last frame keeps
+    /// the rays the passes finished, which is the same picture (two runs differ as much), and
+    /// a still frame does not pay a whole ray cast at its end with nothing left to load: on the
+    /// 2048³ frame at 256² on lavapipe, 74 ms of GPU time when nothing else ran.
+    pub time_whole_frame: bool,
 }
 
 /// The state of one still frame between its passes.
@@ -257,7 +265,8 @@ impl Renderer {
             }
             arrived = batch.uploads;
         }
-        let image = self.last_frame(&mut s, vol, classify, evicted_before)?;
+        let whole = opts.time_whole_frame;
+        let image = self.last_frame(&mut s, vol, classify, (evicted_before, whole))?;
         let r = &mut s.report;
         let c = &vol.paged.cache;
         r.bricks_loaded = c.loaded - loaded_before;
@@ -423,19 +432,20 @@ impl Renderer {
         Ok(recorded.image(view.size, readback.read()?, passes, None))
     }
 
-    /// The last frame, with the style and the readback. When the frame's bricks all fit (none
-    /// was evicted), every ray is drawn from its start again over them: the frame the passes
-    /// built, drawn as the viewer draws it and timed as one. Otherwise the rays' saved results
-    /// are kept (or, cut short, each ray goes on with what is resident).
+    /// The last frame, with the style and the readback. When `whole` is asked and the frame's
+    /// bricks all fit (none was evicted since `evicted_before`), every ray is drawn from its
+    /// start again over them: the frame the passes built, drawn as the viewer draws it and
+    /// timed as one. Otherwise the rays' saved results are kept (or, cut short, each ray goes
+    /// on with what is resident).
     fn last_frame(
         &mut self,
         s: &mut Still,
         vol: &mut PagedVolume,
         classify: &mut GpuClassification,
-        evicted_before: u64,
+        (evicted_before, whole): (u64, bool),
     ) -> Result<FrameImage> {
         let evicted = vol.paged.cache.evicted - evicted_before;
-        s.report.whole_frame = s.report.complete && evicted == 0;
+        s.report.whole_frame = whole && s.report.complete && evicted == 0;
         vol.paged.mode = if s.report.whole_frame { 0 } else { MODE_RESUME };
         let image = self.read_frame(s, vol, classify);
         vol.paged.mode = 0;

@@ -476,6 +476,7 @@ fn draw(
             None => None,
         },
         first_frame: a.first_frame,
+        time_whole_frame: a.time_whole_frame,
     };
     // `VELLUM_STREAM_FLOOR=1` (bench scale): the chunks the frame decodes are recorded, and
     // decoded again plainly and uploaded after it, the floor its streaming is judged against.

@@ -21,7 +21,7 @@ fn bricked(args: &[&str]) -> Result<Value> {
     let exe = std::env::current_exe().context("finding this binary")?;
     let mut c = std::process::Command::new(exe);
     c.args(args)
-        .args(["--json", "--first-frame"])
+        .args(["--json", "--first-frame", "--time-whole-frame"])
         .env("VELLUM_STREAM_FLOOR", "1")
         .env("VELLUM_GRADIENTS_AT_SAMPLE", "0");
     report_of(c, &format!("vellum {}", args.join(" ")))
