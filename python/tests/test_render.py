@@ -128,7 +128,7 @@ def test_every_scene_flag_of_the_command_line_is_a_keyword():
     not_scene = {"out", "exr", "json", "composite", "scene", "save-scene", "help", "verbose",
                  "device", "raw-dims", "raw-type", "big-endian", "offset", "raw-spacing",
                  "raw-origin", "max-wait-ms", "progress-frames", "memory-budget", "cache-dir",
-                 "cache-mib", "http-timeout", "first-frame"}
+                 "cache-mib", "http-timeout", "first-frame", "time-whole-frame"}
     keywords = sorted(f.replace("-", "_") for f in flags - not_scene)
     assert {"iso", "style", "edge_threshold", "stipple", "gpu_budget", "ert", "pan"} <= set(keywords)
     v = vellum.Volume(np.zeros((8, 8, 8), np.float32))
