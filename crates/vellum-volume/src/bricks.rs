@@ -171,10 +171,17 @@ impl BrickVoxels {
     }
 }
 
-/// What a brick's box of a store reads as: its voxels, or the one value of every chunk it touches.
-enum Read {
-    Voxels(Volume),
-    Uniform(f64),
+/// The one value every chunk of `got` holds, when they hold one and the same.
+fn one_value_of(got: &[([usize; 3], Arc<Chunk>)]) -> Option<f64> {
+    let v = got.first()?.1.value()?;
+    got.iter().all(|(_, c)| c.value() == Some(v)).then_some(v)
+}
+
+/// Whether `VELLUM_DIRECT_GATHER=0` asks the loaders to paste a brick's box out of its chunks
+/// and gather the upload from that box, as they did before [`gather_chunks`] (for measuring).
+fn no_direct_gather() -> bool {
+    static OFF: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *OFF.get_or_init(|| std::env::var("VELLUM_DIRECT_GATHER").as_deref() == Ok("0"))
 }
 
 /// A volume as a pyramid of bricks, read brick by brick.
@@ -600,10 +607,24 @@ impl BrickLevels {
         let clamp = |v: i64, a: usize| v.clamp(0, dims[a] as i64 - 1) as usize;
         let (inner_lo, size, lo) = self.upload_box(key);
         let (inner, normalised) = match &self.sources[key.level] {
-            LevelSource::Store(ms, l) => match self.read_chunked(ms, *l, inner_lo, size)? {
-                Read::Voxels(v) => (v, self.normalises(ms)),
-                Read::Uniform(value) => return Ok(self.uniform_brick(value, ms.voxel)),
-            },
+            LevelSource::Store(ms, l) => {
+                let got = self.chunks_meeting(ms, *l, inner_lo, size)?;
+                if let Some(v) = one_value_of(&got) {
+                    return Ok(self.uniform_brick(v, ms.voxel));
+                }
+                if self.normalises(ms) && !no_direct_gather() {
+                    let g = |a: usize| (0..UPLOAD as i64).map(|i| clamp(lo[a] + i, a)).collect();
+                    let at = std::array::from_fn(g);
+                    let uniform = |v: f64| self.uniform_u16(v, ms.voxel);
+                    if let Some(b) = gather_chunks(&got, ms.levels[*l].chunk, &at, uniform) {
+                        return Ok(b);
+                    }
+                }
+                (
+                    self.paste_chunks(ms, *l, &got, inner_lo, size)?,
+                    self.normalises(ms),
+                )
+            }
             LevelSource::Memory(v) => (v.read_box(inner_lo, size)?, false),
         };
         let map: [Vec<usize>; 3] = std::array::from_fn(|a| {
@@ -629,17 +650,16 @@ impl BrickLevels {
         ms.voxel != crate::VoxelType::U8
     }
 
-    /// Voxels `lo .. lo + size` of level `level` of `ms`, copied from its decoded chunks, each
-    /// decoded once while it stays in [`BrickLevels::chunks`]; or, when every chunk the box
-    /// touches holds one and the same value, that value alone. Chunks the store left out when
-    /// it was opened are their fill value, unread.
-    fn read_chunked(
+    /// The decoded chunks of level `level` of `ms` that voxels `lo .. lo + size` meet, with
+    /// their first voxels, each decoded once while it stays in [`BrickLevels::chunks`]. Chunks
+    /// the store left out when it was opened are their fill value, unread.
+    fn chunks_meeting(
         &self,
         ms: &Multiscale,
         level: usize,
         lo: [usize; 3],
         size: [usize; 3],
-    ) -> Result<Read> {
+    ) -> Result<Vec<([usize; 3], Arc<Chunk>)>> {
         let l = &ms.levels[level];
         let (chunk, dims) = (l.chunk, l.dims);
         let listed = self.absent.get(level).and_then(Option::as_ref);
@@ -653,11 +673,20 @@ impl BrickLevels {
             };
             got.push((clo, one));
         }
-        if let Some(v) = got.first().and_then(|(_, c)| c.value()) {
-            if got.iter().all(|(_, c)| c.value() == Some(v)) {
-                return Ok(Read::Uniform(v));
-            }
-        }
+        Ok(got)
+    }
+
+    /// Voxels `lo .. lo + size` of level `level` of `ms`, pasted from `got`
+    /// ([`BrickLevels::chunks_meeting`]) in the type the cache keeps them in.
+    fn paste_chunks(
+        &self,
+        ms: &Multiscale,
+        level: usize,
+        got: &[([usize; 3], Arc<Chunk>)],
+        lo: [usize; 3],
+        size: [usize; 3],
+    ) -> Result<Volume> {
+        let l = &ms.levels[level];
         // The box in the type the cache keeps the chunks in.
         let normalised = self.normalises(ms);
         let voxel = match normalised {
@@ -666,7 +695,7 @@ impl BrickLevels {
         };
         let data = VoxelData::zeros(voxel, size.iter().product());
         let mut out = Volume::new(size, l.spacing, data)?;
-        for (clo, c) in &got {
+        for (clo, c) in got {
             match (c.uniform, c.value()) {
                 // One voxel stands for the chunk: spread it over the chunk's part of the box.
                 (true, Some(v)) if normalised => {
@@ -677,7 +706,7 @@ impl BrickLevels {
                 (false, _) => out.paste(&c.volume, *clo, lo),
             }
         }
-        Ok(Read::Voxels(out))
+        Ok(out)
     }
 
     /// Chunk `c` of level `level` (its voxels `clo .. clo + csize`) through the chunk cache: a
@@ -939,15 +968,7 @@ fn to_upload(inner: &Volume, map: &[Vec<usize>; 3], convert: Convert) -> BrickVo
             &mut stats,
         )),
     };
-    BrickVoxels {
-        data,
-        range: union(&stats.sub),
-        sub_ranges: stats.sub,
-        constant: stats.constant,
-        channels: Vec::new(),
-        channel_ranges: Vec::new(),
-        labels: Vec::new(),
-    }
+    stats.brick(data)
 }
 
 /// The rows or planes of an upload that trilinear samples inside the brick blend: its voxels and
@@ -993,6 +1014,21 @@ struct UploadStats {
     constant: bool,
 }
 
+impl UploadStats {
+    /// The brick of upload `data`, which these stats measured.
+    fn brick(self, data: BrickData) -> BrickVoxels {
+        BrickVoxels {
+            data,
+            range: union(&self.sub),
+            sub_ranges: self.sub,
+            constant: self.constant,
+            channels: Vec::new(),
+            channel_ranges: Vec::new(),
+            labels: Vec::new(),
+        }
+    }
+}
+
 impl Default for UploadStats {
     fn default() -> Self {
         UploadStats {
@@ -1021,13 +1057,6 @@ fn gather<T: Copy, U: Copy>(
     let x0 = map[0][0];
     let contiguous = map[0].iter().enumerate().all(|(i, &x)| x == x0 + i);
     let mut same = true;
-    // The row's range over each sub-block's x.
-    let row_range = |row: &[U]| {
-        row.iter().fold([u16::MAX, 0], |[lo, hi], &u| {
-            let v = value(u);
-            [lo.min(v), hi.max(v)]
-        })
-    };
     for (z, &mz) in map[2].iter().enumerate() {
         for (y, &my) in map[1].iter().enumerate() {
             let row = &src[dims[0] * (my + dims[1] * mz)..];
@@ -1036,21 +1065,99 @@ fn gather<T: Copy, U: Copy>(
                 true => out.extend(row[x0..x0 + UPLOAD].iter().map(|&v| convert(v))),
                 false => out.extend(map[0].iter().map(|&x| convert(row[x]))),
             }
-            let written = &out[start..];
-            same &= written.iter().fold(true, |s, &u| s & (value(u) == first));
-            if BLENDED.contains(&y) && BLENDED.contains(&z) {
-                let halves = [0, 1].map(|q| row_range(&written[sub_rows(q)]));
-                for (i, r) in stats.sub.iter_mut().enumerate() {
-                    if sub_rows((i >> 1) & 1).contains(&y) && sub_rows(i >> 2).contains(&z) {
-                        let h = halves[i & 1];
-                        *r = [r[0].min(h[0]), r[1].max(h[1])];
-                    }
-                }
-            }
+            let written: [u16; UPLOAD] = std::array::from_fn(|i| value(out[start + i]));
+            row_stats(&written, (y, z), first, &mut same, stats);
         }
     }
     stats.constant &= same;
     out
+}
+
+/// The upload of a brick read straight from `got`'s chunks (of `chunk` voxels, kept normalised
+/// to 16 bits; [`BrickLevels::chunks_meeting`]), as [`to_upload`] makes it from the box pasted
+/// out of them, but copied once: `at[a][i]` is the level's voxel along axis a of the upload's
+/// i-th texel (clamped at the level's faces), and `uniform` the texel of a chunk of one value.
+/// Each row is copied in runs, one per chunk it crosses, and measured as [`gather`] measures.
+/// `None` where `got` is not what that needs (a chunk missing, or not kept as 16 bits).
+fn gather_chunks(
+    got: &[([usize; 3], Arc<Chunk>)],
+    chunk: [usize; 3],
+    at: &[Vec<usize>; 3],
+    uniform: impl Fn(f64) -> u16,
+) -> Option<BrickVoxels> {
+    // The runs of a row: (first texel, texels, chunk along x, first voxel in that chunk).
+    let mut runs: Vec<(usize, usize, usize, usize)> = Vec::with_capacity(4);
+    for (i, &x) in at[0].iter().enumerate() {
+        let (c, l) = (x / chunk[0], x % chunk[0]);
+        match runs.last_mut() {
+            Some(r) if r.2 == c && r.3 + r.1 == l => r.1 += 1,
+            _ => runs.push((i, 1, c, l)),
+        }
+    }
+    // `got`'s index of each chunk the upload meets, from the first (`c0`) on, x fastest.
+    let c0: [usize; 3] = std::array::from_fn(|a| at[a][0] / chunk[a]);
+    let n: [usize; 3] = std::array::from_fn(|a| at[a][UPLOAD - 1] / chunk[a] - c0[a] + 1);
+    let mut table = vec![usize::MAX; n[0] * n[1] * n[2]];
+    for (i, (clo, _)) in got.iter().enumerate() {
+        let c: [usize; 3] = std::array::from_fn(|a| (clo[a] / chunk[a]).wrapping_sub(c0[a]));
+        if (0..3).all(|a| c[a] < n[a]) {
+            table[c[0] + n[0] * (c[1] + n[1] * c[2])] = i;
+        }
+    }
+    let values: Vec<Option<u16>> = got.iter().map(|(_, k)| k.value().map(&uniform)).collect();
+    let mut out = vec![0u16; UPLOAD * UPLOAD * UPLOAD];
+    let mut stats = UploadStats::default();
+    let mut same = true;
+    let mut first = None;
+    for (z, &gz) in at[2].iter().enumerate() {
+        for (y, &gy) in at[1].iter().enumerate() {
+            let row = &mut out[UPLOAD * (y + UPLOAD * z)..][..UPLOAD];
+            let (cy, cz) = (gy / chunk[1] - c0[1], gz / chunk[2] - c0[2]);
+            for &(i, len, cx, lx) in &runs {
+                let index = *table.get(cx - c0[0] + n[0] * (cy + n[1] * cz))?;
+                let (value, k) = (values.get(index)?, &got.get(index)?.1);
+                let dst = &mut row[i..i + len];
+                match (value, &k.volume.data) {
+                    (Some(v), _) => dst.fill(*v),
+                    (None, VoxelData::U16(src)) => {
+                        let (ly, lz) = (gy % chunk[1], gz % chunk[2]);
+                        let start = lx + k.dims[0] * (ly + k.dims[1] * lz);
+                        dst.copy_from_slice(src.get(start..start + len)?);
+                    }
+                    (None, _) => return None,
+                }
+            }
+            let f = *first.get_or_insert(row[0]);
+            row_stats(row, (y, z), f, &mut same, &mut stats);
+        }
+    }
+    stats.constant &= same;
+    Some(stats.brick(BrickData::U16(out)))
+}
+
+/// Measures the normalised row `row` of an upload at (`y`, `z`) into `stats`, and whether it
+/// holds `first` alone into `same` ([`gather`]'s measure).
+fn row_stats(
+    row: &[u16],
+    (y, z): (usize, usize),
+    first: u16,
+    same: &mut bool,
+    stats: &mut UploadStats,
+) {
+    *same &= row.iter().fold(true, |s, &v| s & (v == first));
+    if BLENDED.contains(&y) && BLENDED.contains(&z) {
+        let range = |r: &[u16]| {
+            r.iter()
+                .fold([u16::MAX, 0], |[lo, hi], &v| [lo.min(v), hi.max(v)])
+        };
+        let halves = [0, 1].map(|q| range(&row[sub_rows(q)]));
+        for (i, r) in stats.sub.iter_mut().enumerate() {
+            if sub_rows((i >> 1) & 1).contains(&y) && sub_rows(i >> 2).contains(&z) {
+                let h = halves[i & 1];
+                *r = [r[0].min(h[0]), r[1].max(h[1])];
+            }
+        }
+    }
 }
 
 /// Which brick is in which pool slot, and the page table that says so to the shader.
@@ -1717,6 +1824,58 @@ mod tests {
             // decoded once however many bricks read it.
             let st = from_store.chunks().stats();
             assert_eq!((st.decoded, st.hits), (12, 1));
+        }
+    }
+
+    /// Brick `key` of a store's pyramid as the loaders made it before `gather_chunks`: the box
+    /// pasted out of its chunks, then gathered into the upload.
+    fn pasted(levels: &BrickLevels, key: BrickKey) -> Option<BrickVoxels> {
+        let LevelSource::Store(ms, l) = &levels.sources[key.level] else {
+            return None;
+        };
+        let (inner_lo, size, lo) = levels.upload_box(key);
+        let got = levels.chunks_meeting(ms, *l, inner_lo, size).unwrap();
+        if let Some(v) = one_value_of(&got) {
+            return Some(levels.uniform_brick(v, ms.voxel));
+        }
+        let inner = levels.paste_chunks(ms, *l, &got, inner_lo, size).unwrap();
+        let dims = levels.levels[key.level].dims;
+        let map = std::array::from_fn(|a| {
+            let clamp = |v: i64| v.clamp(0, dims[a] as i64 - 1) as usize;
+            (0..UPLOAD as i64)
+                .map(|i| clamp(lo[a] + i) - inner_lo[a])
+                .collect()
+        });
+        Some(to_upload(&inner, &map, Convert::Normalised))
+    }
+
+    #[test]
+    fn bricks_gathered_from_chunks_are_those_pasted_from_them() {
+        // Chunks of 24 and 16 (a brick's upload meets up to three along an axis, out of step
+        // with the bricks), a level whose edge cuts bricks and chunks (70, then 35 and 18), and
+        // chunks the writer left out (the phantom's empty corners): every brick of every level
+        // read from the store (the smallest are kept in memory), voxels, ranges and all, is what
+        // pasting its box and gathering from that made.
+        let v = shepp_logan(70);
+        for chunk in [24, 16] {
+            let (_dir, ms) = store_of(&v, chunk);
+            let levels = BrickLevels::of_store(ms, 1 << 26).unwrap();
+            let mut many = 0;
+            for e in 0..levels.entries() {
+                let key = levels.key(e).unwrap();
+                let Some(want) = pasted(&levels, key) else {
+                    continue;
+                };
+                let got = levels.voxels(key).unwrap();
+                assert_eq!(got.data, want.data, "{chunk}: {key:?}");
+                assert_eq!(
+                    (got.range, got.sub_ranges, got.constant),
+                    (want.range, want.sub_ranges, want.constant),
+                    "{chunk}: {key:?}"
+                );
+                many += usize::from(!got.constant);
+            }
+            assert!(many > 10, "{many} bricks of many values");
         }
     }
 
