@@ -1065,8 +1065,7 @@ fn gather<T: Copy, U: Copy>(
                 true => out.extend(row[x0..x0 + UPLOAD].iter().map(|&v| convert(v))),
                 false => out.extend(map[0].iter().map(|&x| convert(row[x]))),
             }
-            let written: [u16; UPLOAD] = std::array::from_fn(|i| value(out[start + i]));
-            row_stats(&written, (y, z), first, &mut same, stats);
+            row_stats(&out[start..], &value, (y, z), (first, &mut same), stats);
         }
     }
     stats.constant &= same;
@@ -1128,27 +1127,29 @@ fn gather_chunks(
                 }
             }
             let f = *first.get_or_insert(row[0]);
-            row_stats(row, (y, z), f, &mut same, &mut stats);
+            row_stats(row, &|v| v, (y, z), (f, &mut same), &mut stats);
         }
     }
     stats.constant &= same;
     Some(stats.brick(BrickData::U16(out)))
 }
 
-/// Measures the normalised row `row` of an upload at (`y`, `z`) into `stats`, and whether it
-/// holds `first` alone into `same` ([`gather`]'s measure).
-fn row_stats(
-    row: &[u16],
+/// Measures row `row` of an upload at (`y`, `z`), whose normalised values `value` gives, into
+/// `stats`, and whether it holds `first` alone into `same` ([`gather`]'s measure).
+fn row_stats<U: Copy>(
+    row: &[U],
+    value: &impl Fn(U) -> u16,
     (y, z): (usize, usize),
-    first: u16,
-    same: &mut bool,
+    (first, same): (u16, &mut bool),
     stats: &mut UploadStats,
 ) {
-    *same &= row.iter().fold(true, |s, &v| s & (v == first));
+    *same &= row.iter().fold(true, |s, &u| s & (value(u) == first));
     if BLENDED.contains(&y) && BLENDED.contains(&z) {
-        let range = |r: &[u16]| {
-            r.iter()
-                .fold([u16::MAX, 0], |[lo, hi], &v| [lo.min(v), hi.max(v)])
+        let range = |r: &[U]| {
+            r.iter().fold([u16::MAX, 0], |[lo, hi], &u| {
+                let v = value(u);
+                [lo.min(v), hi.max(v)]
+            })
         };
         let halves = [0, 1].map(|q| range(&row[sub_rows(q)]));
         for (i, r) in stats.sub.iter_mut().enumerate() {

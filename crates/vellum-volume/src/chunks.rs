@@ -465,7 +465,8 @@ impl ChunkCache {
     }
 
     /// The bytes the cache keeps at most for now (at most its budget).
-    pub fn limit(&self) -> u64 {
+    #[cfg(test)]
+    pub(crate) fn limit(&self) -> u64 {
         self.inner.lock().unwrap_or_else(|p| p.into_inner()).limit
     }
 
