@@ -295,6 +295,19 @@ pub struct Floor {
     pub(crate) decode_cpu_ms: f64,
     /// Milliseconds to copy `bytes` from host-visible to device-local memory.
     pub upload_ms: f64,
+    /// Where the frame's decodes were paired with plain ones (`VELLUM_STREAM_FLOOR=paired`,
+    /// `ChunkCache::pair_decodes`): the CPU time of those plain decodes, summed over the
+    /// threads, and their bytes. They ran beside the frame, under its load; the decodes above
+    /// ran after it, alone.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) paired: Option<Paired>,
+}
+
+/// The plain decodes paired with a frame's ([`Floor::paired`]).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub(crate) struct Paired {
+    decode_cpu_ms: f64,
+    bytes: u64,
 }
 
 impl Floor {
@@ -309,6 +322,12 @@ impl Floor {
             decode_ms: decode_s * 1e3,
             decode_cpu_ms,
             upload_ms: upload_seconds(ctx, bytes)? * 1e3,
+            paired: Some(levels.chunks().stats())
+                .filter(|s| s.paired_bytes > 0)
+                .map(|s| Paired {
+                    decode_cpu_ms: s.paired_cpu_ms,
+                    bytes: s.paired_bytes,
+                }),
         })
     }
 }

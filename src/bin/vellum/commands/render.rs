@@ -480,9 +480,13 @@ fn draw(
     };
     // `VELLUM_STREAM_FLOOR=1` (bench scale): the chunks the frame decodes are recorded, and
     // decoded again plainly and uploaded after it, the floor its streaming is judged against.
+    // `=paired` also pairs each of the frame's decodes with a plain one beside it.
     let floor_of = match (input, std::env::var("VELLUM_STREAM_FLOOR").as_deref()) {
-        (Opened::Bricked(levels), Ok("1")) => {
+        (Opened::Bricked(levels), Ok(how @ ("1" | "paired"))) => {
             levels.chunks().record_keys();
+            if how == "paired" {
+                levels.chunks().pair_decodes();
+            }
             Some(levels)
         }
         _ => None,
