@@ -312,7 +312,7 @@ impl ChunkCache {
             // A paired decode goes first every other time, so that neither of the two is
             // always the one that finds the chunk's bytes in the caches.
             let pair = self.paired.load(Ordering::Relaxed);
-            let first = pair && self.pairs.fetch_add(1, Ordering::Relaxed) % 2 == 0;
+            let first = pair && self.pairs.fetch_add(1, Ordering::Relaxed).is_multiple_of(2);
             if first {
                 self.plain_decode((voxel, n), &decode)?;
             }
