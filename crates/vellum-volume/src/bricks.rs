@@ -1084,54 +1084,70 @@ fn gather_chunks(
     at: &[Vec<usize>; 3],
     uniform: impl Fn(f64) -> u16,
 ) -> Option<BrickVoxels> {
-    // The runs of a row: (first texel, texels, chunk along x, first voxel in that chunk).
-    let mut runs: Vec<(usize, usize, usize, usize)> = Vec::with_capacity(4);
-    for (i, &x) in at[0].iter().enumerate() {
+    // The runs of a row: (texels, chunk along x, first voxel in that chunk).
+    let mut runs: Vec<(usize, usize, usize)> = Vec::with_capacity(4);
+    for &x in &at[0] {
         let (c, l) = (x / chunk[0], x % chunk[0]);
         match runs.last_mut() {
-            Some(r) if r.2 == c && r.3 + r.1 == l => r.1 += 1,
-            _ => runs.push((i, 1, c, l)),
+            Some(r) if r.1 == c && r.2 + r.0 == l => r.0 += 1,
+            _ => runs.push((1, c, l)),
         }
     }
-    // `got`'s index of each chunk the upload meets, from the first (`c0`) on, x fastest.
     let c0: [usize; 3] = std::array::from_fn(|a| at[a][0] / chunk[a]);
     let n: [usize; 3] = std::array::from_fn(|a| at[a][UPLOAD - 1] / chunk[a] - c0[a] + 1);
-    let mut table = vec![usize::MAX; n[0] * n[1] * n[2]];
-    for (i, (clo, _)) in got.iter().enumerate() {
+    // What each run reads in each row of chunks (y, z) the upload meets: found once here, not
+    // once a row.
+    let mut sources = vec![None; runs.len() * n[1] * n[2]];
+    for (clo, k) in got {
         let c: [usize; 3] = std::array::from_fn(|a| (clo[a] / chunk[a]).wrapping_sub(c0[a]));
-        if (0..3).all(|a| c[a] < n[a]) {
-            table[c[0] + n[0] * (c[1] + n[1] * c[2])] = i;
+        if (0..3).any(|a| c[a] >= n[a]) {
+            continue;
+        }
+        let source = match (k.value(), &k.volume.data) {
+            (Some(v), _) => Source::Value(uniform(v)),
+            (None, VoxelData::U16(src)) => Source::Voxels(src, k.dims),
+            (None, _) => return None,
+        };
+        for (r, run) in runs.iter().enumerate() {
+            if run.1 - c0[0] == c[0] {
+                sources[r + runs.len() * (c[1] + n[1] * c[2])] = Some(source);
+            }
         }
     }
-    let values: Vec<Option<u16>> = got.iter().map(|(_, k)| k.value().map(&uniform)).collect();
-    let mut out = vec![0u16; UPLOAD * UPLOAD * UPLOAD];
+    let mut out: Vec<u16> = Vec::with_capacity(UPLOAD * UPLOAD * UPLOAD);
     let mut stats = UploadStats::default();
     let mut same = true;
     let mut first = None;
     for (z, &gz) in at[2].iter().enumerate() {
+        let (cz, lz) = (gz / chunk[2] - c0[2], gz % chunk[2]);
         for (y, &gy) in at[1].iter().enumerate() {
-            let row = &mut out[UPLOAD * (y + UPLOAD * z)..][..UPLOAD];
-            let (cy, cz) = (gy / chunk[1] - c0[1], gz / chunk[2] - c0[2]);
-            for &(i, len, cx, lx) in &runs {
-                let index = *table.get(cx - c0[0] + n[0] * (cy + n[1] * cz))?;
-                let (value, k) = (values.get(index)?, &got.get(index)?.1);
-                let dst = &mut row[i..i + len];
-                match (value, &k.volume.data) {
-                    (Some(v), _) => dst.fill(*v),
-                    (None, VoxelData::U16(src)) => {
-                        let (ly, lz) = (gy % chunk[1], gz % chunk[2]);
-                        let start = lx + k.dims[0] * (ly + k.dims[1] * lz);
-                        dst.copy_from_slice(src.get(start..start + len)?);
+            let (cy, ly) = (gy / chunk[1] - c0[1], gy % chunk[1]);
+            let row = &sources.get(runs.len() * (cy + n[1] * cz)..)?[..runs.len()];
+            let start = out.len();
+            for (&(len, _, lx), source) in runs.iter().zip(row) {
+                match (*source)? {
+                    Source::Value(v) => out.extend(std::iter::repeat_n(v, len)),
+                    Source::Voxels(src, d) => {
+                        let at = lx + d[0] * (ly + d[1] * lz);
+                        out.extend_from_slice(src.get(at..at + len)?);
                     }
-                    (None, _) => return None,
                 }
             }
+            let row = &out[start..];
             let f = *first.get_or_insert(row[0]);
             row_stats(row, &|v| v, (y, z), (f, &mut same), &mut stats);
         }
     }
     stats.constant &= same;
     Some(stats.brick(BrickData::U16(out)))
+}
+
+/// Where a run of [`gather_chunks`] reads its texels: a chunk of one value (that value
+/// normalised) or a chunk's voxels (of these dims).
+#[derive(Clone, Copy)]
+enum Source<'a> {
+    Value(u16),
+    Voxels(&'a [u16], [usize; 3]),
 }
 
 /// Measures row `row` of an upload at (`y`, `z`), whose normalised values `value` gives, into
