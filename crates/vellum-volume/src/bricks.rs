@@ -1159,7 +1159,10 @@ fn row_stats<U: Copy>(
     (first, same): (u16, &mut bool),
     stats: &mut UploadStats,
 ) {
-    *same &= row.iter().fold(true, |s, &u| s & (value(u) == first));
+    // Once a row differs the brick is not constant, and later rows need not be looked at.
+    if *same {
+        *same = row.iter().fold(true, |s, &u| s & (value(u) == first));
+    }
     if BLENDED.contains(&y) && BLENDED.contains(&z) {
         let range = |r: &[U]| {
             r.iter().fold([u16::MAX, 0], |[lo, hi], &u| {
