@@ -314,14 +314,14 @@ impl ChunkCache {
             let pair = self.paired.load(Ordering::Relaxed);
             let first = pair && self.pairs.fetch_add(1, Ordering::Relaxed).is_multiple_of(2);
             if first {
-                self.plain_decode((voxel, n), &decode)?;
+                self.paired_decode((voxel, n), &decode)?;
             }
             let mut buf = self.spare(voxel, n);
             let decoded = self.timed(&self.decode_cpu_ns, || decode(&mut buf));
             let chunk = decoded.and_then(|()| self.timed(&self.keep_cpu_ns, || keep(&buf)));
             self.keep_spare(buf);
             if pair && !first && chunk.is_ok() {
-                self.plain_decode((voxel, n), &decode)?;
+                self.paired_decode((voxel, n), &decode)?;
             }
             chunk
         })
@@ -336,7 +336,7 @@ impl ChunkCache {
     }
 
     /// A paired decode ([`ChunkCache::pair_decodes`]).
-    fn plain_decode(
+    fn paired_decode(
         &self,
         (voxel, n): (crate::VoxelType, usize),
         decode: &impl Fn(&mut VoxelData) -> Result<()>,
@@ -369,10 +369,10 @@ impl ChunkCache {
     /// by the decode), else a new one.
     ///
     /// The calling thread gets back the buffer it kept last where it kept one; another thread's
-    /// only where it did not. A buffer that moves between threads moves between cores, and the
-    /// decode then writes lines that another core holds: on the 2-core VM of BENCHMARKS.md,
-    /// in about one run in three, that made zstd 1.7 times slower than into a buffer of the
-    /// thread's own (sixteenth round).
+    /// only where it did not. A buffer that moves between threads moves between cores: on the
+    /// 2-core VM of BENCHMARKS.md, in about one run in three, zstd decoded 1.7 times slower into
+    /// buffers handed from thread to thread than into a buffer of the thread's own (sixteenth
+    /// round).
     fn spare(&self, voxel: crate::VoxelType, n: usize) -> VoxelData {
         let mut spares = self.spares.lock().unwrap_or_else(|p| p.into_inner());
         let fits = |b: &VoxelData| b.voxel_type() == voxel && b.len() == n;
@@ -545,7 +545,7 @@ impl ChunkCache {
     }
 
     /// From now on, keeps the key of every chunk decoded (for a benchmark's floor: the same
-    /// chunks decoded again plainly, `volume::stream::plain_decode`).
+    /// chunks decoded again plainly, `BrickLevels::plain_decode`).
     pub fn record_keys(&self) {
         let mut inner = self.inner.lock().unwrap_or_else(|p| p.into_inner());
         inner.keys.get_or_insert_with(Vec::new);
