@@ -809,9 +809,7 @@ impl BrickLevels {
                     let size: [usize; 3] =
                         std::array::from_fn(|a| info.chunk[a].min(info.dims[a] - lo[a]));
                     let n = size.iter().product();
-                    if buf.len() != n || buf.voxel_type() != ms.voxel {
-                        *buf = VoxelData::zeros(ms.voxel, n);
-                    }
+                    buf.fit(ms.voxel, n);
                     let cpu = crate::chunks::thread_cpu_ms();
                     ms.read_box_into(*l, lo, size, buf)?;
                     let cpu = crate::chunks::thread_cpu_ms() - cpu;

@@ -346,9 +346,7 @@ impl ChunkCache {
                 const { std::cell::RefCell::new(VoxelData::U8(Vec::new())) };
         }
         PLAIN.with_borrow_mut(|buf| {
-            if buf.len() != n || buf.voxel_type() != voxel {
-                *buf = VoxelData::zeros(voxel, n);
-            }
+            buf.fit(voxel, n);
             self.timed(&self.paired_cpu_ns, || decode(buf))?;
             self.paired_bytes
                 .fetch_add(buf.as_bytes().len() as u64, Ordering::Relaxed);
@@ -375,10 +373,11 @@ impl ChunkCache {
     /// round).
     fn spare(&self, voxel: crate::VoxelType, n: usize) -> VoxelData {
         let mut spares = self.spares.lock().unwrap_or_else(|p| p.into_inner());
-        let fits = |b: &VoxelData| b.voxel_type() == voxel && b.len() == n;
         let me = std::thread::current().id();
-        let mine = spares.iter().rposition(|(t, b)| *t == me && fits(b));
-        match mine.or_else(|| spares.iter().rposition(|(_, b)| fits(b))) {
+        let mine = spares
+            .iter()
+            .rposition(|(t, b)| *t == me && b.fits(voxel, n));
+        match mine.or_else(|| spares.iter().rposition(|(_, b)| b.fits(voxel, n))) {
             Some(i) => spares.remove(i).1,
             None => VoxelData::zeros(voxel, n),
         }

@@ -102,6 +102,19 @@ impl VoxelData {
         }
     }
 
+    /// Whether this holds `n` voxels of type `t`: a buffer a decode of that shape can reuse.
+    pub(crate) fn fits(&self, t: VoxelType, n: usize) -> bool {
+        self.voxel_type() == t && self.len() == n
+    }
+
+    /// Makes this a buffer of `n` voxels of type `t`: kept as it is where it [fits](Self::fits)
+    /// (its old voxels are for the caller to overwrite), else `n` zeros.
+    pub(crate) fn fit(&mut self, t: VoxelType, n: usize) {
+        if !self.fits(t, n) {
+            *self = VoxelData::zeros(t, n);
+        }
+    }
+
     /// The type of the stored voxels.
     pub fn voxel_type(&self) -> VoxelType {
         match self {

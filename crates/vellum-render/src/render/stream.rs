@@ -316,18 +316,17 @@ impl Floor {
     pub fn measure(ctx: &Arc<vellum_gpu::Context>, levels: &BrickLevels) -> Result<Self> {
         let keys = levels.chunks().recorded_keys();
         let (decode_s, decode_cpu_ms, bytes) = levels.plain_decode(&keys)?;
+        let paired = levels.chunks().stats();
         Ok(Floor {
             chunks: keys.len(),
             bytes,
             decode_ms: decode_s * 1e3,
             decode_cpu_ms,
             upload_ms: upload_seconds(ctx, bytes)? * 1e3,
-            paired: Some(levels.chunks().stats())
-                .filter(|s| s.paired_bytes > 0)
-                .map(|s| Paired {
-                    decode_cpu_ms: s.paired_cpu_ms,
-                    bytes: s.paired_bytes,
-                }),
+            paired: (paired.paired_bytes > 0).then_some(Paired {
+                decode_cpu_ms: paired.paired_cpu_ms,
+                bytes: paired.paired_bytes,
+            }),
         })
     }
 }
